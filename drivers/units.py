@@ -1,0 +1,39 @@
+"""Unit conversion between SI and drive units (counts, per-mille of rated torque, INT32 wrap).
+
+Experiments and estimators work in rad, rad/s and Nm; the drives speak counts and per-mille.
+Everything that crosses that line goes through these functions, on both ends of the link.
+"""
+
+from __future__ import annotations
+
+import math
+
+INT16_MIN, INT16_MAX = -(2**15), 2**15 - 1
+INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
+
+
+def wrap_int32(value: int) -> int:
+    """Two's-complement wrap of an integer to INT32 (what a 32-bit position register holds)."""
+    return (value + 2**31) % 2**32 - 2**31
+
+
+def unwrap_int32(previous_unwrapped: int, raw: int) -> int:
+    """Continue an unbounded count from an INT32 reading, assuming |change| < 2³¹ per sample."""
+    delta = wrap_int32(raw - wrap_int32(previous_unwrapped))
+    return previous_unwrapped + delta
+
+
+def counts_to_rad(counts: int, counts_per_rev: int) -> float:
+    return counts * (2.0 * math.pi / counts_per_rev)
+
+
+def torque_to_permille(torque_Nm: float, rated_torque_Nm: float) -> int:
+    """0x6071 target torque: nearest per-mille of rated torque, clamped to INT16."""
+    if not math.isfinite(torque_Nm):
+        raise ValueError(f"torque must be finite, got {torque_Nm}")
+    value = round(torque_Nm * 1000.0 / rated_torque_Nm)
+    return max(INT16_MIN, min(INT16_MAX, value))
+
+
+def permille_to_torque(permille: int, rated_torque_Nm: float) -> float:
+    return permille * rated_torque_Nm / 1000.0

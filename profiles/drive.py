@@ -1,0 +1,67 @@
+"""Drive profile: one servo drive's encoder, torque scaling, limits and bus addresses."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from profiles.loader import Fields, load_toml
+
+
+@dataclass(frozen=True)
+class DriveProfile:
+    model: str
+    source: str
+    node_id: int  # CAN node id, 1..127
+    unit_address: int  # serial multi-drop address, 0..255
+    counts_per_rev: int
+    rated_torque_Nm: float  # 0x6076: 1000 ‰
+    max_torque_permille: int  # 0x6072
+    max_velocity_rad_s: float  # overspeed fault threshold
+    watchdog_periods: int  # missing torque commands tolerated while enabled
+    vendor_id: int = 0
+    product_code: int = 0
+
+    @property
+    def rad_per_count(self) -> float:
+        return 2.0 * math.pi / self.counts_per_rev
+
+    @property
+    def max_torque_Nm(self) -> float:
+        return self.rated_torque_Nm * self.max_torque_permille / 1000.0
+
+
+def load_drive(name_or_path: str | Path) -> DriveProfile:
+    data, source = load_toml("drives", name_or_path)
+    f = Fields(data, source)
+    f.only(
+        {
+            "model",
+            "vendor",
+            "node_id",
+            "unit_address",
+            "counts_per_rev",
+            "rated_torque_Nm",
+            "max_torque_permille",
+            "max_velocity_rad_s",
+            "watchdog_periods",
+            "vendor_id",
+            "product_code",
+        }
+    )
+    if f.has("vendor"):
+        f.string("vendor")
+    return DriveProfile(
+        model=f.string("model"),
+        source=source,
+        node_id=f.integer("node_id", lo=1, hi=127),
+        unit_address=f.integer("unit_address", lo=0, hi=255),
+        counts_per_rev=f.integer("counts_per_rev", lo=1),
+        rated_torque_Nm=f.number("rated_torque_Nm", positive=True),
+        max_torque_permille=f.integer("max_torque_permille", lo=1, hi=32767),
+        max_velocity_rad_s=f.number("max_velocity_rad_s", positive=True),
+        watchdog_periods=f.integer("watchdog_periods", lo=1, hi=1000),
+        vendor_id=f.integer("vendor_id", 0, lo=0, hi=0xFFFFFFFF),
+        product_code=f.integer("product_code", 0, lo=0, hi=0xFFFFFFFF),
+    )

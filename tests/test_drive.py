@@ -1,0 +1,485 @@
+"""Tests for the emulated CiA 402 servo drive (virtual_robot.drive)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from profiles.drive import load_drive
+from virtual_robot.drive import (
+    ABORT_VALUE_RANGE,
+    ABORT_VALUE_TOO_HIGH,
+    ABORT_VALUE_TOO_LOW,
+    ERR_NONE,
+    ERR_OVERSPEED,
+    ERR_RPDO_TIMEOUT,
+    INT32_MAX,
+    INT32_MIN,
+    MODE_CST,
+    MODE_TQ,
+    DriveError,
+    DriveModel,
+    Emcy,
+    State,
+    state_from_statusword,
+)
+
+DM1200A = load_drive("dm1200a")
+DM1015B = load_drive("dm1015b")
+DT = 0.001
+
+
+def enabled(profile=DM1200A) -> DriveModel:
+    d = DriveModel(profile)
+    for cw in (0x06, 0x07, 0x0F):
+        d.write_controlword(cw, 0.0)
+    assert d.state is State.OPERATION_ENABLED
+    return d
+
+
+def check_sw(d: DriveModel, state: State) -> None:
+    assert d.state is state
+    assert state_from_statusword(d.statusword) is state
+    assert d.statusword & 0x0200  # remote
+
+
+# ----------------------------------------------------------------- state machine
+
+
+def test_boot_and_enable_sequence() -> None:
+    d = DriveModel(DM1200A, boot_time_s=1.0)
+    check_sw(d, State.NOT_READY_TO_SWITCH_ON)
+    assert d.statusword & 0x4F == 0x00
+    d.write_controlword(0x06, 0.5)  # before boot: ignored
+    check_sw(d, State.NOT_READY_TO_SWITCH_ON)
+    assert d.controlword == 0
+    d.update(1.0, 0.0, 0.0)  # transition 1
+    check_sw(d, State.SWITCH_ON_DISABLED)
+    assert d.statusword & 0x4F == 0x40
+    d.write_controlword(0x06, 1.0)
+    check_sw(d, State.READY_TO_SWITCH_ON)
+    assert d.statusword & 0x6F == 0x21
+    d.write_controlword(0x07, 1.0)
+    check_sw(d, State.SWITCHED_ON)
+    assert d.statusword & 0x6F == 0x23
+    d.write_controlword(0x0F, 1.0)
+    check_sw(d, State.OPERATION_ENABLED)
+    assert d.statusword & 0x6F == 0x27
+    assert d.statusword & 0x0400  # target reached
+    assert d.controlword == 0x0F
+
+
+def test_boot_on_first_write_at_boot_time() -> None:
+    d = DriveModel(DM1200A, boot_time_s=2.0)
+    d.write_controlword(0x06, 2.0)  # boots, then shutdown applies
+    check_sw(d, State.READY_TO_SWITCH_ON)
+
+
+def test_enable_directly_from_ready() -> None:
+    d = DriveModel(DM1200A)
+    d.write_controlword(0x06, 0.0)
+    d.write_controlword(0x0F, 0.0)
+    check_sw(d, State.OPERATION_ENABLED)
+
+
+def test_invalid_commands_ignored() -> None:
+    d = DriveModel(DM1200A)
+    d.write_controlword(0x0F, 0.0)  # enable from SWITCH_ON_DISABLED: not valid
+    check_sw(d, State.SWITCH_ON_DISABLED)
+    d.write_controlword(0x07, 0.0)
+    check_sw(d, State.SWITCH_ON_DISABLED)
+
+
+@pytest.mark.parametrize(
+    ("cw", "state"),
+    [
+        (0x07, State.SWITCHED_ON),  # 5 disable operation
+        (0x06, State.READY_TO_SWITCH_ON),  # 8 shutdown
+        (0x00, State.SWITCH_ON_DISABLED),  # 9 disable voltage
+        (0x0D, State.SWITCH_ON_DISABLED),  # 9 disable voltage (bit 1 clear)
+        (0x02, State.QUICK_STOP_ACTIVE),  # 11 quick stop
+    ],
+)
+def test_leave_operation_enabled(cw: int, state: State) -> None:
+    d = enabled()
+    d.write_target_torque(500, 0.0)
+    d.write_controlword(cw, 0.0)
+    check_sw(d, state)
+    assert d.torque_Nm == 0.0
+    assert d.torque_actual_permille == 0
+
+
+def test_quick_stop_and_reenable() -> None:
+    d = enabled()
+    d.write_target_torque(300, 0.0)
+    d.write_controlword(0x02, 0.0)
+    check_sw(d, State.QUICK_STOP_ACTIVE)
+    assert not d.statusword & 0x20  # bit 5 = 0: quick stop active
+    for cw in (0x06, 0x07):  # stays in quick stop
+        d.write_controlword(cw, 0.0)
+        check_sw(d, State.QUICK_STOP_ACTIVE)
+    for k in range(10):  # no watchdog in quick stop
+        d.update(k * DT, 0.0, 0.0)
+    check_sw(d, State.QUICK_STOP_ACTIVE)
+    assert d.torque_Nm == 0.0
+    d.write_controlword(0x0F, 0.0)  # 16
+    check_sw(d, State.OPERATION_ENABLED)
+    assert d.torque_Nm == pytest.approx(60.0)
+    d.write_controlword(0x02, 0.0)
+    d.write_controlword(0x00, 0.0)  # 12
+    check_sw(d, State.SWITCH_ON_DISABLED)
+
+
+def test_halt_bit_zeroes_torque() -> None:
+    d = enabled()
+    d.write_target_torque(500, 0.0)
+    d.write_controlword(0x010F, 0.0)
+    check_sw(d, State.OPERATION_ENABLED)
+    assert d.torque_Nm == 0.0
+    d.write_controlword(0x000F, 0.0)
+    assert d.torque_Nm == pytest.approx(100.0)
+
+
+# ----------------------------------------------------------------- torque
+
+
+def test_torque_scaling() -> None:
+    d = enabled()
+    d.write_target_torque(500, 0.0)
+    assert d.torque_actual_permille == 500
+    assert d.torque_Nm == pytest.approx(100.0)
+    d.write_target_torque(-1, 0.0)
+    assert d.torque_Nm == pytest.approx(-0.2)
+    e = enabled(DM1015B)
+    e.write_target_torque(1, 0.0)
+    assert e.torque_Nm == pytest.approx(0.015)
+
+
+def test_torque_clamp_sets_saturated() -> None:
+    d = enabled()
+    d.write_target_torque(1500, 0.0)
+    assert d.saturated
+    assert d.torque_actual_permille == 1000
+    assert d.torque_Nm == pytest.approx(200.0)
+    assert d.statusword & 0x0800
+    assert not d.statusword & 0x0400
+    d.write_max_torque(250)
+    d.write_target_torque(-300, 0.0)
+    assert d.torque_actual_permille == -250
+    assert d.saturated
+    d.write_target_torque(200, 0.0)
+    assert not d.saturated
+    assert not d.statusword & 0x0800
+    assert d.statusword & 0x0400
+
+
+def test_torque_zero_when_not_enabled() -> None:
+    d = DriveModel(DM1200A)
+    d.write_target_torque(500, 0.0)
+    for cw in (0x06, 0x07):
+        d.write_controlword(cw, 0.0)
+        assert d.torque_Nm == 0.0
+        assert d.torque_actual_permille == 0
+        assert not d.saturated
+    assert d.target_torque_permille == 500
+
+
+def test_range_errors() -> None:
+    d = DriveModel(DM1200A)
+    with pytest.raises(DriveError) as exc:
+        d.write_target_torque(32768, 0.0)
+    assert exc.value.abort_code == ABORT_VALUE_TOO_HIGH
+    with pytest.raises(DriveError) as exc:
+        d.write_target_torque(-32769, 0.0)
+    assert exc.value.abort_code == ABORT_VALUE_TOO_LOW
+    d.write_target_torque(-32768, 0.0)
+    d.write_target_torque(32767, 0.0)
+    for cw in (-1, 0x10000):
+        with pytest.raises(DriveError) as exc:
+            d.write_controlword(cw, 0.0)
+        assert exc.value.abort_code == ABORT_VALUE_RANGE
+    with pytest.raises(DriveError) as exc:
+        d.write_max_torque(0)
+    assert exc.value.abort_code == ABORT_VALUE_TOO_LOW
+    with pytest.raises(DriveError) as exc:
+        d.write_max_torque(32768)
+    assert exc.value.abort_code == ABORT_VALUE_TOO_HIGH
+    with pytest.raises(DriveError) as exc:
+        d.write_mode(8)
+    assert exc.value.abort_code == ABORT_VALUE_RANGE
+    assert d.mode == MODE_CST
+    d.write_mode(MODE_TQ)
+    assert d.mode == MODE_TQ
+
+
+# ----------------------------------------------------------------- watchdog and faults
+
+
+def test_watchdog_boundary_and_fault_reset() -> None:
+    assert DM1200A.watchdog_periods == 3
+    d = enabled()
+    d.write_target_torque(500, 0.0)
+    d.update(1 * DT, 0.0, 0.0)
+    d.update(2 * DT, 0.0, 0.0)
+    check_sw(d, State.OPERATION_ENABLED)  # 2 updates without a write: still enabled
+    assert d.torque_Nm == pytest.approx(100.0)
+    assert d.pop_emcy() == []
+    d.update(3 * DT, 0.0, 0.0)  # 3rd: fault
+    check_sw(d, State.FAULT)
+    assert d.torque_Nm == 0.0
+    assert d.error_code == ERR_RPDO_TIMEOUT == 0x8250
+    assert d.error_register == 0x11
+    assert d.pop_emcy() == [Emcy(0x8250, 0x11, 3 * DT)]
+    d.update(4 * DT, 0.0, 0.0)
+    d.write_controlword(0x0F, 4 * DT)  # not a fault reset: ignored
+    check_sw(d, State.FAULT)
+    assert d.pop_emcy() == []
+
+    d.write_controlword(0x80, 5 * DT)  # rising edge of bit 7: transition 15
+    check_sw(d, State.SWITCH_ON_DISABLED)
+    assert d.error_code == ERR_NONE
+    assert d.error_register == 0
+    assert d.pop_emcy() == [Emcy(0, 0, 5 * DT)]
+
+    for cw in (0x06, 0x07, 0x0F):
+        d.write_controlword(cw, 6 * DT)
+    check_sw(d, State.OPERATION_ENABLED)
+    assert d.torque_Nm == pytest.approx(100.0)  # target kept
+
+
+def test_watchdog_fed_by_writes_and_reset_on_enable() -> None:
+    d = enabled()
+    for k in range(50):
+        d.write_target_torque(100, k * DT)
+        d.update(k * DT, 0.0, 0.0)
+        d.update(k * DT, 0.0, 0.0)
+    check_sw(d, State.OPERATION_ENABLED)
+    d.update(1.0, 0.0, 0.0)  # counter 3: fault
+    check_sw(d, State.FAULT)
+    # Entering OPERATION_ENABLED resets the counter even without a torque write.
+    d.write_controlword(0x80, 1.0)
+    for cw in (0x06, 0x07):
+        d.write_controlword(cw, 1.0)
+    d.update(1.0, 0.0, 0.0)  # not enabled: not counted
+    d.update(1.0, 0.0, 0.0)
+    d.write_controlword(0x0F, 1.0)
+    d.update(1.0, 0.0, 0.0)
+    d.update(1.0, 0.0, 0.0)
+    check_sw(d, State.OPERATION_ENABLED)
+
+
+def test_fault_reset_needs_rising_edge() -> None:
+    d = enabled()
+    d.write_controlword(0x8F, 0.0)  # bit 7 held high while enabled
+    check_sw(d, State.OPERATION_ENABLED)
+    for k in range(3):
+        d.update(k * DT, 0.0, 0.0)
+    check_sw(d, State.FAULT)
+    d.write_controlword(0x80, 0.0)  # bit 7 was already high: no edge
+    check_sw(d, State.FAULT)
+    d.write_controlword(0x00, 0.0)
+    d.write_controlword(0x80, 0.0)
+    check_sw(d, State.SWITCH_ON_DISABLED)
+
+
+def test_overspeed_fault() -> None:
+    d = enabled(DM1015B)
+    d.write_target_torque(100, 0.0)
+    d.update(DT, 0.0, 25.0)  # at the threshold: fine
+    check_sw(d, State.OPERATION_ENABLED)
+    d.write_target_torque(100, DT)
+    d.update(2 * DT, 0.0, -25.01)
+    check_sw(d, State.FAULT)
+    assert d.error_code == ERR_OVERSPEED
+    assert d.error_register == 0x21
+    assert d.torque_Nm == 0.0
+    assert d.pop_emcy() == [Emcy(ERR_OVERSPEED, 0x21, 2 * DT)]
+    d.update(3 * DT, 0.0, 100.0)  # already in FAULT: no new EMCY
+    assert d.pop_emcy() == []
+
+
+def test_overspeed_only_when_powered() -> None:
+    d = DriveModel(DM1200A)
+    d.update(0.0, 0.0, 1000.0)
+    check_sw(d, State.SWITCH_ON_DISABLED)
+    d = enabled()
+    d.write_controlword(0x02, 0.0)
+    d.update(0.0, 0.0, 1000.0)
+    check_sw(d, State.FAULT)
+    assert d.error_code == ERR_OVERSPEED
+
+
+def test_nmt_reset() -> None:
+    d = enabled()
+    d.write_max_torque(10)
+    d.update(0.0, 1.0, 0.0)
+    d.update(DT, 1.0, 0.0)
+    d.update(2 * DT, 1.0, 0.0)
+    assert d.state is State.FAULT
+    counts = d.position_counts
+    d.reset(1.0)
+    check_sw(d, State.NOT_READY_TO_SWITCH_ON)
+    assert d.error_code == 0 and d.error_register == 0
+    assert d.max_torque_permille == DM1200A.max_torque_permille
+    assert d.position_counts == counts
+    d.write_controlword(0x06, 1.0)
+    check_sw(d, State.READY_TO_SWITCH_ON)
+
+
+# ----------------------------------------------------------------- encoder
+
+
+@pytest.mark.parametrize("profile", [DM1200A, DM1015B])
+def test_encoder_counts(profile) -> None:
+    assert profile.counts_per_rev in (1_024_000, 655_360)
+    d = DriveModel(profile)
+    quarter = profile.counts_per_rev // 4
+    d.update(0.0, (quarter + 0.5) * profile.rad_per_count, 0.0)
+    assert d.position_counts == quarter
+    assert d.velocity_counts_s == 0  # first update
+    d.update(0.5, (-quarter + 0.5) * profile.rad_per_count, 0.0)
+    assert d.position_counts == -quarter
+    assert d.velocity_counts_s == -4 * quarter
+    d.update(1.0, -0.5 * profile.rad_per_count, 0.0)  # negative angles floor
+    assert d.position_counts == -1
+    d.update(1.0, 0.5 * profile.rad_per_count, 0.0)  # now <= t_prev: velocity 0
+    assert d.position_counts == 0
+    assert d.velocity_counts_s == 0
+
+
+def test_encoder_counts_full_turn() -> None:
+    d = DriveModel(DM1200A)
+    d.update(0.0, math.pi / 3, 0.0)  # 1,024,000 / 6 = 170666.67
+    assert d.position_counts == 170666
+    d.update(0.0, -math.pi / 3, 0.0)
+    assert d.position_counts == -170667
+
+
+def test_encoder_int32_wrap() -> None:
+    p = DM1200A
+    d = DriveModel(p)
+    d.update(0.0, (2**31 - 10 + 0.5) * p.rad_per_count, 0.0)
+    assert d.position_counts == 2**31 - 10
+    d.update(DT, (2**31 + 10 + 0.5) * p.rad_per_count, 0.0)
+    assert d.position_counts == -(2**31) + 10
+    assert d.velocity_counts_s == 20_000
+    d.update(2 * DT, (2**31 + 30 + 0.5) * p.rad_per_count, 0.0)
+    assert d.velocity_counts_s == 20_000
+    d.update(3 * DT, -(2**31 + 5 - 0.5) * p.rad_per_count, 0.0)
+    assert d.position_counts == 2**31 - 5
+    assert d.velocity_counts_s == INT32_MIN  # clamped
+
+
+def test_update_rejects_non_finite() -> None:
+    d = DriveModel(DM1200A)
+    with pytest.raises(ValueError):
+        d.update(0.0, math.nan, 0.0)
+    with pytest.raises(ValueError):
+        d.update(0.0, 0.0, math.inf)
+
+
+def test_state_from_statusword_unknown() -> None:
+    assert state_from_statusword(0x0001) is None
+    assert state_from_statusword(0x0237) is State.OPERATION_ENABLED
+    assert state_from_statusword(0x0217) is State.QUICK_STOP_ACTIVE
+
+
+# ----------------------------------------------------------------- property-based
+
+finite = st.floats(allow_nan=False, allow_infinity=False)
+# The meaningful controlwords are drawn more often than arbitrary ones, and "enable" (the first
+# 1-3 words of 0x06, 0x07, 0x0F) and "fault reset" (0x00, 0x80) steps are added, so that the
+# runs actually reach every state.
+controlwords = st.one_of(
+    st.sampled_from([0x00, 0x02, 0x06, 0x07, 0x0F, 0x80, 0x10F, 0x8F, 0x86]),
+    st.integers(0, 0xFFFF),
+    st.integers(-5, 0x10005),
+)
+cw_action = st.tuples(st.just("cw"), controlwords)
+torque_action = st.tuples(
+    st.just("torque"),
+    st.one_of(st.integers(-1200, 1200), st.integers(-40000, 40000), st.integers()),
+)
+update_action = st.tuples(
+    st.just("update"),
+    st.tuples(
+        st.floats(0.0, 0.01),
+        st.one_of(st.floats(-1e4, 1e4), finite),
+        st.one_of(st.floats(-30.0, 30.0), finite),
+    ),
+)
+actions = st.one_of(
+    cw_action,
+    cw_action,
+    st.tuples(st.just("enable"), st.sampled_from([3, 3, 3, 2, 1])),
+    st.tuples(st.just("cw-seq"), st.just((0x00, 0x80))),
+    torque_action,
+    torque_action,
+    update_action,
+    update_action,
+    st.tuples(st.just("idle"), st.integers(1, 4)),  # periods with no command: the watchdog
+    st.tuples(st.just("mode"), st.one_of(st.sampled_from([4, 10]), st.integers())),
+    st.tuples(st.just("max"), st.one_of(st.integers(1, 1500), st.integers(-5, 40000))),
+    st.tuples(st.just("reset"), st.just(None)),
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    profile=st.sampled_from([DM1200A, DM1015B]),
+    boot=st.sampled_from([0.0, 0.0, 0.005]),
+    steps=st.lists(actions, max_size=60),
+)
+def test_invariants(profile, boot: float, steps: list) -> None:
+    d = DriveModel(profile, boot_time_s=boot)
+    now = 0.0
+    for kind, arg in steps:
+        try:
+            if kind == "cw":
+                d.write_controlword(arg, now)
+            elif kind == "enable":
+                for cw in (0x06, 0x07, 0x0F)[:arg]:
+                    d.write_controlword(cw, now)
+            elif kind == "cw-seq":
+                for cw in arg:
+                    d.write_controlword(cw, now)
+            elif kind == "torque":
+                d.write_target_torque(arg, now)
+            elif kind == "mode":
+                d.write_mode(arg)
+            elif kind == "max":
+                d.write_max_torque(arg)
+            elif kind == "update":
+                dt, pos, vel = arg
+                now += dt
+                d.update(now, pos, vel)
+            elif kind == "idle":
+                for _ in range(arg):
+                    now += DT
+                    d.update(now, 0.0, 0.0)
+            else:
+                d.reset(now)
+        except DriveError as exc:
+            assert exc.abort_code in (ABORT_VALUE_RANGE, ABORT_VALUE_TOO_HIGH, ABORT_VALUE_TOO_LOW)
+        assert isinstance(d.state, State)
+        assert state_from_statusword(d.statusword) is d.state
+        assert d.state is not State.FAULT_REACTION_ACTIVE
+        limit = profile.rated_torque_Nm * d.max_torque_permille / 1000.0
+        assert abs(d.torque_Nm) <= limit + 1e-9
+        if d.state is not State.OPERATION_ENABLED:
+            assert d.torque_Nm == 0.0
+            assert d.torque_actual_permille == 0
+        assert INT32_MIN <= d.position_counts <= INT32_MAX
+        assert INT32_MIN <= d.velocity_counts_s <= INT32_MAX
+        assert 0 <= d.statusword <= 0xFFFF
+        assert bool(d.statusword & 0x0800) == d.saturated
+        assert d.mode in (MODE_CST, MODE_TQ)
+        for ev in d.pop_emcy():
+            assert ev.error_code in (ERR_NONE, ERR_RPDO_TIMEOUT, ERR_OVERSPEED)
+        if d.state is State.FAULT:
+            assert d.error_code in (ERR_RPDO_TIMEOUT, ERR_OVERSPEED)
+        else:
+            assert d.error_code == ERR_NONE and d.error_register == 0

@@ -1,0 +1,163 @@
+"""`virtual-robot simulate` and `hil demo` end to end: recording format, determinism, drives."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers.recording import read_signals
+from profiles.experiment import load_experiment
+from profiles.robot import load_robot
+from virtual_robot.simulate import simulate
+
+H = 0.0025
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "virtual_robot.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+
+
+def test_cli_simulate_writes_the_recording(tmp_path):
+    out = tmp_path / "run"
+    proc = run_cli(
+        "simulate",
+        "--robot",
+        "cicese",
+        "--experiment",
+        "reyes-kelly",
+        "--duration",
+        "1",
+        "--out",
+        str(out),
+        "--json",
+    )
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)  # --json: one JSON document and nothing else on stdout
+    assert summary["rows"] == 400
+    assert Path(summary["plot"]).is_file() and Path(summary["plot"]).stat().st_size > 10_000
+    rec = read_signals(out)
+    assert list(rec.columns)[:5] == ["t", "q1", "q2", "tau1", "tau2"]
+    assert len(rec) == 400 and not rec.dropped_partial_row
+    assert np.array_equal(rec.t, np.arange(400) * H)  # row k is t = k·h exactly
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["status"] == "complete" and meta["period_s"] == H and meta["rows"] == 400
+    assert meta["robot"] == "cicese" and meta["experiment"] == "reyes-kelly"
+
+    # tau is what the drive applies: eqs. (31)-(32) quantized to per-mille of rated torque
+    exp = load_experiment("reyes-kelly")
+    ideal = exp.torque_table(rec.t)
+    steps = np.array([200.0 / 1000, 15.0 / 1000])
+    assert np.all(np.abs(rec.tau - ideal) <= steps / 2 + 1e-12)
+    assert np.allclose(rec.tau / steps, np.round(rec.tau / steps), atol=1e-9)
+    # q is an encoder reading: whole counts of 1,024,000 and 655,360 per rev
+    counts = rec.q / (2 * math.pi / np.array([1_024_000, 655_360]))
+    assert np.allclose(counts, np.round(counts), atol=1e-6)
+    # from rest at q = 0, and the arm actually moves
+    assert tuple(rec.q[0]) == (0.0, 0.0)
+    assert np.ptp(rec.q[:, 0]) > 0.2 and np.ptp(rec.q[:, 1]) > 0.2
+    # statusword: operation enabled (x01x 0111) all along
+    assert np.all((rec.columns["status1"].astype(int) & 0x6F) == 0x27)
+
+
+def test_same_inputs_same_recording(tmp_path):
+    robot, exp = load_robot("cicese"), load_experiment("reyes-kelly")
+    simulate(robot, exp, tmp_path / "a", duration_s=0.5, plot=False)
+    simulate(robot, exp, tmp_path / "b", duration_s=0.5, plot=False)
+    assert (tmp_path / "a/signals.csv").read_bytes() == (tmp_path / "b/signals.csv").read_bytes()
+
+
+def test_effects_change_the_world_not_the_commands(tmp_path):
+    out_a, out_b = tmp_path / "a", tmp_path / "b"
+    assert run_cli("simulate", "--duration", "2", "--out", str(out_a), "--no-plot").returncode == 0
+    proc = run_cli(
+        "simulate", "--duration", "2", "--out", str(out_b), "--no-plot", "--effects", "payload"
+    )
+    assert proc.returncode == 0, proc.stderr
+    a, b = read_signals(out_a), read_signals(out_b)
+    assert np.array_equal(a.tau, b.tau)  # open loop: same commands
+    assert np.max(np.abs(a.q - b.q)) > 0.01  # a heavier link 2 moves differently
+    assert json.loads((out_b / "meta.json").read_text())["effects_enabled"] == ["payload"]
+
+
+def _experiment_file(tmp_path: Path, step1: float, step2: float, duration: float = 1.0) -> Path:
+    path = tmp_path / "exp.toml"
+    path.write_text(f"""
+name = "custom"
+kind = "open_loop_torque"
+period_s = 0.0025
+duration_s = {duration}
+[[joints]]
+step_Nm = {step1}
+step_rate_per_s = 1000.0
+[[joints]]
+step_Nm = {step2}
+step_rate_per_s = 1000.0
+""")
+    return path
+
+
+def test_torque_saturates_at_the_drive_limit_and_is_flagged(tmp_path):
+    exp = _experiment_file(tmp_path, 250.0, -20.0, duration=0.1)  # 200 Nm overspeeds by 0.15 s
+    proc = run_cli("simulate", "--experiment", str(exp), "--out", str(tmp_path / "r"), "--no-plot")
+    assert proc.returncode == 0, proc.stderr
+    rec = read_signals(tmp_path / "r")
+    late = rec.t > 0.01
+    assert np.all(rec.tau[late, 0] == 200.0) and np.all(rec.tau[late, 1] == -15.0)
+    for col in ("status1", "status2"):
+        assert np.all(rec.columns[col][late].astype(int) & 0x0800)  # bit 11: internal limit
+
+
+def test_overspeed_faults_the_drive_zeroes_torque_and_keeps_the_recording(tmp_path):
+    # 15 Nm on the elbow against 1.7 Nm Coulomb + 0.175 Nm·s viscous: it spins up past 25 rad/s
+    exp = _experiment_file(tmp_path, 0.0, 15.0, duration=3.0)
+    proc = run_cli("simulate", "--experiment", str(exp), "--out", str(tmp_path / "r"), "--no-plot")
+    assert proc.returncode == 0, proc.stderr
+    assert "fault 0x8400" in proc.stderr and "Traceback" not in proc.stderr
+    rec = read_signals(tmp_path / "r")
+    meta = json.loads((tmp_path / "r/meta.json").read_text())
+    assert meta["faults"][0]["error_code"] == "0x8400" and meta["faults"][0]["drive"] == "DM1015-B"
+    t_fault = meta["faults"][0]["t"]
+    assert np.all(rec.tau[rec.t > t_fault, 1] == 0.0)
+    assert (int(rec.columns["status2"][-1]) & 0x4F) == 0x08  # fault state
+    assert len(rec) == 1200
+
+
+def test_duration_is_validated():
+    proc = run_cli("simulate", "--duration", "-1", "--out", "/tmp/never-written")
+    assert proc.returncode == 2
+    assert proc.stderr.strip().count("\n") == 0 and "duration" in proc.stderr
+
+
+def test_hil_demo_runs_the_offline_simulation(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, "-m", "hil.cli", "demo", "--out", str(tmp_path), "--json"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    rec = read_signals(summary["simulate"]["out_dir"])
+    assert len(rec) == 4000
+
+
+@pytest.mark.parametrize("module", ["hil", "drivers"])
+def test_host_side_never_imports_the_plant(module):
+    """DESIGN.md: hil and drivers never import virtual_robot (the plant is the world)."""
+    root = Path(__file__).resolve().parent.parent / module
+    for path in root.rglob("*.py"):
+        text = path.read_text()
+        assert "import virtual_robot" not in text and "from virtual_robot" not in text, path

@@ -1,0 +1,3 @@
+"""The virtual robot: plant physics, effects, drive emulation (and, later, protocol servers)."""
+
+__version__ = "0.1.0"

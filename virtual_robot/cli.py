@@ -1,0 +1,97 @@
+"""`virtual-robot` command line: offline simulation (and, with the HIL link, the drive server)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+
+from drivers.recording import RecordingError
+from profiles import ProfileError
+from profiles.effects import load_effects
+from profiles.experiment import load_experiment
+from profiles.robot import load_robot
+from virtual_robot.plant import DEFAULT_STEP_S
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="virtual-robot", description="The emulated Reyes & Kelly direct-drive arm."
+    )
+    sub = p.add_subparsers(dest="command", required=True)
+    s = sub.add_parser("simulate", help="run an experiment offline and write a recording")
+    s.add_argument("--robot", default="cicese", help="robot profile name or TOML file")
+    s.add_argument("--experiment", default="reyes-kelly", help="experiment profile name or file")
+    s.add_argument(
+        "--effects", default=None, help="effects profile name or file (concealed physics)"
+    )
+    s.add_argument(
+        "--duration", type=float, default=None, help="seconds (default: the experiment's)"
+    )
+    s.add_argument("--out", required=True, help="run directory to write")
+    s.add_argument(
+        "--step",
+        type=float,
+        default=DEFAULT_STEP_S,
+        help=f"integrator step in s (default {DEFAULT_STEP_S})",
+    )
+    s.add_argument("--no-plot", action="store_true", help="skip positions.png")
+    s.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
+    return p
+
+
+def _progress(t: float, total: float) -> None:
+    print(f"virtual-robot: simulated {t:.1f} / {total:.1f} s", file=sys.stderr)
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from virtual_robot.simulate import simulate
+
+    if args.duration is not None and not args.duration > 0:
+        raise ValueError(f"--duration must be > 0, got {args.duration}")
+    if not args.step > 0:
+        raise ValueError(f"--step must be > 0, got {args.step}")
+    robot = load_robot(args.robot)
+    experiment = load_experiment(args.experiment)
+    effects = load_effects(args.effects)
+    result = simulate(
+        robot,
+        experiment,
+        args.out,
+        effects=effects,
+        duration_s=args.duration,
+        step_s=args.step,
+        plot=not args.no_plot,
+        progress=_progress,
+    )
+    summary = result.summary()
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(
+            f"wrote {summary['rows']} rows ({summary['simulated_s']:.3f} s at "
+            f"{experiment.period_s * 1e3:g} ms) to {summary['signals']}"
+        )
+        if result.plot:
+            print(f"plot: {result.plot}")
+        print(f"{summary['realtime_factor']}x real time, {summary['plant_steps']} plant steps")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        if args.command == "simulate":
+            return cmd_simulate(args)
+    except (ProfileError, RecordingError, ValueError, OSError) as exc:
+        print(f"virtual-robot: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("virtual-robot: interrupted; the recording so far is kept", file=sys.stderr)
+        return 130
+    return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,111 @@
+"""Effects library: the physics a robot profile leaves out, switched on from an effects profile.
+
+Each effect is a pure function (or a tiny FIFO) with the equation it implements; the plant wires
+them into the torque path and the friction law. Order of the torque path, command to shaft:
+
+    τ_cmd (drive, per-mille quantized) ─▶ transport delay d ─▶ amplifier lag T ─▶ gain/offset
+        ─▶ + cogging(q) ─▶ τ_shaft
+
+Encoder offset acts on the measurement side: q_measured = q + δq (then the drive's encoder floors
+it to counts). Payload and Coulomb overrides change the plant's parameters, not the torque path.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+from profiles.effects import Payload
+
+
+def stribeck_level(
+    coulomb_Nm: float, breakaway_Nm: float, speed: float, stribeck_velocity: float, exponent: float
+) -> float:
+    """Friction magnitude at speed |v| (Stribeck curve, e.g. Armstrong-Hélouvry 1994):
+
+        F(|v|) = F_c + (F_s − F_c) exp(−(|v| / v_s)^δ)
+
+    equal to the breakaway level F_s at rest and tending to the Coulomb level F_c with speed.
+    Viscous friction b v is added separately by the plant.
+    """
+    return coulomb_Nm + (breakaway_Nm - coulomb_Nm) * math.exp(
+        -((speed / stribeck_velocity) ** exponent)
+    )
+
+
+def cogging_torque(
+    q: float, periods_per_rev: float, amplitude_Nm: float, phase_rad: float
+) -> float:
+    """Cogging / torque ripple: τ_cog(q) = A sin(N q + φ), N periods per revolution of the rotor."""
+    return amplitude_Nm * math.sin(periods_per_rev * q + phase_rad)
+
+
+def amplifier_lag_step(
+    torque_Nm: float, command_Nm: float, dt: float, time_constant_s: float
+) -> tuple[float, float]:
+    """Exact step of the first-order lag T dτ/dt = τ_cmd − τ under a held command.
+
+    Returns (mean torque over the step, torque at its end):
+        τ(dt) = τ_cmd + (τ0 − τ_cmd) e^{−dt/T},
+        mean  = τ_cmd + (τ0 − τ_cmd) (T/dt) (1 − e^{−dt/T}).
+    The plant integrates the rigid body with the mean, which keeps the work done exact to
+    second order in dt.
+    """
+    if time_constant_s <= 0.0 or dt <= 0.0:
+        return command_Nm, command_Nm
+    decay = math.exp(-dt / time_constant_s)
+    gap = torque_Nm - command_Nm
+    return command_Nm + gap * time_constant_s / dt * (1.0 - decay), command_Nm + gap * decay
+
+
+def gain_offset(torque_Nm: float, relative_gain_error: float, offset_Nm: float) -> float:
+    """Amplifier gain and offset error: τ_out = (1 + ε) τ_in + τ_0."""
+    return (1.0 + relative_gain_error) * torque_Nm + offset_Nm
+
+
+def payload_theta(
+    theta: list[float], payload: Payload, link1_length_m: float, gravity_m_s2: float
+) -> list[float]:
+    """θ1..θ5 with a payload on link 2 at distance l_p from joint 2 (mass m_p, own inertia I_p).
+
+    The payload adds to link 2 as a second body, so by the formulas of Section 5:
+        Δθ1 = m_p (l1² + l_p²) + I_p,  Δθ2 = l1 m_p l_p,  Δθ3 = m_p l_p² + I_p,
+        Δθ4 = g m_p l1,                Δθ5 = g m_p l_p.
+    """
+    mp, lp, Ip, l1, g = (
+        payload.mass_kg,
+        payload.distance_m,
+        payload.inertia_kgm2,
+        link1_length_m,
+        gravity_m_s2,
+    )
+    delta = [mp * (l1**2 + lp**2) + Ip, l1 * mp * lp, mp * lp**2 + Ip, g * mp * l1, g * mp * lp]
+    return [t + d for t, d in zip(theta[:5], delta, strict=True)] + list(theta[5:])
+
+
+class TransportDelay:
+    """Pure delay d between a torque command and the amplifier: τ_in(t) = τ_cmd(t − d).
+
+    Commands are stamped with the time they were issued; :meth:`due` yields the ones whose
+    delivery time t + d has come, in order.
+    """
+
+    def __init__(self, delay_s: float) -> None:
+        self.delay_s = delay_s
+        self._queue: deque[tuple[float, tuple[float, float]]] = deque()
+
+    def push(self, issued_at: float, torque_Nm: tuple[float, float]) -> None:
+        self._queue.append((issued_at + self.delay_s, torque_Nm))
+
+    def next_delivery(self) -> float | None:
+        return self._queue[0][0] if self._queue else None
+
+    def pop_due(self, now: float) -> tuple[float, float] | None:
+        """The newest command delivered by ``now`` (older ones are superseded), or None."""
+        latest = None
+        while self._queue and self._queue[0][0] <= now + 1e-12:
+            latest = self._queue.popleft()[1]
+        return latest
+
+    def clear(self) -> None:
+        self._queue.clear()

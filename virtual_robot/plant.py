@@ -1,0 +1,532 @@
+"""The virtual arm: rigid body (Section 5 of Reyes & Kelly 1997), stick–slip friction, effects.
+
+Integration is fixed-step RK4 (default 0.5 ms, five steps per 2.5 ms control period) on the state
+(q, q̇) augmented with the supplied work ∫τᵀq̇ dt and the friction work ∫fᵀq̇ dt, so the energy
+balance of eq. (25) can be checked on the plant itself.
+
+Friction is a Karnopp-style stick–slip model, not a smooth tanh:
+  * a joint that is stuck (q̇_i = 0) stays stuck while the friction needed to hold it,
+    found from the constrained dynamics (q̈_i = 0), is inside its static band [−F_s⁻, F_s⁺];
+    it breaks away in the direction of that torque when it leaves the band;
+  * a sliding joint feels f_i = b_i q̇_i + F_i(dir) sgn, where the direction is fixed over a step
+    (so each RK4 step integrates a smooth ODE); when q̇_i reaches zero inside a step the step is
+    cut at the crossing (located by linear interpolation and re-integrated), the joint sticks, and
+    the band is checked again for the rest of the step. The small kinetic energy removed by
+    clamping q̇_i to exactly zero is booked as dissipated.
+Joint 1's Coulomb level is direction-dependent by default (7.17 Nm for q̇1 > 0, 8.049 Nm for
+q̇1 < 0, Table I).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from profiles.effects import EffectsProfile
+from profiles.robot import RobotProfile
+from virtual_robot.effects import (
+    TransportDelay,
+    amplifier_lag_step,
+    cogging_torque,
+    gain_offset,
+    payload_theta,
+    stribeck_level,
+)
+
+# 0.5 ms = 2 kHz, five RK4 steps per 2.5 ms control period. Halving it changes q on the 10 s
+# Reyes & Kelly run by ~1e-7 rad, 1/45 of the finer encoder's count (tests/test_plant.py checks it).
+DEFAULT_STEP_S = 5e-4
+Pair = tuple[float, float]
+
+
+@dataclass(frozen=True)
+class PlantParams:
+    """Everything the plant integrates: θ1..θ5, friction, and the effects' parameters."""
+
+    theta: tuple[float, float, float, float, float]
+    viscous_Nms: Pair
+    coulomb_positive_Nm: Pair
+    coulomb_negative_Nm: Pair
+    breakaway_positive_Nm: Pair  # static band; = Coulomb level without Stribeck
+    breakaway_negative_Nm: Pair
+    stribeck_velocity_rad_s: Pair | None = None
+    stribeck_exponent: float = 2.0
+    cogging_periods_per_rev: Pair = (0.0, 0.0)
+    cogging_amplitude_Nm: Pair = (0.0, 0.0)
+    cogging_phase_rad: Pair = (0.0, 0.0)
+    amplifier_lag_s: Pair = (0.0, 0.0)
+    transport_delay_s: float = 0.0
+    torque_gain_error: Pair = (0.0, 0.0)
+    torque_offset_Nm: Pair = (0.0, 0.0)
+    encoder_offset_rad: Pair = (0.0, 0.0)
+
+    @classmethod
+    def from_profiles(
+        cls, robot: RobotProfile, effects: EffectsProfile | None = None
+    ) -> PlantParams:
+        effects = effects or EffectsProfile()
+        theta = list(robot.theta()[:5])
+        if effects.payload is not None:
+            assert robot.link1.length_m is not None
+            theta = payload_theta(theta, effects.payload, robot.link1.length_m, robot.gravity_m_s2)
+        pos, neg = robot.coulomb_positive_Nm, robot.coulomb_negative_Nm
+        if effects.coulomb is not None:
+            pos, neg = effects.coulomb.positive_Nm, effects.coulomb.negative_Nm
+        kw: dict = {}
+        if effects.stribeck is not None:
+            ratio = effects.stribeck.breakaway_ratio
+            kw.update(
+                breakaway_positive_Nm=(pos[0] * ratio[0], pos[1] * ratio[1]),
+                breakaway_negative_Nm=(neg[0] * ratio[0], neg[1] * ratio[1]),
+                stribeck_velocity_rad_s=effects.stribeck.velocity_rad_s,
+                stribeck_exponent=effects.stribeck.exponent,
+            )
+        else:
+            kw.update(breakaway_positive_Nm=pos, breakaway_negative_Nm=neg)
+        if effects.cogging is not None:
+            kw.update(
+                cogging_periods_per_rev=effects.cogging.periods_per_rev,
+                cogging_amplitude_Nm=effects.cogging.amplitude_Nm,
+                cogging_phase_rad=effects.cogging.phase_rad,
+            )
+        return cls(
+            theta=tuple(float(x) for x in theta),  # type: ignore[arg-type]
+            viscous_Nms=robot.viscous_Nms,
+            coulomb_positive_Nm=pos,
+            coulomb_negative_Nm=neg,
+            amplifier_lag_s=effects.amplifier_lag_s or (0.0, 0.0),
+            transport_delay_s=effects.transport_delay_s,
+            torque_gain_error=effects.torque_gain_error,
+            torque_offset_Nm=effects.torque_offset_Nm,
+            encoder_offset_rad=effects.encoder_offset_rad,
+            **kw,
+        )
+
+
+class Plant:
+    """Fixed-step simulation of the arm under a zero-order-held shaft torque command.
+
+    ``command(τ)`` sets the amplifier input (after the transport delay, if any);
+    ``advance_to(t)`` integrates up to time t. The true state is ``q``/``dq``; what an encoder
+    sees is ``measured_q`` (with the encoder-offset effect).
+    """
+
+    def __init__(
+        self,
+        params: PlantParams,
+        q0: Pair = (0.0, 0.0),
+        dq0: Pair = (0.0, 0.0),
+        t0: float = 0.0,
+        max_step_s: float = DEFAULT_STEP_S,
+    ) -> None:
+        if not max_step_s > 0:
+            raise ValueError("max_step_s must be > 0")
+        self.params = params
+        self.max_step_s = max_step_s
+        self.t = t0
+        self.q1, self.q2 = float(q0[0]), float(q0[1])
+        self.v1, self.v2 = float(dq0[0]), float(dq0[1])
+        # A joint without Coulomb friction (zero static band) never sticks: its dynamics are smooth.
+        self._sticky = (
+            max(params.breakaway_positive_Nm[0], params.breakaway_negative_Nm[0]) > 0,
+            max(params.breakaway_positive_Nm[1], params.breakaway_negative_Nm[1]) > 0,
+        )
+        self.stuck = [self._sticky[0] and self.v1 == 0.0, self._sticky[1] and self.v2 == 0.0]
+        self.slip_dir = [1.0 if self.v1 >= 0 else -1.0, 1.0 if self.v2 >= 0 else -1.0]
+        self.command_Nm: Pair = (0.0, 0.0)  # amplifier input after the delay
+        self.amplifier_Nm = [0.0, 0.0]  # amplifier output (lag state)
+        self.work_in_J = 0.0  # ∫ τ_shaftᵀ q̇ dt
+        self.dissipated_J = 0.0  # ∫ fᵀ q̇ dt + stick clamping losses
+        self.steps = 0
+        self.stick_events = 0
+        self._delay = TransportDelay(params.transport_delay_s) if params.transport_delay_s else None
+        p = params
+        self._has_stribeck = p.stribeck_velocity_rad_s is not None
+        self._has_cogging = any(a != 0.0 for a in p.cogging_amplitude_Nm)
+        self._has_lag = any(tc > 0.0 for tc in p.amplifier_lag_s)
+        self._constants = (*params.theta, *params.viscous_Nms)
+        self._plain_amplifier = (
+            not self._has_lag
+            and not any(params.torque_gain_error)
+            and not any(params.torque_offset_Nm)
+        )
+        self._set_mode()
+
+    # ---- inputs ---------------------------------------------------------------------------
+    def command(self, torque_Nm: Pair, issued_at: float | None = None) -> None:
+        """Set the torque command (Nm per joint), issued at ``issued_at`` (default: now)."""
+        cmd = (float(torque_Nm[0]), float(torque_Nm[1]))
+        if self._delay is None:
+            self.command_Nm = cmd
+        else:
+            self._delay.push(self.t if issued_at is None else issued_at, cmd)
+
+    def advance_to(self, t_end: float) -> None:
+        """Integrate from the current time to ``t_end`` with steps of at most ``max_step_s``."""
+        while self.t < t_end - 1e-12:
+            stop = min(t_end, self.t + self.max_step_s)
+            if self._delay is not None:
+                due = self._delay.pop_due(self.t)
+                if due is not None:
+                    self.command_Nm = due
+                nxt = self._delay.next_delivery()
+                if nxt is not None and self.t < nxt < stop:
+                    stop = nxt
+            self._step(stop - self.t)
+        if self._delay is not None:
+            due = self._delay.pop_due(self.t)
+            if due is not None:
+                self.command_Nm = due
+
+    def advance(self, duration_s: float) -> None:
+        self.advance_to(self.t + duration_s)
+
+    # ---- outputs --------------------------------------------------------------------------
+    @property
+    def q(self) -> Pair:
+        return (self.q1, self.q2)
+
+    @property
+    def dq(self) -> Pair:
+        return (self.v1, self.v2)
+
+    @property
+    def measured_q(self) -> Pair:
+        off = self.params.encoder_offset_rad
+        return (self.q1 + off[0], self.q2 + off[1])
+
+    def energy_J(self) -> float:
+        """Total energy ℰ = ½ q̇ᵀM(q)q̇ + θ4(1 − cos q1) + θ5(1 − cos(q1+q2))   (eqs. (5)-(7))."""
+        t1, t2, t3, t4, t5 = self.params.theta
+        c2 = math.cos(self.q2)
+        v1, v2 = self.v1, self.v2
+        kinetic = 0.5 * ((t1 + 2 * t2 * c2) * v1 * v1 + 2 * (t3 + t2 * c2) * v1 * v2 + t3 * v2 * v2)
+        return kinetic + t4 * (1 - math.cos(self.q1)) + t5 * (1 - math.cos(self.q1 + self.q2))
+
+    # ---- integration ----------------------------------------------------------------------
+    def _amplifier(self, dt: float) -> tuple[Pair, Pair]:
+        """Mean shaft torque (before cogging) over the next dt, and the lag state at its end."""
+        if self._plain_amplifier:
+            return self.command_Nm, self.command_Nm
+        p = self.params
+        means, ends = [0.0, 0.0], [0.0, 0.0]
+        for i in (0, 1):
+            if self._has_lag:
+                means[i], ends[i] = amplifier_lag_step(
+                    self.amplifier_Nm[i], self.command_Nm[i], dt, p.amplifier_lag_s[i]
+                )
+            else:
+                means[i] = ends[i] = self.command_Nm[i]
+            means[i] = gain_offset(means[i], p.torque_gain_error[i], p.torque_offset_Nm[i])
+        return (means[0], means[1]), (ends[0], ends[1])
+
+    def _friction_level(self, i: int, direction: float, speed: float) -> float:
+        """Magnitude of Coulomb (or Stribeck) friction on joint i sliding in ``direction``."""
+        p = self.params
+        coulomb = p.coulomb_positive_Nm[i] if direction > 0 else p.coulomb_negative_Nm[i]
+        if not self._has_stribeck:
+            return coulomb
+        breakaway = p.breakaway_positive_Nm[i] if direction > 0 else p.breakaway_negative_Nm[i]
+        assert p.stribeck_velocity_rad_s is not None
+        return stribeck_level(
+            coulomb, breakaway, speed, p.stribeck_velocity_rad_s[i], p.stribeck_exponent
+        )
+
+    def _deriv(
+        self,
+        q1: float,
+        q2: float,
+        v1: float,
+        v2: float,
+        tau1: float,
+        tau2: float,
+    ) -> tuple[float, float, float, float]:
+        """Accelerations, supplied power and friction power (a1, a2, τᵀq̇, fᵀq̇) in the stick mode
+        set by :meth:`_set_mode`.
+
+        M(q) q̈ = τ − C(q,q̇)q̇ − g(q) − f, Section 5; a stuck joint has q̈_i = 0 and f_i is the
+        constraint torque that holds it (it does no work: q̇_i = 0).
+        """
+        t1, t2, t3, t4, t5, b1, b2 = self._constants
+        s2, c2 = math.sin(q2), math.cos(q2)
+        s12 = math.sin(q1 + q2)
+        if self._has_cogging:
+            tau1, tau2 = self._add_cogging(q1, q2, tau1, tau2)
+        t2s2 = t2 * s2
+        # r = τ − C(q,q̇)q̇ − g(q)
+        r1 = tau1 + t2s2 * (2.0 * v1 * v2 + v2 * v2) - t4 * math.sin(q1) - t5 * s12
+        r2 = tau2 - t2s2 * v1 * v1 - t5 * s12
+        m11 = t1 + 2.0 * t2 * c2
+        m12 = t3 + t2 * c2
+        stuck1, stuck2, level1, level2 = self._mode
+        if self._has_stribeck:
+            level1 = self._slip_dir1 * self._friction_level(0, self._slip_dir1, abs(v1))
+            level2 = self._slip_dir2 * self._friction_level(1, self._slip_dir2, abs(v2))
+        power = tau1 * v1 + tau2 * v2
+        if not stuck1 and not stuck2:
+            f1, f2 = b1 * v1 + level1, b2 * v2 + level2
+            e1, e2 = r1 - f1, r2 - f2
+            det = m11 * t3 - m12 * m12
+            return (
+                (t3 * e1 - m12 * e2) / det,
+                (m11 * e2 - m12 * e1) / det,
+                power,
+                f1 * v1 + f2 * v2,
+            )
+        if stuck1 and not stuck2:
+            f2 = b2 * v2 + level2
+            return 0.0, (r2 - f2) / t3, power, f2 * v2
+        if stuck2 and not stuck1:
+            f1 = b1 * v1 + level1
+            return (r1 - f1) / m11, 0.0, power, f1 * v1
+        return 0.0, 0.0, power, 0.0
+
+    def _holding_torques(self, tau: Pair) -> tuple[float, float]:
+        """Friction each stuck joint needs to stay stuck (the constraint torques), now."""
+        t1, t2, t3, t4, t5 = self.params.theta
+        q1, q2, v1, v2 = self.q1, self.q2, self.v1, self.v2
+        tau1, tau2 = tau
+        if self._has_cogging:
+            tau1, tau2 = self._add_cogging(q1, q2, tau1, tau2)
+        t2s2 = t2 * math.sin(q2)
+        s12 = math.sin(q1 + q2)
+        r1 = tau1 + t2s2 * (2.0 * v1 * v2 + v2 * v2) - t4 * math.sin(q1) - t5 * s12
+        r2 = tau2 - t2s2 * v1 * v1 - t5 * s12
+        m11 = t1 + 2.0 * t2 * math.cos(q2)
+        m12 = t3 + t2 * math.cos(q2)
+        stuck1, stuck2 = self.stuck
+        b1, b2 = self.params.viscous_Nms
+        if stuck1 and stuck2:
+            return r1, r2
+        if stuck1:
+            f2 = b2 * v2 + self.slip_dir[1] * self._friction_level(1, self.slip_dir[1], abs(v2))
+            return r1 - m12 * (r2 - f2) / t3, 0.0
+        f1 = b1 * v1 + self.slip_dir[0] * self._friction_level(0, self.slip_dir[0], abs(v1))
+        return 0.0, r2 - m12 * (r1 - f1) / m11
+
+    def _add_cogging(self, q1: float, q2: float, tau1: float, tau2: float) -> Pair:
+        p = self.params
+        return (
+            tau1
+            + cogging_torque(
+                q1, p.cogging_periods_per_rev[0], p.cogging_amplitude_Nm[0], p.cogging_phase_rad[0]
+            ),
+            tau2
+            + cogging_torque(
+                q2, p.cogging_periods_per_rev[1], p.cogging_amplitude_Nm[1], p.cogging_phase_rad[1]
+            ),
+        )
+
+    def _set_mode(self) -> None:
+        """Freeze the stick mode and the sliding friction levels for the next step."""
+        self._mode_dirty = False
+        d1, d2 = self.slip_dir
+        self._slip_dir1, self._slip_dir2 = d1, d2
+        self._mode = (
+            self.stuck[0],
+            self.stuck[1],
+            d1 * self._friction_level(0, d1, 0.0),
+            d2 * self._friction_level(1, d2, 0.0),
+        )
+        if self._mode[0] or self._mode[1] or self._has_cogging or self._has_stribeck:
+            self._active_deriv = self._deriv
+            self._fast_rk4 = None
+        else:
+            self._active_deriv = _sliding_deriv(*self._constants, self._mode[2], self._mode[3])
+            self._fast_rk4 = _rk4_step(self._active_deriv)
+
+    def _rk4(self, dt: float, tau: Pair) -> tuple[float, float, float, float, float, float]:
+        """One classical RK4 step of (q, q̇, W_in, W_f) in the current stick mode."""
+        if self._fast_rk4 is not None:
+            return self._fast_rk4(self.q1, self.q2, self.v1, self.v2, tau[0], tau[1], dt)
+        return _rk4_step(self._active_deriv)(self.q1, self.q2, self.v1, self.v2, tau[0], tau[1], dt)
+
+    def _release_stuck_joints(self, tau: Pair) -> None:
+        """Let stuck joints whose holding torque leaves the static band break away."""
+        p = self.params
+        for _ in range(2):
+            if not (self.stuck[0] or self.stuck[1]):
+                return
+            held = self._holding_torques(tau)
+            worst, worst_ratio = -1, 1.0
+            for i in (0, 1):
+                if not self.stuck[i]:
+                    continue
+                f = held[i]
+                band = p.breakaway_positive_Nm[i] if f > 0 else p.breakaway_negative_Nm[i]
+                ratio = abs(f) / band if band > 0 else (math.inf if f != 0 else 0.0)
+                if ratio > worst_ratio:
+                    worst, worst_ratio = i, ratio
+            if worst < 0:
+                return
+            self.stuck[worst] = False
+            self.slip_dir[worst] = 1.0 if held[worst] > 0 else -1.0
+            self._mode_dirty = True
+
+    def _locate_stick(
+        self,
+        joint: int,
+        dt: float,
+        v_end: float,
+    ) -> tuple[float, tuple[float, float, float, float, float, float], Pair]:
+        """Time within [0, dt] where ``joint``'s velocity reaches zero, and the state there.
+
+        Illinois regula falsi on the RK4 flow map (re-integrating from the step start), so the
+        stick instant is located to ~1e-12 rad/s rather than to the step's linear interpolation.
+        """
+        lo, f_lo = 0.0, self.v1 if joint == 0 else self.v2
+        hi, f_hi = 1.0, v_end
+        side = 0
+        result = (self.q1, self.q2, self.v1, self.v2, 0.0, 0.0)
+        used, lag_end = 0.0, (self.amplifier_Nm[0], self.amplifier_Nm[1])
+        for _ in range(8):
+            alpha = lo + (hi - lo) * f_lo / (f_lo - f_hi) if f_lo != f_hi else lo
+            used = alpha * dt
+            if used <= 1e-12:
+                return 0.0, (self.q1, self.q2, self.v1, self.v2, 0.0, 0.0), lag_end
+            tau, lag_end = self._amplifier(used)
+            result = self._rk4(used, tau)
+            v = result[2 + joint]
+            if abs(v) < 1e-12:
+                break
+            if v * self.slip_dir[joint] > 0:  # not yet at zero
+                lo, f_lo = alpha, v
+                if side == -1:
+                    f_hi *= 0.5
+                side = -1
+            else:
+                hi, f_hi = alpha, v
+                if side == 1:
+                    f_lo *= 0.5
+                side = 1
+        return used, result, lag_end
+
+    def _step(self, dt: float) -> None:
+        """Advance dt, cutting the step at velocity zero crossings (stick events)."""
+        remaining = dt
+        for _ in range(8):  # at most a few stick events per step; more means a degenerate case
+            if remaining <= 1e-15:
+                return
+            if self._plain_amplifier:
+                tau = lag_end = self.command_Nm
+            else:
+                tau, lag_end = self._amplifier(remaining)
+            if self.stuck[0] or self.stuck[1]:
+                self._release_stuck_joints(tau)
+            if self._mode_dirty:
+                self._set_mode()
+            q1, q2, v1, v2, work, diss = self._rk4(remaining, tau)
+            # a sliding joint whose velocity changed sign crossed zero inside the step
+            crossing, alpha = -1, 1.0
+            if self._sticky[0] and not self.stuck[0] and v1 * self.slip_dir[0] < 0.0:
+                crossing, alpha = 0, abs(self.v1) / (abs(self.v1) + abs(v1))
+            if self._sticky[1] and not self.stuck[1] and v2 * self.slip_dir[1] < 0.0:
+                frac = abs(self.v2) / (abs(self.v2) + abs(v2))
+                if crossing < 0 or frac < alpha:
+                    crossing, alpha = 1, frac
+            used = remaining
+            if crossing >= 0:
+                used, (q1, q2, v1, v2, work, diss), lag_end = self._locate_stick(
+                    crossing, remaining, v1 if crossing == 0 else v2
+                )
+            self.q1, self.q2, self.v1, self.v2 = q1, q2, v1, v2
+            self.work_in_J += work
+            self.dissipated_J += diss
+            if self._has_lag:
+                self.amplifier_Nm = [lag_end[0], lag_end[1]]
+            self.t += used
+            self.steps += 1
+            remaining -= used
+            if crossing < 0:
+                return
+            before = self.energy_J()
+            if crossing == 0:
+                self.v1 = 0.0
+            else:
+                self.v2 = 0.0
+            self.dissipated_J += before - self.energy_J()
+            self.stuck[crossing] = True
+            self._mode_dirty = True
+            self.stick_events += 1
+        # Degenerate chattering (a joint that breaks away and reverses at once, eight times in one
+        # step): the joints stay stuck for the rest of the step; keep the clock honest.
+        self.t += remaining
+
+
+def _sliding_deriv(
+    t1: float,
+    t2: float,
+    t3: float,
+    t4: float,
+    t5: float,
+    b1: float,
+    b2: float,
+    level1: float,
+    level2: float,
+):
+    """:meth:`Plant._deriv` specialised to both joints sliding, without cogging or Stribeck.
+
+    The common case, unrolled with its constants bound as locals: about a third cheaper per call
+    in CPython. tests/test_plant.py checks it against the general method.
+    """
+    sin, cos = math.sin, math.cos
+
+    def deriv(
+        q1: float,
+        q2: float,
+        v1: float,
+        v2: float,
+        tau1: float,
+        tau2: float,
+    ) -> tuple[float, float, float, float]:
+        s2, c2 = sin(q2), cos(q2)
+        s12 = sin(q1 + q2)
+        t2s2 = t2 * s2
+        f1 = b1 * v1 + level1
+        f2 = b2 * v2 + level2
+        e1 = tau1 + t2s2 * (2.0 * v1 * v2 + v2 * v2) - t4 * sin(q1) - t5 * s12 - f1
+        e2 = tau2 - t2s2 * v1 * v1 - t5 * s12 - f2
+        m11 = t1 + 2.0 * t2 * c2
+        m12 = t3 + t2 * c2
+        det = m11 * t3 - m12 * m12
+        return (
+            (t3 * e1 - m12 * e2) / det,
+            (m11 * e2 - m12 * e1) / det,
+            tau1 * v1 + tau2 * v2,
+            f1 * v1 + f2 * v2,
+        )
+
+    return deriv
+
+
+def _rk4_step(deriv):
+    """Classical RK4 on (q1, q2, q̇1, q̇2, W_in, W_f) with ``deriv`` -> (q̈1, q̈2, P_in, P_f)."""
+
+    def step(
+        q1: float,
+        q2: float,
+        v1: float,
+        v2: float,
+        tau1: float,
+        tau2: float,
+        dt: float,
+    ) -> tuple[float, float, float, float, float, float]:
+        h2 = 0.5 * dt
+        a1, a2, p1, w1 = deriv(q1, q2, v1, v2, tau1, tau2)
+        y1, y2 = v1 + h2 * a1, v2 + h2 * a2
+        b1, b2, p2, w2 = deriv(q1 + h2 * v1, q2 + h2 * v2, y1, y2, tau1, tau2)
+        z1, z2 = v1 + h2 * b1, v2 + h2 * b2
+        c1, c2, p3, w3 = deriv(q1 + h2 * y1, q2 + h2 * y2, z1, z2, tau1, tau2)
+        u1, u2 = v1 + dt * c1, v2 + dt * c2
+        e1, e2, p4, w4 = deriv(q1 + dt * z1, q2 + dt * z2, u1, u2, tau1, tau2)
+        k = dt / 6.0
+        return (
+            q1 + k * (v1 + 2 * y1 + 2 * z1 + u1),
+            q2 + k * (v2 + 2 * y2 + 2 * z2 + u2),
+            v1 + k * (a1 + 2 * b1 + 2 * c1 + e1),
+            v2 + k * (a2 + 2 * b2 + 2 * c2 + e2),
+            k * (p1 + 2 * p2 + 2 * p3 + p4),
+            k * (w1 + 2 * w2 + 2 * w3 + w4),
+        )
+
+    return step
