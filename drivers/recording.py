@@ -166,16 +166,20 @@ def read_signals(path: str | Path) -> Recording:
     if path.is_dir() and (path / META).is_file():
         try:
             meta = json.loads((path / META).read_text())
-        except json.JSONDecodeError as exc:
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise RecordingError(f"{path / META}: not valid JSON ({exc})") from None
+        if not isinstance(meta, dict):
+            raise RecordingError(f"{path / META}: not a JSON object")
     try:
         text = csv_path.read_text()
     except OSError as exc:
         raise RecordingError(f"{csv_path}: cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise RecordingError(f"{csv_path}: not UTF-8 text ({exc})") from None
     lines = text.splitlines()
     if not lines:
         raise RecordingError(f"{csv_path}: empty file, no header")
-    header = next(csv.reader(io.StringIO(lines[0])))
+    header = next(csv.reader(io.StringIO(lines[0])), [])  # a blank first line: no columns
     header = [h.strip() for h in header]
     missing = [c for c in BASE_COLUMNS if c not in header]
     if missing:

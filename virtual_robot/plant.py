@@ -145,6 +145,7 @@ class Plant:
         self._has_cogging = any(a != 0.0 for a in p.cogging_amplitude_Nm)
         self._has_lag = any(tc > 0.0 for tc in p.amplifier_lag_s)
         self._constants = (*params.theta, *params.viscous_Nms)
+        self._fast_rk4 = None
         self._plain_amplifier = (
             not self._has_lag
             and not any(params.torque_gain_error)
@@ -164,6 +165,15 @@ class Plant:
     def advance_to(self, t_end: float) -> None:
         """Integrate from the current time to ``t_end`` with steps of at most ``max_step_s``."""
         while self.t < t_end - 1e-12:
+            if (
+                self._fast_rk4 is not None
+                and self._delay is None
+                and self._plain_amplifier
+                and not self._mode_dirty
+            ):
+                self._advance_sliding(t_end)
+                if self.t >= t_end - 1e-12:
+                    break
             stop = min(t_end, self.t + self.max_step_s)
             if self._delay is not None:
                 due = self._delay.pop_due(self.t)
@@ -400,6 +410,34 @@ class Plant:
                     f_lo *= 0.5
                 side = 1
         return used, result, lag_end
+
+    def _advance_sliding(self, t_end: float) -> None:
+        """Whole RK4 steps while both joints slide (the common case), in one local loop.
+
+        Same arithmetic as :meth:`_step` without a stick event; stops before a step in which a
+        sticky joint's velocity would change sign, and leaves that step to :meth:`_step`.
+        """
+        rk4 = self._fast_rk4
+        assert rk4 is not None
+        tau1, tau2 = self.command_Nm
+        sticky1, sticky2 = self._sticky
+        d1, d2 = self.slip_dir
+        t, h = self.t, self.max_step_s
+        q1, q2, v1, v2 = self.q1, self.q2, self.v1, self.v2
+        work, diss, steps = self.work_in_J, self.dissipated_J, self.steps
+        while t < t_end - 1e-12:
+            stop = min(t_end, t + h)
+            dt = stop - t
+            n1, n2, w1, w2, dw, dd = rk4(q1, q2, v1, v2, tau1, tau2, dt)
+            if (sticky1 and w1 * d1 < 0.0) or (sticky2 and w2 * d2 < 0.0):
+                break
+            q1, q2, v1, v2 = n1, n2, w1, w2
+            work += dw
+            diss += dd
+            t += dt
+            steps += 1
+        self.t, self.q1, self.q2, self.v1, self.v2 = t, q1, q2, v1, v2
+        self.work_in_J, self.dissipated_J, self.steps = work, diss, steps
 
     def _step(self, dt: float) -> None:
         """Advance dt, cutting the step at velocity zero crossings (stick events)."""

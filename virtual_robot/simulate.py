@@ -127,28 +127,34 @@ def simulate(
     started = time.perf_counter()
     last_report = started
     with RecordingWriter(out_dir, meta, extra_columns=("status1", "status2")) as rec:
+        cpr = [p.counts_per_rev for p in drives_p]
+        rated = [p.rated_torque_Nm for p in drives_p]
+        q = [0.0, 0.0]
+        tau = [0.0, 0.0]
         for k in range(n_rows):
             t = k * h
-            q = [0.0, 0.0]
-            tau = [0.0, 0.0]
             commanded = commanded_Nm[k]
+            measured, rates = plant.measured_q, plant.dq
             for i, d in enumerate(drives):
-                d.update(t, plant.measured_q[i], plant.dq[i])
+                d.update(t, measured[i], rates[i])  # encoders sampled at t
                 counts[i] = unwrap_int32(counts[i], d.position_counts)
-                q[i] = counts_to_rad(counts[i], drives_p[i].counts_per_rev)
-                d.write_target_torque(
-                    torque_to_permille(commanded[i], drives_p[i].rated_torque_Nm), t
-                )
-                tau[i] = d.torque_Nm
-                for e in d.pop_emcy():
-                    faults.append(
-                        {"t": t, "drive": drives_p[i].model, "error_code": f"0x{e.error_code:04X}"}
-                    )
-                    print(
-                        f"virtual-robot: drive {drives_p[i].model} fault 0x{e.error_code:04X} "
-                        f"at t = {t:.4f} s; torque zeroed",
-                        file=sys.stderr,
-                    )
+                q[i] = counts_to_rad(counts[i], cpr[i])
+                d.write_target_torque(torque_to_permille(commanded[i], rated[i]), t)
+                tau[i] = d.torque_Nm  # quantized, clamped, zero unless enabled: held over [t, t+h)
+                if d.state is not State.OPERATION_ENABLED:
+                    for e in d.pop_emcy():
+                        faults.append(
+                            {
+                                "t": t,
+                                "drive": drives_p[i].model,
+                                "error_code": f"0x{e.error_code:04X}",
+                            }
+                        )
+                        print(
+                            f"virtual-robot: drive {drives_p[i].model} fault 0x{e.error_code:04X} "
+                            f"at t = {t:.4f} s; torque zeroed",
+                            file=sys.stderr,
+                        )
             rec.write((t, q[0], q[1], tau[0], tau[1], drives[0].statusword, drives[1].statusword))
             plant.command((tau[0], tau[1]), issued_at=t)
             plant.advance_to((k + 1) * h)

@@ -1,0 +1,536 @@
+"""Tests for the profile loaders (profiles/*.py) and the TOML files shipped with them."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
+
+from profiles import ProfileError, available
+from profiles.drive import DriveProfile, load_drive
+from profiles.effects import EffectsProfile, load_effects
+from profiles.experiment import ExperimentProfile, load_experiment
+from profiles.robot import RobotProfile, load_robot
+
+PROFILES_DIR = Path(__file__).resolve().parent.parent / "profiles"
+
+
+# --- a tiny TOML writer (tomli_w is not a dependency) -------------------------------------------
+
+
+def _toml_string(s: str) -> str:
+    out = ['"']
+    for ch in s:
+        if ch in '"\\':
+            out.append("\\" + ch)
+        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
+            out.append(f"\\u{ord(ch):04x}")
+        else:
+            out.append(ch)
+    out.append('"')
+    return "".join(out)
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)
+    if isinstance(v, str):
+        return _toml_string(v)
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{_toml_string(k)} = {_toml_value(x)}" for k, x in v.items()) + "}"
+    raise TypeError(f"cannot write {type(v).__name__} as TOML")
+
+
+def dumps_toml(doc: dict[str, Any]) -> str:
+    """Every key on its own line, every table inline: valid TOML 1.0, readable by tomllib."""
+    return "".join(f"{_toml_string(k)} = {_toml_value(v)}\n" for k, v in doc.items())
+
+
+def shipped(kind: str, name: str) -> dict[str, Any]:
+    with open(PROFILES_DIR / kind / f"{name}.toml", "rb") as f:
+        return tomllib.load(f)
+
+
+def write(tmp_path: Path, doc: dict[str, Any], name: str = "bad.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(dumps_toml(doc), encoding="utf-8")
+    return path
+
+
+def assert_one_line_error(
+    exc: pytest.ExceptionInfo[ProfileError], path: Path | str, field: str | None
+) -> str:
+    msg = str(exc.value)
+    assert "\n" not in msg and "\r" not in msg, msg
+    assert str(path) in msg, msg
+    if field is not None:
+        assert exc.value.field == field
+        assert f"'{field}'" in msg, msg
+    return msg
+
+
+def test_toml_writer_round_trips_shipped_profiles():
+    for kind in ("robots", "drives", "effects", "experiments"):
+        for name in available(kind):
+            doc = shipped(kind, name)
+            assert tomllib.loads(dumps_toml(doc)) == doc
+
+
+# --- every shipped profile loads ----------------------------------------------------------------
+
+LOADERS = {
+    "robots": (load_robot, RobotProfile),
+    "drives": (load_drive, DriveProfile),
+    "effects": (load_effects, EffectsProfile),
+    "experiments": (load_experiment, ExperimentProfile),
+}
+
+
+@pytest.mark.parametrize("kind", sorted(LOADERS))
+def test_every_shipped_profile_loads(kind):
+    names = available(kind)
+    assert names, f"no shipped {kind}"
+    load, cls = LOADERS[kind]
+    for name in names:
+        profile = load(name)
+        assert isinstance(profile, cls)
+        assert Path(profile.source).stem == name
+        # a path to the same file loads the same profile
+        by_path = load(PROFILES_DIR / kind / f"{name}.toml")
+        assert dataclasses.replace(by_path, source=profile.source) == profile
+
+
+def test_shipped_names():
+    assert "cicese" in available("robots")
+    assert {"dm1200a", "dm1015b"} <= set(available("drives"))
+    assert "reyes-kelly" in available("experiments")
+    assert "none" in available("effects")
+    with pytest.raises(ValueError):
+        available("spaceships")
+
+
+def test_robot_drives_are_shipped():
+    robot = load_robot("cicese")
+    for drive in robot.drives:
+        assert drive in available("drives")
+    ids = {load_drive(d).node_id for d in robot.drives}
+    assert len(ids) == 2
+
+
+def test_experiments_have_two_joints():
+    for name in available("experiments"):
+        exp = load_experiment(name)
+        assert len(exp.joints) == 2
+        assert exp.torque_table([0.0, 0.1]).shape == (2, 2)
+
+
+# --- θ of the CICESE arm against Reyes & Kelly Table II ("measured") ----------------------------
+
+# (value, decimals printed in the table)
+TABLE_II = [
+    (2.351, 3),
+    (0.084, 3),
+    (0.102, 3),
+    (38.465, 3),
+    (1.825, 3),
+    (2.288, 3),
+    (0.175, 3),
+    ((7.17 + 8.049) / 2, None),
+    (1.734, 3),
+]
+
+
+def test_cicese_theta_matches_table_ii():
+    theta = load_robot("cicese").theta()
+    assert theta.shape == (9,)
+    for i, (ref, decimals) in enumerate(TABLE_II):
+        half_unit = 0.5 * 10.0**-decimals if decimals is not None else 0.0
+        # within the table's rounding, or 0.2 % of the value
+        assert theta[i] == pytest.approx(ref, rel=2e-3, abs=half_unit), f"θ{i + 1}"
+    assert abs(theta[4] / 1.825 - 1.0) < 2e-3  # θ5 within 0.2 %
+    assert theta[7] == pytest.approx(7.6095, abs=1e-12)
+    assert theta[8] == 1.734
+
+
+# --- bad input: one defect per file, one-line errors naming file and field ----------------------
+
+
+def test_missing_field(tmp_path):
+    doc = shipped("robots", "cicese")
+    del doc["link1"]["mass_kg"]
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_robot(path)
+    assert "missing" in assert_one_line_error(exc, path, "link1.mass_kg")
+
+
+def test_wrong_type(tmp_path):
+    doc = shipped("robots", "cicese")
+    doc["link1"]["mass_kg"] = "heavy"
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_robot(path)
+    msg = assert_one_line_error(exc, path, "link1.mass_kg")
+    assert "number" in msg and "heavy" in msg
+
+
+def test_negative_mass(tmp_path):
+    doc = shipped("robots", "cicese")
+    doc["link2"]["mass_kg"] = -1.0
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_robot(path)
+    assert "-1.0" in assert_one_line_error(exc, path, "link2.mass_kg")
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])
+def test_non_finite_number(tmp_path, value):
+    doc = shipped("robots", "cicese")
+    doc["gravity_m_s2"] = value
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_robot(path)
+    assert "finite" in assert_one_line_error(exc, path, "gravity_m_s2")
+
+
+def test_integer_too_large_for_a_float(tmp_path):
+    doc = shipped("robots", "cicese")
+    doc["link1"]["com_m"] = 10**400  # tomllib reads integers of any size
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_robot(path)
+    assert_one_line_error(exc, path, "link1.com_m")
+
+
+def test_boolean_is_not_a_number(tmp_path):
+    doc = shipped("robots", "cicese")
+    doc["link1"]["mass_kg"] = True
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_robot(path)
+    assert_one_line_error(exc, path, "link1.mass_kg")
+
+
+def test_unknown_effect(tmp_path):
+    doc = shipped("effects", "stribeck")
+    doc["frobnicate"] = {"gain": 2.0}
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_effects(path)
+    msg = assert_one_line_error(exc, path, "frobnicate")
+    assert "unknown effect" in msg and "stribeck" in msg
+
+
+def test_unknown_field_in_table(tmp_path):
+    doc = shipped("robots", "cicese")
+    doc["link1"]["colour"] = "red"
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_robot(path)
+    assert "unknown field" in assert_one_line_error(exc, path, "link1.colour")
+
+
+def test_unknown_field_in_effect_table(tmp_path):
+    doc = shipped("effects", "stribeck")
+    doc["stribeck"]["breakaway"] = 1.2
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_effects(path)
+    assert_one_line_error(exc, path, "stribeck.breakaway")
+
+
+def test_unknown_top_level_field(tmp_path):
+    doc = shipped("drives", "dm1200a")
+    doc["nodeid"] = 3
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_drive(path)
+    assert_one_line_error(exc, path, "nodeid")
+
+
+def test_list_of_wrong_length(tmp_path):
+    doc = shipped("robots", "cicese")
+    doc["friction"]["viscous_Nms"] = [1.0]
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_robot(path)
+    assert "list of 2" in assert_one_line_error(exc, path, "friction.viscous_Nms")
+
+
+def test_bad_list_element(tmp_path):
+    doc = shipped("robots", "cicese")
+    doc["friction"]["coulomb_negative_Nm"] = [8.049, -0.5]
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_robot(path)
+    assert_one_line_error(exc, path, "friction.coulomb_negative_Nm[1]")
+
+
+def test_invalid_toml_syntax(tmp_path):
+    path = tmp_path / "broken.toml"
+    text = (PROFILES_DIR / "robots" / "cicese.toml").read_text(encoding="utf-8")
+    path.write_text(text.replace("mass_kg = 23.902", "mass_kg = = 23.902"), encoding="utf-8")
+    with pytest.raises(ProfileError) as exc:
+        load_robot(path)
+    assert "not valid TOML" in assert_one_line_error(exc, path, None)
+    assert exc.value.field is None
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        b'name = "x"\ndescription = "\xff\xfe"\n',  # not UTF-8
+        b"gravity_m_s2 = 1" + b"0" * 5000 + b"\n",  # more digits than int() converts
+        b"gravity_m_s2 = " + b"[" * 5000 + b"]" * 5000 + b"\n",  # deeper than the recursion limit
+    ],
+    ids=["not-utf8", "5000-digit-integer", "deep-array"],
+)
+def test_toml_that_tomllib_chokes_on(tmp_path, text):
+    path = tmp_path / "odd.toml"
+    path.write_bytes(text)
+    with pytest.raises(ProfileError) as exc:
+        load_robot(path)
+    assert "not valid TOML" in assert_one_line_error(exc, path, None)
+
+
+def test_unknown_field_with_a_newline_in_its_name(tmp_path):
+    doc = shipped("robots", "cicese")
+    doc["link1"]["col\nour"] = 1.0
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_robot(path)
+    msg = str(exc.value)
+    assert "\n" not in msg and str(path) in msg and "link1.col" in msg
+
+
+def test_nonexistent_file(tmp_path):
+    path = tmp_path / "no-such-robot.toml"
+    with pytest.raises(ProfileError) as exc:
+        load_robot(path)
+    assert "no such profile file" in assert_one_line_error(exc, path, None)
+    path = tmp_path / "subdir" / "robot"
+    with pytest.raises(ProfileError) as exc:
+        load_robot(path)
+    assert_one_line_error(exc, path, None)
+
+
+@pytest.mark.parametrize(
+    "kind,load",
+    [
+        ("robots", load_robot),
+        ("drives", load_drive),
+        ("effects", load_effects),
+        ("experiments", load_experiment),
+    ],
+)
+def test_unknown_shipped_name(kind, load):
+    with pytest.raises(ProfileError) as exc:
+        load("no-such-profile")
+    msg = assert_one_line_error(exc, f"{kind}/no-such-profile", None)
+    for name in available(kind):
+        assert name in msg
+
+
+def test_experiment_with_one_joint(tmp_path):
+    doc = shipped("experiments", "reyes-kelly")
+    doc["joints"] = doc["joints"][:1]
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_experiment(path)
+    assert "2 entries" in assert_one_line_error(exc, path, "joints")
+
+
+def test_experiment_unknown_kind(tmp_path):
+    doc = shipped("experiments", "reyes-kelly")
+    doc["kind"] = "closed_loop"
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_experiment(path)
+    assert_one_line_error(exc, path, "kind")
+
+
+def test_experiment_bad_sine(tmp_path):
+    doc = shipped("experiments", "reyes-kelly")
+    doc["joints"][1]["sines"][0]["omega_rad_s"] = "fast"
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_experiment(path)
+    assert_one_line_error(exc, path, "joints[1].sines[0].omega_rad_s")
+
+
+@pytest.mark.parametrize("node_id", [200, 0, 128])
+def test_drive_node_id_out_of_range(tmp_path, node_id):
+    doc = shipped("drives", "dm1200a")
+    doc["node_id"] = node_id
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_drive(path)
+    assert str(node_id) in assert_one_line_error(exc, path, "node_id")
+
+
+def test_drive_node_id_float(tmp_path):
+    doc = shipped("drives", "dm1200a")
+    doc["node_id"] = 1.0
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_drive(path)
+    assert "integer" in assert_one_line_error(exc, path, "node_id")
+
+
+def test_table_replaced_by_scalar(tmp_path):
+    doc = shipped("robots", "cicese")
+    doc["link2"] = 3.88
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_robot(path)
+    assert "table" in assert_one_line_error(exc, path, "link2")
+
+
+def test_profile_error_is_a_value_error():
+    assert issubclass(ProfileError, ValueError)
+
+
+# --- the CLI turns profile errors into one line on stderr, exit code 2 --------------------------
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "virtual_robot.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+
+
+def assert_cli_error(proc: subprocess.CompletedProcess[str], *needles: str) -> str:
+    assert proc.returncode == 2, (proc.returncode, proc.stderr)
+    assert "Traceback" not in proc.stderr
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith("virtual-robot: error:"), lines[0]
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+    return lines[0]
+
+
+def test_cli_negative_mass_robot(tmp_path):
+    doc = shipped("robots", "cicese")
+    doc["link2"]["mass_kg"] = -1.0
+    bad = write(tmp_path, doc)
+    out = tmp_path / "run"
+    proc = run_cli("simulate", "--robot", str(bad), "--out", str(out), "--no-plot")
+    assert_cli_error(proc, str(bad), "link2.mass_kg")
+    assert not (out / "signals.csv").exists()
+
+
+def test_cli_unknown_effect(tmp_path):
+    doc = shipped("effects", "none")
+    doc["frobnicate"] = {"gain": 1.0}
+    bad = write(tmp_path, doc)
+    proc = run_cli("simulate", "--effects", str(bad), "--out", str(tmp_path / "run"), "--no-plot")
+    assert_cli_error(proc, str(bad), "frobnicate")
+
+
+def test_cli_unknown_experiment_name(tmp_path):
+    proc = run_cli(
+        "simulate",
+        "--experiment",
+        "no-such-experiment",
+        "--out",
+        str(tmp_path / "run"),
+        "--no-plot",
+    )
+    line = assert_cli_error(proc, "experiments/no-such-experiment")
+    for name in available("experiments"):
+        assert name in line
+
+
+def test_cli_negative_duration(tmp_path):
+    proc = run_cli("simulate", "--duration", "-1", "--out", str(tmp_path / "run"), "--no-plot")
+    assert_cli_error(proc, "--duration")
+
+
+# --- fuzz: any one leaf of the robot profile replaced by anything -------------------------------
+
+
+def _leaf_paths(value: Any, prefix: tuple = ()) -> list[tuple]:
+    paths: list[tuple] = []
+    if isinstance(value, dict):
+        for k, v in value.items():
+            paths.extend(_leaf_paths(v, (*prefix, k)))
+    else:
+        paths.append(prefix)
+        if isinstance(value, list):
+            for i, v in enumerate(value):
+                paths.extend(_leaf_paths(v, (*prefix, i)))
+    return paths
+
+
+def _replaced(doc: Any, path: tuple, new: Any) -> Any:
+    if not path:
+        return new
+    head, rest = path[0], path[1:]
+    if isinstance(doc, dict):
+        return {k: (_replaced(v, rest, new) if k == head else v) for k, v in doc.items()}
+    return [(_replaced(v, rest, new) if i == head else v) for i, v in enumerate(doc)]
+
+
+CICESE = shipped("robots", "cicese")
+CICESE_LEAVES = _leaf_paths(CICESE)
+
+scalars = (
+    st.text(max_size=12)
+    | st.integers()
+    | st.integers(-(10**400), 10**400)
+    | st.floats(allow_nan=True, allow_infinity=True)
+    | st.booleans()
+)
+values = st.recursive(
+    scalars,
+    lambda children: (
+        st.lists(children, max_size=4) | st.dictionaries(st.text(max_size=6), children, max_size=3)
+    ),
+    max_leaves=8,
+)
+
+
+@settings(max_examples=100, deadline=None)
+@given(path=st.sampled_from(CICESE_LEAVES), new=values)
+@example(path=("link1", "mass_kg"), new=math.nan)
+@example(path=("link1", "mass_kg"), new=-math.inf)
+@example(path=("link2", "com_m"), new=10**400)
+@example(path=("friction", "viscous_Nms"), new={"a\nb": 1})
+@example(path=("joints", "drives", 0), new=["dm1200a"])
+@example(path=("name",), new='\x00\x7f"\\\n')
+def test_fuzzed_robot_profile_loads_or_raises_profile_error(tmp_path_factory, path, new):
+    doc = _replaced(CICESE, path, new)
+    text = dumps_toml(doc)
+    assert repr(tomllib.loads(text)) == repr(doc)  # the writer is faithful (nan-safe comparison)
+    file = tmp_path_factory.mktemp("fuzz") / "robot.toml"
+    file.write_text(text, encoding="utf-8")
+    try:
+        robot = load_robot(file)
+    except ProfileError as exc:
+        msg = str(exc)
+        assert "\n" not in msg and "\r" not in msg, msg
+        assert str(file) in msg
+    else:
+        assert isinstance(robot, RobotProfile)
