@@ -69,7 +69,6 @@ def main() -> int:
         print(json.dumps(result))
     else:
         print(f"offline simulation, 10 s of eqs. (31)-(32), h = 2.5 ms, median of {args.repeats}")
-        )
         print(f"  integrator step      {DEFAULT_STEP_S * 1e3:.2f} ms (RK4), {steps} steps")
         print(f"  plant cost per step  {result['plant_us_per_step']:.2f} us")
         print(
