@@ -30,65 +30,56 @@ import math
 from dataclasses import dataclass
 from fractions import Fraction
 
+from drivers.protocol.cia402 import (
+    ABORT_NOT_IN_STATE,
+    ABORT_VALUE_RANGE,
+    ABORT_VALUE_TOO_HIGH,
+    ABORT_VALUE_TOO_LOW,
+    CW_FAULT_RESET,
+    CW_HALT,
+    ERR_NONE,
+    ERR_OVERSPEED,
+    ERR_RPDO_TIMEOUT,
+    ERREG_COMMUNICATION,
+    ERREG_DEVICE_PROFILE,
+    ERREG_GENERIC,
+    MODE_CST,
+    MODE_TQ,
+    SW_PATTERNS,
+    State,
+    state_from_statusword,
+)
 from drivers.units import INT16_MAX, INT16_MIN, INT32_MAX, INT32_MIN, wrap_int32
 from profiles.drive import DriveProfile
 
-ERR_NONE = 0x0000
-ERR_RPDO_TIMEOUT = 0x8250  # CiA 301: RPDO timeout (command watchdog)
-ERR_OVERSPEED = 0x8400  # CiA 402: velocity / speed controller
+# The drive's vocabulary lives in drivers.protocol.cia402 (shared with the host); re-exported here.
+__all__ = [
+    "ABORT_NOT_IN_STATE",
+    "ABORT_VALUE_RANGE",
+    "ABORT_VALUE_TOO_HIGH",
+    "ABORT_VALUE_TOO_LOW",
+    "CW_FAULT_RESET",
+    "CW_HALT",
+    "ERREG_COMMUNICATION",
+    "ERREG_DEVICE_PROFILE",
+    "ERREG_GENERIC",
+    "ERR_NONE",
+    "ERR_OVERSPEED",
+    "ERR_RPDO_TIMEOUT",
+    "INT16_MAX",
+    "INT16_MIN",
+    "INT32_MAX",
+    "INT32_MIN",
+    "MODE_CST",
+    "MODE_TQ",
+    "DriveError",
+    "DriveModel",
+    "Emcy",
+    "State",
+    "state_from_statusword",
+]
 
-MODE_TQ = 4  # 0x6060 profile torque
-MODE_CST = 10  # 0x6060 cyclic synchronous torque
-
-# CiA 301 SDO abort codes
-ABORT_VALUE_RANGE = 0x06090030
-ABORT_VALUE_TOO_HIGH = 0x06090031
-ABORT_VALUE_TOO_LOW = 0x06090032
-ABORT_NOT_IN_STATE = 0x08000022  # for transports; the model itself ignores invalid commands
-
-# 0x1001 error register bits (CiA 301)
-ERREG_GENERIC = 0x01
-ERREG_COMMUNICATION = 0x10
-ERREG_DEVICE_PROFILE = 0x20
-
-
-CW_FAULT_RESET = 0x0080  # controlword bit 7
-CW_HALT = 0x0100  # controlword bit 8
-
-
-class State(enum.Enum):
-    """CiA 402 power drive system state machine."""
-
-    NOT_READY_TO_SWITCH_ON = enum.auto()
-    SWITCH_ON_DISABLED = enum.auto()
-    READY_TO_SWITCH_ON = enum.auto()
-    SWITCHED_ON = enum.auto()
-    OPERATION_ENABLED = enum.auto()
-    QUICK_STOP_ACTIVE = enum.auto()
-    FAULT_REACTION_ACTIVE = enum.auto()
-    FAULT = enum.auto()
-
-
-# CiA 402 statusword patterns: (mask, value) per state, bits 0-3, 5, 6.
-_SW_PATTERNS: tuple[tuple[int, int, State], ...] = (
-    (0x4F, 0x00, State.NOT_READY_TO_SWITCH_ON),
-    (0x4F, 0x40, State.SWITCH_ON_DISABLED),
-    (0x6F, 0x21, State.READY_TO_SWITCH_ON),
-    (0x6F, 0x23, State.SWITCHED_ON),
-    (0x6F, 0x27, State.OPERATION_ENABLED),
-    (0x6F, 0x07, State.QUICK_STOP_ACTIVE),
-    (0x4F, 0x0F, State.FAULT_REACTION_ACTIVE),
-    (0x4F, 0x08, State.FAULT),
-)
-_SW_BITS = {state: value for _, value, state in _SW_PATTERNS}
-
-
-def state_from_statusword(sw: int) -> State | None:
-    """Decode a 0x6041 statusword into its CiA 402 state, or None if no pattern matches."""
-    for mask, value, state in _SW_PATTERNS:
-        if sw & mask == value:
-            return state
-    return None
+_SW_BITS = {state: value for _, value, state in SW_PATTERNS}
 
 
 class _Cmd(enum.Enum):
