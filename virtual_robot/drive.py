@@ -228,8 +228,14 @@ class DriveModel:
 
     # ----------------------------------------------------------------- one sampling period
 
-    def update(self, now: float, position_rad: float, velocity_rad_s: float) -> None:
-        """Sample the encoder, check overspeed and the command watchdog."""
+    def update(
+        self, now: float, position_rad: float, velocity_rad_s: float, count_period: bool = True
+    ) -> None:
+        """Sample the encoder, check overspeed and (if ``count_period``) the command watchdog.
+
+        In lockstep every SYNC is one drive period. In realtime the drive's own period timer
+        counts periods, and a SYNC only samples (``count_period=False``).
+        """
         if not (math.isfinite(position_rad) and math.isfinite(velocity_rad_s)):
             raise ValueError("position and velocity must be finite")
         self._boot(now)
@@ -246,7 +252,7 @@ class DriveModel:
             and abs(velocity_rad_s) > self.profile.max_velocity_rad_s
         ):
             self._fault(ERR_OVERSPEED, ERREG_GENERIC | ERREG_DEVICE_PROFILE, now)
-        if self._state is State.OPERATION_ENABLED:
+        if count_period and self._state is State.OPERATION_ENABLED:
             self._watchdog += 1
             if self._watchdog >= self.profile.watchdog_periods:
                 self._fault(ERR_RPDO_TIMEOUT, ERREG_GENERIC | ERREG_COMMUNICATION, now)

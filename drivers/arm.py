@@ -1,0 +1,160 @@
+"""The Drive/Arm API the loops see: the same for every transport and for real drives.
+
+An :class:`Arm` is a link to N drives. The loop runner uses only this interface, so it does not
+know whether it runs over slcan, SocketCAN, socketcand, an in-process bus or a serial line:
+
+    with make_arm(bench) as arm:          # open: connect, configure (e.g. PDOs by SDO)
+        arm.enable()                      # CiA 402: shutdown, switch on, enable operation
+        s = arm.start()                   # first feedback q(t_0), nothing commanded yet
+        for k in range(n):
+            tau = controller(s)
+            s = arm.cycle(tau)            # command held over one period, feedback at its end
+    # on exit, exception or Ctrl-C: zero torque, drives disabled, link closed
+
+Units are SI here (rad, Nm); counts and per-mille stay inside the drivers.
+"""
+
+from __future__ import annotations
+
+import abc
+import contextlib
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+
+class LinkError(RuntimeError):
+    """The link to the drives failed (timeout, dead transport, protocol error)."""
+
+
+class SafetyStop(RuntimeError):  # noqa: N818 (it is a stop, not a bug)
+    """The host's own limits tripped: the arm was stopped (zero torque, drives disabled)."""
+
+
+@dataclass(frozen=True)
+class Fault:
+    joint: int  # 0-based
+    error_code: int  # CiA 402 / EMCY code (serial drives mapped onto the same codes)
+    text: str = ""
+
+
+@dataclass(frozen=True)
+class Sample:
+    """Feedback of one period.
+
+    ``q_rad``: encoder readings; ``status``: CiA 402 statuswords (serial drives report the
+    equivalent bits); ``tau_Nm``: the torque commanded for the period that ended, as quantized
+    by the driver (what the drive applies, unless it faulted); ``t``: time of the sample on the
+    link's clock (k·h in lockstep); ``sent_at``/``received_at``/``deadline``: host monotonic
+    times in seconds since the link opened (realtime diagnostics; equal to ``t`` in lockstep).
+    """
+
+    t: float
+    q_rad: tuple[float, ...]
+    status: tuple[int, ...]
+    tau_Nm: tuple[float, ...] = ()
+    sent_at: float = math.nan
+    received_at: float = math.nan
+    deadline: float = math.nan
+
+
+@dataclass(frozen=True)
+class SafetyLimits:
+    """Host-side limits (a real bench enforces these even if the drive does not)."""
+
+    torque_Nm: tuple[float, ...]
+    velocity_rad_s: tuple[float, ...] = ()
+    position_rad: tuple[tuple[float, float], ...] = ()
+
+    def clamp_torque(self, tau: Sequence[float]) -> tuple[float, ...]:
+        return tuple(
+            max(-lim, min(lim, float(t))) for t, lim in zip(tau, self.torque_Nm, strict=True)
+        )
+
+    def check(self, q: Sequence[float], dq: Sequence[float] | None) -> str | None:
+        """The first limit violated, as one line, or None."""
+        for j, (lo, hi) in enumerate(self.position_rad):
+            if not lo <= q[j] <= hi:
+                return f"joint {j + 1} position {q[j]:.4f} rad outside [{lo}, {hi}]"
+        if dq is not None:
+            for j, lim in enumerate(self.velocity_rad_s):
+                if abs(dq[j]) > lim:
+                    return f"joint {j + 1} velocity {dq[j]:.3f} rad/s beyond {lim}"
+        return None
+
+
+@dataclass
+class LinkStats:
+    """Counters a link keeps for meta.json."""
+
+    cycles: int = 0
+    frames_sent: int = 0
+    frames_received: int = 0
+    timeouts: int = 0
+    errors: list[str] = field(default_factory=list)
+
+
+class Arm(abc.ABC):
+    """A link to the drives of one arm. Subclasses: one per protocol (CAN 402, serial)."""
+
+    n_joints: int = 2
+    period_s: float
+    mode: str  # "lockstep" | "realtime"
+    stats: LinkStats
+
+    @abc.abstractmethod
+    def open(self) -> None:
+        """Connect and configure (CAN: NMT, PDO map by SDO; serial: DMODE, ECHO0)."""
+
+    @abc.abstractmethod
+    def close(self) -> None:
+        """Release the transport. Does not command anything (see :meth:`safe_stop`)."""
+
+    @abc.abstractmethod
+    def enable(self) -> None:
+        """Bring every drive to OPERATION ENABLED in torque mode; LinkError if one will not."""
+
+    @abc.abstractmethod
+    def disable(self) -> None:
+        """Zero torque and disable every drive."""
+
+    @abc.abstractmethod
+    def start(self) -> Sample:
+        """The first feedback, q(t_0), before any torque is commanded."""
+
+    @abc.abstractmethod
+    def cycle(self, tau_Nm: Sequence[float], deadline: float | None = None) -> Sample:
+        """Command ``tau_Nm`` for one period; return the feedback at the end of that period.
+
+        ``deadline`` (realtime): host monotonic time, seconds since open, at which the period
+        ends; the link waits for it before sampling. Raises LinkError if feedback does not come.
+        """
+
+    @abc.abstractmethod
+    def faults(self) -> list[Fault]:
+        """Active faults of every drive."""
+
+    @abc.abstractmethod
+    def clear_faults(self) -> None:
+        """Fault reset on every drive in FAULT."""
+
+    def traffic_log(self) -> str | None:
+        """Path of the raw traffic log this link writes, if any."""
+        return None
+
+    def safe_stop(self) -> None:
+        """Best effort zero torque and disable; never raises (used on every exit path)."""
+        # a dead link must not mask the error that brought us here
+        with contextlib.suppress(Exception):
+            self.disable()
+
+    def __enter__(self) -> Arm:
+        self.open()
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        try:
+            self.safe_stop()
+        finally:
+            self.close()

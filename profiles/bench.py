@@ -1,0 +1,112 @@
+"""Bench profile: which transport and protocol, which robot, time mode, period, safety limits.
+
+A real bench is a profile, not a code change: `transport`/`channel` point at can0, a USB slcan
+adapter or a serial port, `virtual = false`, and `confirm_real` must be passed on the command line.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from profiles.loader import Fields, load_toml
+
+PROTOCOLS = ("can", "serial")
+TRANSPORTS = {"can": ("slcan", "socketcan", "socketcand", "virtual"), "serial": ("serial",)}
+MODES = ("lockstep", "realtime")
+
+
+@dataclass(frozen=True)
+class BenchProfile:
+    name: str
+    source: str
+    virtual: bool
+    protocol: str  # can | serial
+    transport: str  # slcan | socketcan | socketcand | virtual | serial
+    channel: str  # "" for a virtual bench: the virtual robot announces it
+    bitrate: int
+    baudrate: int
+    mode: str
+    period_s: float
+    robot: str
+    effects: str | None
+    timeout_s: float  # feedback timeout per cycle (lockstep) / per request
+    torque_limit_Nm: tuple[float, float]
+    velocity_limit_rad_s: tuple[float, float]
+    position_limit_rad: tuple[tuple[float, float], tuple[float, float]]
+    in_process: bool = False  # python-can `virtual`: the robot runs in a thread of the host
+
+
+def load_bench(name_or_path: str | Path) -> BenchProfile:
+    data, source = load_toml("benches", name_or_path)
+    f = Fields(data, source)
+    f.only(
+        {
+            "name",
+            "description",
+            "virtual",
+            "protocol",
+            "transport",
+            "channel",
+            "bitrate",
+            "baudrate",
+            "mode",
+            "period_s",
+            "robot",
+            "effects",
+            "timeout_s",
+            "limits",
+        }
+    )
+    protocol = f.string("protocol")
+    if protocol not in PROTOCOLS:
+        raise f.error("protocol", f"must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
+    transport = f.string("transport")
+    if transport not in TRANSPORTS[protocol]:
+        raise f.error(
+            "transport",
+            f"for protocol {protocol!r} must be one of "
+            f"{', '.join(TRANSPORTS[protocol])}, got {transport!r}",
+        )
+    mode = f.string("mode", "lockstep")
+    if mode not in MODES:
+        raise f.error("mode", f"must be one of {', '.join(MODES)}, got {mode!r}")
+    virtual = f.boolean("virtual")
+    channel = f.string("channel", "")
+    if not virtual and not channel:
+        raise f.error("channel", "a real bench needs a channel (e.g. can0, /dev/ttyACM0)")
+    limits = f.table("limits")
+    limits.only({"torque_Nm", "velocity_rad_s", "position_rad"})
+    raw_pos = limits.data.get("position_rad")
+    if (
+        not isinstance(raw_pos, list)
+        or len(raw_pos) != 2
+        or not all(isinstance(p, list) and len(p) == 2 for p in raw_pos)
+    ):
+        raise limits.error("position_rad", "must be [[lo1, hi1], [lo2, hi2]] in rad")
+    position = []
+    for j, pair in enumerate(raw_pos):
+        sub = Fields({"lo": pair[0], "hi": pair[1]}, source, f"limits.position_rad[{j}].")
+        lo, hi = sub.number("lo"), sub.number("hi")
+        if lo >= hi:
+            raise limits.error(f"position_rad[{j}]", f"lower bound {lo} must be below {hi}")
+        position.append((lo, hi))
+    return BenchProfile(
+        name=f.string("name"),
+        source=source,
+        virtual=virtual,
+        protocol=protocol,
+        transport=transport,
+        channel=channel,
+        bitrate=f.integer("bitrate", 1_000_000, lo=10_000, hi=1_000_000),
+        baudrate=f.integer("baudrate", 9600, lo=300, hi=4_000_000),
+        mode=mode,
+        period_s=f.number("period_s", 0.0025, positive=True, hi=1.0),
+        robot=f.string("robot", "cicese"),
+        effects=f.string("effects") if f.has("effects") else None,
+        timeout_s=f.number("timeout_s", 0.5, positive=True, hi=60.0),
+        torque_limit_Nm=limits.numbers("torque_Nm", 2, positive=True),  # type: ignore[arg-type]
+        velocity_limit_rad_s=limits.numbers("velocity_rad_s", 2, positive=True),  # type: ignore[arg-type]
+        position_limit_rad=(position[0], position[1]),
+        in_process=transport == "virtual",
+    )

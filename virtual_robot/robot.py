@@ -1,0 +1,320 @@
+"""The virtual robot behind any transport: plant + two drive models + the object dictionary.
+
+Protocol servers (CAN, serial) decode what arrives and call this core; it never does I/O.
+Time has two modes (DESIGN.md "Time"):
+
+* **lockstep**: robot time stands still between SYNCs. The first SYNC samples at t = 0; every
+  later SYNC first advances the plant one period with the torques held since the previous one,
+  then samples. A torque written between SYNC k and SYNC k+1 is applied at t_k, so the sequence
+  is exactly the offline simulation's (sample at t_k, command, hold over [t_k, t_k + h)).
+* **realtime**: robot time is the clock passed in. Every call first integrates the plant up to
+  now with the torques held so far; a late command is applied late. The drives' own period
+  timer (:meth:`tick`, called every period by the server) counts the command watchdog; a SYNC
+  only samples.
+
+All methods take the core's lock, so a server thread and a period-timer thread may share it.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from drivers.protocol import cia402 as co
+from drivers.protocol.cia402 import SdoAbortError
+from profiles.drive import DriveProfile, load_drive
+from profiles.effects import EffectsProfile
+from profiles.robot import RobotProfile
+from virtual_robot.drive import DriveError, DriveModel, Emcy
+from virtual_robot.plant import DEFAULT_STEP_S, Plant, PlantParams
+
+LOCKSTEP, REALTIME = "lockstep", "realtime"
+DEVICE_TYPE_SERVO = 0x00020192  # CiA 402 servo drive
+
+
+@dataclass
+class Feedback:
+    """What one drive reports after a SYNC / sample."""
+
+    node: int
+    statusword: int
+    position_counts: int
+    velocity_counts_s: int
+    torque_actual_permille: int
+
+
+class VirtualRobot:
+    """Plant and drives of one robot, addressed by CAN node id (or serial unit address)."""
+
+    def __init__(
+        self,
+        robot: RobotProfile,
+        effects: EffectsProfile | None = None,
+        *,
+        mode: str = LOCKSTEP,
+        period_s: float = 0.0025,
+        clock: Callable[[], float] | None = None,
+        step_s: float = DEFAULT_STEP_S,
+        q0: tuple[float, float] = (0.0, 0.0),
+    ) -> None:
+        if mode not in (LOCKSTEP, REALTIME):
+            raise ValueError(f"mode must be {LOCKSTEP!r} or {REALTIME!r}, got {mode!r}")
+        if mode == REALTIME and clock is None:
+            raise ValueError("realtime mode needs a clock")
+        self.robot = robot
+        self.effects = effects or EffectsProfile()
+        self.mode = mode
+        self.period_s = period_s
+        self._clock = clock
+        self._t0 = clock() if clock is not None else 0.0
+        self.lock = threading.RLock()
+        self.profiles: tuple[DriveProfile, ...] = tuple(load_drive(n) for n in robot.drives)
+        self.drives = [DriveModel(p) for p in self.profiles]
+        self.by_node = {p.node_id: i for i, p in enumerate(self.profiles)}
+        self.by_unit = {p.unit_address: i for i, p in enumerate(self.profiles)}
+        self.plant = Plant(
+            PlantParams.from_profiles(robot, self.effects), q0=q0, max_step_s=min(step_s, period_s)
+        )
+        self.syncs = 0
+        self.t = 0.0  # robot time of the last sample / event
+        self._store: list[dict[tuple[int, int], int]] = [
+            self._initial_objects(p) for p in self.profiles
+        ]
+        for i, d in enumerate(self.drives):  # power on: transition 1 to SWITCH ON DISABLED
+            d.update(0.0, self.plant.measured_q[i], self.plant.dq[i], count_period=False)
+
+    # ---- time ---------------------------------------------------------------------------
+    def now(self) -> float:
+        if self.mode == LOCKSTEP:
+            return self.t
+        assert self._clock is not None
+        return self._clock() - self._t0
+
+    def _catch_up(self) -> float:
+        """Realtime: integrate to now with the torques held so far. Returns robot time."""
+        if self.mode == REALTIME:
+            now = self.now()
+            if now > self.plant.t:
+                self.plant.advance_to(now)
+            self.t = max(self.t, now)
+        return self.t
+
+    def _apply_torques(self, now: float) -> None:
+        self.plant.command((self.drives[0].torque_Nm, self.drives[1].torque_Nm), issued_at=now)
+
+    def _sample(self, now: float, count_period: bool) -> None:
+        measured, rates = self.plant.measured_q, self.plant.dq
+        for i, d in enumerate(self.drives):
+            d.update(now, measured[i], rates[i], count_period=count_period)
+        self._apply_torques(now)  # a fault in update() zeroes torque at once
+
+    # ---- events from a transport ----------------------------------------------------------
+    def sync(self) -> list[Feedback]:
+        """SYNC (or the serial step): advance as the time mode says, sample every drive."""
+        with self.lock:
+            if self.mode == LOCKSTEP:
+                if self.syncs > 0:
+                    # t_k = k·h, computed exactly as the offline simulation and recordings do
+                    self.t = self.syncs * self.period_s
+                    self.plant.advance_to(self.t)
+                self._sample(self.t, count_period=True)
+            else:
+                now = self._catch_up()
+                self._sample(now, count_period=False)
+            self.syncs += 1
+            return [self._feedback(i) for i in range(len(self.drives))]
+
+    def tick(self) -> None:
+        """Realtime only: one period of the drives' own timer (command watchdog)."""
+        with self.lock:
+            if self.mode != REALTIME:
+                return
+            now = self._catch_up()
+            self._sample(now, count_period=True)
+
+    def write(
+        self,
+        index: int,
+        subindex: int,
+        value: int,
+        *,
+        node: int | None = None,
+        unit: int | None = None,
+    ) -> None:
+        """Write an object of one drive; raises SdoAbortError with the CiA 301 code."""
+        with self.lock:
+            i = self._drive_index(node, unit)
+            obj = co.OBJECT_MAP.get((index, subindex))
+            if obj is None:
+                co.lookup(index, subindex)  # raises the right abort
+                raise AssertionError("unreachable")
+            if obj.access is co.Access.RO:
+                raise SdoAbortError(index, subindex, co.ABORT_READ_ONLY)
+            lo, hi = obj.limits()
+            if not lo <= value <= hi:
+                code = co.ABORT_VALUE_TOO_HIGH if value > hi else co.ABORT_VALUE_TOO_LOW
+                raise SdoAbortError(index, subindex, code)
+            now = self._catch_up()
+            d = self.drives[i]
+            try:
+                if index == 0x6040:
+                    d.write_controlword(value, now)
+                elif index == 0x6071:
+                    d.write_target_torque(value, now)
+                elif index == 0x6060:
+                    d.write_mode(value)
+                elif index == 0x6072:
+                    d.write_max_torque(value)
+                else:
+                    self._write_stored(i, index, subindex, value)
+            except DriveError as exc:
+                raise SdoAbortError(index, subindex, exc.abort_code) from None
+            self._apply_torques(now)
+
+    def read(
+        self, index: int, subindex: int, *, node: int | None = None, unit: int | None = None
+    ) -> int:
+        """Read an object of one drive; raises SdoAbortError with the CiA 301 code."""
+        with self.lock:
+            i = self._drive_index(node, unit)
+            co.lookup(index, subindex)
+            d = self.drives[i]
+            live = {
+                (0x1001, 0): lambda: d.error_register,
+                (0x603F, 0): lambda: d.error_code,
+                (0x6040, 0): lambda: d.controlword,
+                (0x6041, 0): lambda: d.statusword,
+                (0x6060, 0): lambda: d.mode,
+                (0x6061, 0): lambda: d.mode,
+                (0x6064, 0): lambda: d.position_counts,
+                (0x606C, 0): lambda: d.velocity_counts_s,
+                (0x6071, 0): lambda: d.target_torque_permille,
+                (0x6072, 0): lambda: d.max_torque_permille,
+                (0x6077, 0): lambda: d.torque_actual_permille,
+            }
+            getter = live.get((index, subindex))
+            if getter is not None:
+                return getter()
+            return self._store[i][(index, subindex)]
+
+    def reset_node(self, node: int) -> None:
+        """NMT reset node: drive back to power-on (errors cleared), PDO configuration cleared."""
+        with self.lock:
+            i = self._drive_index(node, None)
+            now = self._catch_up()
+            self.drives[i].reset(now)
+            self.drives[i].update(
+                now, self.plant.measured_q[i], self.plant.dq[i], count_period=False
+            )
+            self._store[i] = self._initial_objects(self.profiles[i])
+            self._apply_torques(now)
+
+    def disable_all(self) -> None:
+        """Safe stop: every drive to SWITCH ON DISABLED, torque zero (e.g. host lost)."""
+        with self.lock:
+            now = self._catch_up()
+            for d in self.drives:
+                d.write_controlword(co.CW_DISABLE_VOLTAGE, now)
+            self._apply_torques(now)
+
+    def pop_emcy(self) -> list[tuple[int, Emcy]]:
+        """EMCY events since the last call, as (node id, event)."""
+        with self.lock:
+            out = []
+            for p, d in zip(self.profiles, self.drives, strict=True):
+                out.extend((p.node_id, e) for e in d.pop_emcy())
+            return out
+
+    def feedback(self, node: int | None = None, unit: int | None = None) -> Feedback:
+        with self.lock:
+            return self._feedback(self._drive_index(node, unit))
+
+    # ---- helpers ----------------------------------------------------------------------------
+    def _feedback(self, i: int) -> Feedback:
+        d = self.drives[i]
+        return Feedback(
+            self.profiles[i].node_id,
+            d.statusword,
+            d.position_counts,
+            d.velocity_counts_s,
+            d.torque_actual_permille,
+        )
+
+    def _drive_index(self, node: int | None, unit: int | None) -> int:
+        i = self.by_node.get(node) if node is not None else self.by_unit.get(unit)  # type: ignore[arg-type]
+        if i is None:
+            raise KeyError(
+                f"no drive at node {node}" if node is not None else f"no drive at unit {unit}"
+            )
+        return i
+
+    def pdo_mapping(self, node: int, mapping_index: int) -> tuple[tuple[int, int], ...]:
+        """The configured mapping of a PDO (0x1600 RPDO1, 0x1A00 TPDO1, 0x1A01 TPDO2)."""
+        with self.lock:
+            store = self._store[self._drive_index(node, None)]
+            n = store[(mapping_index, 0)]
+            return tuple(
+                (store[(mapping_index, s)] >> 16, store[(mapping_index, s)] >> 8 & 0xFF)
+                for s in range(1, n + 1)
+            )
+
+    def pdo_cob_id(self, node: int, comm_index: int) -> int | None:
+        """COB-ID of a PDO if it is valid (bit 31 clear), else None."""
+        with self.lock:
+            value = self._store[self._drive_index(node, None)][(comm_index, 1)]
+            return None if value & 0x80000000 else value & 0x7FF
+
+    @staticmethod
+    def _initial_objects(p: DriveProfile) -> dict[tuple[int, int], int]:
+        """Power-on values. PDOs start invalid and unmapped: the host must configure them."""
+        n = p.node_id
+        store = {
+            (0x1000, 0): DEVICE_TYPE_SERVO,
+            (0x1017, 0): 0,
+            (0x1018, 1): p.vendor_id,
+            (0x1018, 2): p.product_code,
+            (0x1018, 3): 0x00010000,
+            (0x1400, 1): 0x80000000 | (co.RPDO1_BASE + n),
+            (0x1400, 2): co.TRANSMISSION_SYNC,
+            (0x1800, 1): 0x80000000 | (co.TPDO1_BASE + n),
+            (0x1800, 2): co.TRANSMISSION_SYNC,
+            (0x1801, 1): 0x80000000 | (co.TPDO2_BASE + n),
+            (0x1801, 2): co.TRANSMISSION_SYNC,
+            (0x6076, 0): round(p.rated_torque_Nm * 1000),  # mNm
+            (0x608F, 1): p.counts_per_rev,
+            (0x608F, 2): 1,
+        }
+        for m in (0x1600, 0x1A00, 0x1A01):
+            store[(m, 0)] = 0
+            store[(m, 1)] = 0
+            store[(m, 2)] = 0
+        return store
+
+    def _write_stored(self, i: int, index: int, subindex: int, value: int) -> None:
+        store = self._store[i]
+        if index in (0x1600, 0x1A00, 0x1A01):
+            if subindex == 0:
+                if value > 2:
+                    raise SdoAbortError(index, subindex, co.ABORT_VALUE_TOO_HIGH)
+                entries = [store[(index, s)] for s in range(1, value + 1)]
+                size = 0
+                for e in entries:
+                    obj = co.OBJECT_MAP.get((e >> 16, e >> 8 & 0xFF))
+                    if obj is None or not obj.pdo or (e & 0xFF) != obj.size * 8:
+                        raise SdoAbortError(index, subindex, co.ABORT_NOT_MAPPABLE)
+                    if (index == 0x1600) != (obj.access is co.Access.RW):
+                        raise SdoAbortError(index, subindex, co.ABORT_NOT_MAPPABLE)
+                    size += obj.size
+                if size > 8:
+                    raise SdoAbortError(index, subindex, co.ABORT_PDO_LENGTH)
+            elif store[(index, 0)] != 0:
+                # CiA 301: entries may only change while the mapping is disabled (sub 0 = 0)
+                raise SdoAbortError(index, subindex, co.ABORT_NOT_IN_STATE)
+        elif index in (0x1400, 0x1800, 0x1801) and subindex == 2 and value != co.TRANSMISSION_SYNC:
+            raise SdoAbortError(index, subindex, co.ABORT_VALUE_RANGE)  # only synchronous (1)
+        elif index in (0x1400, 0x1800, 0x1801) and subindex == 1:
+            base = {0x1400: co.RPDO1_BASE, 0x1800: co.TPDO1_BASE, 0x1801: co.TPDO2_BASE}[index]
+            if value & 0x7FF != base + self.profiles[i].node_id or value & 0x3FFFF800:
+                raise SdoAbortError(index, subindex, co.ABORT_VALUE_RANGE)
+        store[(index, subindex)] = value
