@@ -133,6 +133,31 @@ class VirtualRobot:
             now = self._catch_up()
             self._sample(now, count_period=True)
 
+    def start_period_timer(self, stop: threading.Event) -> threading.Thread | None:
+        """Realtime: a daemon thread calling :meth:`tick` every period until ``stop`` is set.
+
+        Deadlines are absolute (t0 + k·h), so the timer does not drift; a late wake-up runs
+        one tick and re-aligns. Lockstep needs no timer (returns None).
+        """
+        if self.mode != REALTIME:
+            return None
+        assert self._clock is not None
+        clock = self._clock
+
+        def run() -> None:
+            k = 1
+            start = clock()
+            while not stop.is_set():
+                delay = start + k * self.period_s - clock()
+                if delay > 0 and stop.wait(delay):
+                    return
+                self.tick()
+                k = max(k + 1, int((clock() - start) / self.period_s) + 1)
+
+        thread = threading.Thread(target=run, name="drive-period-timer", daemon=True)
+        thread.start()
+        return thread
+
     def write(
         self,
         index: int,
