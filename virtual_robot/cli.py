@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from collections.abc import Sequence
 
@@ -38,6 +39,17 @@ def _parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--no-plot", action="store_true", help="skip positions.png")
     s.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
+
+    v = sub.add_parser("serve", help="serve the drives over a bench's transport")
+    v.add_argument("--bench", default="virtual-slcan", help="bench profile name or TOML file")
+    v.add_argument("--effects", default=None, help="effects profile name or file")
+    v.add_argument("--seed", type=int, default=None, help="seed for any randomness (recorded)")
+    v.add_argument(
+        "--mode",
+        choices=("lockstep", "realtime"),
+        default=None,
+        help="time mode (default: the bench's)",
+    )
     return p
 
 
@@ -79,11 +91,42 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_serve(args: argparse.Namespace) -> int:
+    """Serve until SIGTERM/SIGINT; the first stdout line is the JSON announcement."""
+    import signal
+    import threading
+
+    from profiles.bench import load_bench
+    from virtual_robot.serve import serve
+
+    bench = load_bench(args.bench)
+    if args.effects is not None:
+        load_effects(args.effects)  # fail fast, with the one-line error, before announcing
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: object) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+
+    def announce(info: dict) -> None:
+        print(json.dumps({**info, "bench": bench.name, "pid": os.getpid()}), flush=True)
+
+    code = serve(
+        bench, effects=args.effects, mode=args.mode, seed=args.seed, announce=announce, stop=stop
+    )
+    print("virtual-robot: stopped", file=sys.stderr)
+    return code
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
         if args.command == "simulate":
             return cmd_simulate(args)
+        if args.command == "serve":
+            return cmd_serve(args)
     except (ProfileError, RecordingError, ValueError, OSError) as exc:
         print(f"virtual-robot: error: {exc}", file=sys.stderr)
         return 2

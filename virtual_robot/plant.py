@@ -10,9 +10,10 @@ Friction is a Karnopp-style stick–slip model, not a smooth tanh:
     it breaks away in the direction of that torque when it leaves the band;
   * a sliding joint feels f_i = b_i q̇_i + F_i(dir) sgn, where the direction is fixed over a step
     (so each RK4 step integrates a smooth ODE); when q̇_i reaches zero inside a step the step is
-    cut at the crossing (located by linear interpolation and re-integrated), the joint sticks, and
-    the band is checked again for the rest of the step. The small kinetic energy removed by
-    clamping q̇_i to exactly zero is booked as dissipated.
+    cut at the crossing (located by Illinois regula falsi on the RK4 flow map, to ~1e-12 rad/s),
+    the joint sticks, and the band is checked again for the rest of the step. The small kinetic
+    energy removed by clamping q̇_i to exactly zero is booked as dissipated.
+Break-away is checked at step boundaries, so it is detected up to one step (0.5 ms) late.
 Joint 1's Coulomb level is direction-dependent by default (7.17 Nm for q̇1 > 0, 8.049 Nm for
 q̇1 < 0, Table I).
 """
@@ -34,7 +35,8 @@ from virtual_robot.effects import (
 )
 
 # 0.5 ms = 2 kHz, five RK4 steps per 2.5 ms control period. Halving it changes q on the 10 s
-# Reyes & Kelly run by ~1e-7 rad, 1/45 of the finer encoder's count (tests/test_plant.py checks it).
+# Reyes & Kelly run by ~1e-11 rad (round-off level; tests/test_plant.py bounds it by 1e-9 rad,
+# which linear interpolation of the stick instants would break, at ~1e-6 rad).
 DEFAULT_STEP_S = 5e-4
 Pair = tuple[float, float]
 

@@ -1,0 +1,79 @@
+"""From a bench profile to an :class:`~drivers.arm.Arm`: pick the protocol, build the transport.
+
+This is the only place that knows which transports exist. A real bench differs from a virtual
+one only by its profile (channel, ``virtual = false``); the code path is the same.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from drivers.arm import Arm, SafetyLimits
+from profiles.bench import BenchProfile
+from profiles.drive import load_drive
+from profiles.robot import load_robot
+
+
+def limits_of(bench: BenchProfile) -> SafetyLimits:
+    return SafetyLimits(
+        torque_Nm=bench.torque_limit_Nm,
+        velocity_rad_s=bench.velocity_limit_rad_s,
+        position_rad=bench.position_limit_rad,
+    )
+
+
+def can_bus_kwargs(bench: BenchProfile, channel: dict[str, Any]) -> dict[str, Any]:
+    """python-can `can.Bus(**kwargs)` for the bench, given the announced or configured channel."""
+    where = channel.get("channel") or bench.channel
+    if bench.transport == "slcan":
+        return {"interface": "slcan", "channel": where, "bitrate": bench.bitrate}
+    if bench.transport == "socketcand":
+        host, _, port = str(where).rpartition(":")
+        return {
+            "interface": "socketcand",
+            "host": host or "127.0.0.1",
+            "port": int(port),
+            "channel": channel.get("interface_channel", "can0"),
+        }
+    if bench.transport == "socketcan":
+        return {"interface": "socketcan", "channel": where or "can0"}
+    if bench.transport == "virtual":
+        return {"interface": "virtual", "channel": where or "ddbench"}
+    raise ValueError(f"{bench.source}: transport {bench.transport!r} is not a CAN transport")
+
+
+def open_arm(
+    bench: BenchProfile,
+    channel: dict[str, Any],
+    *,
+    mode: str | None = None,
+    log_dir: str | Path | None = None,
+) -> Arm:
+    """An unopened Arm for the bench (use it as a context manager)."""
+    robot = load_robot(bench.robot)
+    drives = [load_drive(name) for name in robot.drives]
+    mode = mode or bench.mode
+    log_dir = Path(log_dir) if log_dir is not None else None
+    common = {
+        "period_s": bench.period_s,
+        "mode": mode,
+        "timeout_s": bench.timeout_s,
+        "limits": limits_of(bench),
+    }
+    if bench.protocol == "can":
+        import can
+
+        from drivers.can_arm import CanArm
+
+        kwargs = can_bus_kwargs(bench, channel)
+        return CanArm(
+            lambda: can.Bus(**kwargs),
+            drives,
+            log_path=log_dir / "bus.log" if log_dir else None,
+            **common,
+        )
+    from drivers.serial_arm import SerialArm
+
+    port = channel.get("channel") or bench.channel
+    return SerialArm(port, drives, log_path=log_dir / "serial.log" if log_dir else None, **common)

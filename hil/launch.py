@@ -1,0 +1,160 @@
+"""Start the virtual robot of a virtual bench, and stop it afterwards.
+
+A bench with ``virtual = true`` runs ``virtual-robot serve`` as a subprocess and reads the
+channel it announces (one JSON line on its stdout). The ``virtual`` transport (python-can's
+in-process bus) cannot cross a process boundary, so that one bench starts the very same server
+entry point in a thread instead: the only place the host loads ``virtual_robot``, and only its
+``serve`` function, never the physics directly.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import select
+import signal
+import subprocess
+import sys
+import threading
+import time
+from importlib import import_module
+from pathlib import Path
+from typing import Any
+
+from profiles.bench import BenchProfile
+
+READY_TIMEOUT_S = 20.0
+
+
+class LaunchError(RuntimeError):
+    """The virtual robot did not start (its last stderr line is in the message)."""
+
+
+class VirtualRobotProcess:
+    """Context manager: a running virtual robot for ``bench``; ``channel`` is what it announced."""
+
+    def __init__(
+        self,
+        bench: BenchProfile,
+        *,
+        mode: str | None = None,
+        effects: str | None = None,
+        seed: int | None = None,
+        log_path: str | Path | None = None,
+    ) -> None:
+        self.bench, self.mode, self.effects, self.seed = bench, mode, effects, seed
+        self.log_path = Path(log_path) if log_path else None
+        self.channel: dict[str, Any] = {}
+        self.proc: subprocess.Popen[str] | None = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._log = None
+
+    # ---- lifecycle ------------------------------------------------------------------------
+    def __enter__(self) -> VirtualRobotProcess:
+        if self.bench.in_process:
+            self._start_thread()
+        else:
+            self._start_process()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def alive(self) -> bool:
+        if self.proc is not None:
+            return self.proc.poll() is None
+        return self._thread is not None and self._thread.is_alive()
+
+    @property
+    def pid(self) -> int | None:
+        return self.proc.pid if self.proc is not None else None
+
+    def stop(self) -> None:
+        """SIGTERM, then SIGKILL after 3 s (subprocess); set the stop event (thread)."""
+        self._stop.set()
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=3.0)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self._thread is not None:
+            self._thread.join(timeout=3.0)
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+
+    # ---- helpers ------------------------------------------------------------------------------
+    def _args(self) -> list[str]:
+        args = ["--bench", self.bench.source]
+        if self.mode:
+            args += ["--mode", self.mode]
+        if self.effects:
+            args += ["--effects", self.effects]
+        if self.seed is not None:
+            args += ["--seed", str(self.seed)]
+        return args
+
+    def _start_process(self) -> None:
+        if self.log_path is not None:
+            self.log_path.parent.mkdir(parents=True, exist_ok=True)
+            self._log = open(self.log_path, "w")  # noqa: SIM115 (closed in stop())
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "virtual_robot.cli", "serve", *self._args()],
+            stdout=subprocess.PIPE,
+            stderr=self._log or subprocess.DEVNULL,
+            text=True,
+            start_new_session=True,  # a Ctrl-C at the terminal goes to the host, which stops us
+        )
+        assert self.proc.stdout is not None
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        fd = self.proc.stdout.fileno()
+        while time.monotonic() < deadline:
+            ready, _, _ = select.select([fd], [], [], 0.1)
+            if ready:
+                line = self.proc.stdout.readline()
+                if line:
+                    self.channel = json.loads(line)
+                    return
+            if self.proc.poll() is not None:
+                break
+        reason = self._last_log_line() or "no announcement"
+        self.stop()
+        raise LaunchError(f"virtual robot for bench {self.bench.name} did not start: {reason}")
+
+    def _last_log_line(self) -> str:
+        if self.log_path is None or not self.log_path.is_file():
+            return ""
+        lines = [ln for ln in self.log_path.read_text().splitlines() if ln.strip()]
+        return lines[-1] if lines else ""
+
+    def _start_thread(self) -> None:
+        serve = import_module("virtual_robot.serve").serve
+        announced: queue.Queue[dict[str, Any]] = queue.Queue()
+        channel = f"ddbench-{os.getpid()}-{id(self)}"
+        bench = self.bench
+        if not bench.channel:
+            from dataclasses import replace
+
+            bench = replace(bench, channel=channel)
+
+        def run() -> None:
+            serve(
+                bench,
+                effects=self.effects,
+                mode=self.mode,
+                seed=self.seed,
+                announce=announced.put,
+                stop=self._stop,
+            )
+
+        self._thread = threading.Thread(target=run, name="virtual-robot", daemon=True)
+        self._thread.start()
+        try:
+            self.channel = announced.get(timeout=READY_TIMEOUT_S)
+        except queue.Empty:
+            self.stop()
+            raise LaunchError(f"in-process virtual robot for {bench.name} did not start") from None
