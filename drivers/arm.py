@@ -19,6 +19,7 @@ from __future__ import annotations
 import abc
 import contextlib
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -102,6 +103,11 @@ class Arm(abc.ABC):
     period_s: float
     mode: str  # "lockstep" | "realtime"
     stats: LinkStats
+    opened_at: float | None = None  # time.monotonic() when open() finished connecting
+
+    def now(self) -> float:
+        """Host monotonic time in seconds since the link opened (the clock of deadlines)."""
+        return time.monotonic() - (self.opened_at if self.opened_at is not None else 0.0)
 
     @abc.abstractmethod
     def open(self) -> None:

@@ -89,7 +89,7 @@ class VirtualRobotProcess:
 
     # ---- helpers ------------------------------------------------------------------------------
     def _args(self) -> list[str]:
-        args = ["--bench", self.bench.source]
+        args = ["--bench", self.bench.source, "--exit-with-parent"]
         if self.mode:
             args += ["--mode", self.mode]
         if self.effects:

@@ -6,6 +6,8 @@ import argparse
 import json
 import os
 import sys
+import threading
+import time
 from collections.abc import Sequence
 
 from drivers.recording import RecordingError
@@ -50,7 +52,26 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="time mode (default: the bench's)",
     )
+    v.add_argument(
+        "--exit-with-parent",
+        action="store_true",
+        help="stop when the process that started us dies (used by `hil`)",
+    )
     return p
+
+
+def _watch_parent(stop: threading.Event) -> None:
+    """Stop serving once our parent is gone (its drives are already faulted by the watchdog)."""
+    parent = os.getppid()
+
+    def run() -> None:
+        while not stop.wait(0.2):
+            if os.getppid() != parent:
+                print("virtual-robot: host process gone; stopping", file=sys.stderr)
+                time.sleep(0.5)  # let the drives' watchdog report on the bus first
+                stop.set()
+
+    threading.Thread(target=run, name="parent-watch", daemon=True).start()
 
 
 def _progress(t: float, total: float) -> None:
@@ -94,7 +115,6 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_serve(args: argparse.Namespace) -> int:
     """Serve until SIGTERM/SIGINT; the first stdout line is the JSON announcement."""
     import signal
-    import threading
 
     from profiles.bench import load_bench
     from virtual_robot.serve import serve
@@ -109,6 +129,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
+    if args.exit_with_parent:
+        _watch_parent(stop)
 
     def announce(info: dict) -> None:
         print(json.dumps({**info, "bench": bench.name, "pid": os.getpid()}), flush=True)

@@ -1,0 +1,119 @@
+"""The loop runner: one command per period over any :class:`~drivers.arm.Arm`.
+
+It does not know the transport. Lockstep runs as fast as the link answers; realtime runs on
+absolute wall-clock deadlines (t_open + k·h, so it does not drift) and records, for every cycle,
+its deadline, when the SYNC/request went out and when the feedback came back.
+
+Row k of the recording (DESIGN.md): t = k·h, q = the sample taken at the start of period k,
+tau = the torque commanded for period k (as the driver quantized it), held until the next row.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from drivers.arm import Arm, LinkError, SafetyStop, Sample
+from drivers.recording import RecordingWriter
+
+Command = Callable[[int, Sample], Sequence[float]]
+TIMING_COLUMNS = ("deadline_s", "sync_sent_s", "feedback_s")
+LATE_FRACTION = 0.1  # a SYNC sent later than 10 % of a period after its deadline is a miss
+
+
+@dataclass
+class LoopResult:
+    rows: int
+    status: str  # complete | failed | interrupted | safety_stop
+    reason: str | None = None
+    timing: dict[str, Any] = field(default_factory=dict)
+    wall_time_s: float = 0.0
+
+
+def extra_columns(n_joints: int, realtime: bool) -> tuple[str, ...]:
+    cols = tuple(f"status{j + 1}" for j in range(n_joints))
+    return cols + TIMING_COLUMNS if realtime else cols
+
+
+def run_loop(
+    arm: Arm,
+    command: Command,
+    n_periods: int,
+    writer: RecordingWriter,
+    *,
+    realtime: bool,
+    progress: Callable[[int, int], None] | None = None,
+) -> LoopResult:
+    """Run ``n_periods`` cycles, writing one row per period as it completes.
+
+    A dead link, a safety stop or Ctrl-C ends the run; every completed row is already on disk
+    and the result says why it ended. The caller's ``with arm:`` block makes the drives safe.
+    """
+    h = arm.period_s
+    started = time.perf_counter()
+    last_report = started
+    lateness: list[float] = []
+    latency: list[float] = []
+    rows = 0
+    status, reason = "complete", None
+    try:
+        sample = arm.start()
+        t_start = arm.now()
+        for k in range(n_periods):
+            tau = command(k, sample)
+            deadline = t_start + (k + 1) * h if realtime else None
+            nxt = arm.cycle(tau, deadline=deadline)
+            row: list[float | int] = [k * h, *sample.q_rad, *nxt.tau_Nm, *sample.status]
+            if realtime:
+                row += [sample.deadline, sample.sent_at, sample.received_at]
+                if k > 0:
+                    lateness.append(sample.sent_at - sample.deadline)
+                latency.append(sample.received_at - sample.sent_at)
+            writer.write(row)
+            rows += 1
+            sample = nxt
+            if progress is not None and time.perf_counter() - last_report > 1.0:
+                last_report = time.perf_counter()
+                progress(k + 1, n_periods)
+    except SafetyStop as exc:
+        status, reason = "safety_stop", str(exc)
+    except LinkError as exc:
+        status, reason = "failed", str(exc)
+    except KeyboardInterrupt:
+        status, reason = "interrupted", "interrupted by the user (Ctrl-C)"
+    wall = time.perf_counter() - started
+    timing = timing_statistics(h, lateness, latency) if realtime else {}
+    return LoopResult(rows, status, reason, timing, wall)
+
+
+def timing_statistics(
+    period_s: float, lateness: Sequence[float], latency: Sequence[float]
+) -> dict[str, Any]:
+    """Deadline misses and latency percentiles (seconds) of a realtime run."""
+
+    def pct(values: Sequence[float]) -> dict[str, float]:
+        if not values:
+            return {}
+        a = np.asarray(values)
+        return {
+            "p50_ms": float(np.percentile(a, 50) * 1e3),
+            "p99_ms": float(np.percentile(a, 99) * 1e3),
+            "max_ms": float(a.max() * 1e3),
+            "mean_ms": float(a.mean() * 1e3),
+        }
+
+    late = [x for x in lateness if x > LATE_FRACTION * period_s]
+    return {
+        "period_s": period_s,
+        "cycles": len(latency),
+        "deadline_misses": len(late),
+        "deadline_miss_fraction": len(late) / len(lateness) if lateness else math.nan,
+        "miss_threshold_ms": LATE_FRACTION * period_s * 1e3,
+        "sync_lateness": pct(lateness),
+        "command_to_feedback_latency": pct(latency),
+    }
