@@ -1,0 +1,234 @@
+"""`hil run` end to end over every shipped virtual bench: equivalence, determinism, faults."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+
+from drivers.recording import read_signals
+from profiles.experiment import load_experiment
+from profiles.robot import load_robot
+from virtual_robot.simulate import simulate
+
+H = 0.0025
+BENCHES = ["virtual-inprocess", "virtual-slcan", "virtual-socketcand", "virtual-serial"]
+
+
+def hil(*args: str, timeout: float = 180) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "hil.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        check=False,
+    )
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> object:
+    """`virtual-robot simulate` of 1 s of the Reyes & Kelly excitation."""
+    out = tmp_path_factory.mktemp("sim")
+    simulate(load_robot("cicese"), load_experiment("reyes-kelly"), out, duration_s=1.0, plot=False)
+    return read_signals(out)
+
+
+@pytest.mark.parametrize("bench", BENCHES)
+def test_lockstep_run_equals_offline_simulation(bench, reference, tmp_path):
+    """Same experiment over every transport: the q and tau columns are bit-identical."""
+    proc = hil(
+        "run",
+        "--bench",
+        bench,
+        "--experiment",
+        "reyes-kelly",
+        "--duration",
+        "1",
+        "--out",
+        str(tmp_path),
+        "--json",
+        "--no-plot",
+    )
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["status"] == "complete" and summary["rows"] == 400
+    rec = read_signals(tmp_path)
+    assert np.array_equal(rec.t, reference.t)
+    assert np.array_equal(rec.q, reference.q), np.max(np.abs(rec.q - reference.q))
+    assert np.array_equal(rec.tau, reference.tau)
+    meta = json.loads((tmp_path / "meta.json").read_text())
+    assert meta["status"] == "complete" and meta["bench"] == bench and meta["mode"] == "lockstep"
+    log = Path(summary["traffic_log"])
+    assert log.is_file() and log.stat().st_size > 0
+    if log.name == "bus.log":
+        ids = [m.arbitration_id for m in can.LogReader(str(log))]
+        assert ids.count(0x080) >= 400  # one SYNC per period
+        assert {0x181, 0x182, 0x201, 0x202, 0x281, 0x282} <= set(ids)
+
+
+def test_same_seed_same_recording(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    for out in (a, b):
+        proc = hil(
+            "run",
+            "--bench",
+            "virtual-inprocess",
+            "--duration",
+            "0.5",
+            "--seed",
+            "7",
+            "--out",
+            str(out),
+            "--no-plot",
+        )
+        assert proc.returncode == 0, proc.stderr
+    assert (a / "signals.csv").read_bytes() == (b / "signals.csv").read_bytes()
+
+
+def _wait_for_channel(out: Path, timeout: float = 20.0) -> dict:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            meta = json.loads((out / "meta.json").read_text())
+            if meta.get("channel"):
+                return meta
+        except (FileNotFoundError, json.JSONDecodeError):
+            pass
+        time.sleep(0.05)
+    raise AssertionError("hil run never wrote its meta.json")
+
+
+def _start_hil(out: Path, *args: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "hil.cli", "run", "--out", str(out), "--no-plot", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def _wait_rows(out: Path, rows: int, timeout: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        csv = out / "signals.csv"
+        if csv.is_file() and csv.read_text().count("\n") > rows:
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"fewer than {rows} rows after {timeout} s")
+
+
+def test_virtual_robot_killed_mid_run(tmp_path):
+    """The host notices within 3 periods, says so in one line, keeps a readable recording."""
+    proc = _start_hil(
+        tmp_path, "--bench", "virtual-slcan", "--mode", "realtime", "--duration", "60"
+    )
+    try:
+        meta = _wait_for_channel(tmp_path)
+        _wait_rows(tmp_path, 200)
+        os.kill(meta["channel"]["pid"], signal.SIGKILL)
+        killed_at = time.monotonic()
+        _, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 1
+    lines = [ln for ln in err.splitlines() if ln.startswith("hil:") and "%" not in ln]
+    assert len(lines) == 1 and ("gone" in lines[0] or "no feedback" in lines[0]), err
+    rec = read_signals(tmp_path)
+    meta = json.loads((tmp_path / "meta.json").read_text())
+    assert meta["status"] == "failed" and meta["rows"] == len(rec) >= 200
+    # the last recorded period is within 3 periods (+ scheduling slack) of the kill
+    assert time.monotonic() - killed_at < 30
+    assert np.all(np.diff(rec.t) > 0)
+
+
+def test_ctrl_c_zeroes_torque_disables_and_closes_the_recording(tmp_path):
+    proc = _start_hil(
+        tmp_path, "--bench", "virtual-slcan", "--mode", "realtime", "--duration", "60"
+    )
+    try:
+        _wait_for_channel(tmp_path)
+        _wait_rows(tmp_path, 200)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, err
+    meta = json.loads((tmp_path / "meta.json").read_text())
+    assert meta["status"] == "interrupted"
+    read_signals(tmp_path)
+    frames = list(can.LogReader(str(tmp_path / "bus.log")))
+    for node in (1, 2):
+        rpdos = [m for m in frames if m.arbitration_id == 0x200 + node and not m.is_rx]
+        last = rpdos[-1].data
+        assert last[0:2] == b"\x00\x00" and last[2:4] == b"\x00\x00"  # controlword 0, torque 0
+
+
+def test_host_killed_mid_run_watchdog_zeroes_torque(tmp_path):
+    """SIGKILL the host: the drives' watchdog faults them (EMCY 0x8250) within 3 periods."""
+    proc = _start_hil(
+        tmp_path, "--bench", "virtual-socketcand", "--mode", "realtime", "--duration", "60"
+    )
+    sniffer = None
+    try:
+        meta = _wait_for_channel(tmp_path)
+        host, _, port = meta["channel"]["channel"].rpartition(":")
+        sniffer = can.Bus(interface="socketcand", host=host, port=int(port), channel="can0")
+        _wait_rows(tmp_path, 100)
+        proc.kill()
+        proc.wait()
+        last_rpdo, emcy = None, {}
+        deadline = time.monotonic() + 5.0
+        while time.monotonic() < deadline and len(emcy) < 2:
+            msg = sniffer.recv(timeout=0.2)
+            if msg is None:
+                continue
+            if msg.arbitration_id in (0x201, 0x202):
+                last_rpdo = msg.timestamp
+            if msg.arbitration_id in (0x081, 0x082) and msg.data[:2] == b"\x50\x82":
+                emcy[msg.arbitration_id] = msg.timestamp
+        assert set(emcy) == {0x081, 0x082}, emcy
+        if last_rpdo is not None:
+            # watchdog: 3 periods of 2.5 ms, plus the robot's scheduling slack
+            assert max(emcy.values()) - last_rpdo < 3 * H + 0.05
+    finally:
+        if sniffer is not None:
+            sniffer.shutdown()
+        proc.kill()
+    # the orphaned virtual robot stops by itself (--exit-with-parent)
+    pid = meta["channel"]["pid"]
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.1)
+    else:
+        os.kill(pid, signal.SIGKILL)
+        raise AssertionError("orphaned virtual robot did not stop")
+
+
+def test_real_bench_needs_confirmation(tmp_path):
+    bench = tmp_path / "real.toml"
+    bench.write_text("""
+name = "real-test"
+virtual = false
+protocol = "can"
+transport = "slcan"
+channel = "/dev/ttyACM9"
+[limits]
+torque_Nm = [50.0, 5.0]
+velocity_rad_s = [3.0, 5.0]
+position_rad = [[-1.0, 1.0], [-1.5, 1.5]]
+""")
+    proc = hil("run", "--bench", str(bench), "--out", str(tmp_path / "r"))
+    assert proc.returncode == 2
+    assert "--confirm-real" in proc.stderr and proc.stderr.count("\n") == 1
