@@ -310,3 +310,15 @@ def test_symmetric_coulomb_effect(robot):
     plant = Plant(p)
     hold(plant, (-7.7, 0.0), 0.5)  # holds at −8.049 by default, slides at −7.6095
     assert plant.q[0] < 0
+
+
+def test_unpowered_amplifier_puts_no_torque_on_the_shaft(robot):
+    """A disabled or faulted drive's power stage is off: the torque offset does not act."""
+    fx = EffectsProfile(torque_offset_Nm=(10.0, 0.0), amplifier_lag_s=(0.002, 0.0))
+    powered = Plant(PlantParams.from_profiles(robot, fx))
+    hold(powered, (0.0, 0.0), 0.5)
+    assert powered.q[0] > 0.01  # 10 Nm of offset breaks away
+    off = Plant(PlantParams.from_profiles(robot, fx))
+    off.command((0.0, 0.0), powered=(False, False))
+    off.advance(0.5)
+    assert off.q == (0.0, 0.0)

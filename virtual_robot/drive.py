@@ -313,6 +313,11 @@ class DriveModel:
         return self._applying and abs(self._target) > self._max_torque
 
     @property
+    def powered(self) -> bool:
+        """Power stage on: OPERATION ENABLED or QUICK STOP ACTIVE (torque may still be zero)."""
+        return self._state in (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE)
+
+    @property
     def torque_Nm(self) -> float:
         return self.torque_actual_permille * self.profile.rated_torque_Nm / 1000.0
 

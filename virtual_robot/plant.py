@@ -136,6 +136,7 @@ class Plant:
         self.stuck = [self._sticky[0] and self.v1 == 0.0, self._sticky[1] and self.v2 == 0.0]
         self.slip_dir = [1.0 if self.v1 >= 0 else -1.0, 1.0 if self.v2 >= 0 else -1.0]
         self.command_Nm: Pair = (0.0, 0.0)  # amplifier input after the delay
+        self.powered = (True, True)  # amplifier power stages (see command())
         self.amplifier_Nm = [0.0, 0.0]  # amplifier output (lag state)
         self.work_in_J = 0.0  # ∫ τ_shaftᵀ q̇ dt
         self.dissipated_J = 0.0  # ∫ fᵀ q̇ dt + stick clamping losses
@@ -156,8 +157,19 @@ class Plant:
         self._set_mode()
 
     # ---- inputs ---------------------------------------------------------------------------
-    def command(self, torque_Nm: Pair, issued_at: float | None = None) -> None:
-        """Set the torque command (Nm per joint), issued at ``issued_at`` (default: now)."""
+    def command(
+        self,
+        torque_Nm: Pair,
+        issued_at: float | None = None,
+        powered: tuple[bool, bool] | None = None,
+    ) -> None:
+        """Set the torque command (Nm per joint), issued at ``issued_at`` (default: now).
+
+        ``powered``: whether each amplifier's power stage is on (drive enabled). An unpowered
+        amplifier puts no torque on the shaft at all: no offset, no lag tail. Takes effect now.
+        """
+        if powered is not None:
+            self.powered = (bool(powered[0]), bool(powered[1]))
         cmd = (float(torque_Nm[0]), float(torque_Nm[1]))
         if self._delay is None:
             self.command_Nm = cmd
@@ -223,6 +235,8 @@ class Plant:
         p = self.params
         means, ends = [0.0, 0.0], [0.0, 0.0]
         for i in (0, 1):
+            if not self.powered[i]:
+                continue  # power stage off: no torque, and the lag state discharges
             if self._has_lag:
                 means[i], ends[i] = amplifier_lag_step(
                     self.amplifier_Nm[i], self.command_Nm[i], dt, p.amplifier_lag_s[i]

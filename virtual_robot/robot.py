@@ -101,7 +101,10 @@ class VirtualRobot:
         return self.t
 
     def _apply_torques(self, now: float) -> None:
-        self.plant.command((self.drives[0].torque_Nm, self.drives[1].torque_Nm), issued_at=now)
+        d1, d2 = self.drives
+        self.plant.command(
+            (d1.torque_Nm, d2.torque_Nm), issued_at=now, powered=(d1.powered, d2.powered)
+        )
 
     def _sample(self, now: float, count_period: bool) -> None:
         measured, rates = self.plant.measured_q, self.plant.dq

@@ -156,7 +156,9 @@ def simulate(
                             file=sys.stderr,
                         )
             rec.write((t, q[0], q[1], tau[0], tau[1], drives[0].statusword, drives[1].statusword))
-            plant.command((tau[0], tau[1]), issued_at=t)
+            plant.command(
+                (tau[0], tau[1]), issued_at=t, powered=(drives[0].powered, drives[1].powered)
+            )
             plant.advance_to((k + 1) * h)
             if progress is not None and time.perf_counter() - last_report > 1.0:
                 last_report = time.perf_counter()
