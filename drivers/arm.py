@@ -69,9 +69,14 @@ class SafetyLimits:
     position_rad: tuple[tuple[float, float], ...] = ()
 
     def clamp_torque(self, tau: Sequence[float]) -> tuple[float, ...]:
-        return tuple(
-            max(-lim, min(lim, float(t))) for t, lim in zip(tau, self.torque_Nm, strict=True)
-        )
+        """Clamp each command to ±limit; a non-finite command is a SafetyStop, never a clamp."""
+        out = []
+        for j, (t, lim) in enumerate(zip(tau, self.torque_Nm, strict=True)):
+            value = float(t)
+            if not math.isfinite(value):
+                raise SafetyStop(f"joint {j + 1} torque command is {value}: refusing to send it")
+            out.append(max(-lim, min(lim, value)))
+        return tuple(out)
 
     def check(self, q: Sequence[float], dq: Sequence[float] | None) -> str | None:
         """The first limit violated, as one line, or None."""

@@ -76,4 +76,5 @@ def open_arm(
     from drivers.serial_arm import SerialArm
 
     port = channel.get("channel") or bench.channel
-    return SerialArm(port, drives, log_path=log_dir / "serial.log" if log_dir else None, **common)
+    serial_log = log_dir / "serial.log" if log_dir else None
+    return SerialArm(port, drives, log_path=serial_log, baudrate=bench.baudrate, **common)
