@@ -27,7 +27,14 @@ def can_bus_kwargs(bench: BenchProfile, channel: dict[str, Any]) -> dict[str, An
     """python-can `can.Bus(**kwargs)` for the bench, given the announced or configured channel."""
     where = channel.get("channel") or bench.channel
     if bench.transport == "slcan":
-        return {"interface": "slcan", "channel": where, "bitrate": bench.bitrate}
+        # python-can waits 2 s after opening a serial adapter by default; a pty needs none
+        sleep = 0.0 if bench.virtual else 2.0
+        return {
+            "interface": "slcan",
+            "channel": where,
+            "bitrate": bench.bitrate,
+            "sleep_after_open": sleep,
+        }
     if bench.transport == "socketcand":
         host, _, port = str(where).rpartition(":")
         return {
@@ -35,6 +42,9 @@ def can_bus_kwargs(bench: BenchProfile, channel: dict[str, Any]) -> dict[str, An
             "host": host or "127.0.0.1",
             "port": int(port),
             "channel": channel.get("interface_channel", "can0"),
+            # without TCP_NODELAY, Nagle holds small frames for ~40 ms: longer than the
+            # drives' 3-period watchdog
+            "tcp_tune": True,
         }
     if bench.transport == "socketcan":
         return {"interface": "socketcan", "channel": where or "can0"}

@@ -1,0 +1,139 @@
+"""`virtual-robot serve`: the virtual robot behind a bench's transport, until told to stop.
+
+Builds the :class:`~virtual_robot.robot.VirtualRobot` of the bench (robot, effects, time mode,
+period), opens the transport the bench names and announces it once it is ready, then serves:
+
+* ``can``/``slcan``: :class:`SlcanPtyBus`, LAWICEL slcan on a pty; channel = the pty slave
+  (e.g. /dev/pts/7), for ``can.Bus(interface="slcan", channel=..., bitrate=1000000)``.
+* ``can``/``socketcand``: :class:`SocketcandHub` on 127.0.0.1; channel = "127.0.0.1:PORT",
+  interface_channel = "can0", also host and port.
+* ``can``/``socketcan``: python-can socketcan; channel = the bench's channel or "vcan0".
+* ``can``/``virtual``: python-can virtual (same process only); channel = bench's or "ddbench".
+* ``serial``: :func:`virtual_robot.serial_server.serve_serial` (announces for itself).
+
+The announcement (one dict, the CLI prints it as one JSON line) for CAN links:
+``{"event": "ready", "protocol": "can", "transport", "channel", "bench", "mode", "period_s",
+"seed", "pid", "nodes", "bitrate"}`` plus ``interface_channel``, ``host``, ``port`` for socketcand.
+
+The CAN links are served by :class:`CanDriveServer` (CiA 301/402, see can_server.py), with a
+host-silence timeout of 5 s in lockstep (the drives' watchdog covers realtime).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import can
+
+from profiles.bench import BenchProfile
+from profiles.effects import load_effects
+from profiles.robot import load_robot
+from virtual_robot.can_server import CanDriveServer
+from virtual_robot.robot import LOCKSTEP, REALTIME, VirtualRobot
+
+IDLE_TIMEOUT_LOCKSTEP_S = 5.0
+SOCKETCAND_CHANNEL = "can0"
+
+
+def _stderr(line: str) -> None:
+    print(f"virtual-robot: {line}", file=sys.stderr, flush=True)
+
+
+def build_core(bench: BenchProfile, *, effects: str | None, mode: str | None) -> VirtualRobot:
+    """The virtual robot of a bench: robot profile, effects, time mode and period."""
+    mode = mode or bench.mode
+    return VirtualRobot(
+        load_robot(bench.robot),
+        load_effects(effects or bench.effects),
+        mode=mode,
+        period_s=bench.period_s,
+        clock=time.monotonic if mode == REALTIME else None,
+    )
+
+
+def serve(
+    bench: BenchProfile,
+    *,
+    effects: str | None,
+    mode: str | None,
+    seed: int | None,
+    announce: Callable[[dict[str, Any]], None],
+    stop: threading.Event,
+    log: Callable[[str], None] | None = None,
+) -> int:
+    """Serve the bench's virtual robot until ``stop`` is set; returns the exit status (0).
+
+    ``announce`` is called once, when the transport is ready, with
+    ``{"event": "ready", "protocol", "transport", "channel", ...}``. ``seed`` is recorded in the
+    announcement (the physics has no randomness yet).
+    """
+    log = log or _stderr
+    core = build_core(bench, effects=effects, mode=mode)
+    if bench.protocol == "serial":
+        from virtual_robot.serial_server import serve_serial
+
+        return serve_serial(core, bench, announce=announce, stop=stop)
+
+    info: dict[str, Any] = {
+        "event": "ready",
+        "protocol": bench.protocol,
+        "transport": bench.transport,
+        "channel": "",
+        "bench": bench.name,
+        "mode": core.mode,
+        "period_s": core.period_s,
+        "seed": seed,
+        "pid": os.getpid(),
+    }
+    info["nodes"] = sorted(core.by_node)
+    info["bitrate"] = bench.bitrate
+    closers: list[Callable[[], None]] = []
+    try:
+        if bench.transport == "slcan":
+            from virtual_robot.slcan_device import SlcanPtyBus
+
+            bus: can.BusABC = SlcanPtyBus()
+            info["channel"] = bus.channel_path
+        elif bench.transport == "socketcand":
+            from virtual_robot.socketcand_hub import SocketcandHub
+
+            hub = SocketcandHub("127.0.0.1", 0, channel=SOCKETCAND_CHANNEL, log=log)
+            closers.append(hub.close)
+            bus = hub.robot_bus()
+            info.update(
+                channel=f"{hub.host}:{hub.port}",
+                interface_channel=SOCKETCAND_CHANNEL,
+                host=hub.host,
+                port=hub.port,
+            )
+        elif bench.transport == "socketcan":
+            channel = bench.channel or "vcan0"
+            try:
+                bus = can.Bus(interface="socketcan", channel=channel)
+            except Exception as exc:  # CanError is not an OSError; the CLI reports OSErrors
+                raise OSError(f"cannot open socketcan channel {channel}: {exc}") from exc
+            info["channel"] = channel
+        elif bench.transport == "virtual":
+            channel = bench.channel or "ddbench"
+            bus = can.Bus(interface="virtual", channel=channel)
+            info["channel"] = channel
+        else:
+            raise ValueError(f"unknown CAN transport {bench.transport!r}")
+        closers.insert(0, bus.shutdown)
+        server = CanDriveServer(
+            core,
+            bus,
+            idle_timeout_s=IDLE_TIMEOUT_LOCKSTEP_S if core.mode == LOCKSTEP else None,
+            log=log,
+        )
+        announce(info)
+        server.serve_forever(stop)
+        return 0
+    finally:
+        for close in closers:
+            close()

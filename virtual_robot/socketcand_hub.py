@@ -1,0 +1,386 @@
+"""A socketcand-compatible CAN hub on 127.0.0.1: several TCP clients and the robot share one bus.
+
+socketcand (https://github.com/linux-can/socketcand) exposes a Linux CAN interface over TCP with
+an ASCII protocol of ``< ... >`` elements. :class:`SocketcandHub` speaks the server side of its
+raw mode, as python-can's ``socketcand`` interface expects it
+(``can.Bus(interface="socketcand", host="127.0.0.1", port=P, channel="can0")``):
+
+======================================= =============================================
+server → client                          client → server
+======================================= =============================================
+``< hi >`` on connect                    ``< open can0 >`` → ``< ok >``
+                                         ``< rawmode >`` → ``< ok >``
+``< frame ID SECS.USECS DATA >``          ``< send ID LEN B0 B1 ... >`` (raw mode)
+(ID %03X or %08X, DATA one hex string,   ``< echo >`` → ``< echo >`` (any time)
+empty for DLC 0: note the two spaces)
+======================================= =============================================
+
+python-can's client reads each handshake reply with a single ``recv`` and compares it exactly,
+so nothing else may follow ``< ok >`` in the same TCP segment: frames for a client that has just
+entered raw mode are held for :attr:`SocketcandHub.HOLDOFF_S` and then sent in order, not lost.
+Handshake errors (wrong channel, unknown command) are answered with ``< error TEXT >``, which
+python-can reports as a failed handshake. Malformed elements in raw mode are dropped and counted
+(python-can would fail on an ``< error >`` it cannot parse as an error frame).
+
+Bus semantics: every participant (a TCP client in raw mode or an in-process bus from
+:meth:`SocketcandHub.robot_bus`) receives every frame sent by every *other* participant, as
+on a CAN bus where a controller does not receive its own frames. Remote and error frames are not
+forwarded to TCP clients (the frame element cannot carry them).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import queue
+import select
+import socket
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import can
+
+_logger = logging.getLogger(__name__)
+MAX_ELEMENT = 200  # characters without a closing '>' before the buffer is discarded
+SEND_TIMEOUT_S = 1.0  # a client that does not read for this long is disconnected
+
+
+def frame_element(msg: can.Message) -> bytes:
+    """``< frame ID SECS.USECS DATA >`` as socketcand sends it."""
+    cob = (
+        f"{msg.arbitration_id & 0x1FFFFFFF:08X}"
+        if msg.is_extended_id
+        else f"{msg.arbitration_id & 0x7FF:03X}"
+    )
+    stamp = msg.timestamp or time.time()
+    secs = int(stamp)
+    usecs = min(999_999, round((stamp - secs) * 1e6))
+    data = bytes(msg.data[: msg.dlc]).hex().upper()
+    return f"< frame {cob} {secs}.{usecs:06d} {data} >".encode("ascii")
+
+
+def parse_send(element: str) -> can.Message | None:
+    """A ``< send ID LEN B0 ... >`` element as a message, or None if malformed."""
+    parts = element[1:-1].split()
+    if len(parts) < 3 or parts[0] != "send":
+        return None
+    cob_hex, len_hex, data_hex = parts[1], parts[2], parts[3:]
+    try:
+        cob, length = int(cob_hex, 16), int(len_hex, 16)
+        data = bytes(int(b, 16) for b in data_hex)
+    except ValueError:
+        return None
+    extended = len(cob_hex) > 3
+    if not (
+        all(len(b) <= 2 and b.isalnum() for b in data_hex)
+        and cob_hex.isalnum()
+        and 0 <= cob <= (0x1FFFFFFF if extended else 0x7FF)
+        and length == len(data) <= 8
+    ):
+        return None
+    return can.Message(
+        timestamp=time.time(), arbitration_id=cob, is_extended_id=extended, data=data
+    )
+
+
+def _quickack(sock: socket.socket) -> None:
+    """ACK at once (Linux TCP_QUICKACK, cleared by the kernel after each ACK, so re-armed).
+
+    python-can's client leaves Nagle on unless ``tcp_tune=True``: its second small frame waits
+    for the ACK of the first, which a delayed ACK holds back ~40 ms. A prompt ACK removes that
+    stall, whatever the client's options.
+    """
+    if hasattr(socket, "TCP_QUICKACK"):
+        with contextlib.suppress(OSError):
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_QUICKACK, 1)
+
+
+class _HubBus(can.BusABC):
+    """In-process participant of a hub: a python-can bus backed by a queue."""
+
+    def __init__(self, hub: SocketcandHub, channel: str, **kwargs: Any) -> None:
+        self._hub = hub
+        self._queue: queue.SimpleQueue[can.Message | None] = queue.SimpleQueue()
+        self.channel_info = f"socketcand hub {channel} (in-process)"
+        super().__init__(channel=channel, **kwargs)
+
+    def deliver(self, msg: can.Message) -> None:
+        self._queue.put(msg)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self._is_shutdown:
+            raise can.CanOperationError("hub bus is shut down")
+        self._hub._dispatch(msg, source=self)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if self._is_shutdown:
+            raise can.CanOperationError("hub bus is shut down")
+        try:
+            msg = self._queue.get(timeout=timeout)
+        except queue.Empty:
+            return None, False
+        if msg is None:  # put by shutdown() to wake a blocked recv()
+            raise can.CanOperationError("hub bus is shut down")
+        return msg, False
+
+    def shutdown(self) -> None:
+        super().shutdown()
+        self._hub._remove_local(self)
+        self._queue.put(None)
+
+
+class _Client:
+    """One TCP connection: handshake, then raw-mode frames both ways."""
+
+    def __init__(self, hub: SocketcandHub, sock: socket.socket, peer: str) -> None:
+        self.hub = hub
+        self.sock = sock
+        self.peer = peer
+        self.state = "hi"  # hi -> open -> raw
+        self.ready_at = 0.0
+        self.pending: list[bytes] = []
+        self.lock = threading.Lock()
+        self.alive = True
+        self.thread = threading.Thread(target=self.run, name=f"socketcand-{peer}", daemon=True)
+
+    # ---- output -----------------------------------------------------------------------
+    def deliver(self, msg: can.Message) -> None:
+        if self.state != "raw" or msg.is_remote_frame or msg.is_error_frame or msg.is_fd:
+            return
+        element = frame_element(msg)
+        with self.lock:
+            if time.monotonic() < self.ready_at:
+                self.pending.append(element)
+                return
+            self._send_locked([*self.pending, element])
+            self.pending.clear()
+
+    def flush_pending(self) -> None:
+        with self.lock:
+            if self.pending and time.monotonic() >= self.ready_at:
+                self._send_locked(self.pending)
+                self.pending = []
+
+    def reply(self, text: str) -> None:
+        with self.lock:
+            self._send_locked([text.encode("ascii")])
+
+    def _send_locked(self, elements: list[bytes]) -> None:
+        if not self.alive:
+            return
+        try:
+            self.sock.sendall(b"".join(elements))
+        except OSError as exc:
+            self.alive = False
+            self.hub._log(f"socketcand client {self.peer} dropped: {exc}")
+            with contextlib.suppress(OSError):
+                self.sock.shutdown(socket.SHUT_RDWR)
+
+    # ---- input ------------------------------------------------------------------------
+    def run(self) -> None:
+        buffer = ""
+        try:
+            self.reply("< hi >")
+            while self.alive and not self.hub._closed.is_set():
+                wait = 0.05
+                if self.pending:
+                    wait = max(0.0, min(wait, self.ready_at - time.monotonic()))
+                ready, _, _ = select.select([self.sock], [], [], wait)
+                self.flush_pending()
+                if not ready:
+                    continue
+                chunk = self.sock.recv(4096)
+                if not chunk:
+                    break
+                _quickack(self.sock)
+                buffer += chunk.decode("ascii", errors="replace")
+                buffer = self._elements(buffer)
+        except OSError:
+            pass
+        finally:
+            self.alive = False
+            self.hub._remove_client(self)
+            with contextlib.suppress(OSError):
+                self.sock.close()
+
+    def _elements(self, buffer: str) -> str:
+        """Handle every complete ``< ... >`` in ``buffer``; return the unfinished rest.
+
+        An element starts at the last '<' before its '>' (text outside elements is dropped).
+        """
+        while True:
+            end = buffer.find(">")
+            if end < 0:
+                start = buffer.rfind("<")
+                if start < 0:
+                    return ""
+                if len(buffer) - start > MAX_ELEMENT:
+                    self.hub.malformed += 1
+                    return ""
+                return buffer[start:]
+            start = buffer.rfind("<", 0, end)
+            if start >= 0:
+                self._element(buffer[start : end + 1])
+            buffer = buffer[end + 1 :]
+
+    def _element(self, element: str) -> None:
+        words = element[1:-1].split()
+        command = words[0] if words else ""
+        if command == "echo":
+            self.reply("< echo >")
+        elif self.state == "raw":
+            msg = parse_send(element)
+            if msg is None:
+                self.hub.malformed += 1
+                self.hub._log(f"socketcand client {self.peer}: malformed {element!r} dropped")
+                return
+            msg.channel = self.hub.channel
+            self.hub._dispatch(msg, source=self)
+        elif self.state == "hi" and command == "open" and len(words) == 2:
+            if words[1] != self.hub.channel:
+                self.reply(f"< error could not open bus {words[1]} >")
+            else:
+                self.state = "open"
+                self.reply("< ok >")
+        elif self.state == "open" and words == ["rawmode"]:
+            with self.lock:
+                self.ready_at = time.monotonic() + self.hub.HOLDOFF_S
+            self.state = "raw"
+            self.reply("< ok >")
+        else:
+            self.hub.malformed += 1
+            self.reply("< error unknown command >")
+
+
+class SocketcandHub:
+    """TCP socketcand server (raw mode) joined to in-process python-can buses.
+
+    Threads: one accepting connections, one per client. :meth:`close` stops them all.
+    Counters: ``frames`` (frames dispatched), ``malformed`` (client elements dropped).
+    """
+
+    HOLDOFF_S = 0.05  # after "< ok >" to rawmode, before the first frame goes to that client
+
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        *,
+        channel: str = "can0",
+        log: Callable[[str], None] | None = None,
+    ) -> None:
+        self.channel = channel
+        self._log = log or _logger.info
+        self._server = socket.create_server((host, port))
+        self._server.settimeout(0.1)
+        self._host, self._port = self._server.getsockname()[:2]
+        self._clients: list[_Client] = []
+        self._locals: list[_HubBus] = []
+        self._lock = threading.Lock()
+        self._closed = threading.Event()
+        self.frames = 0
+        self.malformed = 0
+        self._accept_thread = threading.Thread(
+            target=self._accept, name="socketcand-accept", daemon=True
+        )
+        self._accept_thread.start()
+
+    @property
+    def host(self) -> str:
+        return self._host
+
+    @property
+    def port(self) -> int:
+        """The TCP port clients connect to."""
+        return self._port
+
+    @property
+    def clients(self) -> int:
+        """Number of connected TCP clients."""
+        with self._lock:
+            return len(self._clients)
+
+    def robot_bus(self) -> can.BusABC:
+        """A new in-process participant (for :class:`CanDriveServer`): a python-can bus."""
+        bus = _HubBus(self, self.channel)
+        with self._lock:
+            self._locals.append(bus)
+        return bus
+
+    def close(self) -> None:
+        """Stop accepting, disconnect every client and join the threads. Idempotent."""
+        if self._closed.is_set():
+            return
+        self._closed.set()
+        with contextlib.suppress(OSError):
+            self._server.close()
+        with self._lock:
+            clients = list(self._clients)
+        for client in clients:
+            with contextlib.suppress(OSError):
+                client.sock.shutdown(socket.SHUT_RDWR)
+        me = threading.current_thread()
+        for thread in (self._accept_thread, *(c.thread for c in clients)):
+            if thread is not me and thread.ident is not None:
+                thread.join(timeout=2.0)
+
+    def __enter__(self) -> SocketcandHub:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ---- internals ----------------------------------------------------------------------
+    def _accept(self) -> None:
+        while not self._closed.is_set():
+            try:
+                sock, addr = self._server.accept()
+            except TimeoutError:
+                continue
+            except OSError:
+                return
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            _quickack(sock)
+            sock.settimeout(SEND_TIMEOUT_S)
+            client = _Client(self, sock, f"{addr[0]}:{addr[1]}")
+            with self._lock:
+                if self._closed.is_set():
+                    sock.close()
+                    return
+                self._clients.append(client)
+            client.thread.start()
+
+    def _dispatch(self, msg: can.Message, source: object) -> None:
+        """A frame sent by ``source`` reaches every other participant."""
+        with self._lock:
+            clients = [c for c in self._clients if c is not source]
+            locals_ = [b for b in self._locals if b is not source]
+            self.frames += 1
+        for client in clients:
+            client.deliver(msg)
+        for bus in locals_:
+            bus.deliver(
+                can.Message(
+                    timestamp=msg.timestamp or time.time(),
+                    arbitration_id=msg.arbitration_id,
+                    is_extended_id=msg.is_extended_id,
+                    is_remote_frame=msg.is_remote_frame,
+                    is_error_frame=msg.is_error_frame,
+                    dlc=msg.dlc,
+                    data=bytes(msg.data or b""),
+                    channel=self.channel,
+                    is_rx=True,
+                )
+            )
+
+    def _remove_client(self, client: _Client) -> None:
+        with self._lock:
+            if client in self._clients:
+                self._clients.remove(client)
+
+    def _remove_local(self, bus: _HubBus) -> None:
+        with self._lock:
+            if bus in self._locals:
+                self._locals.remove(bus)
