@@ -53,6 +53,18 @@ def can_bus_kwargs(bench: BenchProfile, channel: dict[str, Any]) -> dict[str, An
     raise ValueError(f"{bench.source}: transport {bench.transport!r} is not a CAN transport")
 
 
+def make_can_bus(kwargs: dict[str, Any]) -> Any:
+    """``can.Bus(**kwargs)``; slcan goes through :class:`drivers.slcan.SelectSlcanBus`."""
+    import can
+
+    if kwargs.get("interface") == "slcan":
+        from drivers.slcan import SelectSlcanBus
+
+        rest = {k: v for k, v in kwargs.items() if k != "interface"}
+        return SelectSlcanBus(**rest)
+    return can.Bus(**kwargs)
+
+
 def open_arm(
     bench: BenchProfile,
     channel: dict[str, Any],
@@ -72,13 +84,11 @@ def open_arm(
         "limits": limits_of(bench),
     }
     if bench.protocol == "can":
-        import can
-
         from drivers.can_arm import CanArm
 
         kwargs = can_bus_kwargs(bench, channel)
         return CanArm(
-            lambda: can.Bus(**kwargs),
+            lambda: make_can_bus(kwargs),
             drives,
             log_path=log_dir / "bus.log" if log_dir else None,
             **common,

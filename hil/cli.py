@@ -1,9 +1,9 @@
 """`hil` command line, the host application.
 
-Only `hil demo` exists so far: it runs the main job end to end on the embedded default (the
-virtual robot, no hardware, no root). Until the HIL link lands, the main job is the offline
-simulation of the Reyes & Kelly excitation, run in the virtual robot's own process: the host never
-imports the plant's physics (DESIGN.md: the plant is the world, the host only knows its model).
+`hil run` records an experiment over a bench; `hil demo` runs the main job end to end on the
+embedded default (the virtual robot, no hardware, no root). The host never imports the plant's
+physics (DESIGN.md: the plant is the world, the host only knows its model): the virtual robot
+runs as its own process behind a real transport.
 """
 
 from __future__ import annotations
@@ -46,11 +46,26 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    """The main job on the default virtual bench: record the Reyes & Kelly excitation over the
+    HIL link (virtual-slcan, lockstep), and check it against the offline simulation."""
+    import numpy as np
+
+    from drivers.recording import read_signals
+    from hil.run import run_experiment
+
     out = Path(args.out)
-    sim_dir = out / "simulate-reyes-kelly"
+    run_dir, sim_dir = out / "hil-run-virtual-slcan", out / "simulate-reyes-kelly"
     print(
-        f"hil demo: simulating the Reyes & Kelly (1997) excitation, eqs. (31)-(32), 10 s, on the "
-        f"virtual CICESE arm -> {sim_dir}",
+        f"hil demo: 10 s of the Reyes & Kelly (1997) excitation, eqs. (31)-(32), over the "
+        f"virtual-slcan bench (CiA 402 over slcan on a pty) -> {run_dir}",
+        file=sys.stderr,
+    )
+    run = run_experiment("virtual-slcan", "reyes-kelly", run_dir, duration_s=10.0, progress=False)
+    if run["status"] != "complete":
+        print(f"hil: error: demo run {run['status']}: {run['reason']}", file=sys.stderr)
+        return 1
+    print(
+        f"hil demo: the same experiment offline (virtual-robot simulate) -> {sim_dir}",
         file=sys.stderr,
     )
     cmd = [
@@ -73,15 +88,34 @@ def cmd_demo(args: argparse.Namespace) -> int:
         reason = proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "no message"
         print(f"hil: error: virtual robot simulation failed: {reason}", file=sys.stderr)
         return 1
-    summary = {"simulate": json.loads(proc.stdout)}
+    sim = json.loads(proc.stdout)
+    a, b = read_signals(run_dir), read_signals(sim_dir)
+    identical = bool(np.array_equal(a.q, b.q) and np.array_equal(a.tau, b.tau))
+    summary = {
+        "hil_run": run,
+        "simulate": sim,
+        "hil_run_equals_simulate": identical,
+        "max_abs_q_difference_rad": float(np.max(np.abs(a.q - b.q))),
+    }
     if args.json:
         print(json.dumps(summary))
     else:
-        s = summary["simulate"]
-        print(f"recording: {s['signals']} ({s['rows']} rows, {s['realtime_factor']}x real time)")
-        print(f"plot:      {s['plot']}")
-        print(f"meta:      {Path(s['out_dir']) / 'meta.json'}")
-    return 0
+        print(
+            f"recording: {run['signals']} ({run['rows']} rows, {run['realtime_factor']}x "
+            f"real time over slcan, bus log {run['traffic_log']})"
+        )
+        print(f"plot:      {run['plot']}")
+        print(f"offline:   {sim['signals']} ({sim['realtime_factor']}x real time)")
+        print(
+            "check:     q and tau over the HIL link are "
+            + (
+                "bit-identical to the offline simulation"
+                if identical
+                else f"NOT identical to the offline simulation "
+                f"(max |dq| = {summary['max_abs_q_difference_rad']:.3g} rad)"
+            )
+        )
+    return 0 if identical else 1
 
 
 def cmd_run(args: argparse.Namespace) -> int:

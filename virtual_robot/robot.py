@@ -30,6 +30,21 @@ from virtual_robot.drive import DriveError, DriveModel, Emcy
 from virtual_robot.plant import DEFAULT_STEP_S, Plant, PlantParams
 
 LOCKSTEP, REALTIME = "lockstep", "realtime"
+
+# Objects whose value lives in the drive model (read on every TPDO: keep this a flat table).
+_LIVE_OBJECTS: dict[tuple[int, int], Callable[[DriveModel], int]] = {
+    (0x1001, 0): lambda d: d.error_register,
+    (0x603F, 0): lambda d: d.error_code,
+    (0x6040, 0): lambda d: d.controlword,
+    (0x6041, 0): lambda d: d.statusword,
+    (0x6060, 0): lambda d: d.mode,
+    (0x6061, 0): lambda d: d.mode,
+    (0x6064, 0): lambda d: d.position_counts,
+    (0x606C, 0): lambda d: d.velocity_counts_s,
+    (0x6071, 0): lambda d: d.target_torque_permille,
+    (0x6072, 0): lambda d: d.max_torque_permille,
+    (0x6077, 0): lambda d: d.torque_actual_permille,
+}
 DEVICE_TYPE_SERVO = 0x00020192  # CiA 402 servo drive
 
 
@@ -77,6 +92,7 @@ class VirtualRobot:
             PlantParams.from_profiles(robot, self.effects), q0=q0, max_step_s=min(step_s, period_s)
         )
         self.syncs = 0
+        self._mapping_cache: dict[tuple[int, int], tuple[tuple[int, int], ...]] = {}
         self.t = 0.0  # robot time of the last sample / event
         self._store: list[dict[tuple[int, int], int]] = [
             self._initial_objects(p) for p in self.profiles
@@ -206,25 +222,14 @@ class VirtualRobot:
         """Read an object of one drive; raises SdoAbortError with the CiA 301 code."""
         with self.lock:
             i = self._drive_index(node, unit)
-            co.lookup(index, subindex)
-            d = self.drives[i]
-            live = {
-                (0x1001, 0): lambda: d.error_register,
-                (0x603F, 0): lambda: d.error_code,
-                (0x6040, 0): lambda: d.controlword,
-                (0x6041, 0): lambda: d.statusword,
-                (0x6060, 0): lambda: d.mode,
-                (0x6061, 0): lambda: d.mode,
-                (0x6064, 0): lambda: d.position_counts,
-                (0x606C, 0): lambda: d.velocity_counts_s,
-                (0x6071, 0): lambda: d.target_torque_permille,
-                (0x6072, 0): lambda: d.max_torque_permille,
-                (0x6077, 0): lambda: d.torque_actual_permille,
-            }
-            getter = live.get((index, subindex))
+            getter = _LIVE_OBJECTS.get((index, subindex))
             if getter is not None:
-                return getter()
-            return self._store[i][(index, subindex)]
+                return getter(self.drives[i])
+            value = self._store[i].get((index, subindex))
+            if value is None:
+                co.lookup(index, subindex)  # raises the right abort
+                raise SdoAbortError(index, subindex, co.ABORT_NO_OBJECT)
+            return value
 
     def reset_node(self, node: int) -> None:
         """NMT reset node: drive back to power-on (errors cleared), PDO configuration cleared."""
@@ -236,6 +241,7 @@ class VirtualRobot:
                 now, self.plant.measured_q[i], self.plant.dq[i], count_period=False
             )
             self._store[i] = self._initial_objects(self.profiles[i])
+            self._mapping_cache.clear()
             self._apply_torques(now)
 
     def disable_all(self) -> None:
@@ -280,12 +286,18 @@ class VirtualRobot:
     def pdo_mapping(self, node: int, mapping_index: int) -> tuple[tuple[int, int], ...]:
         """The configured mapping of a PDO (0x1600 RPDO1, 0x1A00 TPDO1, 0x1A01 TPDO2)."""
         with self.lock:
-            store = self._store[self._drive_index(node, None)]
+            i = self._drive_index(node, None)
+            cached = self._mapping_cache.get((i, mapping_index))
+            if cached is not None:
+                return cached
+            store = self._store[i]
             n = store[(mapping_index, 0)]
-            return tuple(
+            mapping = tuple(
                 (store[(mapping_index, s)] >> 16, store[(mapping_index, s)] >> 8 & 0xFF)
                 for s in range(1, n + 1)
             )
+            self._mapping_cache[(i, mapping_index)] = mapping
+            return mapping
 
     def pdo_cob_id(self, node: int, comm_index: int) -> int | None:
         """COB-ID of a PDO if it is valid (bit 31 clear), else None."""
@@ -320,6 +332,7 @@ class VirtualRobot:
         return store
 
     def _write_stored(self, i: int, index: int, subindex: int, value: int) -> None:
+        self._mapping_cache.clear()
         store = self._store[i]
         if index in (0x1600, 0x1A00, 0x1A01):
             if subindex == 0:
