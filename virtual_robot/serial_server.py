@@ -33,7 +33,6 @@ import select
 import sys
 import threading
 import time
-import tty
 from collections.abc import Callable
 from typing import IO, TextIO
 
@@ -43,6 +42,7 @@ from drivers.protocol.cia402 import SdoAbortError, State
 from drivers.units import INT16_MAX, permille_to_torque, torque_to_permille
 from profiles.bench import BenchProfile
 from virtual_robot import __version__
+from virtual_robot.raw_pty import open_raw_pty
 from virtual_robot.robot import LOCKSTEP, VirtualRobot
 
 HOST_TIMEOUT_S = 5.0
@@ -335,14 +335,9 @@ class SerialDriveServer:
 
 
 def open_pty() -> tuple[int, str]:
-    """A new pty: (master fd, non-blocking; slave path). The slave is raw and left closed."""
-    master, slave = os.openpty()
-    try:
-        path = os.ttyname(slave)
-        tty.setraw(slave)  # raw: no echo, no CR/LF translation; persists while the master lives
-    finally:
-        os.close(slave)  # so a host closing the port shows as EIO on the master
-    os.set_blocking(master, False)
+    """A new pty: (master fd, non-blocking; slave path). The slave is raw and left closed, so a
+    host closing the port shows as EIO on the master."""
+    master, _, path = open_raw_pty(keep_slave_open=False)
     return master, path
 
 

@@ -21,6 +21,7 @@ host-silence timeout of 5 s in lockstep (the drives' watchdog covers realtime).
 
 from __future__ import annotations
 
+import gc
 import os
 import sys
 import threading
@@ -74,6 +75,12 @@ def serve(
     """
     log = log or _stderr
     core = build_core(bench, effects=effects, mode=mode)
+    if core.mode == REALTIME:
+        # no cyclic-GC pauses between deadlines: everything built so far is frozen out of the
+        # collector's view, and the serving loop allocates no reference cycles to collect
+        gc.collect()
+        gc.freeze()
+        gc.disable()
     if bench.protocol == "serial":
         from virtual_robot.serial_server import serve_serial
 

@@ -47,11 +47,12 @@ import select
 import string
 import threading
 import time
-import tty
 from collections import deque
 from typing import Any
 
 import can
+
+from virtual_robot.raw_pty import open_raw_pty
 
 BEL = b"\a"
 CR = b"\r"
@@ -235,15 +236,7 @@ class SlcanPtyBus(can.BusABC):
         can_filters: can.typechecking.CanFilters | None = None,
         **kwargs: Any,
     ) -> None:
-        master, slave = os.openpty()
-        try:
-            tty.setraw(slave)  # no echo, no CR/LF translation, byte-at-a-time
-            os.set_blocking(master, False)
-            path = os.ttyname(slave)
-        except OSError:
-            os.close(master)
-            os.close(slave)
-            raise
+        master, slave, path = open_raw_pty(keep_slave_open=True)
         self._master: int | None = master
         self._slave: int | None = slave  # kept open: no EIO on the master between host sessions
         self._wake_r, self._wake_w = os.pipe()  # shutdown() wakes a recv() blocked in select

@@ -100,9 +100,12 @@ def main() -> int:
                 timing = s["timing"]
                 entry = {
                     "status": s["status"],
+                    "reason": s["reason"],
                     "cycles": timing.get("cycles"),
                     "deadline_misses": timing.get("deadline_misses"),
                     "deadline_miss_pct": 100 * timing.get("deadline_miss_fraction", float("nan")),
+                    "late_releases": timing.get("late_releases"),
+                    "late_release_pct": 100 * timing.get("late_release_fraction", float("nan")),
                     "latency_p50_ms": timing.get("command_to_feedback_latency", {}).get("p50_ms"),
                     "latency_p99_ms": timing.get("command_to_feedback_latency", {}).get("p99_ms"),
                     "latency_max_ms": timing.get("command_to_feedback_latency", {}).get("max_ms"),
