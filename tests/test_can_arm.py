@@ -277,7 +277,7 @@ def test_watchdog_fault_is_reported_and_cleared(rig, tmp_path):
     rogue = rig.client()
     with rig.arm(tmp_path) as arm:
         arm.enable()
-        for _ in range(4):  # SYNCs without torque commands: the drives' watchdog trips
+        for _ in range(load_drive("dm1200a").watchdog_periods + 1):  # SYNCs, no torque: trips
             rogue.send(can.Message(arbitration_id=co.SYNC_ID, data=b"", is_extended_id=False))
             time.sleep(0.01)
         deadline = time.monotonic() + 1.0

@@ -219,22 +219,23 @@ def test_range_errors() -> None:
 
 
 def test_watchdog_boundary_and_fault_reset() -> None:
-    assert DM1200A.watchdog_periods == 3
+    n = DM1200A.watchdog_periods
+    assert n >= 2
     d = enabled()
     d.write_target_torque(500, 0.0)
-    d.update(1 * DT, 0.0, 0.0)
-    d.update(2 * DT, 0.0, 0.0)
-    check_sw(d, State.OPERATION_ENABLED)  # 2 updates without a write: still enabled
+    for k in range(1, n):
+        d.update(k * DT, 0.0, 0.0)
+    check_sw(d, State.OPERATION_ENABLED)  # n - 1 updates without a write: still enabled
     assert d.torque_Nm == pytest.approx(100.0)
     assert d.pop_emcy() == []
-    d.update(3 * DT, 0.0, 0.0)  # 3rd: fault
+    d.update(n * DT, 0.0, 0.0)  # n-th: fault
     check_sw(d, State.FAULT)
     assert d.torque_Nm == 0.0
     assert d.error_code == ERR_RPDO_TIMEOUT == 0x8250
     assert d.error_register == 0x11
-    assert d.pop_emcy() == [Emcy(0x8250, 0x11, 3 * DT)]
-    d.update(4 * DT, 0.0, 0.0)
-    d.write_controlword(0x0F, 4 * DT)  # not a fault reset: ignored
+    assert d.pop_emcy() == [Emcy(0x8250, 0x11, n * DT)]
+    d.update((n + 1) * DT, 0.0, 0.0)
+    d.write_controlword(0x0F, (n + 1) * DT)  # not a fault reset: ignored
     check_sw(d, State.FAULT)
     assert d.pop_emcy() == []
 
@@ -251,13 +252,14 @@ def test_watchdog_boundary_and_fault_reset() -> None:
 
 
 def test_watchdog_fed_by_writes_and_reset_on_enable() -> None:
+    n = DM1200A.watchdog_periods
     d = enabled()
     for k in range(50):
         d.write_target_torque(100, k * DT)
-        d.update(k * DT, 0.0, 0.0)
-        d.update(k * DT, 0.0, 0.0)
+        for _ in range(n - 1):  # n - 1 periods between writes: never trips
+            d.update(k * DT, 0.0, 0.0)
     check_sw(d, State.OPERATION_ENABLED)
-    d.update(1.0, 0.0, 0.0)  # counter 3: fault
+    d.update(1.0, 0.0, 0.0)  # counter n: fault
     check_sw(d, State.FAULT)
     # Entering OPERATION_ENABLED resets the counter even without a torque write.
     d.write_controlword(0x80, 1.0)
@@ -266,8 +268,8 @@ def test_watchdog_fed_by_writes_and_reset_on_enable() -> None:
     d.update(1.0, 0.0, 0.0)  # not enabled: not counted
     d.update(1.0, 0.0, 0.0)
     d.write_controlword(0x0F, 1.0)
-    d.update(1.0, 0.0, 0.0)
-    d.update(1.0, 0.0, 0.0)
+    for _ in range(n - 1):
+        d.update(1.0, 0.0, 0.0)
     check_sw(d, State.OPERATION_ENABLED)
 
 
@@ -275,7 +277,7 @@ def test_fault_reset_needs_rising_edge() -> None:
     d = enabled()
     d.write_controlword(0x8F, 0.0)  # bit 7 held high while enabled
     check_sw(d, State.OPERATION_ENABLED)
-    for k in range(3):
+    for k in range(DM1200A.watchdog_periods):
         d.update(k * DT, 0.0, 0.0)
     check_sw(d, State.FAULT)
     d.write_controlword(0x80, 0.0)  # bit 7 was already high: no edge
@@ -315,9 +317,8 @@ def test_overspeed_only_when_powered() -> None:
 def test_nmt_reset() -> None:
     d = enabled()
     d.write_max_torque(10)
-    d.update(0.0, 1.0, 0.0)
-    d.update(DT, 1.0, 0.0)
-    d.update(2 * DT, 1.0, 0.0)
+    for k in range(DM1200A.watchdog_periods):
+        d.update(k * DT, 1.0, 0.0)
     assert d.state is State.FAULT
     counts = d.position_counts
     d.reset(1.0)
