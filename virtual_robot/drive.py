@@ -17,7 +17,8 @@ is at or after ``boot_time_s``. Controlwords written before that are ignored (no
 Command watchdog (CiA 301 "RPDO timeout", 0x8250): every update() made while the state is
 OPERATION_ENABLED increments a counter; write_target_torque() and entering OPERATION_ENABLED
 reset it to 0. The update() that brings the counter to ``watchdog_periods`` faults the drive:
-with watchdog_periods = 3, "write, update, update" is still enabled and the third update faults.
+with watchdog_periods = N, a write followed by N - 1 updates is still enabled, the N-th update
+faults (the shipped profiles use N = 8: 20 ms at 400 Hz).
 
 Fault reaction: torque is zeroed at once and the state passes FAULT_REACTION_ACTIVE -> FAULT
 within the same call, so FAULT_REACTION_ACTIVE is never observed from outside.
