@@ -110,6 +110,32 @@ class Arm(abc.ABC):
     stats: LinkStats
     opened_at: float | None = None  # time.monotonic() when open() finished connecting
 
+    def _init_link(
+        self,
+        drives: Sequence[Any],
+        *,
+        period_s: float,
+        mode: str,
+        timeout_s: float,
+        limits: SafetyLimits,
+    ) -> None:
+        """The settings every link shares, checked once here (subclasses call this first)."""
+        if mode not in ("lockstep", "realtime"):
+            raise ValueError(f"mode must be 'lockstep' or 'realtime', got {mode!r}")
+        if not drives:
+            raise ValueError("at least one drive")
+        if not period_s > 0 or not timeout_s > 0:
+            raise ValueError("period_s and timeout_s must be > 0")
+        if len(limits.torque_Nm) != len(drives):
+            raise ValueError(f"{len(drives)} drives but {len(limits.torque_Nm)} torque limits")
+        self.drives = tuple(drives)
+        self.n_joints = len(self.drives)
+        self.period_s = float(period_s)
+        self.mode = mode
+        self.timeout_s = float(timeout_s)
+        self.limits = limits
+        self.stats = LinkStats()
+
     def now(self) -> float:
         """Host monotonic time in seconds since the link opened (the clock of deadlines)."""
         return time.monotonic() - (self.opened_at if self.opened_at is not None else 0.0)

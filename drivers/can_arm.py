@@ -54,7 +54,7 @@ from canopen.nmt import NmtError
 from canopen.objectdictionary import ObjectDictionary, ODRecord, ODVariable, datatypes
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
-from drivers.arm import Arm, Fault, LinkError, LinkStats, SafetyLimits, SafetyStop, Sample
+from drivers.arm import Arm, Fault, LinkError, SafetyLimits, SafetyStop, Sample
 from drivers.protocol import cia402 as co
 from drivers.units import (
     counts_to_rad,
@@ -251,30 +251,16 @@ class CanArm(Arm):
         limits: SafetyLimits,
         log_path: str | Path | None = None,
     ) -> None:
-        if mode not in (LOCKSTEP, REALTIME):
-            raise ValueError(f"mode must be {LOCKSTEP!r} or {REALTIME!r}, got {mode!r}")
-        if not drives:
-            raise ValueError("at least one drive")
-        if not period_s > 0 or not timeout_s > 0:
-            raise ValueError("period_s and timeout_s must be positive")
-        if len(limits.torque_Nm) != len(drives):
-            raise ValueError(f"{len(drives)} drives but {len(limits.torque_Nm)} torque limits")
+        self._init_link(drives, period_s=period_s, mode=mode, timeout_s=timeout_s, limits=limits)
         self._bus_factory = bus_factory
-        self.drives: tuple[DriveProfile, ...] = tuple(drives)
-        self.n_joints = len(self.drives)
         self.node_ids = tuple(p.node_id for p in self.drives)
         if len(set(self.node_ids)) != len(self.node_ids):
             raise ValueError(f"node ids must differ, got {self.node_ids}")
-        self.period_s = float(period_s)
-        self.mode = mode
-        self.timeout_s = float(timeout_s)
-        self.limits = limits
         if log_path is not None:
             log_path = Path(log_path)
             if log_path.is_dir():
                 log_path = log_path / "bus.log"
         self.log_path: Path | None = log_path
-        self.stats = LinkStats()
 
         self.bus: can.BusABC | None = None
         self.network: canopen.Network | None = None

@@ -36,7 +36,7 @@ from typing import TextIO
 
 import serial
 
-from drivers.arm import Arm, Fault, LinkError, LinkStats, SafetyLimits, SafetyStop, Sample
+from drivers.arm import Arm, Fault, LinkError, SafetyLimits, SafetyStop, Sample
 from drivers.protocol import gemini as gm
 from drivers.protocol.cia402 import (
     ERR_OVERSPEED,
@@ -73,21 +73,11 @@ class SerialArm(Arm):
         log_path: str | Path | None = None,
         baudrate: int = 9600,
     ) -> None:
-        if mode not in ("lockstep", "realtime"):
-            raise ValueError(f"mode must be 'lockstep' or 'realtime', got {mode!r}")
-        if not period_s > 0 or not timeout_s > 0:
-            raise ValueError("period_s and timeout_s must be > 0")
+        self._init_link(drives, period_s=period_s, mode=mode, timeout_s=timeout_s, limits=limits)
         self.port = port
-        self.drives = tuple(drives)
-        self.n_joints = len(self.drives)
         self.units = tuple(d.unit_address for d in self.drives)
-        self.period_s = period_s
-        self.mode = mode
-        self.timeout_s = timeout_s
-        self.limits = limits
         self.baudrate = baudrate
         self.log_path = Path(log_path) if log_path is not None else None
-        self.stats = LinkStats()
         self.revisions: tuple[str, ...] = ()
         self._ser: serial.Serial | None = None
         self._log: TextIO | None = None

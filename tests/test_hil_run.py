@@ -264,6 +264,23 @@ def test_realtime_soak_400hz(bench, tmp_path):
     assert len(rec) == 12000 and np.all(np.isfinite(rec.columns["feedback_s"]))
 
 
+def _spin_experiment(tmp_path: Path) -> Path:
+    """15 Nm held on the elbow: it spins up past every velocity limit within a second."""
+    exp = tmp_path / "spin.toml"
+    exp.write_text("""
+name = "spin"
+kind = "open_loop_torque"
+period_s = 0.0025
+duration_s = 5.0
+[[joints]]
+step_Nm = 0.0
+[[joints]]
+step_Nm = 15.0
+step_rate_per_s = 1000.0
+""")
+    return exp
+
+
 @pytest.mark.parametrize("bench", ["virtual-slcan", "virtual-serial"])
 def test_realtime_run_moves_the_arm_with_drives_enabled(bench, tmp_path):
     proc = hil(
@@ -289,18 +306,7 @@ def test_realtime_run_moves_the_arm_with_drives_enabled(bench, tmp_path):
 
 def test_a_drive_fault_ends_the_run_with_the_reason(tmp_path):
     """15 Nm on the elbow overspeeds it (0x8400): the host stops at once and says which drive."""
-    exp = tmp_path / "spin.toml"
-    exp.write_text("""
-name = "spin"
-kind = "open_loop_torque"
-period_s = 0.0025
-duration_s = 5.0
-[[joints]]
-step_Nm = 0.0
-[[joints]]
-step_Nm = 15.0
-step_rate_per_s = 1000.0
-""")
+    exp = _spin_experiment(tmp_path)
     bench = tmp_path / "wide.toml"  # host limits wider than the drives': the drive trips first
     bench.write_text("""
 name = "wide"
@@ -332,18 +338,7 @@ position_rad = [[-100.0, 100.0], [-100.0, 100.0]]
 
 def test_host_safety_limit_stops_the_run(tmp_path):
     """The same spin on the shipped bench: the host's own position limit stops it first."""
-    exp = tmp_path / "spin.toml"
-    exp.write_text("""
-name = "spin"
-kind = "open_loop_torque"
-period_s = 0.0025
-duration_s = 5.0
-[[joints]]
-step_Nm = 0.0
-[[joints]]
-step_Nm = 15.0
-step_rate_per_s = 1000.0
-""")
+    exp = _spin_experiment(tmp_path)
     proc = hil(
         "run",
         "--bench",
