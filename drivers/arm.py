@@ -118,6 +118,7 @@ class Arm(abc.ABC):
         mode: str,
         timeout_s: float,
         limits: SafetyLimits,
+        feedback_timeout_periods: int = 3,
     ) -> None:
         """The settings every link shares, checked once here (subclasses call this first)."""
         if mode not in ("lockstep", "realtime"):
@@ -134,7 +135,19 @@ class Arm(abc.ABC):
         self.mode = mode
         self.timeout_s = float(timeout_s)
         self.limits = limits
+        if feedback_timeout_periods < 1:
+            raise ValueError("feedback_timeout_periods must be >= 1")
+        self.feedback_timeout_periods = int(feedback_timeout_periods)
         self.stats = LinkStats()
+
+    @property
+    def feedback_timeout_s(self) -> float:
+        """How long a cycle waits for feedback before the link is declared dead: ``timeout_s`` in
+        lockstep, ``feedback_timeout_periods`` periods in realtime (3 by default, so a dead robot
+        is noticed within 3 periods)."""
+        if self.mode == "lockstep":
+            return self.timeout_s
+        return self.feedback_timeout_periods * self.period_s
 
     def now(self) -> float:
         """Host monotonic time in seconds since the link opened (the clock of deadlines)."""

@@ -68,7 +68,6 @@ LOCKSTEP, REALTIME = "lockstep", "realtime"
 LOG_FLUSH_EVERY = 50  # frames
 SPIN_S = 0.0002  # busy-wait the last 0.2 ms before a deadline
 MAX_DEADLINE_AHEAD_S = 1.0  # a deadline further ahead than this (+10 periods) is a caller bug
-REALTIME_TIMEOUT_PERIODS = 3
 SHORT_SDO_TIMEOUT_S = 0.2  # disable() and fault queries: best effort, do not hang on a dead link
 MAX_ERRORS_KEPT = 100
 NOTIFIER_POLL_S = 0.05  # notifier wake-up: bounds close() time
@@ -236,8 +235,8 @@ class CanArm(Arm):
     ``bus_factory`` builds the python-can bus at :meth:`open` (the arm owns and shuts it down).
     ``mode``: "lockstep" (the robot advances one period per SYNC; ``Sample.t`` = k·h; feedback
     timeout ``timeout_s``) or "realtime" (SYNC at the host's deadline; ``Sample.t`` = SYNC send
-    time; feedback timeout 3 periods). ``log_path``: file for the traffic log (an existing
-    directory gets ``bus.log`` inside it); None: no log.
+    time; feedback timeout ``feedback_timeout_periods`` periods, 3 by default). ``log_path``:
+    file for the traffic log (an existing directory gets ``bus.log`` inside it); None: no log.
     """
 
     def __init__(
@@ -250,8 +249,16 @@ class CanArm(Arm):
         timeout_s: float,
         limits: SafetyLimits,
         log_path: str | Path | None = None,
+        feedback_timeout_periods: int = 3,
     ) -> None:
-        self._init_link(drives, period_s=period_s, mode=mode, timeout_s=timeout_s, limits=limits)
+        self._init_link(
+            drives,
+            period_s=period_s,
+            mode=mode,
+            timeout_s=timeout_s,
+            limits=limits,
+            feedback_timeout_periods=feedback_timeout_periods,
+        )
         self._bus_factory = bus_factory
         self.node_ids = tuple(p.node_id for p in self.drives)
         if len(set(self.node_ids)) != len(self.node_ids):
@@ -689,9 +696,7 @@ class CanArm(Arm):
 
     def _sync(self) -> tuple[float, float, list[tuple[int, ...]], list[tuple[int, ...]]]:
         """SYNC, then wait for TPDO1 + TPDO2 of every drive; (sent_at, received_at, fb1, fb2)."""
-        timeout = (
-            self.timeout_s if self.mode == LOCKSTEP else REALTIME_TIMEOUT_PERIODS * self.period_s
-        )
+        timeout = self.feedback_timeout_s
         with self._fb_lock:
             self._fb1 = [None] * self.n_joints
             self._fb2 = [None] * self.n_joints

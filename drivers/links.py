@@ -82,6 +82,7 @@ def open_arm(
         "mode": mode,
         "timeout_s": bench.timeout_s,
         "limits": limits_of(bench),
+        "feedback_timeout_periods": bench.feedback_timeout_periods,
     }
     if bench.protocol == "can":
         from drivers.can_arm import CanArm

@@ -48,7 +48,6 @@ from drivers.units import counts_to_rad, permille_to_torque, torque_to_permille,
 from profiles.drive import DriveProfile
 
 LOG_FLUSH_LINES = 100
-REALTIME_MIN_TIMEOUT_S = 0.02
 DISABLE_TIMEOUT_S = 1.0  # disable() is best effort: it never waits longer than this per step
 FAULT_TEXT = {
     ERR_RPDO_TIMEOUT: "command watchdog: no torque command for too many periods",
@@ -72,8 +71,16 @@ class SerialArm(Arm):
         limits: SafetyLimits,
         log_path: str | Path | None = None,
         baudrate: int = 9600,
+        feedback_timeout_periods: int = 3,
     ) -> None:
-        self._init_link(drives, period_s=period_s, mode=mode, timeout_s=timeout_s, limits=limits)
+        self._init_link(
+            drives,
+            period_s=period_s,
+            mode=mode,
+            timeout_s=timeout_s,
+            limits=limits,
+            feedback_timeout_periods=feedback_timeout_periods,
+        )
         self.port = port
         self.units = tuple(d.unit_address for d in self.drives)
         self.baudrate = baudrate
@@ -87,13 +94,6 @@ class SerialArm(Arm):
         self._counts = [0] * self.n_joints  # unwrapped encoder counts
         self._q_prev: tuple[float, ...] = ()
         self._t_prev = 0.0
-
-    @property
-    def cycle_timeout_s(self) -> float:
-        """How long a cycle waits for its replies: timeout_s (lockstep), 3 periods (realtime)."""
-        if self.mode == "lockstep":
-            return self.timeout_s
-        return max(3 * self.period_s, REALTIME_MIN_TIMEOUT_S)
 
     # ---- Arm API ---------------------------------------------------------------------------
     def open(self) -> None:
@@ -195,7 +195,7 @@ class SerialArm(Arm):
         requests: list[_Request] = [
             (u, "XTQ", p) for u, p in zip(self.units, permille, strict=True)
         ]
-        timeout = self.cycle_timeout_s
+        timeout = self.feedback_timeout_s
         if self.mode == "realtime":
             self._transact(requests, timeout)  # apply now; the sample comes at the deadline
             if deadline is not None:

@@ -30,7 +30,8 @@ class BenchProfile:
     period_s: float
     robot: str
     effects: str | None
-    timeout_s: float  # feedback timeout per cycle (lockstep) / per request
+    timeout_s: float  # lockstep feedback timeout, and SDO/request timeout
+    feedback_timeout_periods: int  # realtime: periods without feedback before the host stops
     torque_limit_Nm: tuple[float, float]
     velocity_limit_rad_s: tuple[float, float]
     position_limit_rad: tuple[tuple[float, float], tuple[float, float]]
@@ -55,6 +56,7 @@ def load_bench(name_or_path: str | Path) -> BenchProfile:
             "robot",
             "effects",
             "timeout_s",
+            "feedback_timeout_periods",
             "limits",
         }
     )
@@ -105,6 +107,7 @@ def load_bench(name_or_path: str | Path) -> BenchProfile:
         robot=f.string("robot", "cicese"),
         effects=f.string("effects") if f.has("effects") else None,
         timeout_s=f.number("timeout_s", 0.5, positive=True, hi=60.0),
+        feedback_timeout_periods=f.integer("feedback_timeout_periods", 3, lo=1, hi=1000),
         torque_limit_Nm=limits.numbers("torque_Nm", 2, positive=True),  # type: ignore[arg-type]
         velocity_limit_rad_s=limits.numbers("velocity_rad_s", 2, positive=True),  # type: ignore[arg-type]
         position_limit_rad=(position[0], position[1]),

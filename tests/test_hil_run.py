@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from drivers.recording import read_signals
+from profiles import resolve
 from profiles.drive import load_drive
 from profiles.experiment import load_experiment
 from profiles.robot import load_robot
@@ -243,17 +244,24 @@ position_rad = [[-1.0, 1.0], [-1.5, 1.5]]
 @pytest.mark.parametrize("bench", ["virtual-slcan", "virtual-serial"])
 def test_realtime_soak_400hz(bench, tmp_path):
     """30 s at 400 Hz: the run completes and its timing stays sane (loose bounds: CI is shared;
-    the strict figures are `make bench`'s)."""
+    the strict figures are `make bench`'s). The shipped benches stop after 3 periods without
+    feedback, as they must; this VM stalls that long about once a minute, so the soak uses a
+    copy of the bench with feedback_timeout_periods = 20, to measure stability, not detection."""
+    text = resolve("benches", bench).read_text()
+    soak = tmp_path / "soak.toml"
+    assert "feedback_timeout_periods = 3" in text
+    soak.write_text(text.replace("feedback_timeout_periods = 3", "feedback_timeout_periods = 20"))
+    out = tmp_path / "run"
     proc = hil(
         "run",
         "--bench",
-        bench,
+        str(soak),
         "--mode",
         "realtime",
         "--duration",
         "30",
         "--out",
-        str(tmp_path),
+        str(out),
         "--json",
         "--no-plot",
         timeout=120,
@@ -263,7 +271,7 @@ def test_realtime_soak_400hz(bench, tmp_path):
     assert timing["cycles"] == 12000
     assert timing["deadline_miss_fraction"] < 0.01
     assert timing["command_to_feedback_latency"]["p99_ms"] < 2.5
-    rec = read_signals(tmp_path)
+    rec = read_signals(out)
     assert len(rec) == 12000 and np.all(np.isfinite(rec.columns["feedback_s"]))
 
 
