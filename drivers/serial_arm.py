@@ -170,7 +170,7 @@ class SerialArm(Arm):
         self._counts = list(raw)
         q = self._q()
         self._k = 0
-        t = 0.0 if self.mode == "lockstep" else received
+        t = 0.0 if self.mode == "lockstep" else sent
         self._q_prev, self._t_prev = q, t
         self._check_limits(q, None)
         zeros = (0.0,) * self.n_joints
@@ -212,7 +212,9 @@ class SerialArm(Arm):
         status = tuple(sw for _, sw in feedback)
         self._k += 1
         self.stats.cycles += 1
-        t = self._k * self.period_s if self.mode == "lockstep" else received
+        # realtime: the robot samples when the request arrives, so the send time is the sample's
+        # time; receive times jitter with the host's read scheduling and would corrupt dq below
+        t = self._k * self.period_s if self.mode == "lockstep" else sent
         dt = t - self._t_prev
         dq = tuple((a - b) / dt for a, b in zip(q, self._q_prev, strict=True)) if dt > 0 else None
         self._q_prev, self._t_prev = q, t
