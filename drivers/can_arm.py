@@ -567,7 +567,7 @@ class CanArm(Arm):
         """Shutdown, switch on, enable operation (RPDO, torque 0); each confirmed by SDO 0x6041.
 
         Realtime: the drives' command watchdog runs on their own period timer from the moment
-        they are enabled, and an SDO round trip may take longer than 3 periods (socketcand,
+        they are enabled, and an SDO round trip may outlast its periods (socketcand,
         a busy adapter); so while the last step is being confirmed, a keep-alive thread sends
         RPDO (enable operation, torque 0) every period. It stops before enable() returns.
         """

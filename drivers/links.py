@@ -43,7 +43,7 @@ def can_bus_kwargs(bench: BenchProfile, channel: dict[str, Any]) -> dict[str, An
             "port": int(port),
             "channel": channel.get("interface_channel", "can0"),
             # without TCP_NODELAY, Nagle holds small frames for ~40 ms: longer than the
-            # drives' 3-period watchdog
+            # drives' command watchdog (8 periods, 20 ms)
             "tcp_tune": True,
         }
     if bench.transport == "socketcan":

@@ -57,9 +57,8 @@ def run_loop(
     and the result says why it ended. The caller's ``with arm:`` block makes the drives safe.
     """
     # The cyclic garbage collector can pause for milliseconds at any allocation; in realtime it
-    # runs between runs, not between deadlines (reference counting still frees as usual).
-    # (no gc.collect() here: it takes milliseconds, and the drives are already enabled, with a
-    # 3-period command watchdog running)
+    # runs between runs, not between deadlines (reference counting still frees as usual). No
+    # gc.collect() here either: the drives are already enabled and their watchdog is counting.
     gc_was_enabled = gc.isenabled()
     if realtime:
         gc.disable()
@@ -109,9 +108,7 @@ def _run(
                 progress(k + 1, n_periods)
     except SafetyStop as exc:
         status, reason = "safety_stop", str(exc)
-    except DriveFaultError as exc:
-        status, reason = "failed", str(exc)
-    except LinkError as exc:
+    except (DriveFaultError, LinkError) as exc:
         status, reason = "failed", str(exc)
     except KeyboardInterrupt:
         status, reason = "interrupted", "interrupted by the user (Ctrl-C)"

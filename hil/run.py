@@ -104,6 +104,7 @@ def run_experiment(
                     progress=_progress if progress else None,
                 )
             reason = result.reason
+            factor = n * h / result.wall_time_s if result.wall_time_s else None
             if bench.virtual and result.status == "failed" and not robot.alive():
                 reason = f"virtual robot (pid {robot.pid}) is gone; {reason}"
             writer.close(
@@ -111,7 +112,7 @@ def run_experiment(
                 reason=reason,
                 timing=result.timing,
                 wall_time_s=result.wall_time_s,
-                realtime_factor=(n * h / result.wall_time_s) if result.wall_time_s else None,
+                realtime_factor=factor,
                 link=vars(arm.stats),
                 traffic_log=arm.traffic_log(),
             )
@@ -124,7 +125,7 @@ def run_experiment(
         "bench": bench.name,
         "mode": mode,
         "wall_time_s": round(result.wall_time_s, 4),
-        "realtime_factor": round(n * h / result.wall_time_s, 2) if result.wall_time_s else None,
+        "realtime_factor": round(factor, 2) if factor else None,
         "timing": result.timing,
         "traffic_log": arm.traffic_log(),
         "plot": None,

@@ -189,10 +189,7 @@ class VirtualRobot:
         """Write an object of one drive; raises SdoAbortError with the CiA 301 code."""
         with self.lock:
             i = self._drive_index(node, unit)
-            obj = co.OBJECT_MAP.get((index, subindex))
-            if obj is None:
-                co.lookup(index, subindex)  # raises the right abort
-                raise AssertionError("unreachable")
+            obj = co.lookup(index, subindex)  # raises the right abort for unknown objects
             if obj.access is co.Access.RO:
                 raise SdoAbortError(index, subindex, co.ABORT_READ_ONLY)
             lo, hi = obj.limits()
