@@ -9,11 +9,16 @@ runs as its own process behind a real transport.
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import subprocess
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+
+# Subcommands that live in their own modules: name -> (module, help). Each module provides
+# ``add_arguments(parser)`` and ``main(args) -> int`` (exit status).
+COMMANDS: dict[str, tuple[str, str]] = {}
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -42,6 +47,8 @@ def _parser() -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help="the main job end to end on the default virtual robot")
     d.add_argument("--out", default="runs/demo", help="directory for the demo's runs")
     d.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
+    for name, (module, help_text) in COMMANDS.items():
+        importlib.import_module(module).add_arguments(sub.add_parser(name, help=help_text))
     return p
 
 
@@ -153,6 +160,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from drivers.arm import LinkError
     from drivers.recording import RecordingError
     from hil.launch import LaunchError
+    from hil.params import ParamsError
     from profiles import ProfileError
 
     args = _parser().parse_args(argv)
@@ -161,10 +169,20 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_run(args)
         if args.command == "demo":
             return cmd_demo(args)
+        if args.command in COMMANDS:
+            return int(importlib.import_module(COMMANDS[args.command][0]).main(args))
     except KeyboardInterrupt:
         print("hil: interrupted; drives commanded to zero torque and disabled", file=sys.stderr)
         return 130
-    except (ProfileError, RecordingError, LaunchError, LinkError, OSError, ValueError) as exc:
+    except (
+        ProfileError,
+        ParamsError,
+        RecordingError,
+        LaunchError,
+        LinkError,
+        OSError,
+        ValueError,
+    ) as exc:
         print(f"hil: error: {exc}", file=sys.stderr)
         return 2
     return 2
