@@ -1,0 +1,346 @@
+"""The three regression models of Reyes & Kelly (1997), built from sampled data, two ways.
+
+Every builder takes encoder readings ``q`` (N, 2) sampled at t_k = k·h and torques ``tau`` (N, 2)
+held over [t_k, t_k + h) (the recording convention), and returns a :class:`Regression`: outputs
+``y`` (K, m) and regressors ``Psi`` (K, m, 9) with y(k) ≈ Psi(k) θ, m = 2 (vector prediction
+error) or 1 (scalar). ``discretization`` selects how continuous time is brought to samples:
+
+``paper``
+    What the paper implemented (Section 5): velocity by backward difference
+    v_k = (q_k − q_{k−1})/h; λ/(s+λ) as (1 − e^{−λh}) z⁻¹ / (1 − e^{−λh} z⁻¹) and λs/(s+λ) as
+    λ (1 − z⁻¹) / (1 − e^{−λh} z⁻¹); integrals by the trapezoid rule. The two filters do not
+    delay alike (the low-pass has a one-sample delay, the band-pass none) and the backward
+    difference lags the true velocity by h/2, so the two sides of each regression are not
+    aligned in time: this biases the estimates (docs/identification.md quantifies it).
+
+``exact``
+    A formulation that is consistent on both sides. Between samples the torque is constant, so
+    the work it does over [t_k, t_{k+1}] is exactly τ_kᵀ (q_{k+1} − q_k) and its impulse exactly
+    h τ_k. Each model is written over sample intervals — the momentum balance
+    h τ_k = [P(t_{k+1}) − P(t_k)] θ + ∫ R dt θ, the energy balance
+    τ_kᵀ Δq_k = [φ_ℰ(t_{k+1}) − φ_ℰ(t_k)]ᵀ θ + ∫ q̇ᵀ φ_F dt θ — with velocities at the samples by
+    central difference and the integrals over each interval taken on the cubic Hermite
+    interpolant of q (Gauss–Legendre for smooth terms, exact piecewise integration of sgn q̇ and
+    |q̇| between its zero crossings). Filters, where a model has them, are one discrete
+    first-order low-pass applied identically to both sides, so they cannot bias anything.
+    Intervals in which a joint sticks (zero velocity at both ends, no motion) carry static
+    friction the model has no term for; in force-based rows (filtered dynamic) they and the
+    samples their filter memory spreads them to are given zero weight (``Regression.weights``).
+
+Filter bandwidth ``lam`` is in rad/s (the paper's "λ = 50 Hz": see docs/identification.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter
+
+from hil.model import (
+    N_PARAMS,
+    energy_regressor,
+    friction_power_regressor,
+    momentum_regressor,
+    static_regressor,
+)
+
+SCHEMES = ("filtered_dynamic", "supplied_energy", "filtered_power")
+DISCRETIZATIONS = ("paper", "exact")
+# A stuck interval contaminates a filtered row by less than this fraction once it is this far
+# back in the filter's memory (e^{-λ t} < 1e-3).
+STICK_MEMORY_DECAY = 1e-3
+
+
+@dataclass(frozen=True)
+class Regression:
+    """y(k) ≈ Psi(k) θ for k = 0..K−1; ``t`` the time each row refers to; ``weights`` (K, m) are
+    1 for rows the model can explain and 0 for rows it cannot (stick–slip, see module doc)."""
+
+    scheme: str
+    discretization: str
+    t: np.ndarray  # (K,)
+    y: np.ndarray  # (K, m)
+    Psi: np.ndarray  # (K, m, 9)
+    weights: np.ndarray  # (K, m)
+    lam: float
+    period_s: float
+
+
+# --- discrete filters --------------------------------------------------------------------------
+# Every filter is linear and time-invariant, given as (b, a) coefficients in z⁻¹, so the batch
+# builders (scipy.signal.lfilter over a whole recording) and the online identifier (lfilter one
+# sample at a time with its state carried in ``zi``) compute the same numbers.
+
+
+def filter_coefficients(name: str, lam: float, h: float) -> tuple[list[float], list[float]]:
+    """(b, a) of the named filter, a = e^{−λh}:
+
+    ``paper_lowpass``     λ/(s+λ) → (1 − a) z⁻¹ / (1 − a z⁻¹)       (Reyes & Kelly 1997, Sec. 5.1)
+    ``paper_bandpass``    λs/(s+λ) → λ (1 − z⁻¹) / (1 − a z⁻¹)       (Sec. 5.1)
+    ``trapezoid``         ∫₀^{kh} by the trapezoid rule, h/2 (1 + z⁻¹) / (1 − z⁻¹)   (Sec. 5.2)
+    ``interval_lowpass``  (1 − a) / (1 − a z⁻¹): unit DC gain, no delay (``exact`` filters)
+    ``cumulative_sum``    1 / (1 − z⁻¹): Σ over intervals (``exact`` integrals)
+    ``none``              1
+    """
+    e = float(np.exp(-lam * h))
+    table = {
+        "paper_lowpass": ([0.0, 1.0 - e], [1.0, -e]),
+        "paper_bandpass": ([lam, -lam], [1.0, -e]),
+        "trapezoid": ([0.5 * h, 0.5 * h], [1.0, -1.0]),
+        "interval_lowpass": ([1.0 - e], [1.0, -e]),
+        "cumulative_sum": ([1.0], [1.0, -1.0]),
+        "none": ([1.0], [1.0]),
+    }
+    if name not in table:
+        raise ValueError(f"unknown filter {name!r}")
+    return table[name]
+
+
+# --- velocities and interval integrals ----------------------------------------------------------
+
+
+def backward_difference(q: np.ndarray, h: float) -> np.ndarray:
+    """v_k = (q_k − q_{k−1}) / h, v_0 = 0 (at rest), as in the paper (Section 5)."""
+    v = np.zeros_like(q)
+    v[1:] = np.diff(q, axis=0) / h
+    return v
+
+
+def central_difference(q: np.ndarray, h: float) -> np.ndarray:
+    """v_k = (q_{k+1} − q_{k−1}) / (2h) for k = 1..N−2; the ends are NaN (not used).
+
+    The torque steps at every sample, so q̈ jumps there and this is off by h (q̈⁺ − q̈⁻)/4,
+    about 1e-3 rad/s on the paper's excitation (0.05 % of its velocities)."""
+    v = np.full_like(q, np.nan)
+    v[1:-1] = (q[2:] - q[:-2]) / (2 * h)
+    return v
+
+
+_GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(4)
+_GL_NODES = 0.5 * (_GL_NODES + 1.0)  # on [0, 1]
+_GL_WEIGHTS = 0.5 * _GL_WEIGHTS
+
+
+def _hermite(
+    q0: np.ndarray, q1: np.ndarray, d0: np.ndarray, d1: np.ndarray, s: float | np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Cubic Hermite q(s), dq/ds(s) on s ∈ [0, 1] from end values and end slopes (× h)."""
+    s2, s3 = s * s, s * s * s
+    h00, h10, h01, h11 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
+    g00, g10, g01, g11 = 6 * s2 - 6 * s, 3 * s2 - 4 * s + 1, -6 * s2 + 6 * s, 3 * s2 - 2 * s
+    return h00 * q0 + h10 * d0 + h01 * q1 + h11 * d1, g00 * q0 + g10 * d0 + g01 * q1 + g11 * d1
+
+
+def _sign_and_abs_integrals(
+    q0: np.ndarray, q1: np.ndarray, d0: np.ndarray, d1: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """∫₀¹ sgn(dq/ds) ds and ∫₀¹ |dq/ds| ds of the cubic Hermite per element, exactly.
+
+    dq/ds = A s² + B s + C is a quadratic: [0, 1] is cut at its real roots inside (0, 1) and each
+    piece integrated (sgn: piece length × its sign; |q̇|: |q(end) − q(start)|)."""
+    A = 6 * (q0 - q1) + 3 * (d0 + d1)
+    B = -6 * (q0 - q1) - 4 * d0 - 2 * d1
+    C = d0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        quad = np.abs(A) > 1e-300
+        disc = np.where(quad, B * B - 4 * A * C, np.nan)
+        r = np.sqrt(np.where(disc > 0, disc, np.nan))
+        r1 = np.where(quad, (-B - r) / (2 * A), -C / B)
+        r2 = np.where(quad, (-B + r) / (2 * A), np.nan)
+    # Roots outside (0, 1) (or absent) become zero-length pieces at s = 1.
+    r1 = np.where((r1 > 0) & (r1 < 1), r1, 1.0)
+    r2 = np.where((r2 > 0) & (r2 < 1), r2, 1.0)
+    cuts = [np.zeros_like(q0), np.minimum(r1, r2), np.maximum(r1, r2), np.ones_like(q0)]
+    sgn_int = np.zeros_like(q0)
+    abs_int = np.zeros_like(q0)
+    q_at = [_hermite(q0, q1, d0, d1, c)[0] for c in cuts]
+    for i in range(3):
+        lo, hi = cuts[i], cuts[i + 1]
+        mid = 0.5 * (lo + hi)
+        sgn_int += (hi - lo) * np.sign(A * mid * mid + B * mid + C)
+        abs_int += np.abs(q_at[i + 1] - q_at[i])
+    return sgn_int, abs_int
+
+
+@dataclass(frozen=True)
+class IntervalIntegrals:
+    """Integrals over each sample interval [t_k, t_{k+1}] of the terms the models need, for
+    k = first..last (K intervals), on the cubic Hermite interpolant of q."""
+
+    k: np.ndarray  # (K,) interval index (starts at sample k)
+    R: np.ndarray  # (K, 2, 9)  ∫ R(q, q̇) dt
+    friction_work: np.ndarray  # (K, 4)  ∫ [q̇1², q̇2², |q̇1|, |q̇2|] dt
+    stuck: np.ndarray  # (K, 2)  joint did not move over the interval (stick)
+
+
+def interval_integrals(q: np.ndarray, v: np.ndarray, h: float) -> IntervalIntegrals:
+    """∫ R dt and ∫ q̇ᵀφ_F dt over every interval whose two end velocities are known."""
+    ok = np.isfinite(v).all(axis=1)
+    k = np.flatnonzero(ok[:-1] & ok[1:])
+    q0, q1 = q[k], q[k + 1]
+    d0, d1 = h * v[k], h * v[k + 1]
+    R = np.zeros((len(k), 2, N_PARAMS))
+    for s, w in zip(_GL_NODES, _GL_WEIGHTS, strict=True):
+        qs, ds = _hermite(q0, q1, d0, d1, float(s))
+        R += w * h * static_regressor(qs, ds / h)
+    sgn_int, abs_int = _sign_and_abs_integrals(q0, q1, d0, d1)
+    dq = q1 - q0
+    # Viscous (θ6, θ7) and Coulomb (θ8, θ9) columns exactly: ∫ q̇ dt = Δq, ∫ sgn q̇ dt piecewise.
+    R[:, 0, 5], R[:, 1, 6] = dq[:, 0], dq[:, 1]
+    R[:, 0, 7], R[:, 1, 8] = h * sgn_int[:, 0], h * sgn_int[:, 1]
+    sq = np.zeros((len(k), 2))
+    for s, w in zip(_GL_NODES, _GL_WEIGHTS, strict=True):  # degree 4: exact
+        _, ds = _hermite(q0, q1, d0, d1, float(s))
+        sq += w * (ds / h) ** 2 * h
+    friction_work = np.column_stack([sq, abs_int])
+    stuck = (dq == 0) & (np.abs(v[k]) < 1e-12) & (np.abs(v[k + 1]) < 1e-12)
+    return IntervalIntegrals(k, R, friction_work, stuck)
+
+
+# --- the three models -------------------------------------------------------------------------
+
+
+def _check(q: np.ndarray, tau: np.ndarray, h: float, lam: float, discretization: str) -> None:
+    if q.ndim != 2 or q.shape[1] != 2 or tau.shape != q.shape:
+        raise ValueError(f"q and tau must both have shape (N, 2); got {q.shape} and {tau.shape}")
+    if not (np.isfinite(q).all() and np.isfinite(tau).all()):
+        raise ValueError("q and tau must be finite (a NaN or inf in the recording?)")
+    if not h > 0:
+        raise ValueError(f"period must be > 0 s, got {h}")
+    if not lam > 0:
+        raise ValueError(f"filter bandwidth lambda must be > 0 rad/s, got {lam}")
+    if discretization not in DISCRETIZATIONS:
+        raise ValueError(
+            f"unknown discretization {discretization!r}; "
+            f"expected one of {', '.join(DISCRETIZATIONS)}"
+        )
+
+
+@dataclass(frozen=True)
+class RawRows:
+    """Unfiltered rows of one regression: the output ``y`` goes through filter ``y_filter``;
+    the regressor is the sum over ``parts`` of (filter name, array (K, m, 9)) each filtered.
+    ``index``: the sample each row belongs to; ``stuck`` (K, m): the row's own interval had
+    that joint stuck (static friction the model has no term for)."""
+
+    index: np.ndarray
+    y: np.ndarray
+    y_filter: str
+    parts: tuple[tuple[str, np.ndarray], ...]
+    stuck: np.ndarray
+
+
+@dataclass(frozen=True)
+class Kinematics:
+    """What every scheme's rows share: sample velocities and, for ``exact``, the interval
+    integrals. Computed once per window by :func:`kinematics`."""
+
+    v: np.ndarray
+    intervals: IntervalIntegrals | None
+
+
+def kinematics(discretization: str, q: np.ndarray, h: float) -> Kinematics:
+    """Velocities (backward difference for ``paper``, central for ``exact``) and, for
+    ``exact``, the integrals over every interval with both end velocities known."""
+    if discretization == "paper":
+        return Kinematics(backward_difference(q, h), None)
+    v = central_difference(q, h)
+    return Kinematics(v, interval_integrals(q, v, h))
+
+
+def raw_rows(
+    scheme: str,
+    discretization: str,
+    q: np.ndarray,
+    tau: np.ndarray,
+    h: float,
+    kin: Kinematics | None = None,
+) -> RawRows:
+    """The unfiltered rows of ``scheme`` for every sample (paper) or interval (exact) of the
+    window ``q``, ``tau`` whose inputs are complete (exact needs one sample either side).
+    ``kin``: :func:`kinematics` of the same window, when several schemes share it."""
+    if scheme not in SCHEMES:
+        raise ValueError(f"unknown scheme {scheme!r}; expected one of {', '.join(SCHEMES)}")
+    n = len(q)
+    kin = kin if kin is not None else kinematics(discretization, q, h)
+    v = kin.v
+    if discretization == "paper":
+        index = np.arange(n)
+        if scheme == "filtered_dynamic":  # eq. (24), Section 5.1
+            parts = (
+                ("paper_bandpass", momentum_regressor(q, v)),
+                ("paper_lowpass", static_regressor(q, v)),
+            )
+            return RawRows(index, tau, "paper_lowpass", parts, np.zeros((n, 2), bool))
+        power = np.sum(tau * v, axis=1)[:, None]
+        energy = energy_regressor(q, v)[:, None, :]
+        friction = friction_power_regressor(v)[:, None, :]
+        zeros = np.zeros((n, 1, 4))
+        if scheme == "supplied_energy":  # eq. (28), Section 5.2: ℰ(0) = 0, trapezoid integrals
+            parts = (
+                ("none", np.concatenate([energy, zeros], axis=2)),
+                ("trapezoid", np.concatenate([np.zeros((n, 1, 5)), friction], axis=2)),
+            )
+            return RawRows(index, power, "trapezoid", parts, np.zeros((n, 1), bool))
+        parts = (  # eq. (30), Section 5.3
+            ("paper_bandpass", np.concatenate([energy, zeros], axis=2)),
+            ("paper_lowpass", np.concatenate([np.zeros((n, 1, 5)), friction], axis=2)),
+        )
+        return RawRows(index, power, "paper_lowpass", parts, np.zeros((n, 1), bool))
+    ii = kin.intervals
+    assert ii is not None
+    k = ii.k
+    if scheme == "filtered_dynamic":
+        # Momentum balance over [t_k, t_{k+1}]: h τ_k = [P(t_{k+1}) − P(t_k) + ∫R dt] θ, / h.
+        P0 = momentum_regressor(q[k], v[k])
+        P1 = momentum_regressor(q[k + 1], v[k + 1])
+        parts = (("interval_lowpass", (P1 - P0 + ii.R) / h),)
+        return RawRows(k + 1, tau[k], "interval_lowpass", parts, ii.stuck)
+    # Energy balance over [t_k, t_{k+1}]: τ_kᵀΔq_k = [Δφ_ℰ, ∫q̇ᵀφ_F dt] θ   (eqs. (25), (27)).
+    work = np.sum(tau[k] * (q[k + 1] - q[k]), axis=1)[:, None]
+    d_energy = energy_regressor(q[k + 1], v[k + 1]) - energy_regressor(q[k], v[k])
+    rows = np.concatenate([d_energy, ii.friction_work], axis=1)[:, None, :]
+    stuck = np.zeros((len(k), 1), bool)  # static friction does no work: energy rows hold
+    if scheme == "supplied_energy":  # Σ from the first interval: eq. (28)
+        return RawRows(k + 1, work, "cumulative_sum", (("cumulative_sum", rows),), stuck)
+    return RawRows(k + 1, work / h, "interval_lowpass", (("interval_lowpass", rows / h),), stuck)
+
+
+def stick_memory(lam: float, h: float) -> int:
+    """Samples after which a stuck interval weighs < STICK_MEMORY_DECAY in a filtered row."""
+    return int(np.ceil(-np.log(STICK_MEMORY_DECAY) / (lam * h)))
+
+
+def stick_weights(stuck: np.ndarray, memory: int) -> np.ndarray:
+    """Weight 0 for a row whose filtered equation holds a stuck interval of that joint from the
+    last ``memory`` rows, 1 otherwise."""
+    K, _m = stuck.shape
+    idx = np.arange(K)[:, None]
+    last = np.where(stuck, idx, -(10**9))
+    last = np.maximum.accumulate(last, axis=0)
+    return (idx - last > memory).astype(float)
+
+
+def build_regression(
+    scheme: str,
+    q: np.ndarray,
+    tau: np.ndarray,
+    h: float,
+    lam: float = 50.0,
+    discretization: str = "exact",
+) -> Regression:
+    """The regression y(k) ≈ Ψ(k)ᵀθ of one scheme over a whole recording.
+
+    ``filtered_dynamic``: eq. (24), vector error; ``supplied_energy``: eq. (28), scalar;
+    ``filtered_power``: eq. (30), scalar. See the module doc for the two discretizations.
+    """
+    q, tau = np.asarray(q, float), np.asarray(tau, float)
+    _check(q, tau, h, lam, discretization)
+    if len(q) < 8:
+        raise ValueError(f"need at least 8 samples to identify, got {len(q)}")
+    raw = raw_rows(scheme, discretization, q, tau, h)
+    y = lfilter(*filter_coefficients(raw.y_filter, lam, h), raw.y, axis=0)
+    Psi = sum(lfilter(*filter_coefficients(f, lam, h), x, axis=0) for f, x in raw.parts)
+    weights = stick_weights(raw.stuck, stick_memory(lam, h))
+    return Regression(scheme, discretization, raw.index * h, y, Psi, weights, lam, h)
