@@ -94,14 +94,9 @@ def test_host_model_matches_the_plant_state_to_round_off(theta, effects, levels)
     assert np.max(np.abs(sim.q - world)) < 1e-9
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="virtual_robot.plant bug: at t = 6.9925 s joint 2 breaks away and reverses within a "
-    "0.5 ms step; Plant._locate_stick returns the zero at s = 0 eight times and the plant then "
-    "advances its clock without moving the state (joint 1 sliding at -1 rad/s stands still for "
-    "a period). hil.openloop brackets the later zero instead.",
-)
 def test_host_model_matches_the_plant_over_ten_seconds(theta):
+    """Includes t = 6.9925 s, where joint 2 breaks away and reverses inside one plant step
+    (the plant used to take the zero at the step start and freeze the arm for a period)."""
     tau = load_experiment("reyes-kelly").torque_table(np.arange(4000) * H)
     world = world_positions("symmetric-coulomb", tau)
     sim = simulate_open_loop(theta, tau, H)

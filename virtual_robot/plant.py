@@ -405,6 +405,20 @@ class Plant:
         side = 0
         result = (self.q1, self.q2, self.v1, self.v2, 0.0, 0.0)
         used, lag_end = 0.0, (self.amplifier_Nm[0], self.amplifier_Nm[1])
+        if f_lo == 0.0:
+            # The joint broke away at the start of this step: it first moves in its break-away
+            # direction, then reverses inside the step. The zero at s = 0 is not the crossing
+            # (taking it would stop the clock with the arm frozen); bracket the later zero.
+            alpha = 1.0
+            for _ in range(60):
+                alpha *= 0.5
+                tau, _lag = self._amplifier(alpha * dt)
+                v = self._rk4(alpha * dt, tau)[2 + joint]
+                if v * self.slip_dir[joint] > 0:
+                    lo, f_lo = alpha, v
+                    break
+            else:
+                return 0.0, result, lag_end  # no motion at all: it sticks at once
         for _ in range(8):
             alpha = lo + (hi - lo) * f_lo / (f_lo - f_hi) if f_lo != f_hi else lo
             used = alpha * dt
