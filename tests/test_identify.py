@@ -1,0 +1,287 @@
+"""Identification (Reyes & Kelly 1997): regressions, estimators, accuracy targets, online RLS, CLI.
+
+Recordings come from the offline simulation of the virtual robot (bit-identical to a lockstep run
+over any bench, tests/test_hil_run.py), so the full 10 s excitation costs ~0.2 s here; one test
+runs `hil identify` end to end over a bench.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from drivers.recording import read_signals
+from hil.estimators import (
+    RecursiveLeastSquares,
+    least_squares,
+    recursive_least_squares,
+    weighted_least_squares,
+)
+from hil.identify import format_table_ii, identify, validate
+from hil.online import OnlineIdentifier
+from hil.params import load_params, robot_params
+from hil.regressors import SCHEMES, build_regression
+from profiles.effects import load_effects
+from profiles.experiment import load_experiment
+from profiles.robot import load_robot
+from virtual_robot.simulate import simulate
+
+REFERENCE = robot_params("cicese").theta
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory):
+    """10 s of eqs. (31)-(32) on the default robot and with symmetric Coulomb friction, and the
+    held-out multisine on the default robot."""
+    robot = load_robot("cicese")
+    out = {}
+    for name, experiment, effects in (
+        ("default", "reyes-kelly", None),
+        ("symmetric", "reyes-kelly", "symmetric-coulomb"),
+        ("held_out", "validation-multisine", None),
+    ):
+        d = tmp_path_factory.mktemp(name)
+        simulate(
+            robot,
+            load_experiment(experiment),
+            d,
+            effects=load_effects(effects) if effects else None,
+            plot=False,
+        )
+        out[name] = read_signals(d)
+    return out
+
+
+def rel_err(theta):
+    return np.abs((theta - REFERENCE) / REFERENCE)
+
+
+# --- accuracy targets (issue 4), exact mode, 10 s ----------------------------------------------
+
+
+@pytest.mark.parametrize("scheme", ["filtered_dynamic", "filtered_power"])
+def test_default_robot_exact_mode_meets_the_targets(recordings, scheme):
+    """θ1, θ2, θ3, θ5 within 2 %, θ4 within 3 %, θ6..θ9 within 10 % (joint 1's Coulomb friction
+    is direction-dependent, which the 9-parameter model cannot express)."""
+    rec = recordings["default"]
+    res = identify(rec.q, rec.tau, rec.period_s, schemes=[scheme])[scheme]
+    err = rel_err(res.theta)
+    assert np.all(err[[0, 1, 2, 4]] < 0.02), err
+    assert err[3] < 0.03, err
+    assert np.all(err[5:] < 0.10), err
+    assert res.consistency["consistent"]
+
+
+def test_default_robot_supplied_energy(recordings):
+    """The inertial and gravity parameters meet the targets; θ6 does not on this excitation.
+
+    eqs. (31)-(32) drive joint 1 at one dominant frequency, so ∫q̇1² and ∫|q̇1| grow almost in
+    proportion and the cumulative energy model can barely tell viscous from Coulomb friction:
+    the unmodelled direction dependence (a −0.44 Nm offset while moving) is traded between θ6
+    and θ8 (docs/identification.md). The test pins the known miss so that a change shows up.
+    """
+    rec = recordings["default"]
+    res = identify(rec.q, rec.tau, rec.period_s, schemes=["supplied_energy"])["supplied_energy"]
+    err = rel_err(res.theta)
+    assert np.all(err[[0, 1, 2, 4]] < 0.02), err
+    assert err[3] < 0.03, err
+    assert np.all(err[[6, 7, 8]] < 0.10), err
+    assert 0.10 < err[5] < 0.20, err  # θ6: the known miss
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_symmetric_coulomb_exact_mode_meets_the_tighter_targets(recordings, scheme):
+    """With the model structure exact: θ1..θ5 within 1 %, θ6..θ9 within 5 % (all schemes)."""
+    rec = recordings["symmetric"]
+    res = identify(rec.q, rec.tau, rec.period_s, schemes=[scheme])[scheme]
+    err = rel_err(res.theta)
+    assert np.all(err[:5] < 0.01), err
+    assert np.all(err[5:] < 0.05), err
+
+
+def test_paper_discretization_biases_the_inertias(recordings):
+    """The paper's filters and backward difference misalign the two sides in time: with the
+    model structure exact, its filtered dynamic estimates of θ1..θ3 are several % low, and more
+    so at λ = 2π·50 rad/s, while the exact mode is within 0.2 %."""
+    rec = recordings["symmetric"]
+    paper = identify(rec.q, rec.tau, rec.period_s, schemes=["filtered_dynamic"],
+                     discretization="paper")["filtered_dynamic"]  # fmt: skip
+    paper_314 = identify(rec.q, rec.tau, rec.period_s, schemes=["filtered_dynamic"],
+                         discretization="paper", lam=2 * np.pi * 50)  # fmt: skip
+    paper_314 = paper_314["filtered_dynamic"]
+    exact = identify(rec.q, rec.tau, rec.period_s, schemes=["filtered_dynamic"])["filtered_dynamic"]
+    signed = (paper.theta - REFERENCE) / REFERENCE
+    assert np.all(signed[:3] < -0.03), signed
+    assert np.all((paper_314.theta[:3] - REFERENCE[:3]) / REFERENCE[:3] < -0.2)
+    assert np.all(rel_err(exact.theta)[:3] < 0.002)
+
+
+def test_exact_regression_holds_with_the_true_parameters(recordings):
+    """With the world's θ and the model structure exact, y − Ψθ is tiny against y."""
+    rec = recordings["symmetric"]
+    for scheme in SCHEMES:
+        reg = build_regression(scheme, rec.q, rec.tau, rec.period_s, 50.0, "exact")
+        resid = reg.y - np.einsum("kmp,p->km", reg.Psi, REFERENCE)
+        used = reg.weights > 0
+        ratio = np.linalg.norm(resid[used]) / np.linalg.norm(reg.y[used])
+        assert ratio < 2e-3, (scheme, ratio)
+
+
+def test_validation_prefers_identified_over_wrong_parameters(recordings):
+    rec, held = recordings["symmetric"], recordings["held_out"]
+    good = validate(REFERENCE, rec)
+    assert max(good["position_nrmse"]) < 1e-3  # same physics: only the encoder differs
+    wrong = REFERENCE.copy()
+    wrong[0] *= 1.2
+    bad = validate(wrong, rec)
+    assert bad["position_nrmse"][0] > 10 * good["position_nrmse"][0]
+    assert bad["torque_nrmse"][0] > 5 * good["torque_nrmse"][0]
+    assert set(validate(REFERENCE, held)) >= {"position_nrmse", "torque_nrmse"}
+
+
+def test_table_ii_text_has_every_parameter(recordings):
+    rec = recordings["default"]
+    res = identify(rec.q, rec.tau, rec.period_s)
+    text = format_table_ii(REFERENCE, res, title="t")
+    assert "Supplied Energy" in text and "Filtered Dynamic" in text
+    assert all(f"θ{i}" in text for i in range(1, 10))
+
+
+# --- estimators -------------------------------------------------------------------------------
+
+
+def test_rls_converges_to_least_squares_and_weights_drop_rows():
+    rng = np.random.default_rng(1)
+    theta = rng.normal(size=4) * [1, 10, 0.1, 3]
+    Psi = rng.normal(size=(500, 2, 4))
+    y = np.einsum("kmp,p->km", Psi, theta) + 1e-3 * rng.normal(size=(500, 2))
+    ls = least_squares(Psi, y)
+    hist = recursive_least_squares(Psi, y)
+    assert np.allclose(hist[-1], ls, rtol=1e-5, atol=1e-6)
+    assert np.allclose(ls, theta, atol=1e-3)
+    # corrupt rows with weight 0 change nothing
+    y_bad = y.copy()
+    y_bad[:50] += 100.0
+    w = np.ones(y.shape)
+    w[:50] = 0.0
+    assert np.allclose(least_squares(Psi, y_bad, w), least_squares(Psi[50:], y[50:]))
+    assert np.allclose(recursive_least_squares(Psi, y_bad, w)[-1], hist[-1], rtol=1e-4, atol=1e-5)
+    # scalar path equals the general update
+    rls = RecursiveLeastSquares(4)
+    for k in range(200):
+        rls.update(Psi[k, :1], y[k, :1])
+    assert np.allclose(recursive_least_squares(Psi[:200, :1], y[:200, :1])[-1], rls.theta)
+
+
+def test_weighted_least_squares_balances_channels():
+    """Channel 2 has 100× less noise: WLS uses it, plain LS is dominated by channel 1."""
+    rng = np.random.default_rng(2)
+    theta = np.array([1.0, -2.0])
+    Psi = rng.normal(size=(2000, 2, 2))
+    y = np.einsum("kmp,p->km", Psi, theta)
+    y[:, 0] += rng.normal(size=2000) * 1.0
+    y[:, 1] += rng.normal(size=2000) * 0.01
+    err_ls = np.linalg.norm(least_squares(Psi, y) - theta)
+    err_wls = np.linalg.norm(weighted_least_squares(Psi, y) - theta)
+    assert err_wls < 0.2 * err_ls
+
+
+def test_rls_rejects_bad_settings():
+    with pytest.raises(ValueError, match="forgetting"):
+        RecursiveLeastSquares(3, forgetting=1.5)
+    with pytest.raises(ValueError, match="P\\(0\\)"):
+        RecursiveLeastSquares(3, p0=0)
+
+
+# --- online RLS -------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("discretization", ["exact", "paper"])
+def test_online_rls_equals_batch_rls(recordings, discretization):
+    rec = recordings["default"]
+    n = 1200
+    online = OnlineIdentifier(rec.period_s, discretization=discretization)
+    for q, tau in zip(rec.q[:n], rec.tau[:n], strict=True):
+        online.push(q, tau)
+    for scheme in SCHEMES:
+        reg = build_regression(scheme, rec.q[:n], rec.tau[:n], rec.period_s, 50.0, discretization)
+        batch = recursive_least_squares(reg.Psi, reg.y, reg.weights)[-1]
+        assert online.streams[scheme].rows == len(reg.y)
+        assert np.allclose(online.theta[scheme], batch, rtol=1e-7, atol=1e-9), scheme
+    assert online.cost_per_sample_s() > 0
+
+
+# --- bad input --------------------------------------------------------------------------------
+
+
+def test_bad_input_is_refused_with_a_clear_error():
+    q = np.zeros((100, 2))
+    with pytest.raises(ValueError, match="unknown scheme"):
+        build_regression("energy", q, q, 0.0025)
+    with pytest.raises(ValueError, match="at least 8"):
+        build_regression("filtered_power", q[:5], q[:5], 0.0025)
+    bad = q.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(ValueError, match="finite"):
+        build_regression("filtered_dynamic", bad, q, 0.0025)
+    with pytest.raises(ValueError, match="lambda"):
+        build_regression("filtered_dynamic", q, q, 0.0025, lam=-1)
+    with pytest.raises(ValueError, match="discretization"):
+        build_regression("filtered_dynamic", q, q, 0.0025, discretization="tustin")
+    with pytest.raises(ValueError, match="shape"):
+        build_regression("filtered_dynamic", q, q[:, :1], 0.0025)
+
+
+# --- CLI --------------------------------------------------------------------------------------
+
+
+def _hil(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "hil.cli", *args], capture_output=True, text=True, timeout=300
+    )
+
+
+def test_cli_identify_from_recordings(recordings, tmp_path):
+    rec, held = recordings["default"], recordings["held_out"]
+    out = tmp_path / "id"
+    proc = _hil("identify", "--from", str(rec.path), "--validate", str(held.path),
+                "--out", str(out), "--discretization", "both", "--json")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads(proc.stdout)
+    table = doc["discretizations"]["exact"]["table_ii"]
+    assert [row["parameter"] for row in table] == [f"theta{i}" for i in range(1, 10)]
+    fd = doc["discretizations"]["exact"]["schemes"]["filtered_dynamic"]
+    assert max(abs(e) for e in fd["relative_error"][:3]) < 0.02
+    assert set(fd["validation"]) == {"fit", "held_out"}
+    assert all(0 <= x < 0.2 for x in fd["validation"]["held_out"]["position_nrmse"])
+    params = load_params(out / "params.json")
+    assert params.scheme == "filtered_dynamic"
+    assert np.allclose(params.theta, fd["theta"])
+    assert load_params(out / "params-paper.json", scheme="filtered_power").theta.shape == (9,)
+    for png in ("theta-exact-filtered_power.png", "validation-paper-supplied_energy.png"):
+        assert (out / png).stat().st_size > 10_000
+
+
+def test_cli_identify_over_the_bench_with_online_rls(tmp_path):
+    """End to end over a bench: short excitation, online RLS during the run equals the batch."""
+    out = tmp_path / "bench"
+    proc = _hil("identify", "--bench", "virtual-inprocess", "--duration", "2", "--out", str(out),
+                "--validation-experiment", "none", "--no-plot", "--json")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads(proc.stdout)
+    assert doc["rows"] == 800
+    assert max(doc["online"]["max_relative_difference_to_batch_rls"].values()) < 1e-6
+    assert (out / "fit" / "signals.csv").is_file() and (out / "params.json").is_file()
+
+
+def test_cli_identify_errors_are_one_line(tmp_path):
+    proc = _hil("identify", "--from", str(tmp_path / "missing"), "--json")
+    assert proc.returncode == 2
+    assert proc.stdout == ""
+    assert proc.stderr.count("\n") == 1 and "missing" in proc.stderr
+    proc = _hil("identify", "--from", str(tmp_path), "--schemes", "foo")
+    assert proc.returncode == 2 and "unknown scheme" in proc.stderr
