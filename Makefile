@@ -25,6 +25,7 @@ test-slow: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python tests/benchmarks/bench_simulate.py
 	$(BIN)/python tests/benchmarks/bench_hil.py
+	$(BIN)/python tests/benchmarks/bench_identify.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check hil drivers virtual_robot profiles tests
