@@ -154,6 +154,13 @@ def _scheme_json(res: SchemeResult, reference: np.ndarray, validation: dict) -> 
 
 
 def main(args: argparse.Namespace) -> int:
+    report, text = run_identify(args)
+    print(json.dumps(report) if args.json else text)
+    return 0
+
+
+def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
+    """Everything `hil identify` does; returns the JSON report and the text to print."""
     schemes = [s.strip() for s in args.schemes.split(",") if s.strip()]
     unknown = [s for s in schemes if s not in SCHEMES]
     if unknown or not schemes:
@@ -305,25 +312,24 @@ def main(args: argparse.Namespace) -> int:
     report["params_files"] = params_files
     write_json_atomic(out / "identify.json", report)
 
-    if args.json:
-        print(json.dumps(report))
-        return 0
-    print("\n\n".join(texts))
-    print()
-    print(_validation_text(report, discretizations, schemes, held_out is not None))
+    lines = [
+        "\n\n".join(texts),
+        "",
+        _validation_text(report, discretizations, schemes, held_out is not None),
+    ]
     if online is not None:
         o = report["online"]
         worst = max(o["max_relative_difference_to_batch_rls"].values())
-        print(
+        lines.append(
             f"\nonline RLS ({o['discretization']}, updated every cycle during the run): "
             f"{o['cost_per_cycle_us']:.0f} µs per cycle for {len(schemes)} schemes; final θ̂ "
             f"matches the batch RLS to {worst:.1e} (relative)"
         )
-    print(f"\nparameters: {', '.join(params_files)} (selected: {args.params_scheme})")
-    print(f"report:     {out / 'identify.json'}")
+    lines.append(f"\nparameters: {', '.join(params_files)} (selected: {args.params_scheme})")
+    lines.append(f"report:     {out / 'identify.json'}")
     if report["plots"]:
-        print(f"plots:      {out}/theta-*.png, {out}/validation-*.png")
-    return 0
+        lines.append(f"plots:      {out}/theta-*.png, {out}/validation-*.png")
+    return report, "\n".join(lines)
 
 
 def _validation_text(
