@@ -18,7 +18,11 @@ from pathlib import Path
 
 # Subcommands that live in their own modules: name -> (module, help). Each module provides
 # ``add_arguments(parser)`` and ``main(args) -> int`` (exit status).
-COMMANDS: dict[str, tuple[str, str]] = {}
+COMMANDS: dict[str, tuple[str, str]] = {
+    "identify": ("hil.identify_cli", "identify θ1..θ9 (Reyes & Kelly 1997), print Table II"),
+    "control": ("hil.control_cli", "track a trajectory with PD, CT, FED or RFED; --compare"),
+    "excite": ("hil.excite_cli", "design an optimal Fourier excitation, write its profile"),
+}
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -54,7 +58,9 @@ def _parser() -> argparse.ArgumentParser:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """The main job on the default virtual bench: record the Reyes & Kelly excitation over the
-    HIL link (virtual-slcan, lockstep), and check it against the offline simulation."""
+    HIL link (virtual-slcan, lockstep), check it against the offline simulation, identify
+    θ1..θ9 from it (Table II, validated on a held-out run), and compare the four controllers
+    of Khosla & Kanade (1987) with the profile's and the identified parameters."""
     import numpy as np
 
     from drivers.recording import read_signals
@@ -104,6 +110,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
         "hil_run_equals_simulate": identical,
         "max_abs_q_difference_rad": float(np.max(np.abs(a.q - b.q))),
     }
+    identification, id_text = _demo_identify(out, run_dir)
+    summary["identify"] = identification
+    control, control_text = _demo_control(out, Path(identification["params_files"][0]))
+    summary["control"] = control
     if args.json:
         print(json.dumps(summary))
     else:
@@ -122,7 +132,51 @@ def cmd_demo(args: argparse.Namespace) -> int:
                 f"(max |dq| = {summary['max_abs_q_difference_rad']:.3g} rad)"
             )
         )
+        print()
+        print(id_text)
+        print()
+        print(control_text)
     return 0 if identical else 1
+
+
+def _demo_control(out: Path, params: Path) -> tuple[dict, str]:
+    """Control step of the demo: PD, CT, FED and RFED (Khosla & Kanade 1987) tracking the
+    Section 4.2 trajectory over virtual-slcan, with the profile's θ and the identified θ."""
+    from hil.control import compare_schemes, format_table
+
+    control_dir = out / "control"
+    print(
+        f"hil demo: control comparison (PD, CT, FED, RFED; profile and identified θ) -> "
+        f"{control_dir}",
+        file=sys.stderr,
+    )
+    doc = compare_schemes(
+        "virtual-slcan", control_dir, params=[f"identified={params}"], progress=False
+    )
+    return doc, format_table(doc)
+
+
+def _demo_identify(out: Path, fit_dir: Path) -> tuple[dict, str]:
+    """Identification step of the demo: the recording above is the fit; a held-out multisine
+    runs over the same bench; exact and paper discretizations side by side."""
+    from hil.identify_cli import run_identify
+    from hil.run import run_experiment
+
+    held_dir = out / "hil-run-validation-multisine"
+    print(
+        f"hil demo: held-out excitation (validation-multisine) over virtual-slcan -> {held_dir}",
+        file=sys.stderr,
+    )
+    held = run_experiment("virtual-slcan", "validation-multisine", held_dir, progress=False)
+    if held["status"] != "complete":
+        raise RuntimeError(f"demo validation run {held['status']}: {held['reason']}")
+    id_dir = out / "identify"
+    print(f"hil demo: identification (Reyes & Kelly 1997 Table II) -> {id_dir}", file=sys.stderr)
+    args = _parser().parse_args(
+        ["identify", "--from", str(fit_dir), "--validate", str(held_dir), "--out", str(id_dir),
+         "--discretization", "both", "--json"]
+    )  # fmt: skip
+    return run_identify(args)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -182,6 +236,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         LinkError,
         OSError,
         ValueError,
+        RuntimeError,
     ) as exc:
         print(f"hil: error: {exc}", file=sys.stderr)
         return 2

@@ -4,16 +4,19 @@ from __future__ import annotations
 
 import contextlib
 import sys
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from drivers.arm import Sample
 from drivers.links import open_arm
 from drivers.recording import RecordingWriter, plot_positions, read_signals
 from hil import __version__
 from hil.launch import VirtualRobotProcess
-from hil.loop import extra_columns, run_loop
+from hil.loop import Command, LoopResult, extra_columns, run_loop
 from profiles.bench import BenchProfile, load_bench
 from profiles.experiment import load_experiment
 
@@ -24,6 +27,109 @@ class UsageError(ValueError):
 
 def _progress(done: int, total: int) -> None:
     print(f"hil: {done}/{total} periods ({100 * done / total:.0f} %)", file=sys.stderr)
+
+
+@dataclass
+class BenchRun:
+    """How a recording over a bench ended (meta.json holds the same)."""
+
+    result: LoopResult
+    reason: str | None
+    realtime_factor: float | None
+    traffic_log: str | None
+
+
+def check_bench(bench_name: str, *, confirm_real: bool, effects: str | None) -> BenchProfile:
+    """Load a bench profile and refuse what it must not do (a real arm without confirmation)."""
+    bench: BenchProfile = load_bench(bench_name)
+    if not bench.virtual and not confirm_real:
+        raise UsageError(
+            f"bench {bench.name} drives a real arm on {bench.channel}: pass "
+            "--confirm-real once you have checked the limits in " + bench.source
+        )
+    if effects is not None and not bench.virtual:
+        raise UsageError("--effects only applies to a virtual bench")
+    return bench
+
+
+def bench_meta(
+    kind: str, bench: BenchProfile, channel: dict[str, Any], mode: str
+) -> dict[str, Any]:
+    """The first fields of meta.json: what ran, over which bench and link."""
+    return {
+        "kind": kind,
+        "version": __version__,
+        "bench": bench.name,
+        "bench_profile": bench.source,
+        "protocol": bench.protocol,
+        "transport": bench.transport,
+        "channel": channel or bench.channel,
+        "virtual": bench.virtual,
+        "mode": mode,
+        "period_s": bench.period_s,
+    }
+
+
+def record_over_bench(
+    bench: BenchProfile,
+    out: Path,
+    command: Command,
+    n_periods: int,
+    meta: Callable[[dict[str, Any]], dict[str, Any]],
+    *,
+    mode: str,
+    effects: str | None = None,
+    seed: int | None = None,
+    progress: bool = True,
+) -> BenchRun:
+    """Start the bench's virtual robot (if virtual), open the arm, run ``command`` for
+    ``n_periods`` through the loop runner and record it in ``out``.
+
+    ``meta(channel)`` gives meta.json's fields once the link's channel is known. The drives end
+    at zero torque and disabled on every path; meta.json says how the run ended.
+    """
+    realtime = mode == "realtime"
+    h = bench.period_s
+    launcher = (
+        VirtualRobotProcess(
+            bench, mode=mode, effects=effects, seed=seed, log_path=out / "virtual-robot.log"
+        )
+        if bench.virtual
+        else contextlib.nullcontext()
+    )
+    with launcher as robot:
+        channel = robot.channel if bench.virtual else {}
+        arm = open_arm(bench, channel, mode=mode, log_dir=out)
+        with RecordingWriter(
+            out,
+            meta(channel),
+            extra_columns=extra_columns(2, realtime),
+            flush_every=1 if realtime else 50,
+        ) as writer:
+            with arm:
+                arm.enable()
+                result = run_loop(
+                    arm,
+                    command,
+                    n_periods,
+                    writer,
+                    realtime=realtime,
+                    progress=_progress if progress else None,
+                )
+            reason = result.reason
+            factor = n_periods * h / result.wall_time_s if result.wall_time_s else None
+            if bench.virtual and result.status == "failed" and not robot.alive():
+                reason = f"virtual robot (pid {robot.pid}) is gone; {reason}"
+            writer.close(
+                result.status,
+                reason=reason,
+                timing=result.timing,
+                wall_time_s=result.wall_time_s,
+                realtime_factor=factor,
+                link=vars(arm.stats),
+                traffic_log=arm.traffic_log(),
+            )
+    return BenchRun(result, reason, factor, arm.traffic_log())
 
 
 def run_experiment(
@@ -38,19 +144,15 @@ def run_experiment(
     confirm_real: bool = False,
     plot: bool = True,
     progress: bool = True,
+    observer: Callable[[int, Sample], None] | None = None,
 ) -> dict[str, Any]:
-    """Run an open-loop experiment over a bench; returns the summary that `--json` prints."""
-    bench: BenchProfile = load_bench(bench_name)
-    if not bench.virtual and not confirm_real:
-        raise UsageError(
-            f"bench {bench.name} drives a real arm on {bench.channel}: pass "
-            "--confirm-real once you have checked the limits in " + bench.source
-        )
-    if effects is not None and not bench.virtual:
-        raise UsageError("--effects only applies to a virtual bench")
+    """Run an open-loop experiment over a bench; returns the summary that `--json` prints.
+
+    ``observer(k, sample)``, if given, sees every period's feedback as it arrives (e.g. online
+    identification); sample k carries q_k and the quantized torque of period k − 1."""
+    bench = check_bench(bench_name, confirm_real=confirm_real, effects=effects)
     experiment = load_experiment(experiment_name)
     mode = mode or bench.mode
-    realtime = mode == "realtime"
     h = bench.period_s
     duration = experiment.duration_s if duration_s is None else duration_s
     if not duration > 0:
@@ -60,27 +162,14 @@ def run_experiment(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
 
-    launcher = (
-        VirtualRobotProcess(
-            bench, mode=mode, effects=effects, seed=seed, log_path=out / "virtual-robot.log"
-        )
-        if bench.virtual
-        else contextlib.nullcontext()
-    )
-    with launcher as robot:
-        channel = robot.channel if bench.virtual else {}
-        arm = open_arm(bench, channel, mode=mode, log_dir=out)
-        meta = {
-            "kind": "hil run",
-            "version": __version__,
-            "bench": bench.name,
-            "bench_profile": bench.source,
-            "protocol": bench.protocol,
-            "transport": bench.transport,
-            "channel": channel or bench.channel,
-            "virtual": bench.virtual,
-            "mode": mode,
-            "period_s": h,
+    def command(k: int, sample: Sample) -> list[float]:
+        if observer is not None:
+            observer(k, sample)
+        return torques[k]
+
+    def meta(channel: dict[str, Any]) -> dict[str, Any]:
+        fields = {
+            **bench_meta("hil run", bench, channel, mode),
             "duration_s": n * h,
             "experiment": experiment.name,
             "experiment_profile": experiment.source,
@@ -89,33 +178,21 @@ def run_experiment(
             "robot": bench.robot,
         }
         if abs(experiment.period_s - h) > 1e-12:
-            meta["note"] = f"experiment period {experiment.period_s} s; the bench's {h} s is used"
-        with RecordingWriter(
-            out, meta, extra_columns=extra_columns(2, realtime), flush_every=1 if realtime else 50
-        ) as writer:
-            with arm:
-                arm.enable()
-                result = run_loop(
-                    arm,
-                    lambda k, _s: torques[k],
-                    n,
-                    writer,
-                    realtime=realtime,
-                    progress=_progress if progress else None,
-                )
-            reason = result.reason
-            factor = n * h / result.wall_time_s if result.wall_time_s else None
-            if bench.virtual and result.status == "failed" and not robot.alive():
-                reason = f"virtual robot (pid {robot.pid}) is gone; {reason}"
-            writer.close(
-                result.status,
-                reason=reason,
-                timing=result.timing,
-                wall_time_s=result.wall_time_s,
-                realtime_factor=factor,
-                link=vars(arm.stats),
-                traffic_log=arm.traffic_log(),
-            )
+            fields["note"] = f"experiment period {experiment.period_s} s; the bench's {h} s is used"
+        return fields
+
+    run = record_over_bench(
+        bench,
+        out,
+        command,
+        n,
+        meta,
+        mode=mode,
+        effects=effects,
+        seed=seed,
+        progress=progress,
+    )
+    result, reason, factor = run.result, run.reason, run.realtime_factor
     summary = {
         "out_dir": str(out),
         "signals": str(out / "signals.csv"),
@@ -127,7 +204,7 @@ def run_experiment(
         "wall_time_s": round(result.wall_time_s, 4),
         "realtime_factor": round(factor, 2) if factor else None,
         "timing": result.timing,
-        "traffic_log": arm.traffic_log(),
+        "traffic_log": run.traffic_log,
         "plot": None,
     }
     if plot and result.rows > 1:

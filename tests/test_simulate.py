@@ -141,7 +141,7 @@ def test_duration_is_validated():
     assert proc.stderr.strip().count("\n") == 0 and "duration" in proc.stderr
 
 
-def test_hil_demo_records_over_the_link_and_matches_the_simulation(tmp_path):
+def test_hil_demo_runs_the_main_job_end_to_end(tmp_path):
     proc = subprocess.run(
         [sys.executable, "-m", "hil.cli", "demo", "--out", str(tmp_path), "--json"],
         capture_output=True,
@@ -155,6 +155,12 @@ def test_hil_demo_records_over_the_link_and_matches_the_simulation(tmp_path):
     assert len(read_signals(summary["simulate"]["out_dir"])) == 4000
     assert len(read_signals(summary["hil_run"]["out_dir"])) == 4000
     assert Path(summary["hil_run"]["traffic_log"]).name == "bus.log"
+    # identification (issue 4) and the control comparison (issue 5) are part of the demo
+    exact = summary["identify"]["discretizations"]["exact"]["schemes"]
+    assert abs(exact["filtered_dynamic"]["relative_error"][0]) < 0.02
+    assert Path(summary["identify"]["params_files"][0]).is_file()
+    labels = [ps["label"] for ps in summary["control"]["parameter_sets"]]
+    assert labels[-1] == "identified" and len(labels) == 2
 
 
 @pytest.mark.parametrize("module", ["hil", "drivers"])
