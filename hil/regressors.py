@@ -38,7 +38,6 @@ import numpy as np
 from scipy.signal import lfilter
 
 from hil.model import (
-    N_PARAMS,
     energy_regressor,
     friction_power_regressor,
     momentum_regressor,
@@ -180,19 +179,16 @@ def interval_integrals(q: np.ndarray, v: np.ndarray, h: float) -> IntervalIntegr
     k = np.flatnonzero(ok[:-1] & ok[1:])
     q0, q1 = q[k], q[k + 1]
     d0, d1 = h * v[k], h * v[k + 1]
-    R = np.zeros((len(k), 2, N_PARAMS))
-    for s, w in zip(_GL_NODES, _GL_WEIGHTS, strict=True):
-        qs, ds = _hermite(q0, q1, d0, d1, float(s))
-        R += w * h * static_regressor(qs, ds / h)
+    # All Gauss–Legendre nodes at once: shape (nodes, K, 2).
+    nodes = _GL_NODES[:, None, None]
+    qs, ds = _hermite(q0[None], q1[None], d0[None], d1[None], nodes)
+    R = np.tensordot(_GL_WEIGHTS * h, static_regressor(qs, ds / h), axes=(0, 0))
     sgn_int, abs_int = _sign_and_abs_integrals(q0, q1, d0, d1)
     dq = q1 - q0
     # Viscous (θ6, θ7) and Coulomb (θ8, θ9) columns exactly: ∫ q̇ dt = Δq, ∫ sgn q̇ dt piecewise.
     R[:, 0, 5], R[:, 1, 6] = dq[:, 0], dq[:, 1]
     R[:, 0, 7], R[:, 1, 8] = h * sgn_int[:, 0], h * sgn_int[:, 1]
-    sq = np.zeros((len(k), 2))
-    for s, w in zip(_GL_NODES, _GL_WEIGHTS, strict=True):  # degree 4: exact
-        _, ds = _hermite(q0, q1, d0, d1, float(s))
-        sq += w * (ds / h) ** 2 * h
+    sq = np.tensordot(_GL_WEIGHTS * h, (ds / h) ** 2, axes=(0, 0))  # degree 4: exact
     friction_work = np.column_stack([sq, abs_int])
     stuck = (dq == 0) & (np.abs(v[k]) < 1e-12) & (np.abs(v[k + 1]) < 1e-12)
     return IntervalIntegrals(k, R, friction_work, stuck)
