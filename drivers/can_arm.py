@@ -5,43 +5,54 @@ the bus, one :class:`canopen.RemoteNode` per drive with an object dictionary bui
 :data:`drivers.protocol.cia402.OBJECTS`, NMT through ``node.nmt`` and every configuration
 object (identity, rated torque, encoder resolution, the PDO map, the mode) by SDO.
 
-The cyclic path packs PDOs directly with python-can: per period one RPDO1 per drive
-(controlword + target torque), then SYNC, then TPDO1 (statusword + position) and TPDO2
-(velocity + torque actual) from every drive, collected by a listener on the same notifier
-thread that feeds canopen.
+The cyclic path packs PDOs directly (precompiled structs, not canopen's PdoMap): per period one
+RPDO1 per drive (controlword + target torque), then SYNC, then TPDO1 (statusword + position)
+and TPDO2 (velocity + torque actual) from every drive. Frames go out through the bus's
+``send_frames`` where it has one (:class:`drivers.slcan.SelectSlcanBus`: one write for all),
+else one ``send`` each.
+
+Who reads the bus: a receive thread (python-can's Notifier's job) reads every frame and feeds
+canopen and the feedback collector. In lockstep the cycle sends RPDOs and SYNC in one write
+and reads the feedback in its own thread: the receive thread is paused from :meth:`start` on,
+which saves a thread hand-over per cycle, and gets the bus back as soon as canopen sends
+anything (the SDO of faults(), disable(), ...; from another thread, after the cycle in
+progress). Realtime keeps the receive thread: RPDOs go out at once, the SYNC at the deadline.
 
 Measured with ``tests/benchmarks/bench_can_cycle.py`` (python-can ``virtual`` bus, lockstep
 virtual robot + CanDriveServer in threads of the same process, 2 drives, traffic log off; 8
-alternating blocks of 250 cycles, medians; range over four runs on a 2-core machine shared
-with other jobs; µs per cycle):
+alternating blocks of 250 cycles, medians of two runs on the 2-core machine, quiet; µs per
+cycle):
 
-    path                                          wall       host CPU (main + notifier)
-    raw python-can (CanArm.cycle, incl. clamp,    468-728    157-236  ( 86-129 + 71-107)
-      units, limit checks)
-    canopen PDO machinery (PdoMap vars,           487-772    176-273  (128-199 + 49-74)
+    path                                          wall       host CPU (main + receive thread)
+    raw (CanArm.cycle, incl. clamp, units,        305-312    124-134  (124-134 + 0)
+      limit checks; reads the bus itself)
+    canopen PDO machinery (PdoMap vars,           390-394    198-209  (150-162 + 46-48)
       transmit(), sync.transmit(), callbacks)
 
-The server thread costs another 310-480 µs per cycle either way (plant + bus), so wall time is
-dominated by it and by thread hand-offs and is within noise; the host's own CPU per cycle is
-10-20 % lower on the raw path (quiet machine: 157 vs 176 µs), which also does more (clamp,
-limits). Either stays under 1 ms per cycle here. The cycle uses the raw path; canopen does
-NMT, SDO and the 402 set-up.
+The server thread costs another 185-190 µs per cycle either way. The raw path costs the host
+about 35 % less CPU and the cycle about 80 µs less wall time, and it also does more (clamp,
+limits). The cycle uses the raw path; canopen does NMT, SDO and the 402 set-up. Over slcan to
+the virtual robot process see README.md (Numbers).
 
 Time: ``Sample`` times are host seconds since :meth:`open` connected (``Arm.now()``). Lockstep:
 ``t`` = k·h and ``sent_at`` = ``received_at`` = ``deadline`` = ``t`` (the link's clock);
 realtime: RPDOs go out at once (the drive applies them on arrival), SYNC at ``deadline``,
 ``t`` = SYNC send time, feedback must come within 3 periods.
 
-Log: every frame sent and received goes to ``log_path`` (``candump -L`` format, python-can
-:class:`can.CanutilsLogWriter`, readable with :class:`can.LogReader`), flushed every 50 frames
-and on close. Sent frames are marked ``T`` (``is_rx = False``), received ones ``R``.
+Log: every frame sent and received goes to ``log_path`` in ``candump -L`` format, the lines
+python-can's :class:`can.CanutilsLogWriter` writes (:class:`drivers.candump.CandumpWriter`,
+readable with :class:`can.LogReader`), flushed every 50 frames and on close. Sent frames are
+marked ``T`` (``is_rx = False``), received ones ``R``, stamped when sent or read. In lockstep a
+cycle's lines are written just after the next write to the bus, while the drives work on it.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import math
 import re
+import struct
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -55,6 +66,7 @@ from canopen.objectdictionary import ObjectDictionary, ODRecord, ODVariable, dat
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from drivers.arm import Arm, Fault, LinkError, SafetyLimits, SafetyStop, Sample
+from drivers.candump import CandumpWriter
 from drivers.protocol import cia402 as co
 from drivers.units import (
     counts_to_rad,
@@ -70,7 +82,10 @@ SPIN_S = 0.0002  # busy-wait the last 0.2 ms before a deadline
 MAX_DEADLINE_AHEAD_S = 1.0  # a deadline further ahead than this (+10 periods) is a caller bug
 SHORT_SDO_TIMEOUT_S = 0.2  # disable() and fault queries: best effort, do not hang on a dead link
 MAX_ERRORS_KEPT = 100
-NOTIFIER_POLL_S = 0.05  # notifier wake-up: bounds close() time
+RECEIVER_POLL_S = 0.01  # receive thread wake-up: bounds close() and pausing it
+PAUSE_TIMEOUT_S = 1.0  # the receive thread did not stop reading: keep it (threaded cycle)
+
+_logger = logging.getLogger(__name__)
 
 FAULT_TEXT = {
     co.ERR_RPDO_TIMEOUT: "RPDO timeout (command watchdog)",
@@ -156,6 +171,15 @@ def frame_routes(node_ids: Sequence[int]) -> dict[int, tuple[str, int]]:
     return routes
 
 
+def _pdo_codec(mapping: tuple[tuple[int, int], ...]) -> struct.Struct:
+    """A whole PDO as one precompiled struct: the bytes of ``cia402.pack_pdo``/``unpack_pdo``."""
+    return struct.Struct("<" + "".join(co.OBJECT_MAP[m].fmt[1:] for m in mapping))
+
+
+_RPDO1 = _pdo_codec(co.RPDO1_MAP)
+_TPDO_CODECS = {TPDO1: _pdo_codec(co.TPDO1_MAP), TPDO2: _pdo_codec(co.TPDO2_MAP)}
+
+
 def parse_frame(
     routes: dict[int, tuple[str, int]],
     can_id: int,
@@ -178,10 +202,11 @@ def parse_frame(
         return None
     kind, joint = route
     payload = bytes(data)
-    if kind == TPDO1:
-        return Frame(kind, joint, co.unpack_pdo(co.TPDO1_MAP, payload))
-    if kind == TPDO2:
-        return Frame(kind, joint, co.unpack_pdo(co.TPDO2_MAP, payload))
+    codec = _TPDO_CODECS.get(kind)
+    if codec is not None:  # cia402.unpack_pdo with the mapping precompiled
+        if len(payload) != codec.size:
+            raise ValueError(f"PDO of {len(payload)} bytes, mapping needs {codec.size}")
+        return Frame(kind, joint, codec.unpack(payload))
     if kind == EMCY:
         return Frame(kind, joint, co.decode_emcy(payload))
     if len(payload) < 1:
@@ -217,6 +242,7 @@ class _Network(canopen.Network):
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
         if not self.bus:
             raise RuntimeError("Not connected to CAN bus")
+        self._arm._threaded_receive()  # canopen expects its answers from the receive thread
         msg = can.Message(
             arbitration_id=can_id,
             is_extended_id=can_id > 0x7FF,
@@ -227,6 +253,57 @@ class _Network(canopen.Network):
         with self.send_lock:
             self._arm._send(msg)
         self.check()
+
+
+class _Receiver:
+    """The host's receive thread (python-can's Notifier's job), which a cycle can pause.
+
+    It calls ``read(timeout)`` (read what arrives, dispatch it) until stopped. While paused it
+    does not touch the bus, so the caller's own thread may read it. As with can.Notifier, an
+    exception from ``read`` ends the thread and is kept in :attr:`exception` (canopen's
+    ``Network.check()`` raises it on the next send).
+    """
+
+    def __init__(self, read: Callable[[float], None], name: str) -> None:
+        self._read = read
+        self.exception: Exception | None = None
+        self._running = threading.Event()
+        self._running.set()
+        self._idle = threading.Event()
+        self._stopped = False
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stopped:
+            if not self._running.is_set():
+                self._idle.set()
+                self._running.wait()
+                continue
+            self._idle.clear()
+            if not self._running.is_set():  # paused meanwhile: the pauser may have seen idle
+                continue
+            try:
+                self._read(RECEIVER_POLL_S)
+            except Exception as exc:
+                self.exception = exc
+                _logger.debug("receive thread ended: %s", exc)
+                break
+        self._idle.set()
+
+    def pause(self, timeout: float = PAUSE_TIMEOUT_S) -> bool:
+        """Stop reading; True once the thread is no longer inside ``read``."""
+        self._running.clear()
+        return self._idle.wait(timeout)
+
+    def resume(self) -> None:
+        self._running.set()
+
+    def stop(self, timeout: float) -> None:
+        self._stopped = True
+        self._running.set()
+        if self._thread is not threading.current_thread():
+            self._thread.join(timeout)
 
 
 class CanArm(Arm):
@@ -272,8 +349,15 @@ class CanArm(Arm):
         self.bus: can.BusABC | None = None
         self.network: canopen.Network | None = None
         self.nodes: tuple[canopen.RemoteNode, ...] = ()
-        self._notifier: can.Notifier | None = None
-        self._writer: can.CanutilsLogWriter | None = None
+        self._receiver: _Receiver | None = None
+        self._direct = False  # the cycle reads the bus in the caller's thread (lockstep)
+        self._direct_owner = 0  # that thread's ident
+        self._direct_refused = False  # set for good once canopen runs in another thread meanwhile
+        self._listeners: list[can.Listener] = []  # canopen's, fed every received Message
+        self._bus_send_frames: Callable[[list[tuple[int, bytes]]], None] | None = None
+        self._bus_recv_frames: Callable[[float], list[Any]] | None = None
+        self._writer: CandumpWriter | None = None
+        self._log_queue: list[tuple[float, list[tuple[int, bytes]], bool]] = []
         self._log_lock = threading.Lock()
         self._send_lock = threading.Lock()  # raw sends, canopen's sends, the enable keep-alive
         self._log_frames = 0
@@ -332,7 +416,10 @@ class CanArm(Arm):
             raise LinkError(f"cannot open the CAN bus: {_one_line(exc)}") from exc
         if self.log_path is not None:
             self.log_path.parent.mkdir(parents=True, exist_ok=True)
-            self._writer = can.CanutilsLogWriter(self.log_path, channel=_channel_name(self.bus))
+            self._writer = CandumpWriter(self.log_path, channel=_channel_name(self.bus))
+        # the batch path of buses that have one (drivers.slcan.SelectSlcanBus)
+        self._bus_send_frames = getattr(self.bus, "send_frames", None)
+        self._bus_recv_frames = getattr(self.bus, "recv_frames", None)
         network = _Network(self, self.bus)
         nodes = []
         for p in self.drives:
@@ -341,10 +428,9 @@ class CanArm(Arm):
             network.add_node(node)
             nodes.append(node)
         self.network, self.nodes = network, tuple(nodes)
-        self._notifier = can.Notifier(
-            self.bus, [*network.listeners, self._on_frame], timeout=NOTIFIER_POLL_S
-        )
-        network.notifier = self._notifier
+        self._listeners = list(network.listeners)
+        self._receiver = _Receiver(self._read_frames, name="can-arm-receiver")
+        network.notifier = self._receiver  # type: ignore[assignment]  # check() reads .exception
 
     def _confirm(self, j: int) -> None:
         """Presence (0x1000), identity (0x1018), rated torque (0x6076), encoder (0x608F:1)."""
@@ -407,12 +493,14 @@ class CanArm(Arm):
             raise LinkError(f"node {n} reports mode {mode} after 0x6060 = {co.MODE_CST}")
 
     def close(self) -> None:
-        """Stop the notifier, shut the bus down, close the log. Idempotent; commands nothing."""
+        """Stop the receive thread, shut the bus down, close the log. Idempotent; commands
+        nothing."""
         self._is_open = False
-        notifier, self._notifier = self._notifier, None
-        if notifier is not None:
+        self._direct = self._direct_refused = False
+        receiver, self._receiver = self._receiver, None
+        if receiver is not None:
             with contextlib.suppress(Exception):
-                notifier.stop(timeout=1.0)
+                receiver.stop(timeout=1.0)
         if self.network is not None:
             for node in self.nodes:
                 with contextlib.suppress(Exception):
@@ -424,6 +512,8 @@ class CanArm(Arm):
             with contextlib.suppress(Exception):
                 bus.shutdown()
         with self._log_lock:
+            with contextlib.suppress(Exception):
+                self._drain_log()
             writer, self._writer = self._writer, None
             if writer is not None:
                 with contextlib.suppress(Exception):
@@ -445,6 +535,40 @@ class CanArm(Arm):
             bus.send(msg)
             self.stats.frames_sent += 1
 
+    def _send_frames(self, frames: list[tuple[int, bytes]]) -> None:
+        """Send standard data frames ``(id, data)`` in order, in one write where the bus can.
+
+        Logged with the time of sending (direction T): first, as :meth:`_send` does; in direct
+        receive, just after the write, while the drives work on the frames.
+        Raises can.CanError / RuntimeError.
+        """
+        bus = self.bus
+        if bus is None:
+            raise RuntimeError("CAN bus is closed")
+        with self._send_lock:
+            stamp = time.time()
+            if self._writer is not None:
+                self._log_frames_of(stamp, frames, rx=False)
+            try:
+                if self._bus_send_frames is not None:
+                    self._bus_send_frames(frames)
+                else:
+                    for cob_id, data in frames:
+                        bus.send(
+                            can.Message(
+                                timestamp=stamp,
+                                arbitration_id=cob_id,
+                                data=data,
+                                is_extended_id=False,
+                                is_rx=False,
+                            )
+                        )
+            finally:
+                if self._log_queue:
+                    with self._log_lock:
+                        self._drain_log()
+            self.stats.frames_sent += len(frames)
+
     def _log(self, msg: can.Message) -> None:
         if self._writer is None:
             return
@@ -452,13 +576,102 @@ class CanArm(Arm):
             writer = self._writer
             if writer is None:
                 return
-            writer.on_message_received(msg)
+            self._drain_log()  # frames logged earlier go first
+            writer.write_message(msg)
             self._log_frames += 1
             if self._log_frames % LOG_FLUSH_EVERY == 0:
-                writer.file.flush()
+                writer.flush()
+
+    def _log_frames_of(self, stamp: float, frames: list[tuple[int, bytes]], rx: bool) -> None:
+        """Log standard data frames seen at ``stamp``; in direct receive the lines are queued
+        and written by the next :meth:`_send_frames` after its write (off the critical path)."""
+        with self._log_lock:
+            self._log_queue.append((stamp, frames, rx))
+            if not self._direct:
+                self._drain_log()
+
+    def _drain_log(self) -> None:
+        """Write the queued log lines (hold ``_log_lock``); flush every LOG_FLUSH_EVERY frames."""
+        writer, queue = self._writer, self._log_queue
+        if writer is None:
+            queue.clear()
+            return
+        before = count = self._log_frames
+        for stamp, frames, rx in queue:
+            writer.write_frames(stamp, frames, rx)
+            count += len(frames)
+        queue.clear()
+        self._log_frames = count
+        if before // LOG_FLUSH_EVERY != count // LOG_FLUSH_EVERY:
+            writer.flush()
+
+    def _read_frames(self, timeout: float) -> None:
+        """Wait up to ``timeout`` for frames, then dispatch every frame that has arrived.
+
+        The receive thread's loop, and the cycle's own in lockstep. Raises what the bus raises.
+        """
+        bus = self.bus
+        if bus is None:
+            raise RuntimeError("CAN bus is closed")
+        if self._bus_recv_frames is None:
+            msg = bus.recv(timeout)
+            if msg is not None:
+                for listener in self._listeners:
+                    listener.on_message_received(msg)
+                self._on_frame(msg)
+            return
+        batch = self._bus_recv_frames(timeout)
+        if not batch:
+            return
+        stamp, now = time.time(), time.monotonic()
+        run: list[tuple[int, bytes]] = []  # standard data frames, dispatched a run at a time
+        for item in batch:
+            if type(item) is tuple:
+                run.append(item)
+                continue
+            if run:
+                self._on_standard_frames(run, stamp, now)
+                run = []
+            for listener in self._listeners:  # an extended, remote, error or FD frame
+                listener.on_message_received(item)
+            self._on_frame(item)
+        if run:
+            self._on_standard_frames(run, stamp, now)
+
+    def _on_standard_frames(
+        self, frames: list[tuple[int, bytes]], stamp: float, now: float
+    ) -> None:
+        """Received standard data frames: log, canopen, counters, feedback, EMCY (in order)."""
+        if self._writer is not None:
+            self._log_frames_of(stamp, frames, rx=True)
+        self.stats.frames_received += len(frames)
+        network = self.network
+        notify = network.notify if network is not None else None
+        routes = self._routes
+        for cob_id, data in frames:
+            if notify is not None:
+                try:  # what canopen's MessageListener does with a Message
+                    notify(cob_id, bytearray(data), stamp)
+                except Exception as exc:
+                    _logger.error(str(exc))
+            route = routes.get(cob_id)
+            if route is None:
+                continue
+            try:
+                codec = _TPDO_CODECS.get(route[0])
+                if codec is not None and len(data) == codec.size:  # feedback: the cyclic case
+                    self._collect(route[0], route[1], codec.unpack(data), now)
+                    continue
+                frame = parse_frame(routes, cob_id, data)
+                if frame is not None:
+                    self._handle(frame, now)
+            except ValueError as exc:
+                self._error(f"0x{cob_id:03X}: {exc}")
+            except Exception as exc:  # never kill the receive thread
+                self._error(f"listener: {type(exc).__name__}: {exc}")
 
     def _on_frame(self, msg: can.Message) -> None:
-        """Notifier callback (its thread): log, count, collect feedback, record EMCY."""
+        """Receive-side callback for a Message: log, count, collect feedback, record EMCY."""
         now = time.monotonic()
         try:
             self.stats.frames_received += 1
@@ -475,25 +688,13 @@ class CanArm(Arm):
                 self._handle(frame, now)
         except ValueError as exc:
             self._error(f"0x{msg.arbitration_id:03X}: {exc}")
-        except Exception as exc:  # never kill the notifier thread
+        except Exception as exc:  # never kill the receive thread
             self._error(f"listener: {type(exc).__name__}: {exc}")
 
     def _handle(self, frame: Frame, now: float) -> None:
         kind, j, values = frame
         if kind in (TPDO1, TPDO2):
-            with self._fb_lock:
-                since = self._collect_since
-                if since is None or now < since:
-                    return  # not waiting, or stale (from before our SYNC)
-                slots = self._fb1 if kind == TPDO1 else self._fb2
-                if slots[j] is not None:
-                    return  # a duplicate for this SYNC (another SYNC producer on the bus)
-                slots[j] = values
-                self._missing -= 1
-                if self._missing == 0:
-                    self._fb_last_at = now
-                    self._collect_since = None
-                    self._fb_event.set()
+            self._collect(kind, j, values, now)
         elif kind == EMCY:
             code, _register = values
             if code == co.ERR_NONE:
@@ -502,6 +703,22 @@ class CanArm(Arm):
                 self._emcy[j] = Fault(j, code, fault_text(code))
         elif values[0] == co.NMT_STATE_BOOTUP:
             self._booted.add(self.node_ids[j])
+
+    def _collect(self, kind: str, j: int, values: tuple[int, ...], now: float) -> None:
+        """A TPDO of drive ``j``: keep it if a SYNC of ours is waiting for it."""
+        with self._fb_lock:
+            since = self._collect_since
+            if since is None or now < since:
+                return  # not waiting, or stale (from before our SYNC)
+            slots = self._fb1 if kind == TPDO1 else self._fb2
+            if slots[j] is not None:
+                return  # a duplicate for this SYNC (another SYNC producer on the bus)
+            slots[j] = values
+            self._missing -= 1
+            if self._missing == 0:
+                self._fb_last_at = now
+                self._collect_since = None
+                self._fb_event.set()
 
     def _error(self, text: str) -> None:
         errors = self.stats.errors
@@ -516,12 +733,14 @@ class CanArm(Arm):
         return entry[sub] if isinstance(entry.od, ODRecord) else entry
 
     def _sdo_read(self, j: int, index: int, sub: int) -> int:
+        self._threaded_receive()
         try:
             return int(self._sdo_var(j, index, sub).raw)
         except Exception as exc:
             raise self._sdo_error(j, "read", index, sub, exc) from exc
 
     def _sdo_write(self, j: int, index: int, sub: int, value: int) -> None:
+        self._threaded_receive()
         try:
             self._sdo_var(j, index, sub).raw = value
         except Exception as exc:
@@ -553,15 +772,52 @@ class CanArm(Arm):
             for node, value in zip(self.nodes, saved, strict=True):
                 node.sdo.RESPONSE_TIMEOUT = value
 
+    # ---- who reads the bus ---------------------------------------------------------------------
+    def _threaded_receive(self) -> None:
+        """The receive thread reads the bus (canopen's SDO and NMT need it).
+
+        From another thread while a cycle reads the bus itself, it only asks: the cycle gives
+        the bus back when it ends, and later cycles leave it to the thread.
+        """
+        if not self._direct:
+            return
+        if threading.get_ident() != self._direct_owner:
+            self._direct_refused = True
+            return
+        self._direct = False
+        with self._log_lock:
+            self._drain_log()
+        if self._receiver is not None:
+            self._receiver.resume()
+
+    def _direct_receive(self) -> None:
+        """Lockstep cycles: the caller's thread reads the bus itself, with no hand-over between
+        threads per cycle. Anything canopen sends (SDO for faults(), disable(), ...) gives the
+        bus back to the receive thread."""
+        if self._direct or self.mode != LOCKSTEP or self._receiver is None:
+            return
+        if self._direct_refused:  # canopen was used from another thread during a cycle
+            return
+        if self._receiver.pause():
+            self._direct_owner = threading.get_ident()
+            self._direct = True
+        else:
+            self._receiver.resume()  # still busy in a callback: stay threaded
+
     # ---- drive state -------------------------------------------------------------------------
     def _require_open(self) -> None:
         if not self._is_open:
             raise LinkError("CAN link is not open")
 
+    def _rpdo_frames(self, controlword: int, permille: Sequence[int]) -> list[tuple[int, bytes]]:
+        pack = _RPDO1.pack  # cia402.pack_pdo(RPDO1_MAP, ...), precompiled
+        return [
+            (cob_id, pack(controlword, value))
+            for cob_id, value in zip(self._rpdo_ids, permille, strict=True)
+        ]
+
     def _send_rpdos(self, controlword: int, permille: Sequence[int]) -> None:
-        for cob_id, value in zip(self._rpdo_ids, permille, strict=True):
-            data = co.pack_pdo(co.RPDO1_MAP, (controlword, value))
-            self._send(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False))
+        self._send_frames(self._rpdo_frames(controlword, permille))
 
     def enable(self) -> None:
         """Shutdown, switch on, enable operation (RPDO, torque 0); each confirmed by SDO 0x6041.
@@ -694,8 +950,13 @@ class CanArm(Arm):
         while time.monotonic() < target:
             pass
 
-    def _sync(self) -> tuple[float, float, list[tuple[int, ...]], list[tuple[int, ...]]]:
-        """SYNC, then wait for TPDO1 + TPDO2 of every drive; (sent_at, received_at, fb1, fb2)."""
+    def _sync(
+        self, rpdos: list[tuple[int, bytes]] | None = None
+    ) -> tuple[float, float, list[tuple[int, ...]], list[tuple[int, ...]]]:
+        """SYNC, then wait for TPDO1 + TPDO2 of every drive; (sent_at, received_at, fb1, fb2).
+
+        ``rpdos``: frames to send just before the SYNC, in the same write (lockstep).
+        """
         timeout = self.feedback_timeout_s
         with self._fb_lock:
             self._fb1 = [None] * self.n_joints
@@ -705,12 +966,19 @@ class CanArm(Arm):
             sent = time.monotonic()
             self._collect_since = sent
         try:
-            self._send(can.Message(arbitration_id=co.SYNC_ID, data=b"", is_extended_id=False))
+            self._send_frames([*(rpdos or ()), (co.SYNC_ID, b"")])
         except (can.CanError, RuntimeError) as exc:
             with self._fb_lock:
                 self._collect_since = None
-            raise LinkError(f"cannot send SYNC: {_one_line(exc)}") from exc
-        if not self._fb_event.wait(timeout):
+            what = "RPDO + SYNC" if rpdos else "SYNC"
+            raise LinkError(f"cannot send {what}: {_one_line(exc)}") from exc
+        if self._direct:
+            arrived = self._read_feedback(sent + timeout)
+            if self._direct_refused:
+                self._threaded_receive()
+        else:
+            arrived = self._fb_event.wait(timeout)
+        if not arrived:
             with self._fb_lock:
                 self._collect_since = None
                 fb1, fb2 = list(self._fb1), list(self._fb2)
@@ -728,6 +996,20 @@ class CanArm(Arm):
             fb2 = list(self._fb2)
             received = self._fb_last_at
         return sent - self._t0, received - self._t0, fb1, fb2  # type: ignore[return-value]
+
+    def _read_feedback(self, until: float) -> bool:
+        """Direct receive: read and dispatch frames until every TPDO is in or ``until``."""
+        event = self._fb_event
+        while not event.is_set():
+            left = until - time.monotonic()
+            if left <= 0:
+                return False
+            try:
+                self._read_frames(left)
+            except (can.CanError, OSError, RuntimeError) as exc:
+                self._error(f"CAN receive failed: {_one_line(exc)}")
+                return False
+        return True
 
     def _feedback(
         self, fb1: list[tuple[int, ...]], fb2: list[tuple[int, ...]]
@@ -756,12 +1038,17 @@ class CanArm(Arm):
         self._require_open()
         self._started = False
         self._k = 0
-        try:
-            # feeds the command watchdog between enable() and the first cycle (realtime)
-            self._send_rpdos(co.CW_ENABLE_OPERATION, (0,) * self.n_joints)
-        except (can.CanError, RuntimeError) as exc:
-            raise LinkError(f"cannot send RPDO: {_one_line(exc)}") from exc
-        sent_at, received_at, fb1, fb2 = self._sync()
+        keep_alive = self._rpdo_frames(co.CW_ENABLE_OPERATION, (0,) * self.n_joints)
+        if self.mode == LOCKSTEP:
+            self._direct_receive()
+            sent_at, received_at, fb1, fb2 = self._sync(keep_alive)
+        else:
+            try:
+                # feeds the command watchdog between enable() and the first cycle
+                self._send_frames(keep_alive)
+            except (can.CanError, RuntimeError) as exc:
+                raise LinkError(f"cannot send RPDO: {_one_line(exc)}") from exc
+            sent_at, received_at, fb1, fb2 = self._sync()
         q, dq, status = self._feedback(fb1, fb2)
         self._check_limits(q, dq)
         zeros = (0.0,) * self.n_joints
@@ -785,13 +1072,18 @@ class CanArm(Arm):
                 )
         tau = self.limits.clamp_torque(tau_Nm)
         permille = tuple(torque_to_permille(t, r) for t, r in zip(tau, self._rated, strict=True))
-        try:
-            self._send_rpdos(co.CW_ENABLE_OPERATION, permille)
-        except (can.CanError, RuntimeError) as exc:
-            raise LinkError(f"cannot send RPDO: {_one_line(exc)}") from exc
-        if self.mode == REALTIME and deadline is not None:
-            self._sleep_until(deadline)
-        sent_at, received_at, fb1, fb2 = self._sync()
+        rpdos = self._rpdo_frames(co.CW_ENABLE_OPERATION, permille)
+        if self.mode == LOCKSTEP:  # RPDOs and SYNC in one write; the robot steps on the SYNC
+            self._direct_receive()
+            sent_at, received_at, fb1, fb2 = self._sync(rpdos)
+        else:  # RPDOs now (the drive applies them on arrival), SYNC at the deadline
+            try:
+                self._send_frames(rpdos)
+            except (can.CanError, RuntimeError) as exc:
+                raise LinkError(f"cannot send RPDO: {_one_line(exc)}") from exc
+            if deadline is not None:
+                self._sleep_until(deadline)
+            sent_at, received_at, fb1, fb2 = self._sync()
         self._k += 1
         self.stats.cycles += 1
         q, dq, status = self._feedback(fb1, fb2)

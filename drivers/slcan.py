@@ -8,14 +8,20 @@ which starves the loop thread and, on a 2-core machine, the virtual robot proces
 This subclass overrides only those two methods. It waits on ``select`` and reads what is there,
 and it writes without draining. Everything else is python-can's: the LAWICEL command set, frame
 parsing, open/close and bitrate set-up. The difference, measured with
-``tests/benchmarks/bench_hil.py``, is in docs/protocol.md. The subclass is used for virtual and
+``tests/benchmarks/bench_hil.py``, is in README.md (Numbers). The subclass is used for virtual and
 real slcan adapters alike (the same code path); on a platform without ``select`` on serial ports
 it falls back to python-can's own read.
+
+For a cyclic exchange it adds a batch path without python-can Messages: :meth:`send_frames`
+writes several standard data frames in one write (LAWICEL allows several commands per write), and
+:meth:`recv_frames` returns every frame that has arrived, standard data frames as ``(id, data)``
+tuples (the other kinds, rare here, as python-can Messages parsed by python-can).
 """
 
 from __future__ import annotations
 
 import os
+import re
 import select
 import time
 
@@ -23,6 +29,8 @@ import can
 from can.interfaces.slcan import slcanBus
 
 _TERMINATORS = (ord("\r"), ord("\a"))
+_LINE = re.compile(rb"[^\r\a]*[\r\a]")  # a reply or frame line with its terminator
+_FRAME_KINDS = frozenset(b"tTrRdDbBx")  # what python-can's slcan parser turns into a Message
 
 
 class SelectSlcanBus(slcanBus):
@@ -72,3 +80,106 @@ class SelectSlcanBus(slcanBus):
             if not data:
                 raise can.CanOperationError("serial device closed")
             buffer.extend(data)
+
+    # ---- batch path -------------------------------------------------------------------------
+    def send_frames(self, frames: list[tuple[int, bytes]]) -> None:
+        """Transmit standard data frames ``(id, data)`` in order, in one write."""
+        if frames:
+            self._write_raw(
+                "".join([f"t{i:03X}{len(d)}{d.hex().upper()}\r" for i, d in frames]).encode()
+            )
+
+    def _write_raw(self, data: bytes) -> None:
+        try:
+            fd = self.serialPortOrig.fileno()
+        except Exception:  # no fileno on this platform: pyserial's write
+            fd = None
+        try:
+            if fd is None:
+                self.serialPortOrig.write(data)
+                return
+            while data:
+                written = os.write(fd, data)
+                data = data[written:]
+        except Exception as exc:  # pyserial raises SerialException, os.write OSError
+            raise can.CanOperationError(f"Could not write to serial device: {exc}") from exc
+
+    def recv_frames(self, timeout: float | None) -> list[tuple[int, bytes] | can.Message]:
+        """Every frame received so far, waiting up to ``timeout`` for the first one.
+
+        Standard data frames come as ``(id, data)``, other frames as python-can Messages; the
+        adapter's replies (acks, BEL) are skipped, as python-can's ``recv`` skips them.
+        """
+        out: list[tuple[int, bytes] | can.Message] = []
+        while self._queue.qsize():  # lines python-can's own queries put aside
+            self._take_line(self._queue.get_nowait().encode(), out)
+        try:
+            fd = self.serialPortOrig.fileno()
+        except Exception:
+            msg = self.recv(timeout)
+            return [*out, msg] if msg is not None else out
+        deadline = None if timeout is None else time.monotonic() + timeout
+        buffer = self._buffer
+        while True:
+            if buffer:
+                self._take_lines(buffer, out)
+            if out:
+                return out
+            left = None if deadline is None else deadline - time.monotonic()
+            if left is not None and left <= 0:
+                return out
+            ready, _, _ = select.select([fd], [], [], left)
+            if not ready:
+                return out
+            try:
+                data = os.read(fd, 4096)
+            except BlockingIOError:
+                continue
+            except OSError as exc:
+                raise can.CanOperationError(f"Could not read from serial device: {exc}") from exc
+            if not data:
+                raise can.CanOperationError("serial device closed")
+            buffer.extend(data)
+
+    def _take_lines(self, buffer: bytearray, out: list[tuple[int, bytes] | can.Message]) -> None:
+        """Move the complete lines of ``buffer`` to ``out`` as frames (replies skipped)."""
+        if 0x07 in buffer:  # a BEL among the replies: it ends a line too
+            end = 0
+            for match in _LINE.finditer(buffer):
+                self._take_line(match[0], out)
+                end = match.end()
+            del buffer[:end]
+            return
+        *lines, rest = bytes(buffer).split(b"\r")
+        buffer[:] = rest
+        for line in lines:
+            frame = _standard_frame(line) if line[:1] == b"t" else None
+            if frame is not None:
+                out.append(frame)
+            elif line and line[0] in _FRAME_KINDS:
+                self._take_line(line + b"\r", out)
+
+    def _take_line(self, line: bytes, out: list[tuple[int, bytes] | can.Message]) -> None:
+        """One line with its terminator: a frame goes to ``out``; a reply or garbage does not."""
+        if not line or line[0] not in _FRAME_KINDS:
+            return  # a reply to a command ("z", "\r", BEL, version, ...)
+        frame = _standard_frame(line[:-1]) if line[:1] == b"t" and line[-1:] == b"\r" else None
+        if frame is not None:
+            out.append(frame)
+            return
+        self._queue.put_nowait(line.decode(errors="replace"))
+        try:
+            msg, _ = slcanBus._recv_internal(self, 0)  # python-can's parser, for the other kinds
+        except Exception:  # a line it cannot parse: garbage on the line, not a frame
+            return
+        if msg is not None:
+            out.append(msg)
+
+
+def _standard_frame(line: bytes) -> tuple[int, bytes] | None:
+    """``tiiil<data>`` (no terminator) as python-can's slcan parser reads it; None if malformed."""
+    try:
+        dlc = int(line[4:5])
+        return int(line[1:4], 16), bytes.fromhex(line[5 : 5 + 2 * dlc].decode())
+    except ValueError:
+        return None

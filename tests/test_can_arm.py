@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 import time
 import uuid
 from collections import Counter
@@ -25,9 +26,11 @@ from drivers.can_arm import (
     frame_routes,
     parse_frame,
 )
+from drivers.candump import CandumpWriter
 from drivers.protocol import cia402 as co
 from drivers.recording import read_signals
 from profiles.drive import load_drive
+from profiles.effects import load_effects
 from profiles.experiment import load_experiment
 from profiles.robot import load_robot
 from virtual_robot.can_server import CanDriveServer
@@ -430,3 +433,102 @@ def test_parse_frame_decodes_feedback_and_emcy():
     assert parse_frame(ROUTES, 0x183, tpdo1) is None
     with pytest.raises(ValueError):
         parse_frame(ROUTES, 0x181, tpdo1[:5])
+
+
+# ---- lockstep details -------------------------------------------------------------------------
+@pytest.mark.parametrize("effects", ["amplifier-lag", "stribeck"])
+def test_lockstep_with_effects_is_bit_identical_to_offline_simulation(effects, tmp_path):
+    """Transport delay and amplifier lag make the plant sensitive to when a command is applied:
+    the RPDOs' commands, applied at the next SYNC, are the simulation's commands at t_k."""
+    n = 200
+    robot, experiment = load_robot("cicese"), load_experiment("reyes-kelly")
+    world = load_effects(effects)
+    rig_gen = _make_rig(VirtualRobot(robot, world, period_s=H))
+    rig = next(rig_gen)
+    try:
+        torques = experiment.torque_table(np.arange(n) * H)
+        rows = []
+        with rig.arm() as arm:
+            arm.enable()
+            s = arm.start()
+            for k in range(n):
+                nxt = arm.cycle(torques[k])
+                rows.append((*s.q_rad, *nxt.tau_Nm))
+                s = nxt
+    finally:
+        rig_gen.close()
+    simulate(robot, experiment, tmp_path / "sim", effects=world, duration_s=n * H, plot=False)
+    ref = read_signals(tmp_path / "sim")
+    got = np.array(rows)
+    assert np.array_equal(got[:, :2], ref.q)
+    assert np.array_equal(got[:, 2:], ref.tau)
+
+
+def test_cycles_read_the_bus_themselves_and_give_it_back_for_sdo(rig):
+    with rig.arm() as arm:
+        arm.enable()
+        arm.start()
+        assert arm._direct  # lockstep: the cycle reads the bus in this thread
+        arm.cycle((1.0, 0.1))
+        assert arm.faults() == []  # SDO: the receive thread reads again
+        assert not arm._direct
+        assert arm.nodes[0].sdo[0x1000].raw & 0xFFFF == 402  # canopen used directly works too
+        for _ in range(3):
+            s = arm.cycle((1.0, 0.1))
+        assert arm._direct
+        assert s.t == pytest.approx(4 * H)  # start() + 4 cycles
+
+
+def test_sdo_from_another_thread_during_cycles_is_answered(rig):
+    with rig.arm() as arm:
+        arm.enable()
+        arm.start()
+        got: list[int] = []
+        reader = threading.Thread(target=lambda: got.append(arm.nodes[1].sdo[0x6041].raw))
+        reader.start()
+        for _ in range(40):
+            arm.cycle((1.0, 0.1))
+            if got:
+                break
+        reader.join(2.0)
+        assert got and co.state_from_statusword(got[0]) is State.OPERATION_ENABLED
+        for _ in range(5):  # the receive thread keeps the bus from now on; cycles go on
+            s = arm.cycle((1.0, 0.1))
+        assert not arm._direct
+        assert [co.state_from_statusword(w) for w in s.status] == [State.OPERATION_ENABLED] * 2
+
+
+# ---- traffic log format -------------------------------------------------------------------------
+_MESSAGES = st.builds(
+    can.Message,
+    timestamp=st.floats(0, 2e9, allow_nan=False),
+    arbitration_id=st.integers(0, 0x7FF),
+    is_extended_id=st.booleans(),
+    is_remote_frame=st.booleans(),
+    is_error_frame=st.booleans(),
+    is_rx=st.booleans(),
+    channel=st.sampled_from([None, "can0", 3, "vcan1"]),
+    data=st.binary(max_size=8),
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(messages=st.lists(_MESSAGES, max_size=10), stamp=st.floats(0, 2e9, allow_nan=False))
+def test_candump_writer_writes_what_python_can_writes(messages, stamp, tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("log")
+    reference = can.CanutilsLogWriter(tmp / "ref.log", channel="slcan0")
+    ours = CandumpWriter(tmp / "ours.log", channel="slcan0")
+    frames = [(m.arbitration_id, bytes(m.data)) for m in messages]
+    for m in messages:
+        reference.on_message_received(m)
+        ours.write_message(m)
+    for rx in (True, False):  # the batch path: standard data frames seen at one time
+        for cob_id, data in frames:
+            msg = can.Message(
+                timestamp=stamp, arbitration_id=cob_id, data=data, is_extended_id=False, is_rx=rx
+            )
+            reference.on_message_received(msg)
+        ours.write_frames(stamp, frames, rx)
+    reference.stop()
+    ours.stop()
+    assert (tmp / "ours.log").read_text() == (tmp / "ref.log").read_text()

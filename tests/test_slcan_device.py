@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import select
 import threading
+import time
 from collections.abc import Iterator
 
 import can
@@ -202,3 +203,100 @@ def test_shutdown_wakes_a_blocked_recv_and_is_idempotent() -> None:
     bus.shutdown()
     thread.join(2.0)
     assert not thread.is_alive() and errors
+
+
+# ---- batch path (the cyclic exchange) ---------------------------------------------------------
+def _line_by_line(lines: list[bytes]) -> tuple[bytes, list[tuple[int, bytes, bool, bool]]]:
+    dev = SlcanDeviceProtocol()
+    replies, frames = b"", []
+    for line in lines:
+        reply, frame = dev.command_raw(line)
+        replies += reply
+        if frame is not None:
+            frames.append(frame)
+    return replies, frames
+
+
+_VALID_STD = st.builds(
+    lambda i, data: b"t%03X%d%s" % (i, len(data), data.hex().encode()),
+    st.integers(0, 0x7FF),
+    st.binary(max_size=8),
+)
+_ANY_LINE = _VALID_STD | st.sampled_from(
+    [b"t8000", b"t1239", b"t12320102", b"tXYZ0", b"V", b"O", b"T1234567820102", b"r0803", b""]
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(lines=st.lists(_ANY_LINE, min_size=1, max_size=6), lower=st.booleans())
+def test_feed_of_whole_lines_equals_line_by_line(lines: list[bytes], lower: bool) -> None:
+    """The one-pass path for a write of whole standard frames decides as command_raw does."""
+    if lower:
+        lines = [line.lower() if line[:1] == b"t" else line for line in lines]
+    dev = SlcanDeviceProtocol()
+    assert dev.feed_raw(b"".join(line + b"\r" for line in lines)) == _line_by_line(lines)
+    assert dev.feed_raw(b"t0800\r") == (b"z\r", [(0x080, b"", False, False)])
+
+
+def test_recv_frames_holds_replies_for_the_batched_write(device: SlcanPtyBus) -> None:
+    host = os.open(device.channel_path, os.O_RDWR | os.O_NOCTTY)
+    try:
+        os.write(host, b"O\rt20140F00E803\rt20240F000A00\rt0800\r")
+        frames: list[tuple[int, bytes, bool, bool]] = []
+        while len(frames) < 3:
+            frames += device.recv_frames(1.0)
+        assert frames == [
+            (0x201, bytes.fromhex("0F00E803"), False, False),
+            (0x202, bytes.fromhex("0F000A00"), False, False),
+            (0x080, b"", False, False),
+        ]
+        assert select.select([host], [], [], 0.05)[0] == []  # the acks wait for the answer
+        device.send_frames([(0x181, b"\x37\x06\x00\x00\x00\x00"), (0x281, b"\x01\x02")])
+        expected = b"\rz\rz\rz\rt1816370600000000\rt28120102\r"
+        assert _host_read(host, len(expected)) == expected
+        assert device.frames_in == 3 and device.frames_out == 2
+    finally:
+        os.close(host)
+
+
+def test_host_adapter_batch_path_against_the_device(device: SlcanPtyBus) -> None:
+    """drivers.slcan.SelectSlcanBus: frames out in one write, frames in as (id, data) tuples,
+    other kinds as the Messages python-can's own parser makes."""
+    from drivers.slcan import SelectSlcanBus
+
+    host = SelectSlcanBus(channel=device.channel_path, bitrate=1_000_000, sleep_after_open=0)
+    try:
+        host.send_frames([(0x201, b"\x0f\x00\xe8\x03"), (0x080, b"")])
+        got: list[tuple[int, bytes, bool, bool]] = []
+        while len(got) < 2:
+            got += device.recv_frames(1.0)
+        assert got == [(0x201, b"\x0f\x00\xe8\x03", False, False), (0x080, b"", False, False)]
+        device.send_frames([(0x181, b"\x27\x06")])
+        device.send(can.Message(arbitration_id=0x1ABCDEF0, data=b"\x01", is_extended_id=True))
+        device.send(can.Message(arbitration_id=0x701, is_remote_frame=True, is_extended_id=False))
+        frames: list[object] = []
+        while len(frames) < 3:
+            frames += host.recv_frames(1.0)
+        assert frames[0] == (0x181, b"\x27\x06")
+        ext, rtr = frames[1], frames[2]
+        assert isinstance(ext, can.Message) and ext.is_extended_id
+        assert (ext.arbitration_id, bytes(ext.data)) == (0x1ABCDEF0, b"\x01")
+        assert isinstance(rtr, can.Message) and rtr.is_remote_frame and rtr.arbitration_id == 0x701
+        assert host.recv_frames(0.02) == []
+    finally:
+        host.shutdown()
+
+
+def test_host_adapter_skips_garbage_lines(device: SlcanPtyBus) -> None:
+    from drivers.slcan import SelectSlcanBus
+
+    host = SelectSlcanBus(channel=device.channel_path, bitrate=1_000_000, sleep_after_open=0)
+    try:
+        device._write(b"t1\rTzz\r\ar9\rt1812\x07t18122706\r")  # a line python-can cannot parse
+        frames: list[object] = []
+        deadline = time.monotonic() + 2.0
+        while not frames and time.monotonic() < deadline:
+            frames += host.recv_frames(0.2)
+        assert frames == [(0x181, b"\x27\x06")]
+    finally:
+        host.shutdown()

@@ -45,14 +45,21 @@ code   meaning                                                    error register
 
 Frames that are remote, error or extended-id frames, frames for other nodes and frames that the
 present NMT state does not allow are ignored and counted in :attr:`CanDriveServer.ignored`.
+
+Cost: the routing table, the PDO codecs (precompiled structs) and the heartbeat periods are
+derived from the object dictionary once per change of it (``VirtualRobot.config_version``). On a
+bus with ``recv_frames``/``send_frames`` (:class:`~virtual_robot.slcan_device.SlcanPtyBus`) a
+batch of frames (a lockstep cycle's RPDOs and SYNC) is read in one read and answered in one
+write, before the periodic work (heartbeats, host-silence check).
 """
 
 from __future__ import annotations
 
 import logging
+import struct
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import can
 
@@ -71,6 +78,7 @@ _NMT_NEXT = {
     co.NMT_PRE_OPERATIONAL: co.NMT_STATE_PRE_OPERATIONAL,
 }
 _TPDOS = ((0x1800, 0x1A00), (0x1801, 0x1A01))
+_SDO, _RPDO = "sdo", "rpdo"
 
 _logger = logging.getLogger(__name__)
 
@@ -81,8 +89,51 @@ def _index_of(data: bytes) -> tuple[int, int]:
     return index, data[3] if len(data) >= 4 else 0
 
 
+def _pdo_struct(mapping: Sequence[tuple[int, int]]) -> struct.Struct:
+    """One precompiled codec for a whole PDO: the same bytes as ``cia402.pack_pdo``."""
+    return struct.Struct("<" + "".join(co.OBJECT_MAP[m].fmt[1:] for m in mapping))
+
+
+class _Plan:
+    """What the server derives from the drives' configuration, rebuilt when it changes.
+
+    ``routes``: COB-ID → (service, node) for SDO requests and valid RPDO COB-IDs;
+    ``rpdo``: node → (mapping, codec); ``tpdo``: node → [(COB-ID, codec, readers)] of its valid
+    TPDOs in order; ``heartbeat_s``: node → producer heartbeat period in s (0: off).
+    """
+
+    def __init__(self, core: VirtualRobot, nodes: Sequence[int]) -> None:
+        self.version = core.config_version
+        self.routes: dict[int, tuple[str, int]] = {}
+        self.rpdo: dict[int, tuple[tuple[tuple[int, int], ...], struct.Struct]] = {}
+        self.tpdo: dict[int, list[tuple[int, struct.Struct, tuple[Callable[[], int], ...]]]] = {}
+        self.heartbeat_s: dict[int, float] = {}
+        for node in nodes:
+            self.routes[co.SDO_RX_BASE + node] = (_SDO, node)
+            rpdo_id = core.pdo_cob_id(node, 0x1400)
+            if rpdo_id is not None:
+                self.routes.setdefault(rpdo_id, (_RPDO, node))
+            mapping = core.pdo_mapping(node, 0x1600)
+            self.rpdo[node] = (mapping, _pdo_struct(mapping))
+            entries = []
+            for comm, mapping_index in _TPDOS:
+                cob_id = core.pdo_cob_id(node, comm)
+                if cob_id is None:
+                    continue
+                mapping = core.pdo_mapping(node, mapping_index)
+                readers = tuple(core.reader(i, s, node=node) for i, s in mapping)
+                entries.append((cob_id, _pdo_struct(mapping), readers))
+            self.tpdo[node] = entries
+            self.heartbeat_s[node] = core.read(0x1017, 0, node=node) / 1000.0
+
+
 class CanDriveServer:
-    """Serve a :class:`VirtualRobot`'s drives as CANopen nodes on a python-can bus."""
+    """Serve a :class:`VirtualRobot`'s drives as CANopen nodes on a python-can bus.
+
+    Outgoing frames of one received frame (or, on a bus with ``recv_frames``/``send_frames`` such
+    as :class:`~virtual_robot.slcan_device.SlcanPtyBus`, of one batch of received frames) are
+    sent together, in the order they were produced.
+    """
 
     def __init__(
         self,
@@ -108,6 +159,9 @@ class CanDriveServer:
         self._last_recv_error = ""
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._plan: _Plan | None = None
+        self._outbox: list[tuple[int, bytes]] = []
+        self._send_frames = getattr(bus, "send_frames", None)
 
     # ---- life cycle ---------------------------------------------------------------------
     def start(self) -> None:
@@ -131,12 +185,20 @@ class CanDriveServer:
         """Boot-up messages, then receive and dispatch frames until ``stop`` is set."""
         for node in self.nodes:
             self._boot_up(node)
+        self._flush()
         if self.core.mode == REALTIME:
             self.core.start_period_timer(stop)
         timeout = RECV_TIMEOUT_REALTIME_S if self.core.mode == REALTIME else RECV_TIMEOUT_S
+        recv_frames = getattr(self.bus, "recv_frames", None)
         while not stop.is_set():
             try:
-                msg = self.bus.recv(timeout=timeout)
+                if recv_frames is not None:  # a batch: raw (id, data, extended, remote) tuples
+                    for can_id, data, extended, remote in recv_frames(timeout):
+                        self._handle(can_id, data, extended, remote)
+                else:
+                    msg = self.bus.recv(timeout=timeout)
+                    if msg is not None:
+                        self._handle_message(msg)
             except Exception as exc:  # a dead or flaky transport: say so once, keep trying
                 self.errors += 1
                 text = f"{type(exc).__name__}: {exc}"
@@ -144,32 +206,54 @@ class CanDriveServer:
                     self._log(f"bus receive failed: {text}")
                     self._last_recv_error = text
                 stop.wait(RECV_TIMEOUT_S)
-                msg = None
             else:
                 self._last_recv_error = ""
-            if msg is not None:
-                self.handle(msg)
-            self.poll()
+            self._flush()  # the answers first: the periodic work is off the host's critical path
+            self._poll(None)
+            if self._outbox:
+                self._flush()
 
     # ---- one frame ----------------------------------------------------------------------
     def handle(self, msg: can.Message) -> None:
-        """Dispatch one received frame; never raises (errors are counted and logged)."""
+        """Dispatch one received frame and send its replies; never raises (errors are counted
+        and logged)."""
+        self._handle_message(msg)
+        self._flush()
+
+    def _handle_message(self, msg: can.Message) -> None:
+        if msg.is_error_frame or msg.is_fd:
+            self.frames_in += 1
+            self._last_rx = time.monotonic()
+            self._idle_fired = False
+            self.ignored += 1
+            self._send_emcys()
+            return
+        self._handle(
+            msg.arbitration_id, bytes(msg.data or b""), msg.is_extended_id, msg.is_remote_frame
+        )
+
+    def _handle(self, can_id: int, data: bytes, extended: bool, remote: bool) -> None:
         self.frames_in += 1
         self._last_rx = time.monotonic()
         self._idle_fired = False
         try:
-            if msg.is_remote_frame or msg.is_error_frame or msg.is_extended_id or msg.is_fd:
+            if remote or extended:
                 self.ignored += 1
                 return
-            data = bytes(msg.data or b"")
-            if not self._dispatch(msg.arbitration_id, data):
+            if not self._dispatch(can_id, data):
                 self.ignored += 1
         except Exception as exc:
             self.errors += 1
-            data_hex = bytes(msg.data or b"").hex()
-            self._log(f"frame 0x{msg.arbitration_id:03X} [{data_hex}]: {type(exc).__name__}: {exc}")
+            self._log(f"frame 0x{can_id:03X} [{bytes(data).hex()}]: {type(exc).__name__}: {exc}")
         finally:
             self._send_emcys()
+
+    def _current_plan(self) -> _Plan:
+        plan = self._plan
+        if plan is None or plan.version != self.core.config_version:
+            with self.core.lock:
+                plan = self._plan = _Plan(self.core, self.nodes)
+        return plan
 
     def _dispatch(self, cob_id: int, data: bytes) -> bool:
         """Handle a standard data frame; False if nothing here was addressed by it."""
@@ -177,16 +261,19 @@ class CanDriveServer:
             return self._nmt(data)
         if cob_id == co.SYNC_ID:
             return self._sync(data)
-        for node in self.nodes:
-            state = self.nmt_state[node]
-            if cob_id == co.SDO_RX_BASE + node:
-                if state == co.NMT_STATE_STOPPED:
-                    return False
-                self._sdo(node, data)
-                return True
-            if state == co.NMT_STATE_OPERATIONAL and cob_id == self.core.pdo_cob_id(node, 0x1400):
-                self._rpdo(node, data)
-                return True
+        route = self._current_plan().routes.get(cob_id)
+        if route is None:
+            return False
+        service, node = route
+        state = self.nmt_state[node]
+        if service == _SDO:
+            if state == co.NMT_STATE_STOPPED:
+                return False
+            self._sdo(node, data)
+            return True
+        if state == co.NMT_STATE_OPERATIONAL:
+            self._rpdo(node, data)
+            return True
         return False
 
     # ---- NMT ----------------------------------------------------------------------------
@@ -250,59 +337,59 @@ class CanDriveServer:
 
     # ---- PDO, SYNC ----------------------------------------------------------------------
     def _rpdo(self, node: int, data: bytes) -> None:
-        mapping = self.core.pdo_mapping(node, 0x1600)
-        try:
-            values = co.unpack_pdo(mapping, data)
-        except ValueError:
+        mapping, codec = self._current_plan().rpdo[node]
+        if len(data) != codec.size:
             register = self.core.read(0x1001, 0, node=node)
             register |= co.ERREG_GENERIC | co.ERREG_COMMUNICATION
             self._send(co.EMCY_BASE + node, co.emcy_payload(ERR_PDO_LENGTH, register))
             return
-        for (index, sub), value in zip(mapping, values, strict=True):
-            try:
-                self.core.write(index, sub, value, node=node)
-            except SdoAbortError as exc:
-                register = self.core.read(0x1001, 0, node=node) | co.ERREG_GENERIC
-                self._send(co.EMCY_BASE + node, co.emcy_payload(ERR_PARAMETER, register))
-                self._log(f"RPDO1 of node {node}: {exc}")
+        try:
+            for (index, sub), value in zip(mapping, codec.unpack(data), strict=True):
+                try:
+                    self.core.write(index, sub, value, node=node, apply=False)
+                except SdoAbortError as exc:
+                    register = self.core.read(0x1001, 0, node=node) | co.ERREG_GENERIC
+                    self._send(co.EMCY_BASE + node, co.emcy_payload(ERR_PARAMETER, register))
+                    self._log(f"RPDO1 of node {node}: {exc}")
+        finally:
+            self.core.apply_commands()  # the mapped objects arrived together: applied together
 
     def _sync(self, data: bytes) -> bool:
         if len(data) > 1:
             self._log(f"SYNC of {len(data)} bytes ignored (0, or 1 with a counter)")
             return False
-        frames: list[tuple[int, bytes]] = []
+        tpdo = self._current_plan().tpdo
+        outbox = self._outbox
         with self.core.lock:  # sample and read the feedback as one step
-            self.core.sync()
+            self.core.sync_sample()
             for node in self.nodes:
                 if self.nmt_state[node] != co.NMT_STATE_OPERATIONAL:
                     continue
-                for comm, mapping_index in _TPDOS:
-                    cob_id = self.core.pdo_cob_id(node, comm)
-                    if cob_id is None:
-                        continue
-                    mapping = self.core.pdo_mapping(node, mapping_index)
-                    values = tuple(self.core.read(i, s, node=node) for i, s in mapping)
-                    frames.append((cob_id, co.pack_pdo(mapping, values)))
-        for cob_id, payload in frames:
-            self._send(cob_id, payload)
+                for cob_id, codec, readers in tpdo[node]:
+                    outbox.append((cob_id, codec.pack(*[read() for read in readers])))
         return True
 
     # ---- periodic -----------------------------------------------------------------------
     def poll(self, now: float | None = None) -> None:
         """Heartbeats, the host-silence check and queued EMCYs; called on every loop pass."""
+        self._poll(now)
+        self._flush()
+
+    def _poll(self, now: float | None) -> None:
         now = time.monotonic() if now is None else now
         try:
+            heartbeat_s = self._current_plan().heartbeat_s
             for node in self.nodes:
-                period_ms = self.core.read(0x1017, 0, node=node)
-                if period_ms <= 0:
+                period_s = heartbeat_s[node]
+                if period_s <= 0:
                     self._last_heartbeat.pop(node, None)
                     continue
                 last = self._last_heartbeat.setdefault(node, now)
-                if now - last >= period_ms / 1000.0:
+                if now - last >= period_s:
                     self._send(co.HEARTBEAT_BASE + node, bytes([self.nmt_state[node]]))
                     # keep the beat on its grid unless we fell more than a period behind
-                    behind = now - last >= 2 * period_ms / 1000.0
-                    self._last_heartbeat[node] = now if behind else last + period_ms / 1000.0
+                    behind = now - last >= 2 * period_s
+                    self._last_heartbeat[node] = now if behind else last + period_s
             if (
                 self.idle_timeout_s is not None
                 and self._last_rx is not None
@@ -332,11 +419,28 @@ class CanDriveServer:
             self._send(co.EMCY_BASE + node, payload)
 
     def _send(self, cob_id: int, data: bytes) -> None:
-        msg = can.Message(arbitration_id=cob_id, data=data, is_extended_id=False)
-        try:
-            self.bus.send(msg)
-        except Exception as exc:
-            self.errors += 1
-            self._log(f"send 0x{cob_id:03X} failed: {type(exc).__name__}: {exc}")
-        else:
-            self.frames_out += 1
+        """Queue a frame; :meth:`_flush` sends the queue."""
+        self._outbox.append((cob_id, data))
+
+    def _flush(self) -> None:
+        """Send the queued frames in order: one ``send_frames`` call where the bus has it."""
+        frames, self._outbox = self._outbox, []
+        if self._send_frames is not None:
+            try:
+                self._send_frames(frames)
+            except Exception as exc:
+                self.errors += 1
+                ids = ", ".join(f"0x{cob_id:03X}" for cob_id, _ in frames)
+                self._log(f"send {ids} failed: {type(exc).__name__}: {exc}")
+            else:
+                self.frames_out += len(frames)
+            return
+        for cob_id, data in frames:
+            msg = can.Message(arbitration_id=cob_id, data=data, is_extended_id=False)
+            try:
+                self.bus.send(msg)
+            except Exception as exc:
+                self.errors += 1
+                self._log(f"send 0x{cob_id:03X} failed: {type(exc).__name__}: {exc}")
+            else:
+                self.frames_out += 1

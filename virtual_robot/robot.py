@@ -6,7 +6,9 @@ Time has two modes (DESIGN.md "Time"):
 * **lockstep**: robot time stands still between SYNCs. The first SYNC samples at t = 0; every
   later SYNC first advances the plant one period with the torques held since the previous one,
   then samples. A torque written between SYNC k and SYNC k+1 is applied at t_k, so the sequence
-  is exactly the offline simulation's (sample at t_k, command, hold over [t_k, t_k + h)).
+  is exactly the offline simulation's (sample at t_k, command, hold over [t_k, t_k + h)). As
+  nothing moves in between, the plant is given the drives' commands and power states once per
+  SYNC, just before it advances (the same command, issued at the same t_k).
 * **realtime**: robot time is the clock passed in. Every call first integrates the plant up to
   now with the torques held so far; a late command is applied late. The drives' own period
   timer (:meth:`tick`, called every period by the server) counts the command watchdog; a SYNC
@@ -17,6 +19,7 @@ All methods take the core's lock, so a server thread and a period-timer thread m
 
 from __future__ import annotations
 
+import functools
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -31,21 +34,26 @@ from virtual_robot.plant import DEFAULT_STEP_S, Plant, PlantParams
 
 LOCKSTEP, REALTIME = "lockstep", "realtime"
 
-# Objects whose value lives in the drive model (read on every TPDO: keep this a flat table).
-_LIVE_OBJECTS: dict[tuple[int, int], Callable[[DriveModel], int]] = {
-    (0x1001, 0): lambda d: d.error_register,
-    (0x603F, 0): lambda d: d.error_code,
-    (0x6040, 0): lambda d: d.controlword,
-    (0x6041, 0): lambda d: d.statusword,
-    (0x6060, 0): lambda d: d.mode,
-    (0x6061, 0): lambda d: d.mode,
-    (0x6064, 0): lambda d: d.position_counts,
-    (0x606C, 0): lambda d: d.velocity_counts_s,
-    (0x6071, 0): lambda d: d.target_torque_permille,
-    (0x6072, 0): lambda d: d.max_torque_permille,
-    (0x6077, 0): lambda d: d.torque_actual_permille,
+# Objects whose value lives in the drive model: the DriveModel attribute that holds each one
+# (read on every TPDO: keep this a flat table).
+_LIVE_OBJECTS: dict[tuple[int, int], str] = {
+    (0x1001, 0): "error_register",
+    (0x603F, 0): "error_code",
+    (0x6040, 0): "controlword",
+    (0x6041, 0): "statusword",
+    (0x6060, 0): "mode",
+    (0x6061, 0): "mode",
+    (0x6064, 0): "position_counts",
+    (0x606C, 0): "velocity_counts_s",
+    (0x6071, 0): "target_torque_permille",
+    (0x6072, 0): "max_torque_permille",
+    (0x6077, 0): "torque_actual_permille",
 }
 DEVICE_TYPE_SERVO = 0x00020192  # CiA 402 servo drive
+# (index, subindex) -> (lowest, highest) value of every object a transport may write
+_WRITABLE: dict[tuple[int, int], tuple[int, int]] = {
+    (o.index, o.subindex): o.limits() for o in co.OBJECTS if o.access is not co.Access.RO
+}
 
 
 @dataclass
@@ -87,11 +95,18 @@ class VirtualRobot:
         self.profiles: tuple[DriveProfile, ...] = tuple(load_drive(n) for n in robot.drives)
         self.drives = [DriveModel(p) for p in self.profiles]
         self.by_node = {p.node_id: i for i, p in enumerate(self.profiles)}
+        self._node_drives = tuple(
+            (p.node_id, d) for p, d in zip(self.profiles, self.drives, strict=True)
+        )
         self.by_unit = {p.unit_address: i for i, p in enumerate(self.profiles)}
         self.plant = Plant(
             PlantParams.from_profiles(robot, self.effects), q0=q0, max_step_s=min(step_s, period_s)
         )
         self.syncs = 0
+        # bumped whenever the stored objects change (PDO map, COB-IDs, 0x1017, reset node), so a
+        # server may cache what it derives from them (routing, TPDO packing, heartbeat period)
+        self.config_version = 0
+        self._unapplied = False  # writes with apply=False the plant has not been given yet
         self._mapping_cache: dict[tuple[int, int], tuple[tuple[int, int], ...]] = {}
         self.t = 0.0  # robot time of the last sample / event
         self._store: list[dict[tuple[int, int], int]] = [
@@ -117,6 +132,7 @@ class VirtualRobot:
         return self.t
 
     def _apply_torques(self, now: float) -> None:
+        self._unapplied = False
         d1, d2 = self.drives
         self.plant.command(
             (d1.torque_Nm, d2.torque_Nm), issued_at=now, powered=(d1.powered, d2.powered)
@@ -126,13 +142,24 @@ class VirtualRobot:
         measured, rates = self.plant.measured_q, self.plant.dq
         for i, d in enumerate(self.drives):
             d.update(now, measured[i], rates[i], count_period=count_period)
-        self._apply_torques(now)  # a fault in update() zeroes torque at once
+        if self.mode == LOCKSTEP:  # the plant stands still until the next SYNC applies it
+            self._unapplied = True
+        else:
+            self._apply_torques(now)  # a fault in update() zeroes torque at once
 
     # ---- events from a transport ----------------------------------------------------------
     def sync(self) -> list[Feedback]:
         """SYNC (or the serial step): advance as the time mode says, sample every drive."""
         with self.lock:
+            self.sync_sample()
+            return [self._feedback(i) for i in range(len(self.drives))]
+
+    def sync_sample(self) -> None:
+        """:meth:`sync` without building its feedback (a server reads the objects it maps)."""
+        with self.lock:
             if self.mode == LOCKSTEP:
+                if self._unapplied:  # what the drives command since the last SYNC, issued at t
+                    self._apply_torques(self.t)
                 if self.syncs > 0:
                     # t_k = k·h, computed exactly as the offline simulation and recordings do
                     self.t = self.syncs * self.period_s
@@ -142,7 +169,6 @@ class VirtualRobot:
                 now = self._catch_up()
                 self._sample(now, count_period=False)
             self.syncs += 1
-            return [self._feedback(i) for i in range(len(self.drives))]
 
     def tick(self) -> None:
         """Realtime only: one period of the drives' own timer (command watchdog)."""
@@ -185,18 +211,25 @@ class VirtualRobot:
         *,
         node: int | None = None,
         unit: int | None = None,
+        apply: bool = True,
     ) -> None:
-        """Write an object of one drive; raises SdoAbortError with the CiA 301 code."""
+        """Write an object of one drive; raises SdoAbortError with the CiA 301 code.
+
+        ``apply=False``: the plant keeps its torque command until :meth:`apply_commands` (or,
+        in lockstep, the next SYNC), so writes that arrive together (the objects of an RPDO)
+        reach the plant once.
+        """
         with self.lock:
             i = self._drive_index(node, unit)
-            obj = co.lookup(index, subindex)  # raises the right abort for unknown objects
-            if obj.access is co.Access.RO:
+            limits = _WRITABLE.get((index, subindex))
+            if limits is None:
+                co.lookup(index, subindex)  # raises the right abort for unknown objects
                 raise SdoAbortError(index, subindex, co.ABORT_READ_ONLY)
-            lo, hi = obj.limits()
+            lo, hi = limits
             if not lo <= value <= hi:
                 code = co.ABORT_VALUE_TOO_HIGH if value > hi else co.ABORT_VALUE_TOO_LOW
                 raise SdoAbortError(index, subindex, code)
-            now = self._catch_up()
+            now = self.t if self.mode == LOCKSTEP else self._catch_up()
             d = self.drives[i]
             try:
                 if index == 0x6040:
@@ -211,7 +244,18 @@ class VirtualRobot:
                     self._write_stored(i, index, subindex, value)
             except DriveError as exc:
                 raise SdoAbortError(index, subindex, exc.abort_code) from None
-            self._apply_torques(now)
+            if apply:
+                self._apply_torques(now)
+            else:
+                self._unapplied = True
+
+    def apply_commands(self) -> None:
+        """Give the plant the drives' torque commands and power states of the writes made with
+        ``apply=False``: now in realtime; in lockstep, where robot time stands still until the
+        next SYNC, when that SYNC advances the plant (the same command, issued at the same t)."""
+        with self.lock:
+            if self._unapplied and self.mode == REALTIME:
+                self._apply_torques(self._catch_up())
 
     def read(
         self, index: int, subindex: int, *, node: int | None = None, unit: int | None = None
@@ -219,14 +263,27 @@ class VirtualRobot:
         """Read an object of one drive; raises SdoAbortError with the CiA 301 code."""
         with self.lock:
             i = self._drive_index(node, unit)
-            getter = _LIVE_OBJECTS.get((index, subindex))
-            if getter is not None:
-                return getter(self.drives[i])
+            attribute = _LIVE_OBJECTS.get((index, subindex))
+            if attribute is not None:
+                return getattr(self.drives[i], attribute)
             value = self._store[i].get((index, subindex))
             if value is None:
                 co.lookup(index, subindex)  # raises the right abort
                 raise SdoAbortError(index, subindex, co.ABORT_NO_OBJECT)
             return value
+
+    def reader(self, index: int, subindex: int, *, node: int) -> Callable[[], int]:
+        """A function returning what :meth:`read` would, for a per-SYNC hot path.
+
+        It does not take the lock (call it with :attr:`lock` held) and is valid until
+        :attr:`config_version` changes. Raises SdoAbortError now for an unknown object.
+        """
+        i = self._drive_index(node, None)
+        attribute = _LIVE_OBJECTS.get((index, subindex))
+        if attribute is not None:
+            return functools.partial(getattr, self.drives[i], attribute)
+        self.read(index, subindex, node=node)  # raises the right abort
+        return functools.partial(self._store[i].__getitem__, (index, subindex))
 
     def reset_node(self, node: int) -> None:
         """NMT reset node: drive back to power-on (errors cleared), PDO configuration cleared."""
@@ -239,6 +296,7 @@ class VirtualRobot:
             )
             self._store[i] = self._initial_objects(self.profiles[i])
             self._mapping_cache.clear()
+            self.config_version += 1
             self._apply_torques(now)
 
     def disable_all(self) -> None:
@@ -252,9 +310,11 @@ class VirtualRobot:
     def pop_emcy(self) -> list[tuple[int, Emcy]]:
         """EMCY events since the last call, as (node id, event)."""
         with self.lock:
-            out = []
-            for p, d in zip(self.profiles, self.drives, strict=True):
-                out.extend((p.node_id, e) for e in d.pop_emcy())
+            out: list[tuple[int, Emcy]] = []
+            for node, d in self._node_drives:
+                events = d.pop_emcy()
+                if events:
+                    out.extend((node, e) for e in events)
             return out
 
     def feedback(self, node: int | None = None, unit: int | None = None) -> Feedback:
@@ -330,6 +390,7 @@ class VirtualRobot:
 
     def _write_stored(self, i: int, index: int, subindex: int, value: int) -> None:
         self._mapping_cache.clear()
+        self.config_version += 1
         store = self._store[i]
         if index in (0x1600, 0x1A00, 0x1A01):
             if subindex == 0:

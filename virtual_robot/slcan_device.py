@@ -31,6 +31,12 @@ channel is closed (that opens it), and O/L/C always succeed. Frames towards the 
 only while the channel is open, as on a real adapter (python-can sends C, S8, O when it opens).
 CAN FD (``d``/``D``/``b``/``B``, ``Y``) is not supported (BEL).
 
+Besides python-can's ``recv``/``send``, the bus has a batch path without Message objects for
+:class:`~virtual_robot.can_server.CanDriveServer`: :meth:`SlcanPtyBus.recv_frames` returns every
+frame of one read as ``(id, data, extended, remote)`` tuples and holds the replies ("z\r" acks)
+back; :meth:`SlcanPtyBus.send_frames` writes them and the answer frames in one write. A host
+sees the same bytes in the same order as from one frame at a time, in fewer writes.
+
 The device keeps its own descriptor of the pty slave open, so reads on the master never hit
 EIO when the host closes the port, and a host can close and reopen it at will. pyserial flushes
 the input queue when it opens a port, so nothing stale from an earlier session reaches a new
@@ -43,6 +49,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import re
 import select
 import string
 import threading
@@ -70,6 +77,13 @@ BITRATES = {
     "S9": 83_300,
 }
 _HEX = frozenset(string.hexdigits)
+_STD_FRAME = re.compile(rb"t([0-9A-Fa-f]{3})([0-8])([0-9A-Fa-f]*)")
+_STD_LINE = re.compile(rb"t([0-9A-Fa-f]{3})([0-8])([0-9A-Fa-f]{0,16})\r")
+_STD_LINES = re.compile(rb"(?:t[0-9A-Fa-f]{3}[0-8][0-9A-Fa-f]{0,16}\r)+")
+
+# A frame as the parser hands it on: (CAN id, data, extended id, remote). A remote frame's data
+# is ``dlc`` zero bytes (only its length means anything).
+RawFrame = tuple[int, bytes, bool, bool]
 
 
 class SlcanDeviceProtocol:
@@ -98,32 +112,65 @@ class SlcanDeviceProtocol:
 
     def feed(self, data: bytes) -> tuple[bytes, list[can.Message]]:
         """Process bytes from the host: (reply bytes for the host, frames the host sent)."""
+        replies, raw = self.feed_raw(data)
+        return replies, [self.to_message(frame) for frame in raw]
+
+    def feed_raw(self, data: bytes) -> tuple[bytes, list[RawFrame]]:
+        """:meth:`feed` with each frame as a :data:`RawFrame` tuple instead of a Message."""
+        if not self._buffer and not self._discarding and not self.listen_only:
+            fast = self._standard_frames(data)
+            if fast is not None:
+                return fast
         replies = bytearray()
-        frames: list[can.Message] = []
-        self._buffer.extend(data)
-        while True:
-            end = self._buffer.find(CR)
-            if end < 0:
-                if len(self._buffer) > MAX_LINE:
-                    if not self._discarding:
-                        self.malformed += 1
-                        replies += BEL
-                    self._discarding = True
-                    self._buffer.clear()
-                break
-            line = bytes(self._buffer[:end])
-            del self._buffer[: end + 1]
-            if self._discarding:
+        frames: list[RawFrame] = []
+        buffer = self._buffer
+        buffer.extend(data)
+        if CR in buffer:
+            *lines, rest = bytes(buffer).split(CR)
+            buffer[:] = rest
+            if self._discarding:  # the tail of an over-long line
                 self._discarding = False
-                continue
-            reply, msg = self.command(line)
-            replies += reply
-            if msg is not None:
-                frames.append(msg)
+                del lines[0]
+            for line in lines:
+                reply, frame = self.command_raw(line)
+                replies += reply
+                if frame is not None:
+                    frames.append(frame)
+        if len(buffer) > MAX_LINE:  # no CR in sight: drop the line up to its CR
+            if not self._discarding:
+                self.malformed += 1
+                replies += BEL
+            self._discarding = True
+            buffer.clear()
         return bytes(replies), frames
+
+    def _standard_frames(self, data: bytes) -> tuple[bytes, list[RawFrame]] | None:
+        """The cyclic case in one pass: ``data`` is whole, valid standard data frame lines
+        (what :meth:`command_raw` would accept one by one). None if it is anything else."""
+        if _STD_LINES.fullmatch(data) is None:
+            return None
+        frames: list[RawFrame] = []
+        for can_id, dlc, body in _STD_LINE.findall(data):
+            if len(body) != 2 * int(dlc) or int(can_id, 16) > 0x7FF:
+                return None
+            frames.append((int(can_id, 16), bytes.fromhex(body.decode()), False, False))
+        self.is_open = True  # lenient: a host that transmits wants the channel open
+        return self._ack_std * len(frames), frames
 
     def command(self, line: bytes) -> tuple[bytes, can.Message | None]:
         """One CR-terminated command (without the CR): (reply, frame sent by the host or None)."""
+        reply, frame = self.command_raw(line)
+        return reply, None if frame is None else self.to_message(frame)
+
+    def command_raw(self, line: bytes) -> tuple[bytes, RawFrame | None]:
+        """:meth:`command` with the frame as a :data:`RawFrame` tuple."""
+        if line[:1] == b"t" and not self.listen_only:  # the cyclic path: a standard data frame
+            match = _STD_FRAME.fullmatch(line)
+            if match is not None and len(match[3]) == 2 * int(match[2]):
+                can_id = int(match[1], 16)
+                if can_id <= 0x7FF:
+                    self.is_open = True  # lenient: a host that transmits wants the channel open
+                    return self._ack_std, (can_id, bytes.fromhex(match[3].decode()), False, False)
         line = line.strip(b"\n")  # tolerate CR LF line ends
         if not line:
             return b"", None
@@ -135,12 +182,12 @@ class SlcanDeviceProtocol:
             return self._bad()
         cmd, arg = text[0], text[1:]
         if cmd in "tTrR":
-            msg = self._parse_frame(text)
-            if msg is None or self.listen_only:
+            frame = self._parse_frame(text)
+            if frame is None or self.listen_only:
                 return self._bad()
             self.is_open = True  # lenient: a host that transmits wants the channel open
             ack = (b"z" if cmd in "tr" else b"Z") + CR if self.ack_transmit else CR
-            return ack, msg
+            return ack, frame
         if cmd == "S" and text in BITRATES and not self.is_open:
             self.bitrate, self.btr = BITRATES[text], None
             return CR, None
@@ -172,7 +219,7 @@ class SlcanDeviceProtocol:
         self.malformed += 1
         return BEL, None
 
-    def _parse_frame(self, text: str) -> can.Message | None:
+    def _parse_frame(self, text: str) -> RawFrame | None:
         extended = text[0] in "TR"
         remote = text[0] in "rR"
         id_len = 8 if extended else 3
@@ -186,21 +233,34 @@ class SlcanDeviceProtocol:
         if remote:
             if body:
                 return None
-            data = b""
-        else:
-            if len(body) != 2 * dlc or not set(body) <= _HEX:
-                return None
-            data = bytes.fromhex(body)
+            return can_id, bytes(dlc), extended, True  # a remote frame: only its length counts
+        if len(body) != 2 * dlc or not set(body) <= _HEX:
+            return None
+        return can_id, bytes.fromhex(body), extended, False
+
+    def to_message(self, frame: RawFrame) -> can.Message:
+        """The python-can Message of a parsed frame (received now, on this channel)."""
+        can_id, data, extended, remote = frame
         return can.Message(
             timestamp=time.time(),
             arbitration_id=can_id,
             is_extended_id=extended,
             is_remote_frame=remote,
-            dlc=dlc,
-            data=data,
+            dlc=len(data),
+            data=b"" if remote else data,
             channel=self.channel,
             is_rx=True,
         )
+
+    @property
+    def _ack_std(self) -> bytes:
+        return b"z\r" if self.ack_transmit else CR
+
+    def encode_frame(self, can_id: int, data: bytes) -> bytes:
+        """:meth:`encode` of a standard data frame given as its id and data (no Message)."""
+        if self.timestamps or len(data) > 8:
+            return self.encode(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
+        return b"t%03X%d%s\r" % (can_id & 0x7FF, len(data), data.hex().upper().encode())
 
     def encode(self, msg: can.Message) -> bytes:
         """The line that reports ``msg`` to the host; b"" for what slcan cannot carry."""
@@ -242,7 +302,8 @@ class SlcanPtyBus(can.BusABC):
         self._wake_r, self._wake_w = os.pipe()  # shutdown() wakes a recv() blocked in select
         self._path = path
         self.device = SlcanDeviceProtocol(ack_transmit=ack_transmit, channel=path)
-        self._rx: deque[can.Message] = deque()
+        self._rx: deque[RawFrame] = deque()
+        self._replies = bytearray()  # replies held back by recv_frames() for the next write
         self._write_lock = threading.Lock()
         self._read_lock = threading.Lock()
         self.frames_in = 0
@@ -262,7 +323,7 @@ class SlcanPtyBus(can.BusABC):
         with self._read_lock:
             while True:
                 if self._rx:
-                    return self._rx.popleft(), False
+                    return self.device.to_message(self._rx.popleft()), False
                 master = self._master
                 if master is None:
                     raise can.CanOperationError("slcan device is shut down")
@@ -271,11 +332,33 @@ class SlcanPtyBus(can.BusABC):
                 if self._master is None:
                     raise can.CanOperationError("slcan device is shut down")
                 if master in ready:
-                    self._read_available(master, left)
+                    self._read_available(master, left, hold_replies=False)
                 if not self._rx and deadline is not None and time.monotonic() >= deadline:
                     return None, False
 
-    def _read_available(self, master: int, left: float | None) -> None:
+    def recv_frames(self, timeout: float | None) -> list[RawFrame]:
+        """Every frame the host has sent so far, waiting up to ``timeout`` for the first bytes.
+
+        One ``select`` and one ``read``; may return [] before the timeout (a partial line). The
+        replies to what was read ("z\r" acks, ...) are held back and written by the next
+        :meth:`send_frames` (or :meth:`send`), ahead of its frames: call it after every batch,
+        with no frames if there is nothing to send.
+        """
+        with self._read_lock:
+            if not self._rx:
+                master = self._master
+                if master is None:
+                    raise can.CanOperationError("slcan device is shut down")
+                ready, _, _ = select.select([master, self._wake_r], [], [], timeout)
+                if self._master is None:
+                    raise can.CanOperationError("slcan device is shut down")
+                if master in ready:
+                    self._read_available(master, timeout, hold_replies=True)
+            frames = list(self._rx)
+            self._rx.clear()
+            return frames
+
+    def _read_available(self, master: int, left: float | None, *, hold_replies: bool) -> None:
         try:
             data = os.read(master, 4096)
         except BlockingIOError:
@@ -285,9 +368,13 @@ class SlcanPtyBus(can.BusABC):
                 raise can.CanOperationError(f"slcan device read failed: {exc}") from exc
             time.sleep(0.01 if left is None else min(0.01, left))  # no host: nothing to read
             return
-        replies, frames = self.device.feed(data)
+        replies, frames = self.device.feed_raw(data)
         if replies:
-            self._write(replies)
+            if hold_replies:
+                with self._write_lock:
+                    self._replies += replies
+            else:
+                self._write(self._held_replies() + replies)
         self.frames_in += len(frames)
         self._rx.extend(frames)
 
@@ -297,10 +384,46 @@ class SlcanPtyBus(can.BusABC):
         if self._master is None:
             raise can.CanOperationError("slcan device is shut down")
         line = self.device.encode(msg) if self.device.is_open else b""
-        if line and self._write(line):
+        held = self._held_replies()
+        if line:
+            sent = self._write(held + line)
+        else:
+            sent = False
+            if held:
+                self._write(held)
+        if sent:
             self.frames_out += 1
         else:
             self.dropped += 1
+
+    def send_frames(self, frames: list[tuple[int, bytes]]) -> None:
+        """Report standard data frames (id, data) to the host in one write, after the replies
+        :meth:`recv_frames` held back; the frames are dropped while the channel is closed."""
+        if self._master is None:
+            raise can.CanOperationError("slcan device is shut down")
+        data = self._held_replies()
+        sent = 0
+        if frames and self.device.is_open:
+            if self.device.timestamps:
+                encode = self.device.encode_frame
+                data += b"".join([encode(can_id, payload) for can_id, payload in frames])
+            else:  # encode_frame of each, in one pass
+                data += "".join(
+                    [f"t{i & 0x7FF:03X}{len(d)}{d.hex().upper()}\r" for i, d in frames]
+                ).encode()
+            sent = len(frames)
+        if data and not self._write(data):
+            sent = 0
+        self.frames_out += sent
+        self.dropped += len(frames) - sent
+
+    def _held_replies(self) -> bytes:
+        if not self._replies:
+            return b""
+        with self._write_lock:
+            held = bytes(self._replies)
+            self._replies.clear()
+            return held
 
     def _write(self, data: bytes) -> bool:
         """Write all of ``data`` or, if the host does not read for WRITE_WAIT_S, give up."""

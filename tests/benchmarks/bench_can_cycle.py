@@ -5,11 +5,13 @@ CanDriveServer (threads of this process), after the same set-up by :class:`CanAr
 by SDO, enable). One cycle = RPDO1 to each of the 2 drives (controlword + target torque), SYNC,
 wait for TPDO1 + TPDO2 of both drives, decode into rad / status:
 
-* ``raw``: :meth:`CanArm.cycle` (python-can frames packed with ``cia402.pack_pdo``, a listener
-  on the notifier thread, clamp, units, limit checks included);
+* ``raw``: :meth:`CanArm.cycle` (PDOs packed with precompiled structs, RPDOs and SYNC sent
+  together, the feedback read by the calling thread itself in lockstep; clamp, units, limit
+  checks included);
 * ``canopen``: ``node.rpdo[1]`` variables + ``PdoMap.transmit()``, ``network.sync.transmit()``,
-  TPDO callbacks counting the four frames, then ``node.tpdo[n][index].raw`` and the same unit
-  conversions (the PDO maps are read back from the drives by SDO with ``PdoMap.read()``).
+  TPDO callbacks (on CanArm's receive thread, the one canopen's SDO uses) counting the four
+  frames, then ``node.tpdo[n][index].raw`` and the same unit conversions (the PDO maps are read
+  back from the drives by SDO with ``PdoMap.read()``).
 
 Prints the median µs/cycle of each over several repeats; ``--json`` prints one JSON document.
 """
@@ -73,8 +75,8 @@ class CanopenCycle:
     """The same cycle through canopen's PDO objects (maps read back from the drives by SDO)."""
 
     def __init__(self, arm: CanArm) -> None:
-        assert arm.network is not None and arm._notifier is not None
-        self.arm, self.network, self.notifier = arm, arm.network, arm._notifier
+        assert arm.network is not None
+        self.arm, self.network = arm, arm.network
         self.lock = threading.Lock()
         self.done = threading.Event()
         self.pending = 0
@@ -96,18 +98,19 @@ class CanopenCycle:
                 self.done.set()
 
     def activate(self, on: bool) -> None:
-        """canopen blocks: TPDO maps subscribed, CanArm's listener off; raw blocks: the reverse."""
+        """canopen blocks: TPDO maps subscribed, CanArm's own frame handling off, its receive
+        thread reading; raw blocks: the reverse (CanArm.cycle reads the bus itself)."""
         for pdo_map in self.maps:
             callbacks = self.network.subscribers.get(pdo_map.cob_id, [])
             if on and pdo_map.on_message not in callbacks:
                 self.network.subscribe(pdo_map.cob_id, pdo_map.on_message)
             elif not on and pdo_map.on_message in callbacks:
                 self.network.unsubscribe(pdo_map.cob_id, pdo_map.on_message)
-        listening = self.arm._on_frame in self.notifier.listeners
-        if on and listening:
-            self.notifier.remove_listener(self.arm._on_frame)
-        elif not on and not listening:
-            self.notifier.add_listener(self.arm._on_frame)
+        if on:
+            self.arm._threaded_receive()
+            self.arm._on_frame = _ignore  # type: ignore[method-assign]  # canopen only
+        else:
+            self.arm.__dict__.pop("_on_frame", None)
 
     def cycle(self, tau: tuple[float, float]) -> tuple[list[float], list[int]]:
         for node, t, r in zip(self.arm.nodes, tau, self.rated, strict=True):
@@ -129,6 +132,10 @@ class CanopenCycle:
         return q, status
 
 
+def _ignore(_msg: can.Message) -> None:
+    """CanArm's frame handler while canopen's PDO machinery has the bus."""
+
+
 def _cpu_clock(thread: threading.Thread | None) -> Callable[[], float]:
     """CPU seconds of one thread (Linux pthread CPU clocks); NaN where not available."""
     try:
@@ -143,14 +150,13 @@ def measure(cycles: int, blocks: int) -> dict[str, list[float]]:
     """Alternating blocks of raw and canopen cycles on one rig (load drift hits both alike).
 
     Per block and per cycle: wall µs, and CPU µs of the host's main thread, the host's
-    notifier thread (the receive listeners) and the server thread.
+    receive thread (the listeners, when it reads) and the server thread.
     """
     server, server_bus, arm = _rig()
-    assert arm._notifier is not None
-    readers = [r for r in arm._notifier._readers if isinstance(r, threading.Thread)]
+    assert arm._receiver is not None
     clocks = {
         "main": _cpu_clock(threading.current_thread()),
-        "notifier": _cpu_clock(readers[0] if readers else None),
+        "receiver": _cpu_clock(arm._receiver._thread),
         "server": _cpu_clock(server._thread),
     }
     out: dict[str, list[float]] = {}
@@ -181,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     runs = measure(args.cycles, args.blocks)
     med = {k: round(statistics.median(v), 1) for k, v in runs.items()}
-    host = {n: round(med[f"{n}_main"] + med[f"{n}_notifier"], 1) for n in ("raw", "canopen")}
+    host = {n: round(med[f"{n}_main"] + med[f"{n}_receiver"], 1) for n in ("raw", "canopen")}
     result = {
         "cycles_per_block": args.cycles,
         "blocks": args.blocks,
@@ -196,14 +202,14 @@ def main(argv: list[str] | None = None) -> int:
         "CAN cycle over the python-can virtual bus, lockstep robot + server in-process, 2 drives;"
     )
     print(f"median of {args.blocks} alternating blocks of {args.cycles} cycles, µs per cycle:")
-    print("                                  wall   host CPU  (main + notifier)   server CPU")
+    print("                                  wall   host CPU  (main + receiver)   server CPU")
     for n, label in (
         ("raw", "raw python-can (CanArm.cycle)"),
         ("canopen", "canopen PDO machinery"),
     ):
         print(
             f"  {label:30s}{med[f'{n}_wall']:6.0f}   {host[n]:8.0f}  "
-            f"({med[f'{n}_main']:4.0f} + {med[f'{n}_notifier']:4.0f})         "
+            f"({med[f'{n}_main']:4.0f} + {med[f'{n}_receiver']:4.0f})         "
             f"{med[f'{n}_server']:6.0f}"
         )
     print(f"  less host CPU: {result['choice']}")
