@@ -65,21 +65,8 @@ class SelectSlcanBus(slcanBus):
                     line = buffer[: i + 1].decode(errors="replace")
                     del buffer[: i + 1]
                     return line
-            left = None if deadline is None else deadline - time.monotonic()
-            if left is not None and left <= 0:
+            if not _fill(fd, buffer, deadline):
                 return None
-            ready, _, _ = select.select([fd], [], [], left)
-            if not ready:
-                return None
-            try:
-                data = os.read(fd, 4096)
-            except BlockingIOError:
-                continue
-            except OSError as exc:
-                raise can.CanOperationError(f"Could not read from serial device: {exc}") from exc
-            if not data:
-                raise can.CanOperationError("serial device closed")
-            buffer.extend(data)
 
     # ---- batch path -------------------------------------------------------------------------
     def send_frames(self, frames: list[tuple[int, bytes]]) -> None:
@@ -125,21 +112,8 @@ class SelectSlcanBus(slcanBus):
                 self._take_lines(buffer, out)
             if out:
                 return out
-            left = None if deadline is None else deadline - time.monotonic()
-            if left is not None and left <= 0:
+            if not _fill(fd, buffer, deadline):
                 return out
-            ready, _, _ = select.select([fd], [], [], left)
-            if not ready:
-                return out
-            try:
-                data = os.read(fd, 4096)
-            except BlockingIOError:
-                continue
-            except OSError as exc:
-                raise can.CanOperationError(f"Could not read from serial device: {exc}") from exc
-            if not data:
-                raise can.CanOperationError("serial device closed")
-            buffer.extend(data)
 
     def _take_lines(self, buffer: bytearray, out: list[tuple[int, bytes] | can.Message]) -> None:
         """Move the complete lines of ``buffer`` to ``out`` as frames (replies skipped)."""
@@ -183,3 +157,25 @@ def _standard_frame(line: bytes) -> tuple[int, bytes] | None:
         return int(line[1:4], 16), bytes.fromhex(line[5 : 5 + 2 * dlc].decode())
     except ValueError:
         return None
+
+
+def _fill(fd: int, buffer: bytearray, deadline: float | None) -> bool:
+    """Wait (until ``deadline``, monotonic) for bytes on ``fd`` and append what one read gives;
+    False on timeout. A closed device or a read error raises CanOperationError."""
+    while True:
+        left = None if deadline is None else deadline - time.monotonic()
+        if left is not None and left <= 0:
+            return False
+        ready, _, _ = select.select([fd], [], [], left)
+        if not ready:
+            return False
+        try:
+            data = os.read(fd, 4096)
+        except BlockingIOError:
+            continue
+        except OSError as exc:
+            raise can.CanOperationError(f"Could not read from serial device: {exc}") from exc
+        if not data:
+            raise can.CanOperationError("serial device closed")
+        buffer.extend(data)
+        return True
