@@ -26,6 +26,9 @@ bench: $(STAMP)
 	$(BIN)/python tests/benchmarks/bench_simulate.py
 	$(BIN)/python tests/benchmarks/bench_hil.py
 	$(BIN)/python tests/benchmarks/bench_identify.py
+	$(BIN)/python tests/benchmarks/bench_jitter.py
+	$(BIN)/python tests/benchmarks/bench_diagnose.py
+	$(BIN)/python tests/benchmarks/bench_sweep.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check hil drivers virtual_robot profiles tests

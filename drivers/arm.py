@@ -20,9 +20,11 @@ import abc
 import contextlib
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
+
+DEFAULT_SPIN_S = 0.0002  # realtime wait without a scheduler: spin the last 0.2 ms
 
 
 class LinkError(RuntimeError):
@@ -152,6 +154,23 @@ class Arm(abc.ABC):
     def now(self) -> float:
         """Host monotonic time in seconds since the link opened (the clock of deadlines)."""
         return time.monotonic() - (self.opened_at if self.opened_at is not None else 0.0)
+
+    # Set by the loop runner (hil.scheduler.DeadlineScheduler.wait_until): waits until a
+    # deadline on the clock of :meth:`now`. None: :meth:`wait_for_deadline`'s own sleep + spin.
+    deadline_waiter: Callable[[float], object] | None = None
+
+    def wait_for_deadline(self, deadline: float) -> None:
+        """Wait until ``deadline`` (host seconds since open): the loop's scheduler if it set
+        ``deadline_waiter``, else sleep and spin the last ``DEFAULT_SPIN_S``."""
+        waiter = self.deadline_waiter
+        if waiter is not None:
+            waiter(deadline)
+            return
+        remaining = deadline - self.now()
+        if remaining > DEFAULT_SPIN_S:
+            time.sleep(remaining - DEFAULT_SPIN_S)
+        while self.now() < deadline:
+            pass
 
     @abc.abstractmethod
     def open(self) -> None:

@@ -78,7 +78,6 @@ from profiles.drive import DriveProfile
 
 LOCKSTEP, REALTIME = "lockstep", "realtime"
 LOG_FLUSH_EVERY = 50  # frames
-SPIN_S = 0.0002  # busy-wait the last 0.2 ms before a deadline
 MAX_DEADLINE_AHEAD_S = 1.0  # a deadline further ahead than this (+10 periods) is a caller bug
 SHORT_SDO_TIMEOUT_S = 0.2  # disable() and fault queries: best effort, do not hang on a dead link
 MAX_ERRORS_KEPT = 100
@@ -942,13 +941,8 @@ class CanArm(Arm):
 
     # ---- cycle --------------------------------------------------------------------------------
     def _sleep_until(self, deadline: float) -> None:
-        """Sleep until host time ``deadline`` (s since open), spinning the last 0.2 ms."""
-        target = self._t0 + deadline
-        remaining = target - time.monotonic()
-        if remaining > SPIN_S:
-            time.sleep(remaining - SPIN_S)
-        while time.monotonic() < target:
-            pass
+        """Wait until host time ``deadline`` (s since open): :meth:`Arm.wait_for_deadline`."""
+        self.wait_for_deadline(deadline)
 
     def _sync(
         self, rpdos: list[tuple[int, bytes]] | None = None

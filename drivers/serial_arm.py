@@ -199,9 +199,7 @@ class SerialArm(Arm):
         if self.mode == "realtime":
             self._transact(requests, timeout)  # apply now; the sample comes at the deadline
             if deadline is not None:
-                delay = deadline - self.now()
-                if delay > 0:
-                    time.sleep(delay)
+                self.wait_for_deadline(deadline)
         sent = self.now()
         replies = self._transact(requests, timeout)
         received = self.now()

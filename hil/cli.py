@@ -22,6 +22,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "identify": ("hil.identify_cli", "identify θ1..θ9 (Reyes & Kelly 1997), print Table II"),
     "control": ("hil.control_cli", "track a trajectory with PD, CT, FED or RFED; --compare"),
     "excite": ("hil.excite_cli", "design an optimal Fourier excitation, write its profile"),
+    "diagnose": ("hil.diagnose_cli", "find the physics the model leaves out (mismatch diagnosis)"),
+    "jitter": ("hil.jitter_cli", "measure realtime loop timing: jitter, latency, misses, bus load"),
+    "replay": ("hil.replay_cli", "re-run a realtime run in lockstep with its timing trace imposed"),
 }
 
 
@@ -59,8 +62,9 @@ def _parser() -> argparse.ArgumentParser:
 def cmd_demo(args: argparse.Namespace) -> int:
     """The main job on the default virtual bench: record the Reyes & Kelly excitation over the
     HIL link (virtual-slcan, lockstep), check it against the offline simulation, identify
-    θ1..θ9 from it (Table II, validated on a held-out run), and compare the four controllers
-    of Khosla & Kanade (1987) with the profile's and the identified parameters."""
+    θ1..θ9 from it (Table II, validated on a held-out run), compare the four controllers
+    of Khosla & Kanade (1987) with the profile's and the identified parameters, and diagnose
+    what the 9-parameter model leaves out (joint 1's direction-dependent Coulomb friction)."""
     import numpy as np
 
     from drivers.recording import read_signals
@@ -114,6 +118,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     summary["identify"] = identification
     control, control_text = _demo_control(out, Path(identification["params_files"][0]))
     summary["control"] = control
+    diagnosis, diagnosis_text = _demo_diagnose(out)
+    summary["diagnose"] = diagnosis
     if args.json:
         print(json.dumps(summary))
     else:
@@ -136,7 +142,35 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print(id_text)
         print()
         print(control_text)
+        print()
+        print(diagnosis_text)
     return 0 if identical else 1
+
+
+def _demo_diagnose(out: Path) -> tuple[dict, str]:
+    """Record the diagnosis excitation (fast multisine, then slow moves with holds) over the
+    bench and diagnose it: the default robot's joint-1 Coulomb friction depends on direction."""
+    from drivers.recording import read_signals, write_json_atomic
+    from hil.diagnose_cli import format_report
+    from hil.diagnose_plots import plot_diagnosis
+    from hil.diagnose_report import diagnose
+    from hil.params import robot_params
+    from hil.run import run_experiment
+
+    run_dir, diag_dir = out / "hil-run-diagnosis", out / "diagnose"
+    print(
+        f"hil demo: 20 s of the diagnosis excitation over virtual-slcan -> {run_dir}; "
+        f"hil diagnose -> {diag_dir}",
+        file=sys.stderr,
+    )
+    run = run_experiment("virtual-slcan", "diagnosis", run_dir, progress=False)
+    if run["status"] != "complete":
+        raise RuntimeError(f"diagnosis run {run['status']}: {run['reason']}")
+    result = diagnose([read_signals(run_dir)], robot_params("cicese").theta)
+    diag_dir.mkdir(parents=True, exist_ok=True)
+    result.document["plots"] = [str(p) for p in plot_diagnosis(result, diag_dir)]
+    write_json_atomic(diag_dir / "diagnosis.json", result.document)
+    return result.document, format_report(result.document)
 
 
 def _demo_control(out: Path, params: Path) -> tuple[dict, str]:

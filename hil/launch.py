@@ -42,9 +42,12 @@ class VirtualRobotProcess:
         effects: str | None = None,
         seed: int | None = None,
         log_path: str | Path | None = None,
+        event_log: str | Path | None = None,
     ) -> None:
         self.bench, self.mode, self.effects, self.seed = bench, mode, effects, seed
         self.log_path = Path(log_path) if log_path else None
+        # realtime: the robot writes its own sample and command times here (`hil replay`)
+        self.event_log = Path(event_log) if event_log else None
         self.channel: dict[str, Any] = {}
         self.proc: subprocess.Popen[str] | None = None
         self._thread: threading.Thread | None = None
@@ -96,6 +99,8 @@ class VirtualRobotProcess:
             args += ["--effects", self.effects]
         if self.seed is not None:
             args += ["--seed", str(self.seed)]
+        if self.event_log is not None:
+            args += ["--event-log", str(self.event_log)]
         return args
 
     def _start_process(self) -> None:
@@ -149,6 +154,7 @@ class VirtualRobotProcess:
                 seed=self.seed,
                 announce=announced.put,
                 stop=self._stop,
+                event_log=self.event_log,
             )
 
         self._thread = threading.Thread(target=run, name="virtual-robot", daemon=True)

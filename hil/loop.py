@@ -2,7 +2,11 @@
 
 It does not know the transport. Lockstep runs as fast as the link answers; realtime runs on
 absolute wall-clock deadlines (t_open + k·h, so it does not drift) and records, for every cycle,
-its deadline, when the SYNC/request went out and when the feedback came back.
+its deadline, when the SYNC/request went out and when the feedback came back. The waiting is
+:class:`hil.scheduler.DeadlineScheduler`'s (sleep, then spin), installed in the arm for the run;
+the OS policy (SCHED_FIFO, memory lock) is acquired by the caller before the link opens
+(:func:`hil.scheduler.realtime_scheduling`) and reported with the timing statistics
+(:mod:`hil.timing_stats`).
 
 Row k of the recording (DESIGN.md): t = k·h, q = the sample taken at the start of period k,
 tau = the torque commanded for period k (as the driver quantized it), held until the next row.
@@ -11,21 +15,23 @@ tau = the torque commanded for period k (as the driver quantized it), held until
 from __future__ import annotations
 
 import gc
-import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
 from drivers.arm import Arm, LinkError, SafetyStop, Sample
 from drivers.protocol.cia402 import State, state_from_statusword
 from drivers.recording import RecordingWriter
+from hil.scheduler import DeadlineScheduler, Scheduling
+from hil.timing_stats import (  # LATE_FRACTION, timing_statistics: moved there, importable here
+    LATE_FRACTION,  # noqa: F401
+    loop_timing,
+    timing_statistics,  # noqa: F401
+)
 
 Command = Callable[[int, Sample], Sequence[float]]
 TIMING_COLUMNS = ("deadline_s", "sync_sent_s", "feedback_s")
-LATE_FRACTION = 0.1  # a SYNC sent later than 10 % of a period after its deadline: late release
 
 
 @dataclass
@@ -50,23 +56,39 @@ def run_loop(
     *,
     realtime: bool,
     progress: Callable[[int, int], None] | None = None,
+    scheduling: Scheduling | None = None,
+    scheduler: DeadlineScheduler | None = None,
 ) -> LoopResult:
     """Run ``n_periods`` cycles, writing one row per period as it completes.
 
     A dead link, a safety stop or Ctrl-C ends the run; every completed row is already on disk
     and the result says why it ended. The caller's ``with arm:`` block makes the drives safe.
+    Realtime: ``scheduler`` (default a :class:`DeadlineScheduler` on ``arm.now``) waits for the
+    deadlines; ``scheduling`` (what the caller got from the OS) goes into the timing report.
     """
     # The cyclic garbage collector can pause for milliseconds at any allocation; in realtime it
     # runs between runs, not between deadlines (reference counting still frees as usual). No
     # gc.collect() here either: the drives are already enabled and their watchdog is counting.
     gc_was_enabled = gc.isenabled()
-    if realtime:
-        gc.disable()
+    if not realtime:
+        return _run(arm, command, n_periods, writer, realtime=False, progress=progress)
+    gc.disable()
+    if scheduler is None:
+        scheduler = DeadlineScheduler(arm.period_s, clock=arm.now)
+    arm.deadline_waiter = scheduler.wait_until
     try:
-        return _run(arm, command, n_periods, writer, realtime=realtime, progress=progress)
+        result = _run(
+            arm, command, n_periods, writer, realtime=True, progress=progress, scheduler=scheduler
+        )
     finally:
-        if realtime and gc_was_enabled:
+        arm.deadline_waiter = None
+        if gc_was_enabled:
             gc.enable()
+    result.timing["scheduler"] = {
+        **(scheduling.as_dict() if scheduling is not None else {"requested": "not set"}),
+        **scheduler.report(),
+    }
+    return result
 
 
 def _run(
@@ -77,28 +99,31 @@ def _run(
     *,
     realtime: bool,
     progress: Callable[[int, int], None] | None,
+    scheduler: DeadlineScheduler | None = None,
 ) -> LoopResult:
     h = arm.period_s
     started = time.perf_counter()
     last_report = started
-    lateness: list[float] = []
-    latency: list[float] = []
+    deadlines: list[float] = []
+    releases: list[float] = []
+    feedbacks: list[float] = []
     rows = 0
     status, reason = "complete", None
     try:
         sample = arm.start()
         _check_enabled(arm, sample)
-        t_start = arm.now()
+        if scheduler is not None:
+            scheduler.start(arm.now())  # deadlines t_0 + k·h from here
         for k in range(n_periods):
             tau = command(k, sample)
-            deadline = t_start + (k + 1) * h if realtime else None
+            deadline = scheduler.deadline(k + 1) if scheduler is not None else None
             nxt = arm.cycle(tau, deadline=deadline)
             row: list[float | int] = [k * h, *sample.q_rad, *nxt.tau_Nm, *sample.status]
             if realtime:
                 row += [sample.deadline, sample.sent_at, sample.received_at]
-                if k > 0:
-                    lateness.append(sample.sent_at - sample.deadline)
-                latency.append(sample.received_at - sample.sent_at)
+                deadlines.append(sample.deadline)
+                releases.append(sample.sent_at)
+                feedbacks.append(sample.received_at)
             writer.write(row)
             rows += 1
             sample = nxt
@@ -113,7 +138,11 @@ def _run(
     except KeyboardInterrupt:
         status, reason = "interrupted", "interrupted by the user (Ctrl-C)"
     wall = time.perf_counter() - started
-    timing = timing_statistics(h, lateness, latency) if realtime else {}
+    timing = (
+        loop_timing(h, deadlines, releases, feedbacks, lost_feedback=arm.stats.timeouts)
+        if realtime
+        else {}
+    )
     return LoopResult(rows, status, reason, timing, wall)
 
 
@@ -138,38 +167,3 @@ def _check_enabled(arm: Arm, sample: Sample) -> None:
             f"drive {joint + 1} left OPERATION ENABLED at t = {sample.t:.4f} s: "
             f"{name}{detail}; torque zero"
         )
-
-
-def timing_statistics(
-    period_s: float, lateness: Sequence[float], latency: Sequence[float]
-) -> dict[str, Any]:
-    """Deadline misses and latency percentiles (seconds) of a realtime run."""
-
-    def pct(values: Sequence[float]) -> dict[str, float]:
-        if not values:
-            return {}
-        a = np.asarray(values)
-        return {
-            "p50_ms": float(np.percentile(a, 50) * 1e3),
-            "p99_ms": float(np.percentile(a, 99) * 1e3),
-            "max_ms": float(a.max() * 1e3),
-            "mean_ms": float(a.mean() * 1e3),
-        }
-
-    late = [x for x in lateness if x > LATE_FRACTION * period_s]
-    # lateness[i] and latency[i + 1] belong to the same cycle (lateness starts at k = 1)
-    overruns = [a + b for a, b in zip(lateness, latency[1:], strict=False) if a + b > period_s]
-    return {
-        "period_s": period_s,
-        "cycles": len(latency),
-        # deadline miss (overrun): the feedback, hence the period's command, came after the period
-        # ended, so the torque for period k was not in place for it
-        "deadline_misses": len(overruns),
-        "deadline_miss_fraction": len(overruns) / len(lateness) if lateness else math.nan,
-        # late release: the SYNC/request left more than 10 % of a period after its deadline
-        "late_releases": len(late),
-        "late_release_fraction": len(late) / len(lateness) if lateness else math.nan,
-        "late_release_threshold_ms": LATE_FRACTION * period_s * 1e3,
-        "sync_lateness": pct(lateness),
-        "command_to_feedback_latency": pct(latency),
-    }

@@ -32,6 +32,7 @@ sub-steps, ~130 stick events) takes about 0.09 s on the 2-core development VM.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import operator
 from collections.abc import Callable, Sequence
@@ -70,6 +71,94 @@ class OpenLoopResult:
         return self.stuck.mean(axis=0)
 
 
+@dataclass(frozen=True)
+class OpenLoopExtras:
+    """Physics beyond the 9-parameter model, in the mismatch diagnosis's vocabulary (issue 7).
+
+    The virtual robot's effects (virtual_robot/effects.py, docs/effects.md), defined the same way;
+    the defaults switch everything off. Pairs are (joint 1, joint 2). Equations and the order of
+    the torque path are in :mod:`hil.openloop_extras`:
+
+    * ``torque_offset_Nm``, ``torque_gain``: τ_applied = (1 + r) τ + τ_0 (after the lag);
+    * ``actuator_lag_s``: first-order lag time constants T (0 = none);
+    * ``transport_delay_s``: one pure delay d of the commands of both joints;
+    * ``cogging_*``: τ_cog = A sin(N q + φ), N periods per revolution, at the true angle;
+    * ``angle_offset_rad``: reported angle = true angle + δ (q0 and the result's q are reported
+      angles; the dynamics use the true ones);
+    * ``stribeck_*``: F(|q̇|) = F_c + (F_s − F_c) exp(−(|q̇|/v_s)^δ), F_s = ratio · F_c, and a
+      static band of F_s; on when ``stribeck_velocity_rad_s`` is given (ratio default 1).
+    Raises ValueError (one line) on a bad value.
+    """
+
+    torque_offset_Nm: tuple[float, float] = (0.0, 0.0)
+    torque_gain: tuple[float, float] = (0.0, 0.0)
+    actuator_lag_s: tuple[float, float] = (0.0, 0.0)
+    transport_delay_s: float = 0.0
+    cogging_periods_per_rev: tuple[float, float] = (0.0, 0.0)
+    cogging_amplitude_Nm: tuple[float, float] = (0.0, 0.0)
+    cogging_phase_rad: tuple[float, float] = (0.0, 0.0)
+    angle_offset_rad: tuple[float, float] = (0.0, 0.0)
+    stribeck_breakaway_ratio: tuple[float, float] | None = None
+    stribeck_velocity_rad_s: tuple[float, float] | None = None
+    stribeck_exponent: float = 2.0
+
+    def __post_init__(self) -> None:
+        def put(name: str, value: object) -> None:
+            object.__setattr__(self, name, value)
+
+        for name in (
+            "torque_offset_Nm",
+            "torque_gain",
+            "actuator_lag_s",
+            "cogging_periods_per_rev",
+            "cogging_amplitude_Nm",
+            "cogging_phase_rad",
+            "angle_offset_rad",
+        ):
+            put(name, _pair(name, getattr(self, name)))
+        if min(self.torque_gain) <= -1.0:
+            raise ValueError(f"torque_gain must be > -1 (relative), got {self.torque_gain}")
+        if min(self.actuator_lag_s) < 0.0:
+            raise ValueError(f"actuator_lag_s must be >= 0, got {self.actuator_lag_s}")
+        if min(self.cogging_periods_per_rev) < 0.0:
+            raise ValueError(
+                f"cogging_periods_per_rev must be >= 0, got {self.cogging_periods_per_rev}"
+            )
+        delay = _number("transport_delay_s", self.transport_delay_s)
+        if delay < 0.0:
+            raise ValueError(f"transport_delay_s must be >= 0, got {delay}")
+        put("transport_delay_s", delay)
+        velocity, ratio = self.stribeck_velocity_rad_s, self.stribeck_breakaway_ratio
+        if velocity is None:
+            if ratio is not None:
+                raise ValueError("stribeck_breakaway_ratio needs stribeck_velocity_rad_s")
+            return
+        velocity = _pair("stribeck_velocity_rad_s", velocity)
+        ratio = (1.0, 1.0) if ratio is None else _pair("stribeck_breakaway_ratio", ratio)
+        if min(velocity) <= 0.0:
+            raise ValueError(f"stribeck_velocity_rad_s must be > 0, got {velocity}")
+        if min(ratio) < 1.0:
+            raise ValueError(f"stribeck_breakaway_ratio must be >= 1 (F_s/F_c), got {ratio}")
+        exponent = _number("stribeck_exponent", self.stribeck_exponent)
+        if not 0.0 < exponent <= 10.0:
+            raise ValueError(f"stribeck_exponent must be in (0, 10], got {exponent}")
+        put("stribeck_velocity_rad_s", velocity)
+        put("stribeck_breakaway_ratio", ratio)
+        put("stribeck_exponent", exponent)
+
+    @property
+    def changes_dynamics(self) -> bool:
+        """Anything on but the angle offset (which only changes what is reported)."""
+        return (
+            any(self.torque_offset_Nm)
+            or any(self.torque_gain)
+            or any(self.actuator_lag_s)
+            or self.transport_delay_s > 0.0
+            or any(self.cogging_amplitude_Nm)
+            or self.stribeck_velocity_rad_s is not None
+        )
+
+
 def simulate_open_loop(
     theta: ArrayLike,
     tau: ArrayLike,
@@ -80,6 +169,7 @@ def simulate_open_loop(
     steps_per_period: int = 5,
     coulomb_positive: Sequence[float] | None = None,
     coulomb_negative: Sequence[float] | None = None,
+    extras: OpenLoopExtras | None = None,
 ) -> OpenLoopResult:
     """Simulate the model θ under torques ``tau`` (N, 2), each held over one period of h seconds.
 
@@ -89,7 +179,10 @@ def simulate_open_loop(
     the module docstring). ``coulomb_positive`` / ``coulomb_negative`` (2 levels each, Nm,
     ≥ 0) replace θ8, θ9 as the Coulomb level when a joint moves (or breaks away) in the positive
     / negative direction; either may be given alone. θ must give a positive definite M(q) for
-    every q2; negative viscous coefficients are simulated as given. Raises ValueError on bad input.
+    every q2; negative viscous coefficients are simulated as given. ``extras``
+    (:class:`OpenLoopExtras`) adds the diagnosis's physics (torque offset and gain, actuator lag,
+    transport delay, cogging, angle offset, Stribeck friction); with an angle offset, ``q0`` and
+    the result's ``q`` are reported angles (true + offset). Raises ValueError on bad input.
     """
     th = _theta(theta)
     torques = _torques(tau)
@@ -102,7 +195,22 @@ def simulate_open_loop(
     for name, levels in (("theta8, theta9 (Coulomb)", fc), ("coulomb_positive", pos)):
         _non_negative(name, levels)
     _non_negative("coulomb_negative", neg)
-    return _integrate(th, torques, h, n_sub, start, pos, neg)
+    if extras is None:
+        return _integrate(th, torques, h, n_sub, start, pos, neg)
+    if not isinstance(extras, OpenLoopExtras):
+        raise ValueError(f"extras must be an OpenLoopExtras, got {type(extras).__name__}")
+    offset = extras.angle_offset_rad
+    true_start = (start[0] - offset[0], start[1] - offset[1], start[2], start[3])
+    if extras.changes_dynamics:
+        # imported here: hil.openloop_extras builds on this module's integrator pieces
+        from hil.openloop_extras import integrate_with_extras
+
+        result = integrate_with_extras(th, torques, h, n_sub, true_start, pos, neg, extras)
+    else:
+        result = _integrate(th, torques, h, n_sub, true_start, pos, neg)
+    if offset == (0.0, 0.0):
+        return result
+    return dataclasses.replace(result, q=result.q + np.asarray(offset))  # reported angles
 
 
 # ---- validation ---------------------------------------------------------------------------
@@ -143,6 +251,16 @@ def _positive(name: str, value: float) -> float:
         raise ValueError(f"{name} must be a number, got {value!r}") from None
     if not (math.isfinite(x) and x > 0):
         raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+    return x
+
+
+def _number(name: str, value: float) -> float:
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(x):
+        raise ValueError(f"{name} must be finite, got {value!r}")
     return x
 
 

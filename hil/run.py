@@ -11,14 +11,38 @@ from typing import Any
 
 import numpy as np
 
-from drivers.arm import Sample
+from drivers.arm import Arm, Sample
+from drivers.fault_injection import TimingFaultArm, with_host_faults
 from drivers.links import open_arm
 from drivers.recording import RecordingWriter, plot_positions, read_signals
 from hil import __version__
 from hil.launch import VirtualRobotProcess
 from hil.loop import Command, LoopResult, extra_columns, run_loop
+from hil.scheduler import realtime_scheduling
 from profiles.bench import BenchProfile, load_bench
 from profiles.experiment import load_experiment
+
+ROBOT_EVENTS = "robot-events.csv"  # realtime: the virtual robot's own sample and command times
+
+
+def timing_fault_meta(
+    arm: Arm, bench: BenchProfile, effects: str | None, seed: int | None
+) -> dict[str, Any]:
+    """meta.json's ``timing_faults``: the profiles' faults and what the host injected (the
+    virtual robot's counts are in virtual-robot.log); nothing if no fault is configured."""
+    from profiles.effects import load_effects
+    from profiles.timing_faults import combine
+
+    effects_faults = None
+    if bench.virtual and (effects or bench.effects):
+        effects_faults = load_effects(effects or bench.effects).timing_faults
+    faults = combine(bench.timing_faults, effects_faults)
+    if faults is None:
+        return {}
+    doc: dict[str, Any] = {**faults.with_seed(seed).describe()}
+    if isinstance(arm, TimingFaultArm):
+        doc["host_injected"] = arm.describe()
+    return {"timing_faults": doc}
 
 
 class UsageError(ValueError):
@@ -81,31 +105,50 @@ def record_over_bench(
     effects: str | None = None,
     seed: int | None = None,
     progress: bool = True,
+    realtime_policy: str = "auto",
 ) -> BenchRun:
     """Start the bench's virtual robot (if virtual), open the arm, run ``command`` for
     ``n_periods`` through the loop runner and record it in ``out``.
 
     ``meta(channel)`` gives meta.json's fields once the link's channel is known. The drives end
-    at zero torque and disabled on every path; meta.json says how the run ended.
+    at zero torque and disabled on every path; meta.json says how the run ended. Realtime:
+    ``realtime_policy`` "auto" tries SCHED_FIFO and a memory lock (hil.scheduler) before the
+    link opens, "off" does not.
     """
     realtime = mode == "realtime"
     h = bench.period_s
     launcher = (
         VirtualRobotProcess(
-            bench, mode=mode, effects=effects, seed=seed, log_path=out / "virtual-robot.log"
+            bench,
+            mode=mode,
+            effects=effects,
+            seed=seed,
+            log_path=out / "virtual-robot.log",
+            event_log=out / ROBOT_EVENTS if realtime else None,  # for `hil replay`
         )
         if bench.virtual
         else contextlib.nullcontext()
     )
     with launcher as robot:
         channel = robot.channel if bench.virtual else {}
-        arm = open_arm(bench, channel, mode=mode, log_dir=out)
-        with RecordingWriter(
-            out,
-            meta(channel),
-            extra_columns=extra_columns(2, realtime),
-            flush_every=1 if realtime else 50,
-        ) as writer:
+        # host-side timing faults of the bench profile, if any (drivers/fault_injection.py)
+        arm = with_host_faults(
+            open_arm(bench, channel, mode=mode, log_dir=out), bench.timing_faults, seed=seed
+        )
+        policy = (
+            realtime_scheduling(realtime_policy, peer_pid=robot.pid if bench.virtual else None)
+            if realtime
+            else contextlib.nullcontext()
+        )
+        with (
+            policy as scheduling,
+            RecordingWriter(
+                out,
+                meta(channel),
+                extra_columns=extra_columns(2, realtime),
+                flush_every=1 if realtime else 50,
+            ) as writer,
+        ):
             with arm:
                 arm.enable()
                 result = run_loop(
@@ -115,6 +158,7 @@ def record_over_bench(
                     writer,
                     realtime=realtime,
                     progress=_progress if progress else None,
+                    scheduling=scheduling,
                 )
             reason = result.reason
             factor = n_periods * h / result.wall_time_s if result.wall_time_s else None
@@ -128,6 +172,7 @@ def record_over_bench(
                 realtime_factor=factor,
                 link=vars(arm.stats),
                 traffic_log=arm.traffic_log(),
+                **timing_fault_meta(arm, bench, effects, seed),
             )
     return BenchRun(result, reason, factor, arm.traffic_log())
 

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from profiles.loader import Fields, load_toml
+from profiles.timing_faults import TimingFaults, parse_timing_faults
 
 PROTOCOLS = ("can", "serial")
 TRANSPORTS = {"can": ("slcan", "socketcan", "socketcand", "virtual"), "serial": ("serial",)}
@@ -36,6 +37,8 @@ class BenchProfile:
     velocity_limit_rad_s: tuple[float, float]
     position_limit_rad: tuple[tuple[float, float], tuple[float, float]]
     in_process: bool = False  # python-can `virtual`: the robot runs in a thread of the host
+    timing_faults: TimingFaults | None = None  # [timing_faults] (profiles/timing_faults.py)
+    pace_bus: bool = False  # virtual CAN: frames take their bit time at `bitrate` (can_bits)
 
 
 def load_bench(name_or_path: str | Path) -> BenchProfile:
@@ -58,6 +61,8 @@ def load_bench(name_or_path: str | Path) -> BenchProfile:
             "timeout_s",
             "feedback_timeout_periods",
             "limits",
+            "pace_bus",
+            "timing_faults",
         }
     )
     protocol = f.string("protocol")
@@ -77,6 +82,13 @@ def load_bench(name_or_path: str | Path) -> BenchProfile:
     channel = f.string("channel", "")
     if not virtual and not channel:
         raise f.error("channel", "a real bench needs a channel (e.g. can0, /dev/ttyACM0)")
+    pace_bus = f.boolean("pace_bus", False)
+    if pace_bus and (protocol != "can" or not virtual):
+        raise f.error(
+            "pace_bus",
+            "paces the virtual robot's CAN bus at its bitrate: needs protocol = 'can' and "
+            f"virtual = true (this bench: protocol {protocol!r}, virtual = {str(virtual).lower()})",
+        )
     limits = f.table("limits")
     limits.only({"torque_Nm", "velocity_rad_s", "position_rad"})
     raw_pos = limits.data.get("position_rad")
@@ -112,4 +124,10 @@ def load_bench(name_or_path: str | Path) -> BenchProfile:
         velocity_limit_rad_s=limits.numbers("velocity_rad_s", 2, positive=True),  # type: ignore[arg-type]
         position_limit_rad=(position[0], position[1]),
         in_process=transport == "virtual",
+        pace_bus=pace_bus,
+        timing_faults=(
+            parse_timing_faults(f.table("timing_faults"), host_allowed=True)
+            if f.has("timing_faults")
+            else None
+        ),
     )

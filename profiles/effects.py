@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from profiles.loader import Fields, load_toml
+from profiles.timing_faults import TimingFaults, parse_timing_faults
 
 Pair = tuple[float, float]
 
@@ -56,6 +57,7 @@ class EffectsProfile:
     payload: Payload | None = None
     coulomb: Coulomb | None = None  # replaces the robot profile's Coulomb levels
     enabled: tuple[str, ...] = field(default_factory=tuple)
+    timing_faults: TimingFaults | None = None  # robot side only (profiles/timing_faults.py)
 
 
 EFFECT_NAMES = (
@@ -74,7 +76,7 @@ EFFECT_NAMES = (
 def parse_effects(data: dict, source: str) -> EffectsProfile:
     f = Fields(data, source)
     for key, value in data.items():
-        if key in ("name", "description"):
+        if key in ("name", "description", "timing_faults"):
             continue
         if key not in EFFECT_NAMES:
             raise f.error(key, f"unknown effect; known effects: {', '.join(EFFECT_NAMES)}")
@@ -135,6 +137,8 @@ def parse_effects(data: dict, source: str) -> EffectsProfile:
         kw["coulomb"] = Coulomb(
             t.numbers("positive_Nm", 2, lo=0.0), t.numbers("negative_Nm", 2, lo=0.0)
         )
+    if f.has("timing_faults"):
+        kw["timing_faults"] = parse_timing_faults(f.table("timing_faults"), host_allowed=False)
     kw["enabled"] = tuple(k for k in data if k in EFFECT_NAMES)
     return EffectsProfile(**kw)
 

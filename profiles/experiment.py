@@ -13,33 +13,62 @@ from profiles.loader import Fields, load_toml
 
 @dataclass(frozen=True)
 class Sine:
+    """A_k sin(ω_k t + φ_k), optionally switched on only over [start_s, stop_s) with raised-cosine
+    ramps of ``ramp_s`` seconds at both ends of the window (defaults: always on, no ramp)."""
+
     amplitude_Nm: float
     omega_rad_s: float
     phase_rad: float
+    start_s: float = 0.0
+    stop_s: float = math.inf
+    ramp_s: float = 0.0
+
+    @property
+    def windowed(self) -> bool:
+        return self.start_s > 0.0 or self.stop_s < math.inf or self.ramp_s > 0.0
+
+    def window(self, t: np.ndarray) -> np.ndarray:
+        """w(t) in [0, 1]: 0 outside [start, stop); ½(1 − cos(π u)) over the ramps, with u the
+        distance to the nearer window edge in units of ``ramp_s``; 1 in between."""
+        inside = (t >= self.start_s) & (t < self.stop_s)
+        if self.ramp_s <= 0.0:
+            return inside.astype(float)
+        u = np.clip(np.minimum(t - self.start_s, self.stop_s - t) / self.ramp_s, 0.0, 1.0)
+        return np.where(inside, 0.5 * (1.0 - np.cos(math.pi * u)), 0.0)
 
 
 @dataclass(frozen=True)
 class JointExcitation:
-    """τ(t) = offset_Nm + step_Nm (1 − e^{−step_rate t}) + Σ_k A_k sin(ω_k t + φ_k)
+    """τ(t) = offset_Nm + step_Nm (1 − e^{−step_rate t}) + Σ_k w_k(t) A_k sin(ω_k t + φ_k) + p(t)
     (eqs. (31)-(32); the constant ``offset_Nm``, default 0, carries the mean of a designed
-    periodic torque, hil/excitation.py)."""
+    periodic torque, hil/excitation.py; w_k is a sine's time window, 1 by default; p(t) is the
+    piecewise-linear torque through ``points`` (t_s, τ_Nm), held at its first value before the
+    first point and at its last value after the last, 0 when there are no points)."""
 
     step_Nm: float
     step_rate_per_s: float
     sines: tuple[Sine, ...]
     offset_Nm: float = 0.0
+    points: tuple[tuple[float, float], ...] = ()
 
     def torque(self, t: float | np.ndarray) -> float | np.ndarray:
         t_arr = np.asarray(t, dtype=float)
         tau = self.offset_Nm + self.step_Nm * (1.0 - np.exp(-self.step_rate_per_s * t_arr))
         for s in self.sines:
-            tau = tau + s.amplitude_Nm * np.sin(s.omega_rad_s * t_arr + s.phase_rad)
+            wave = s.amplitude_Nm * np.sin(s.omega_rad_s * t_arr + s.phase_rad)
+            tau = tau + (s.window(t_arr) * wave if s.windowed else wave)
+        if self.points:
+            times, levels = zip(*self.points, strict=True)
+            tau = tau + np.interp(t_arr, times, levels)
         return float(tau) if np.ndim(t) == 0 else tau
 
     def peak_Nm(self) -> float:
-        """Upper bound on |τ(t)| (offset, step and all amplitudes)."""
+        """Upper bound on |τ(t)| (offset, step, all amplitudes and the largest point)."""
         return (
-            abs(self.offset_Nm) + abs(self.step_Nm) + sum(abs(s.amplitude_Nm) for s in self.sines)
+            abs(self.offset_Nm)
+            + abs(self.step_Nm)
+            + sum(abs(s.amplitude_Nm) for s in self.sines)
+            + max((abs(p[1]) for p in self.points), default=0.0)
         )
 
 
@@ -65,6 +94,44 @@ class ExperimentProfile:
 KINDS = ("open_loop_torque",)
 
 
+def _sine(st: Fields) -> Sine:
+    st.only({"amplitude_Nm", "omega_rad_s", "phase_rad", "start_s", "stop_s", "ramp_s"})
+    start = st.number("start_s", 0.0, lo=0.0)
+    stop = st.number("stop_s", math.inf) if st.has("stop_s") else math.inf
+    if stop <= start:
+        raise st.error("stop_s", f"must be > start_s = {start}, got {stop}")
+    ramp = st.number("ramp_s", 0.0, lo=0.0)
+    if 2.0 * ramp > stop - start:
+        raise st.error(
+            "ramp_s", f"must be <= half the window (stop_s - start_s)/2 = {(stop - start) / 2}"
+        )
+    return Sine(
+        st.number("amplitude_Nm"),
+        st.number("omega_rad_s", lo=0.0),
+        st.number("phase_rad", 0.0),
+        start_s=start,
+        stop_s=stop,
+        ramp_s=ramp,
+    )
+
+
+def _points(jt: Fields) -> tuple[tuple[float, float], ...]:
+    """``points = [[t_s, tau_Nm], ...]``: at least 2, times >= 0 and strictly increasing."""
+    raw = jt.data["points"]
+    if not isinstance(raw, list) or len(raw) < 2:
+        raise jt.error("points", "must be a list of at least 2 [t_s, tau_Nm] pairs")
+    points: list[tuple[float, float]] = []
+    for i, pair in enumerate(raw):
+        if not isinstance(pair, list) or len(pair) != 2:
+            raise jt.error(f"points[{i}]", f"must be a pair [t_s, tau_Nm], got {str(pair)[:40]}")
+        row = Fields({"t": pair[0], "tau": pair[1]}, jt.source, f"{jt.prefix}points[{i}].")
+        t = row.number("t", lo=0.0)
+        if points and t <= points[-1][0]:
+            raise jt.error(f"points[{i}]", f"times must increase, got {t} after {points[-1][0]}")
+        points.append((t, row.number("tau")))
+    return tuple(points)
+
+
 def load_experiment(name_or_path: str | Path) -> ExperimentProfile:
     data, source = load_toml("experiments", name_or_path)
     f = Fields(data, source)
@@ -81,23 +148,15 @@ def load_experiment(name_or_path: str | Path) -> ExperimentProfile:
         raise f.error("joints", f"must have 2 entries (one per joint), got {len(joint_tables)}")
     joints = []
     for jt in joint_tables:
-        jt.only({"step_Nm", "step_rate_per_s", "offset_Nm", "sines"})
-        sines = []
-        for st in jt.tables("sines") if jt.has("sines") else []:
-            st.only({"amplitude_Nm", "omega_rad_s", "phase_rad"})
-            sines.append(
-                Sine(
-                    st.number("amplitude_Nm"),
-                    st.number("omega_rad_s", lo=0.0),
-                    st.number("phase_rad", 0.0),
-                )
-            )
+        jt.only({"step_Nm", "step_rate_per_s", "offset_Nm", "sines", "points"})
+        sines = [_sine(st) for st in jt.tables("sines")] if jt.has("sines") else []
         joints.append(
             JointExcitation(
                 jt.number("step_Nm", 0.0),
                 jt.number("step_rate_per_s", 1.0, lo=0.0),
                 tuple(sines),
                 offset_Nm=jt.number("offset_Nm", 0.0),
+                points=_points(jt) if jt.has("points") else (),
             )
         )
     initial = f.numbers("initial_q_rad", 2, [0.0, 0.0], lo=-2 * math.pi, hi=2 * math.pi)

@@ -10,16 +10,19 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+from drivers.recording import read_signals
 from profiles import ProfileError, available
 from profiles.drive import DriveProfile, load_drive
 from profiles.effects import EffectsProfile, load_effects
-from profiles.experiment import ExperimentProfile, load_experiment
+from profiles.experiment import ExperimentProfile, JointExcitation, Sine, load_experiment
 from profiles.robot import RobotProfile, load_robot
 from profiles.tracking import TrackingProfile, load_tracking
+from virtual_robot.simulate import simulate
 
 PROFILES_DIR = Path(__file__).resolve().parent.parent / "profiles"
 
@@ -386,6 +389,146 @@ def test_experiment_bad_sine(tmp_path):
     assert_one_line_error(exc, path, "joints[1].sines[0].omega_rad_s")
 
 
+# --- sine windows and piecewise-linear points (profiles/experiment.py) ---------------------------
+
+
+def test_sine_window_has_raised_cosine_ramps():
+    s = Sine(2.0, 0.0, math.pi / 2, start_s=1.0, stop_s=3.0, ramp_s=0.5)  # 2 sin(π/2) = 2 Nm
+    joint = JointExcitation(0.0, 1.0, (s,))
+    t = np.array([0.0, 0.999, 1.0, 1.125, 1.25, 1.5, 2.0, 2.5, 2.75, 2.999, 3.0, 5.0])
+    expected = 2.0 * np.array(
+        [0, 0, 0, 0.5 * (1 - math.cos(math.pi / 4)), 0.5, 1, 1, 1, 0.5, None, 0, 0], dtype=float
+    )
+    tau = joint.torque(t)
+    mask = ~np.isnan(expected)
+    np.testing.assert_allclose(tau[mask], expected[mask], atol=1e-12)
+    assert 0 < tau[9] < 1e-4  # just inside the window: the ramp ends smoothly at 0
+    assert joint.torque(1.25) == pytest.approx(1.0)  # scalar in, scalar out
+    gate = JointExcitation(0.0, 1.0, (Sine(1.0, 0.0, math.pi / 2, stop_s=2.0),))
+    assert gate.torque(1.999) == 1.0 and gate.torque(2.0) == 0.0  # no ramp: a gate [start, stop)
+
+
+def test_unwindowed_sines_are_bit_identical_to_the_plain_formula():
+    exp = load_experiment("reyes-kelly")
+    t = np.arange(4000) * 0.0025
+    j = exp.joints[0]
+    plain = j.step_Nm * (1 - np.exp(-j.step_rate_per_s * t))
+    for s in j.sines:
+        plain = plain + s.amplitude_Nm * np.sin(s.omega_rad_s * t + s.phase_rad)
+    assert np.array_equal(exp.torque_table(t)[:, 0], plain)
+
+
+def test_points_are_linear_between_and_held_outside():
+    joint = JointExcitation(
+        0.0, 1.0, (), offset_Nm=1.0, points=((2.0, 0.0), (4.0, 10.0), (5.0, -2.0))
+    )
+    t = np.array([0.0, 2.0, 3.0, 4.0, 4.5, 5.0, 9.0])
+    np.testing.assert_allclose(joint.torque(t), 1.0 + np.array([0, 0, 5, 10, 4, -2, -2]))
+    assert joint.peak_Nm() == 11.0
+
+
+def _with_joint_keys(tmp_path, **keys):
+    doc = shipped("experiments", "reyes-kelly")
+    doc["joints"][1].update(keys)
+    return write(tmp_path, doc)
+
+
+def test_points_load_from_toml(tmp_path):
+    path = _with_joint_keys(tmp_path, points=[[0, 0], [1.5, 2.0], [3, -1]])
+    joint = load_experiment(path).joints[1]
+    assert joint.points == ((0.0, 0.0), (1.5, 2.0), (3.0, -1.0))
+    assert joint.torque(0.75) == pytest.approx(
+        load_experiment("reyes-kelly").joints[1].torque(0.75) + 1
+    )
+
+
+@pytest.mark.parametrize(
+    ("sine", "field", "message"),
+    [
+        ({"stop_s": 2.0, "start_s": 2.0}, "stop_s", "must be > start_s"),
+        ({"stop_s": 1.0, "start_s": 3.0}, "stop_s", "must be > start_s"),
+        ({"start_s": -1.0}, "start_s", ">= 0"),
+        ({"stop_s": 2.0, "ramp_s": 1.5}, "ramp_s", "half the window"),
+        ({"ramp_s": -0.1}, "ramp_s", ">= 0"),
+        ({"stop_s": math.inf}, "stop_s", "finite"),
+        ({"stop_s": "later"}, "stop_s", "must be a number"),
+        ({"window": 1.0}, "window", "unknown field"),
+    ],
+)
+def test_bad_sine_window_is_a_one_line_error(tmp_path, sine, field, message):
+    doc = shipped("experiments", "reyes-kelly")
+    doc["joints"][0]["sines"][1].update(sine)
+    path = write(tmp_path, doc)
+    with pytest.raises(ProfileError) as exc:
+        load_experiment(path)
+    assert message in assert_one_line_error(exc, path, f"joints[0].sines[1].{field}")
+
+
+@pytest.mark.parametrize(
+    ("points", "field", "message"),
+    [
+        ([[0.0, 1.0]], "points", "at least 2"),
+        ("ramp", "points", "at least 2"),
+        ([[0.0, 1.0], [1.0]], "points[1]", "pair"),
+        ([[0.0, 1.0], 5.0], "points[1]", "pair"),
+        ([[0.0, 1.0], [1.0, 2.0, 3.0]], "points[1]", "pair"),
+        ([[1.0, 1.0], [1.0, 2.0]], "points[1]", "times must increase"),
+        ([[2.0, 1.0], [1.0, 2.0]], "points[1]", "times must increase"),
+        ([[-1.0, 1.0], [1.0, 2.0]], "points[0].t", ">= 0"),
+        ([[0.0, 1.0], [1.0, math.nan]], "points[1].tau", "finite"),
+        ([[0.0, "x"], [1.0, 2.0]], "points[0].tau", "must be a number"),
+    ],
+)
+def test_bad_points_are_a_one_line_error(tmp_path, points, field, message):
+    path = _with_joint_keys(tmp_path, points=points)
+    with pytest.raises(ProfileError) as exc:
+        load_experiment(path)
+    assert message in assert_one_line_error(exc, path, f"joints[1].{field}")
+
+
+# --- the shipped diagnosis excitation (profiles/experiments/diagnosis.toml) ----------------------
+
+
+def test_diagnosis_experiment_shape_and_limits():
+    exp = load_experiment("diagnosis")
+    assert exp.kind == "open_loop_torque" and exp.period_s == 0.0025 and exp.duration_s == 20.0
+    t = np.arange(8000) * exp.period_s
+    tau = exp.torque_table(t)
+    assert np.all(np.abs(tau).max(axis=0) < 0.8 * np.array([200.0, 15.0]))  # drive limits
+    fast, slow = t < 9.5, t >= 10.0
+    for j in exp.joints:
+        assert all(s.stop_s == 9.5 and s.ramp_s == 1.0 for s in j.sines)  # multisine, faded out
+        assert j.points[0] == (9.5, 0.0) and j.points[-1][0] == 20.0  # slow part after it
+    assert np.all(np.abs(tau[fast]).max(axis=0) > [100.0, 10.0])  # rich, fast excitation
+    # slow: gravity-balance torques, no jumps (joint 1 < 30 Nm/s, joint 2 < 5 Nm/s)
+    rate = np.abs(np.diff(tau[slow], axis=0)).max(axis=0) / exp.period_s
+    assert np.all(rate < [30.0, 5.0]), rate
+
+
+def test_diagnosis_experiment_moves_slowly_both_ways_with_holds(tmp_path):
+    """On the exact model (symmetric Coulomb friction), through the drives and encoders."""
+    simulate(
+        load_robot("cicese"),
+        load_experiment("diagnosis"),
+        tmp_path,
+        effects=load_effects("symmetric-coulomb"),
+        plot=False,
+    )
+    rec = read_signals(tmp_path)
+    slow = rec.t >= 10.0
+    step = np.diff(rec.q, axis=0, prepend=rec.q[:1])
+    still = (step == 0)[slow]
+    dq = step[slow] / rec.period_s
+    # measured (20 s, 8000 rows): still 23 % / 22 %, |q̇| < 0.3 rad/s 93 % / 77 %, max
+    # 0.36 / 0.43 rad/s, q1 in [-0.45, 0.71], q2 in [-0.67, 0.35] rad
+    assert np.all((still.mean(axis=0) > 0.15) & (still.mean(axis=0) < 0.35))
+    assert np.all((np.abs(dq) < 0.3).mean(axis=0) > 0.7)
+    assert np.all(np.abs(dq).max(axis=0) < 0.6)
+    assert np.all((dq > 0.05).mean(axis=0) > 0.25) and np.all((dq < -0.05).mean(axis=0) > 0.2)
+    assert np.all(np.ptp(rec.q[slow], axis=0) > 0.9)
+    assert np.ptp(rec.q[~slow, 0]) > 2.0 and np.ptp(rec.q[~slow, 1]) > 3.0  # the fast part
+
+
 @pytest.mark.parametrize("node_id", [200, 0, 128])
 def test_drive_node_id_out_of_range(tmp_path, node_id):
     doc = shipped("drives", "dm1200a")
@@ -544,3 +687,21 @@ def test_fuzzed_robot_profile_loads_or_raises_profile_error(tmp_path_factory, pa
         assert str(file) in msg
     else:
         assert isinstance(robot, RobotProfile)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    points=values, sine=st.dictionaries(st.sampled_from(["start_s", "stop_s", "ramp_s"]), values)
+)
+def test_fuzzed_points_and_windows_load_or_raise_profile_error(tmp_path_factory, points, sine):
+    doc = shipped("experiments", "reyes-kelly")
+    doc["joints"][0]["points"] = points
+    doc["joints"][1]["sines"][0].update(sine)
+    file = tmp_path_factory.mktemp("fuzz") / "experiment.toml"
+    file.write_text(dumps_toml(doc), encoding="utf-8")
+    try:
+        exp = load_experiment(file)
+    except ProfileError as exc:
+        assert "\n" not in str(exc) and str(file) in str(exc)
+    else:
+        assert np.all(np.isfinite(exp.torque_table(np.linspace(0.0, 12.0, 97))))

@@ -161,6 +161,9 @@ def test_hil_demo_runs_the_main_job_end_to_end(tmp_path):
     assert Path(summary["identify"]["params_files"][0]).is_file()
     labels = [ps["label"] for ps in summary["control"]["parameter_sets"]]
     assert labels[-1] == "identified" and len(labels) == 2
+    # ... and the mismatch diagnosis (issue 7): joint 1's direction-dependent Coulomb friction
+    found = {(f["effect"], f["joint"]) for f in summary["diagnose"]["findings"]}
+    assert ("coulomb_asymmetry", 1) in found
 
 
 @pytest.mark.parametrize("module", ["hil", "drivers"])

@@ -46,6 +46,10 @@ code   meaning                                                    error register
 Frames that are remote, error or extended-id frames, frames for other nodes and frames that the
 present NMT state does not allow are ignored and counted in :attr:`CanDriveServer.ignored`.
 
+Bus time: with a :class:`~virtual_robot.bus_pacing.BusPacer` (bench ``pace_bus = true``) the
+frames read together are dispatched once the last of them has crossed the bus at its bitrate,
+and the frames sent together are written once the last of them has (bus_pacing.py).
+
 Cost: the routing table, the PDO codecs (precompiled structs) and the heartbeat periods are
 derived from the object dictionary once per change of it (``VirtualRobot.config_version``). On a
 bus with ``recv_frames``/``send_frames`` (:class:`~virtual_robot.slcan_device.SlcanPtyBus`) a
@@ -65,6 +69,7 @@ import can
 
 from drivers.protocol import cia402 as co
 from drivers.protocol.cia402 import SdoAbortError
+from virtual_robot.bus_pacing import BusPacer, RawFrame
 from virtual_robot.robot import REALTIME, VirtualRobot
 
 ERR_PDO_LENGTH = 0x8210  # CiA 301: PDO not processed due to length error
@@ -87,6 +92,12 @@ def _index_of(data: bytes) -> tuple[int, int]:
     """(index, subindex) of an SDO frame as far as it has them, for an abort reply."""
     index = int.from_bytes(data[1:3], "little") if len(data) >= 3 else 0
     return index, data[3] if len(data) >= 4 else 0
+
+
+def _raw(msg: can.Message) -> RawFrame:
+    """A python-can Message as the pacer's (id, data, extended, remote); remote: DLC bytes."""
+    data = bytes(msg.dlc) if msg.is_remote_frame else bytes(msg.data or b"")
+    return msg.arbitration_id, data, msg.is_extended_id, msg.is_remote_frame
 
 
 def _pdo_struct(mapping: Sequence[tuple[int, int]]) -> struct.Struct:
@@ -142,9 +153,11 @@ class CanDriveServer:
         *,
         idle_timeout_s: float | None = None,
         log: Callable[[str], None] | None = None,
+        pacer: BusPacer | None = None,
     ) -> None:
         self.core = core
         self.bus = bus
+        self.pacer = pacer  # frames take their bit time on the bus (bus_pacing.py), or None
         self.idle_timeout_s = idle_timeout_s
         self._log = log or _logger.info
         self.nodes: tuple[int, ...] = tuple(sorted(core.by_node))
@@ -153,6 +166,8 @@ class CanDriveServer:
         self.frames_out = 0
         self.ignored = 0
         self.errors = 0
+        self.dropped_rpdos = 0  # robot-side timing fault: command frames lost
+        self._hold_until: float | None = None  # robot-side timing fault: late feedback
         self._last_heartbeat: dict[int, float] = {}
         self._last_rx: float | None = None
         self._idle_fired = False
@@ -190,14 +205,20 @@ class CanDriveServer:
             self.core.start_period_timer(stop)
         timeout = RECV_TIMEOUT_REALTIME_S if self.core.mode == REALTIME else RECV_TIMEOUT_S
         recv_frames = getattr(self.bus, "recv_frames", None)
+        pacer = self.pacer
         while not stop.is_set():
             try:
                 if recv_frames is not None:  # a batch: raw (id, data, extended, remote) tuples
-                    for can_id, data, extended, remote in recv_frames(timeout):
+                    batch = recv_frames(timeout)
+                    if pacer is not None and batch:
+                        pacer.pace(batch)  # the drives see them once they crossed the bus
+                    for can_id, data, extended, remote in batch:
                         self._handle(can_id, data, extended, remote)
                 else:
                     msg = self.bus.recv(timeout=timeout)
                     if msg is not None:
+                        if pacer is not None and not (msg.is_error_frame or msg.is_fd):
+                            pacer.pace([_raw(msg)])
                         self._handle_message(msg)
             except Exception as exc:  # a dead or flaky transport: say so once, keep trying
                 self.errors += 1
@@ -212,6 +233,12 @@ class CanDriveServer:
             self._poll(None)
             if self._outbox:
                 self._flush()
+        if pacer is not None:
+            load = pacer.load()
+            self._log(
+                f"paced bus at {pacer.bitrate} bit/s: {load['frames']} frames, "
+                f"{load['bits']} bits in {load['elapsed_s']:.1f} s: load {load['load_pct']:.1f} %"
+            )
 
     # ---- one frame ----------------------------------------------------------------------
     def handle(self, msg: can.Message) -> None:
@@ -337,6 +364,9 @@ class CanDriveServer:
 
     # ---- PDO, SYNC ----------------------------------------------------------------------
     def _rpdo(self, node: int, data: bytes) -> None:
+        if self.core.drop_command():  # an injected timing fault: the frame never arrived
+            self.dropped_rpdos += 1
+            return
         mapping, codec = self._current_plan().rpdo[node]
         if len(data) != codec.size:
             register = self.core.read(0x1001, 0, node=node)
@@ -367,6 +397,9 @@ class CanDriveServer:
                     continue
                 for cob_id, codec, readers in tpdo[node]:
                     outbox.append((cob_id, codec.pack(*[read() for read in readers])))
+        delay = self.core.feedback_delay_s()
+        if delay > 0:  # an injected timing fault: this feedback leaves late
+            self._hold_until = time.monotonic() + delay
         return True
 
     # ---- periodic -----------------------------------------------------------------------
@@ -425,6 +458,12 @@ class CanDriveServer:
     def _flush(self) -> None:
         """Send the queued frames in order: one ``send_frames`` call where the bus has it."""
         frames, self._outbox = self._outbox, []
+        if self._hold_until is not None:  # injected late feedback (see _sync)
+            hold, self._hold_until = self._hold_until, None
+            while (left := hold - time.monotonic()) > 0:
+                time.sleep(left - 2e-4 if left > 4e-4 else 0)
+        if self.pacer is not None and frames:  # written once the last has crossed the bus
+            self.pacer.pace([(cob_id, data, False, False) for cob_id, data in frames])
         if self._send_frames is not None:
             try:
                 self._send_frames(frames)

@@ -57,6 +57,11 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="stop when the process that started us dies (used by `hil`)",
     )
+    v.add_argument(
+        "--event-log",
+        default=None,
+        help="realtime: write the robot's sample and command times here (for `hil replay`)",
+    )
     return p
 
 
@@ -136,7 +141,13 @@ def cmd_serve(args: argparse.Namespace) -> int:
         print(json.dumps({**info, "bench": bench.name, "pid": os.getpid()}), flush=True)
 
     code = serve(
-        bench, effects=args.effects, mode=args.mode, seed=args.seed, announce=announce, stop=stop
+        bench,
+        effects=args.effects,
+        mode=args.mode,
+        seed=args.seed,
+        announce=announce,
+        stop=stop,
+        event_log=args.event_log,
     )
     print("virtual-robot: stopped", file=sys.stderr)
     return code

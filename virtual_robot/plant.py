@@ -162,19 +162,31 @@ class Plant:
         torque_Nm: Pair,
         issued_at: float | None = None,
         powered: tuple[bool, bool] | None = None,
+        deliver_at: float | None = None,
     ) -> None:
         """Set the torque command (Nm per joint), issued at ``issued_at`` (default: now).
 
         ``powered``: whether each amplifier's power stage is on (drive enabled). An unpowered
         amplifier puts no torque on the shaft at all: no offset, no lag tail. Takes effect now.
+        ``deliver_at``: the command reaches the drive at this time, not at ``issued_at`` (an
+        injected link latency, or a replayed timing trace); the transport-delay effect, if any,
+        runs from there. A time already past takes effect at once.
         """
         if powered is not None:
-            self.powered = (bool(powered[0]), bool(powered[1]))
+            self.set_powered(powered)
         cmd = (float(torque_Nm[0]), float(torque_Nm[1]))
-        if self._delay is None:
+        if deliver_at is not None:
+            if self._delay is None:
+                self._delay = TransportDelay(self.params.transport_delay_s)
+            self._delay.push(deliver_at, cmd)
+        elif self._delay is None:
             self.command_Nm = cmd
         else:
             self._delay.push(self.t if issued_at is None else issued_at, cmd)
+
+    def set_powered(self, powered: tuple[bool, bool]) -> None:
+        """Switch the amplifiers' power stages (takes effect now; see :meth:`command`)."""
+        self.powered = (bool(powered[0]), bool(powered[1]))
 
     def advance_to(self, t_end: float) -> None:
         """Integrate from the current time to ``t_end`` with steps of at most ``max_step_s``."""

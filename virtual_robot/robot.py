@@ -31,6 +31,7 @@ from profiles.effects import EffectsProfile
 from profiles.robot import RobotProfile
 from virtual_robot.drive import DriveError, DriveModel, Emcy
 from virtual_robot.plant import DEFAULT_STEP_S, Plant, PlantParams
+from virtual_robot.timing_faults import RobotTiming
 
 LOCKSTEP, REALTIME = "lockstep", "realtime"
 
@@ -80,6 +81,7 @@ class VirtualRobot:
         clock: Callable[[], float] | None = None,
         step_s: float = DEFAULT_STEP_S,
         q0: tuple[float, float] = (0.0, 0.0),
+        timing: RobotTiming | None = None,
     ) -> None:
         if mode not in (LOCKSTEP, REALTIME):
             raise ValueError(f"mode must be {LOCKSTEP!r} or {REALTIME!r}, got {mode!r}")
@@ -103,6 +105,11 @@ class VirtualRobot:
             PlantParams.from_profiles(robot, self.effects), q0=q0, max_step_s=min(step_s, period_s)
         )
         self.syncs = 0
+        # injected timing faults or an imposed timing trace (virtual_robot/timing_faults.py)
+        self.timing = timing
+        self._pushed: tuple[int, tuple[float, float]] | None = None  # lockstep: last queued
+        # event_log(event, n, t): "sample" / "command" times for `hil replay` (realtime runs)
+        self.event_log: Callable[[str, int, float], None] | None = None
         # bumped whenever the stored objects change (PDO map, COB-IDs, 0x1017, reset node), so a
         # server may cache what it derives from them (routing, TPDO packing, heartbeat period)
         self.config_version = 0
@@ -128,15 +135,72 @@ class VirtualRobot:
             now = self.now()
             if now > self.plant.t:
                 self.plant.advance_to(now)
+                if self.event_log is not None:  # the integration grid, for `hil replay`
+                    self.event_log("advance", self.syncs, now)
             self.t = max(self.t, now)
         return self.t
 
-    def _apply_torques(self, now: float) -> None:
+    def _apply_torques(self, now: float, from_host: bool = True) -> None:
+        """Give the plant the drives' torques and power states. ``from_host``: a command the
+        host just sent (timing faults delay it); else the robot's own re-issue of what the
+        drives hold (a period tick, a safe stop), which only switches power stages at once."""
         self._unapplied = False
         d1, d2 = self.drives
-        self.plant.command(
-            (d1.torque_Nm, d2.torque_Nm), issued_at=now, powered=(d1.powered, d2.powered)
-        )
+        powered = (d1.powered, d2.powered)
+        timing = self.timing
+        if timing is None:
+            self.plant.command((d1.torque_Nm, d2.torque_Nm), issued_at=now, powered=powered)
+            at = now
+        elif not from_host:
+            self.plant.set_powered(powered)
+            return
+        elif self.mode == REALTIME:
+            at = timing.realtime_delivery(now)
+            self.plant.command(
+                (d1.torque_Nm, d2.torque_Nm), issued_at=now, powered=powered, deliver_at=at
+            )
+        else:
+            self._deliver_lockstep(timing, now, (d1.torque_Nm, d2.torque_Nm), powered)
+            return
+        if from_host and self.event_log is not None:  # when the command takes effect
+            self.event_log("command", self.syncs, at)
+
+    def _deliver_lockstep(
+        self,
+        timing: RobotTiming,
+        now: float,
+        cmd: tuple[float, float],
+        powered: tuple[bool, bool],
+    ) -> None:
+        """Lockstep with timing faults or a trace: queue the command of cycle k = syncs − 1 for
+        the time it takes effect (before the first sample: now). Each new command is queued
+        once; where a trace has joint 1's command arrive before joint 2's, joint 1's goes
+        first, with joint 2 still holding the previous one."""
+        k = self.syncs - 1
+        first, at = timing.deliveries(k, now) if k >= 0 else (now, now)
+        pushed = self._pushed
+        if pushed is not None and pushed[1] == cmd:
+            self.plant.set_powered(powered)  # nothing new to deliver
+            return
+        if pushed is not None and pushed[0] == k:  # a second write of the same cycle
+            first = at
+        if first < at and pushed is not None:
+            joint1_first = (cmd[0], pushed[1][1])
+            self.plant.command(joint1_first, issued_at=now, powered=powered, deliver_at=first)
+        self.plant.command(cmd, issued_at=now, powered=powered, deliver_at=at)
+        self._pushed = (k, cmd)
+
+    def drop_command(self) -> bool:
+        """Whether a cyclic command frame from the host is lost (robot-side timing fault): only
+        once the cyclic exchange runs (after the first SYNC), never during set-up."""
+        with self.lock:
+            return self.timing is not None and self.syncs > 0 and self.timing.drop_command()
+
+    def feedback_delay_s(self) -> float:
+        """Realtime: how long a server holds this SYNC's feedback back (robot-side fault)."""
+        if self.timing is None or self.mode != REALTIME:
+            return 0.0
+        return self.timing.feedback_delay_s()
 
     def _sample(self, now: float, count_period: bool) -> None:
         measured, rates = self.plant.measured_q, self.plant.dq
@@ -145,7 +209,7 @@ class VirtualRobot:
         if self.mode == LOCKSTEP:  # the plant stands still until the next SYNC applies it
             self._unapplied = True
         else:
-            self._apply_torques(now)  # a fault in update() zeroes torque at once
+            self._apply_torques(now, from_host=False)  # a fault in update() zeroes torque at once
 
     # ---- events from a transport ----------------------------------------------------------
     def sync(self) -> list[Feedback]:
@@ -162,12 +226,23 @@ class VirtualRobot:
                     self._apply_torques(self.t)
                 if self.syncs > 0:
                     # t_k = k·h, computed exactly as the offline simulation and recordings do
-                    self.t = self.syncs * self.period_s
-                    self.plant.advance_to(self.t)
+                    # (or the sample time a timing trace imposes)
+                    if self.timing is None:
+                        self.t = self.syncs * self.period_s
+                        self.plant.advance_to(self.t)
+                    else:
+                        self.t = self.timing.sample_time(self.syncs)
+                        self.timing.advance(self.plant, self.t)
+                elif self.timing is not None and self.timing.trace is not None:
+                    # a trace runs on the recorded robot's clock: the plant, at rest until
+                    # now, starts there (so the replay integrates the same time arithmetic)
+                    self.t = self.plant.t = self.timing.sample_time(0)
                 self._sample(self.t, count_period=True)
             else:
                 now = self._catch_up()
                 self._sample(now, count_period=False)
+                if self.event_log is not None:
+                    self.event_log("sample", self.syncs, now)
             self.syncs += 1
 
     def tick(self) -> None:
@@ -305,7 +380,7 @@ class VirtualRobot:
             now = self._catch_up()
             for d in self.drives:
                 d.write_controlword(co.CW_DISABLE_VOLTAGE, now)
-            self._apply_torques(now)
+            self._apply_torques(now, from_host=False)
 
     def pop_emcy(self) -> list[tuple[int, Emcy]]:
         """EMCY events since the last call, as (node id, event)."""

@@ -84,6 +84,7 @@ class SerialDriveServer:
         self.echo = True  # ECHO1 is the power-on default of a Gemini
         self.lockstep = core.mode == LOCKSTEP
         self._pending: list[int] = []  # lockstep: units whose XTQ waits for the step
+        self.dropped_xtq = 0  # robot-side timing fault: torques lost
         self._buffer = bytearray()
         self._overflow = False
         self._last_rx: float | None = None
@@ -206,9 +207,15 @@ class SerialDriveServer:
         return tuple(self._pending)
 
     def _xtq(self, u: int, permille: int) -> str:
-        self.core.write(0x6071, 0, permille, unit=u)
+        if self.core.drop_command():  # an injected timing fault: the torque is lost, the
+            self.dropped_xtq += 1  # request still samples and is answered
+        else:
+            self.core.write(0x6071, 0, permille, unit=u)
         if not self.lockstep:
             self.core.sync()  # realtime: samples now, no watchdog period
+            delay = self.core.feedback_delay_s()
+            if delay > 0:  # an injected timing fault: the reply leaves late
+                time.sleep(delay)
             return self._xtq_reply(u)
         self._pending.append(u)
         if not set(self.units) <= set(self._pending):

@@ -16,17 +16,22 @@ The announcement (one dict, the CLI prints it as one JSON line) for CAN links:
 "seed", "pid", "nodes", "bitrate"}`` plus ``interface_channel``, ``host``, ``port`` for socketcand.
 
 The CAN links are served by :class:`CanDriveServer` (CiA 301/402, see can_server.py), with a
-host-silence timeout of 5 s in lockstep (the drives' watchdog covers realtime).
+host-silence timeout of 5 s in lockstep (the drives' watchdog covers realtime). A bench with
+``pace_bus = true`` gives the server a :class:`~virtual_robot.bus_pacing.BusPacer` at the
+bench's ``bitrate``: every frame then takes its bit time on the virtual bus, both ways (the
+announcement says ``"pace_bus"``; the bus load is logged on stderr when the server stops).
 """
 
 from __future__ import annotations
 
 import gc
+import json
 import os
 import sys
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import can
@@ -34,8 +39,11 @@ import can
 from profiles.bench import BenchProfile
 from profiles.effects import load_effects
 from profiles.robot import load_robot
+from profiles.timing_faults import combine
+from virtual_robot.bus_pacing import BusPacer
 from virtual_robot.can_server import CanDriveServer
 from virtual_robot.robot import LOCKSTEP, REALTIME, VirtualRobot
+from virtual_robot.timing_faults import EventLog, RobotTiming
 
 IDLE_TIMEOUT_LOCKSTEP_S = 5.0
 SOCKETCAND_CHANNEL = "can0"
@@ -45,16 +53,39 @@ def _stderr(line: str) -> None:
     print(f"virtual-robot: {line}", file=sys.stderr, flush=True)
 
 
-def build_core(bench: BenchProfile, *, effects: str | None, mode: str | None) -> VirtualRobot:
-    """The virtual robot of a bench: robot profile, effects, time mode and period."""
+def build_core(
+    bench: BenchProfile, *, effects: str | None, mode: str | None, seed: int | None = None
+) -> VirtualRobot:
+    """The virtual robot of a bench: robot profile, effects, time mode and period, and the
+    timing faults of the bench and effects profiles (seeded by ``seed``, else the profile's)."""
     mode = mode or bench.mode
+    effects_profile = load_effects(effects or bench.effects)
+    faults = combine(bench.timing_faults, effects_profile.timing_faults)
+    timing = None
+    if faults is not None:
+        # in realtime the host imposes its own side's faults; in lockstep the robot imposes
+        # every delay, in simulated time (virtual_robot/timing_faults.py)
+        lockstep_delays = mode == LOCKSTEP and faults.host.delays
+        if faults.robot.active or faults.trace is not None or lockstep_delays:
+            timing = RobotTiming(
+                faults, lockstep=mode == LOCKSTEP, period_s=bench.period_s, seed=seed
+            )
     return VirtualRobot(
         load_robot(bench.robot),
-        load_effects(effects or bench.effects),
+        effects_profile,
         mode=mode,
         period_s=bench.period_s,
         clock=time.monotonic if mode == REALTIME else None,
+        timing=timing,
     )
+
+
+def _finish(core: VirtualRobot, log: Callable[[str], None]) -> None:
+    """Close the event log; say what the injected timing faults did."""
+    if isinstance(core.event_log, EventLog):
+        core.event_log.close()
+    if core.timing is not None:
+        log(f"timing faults: {json.dumps(core.timing.describe())}")
 
 
 def serve(
@@ -66,15 +97,19 @@ def serve(
     announce: Callable[[dict[str, Any]], None],
     stop: threading.Event,
     log: Callable[[str], None] | None = None,
+    event_log: str | Path | None = None,
 ) -> int:
     """Serve the bench's virtual robot until ``stop`` is set; returns the exit status (0).
 
     ``announce`` is called once, when the transport is ready, with
     ``{"event": "ready", "protocol", "transport", "channel", ...}``. ``seed`` is recorded in the
-    announcement (the physics has no randomness yet).
+    announcement and seeds the injected timing faults, if any. ``event_log``: realtime, a file
+    for the robot's own times of its samples and of the host's commands (``hil replay``).
     """
     log = log or _stderr
-    core = build_core(bench, effects=effects, mode=mode)
+    core = build_core(bench, effects=effects, mode=mode, seed=seed)
+    if event_log is not None and core.mode == REALTIME:  # robot times, for `hil replay`
+        core.event_log = EventLog(event_log)
     if core.mode == REALTIME:
         # no cyclic-GC pauses between deadlines: everything built so far is frozen out of the
         # collector's view, and the serving loop allocates no reference cycles to collect
@@ -84,7 +119,10 @@ def serve(
     if bench.protocol == "serial":
         from virtual_robot.serial_server import serve_serial
 
-        return serve_serial(core, bench, announce=announce, stop=stop)
+        try:
+            return serve_serial(core, bench, announce=announce, stop=stop)
+        finally:
+            _finish(core, log)
 
     info: dict[str, Any] = {
         "event": "ready",
@@ -99,6 +137,7 @@ def serve(
     }
     info["nodes"] = sorted(core.by_node)
     info["bitrate"] = bench.bitrate
+    info["pace_bus"] = bench.pace_bus
     closers: list[Callable[[], None]] = []
     try:
         if bench.transport == "slcan":
@@ -137,6 +176,7 @@ def serve(
             bus,
             idle_timeout_s=IDLE_TIMEOUT_LOCKSTEP_S if core.mode == LOCKSTEP else None,
             log=log,
+            pacer=BusPacer(bench.bitrate) if bench.pace_bus else None,
         )
         announce(info)
         server.serve_forever(stop)
@@ -144,3 +184,4 @@ def serve(
     finally:
         for close in closers:
             close()
+        _finish(core, log)

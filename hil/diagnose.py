@@ -1,0 +1,516 @@
+"""Mismatch diagnosis: find the physics the 9-parameter model of Reyes & Kelly (1997) left out.
+
+The nominal model is the ``exact`` filtered dynamic regression (eq. (24) over sample intervals,
+:mod:`hil.regressors`). Every candidate of the vocabulary (:mod:`hil.diagnose_columns`) adds
+columns to it; a candidate is accepted when it lowers the held-out error of its joint block after
+block (:mod:`hil.diagnose_stats`), greedily, strongest first, each later candidate tested on top
+of those already accepted. Two candidates that each explain the same residual and neither adds
+anything on top of the other are *confounded*: both are reported, with the experiment that
+would separate them. Pure computation over arrays; reading files, plots and the CLI live in
+:mod:`hil.diagnose_cli`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from hil.diagnose_columns import (
+    RecordingRows,
+    _node_average,
+    angle_offset_column,
+    cogging_columns,
+    gain_column,
+    offset_column,
+    recording_rows,
+    stribeck_column,
+    torque_rate_column,
+)
+from hil.diagnose_stats import (
+    CrossValidation,
+    Evidence,
+    block_index,
+    block_stats,
+    cross_validate,
+    evidence,
+    extend_stats_many,
+)
+
+VOCABULARY = (
+    "coulomb_asymmetry",
+    "torque_offset",
+    "stribeck",
+    "cogging",
+    "actuator_lag",
+    "transport_delay",
+    "angle_offset",
+    "torque_gain",
+)
+# Decision thresholds (docs/diagnosis.md, "Deciding"): a candidate must lower the held-out error
+# of its joint by at least MIN_REDUCTION (relative) and in more blocks than chance allows (sign
+# test at FAMILY_ALPHA over the number of candidates). On null recordings (no concealed effect)
+# the largest values seen were far below both; see tests/test_diagnose.py.
+MIN_REDUCTION = 0.01
+FAMILY_ALPHA = 1e-3  # sign test, Bonferroni over the candidates tested in a round
+MAX_ROUNDS = 6
+# Effects smaller than these are below what matters for this arm (and within what the model's own
+# approximations leave behind); a term must also have the physical sign (a lag, not a lead).
+PRACTICAL_FLOOR = {
+    "offset": 0.02,  # Nm
+    "gain": 0.005,  # relative
+    "cogging": 0.01,  # Nm amplitude
+    "stribeck": 0.03,  # Nm breakaway excess, > 0
+    "rate": 1e-4,  # s, > 0
+    "angle": 3e-4,  # rad
+}
+POSITIVE_ONLY = ("stribeck", "rate")
+# Blocks: about BLOCKS_WANTED per diagnosis, each between these lengths (long against the 20 ms
+# correlation of the filtered residual, short enough for a sign test to have power).
+BLOCKS_WANTED = 40
+BLOCK_SECONDS = (0.15, 0.5)
+COGGING_PERIODS = np.arange(3, 401)
+STRIBECK_VELOCITIES = np.geomspace(0.02, 0.6, 16)
+LAG_GRID_S = np.geomspace(5e-5, 0.03, 28)  # lag and delay search, then refined locally
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One term of the vocabulary on one joint (0 or 1): ``variants`` are the values of its
+    nonlinear parameter (one None when it has none); ``columns(rows, variant)`` its X."""
+
+    kind: str  # offset | gain | cogging | stribeck | rate | angle
+    joint: int
+    variants: tuple[Any, ...]
+    columns: Callable[[RecordingRows, Any], np.ndarray]
+
+    @property
+    def key(self) -> str:
+        return f"{self.kind}:{self.joint + 1}"
+
+
+def cogging_periods(angle_range_rad: float) -> tuple[int, ...]:
+    """Periods per revolution worth testing on a joint that swept ``angle_range_rad``: at least
+    two whole periods inside the range (fewer is a smooth function of q that gravity, an angle
+    offset or a torque offset also make), up to COGGING_PERIODS' top."""
+    lowest = max(int(COGGING_PERIODS[0]), int(np.ceil(2 * 2 * np.pi / max(angle_range_rad, 1e-9))))
+    return tuple(int(n) for n in COGGING_PERIODS if n >= lowest)
+
+
+# A Stribeck velocity v_s is tried only where this many usable rows slide slower than 2 v_s:
+# fewer, and a handful of rows next to a stick or reversal would decide the fit alone.
+STRIBECK_MIN_ROWS = 200
+
+
+def stribeck_velocities(speeds: np.ndarray | None) -> tuple[float, ...]:
+    """The Stribeck velocities the data can support (``speeds``: |q̇| of the usable rows)."""
+    if speeds is None:
+        return tuple(float(v) for v in STRIBECK_VELOCITIES)
+    return tuple(
+        float(v) for v in STRIBECK_VELOCITIES if np.sum(speeds < 2 * v) >= STRIBECK_MIN_ROWS
+    )
+
+
+def usable_speeds(prob: Problem) -> list[np.ndarray]:
+    """|q̇| (interval means) of the rows the model uses, per joint."""
+    return [
+        np.concatenate(
+            [np.abs(_node_average(r.v_nodes)[:, j])[r.weights[:, j] > 0] for r in prob.rows]
+        )
+        for j in (0, 1)
+    ]
+
+
+def candidates(
+    theta: np.ndarray,
+    angle_range_rad: Sequence[float] = (np.pi, np.pi),
+    speeds: Sequence[np.ndarray] | None = None,
+) -> list[Candidate]:
+    """The candidate library, both joints. ``speeds``: per joint, |q̇| of the usable rows
+    (limits the Stribeck velocities tried; without it all are)."""
+    out: list[Candidate] = []
+    for j in (0, 1):
+        stribeck = stribeck_velocities(None if speeds is None else speeds[j])
+        if stribeck:
+            out.append(
+                Candidate("stribeck", j, stribeck, lambda r, v, j=j: stribeck_column(r, j, v))
+            )
+        out += [
+            Candidate("offset", j, (None,), lambda r, _v, j=j: offset_column(r, j)),
+            Candidate("gain", j, (None,), lambda r, _v, j=j: gain_column(r, j)),
+            Candidate(
+                "cogging",
+                j,
+                cogging_periods(angle_range_rad[j]),
+                lambda r, n, j=j: cogging_columns(r, j, n),
+            ),
+            Candidate("rate", j, (None,), lambda r, _v, j=j: torque_rate_column(r, j)),
+            Candidate(
+                "angle", j, (None,), lambda r, _v, j=j, th=theta: angle_offset_column(r, j, th)
+            ),
+        ]
+    return out
+
+
+def term_width(cand: Candidate) -> int:
+    """Number of coefficients a candidate adds."""
+    return 2 if cand.kind in ("cogging", "rate") else 1
+
+
+@dataclass
+class Problem:
+    """The stacked regression of all recordings. ``y``, ``Psi`` and candidate columns are served
+    scaled to unit noise per joint (``scale``, Nm), re-estimated as terms are accepted so that a
+    joint whose residual was mostly model error is not later treated as noise-free."""
+
+    rows: list[RecordingRows]
+    y_raw: np.ndarray  # (K, 2) Nm
+    Psi_raw: np.ndarray  # (K, 2, 9)
+    w: np.ndarray  # (K, 2)
+    scale: np.ndarray  # (2,) noise scale per joint [Nm]
+    blocks: np.ndarray  # (K,)
+    cache: dict[str, list[np.ndarray]] = field(default_factory=dict)
+
+    @property
+    def y(self) -> np.ndarray:
+        return self.y_raw / self.scale
+
+    @property
+    def Psi(self) -> np.ndarray:
+        return self.Psi_raw / self.scale[None, :, None]
+
+    def columns(self, cand: Candidate) -> list[np.ndarray]:
+        """X of every variant, stacked over recordings and scaled like the rows."""
+        if cand.key not in self.cache:
+            self.cache[cand.key] = [
+                np.concatenate([cand.columns(r, v) for r in self.rows]) for v in cand.variants
+            ]
+        return [x / self.scale[None, :, None] for x in self.cache[cand.key]]
+
+
+def _stack(rows: Sequence[RecordingRows]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    y = np.concatenate([r.y for r in rows])
+    Psi = np.concatenate([r.Psi for r in rows])
+    w = np.concatenate([r.weights for r in rows])
+    return y, Psi, w
+
+
+def fit_theta(Psi: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted least squares over both joints' rows."""
+    sw = np.sqrt(w)[..., None]
+    A = (Psi * sw).reshape(-1, Psi.shape[-1])
+    b = (y * sw[..., 0]).reshape(-1)
+    return np.linalg.lstsq(A, b, rcond=None)[0]
+
+
+def robust_scale(residual: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Per-joint noise scale: 1.4826 · median absolute residual of the usable rows."""
+    return np.array(
+        [1.4826 * np.median(np.abs(residual[w[:, j] > 0, j])) + 1e-12 for j in range(2)]
+    )
+
+
+def build_problem(
+    recordings: Sequence[tuple[np.ndarray, np.ndarray, float]],
+) -> tuple[Problem, np.ndarray]:
+    """Nominal regression of (q, τ, h) recordings and its 9-parameter fit θ̂."""
+    rows = [recording_rows(q, tau, h) for q, tau, h in recordings]
+    y, Psi, w = _stack(rows)
+    theta = fit_theta(Psi, y, w)
+    scale = robust_scale(y - Psi @ theta, w)
+    total_s = sum(r.rows * r.h for r in rows)
+    block_s = min(max(total_s / BLOCKS_WANTED, BLOCK_SECONDS[0]), BLOCK_SECONDS[1])
+    blocks = block_index([r.rows for r in rows], round(block_s / min(r.h for r in rows)))
+    return Problem(rows, y, Psi, w, scale, blocks), theta
+
+
+@dataclass
+class Accepted:
+    cand: Candidate
+    variant: Any
+    evidence: Evidence
+    confounded_with: list[str] = field(default_factory=list)
+    rival_variants: dict[str, Any] = field(default_factory=dict)
+
+
+def _design(prob: Problem, extra: Sequence[np.ndarray]) -> np.ndarray:
+    return np.concatenate([prob.Psi, *extra], axis=2) if extra else prob.Psi
+
+
+def _cv(
+    prob: Problem, extra: Sequence[np.ndarray], variants: Sequence[np.ndarray] = ()
+) -> CrossValidation:
+    """Cross-validation of nominal + ``extra`` (+ each of ``variants`` as alternatives)."""
+    base = _design(prob, extra)
+    stats = block_stats(base, prob.y, prob.w, prob.blocks)
+    if not variants:
+        return cross_validate(stats)
+    return cross_validate(
+        extend_stats_many(stats, base, list(variants), prob.y, prob.w, prob.blocks)
+    )
+
+
+def _rewhiten(prob: Problem, accepted: Sequence[Accepted]) -> None:
+    """Noise scale per joint from the residual of the model with the accepted terms."""
+    cols = [prob.columns(a.cand)[a.cand.variants.index(a.variant)] for a in accepted]
+    Z = _design(prob, cols) * prob.scale[None, :, None]  # unscaled
+    beta = fit_theta(Z, prob.y_raw, prob.w)
+    prob.scale = robust_scale(prob.y_raw - Z @ beta, prob.w)
+
+
+def _harms_other_joint(base: CrossValidation, cv: CrossValidation, cand: Candidate) -> bool:
+    """The term makes the held-out error of a joint it is not about worse by MIN_REDUCTION."""
+    others = [j for j in (0, 1) if j not in _joints(cand)]
+    return bool(others) and evidence(base, cv, others).reduction <= -MIN_REDUCTION
+
+
+def _large_enough(cand: Candidate, cv: CrossValidation) -> bool:
+    """The full-data estimate is above the practical floor and has the physical sign."""
+    coef = cv.beta[9:][-term_width(cand) :]
+    # cogging: the amplitude; rate: β₁ + β₂ ≈ T; the others have one coefficient
+    size = float(np.hypot(*coef)) if cand.kind == "cogging" else float(np.sum(coef))
+    if cand.kind in POSITIVE_ONLY and size <= 0:
+        return False
+    return abs(size) >= PRACTICAL_FLOOR[cand.kind]
+
+
+def _passes(ev: Evidence, tests: int) -> bool:
+    return ev.reduction >= MIN_REDUCTION and ev.sign_p <= FAMILY_ALPHA / tests
+
+
+def _joints(cand: Candidate) -> list[int]:
+    """The rows a candidate's columns act on: an angle offset moves gravity on both joints."""
+    return [0, 1] if cand.kind == "angle" else [cand.joint]
+
+
+def rigid_body_deviation(theta: np.ndarray, reference: np.ndarray) -> float:
+    """‖(θ1..θ5 − reference)/reference‖: how far a fit's rigid-body parameters are from the
+    reference's (robot profile or --params)."""
+    ref = np.asarray(reference, float)[:5]
+    return float(np.linalg.norm((np.asarray(theta, float)[:5] - ref) / ref))
+
+
+# A torque gain error is only believed when modelling it brings θ1..θ5 at least this much closer
+# to the reference than the nominal fit is: the data alone fix only the ratio of the two joints'
+# gains, and in closed loop the commanded torque correlates with the velocity-estimate noise, so
+# a gain column "explains" a percent or so of noise that no reference supports.
+GAIN_SUPPORT_RATIO = 0.5
+
+
+def _gain_supported(
+    prob: Problem,
+    extra: Sequence[np.ndarray],
+    cand: Candidate,
+    cv: CrossValidation,
+    base: CrossValidation,
+    reference: np.ndarray | None,
+) -> bool:
+    if reference is None:
+        return True
+    other = next(c for c in candidates(base.beta[:9]) if c.kind == "gain" and c.joint != cand.joint)
+    there = _cv(prob, extra, prob.columns(other))
+    best = min(
+        rigid_body_deviation(cv.beta, reference), rigid_body_deviation(there.beta, reference)
+    )
+    return best <= GAIN_SUPPORT_RATIO * rigid_body_deviation(base.beta, reference)
+
+
+PAIR_POOL = 4  # strongest single candidates tried in pairs when no single one passes
+
+
+def _passing_pair(
+    prob: Problem,
+    extra: Sequence[np.ndarray],
+    base: CrossValidation,
+    scored: Sequence[tuple[Candidate, CrossValidation, Evidence]],
+    tests: int,
+) -> list[tuple[Candidate, CrossValidation, Evidence]]:
+    """Two effects on one joint can each leave the other's residual in the way, so that neither
+    passes alone (a torque offset and a lag on joint 2, say). The strongest few candidates are
+    then tried in pairs; when a pair passes (the family now counting the pairs too), its stronger
+    member is returned as passing and the other gets its chance in the next round."""
+    pool = sorted(
+        (s for s in scored if s[2].reduction >= MIN_REDUCTION and _large_enough(s[0], s[1])),
+        key=lambda s: -s[2].drop,
+    )[:PAIR_POOL]
+    pairs = [(a, b) for i, a in enumerate(pool) for b in pool[i + 1 :]]
+    for a, b in pairs:
+        cols_a = prob.columns(a[0])[a[1].variant]
+        cols_b = prob.columns(b[0])[b[1].variant]
+        joints = sorted(set(_joints(a[0])) | set(_joints(b[0])))
+        ev = evidence(base, _cv(prob, [*extra, cols_a, cols_b]), joints)
+        if _passes(ev, tests + len(pairs)):
+            return [a]
+    return []
+
+
+def _eliminate(
+    prob: Problem,
+    accepted: list[Accepted],
+    tests: int,
+    log: Callable[[str], None] | None,
+) -> list[Accepted]:
+    """Backward elimination after the greedy pass: a term accepted early as the best single
+    explanation (an angle offset standing in for a torque offset plus something on the other
+    joint) can become redundant once the real terms are in. Each term must still pass the test on
+    top of all the others; the weakest that does not is dropped, until all do. The evidence kept
+    for each term is this conditional one."""
+    accepted = list(accepted)
+    while accepted:
+        verdicts = []
+        for i, a in enumerate(accepted):
+            others = [b for k, b in enumerate(accepted) if k != i]
+            cols = [prob.columns(b.cand)[b.cand.variants.index(b.variant)] for b in others]
+            own = prob.columns(a.cand)[a.cand.variants.index(a.variant)]
+            ev = evidence(_cv(prob, cols), _cv(prob, [*cols, own]), _joints(a.cand))
+            verdicts.append((ev, i))
+        failing = [(ev.drop, i) for ev, i in verdicts if not _passes(ev, tests)]
+        if not failing:
+            for ev, i in verdicts:
+                accepted[i].evidence = ev
+            return accepted
+        _drop, worst = min(failing)
+        if log:
+            log(f"eliminated {accepted[worst].cand.key}: redundant given the others")
+        del accepted[worst]
+        _rewhiten(prob, accepted)
+    return accepted
+
+
+def _confounding(
+    prob: Problem,
+    accepted: list[Accepted],
+    library: Sequence[Candidate],
+    tests: int,
+    log: Callable[[str], None] | None,
+) -> None:
+    """Mark the candidates the data cannot tell from an accepted term: put in its place, the
+    alternative explains the data on its own merit (it passes the test on top of the other
+    terms) and the accepted term is not significantly better than it (the same test, the other
+    way round). Fills ``Accepted.confounded_with``."""
+    taken = {a.cand.key for a in accepted}
+    for i, a in enumerate(accepted):
+        others = [b for k, b in enumerate(accepted) if k != i]
+        cols = [prob.columns(b.cand)[b.cand.variants.index(b.variant)] for b in others]
+        own = prob.columns(a.cand)[a.cand.variants.index(a.variant)]
+        without = _cv(prob, cols)
+        with_own = _cv(prob, [*cols, own])
+        for alt in library:
+            if alt.key in taken or (alt.kind == "gain") != (a.cand.kind == "gain"):
+                continue
+            with_alt = _cv(prob, cols, prob.columns(alt))
+            joints = sorted(set(_joints(alt)) | set(_joints(a.cand)))
+            if not _passes(evidence(without, with_alt, _joints(alt)), tests):
+                continue
+            if not _large_enough(alt, with_alt):
+                continue
+            if _passes(evidence(with_alt, with_own, joints), tests):
+                continue  # the accepted term is clearly better
+            a.confounded_with.append(alt.key)
+            a.rival_variants[alt.key] = alt.variants[with_alt.variant]
+            if log:
+                log(f"{a.cand.key} confounded with {alt.key}")
+
+
+def select(
+    prob: Problem,
+    library: Sequence[Candidate],
+    log: Callable[[str], None] | None = None,
+    reference: np.ndarray | None = None,
+) -> tuple[list[Accepted], dict[str, Evidence]]:
+    """Greedy forward selection with blocked cross-validation (module doc). ``reference``: θ
+    that a torque gain error must be supported by (:data:`GAIN_SUPPORT_RATIO`)."""
+    accepted: list[Accepted] = []
+    extra: list[np.ndarray] = []
+    first_round: dict[str, Evidence] = {}
+    remaining = list(library)
+    for _round in range(MAX_ROUNDS):
+        base = _cv(prob, extra)
+        scored = []
+        for cand in remaining:
+            cols = prob.columns(cand)
+            cv = _cv(prob, extra, cols)
+            ev = evidence(base, cv, _joints(cand))
+            if not first_round.get(cand.key):
+                first_round[cand.key] = ev
+            scored.append((cand, cv, ev))
+            if log:
+                log(
+                    f"  {cand.key:12s} red {ev.reduction:+.4f} t {ev.t:7.2f} "
+                    f"{ev.blocks_improved}/{ev.blocks} p {ev.sign_p:.1e} "
+                    f"variant {cand.variants[cv.variant]}"
+                )
+        passing = [
+            s
+            for s in scored
+            if _passes(s[2], len(library))
+            and _large_enough(s[0], s[1])
+            and not _harms_other_joint(base, s[1], s[0])
+            and (s[0].kind != "gain" or _gain_supported(prob, extra, s[0], s[1], base, reference))
+        ]
+        if not passing:
+            passing = _passing_pair(prob, extra, base, scored, len(library))
+            if not passing:
+                break
+        cand, cv, ev = max(passing, key=lambda s: s[2].drop)
+        chosen_cols = prob.columns(cand)[cv.variant]
+        acc = Accepted(cand, cand.variants[cv.variant], ev)
+        accepted.append(acc)
+        extra.append(chosen_cols)
+        remaining.remove(cand)
+        if cand.kind == "gain":  # gains on both joints: θ = 0, r = −1 fits anything (scale)
+            remaining = [c for c in remaining if c.kind != "gain"]
+        _rewhiten(prob, accepted)
+        extra = [prob.columns(a.cand)[a.cand.variants.index(a.variant)] for a in accepted]
+        if log:
+            log(f"accepted {cand.key} variant {acc.variant} confounded {acc.confounded_with}")
+    accepted = _eliminate(prob, accepted, len(library), log)
+    _confounding(prob, accepted, [c for c in library if c.key in first_round], len(library), log)
+    return accepted, first_round
+
+
+# --- the final model ---------------------------------------------------------------------------
+
+
+@dataclass
+class FinalFit:
+    """Nominal + accepted terms fitted on all rows: θ, each term's coefficients, their spread
+    over the leave-one-block-out fits (a jackknife standard error)."""
+
+    theta: np.ndarray
+    coefficients: list[np.ndarray]
+    standard_errors: list[np.ndarray]
+    cv: CrossValidation
+
+
+def final_fit(prob: Problem, accepted: Sequence[Accepted]) -> FinalFit:
+    cols = [prob.columns(a.cand)[a.cand.variants.index(a.variant)] for a in accepted]
+    cv = _cv(prob, cols)
+    n_blocks = cv.fold_beta.shape[0]
+    jack = np.sqrt(
+        (n_blocks - 1) / n_blocks * np.sum((cv.fold_beta - cv.fold_beta.mean(0)) ** 2, 0)
+    )
+    coefs, ses, at = [], [], 9
+    for c in cols:
+        p = c.shape[-1]
+        coefs.append(cv.beta[at : at + p])
+        ses.append(jack[at : at + p])
+        at += p
+    return FinalFit(cv.beta[:9], coefs, ses, cv)
+
+
+def refit_with_torque(
+    prob: Problem, accepted: Sequence[Accepted], y_raw: np.ndarray, skip: int
+) -> CrossValidation:
+    """Cross-validation of the model with the measured side replaced by ``y_raw`` (unscaled,
+    e.g. the exact lagged or delayed shaft torque) and accepted term ``skip`` left out."""
+    cols = [
+        prob.columns(a.cand)[a.cand.variants.index(a.variant)]
+        for i, a in enumerate(accepted)
+        if i != skip
+    ]
+    base = _design(prob, cols)
+    y = y_raw / prob.scale
+    return cross_validate(block_stats(base, y, prob.w, prob.blocks))

@@ -1,0 +1,636 @@
+"""The whole diagnosis of a set of recordings, as one JSON-able document plus arrays for plots.
+
+1. nominal fit (9 parameters) and where its residual lives (:mod:`hil.diagnose_locate`);
+2. candidate selection (:mod:`hil.diagnose`), findings with magnitudes
+   (:mod:`hil.diagnose_findings`), a test for structure nothing in the vocabulary explains;
+3. before/after fit on held-out data: torque NRMSE and open-loop simulated-position NRMSE;
+4. a summary in words. Pure computation; files and plots are :mod:`hil.diagnose_cli`'s.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from drivers.recording import Recording
+from hil.diagnose import (
+    FAMILY_ALPHA,
+    MIN_REDUCTION,
+    Accepted,
+    Candidate,
+    Problem,
+    _design,
+    build_problem,
+    candidates,
+    final_fit,
+    fit_theta,
+    select,
+    term_width,
+    usable_speeds,
+)
+from hil.diagnose_columns import _node_average, moving_average
+from hil.diagnose_findings import (
+    THETA_FC,
+    Finding,
+    _r,
+    classify_rate,
+    resolve_gain,
+)
+from hil.diagnose_locate import locate
+from hil.diagnose_stats import block_stats, cross_validate, evidence, extend_stats
+from hil.metrics import nrmse
+from hil.openloop import OpenLoopExtras, simulate_open_loop
+
+HELD_OUT_FRACTION = 0.25  # of a single recording: its last quarter
+
+
+@dataclass
+class DiagnosisResult:
+    document: dict[str, Any]
+    arrays: dict[str, Any]  # residuals, states, simulations: for plots
+
+
+def _estimate(cand: Candidate, variant: Any, coef: np.ndarray, theta: np.ndarray) -> list[Finding]:
+    """Findings of one accepted term (its coefficients ``coef``), in the vocabulary."""
+    j = cand.joint
+    if cand.kind == "offset":
+        c = float(coef[0])
+        fc = float(theta[THETA_FC[j]])
+        return [
+            Finding(
+                "coulomb_asymmetry",
+                j + 1,
+                {
+                    "positive_Nm": _r(fc - c),
+                    "negative_Nm": _r(fc + c),
+                    "difference_Nm": _r(2 * c),
+                    "symmetric_model_Nm": _r(fc),
+                },
+                {},
+                ["torque_offset"],
+            ),
+            Finding("torque_offset", j + 1, {"offset_Nm": _r(c)}, {}, ["coulomb_asymmetry"]),
+        ]
+    if cand.kind == "cogging":
+        a, b = float(coef[0]), float(coef[1])
+        return [
+            Finding(
+                "cogging",
+                j + 1,
+                {
+                    "periods_per_rev": int(variant),
+                    "amplitude_Nm": _r(math.hypot(a, b)),
+                    "phase_rad": _r(math.atan2(b, a)),
+                },
+                {},
+            )
+        ]
+    if cand.kind == "stribeck":
+        dF = float(coef[0])
+        fc = float(theta[THETA_FC[j]])
+        return [
+            Finding(
+                "stribeck",
+                j + 1,
+                {
+                    "breakaway_excess_Nm": _r(dF),
+                    "breakaway_ratio": _r(1 + dF / fc) if fc > 0 else None,
+                    "velocity_rad_s": _r(float(variant)),
+                    "exponent": 2.0,
+                },
+                {},
+            )
+        ]
+    if cand.kind == "angle":
+        return [Finding("angle_offset", j + 1, {"offset_rad": _r(float(coef[0]))}, {})]
+    if cand.kind == "gain":
+        return [Finding("torque_gain", j + 1, {"relative": _r(float(coef[0]))}, {})]
+    raise ValueError(cand.kind)
+
+
+def interpret(
+    prob: Problem, accepted: Sequence[Accepted], library: Sequence[Candidate], reference: np.ndarray
+) -> tuple[list[Finding], list[list[str]], np.ndarray | None]:
+    """Findings and confounded pairs of the accepted terms; the exact shaft torque rows when a
+    lag or delay was found (None otherwise)."""
+    fit = final_fit(prob, accepted)
+    by_key = {c.key: c for c in library}
+    findings: list[Finding] = []
+    confounded: list[list[str]] = []
+    for i, a in enumerate(accepted):
+        ev = {**a.evidence.as_dict(), "standard_error": [_r(x) for x in fit.standard_errors[i]]}
+        if a.cand.kind == "rate":
+            continue
+        if a.cand.kind == "gain":
+            gains, gev = resolve_gain(prob, accepted, fit, reference)
+            new = [
+                Finding("torque_gain", j + 1, {"relative": _r(r)}, {**ev, **gev})
+                for j, r in gains.items()
+            ]
+            if len(new) == 2:
+                new[0].confounded_with = new[1].confounded_with = ["torque_gain"]
+                confounded.append(["torque_gain", "torque_gain"])
+            findings += new
+            continue
+        new = _estimate(a.cand, a.variant, fit.coefficients[i], fit.theta)
+        for f in new:
+            f.evidence = dict(ev)
+        if a.cand.kind == "offset":
+            confounded.append(["coulomb_asymmetry", "torque_offset"])
+        for key in a.confounded_with:  # rivals the data cannot tell from this term
+            rival = by_key[key]
+            variant = a.rival_variants.get(key, rival.variants[0])
+            swapped = [*accepted[:i], Accepted(rival, variant, a.evidence), *accepted[i + 1 :]]
+            rfit = final_fit(prob, swapped)
+            for f in _estimate(rival, variant, rfit.coefficients[i], rfit.theta):
+                f.evidence = dict(ev)
+                f.confounded_with = [new[0].effect]
+                new[0].confounded_with = [*new[0].confounded_with, f.effect]
+                findings.append(f)
+            confounded.append(
+                [new[0].effect, _estimate(rival, variant, np.zeros(2), fit.theta)[0].effect]
+            )
+        findings += new
+    rate, shaft = classify_rate(prob, accepted, fit)
+    for f in rate:
+        term = next(a for a in accepted if a.cand.kind == "rate")
+        f.evidence = {**term.evidence.as_dict(), **f.evidence}
+    if any(f.confounded_with for f in rate):
+        confounded.append(["actuator_lag", "transport_delay"])
+    findings += rate
+    return findings, confounded, shaft
+
+
+# --- structure no candidate explains -------------------------------------------------------------
+
+
+def _bin_columns(prob: Problem, joint: int, variable: str, bins: int = 8) -> np.ndarray:
+    """Indicator columns of quantile bins of the joint's velocity (signed) or position,
+    averaged over intervals and filtered like the rows: a generic 'anything that depends on
+    this state variable' model."""
+    values = np.concatenate(
+        [
+            _node_average(r.v_nodes if variable == "velocity" else r.q_nodes)[:, joint]
+            for r in prob.rows
+        ]
+    )
+    edges = np.quantile(values, np.linspace(0, 1, bins + 1)[1:-1])
+    which = np.searchsorted(edges, values)
+    cols = []
+    start = 0
+    for r in prob.rows:
+        n = r.rows
+        onehot = np.eye(bins)[which[start : start + n]]
+        cols.append(moving_average(onehot, r.window))
+        start += n
+    X = np.zeros((len(values), 2, bins - 1))
+    X[:, joint, :] = np.concatenate(cols)[:, 1:] / prob.scale[joint]  # one bin is the baseline
+    return X
+
+
+def unexplained(
+    prob: Problem, accepted: Sequence[Accepted], shaft: np.ndarray | None = None
+) -> list[Finding]:
+    """A generic state-bin model of each joint's residual, tested like any candidate: if it
+    still lowers the held-out error, something the vocabulary lacks lives there. ``shaft``: the
+    exact lagged or delayed torque rows (Nm) to use instead of the first-order rate terms."""
+    kept = [a for a in accepted if shaft is None or a.cand.kind != "rate"]
+    cols = [prob.columns(a.cand)[a.cand.variants.index(a.variant)] for a in kept]
+    y = prob.y if shaft is None else shaft / prob.scale
+    design = _design(prob, cols)
+    stats = block_stats(design, y, prob.w, prob.blocks)
+    base = cross_validate(stats)
+    out = []
+    tests = 4
+    for j in (0, 1):
+        for variable in ("velocity", "position"):
+            X = _bin_columns(prob, j, variable)
+            cv = cross_validate(extend_stats(stats, design, X, y, prob.w, prob.blocks))
+            ev = evidence(base, cv, [j])
+            if ev.reduction >= 2 * MIN_REDUCTION and ev.sign_p <= FAMILY_ALPHA / tests:
+                out.append(
+                    Finding(
+                        "unexplained",
+                        j + 1,
+                        {"carried_by": variable},
+                        ev.as_dict(),
+                    )
+                )
+    return out
+
+
+# --- before / after ------------------------------------------------------------------------------
+
+
+def _extras(findings: Sequence[Finding]) -> OpenLoopExtras:
+    """The findings as the open-loop simulator's extras. Of a confounded pair one is used: they
+    fit alike (a torque offset stands for the Coulomb asymmetry, a lag for a lag-or-delay)."""
+    off, gain, lag, ang = [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]
+    cog_n, cog_a, cog_p = [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]
+    str_r, str_v = [1.0, 1.0], [1.0, 1.0]
+    delay, has_stribeck = 0.0, False
+    for f in findings:
+        j, e = (f.joint or 1) - 1, f.estimate
+        if f.effect == "torque_offset":
+            off[j] = e["offset_Nm"]
+        elif f.effect == "torque_gain" and not f.confounded_with:
+            gain[j] = e["relative"]
+        elif f.effect == "actuator_lag":
+            lag[j] = max(0.0, e["time_constant_s"])
+        elif f.effect == "transport_delay" and not f.confounded_with:
+            delay = max(0.0, e["delay_s"])
+        elif f.effect == "cogging":
+            cog_n[j], cog_a[j], cog_p[j] = e["periods_per_rev"], e["amplitude_Nm"], e["phase_rad"]
+        elif f.effect == "angle_offset":
+            ang[j] = e["offset_rad"]
+        elif f.effect == "stribeck" and e.get("breakaway_ratio"):
+            has_stribeck = True
+            str_r[j], str_v[j] = max(1.0, e["breakaway_ratio"]), e["velocity_rad_s"]
+    stribeck = (
+        {"stribeck_breakaway_ratio": tuple(str_r), "stribeck_velocity_rad_s": tuple(str_v)}
+        if has_stribeck
+        else {}
+    )
+    return OpenLoopExtras(
+        torque_offset_Nm=tuple(off),
+        torque_gain=tuple(gain),
+        actuator_lag_s=tuple(lag),
+        transport_delay_s=delay,
+        cogging_periods_per_rev=tuple(cog_n),
+        cogging_amplitude_Nm=tuple(abs(x) for x in cog_a),
+        cogging_phase_rad=tuple(cog_p),
+        angle_offset_rad=tuple(ang),
+        **stribeck,
+    )
+
+
+def percent(x: float | None) -> str:
+    """A fraction as "1.23 %", or "n/a" when there was nothing to compare."""
+    return "n/a" if x is None else f"{100 * x:.2f} %"
+
+
+def _finite(values: Sequence[float]) -> list[float | None]:
+    return [float(v) if np.isfinite(v) else None for v in values]
+
+
+def _nrmse_or_none(y: np.ndarray, pred: np.ndarray, rows: np.ndarray, j: int) -> float | None:
+    """NRMSE of joint j over ``rows``; None when the held-out part has no usable row for it
+    (the joint stood still throughout)."""
+    if rows.sum() < 2 or np.ptp(y[rows, j]) == 0:
+        return None
+    return float(nrmse(y[rows, j], pred[rows, j]))
+
+
+def _training_findings(
+    accepted: Sequence[Accepted], beta: np.ndarray, findings: Sequence[Finding]
+) -> list[Finding]:
+    """``findings`` with the magnitudes of the linear terms re-estimated from the training part
+    only (``beta``: θ then the accepted terms' coefficients), so that nothing fitted on the
+    held-out data enters the held-out comparison. Lag, delay and the joint of a gain error keep
+    their whole-data values (a grid search and a choice, not a fit)."""
+    out = list(findings)
+    at = 9
+    for a in accepted:
+        width = term_width(a.cand)
+        coef = beta[at : at + width]
+        at += width
+        if a.cand.kind in ("rate", "gain"):
+            continue
+        fresh = {f.effect: f for f in _estimate(a.cand, a.variant, coef, beta[:9])}
+        out = [
+            replace(f, estimate=fresh[f.effect].estimate)
+            if f.effect in fresh and f.joint == a.cand.joint + 1
+            else f
+            for f in out
+        ]
+    return out
+
+
+def _masks(prob: Problem) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, int]]]:
+    """Training and held-out row masks, and the held-out spans (recording, first, last sample)."""
+    n_rec = len(prob.rows)
+    sizes = [r.rows for r in prob.rows]
+    train = np.zeros(sum(sizes), bool)
+    spans = []
+    start = 0
+    for i, r in enumerate(prob.rows):
+        if n_rec > 1:
+            cut = r.rows if i < n_rec - 1 else 0
+        else:
+            cut = round(r.rows * (1 - HELD_OUT_FRACTION))
+        train[start : start + cut] = True
+        if cut < r.rows:
+            spans.append((i, int(r.k[cut]), len(r.q) - 1))
+        start += r.rows
+    return train, ~train, spans
+
+
+SEGMENT_S = 1.0  # open-loop simulations restart from the recorded state this often
+
+
+def _segment_simulations(
+    theta0: np.ndarray,
+    theta1: np.ndarray,
+    extras: OpenLoopExtras,
+    q: np.ndarray,
+    tau: np.ndarray,
+    h: float,
+    first: int,
+    last: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Open-loop simulations of samples first..last in segments of SEGMENT_S, each started from
+    the recorded position and central-difference velocity: an arm this underdamped diverges
+    from any model over many seconds, so one long run would measure chaos, not the model."""
+    step = max(4, round(SEGMENT_S / h))
+    out0, out1 = [], []
+    for a in range(first, last + 1, step):
+        b = min(a + step, last + 1)
+        dq0 = (q[a + 1] - q[a - 1]) / (2 * h) if 0 < a < len(q) - 1 else np.zeros(2)
+        out0.append(simulate_open_loop(theta0, tau[a:b], h, q0=q[a], dq0=dq0).q)
+        out1.append(simulate_open_loop(theta1, tau[a:b], h, q0=q[a], dq0=dq0, extras=extras).q)
+    return np.concatenate(out0), np.concatenate(out1)
+
+
+def before_after(
+    prob: Problem,
+    accepted: Sequence[Accepted],
+    findings: Sequence[Finding],
+    nominal_theta: np.ndarray | None,
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Torque NRMSE and open-loop position NRMSE per joint on held-out data, nominal model
+    (``nominal_theta`` when given, else fitted on the training part) and with the accepted terms."""
+    train, test, spans = _masks(prob)
+    cols = [prob.columns(a.cand)[a.cand.variants.index(a.variant)] for a in accepted]
+    w_train = prob.w * train[:, None]
+    theta0 = (
+        fit_theta(prob.Psi, prob.y, w_train)
+        if nominal_theta is None
+        else np.asarray(nominal_theta, float)
+    )
+    Z = _design(prob, cols)
+    beta = fit_theta(Z, prob.y, w_train)
+    y = prob.y * prob.scale
+    pred0 = (prob.Psi @ theta0) * prob.scale
+    pred1 = (Z @ beta) * prob.scale
+    torque = {}
+    for name, pred in (("before", pred0), ("after", pred1)):
+        torque[name] = [_nrmse_or_none(y, pred, test & (prob.w[:, j] > 0), j) for j in (0, 1)]
+    extras = _extras(_training_findings(accepted, beta, findings))
+    theta1 = beta[:9]
+    position: dict[str, list[float]] = {"before": [], "after": []}
+    sims: dict[str, Any] = {}
+    for rec_i, first, last in spans[-1:]:
+        r = prob.rows[rec_i]
+        q, h = r.q[first : last + 1], r.h
+        s0, s1 = _segment_simulations(theta0, theta1, extras, r.q, r.tau, h, first, last)
+        position["before"] = _finite(nrmse(q, s0))
+        position["after"] = _finite(nrmse(q, s1))
+        sims = {"t": np.arange(first, last + 1) * h, "q": q, "before": s0, "after": s1}
+    held = (
+        f"recording {len(prob.rows)}, not used for fitting"
+        if len(prob.rows) > 1
+        else f"the last {HELD_OUT_FRACTION:.0%} of the recording, not used for fitting"
+    )
+    doc = {
+        "held_out": held,
+        "before": {
+            "torque_nrmse": torque["before"],
+            "position_nrmse": position["before"],
+            "theta": theta0.tolist(),
+        },
+        "after": {
+            "torque_nrmse": torque["after"],
+            "position_nrmse": position["after"],
+            "theta": theta1.tolist(),
+        },
+    }
+    return doc, {
+        "torque": y,
+        "pred_before": pred0,
+        "pred_after": pred1,
+        "test": test,
+        "simulation": sims,
+    }
+
+
+# --- words ---------------------------------------------------------------------------------------
+
+_WORDS = {
+    "coulomb_asymmetry": (
+        "Coulomb friction depends on the direction of motion: {positive_Nm:+.2f} Nm forward, "
+        "{neg} Nm backward (the model assumed {symmetric_model_Nm:.2f} Nm both ways)"
+    ),
+    "torque_offset": "a constant torque offset of {offset_Nm:+.3g} Nm",
+    "stribeck": (
+        "Stribeck friction: breakaway {breakaway_excess_Nm:.3g} Nm above the Coulomb level, "
+        "decaying over {velocity_rad_s:.3g} rad/s"
+    ),
+    "cogging": (
+        "cogging / torque ripple of {amplitude_Nm:.3g} Nm, {periods_per_rev} periods per revolution"
+    ),
+    "actuator_lag": "the actuator lags the command (first order, time constant {ms} ms)",
+    "transport_delay": "the commands arrive late (pure delay {ms} ms)",
+    "angle_offset": "the encoder zero is off by {offset_rad:+.4g} rad ({deg} deg)",
+    "torque_gain": "the torque gain is off by {pct} %",
+    "unexplained": "a structured residual no candidate explains, carried by the {carried_by}",
+}
+
+
+def _phrase(f: Finding) -> str:
+    e = dict(f.estimate)
+    if f.effect == "coulomb_asymmetry":
+        e["neg"] = f"{-e['negative_Nm']:+.2f}"
+    if "time_constant_s" in e:
+        e["ms"] = f"{1000 * e['time_constant_s']:.3g}"
+    if "delay_s" in e:
+        e["ms"] = f"{1000 * e['delay_s']:.3g}"
+    if "offset_rad" in e:
+        e["deg"] = f"{math.degrees(e['offset_rad']):+.3g}"
+    if "relative" in e:
+        e["pct"] = f"{100 * e['relative']:+.3g}"
+    return _WORDS[f.effect].format(**e)
+
+
+SEPARATE = {
+    frozenset(("coulomb_asymmetry", "torque_offset")): (
+        "position and commanded torque alone cannot separate them (an offset c is exactly Coulomb "
+        "levels θ_fc ∓ c, sliding or stuck); a torque sensor, or a blocked-rotor test with a load "
+        "cell at zero command, would"
+    ),
+    frozenset(("actuator_lag", "transport_delay")): (
+        "a torque step or a chirp with content above 1/(2π T) (tens of Hz) would separate them: "
+        "a lag rounds a step, a delay shifts it"
+    ),
+    frozenset(("torque_gain",)): (  # a gain on joint 1 or the inverse one on joint 2
+        "the data fix only the ratio of the two joints' gains; a known load (a calibrated mass) "
+        "on one joint would fix the scale"
+    ),
+}
+
+
+def _linked(f: Finding, g: Finding) -> bool:
+    """g is an alternative to f: confounded, on the same joint, or across joints when one of
+    them is on both (a delay) or both are torque gains (only their ratio is known)."""
+    if g is f or g.effect not in f.confounded_with:
+        return False
+    across = f.joint is None or g.joint is None or f.effect == g.effect == "torque_gain"
+    return f.joint == g.joint or across
+
+
+def _confounded_group(f: Finding, findings: Sequence[Finding]) -> list[Finding]:
+    """f and every finding linked to it, directly or through others (lags on two joints and
+    the one delay either could be)."""
+    group, frontier = [f], [f]
+    while frontier:
+        x = frontier.pop()
+        for g in findings:
+            if all(g is not y for y in group) and (_linked(x, g) or _linked(g, x)):
+                group.append(g)
+                frontier.append(g)
+    return sorted(group, key=lambda g: (g.joint is None, g.joint or 0))
+
+
+def _who(f: Finding) -> str:
+    return f"Joint {f.joint}" if f.joint else "Both joints"
+
+
+def summary_words(findings: Sequence[Finding], fit: dict[str, Any], notes: Sequence[str]) -> str:
+    if not findings:
+        lines = [
+            "No missing physics found: the 9-parameter model explains the recordings to within "
+            "their noise."
+        ]
+    else:
+        lines = []
+        order = sorted(findings, key=lambda f: (f.joint is None, f.joint or 0))
+        done: set[int] = set()
+        for f in order:
+            if id(f) in done:
+                continue
+            group = _confounded_group(f, order)
+            done |= {id(g) for g in group}
+            first = [g for g in group if g.effect == f.effect]
+            others = [g for g in group if g.effect != f.effect]
+            if f.effect == "torque_gain" and len(first) == 2:
+                first, others = first[:1], first[1:]
+            said = "; ".join(
+                f"{_who(g) if i == 0 else _who(g).lower()}: {_phrase(g)}"
+                for i, g in enumerate(first)
+            )
+            if not others:
+                lines.append(f"{said}.")
+                continue
+            alt = "; or ".join(
+                _phrase(g) if g.joint == f.joint else f"{_who(g).lower()}: {_phrase(g)}"
+                for g in others
+            )
+            why = SEPARATE.get(frozenset(g.effect for g in group), "")
+            lines.append(
+                f"{said} — or, equally well, {alt}. The data cannot tell these apart: {why}."
+            )
+        b, a = fit["before"]["torque_nrmse"], fit["after"]["torque_nrmse"]
+        pb, pa = fit["before"]["position_nrmse"], fit["after"]["position_nrmse"]
+        parts = []
+        for j in (0, 1):
+            parts.append(f"joint {j + 1} torque {percent(b[j])} → {percent(a[j])}")
+        if pb and pa:
+            for j in (0, 1):
+                parts.append(
+                    f"joint {j + 1} simulated position {percent(pb[j])} → {percent(pa[j])}"
+                )
+        lines.append(
+            f"Modelling it changes the held-out error ({fit['held_out']}): "
+            + "; ".join(parts)
+            + "."
+        )
+    lines += list(notes)
+    return " ".join(lines)
+
+
+BURST_RATIO = 5.0  # a time window this many times the median RMS is called a burst
+
+
+def burst_notes(location: dict[str, Any]) -> list[str]:
+    """Warn when the nominal residual comes in bursts: no candidate in the vocabulary is
+    confined to a few seconds, but a stalled realtime loop, a collision or a drive fault is."""
+    notes = []
+    for j in location["joints"]:
+        bursts = [w for w in j["time_windows"] if w["rms_over_median"] >= BURST_RATIO]
+        if bursts:
+            when = ", ".join(f"{w['t_s'][0]:.2f}-{w['t_s'][1]:.2f} s" for w in bursts)
+            notes.append(
+                f"Joint {j['joint']}: the residual comes in bursts ({when}, over "
+                f"{BURST_RATIO:g}x the median); check those seconds for a timing stall, a "
+                "collision or a fault before trusting findings drawn from them."
+            )
+    return notes
+
+
+def detectability_notes(prob: Problem) -> list[str]:
+    """What the data cannot show (docs/diagnosis.md, 'What a recording needs')."""
+    notes = []
+    for j in (0, 1):
+        v = np.concatenate([_node_average(r.v_nodes)[:, j] for r in prob.rows])
+        w = np.concatenate([r.weights[:, j] for r in prob.rows])
+        slow = int(np.sum((w > 0) & (np.abs(v) < 0.3)))
+        if slow < 400:
+            notes.append(
+                f"Joint {j + 1}: only {slow} usable samples slide slower than 0.3 rad/s, "
+                "too few to "
+                "show Stribeck friction (record slow moves; docs/diagnosis.md)."
+            )
+        q = np.concatenate([r.q[:, j] for r in prob.rows])
+        if np.ptp(q) < 0.5:
+            notes.append(
+                f"Joint {j + 1}: it swept only {np.ptp(q):.2f} rad, too little to tell an "
+                "angle offset "
+                "from a torque offset or cogging with few periods per revolution."
+            )
+        if np.all(v[w > 0] > 0) or np.all(v[w > 0] < 0):
+            notes.append(
+                f"Joint {j + 1}: it moved one way only, so direction-dependent friction "
+                "cannot show."
+            )
+    return notes
+
+
+def diagnose(
+    recordings: Sequence[Recording],
+    reference_theta: np.ndarray,
+    *,
+    nominal_theta: np.ndarray | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> DiagnosisResult:
+    """Diagnose ``recordings`` against the 9-parameter model (module doc)."""
+    started = time.perf_counter()
+    say = progress or (lambda _m: None)
+    say(f"diagnose: {len(recordings)} recording(s), fitting the nominal model")
+    prob, theta_fit = build_problem([(r.q, r.tau, r.period_s) for r in recordings])
+    where = locate(prob, theta_fit)
+    ranges = np.ptp(np.concatenate([r.q for r in recordings]), axis=0)
+    library = candidates(theta_fit, ranges, usable_speeds(prob))
+    say(f"diagnose: testing {len(library)} candidates (both joints)")
+    accepted, first = select(prob, library, reference=reference_theta)
+    say(f"diagnose: accepted {[a.cand.key for a in accepted] or 'nothing'}; refitting")
+    findings, confounded, shaft = interpret(prob, accepted, library, reference_theta)
+    findings += unexplained(prob, accepted, shaft)
+    fit, fit_arrays = before_after(prob, accepted, findings, nominal_theta)
+    notes = detectability_notes(prob) + burst_notes(where.document)
+    doc = {
+        "findings": [f.as_dict() for f in findings],
+        "confounded": confounded,
+        "fit": fit,
+        "summary": summary_words(findings, fit, notes),
+        "location": where.document,
+        "nominal_theta": theta_fit.tolist(),
+        "candidates_tested": {k: ev.as_dict() for k, ev in first.items()},
+        "recordings": [str(r.path) for r in recordings],
+        "notes": notes,
+        "timing_s": round(time.perf_counter() - started, 2),
+    }
+    return DiagnosisResult(doc, {"location": where.arrays, **fit_arrays})

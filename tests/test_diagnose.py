@@ -1,0 +1,235 @@
+"""Mismatch diagnosis (hil diagnose): statistics, columns, and concealed effects end to end.
+
+Fast tests run a null and the default robot (joint 1's direction-dependent Coulomb friction);
+the whole catalogue of concealed effects, each on either joint, is marked slow
+(`make test-slow`; tests/benchmarks/score_diagnose_set.py runs a blind-like set).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from diagnose_cases import CASES, make_recording
+
+from drivers.recording import read_signals
+from hil.cli import main as hil_main
+from hil.diagnose import build_problem, candidates, select
+from hil.diagnose_columns import (
+    delayed_torque_rows,
+    lagged_torque_rows,
+    moving_average,
+    offset_column,
+    recording_rows,
+)
+from hil.diagnose_report import diagnose
+from hil.diagnose_stats import block_index, block_stats, cross_validate, evidence
+from hil.params import robot_params
+from virtual_robot.effects import amplifier_lag_step
+
+REFERENCE = robot_params("cicese").theta
+WITHIN = 0.25  # the issue's magnitude tolerance
+
+
+@pytest.fixture(scope="module")
+def null_recording(tmp_path_factory):
+    out = tmp_path_factory.mktemp("null")
+    return make_recording(out / "rec", "reyes-kelly", CASES["null"].effects, duration_s=10.0)
+
+
+@pytest.fixture(scope="module")
+def default_recording(tmp_path_factory):
+    out = tmp_path_factory.mktemp("default")
+    return make_recording(out / "rec", "diagnosis", None)
+
+
+def _named(doc, effect, joint):
+    return [f for f in doc["findings"] if f["effect"] == effect and f["joint"] == joint]
+
+
+# --- statistics and columns --------------------------------------------------------------------
+
+
+def test_cross_validation_finds_a_real_column_and_not_a_noise_column():
+    rng = np.random.default_rng(1)
+    K = 4000
+    Z = rng.normal(size=(K, 2, 3))
+    real = rng.normal(size=(K, 2, 1))
+    fake = rng.normal(size=(K, 2, 1))
+    # coloured noise: a moving average of white noise
+    noise = moving_average(rng.normal(size=(K, 2)), 8) * 3
+    y = Z @ np.array([1.0, -2.0, 0.5]) + 0.3 * real[..., 0] + noise
+    w = np.ones((K, 2))
+    blocks = block_index([K], 100)
+    base = cross_validate(block_stats(Z, y, w, blocks))
+    with_real = cross_validate(block_stats(np.concatenate([Z, real], 2), y, w, blocks))
+    with_fake = cross_validate(block_stats(np.concatenate([Z, fake], 2), y, w, blocks))
+    ev_real = evidence(base, with_real, [0, 1])
+    ev_fake = evidence(base, with_fake, [0, 1])
+    assert ev_real.reduction > 0.05 and ev_real.sign_p < 1e-6
+    assert ev_fake.reduction < 0.01 and ev_fake.sign_p > 1e-3
+    assert with_real.beta[-1] == pytest.approx(0.3, abs=0.03)
+
+
+def test_lagged_rows_match_the_virtual_robot_amplifier(null_recording):
+    rec = read_signals(null_recording)
+    rows = recording_rows(rec.q[:400], rec.tau[:400], rec.period_s)
+    T, h = 0.002, rec.period_s
+    x, means = rec.tau[0].copy(), []
+    for k in range(400):
+        pair = [amplifier_lag_step(x[i], rec.tau[k, i], h, T) for i in (0, 1)]
+        means.append([p[0] for p in pair])
+        x = np.array([p[1] for p in pair])
+    expected = moving_average(np.array(means)[rows.k], rows.window)
+    np.testing.assert_allclose(lagged_torque_rows(rows, T), expected, atol=1e-9)
+
+
+def test_delayed_rows_by_whole_samples_are_shifted_torques(null_recording):
+    rec = read_signals(null_recording)
+    rows = recording_rows(rec.q[:400], rec.tau[:400], rec.period_s)
+    shifted = np.vstack([rec.tau[:1], rec.tau[:-1]])[:400]
+    expected = moving_average(shifted[rows.k], rows.window)
+    np.testing.assert_allclose(delayed_torque_rows(rows, rec.period_s), expected, atol=1e-12)
+
+
+def test_offset_column_is_minus_one_once_the_window_is_full(null_recording):
+    rec = read_signals(null_recording)
+    rows = recording_rows(rec.q[:200], rec.tau[:200], rec.period_s)
+    col = offset_column(rows, 1)
+    assert np.all(col[rows.window :, 1, 0] == -1.0) and np.all(col[:, 0, 0] == 0.0)
+
+
+def test_short_recording_is_a_clear_error():
+    with pytest.raises(ValueError, match="at least"):
+        recording_rows(np.zeros((10, 2)), np.zeros((10, 2)), 0.0025)
+
+
+# --- end to end -------------------------------------------------------------------------------
+
+
+def test_null_recording_has_no_findings(null_recording):
+    rec = read_signals(null_recording)
+    doc = diagnose([rec], REFERENCE).document
+    assert doc["findings"] == [] and doc["confounded"] == []
+    assert "No missing physics" in doc["summary"]
+    # the model explains the recording: torque NRMSE well under 1 % on both joints
+    assert max(doc["fit"]["before"]["torque_nrmse"]) < 0.01
+
+
+def test_default_robot_coulomb_asymmetry_found_and_modelled(default_recording):
+    """The issue's headline case: 7.17 / 8.049 Nm on joint 1 (Reyes & Kelly 1997, Section 5)."""
+    doc = diagnose([read_signals(default_recording)], REFERENCE).document
+    (asym,) = _named(doc, "coulomb_asymmetry", 1)
+    est = asym["estimate"]
+    assert est["positive_Nm"] == pytest.approx(7.17, rel=0.03)
+    assert est["negative_Nm"] == pytest.approx(8.049, rel=0.03)
+    assert est["difference_Nm"] == pytest.approx(0.879, rel=WITHIN)
+    assert asym["confounded_with"] == ["torque_offset"]
+    assert ["coulomb_asymmetry", "torque_offset"] in doc["confounded"]
+    assert {(f["effect"], f["joint"]) for f in doc["findings"]} == {
+        ("coulomb_asymmetry", 1),
+        ("torque_offset", 1),
+    }
+    before, after = doc["fit"]["before"], doc["fit"]["after"]
+    assert after["torque_nrmse"][0] < 0.5 * before["torque_nrmse"][0]
+    assert after["position_nrmse"][0] < 0.5 * before["position_nrmse"][0]
+    assert "Joint 1: Coulomb friction depends on the direction of motion" in doc["summary"]
+
+
+def test_cli_json_one_document_and_files(null_recording, tmp_path, capsys):
+    assert hil_main(["diagnose", str(null_recording), "--json", "--out", str(tmp_path)]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert set(doc) >= {"findings", "confounded", "fit", "summary"}
+    assert (tmp_path / "diagnosis.json").exists() and (tmp_path / "fit.png").exists()
+    assert (tmp_path / "residual.png").exists()
+
+
+def test_cli_bad_input_one_line_error(tmp_path, capsys):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,q1,q2\n0,0,0\n")
+    assert hil_main(["diagnose", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("hil diagnose:")
+
+
+# --- the catalogue of concealed effects (slow) ------------------------------------------------
+
+SIZE = {
+    "coulomb_asymmetry": ("difference_Nm", lambda m: m["negative_Nm"] - m["positive_Nm"]),
+    "torque_offset": ("offset_Nm", lambda m: m["offset_Nm"]),
+    "stribeck": ("breakaway_ratio", lambda m: m["breakaway_ratio"]),
+    "cogging": ("amplitude_Nm", lambda m: m["amplitude_Nm"]),
+    "actuator_lag": ("time_constant_s", lambda m: m["time_constant_s"]),
+    "transport_delay": ("delay_s", lambda m: m["delay_s"]),
+    "angle_offset": ("offset_rad", lambda m: m["offset_rad"]),
+    "torque_gain": ("relative", lambda m: m["relative"]),
+}
+CATALOGUE = [n for n, c in CASES.items() if not c.is_null and not n.startswith("default")]
+# On the diagnosis excitation joint 2 with Stribeck friction sticks through most of the slow part
+# (its Coulomb level is about its whole gravity torque), leaving ~300 slow sliding samples: the
+# tool says the data cannot show it. The multisine's slow reversals do show it.
+EXPERIMENT = {"stribeck_j2": "validation-multisine"}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", CATALOGUE)
+def test_concealed_effect_is_named_with_its_joint_and_size(name, tmp_path):
+    case = CASES[name]
+    path = make_recording(tmp_path / "rec", EXPERIMENT.get(name, "diagnosis"), case.effects)
+    doc = diagnose([read_signals(path)], REFERENCE).document
+    for truth in case.truth:
+        hits = [
+            f
+            for f in doc["findings"]
+            if f["effect"] == truth.effect and (truth.joint is None or f["joint"] == truth.joint)
+        ]
+        if not hits and truth.effect == "stribeck":
+            # allowed only when the tool says why: too few slow sliding samples on that joint
+            assert any(f"Joint {truth.joint}: only" in n and "Stribeck" in n for n in doc["notes"])
+            continue
+        assert hits, f"{truth.effect} on joint {truth.joint} not found: {doc['summary']}"
+        key, size = SIZE[truth.effect]
+        want = size(truth.magnitude)
+        got = [h["estimate"][key] for h in hits]
+        best = min(got, key=lambda g: abs(g - want))
+        assert best == pytest.approx(want, rel=WITHIN), (truth, got)
+        if truth.effect == "cogging":
+            assert any(
+                h["estimate"]["periods_per_rev"] == truth.magnitude["periods_per_rev"] for h in hits
+            )
+    allowed = {t.effect for t in case.truth} | {
+        p for f in doc["findings"] for p in f.get("confounded_with", [])
+    }
+    extra = [f for f in doc["findings"] if f["effect"] not in allowed]
+    assert not extra, extra
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["null", "null_payload"])
+@pytest.mark.parametrize("experiment", ["diagnosis", "optimal-fourier", "validation-multisine"])
+def test_null_cases_have_no_findings(name, experiment, tmp_path):
+    path = make_recording(tmp_path / "rec", experiment, CASES[name].effects)
+    doc = diagnose([read_signals(path)], REFERENCE).document
+    assert doc["findings"] == [], doc["summary"]
+
+
+@pytest.mark.slow
+def test_two_recordings_hold_out_the_second(tmp_path):
+    case = CASES["cogging_j1"]
+    a = make_recording(tmp_path / "a", "diagnosis", case.effects)
+    b = make_recording(tmp_path / "b", "validation-multisine", case.effects)
+    doc = diagnose([read_signals(a), read_signals(b)], REFERENCE).document
+    assert _named(doc, "cogging", 1)
+    assert doc["fit"]["held_out"].startswith("recording 2")
+    assert doc["fit"]["after"]["torque_nrmse"][0] < doc["fit"]["before"]["torque_nrmse"][0]
+    assert not math.isnan(doc["fit"]["after"]["position_nrmse"][0])
+
+
+def test_selection_on_null_accepts_nothing(null_recording):
+    rec = read_signals(null_recording)
+    prob, theta = build_problem([(rec.q, rec.tau, rec.period_s)])
+    accepted, first = select(prob, candidates(theta, np.ptp(rec.q, axis=0)))
+    assert accepted == []
+    assert len(first) >= 10  # Stribeck only where slow sliding rows support it
