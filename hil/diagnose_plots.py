@@ -51,19 +51,18 @@ def plot_diagnosis(result: DiagnosisResult, out: Path) -> list[Path]:
     fit = result.document["fit"]
     for j in (0, 1):
         ax = axes[j, 0]
-        idx = np.flatnonzero(test & loc["usable"][:, j])  # rows the model can explain
-        ax.plot(
-            idx,
-            result.arrays["torque"][idx, j] - result.arrays["pred_before"][idx, j],
-            lw=0.6,
-            label=f"before ({percent(fit['before']['torque_nrmse'][j])})",
-        )
-        ax.plot(
-            idx,
-            result.arrays["torque"][idx, j] - result.arrays["pred_after"][idx, j],
-            lw=0.6,
-            label=f"after ({percent(fit['after']['torque_nrmse'][j])})",
-        )
+        idx = np.flatnonzero(test)
+        # rows the model cannot explain (a joint at rest or reversing) are gaps, not lines
+        gap = np.where(loc["usable"][idx, j], 0.0, np.nan)
+        for name, style in (("before", "-"), ("after", "-")):
+            err = result.arrays["torque"][idx, j] - result.arrays[f"pred_{name}"][idx, j]
+            ax.plot(
+                idx,
+                err + gap,
+                style,
+                lw=0.6,
+                label=f"{name} ({percent(fit[name]['torque_nrmse'][j])})",
+            )
         ax.set(ylabel=f"joint {j + 1} torque error [Nm]", xlabel="held-out row")
         ax.legend(fontsize=8)
         ax.grid(alpha=0.3)
