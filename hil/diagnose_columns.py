@@ -39,15 +39,23 @@ from hil.regressors import (
     stick_weights,
 )
 
-# Window of the moving-average filter F, in sample intervals (8 × 2.5 ms = 20 ms, about the
+# Window of the moving-average filter F, in seconds (20 ms: 8 intervals at 400 Hz, about the
 # noise bandwidth of the identification's λ = 50 rad/s low-pass). A finite window matters here:
-# a stuck interval spoils only the M rows whose window holds it, where the low-pass spreads it
-# over ~55 rows, and a joint that reverses often would leave few rows to diagnose.
-WINDOW_INTERVALS = 8
-# Intervals without encoder motion or with a velocity reversal, and this many either side, are
-# left out: the joint comes to rest or breaks away inside them, so part of each carries static
-# friction the model has no term for (tens of σ of residual on joint 2 otherwise).
-STICK_GUARD_INTERVALS = 2
+# a stuck interval spoils only the rows whose window holds it, where the low-pass spreads it over
+# ~55 rows, and a joint that reverses often would leave few rows to diagnose. It is a time, not a
+# count: at 1 kHz an 8-interval window left the momentum differences so noisy against their
+# signal that least squares shrank θ (errors in variables) and a 2 % "gain error" appeared on a
+# null recording.
+WINDOW_S = 0.02
+# Intervals without encoder motion or with a velocity reversal, and those within this time either
+# side, are left out: the joint comes to rest or breaks away inside them, so part of each carries
+# static friction the model has no term for (tens of σ of residual on joint 2 otherwise).
+STICK_GUARD_S = 0.005
+
+
+def window_intervals(h: float) -> int:
+    """The moving-average window for sample period ``h`` (at least 4 intervals)."""
+    return max(4, round(WINDOW_S / h))
 
 
 @dataclass(frozen=True)
@@ -101,10 +109,12 @@ def _momentum_rows(
 
 
 def recording_rows(
-    q: np.ndarray, tau: np.ndarray, h: float, window: int = WINDOW_INTERVALS
+    q: np.ndarray, tau: np.ndarray, h: float, window: int | None = None
 ) -> RecordingRows:
-    """The nominal regression of one recording and its interval nodes."""
+    """The nominal regression of one recording and its interval nodes (``window``: intervals
+    of F, default :func:`window_intervals`)."""
     q, tau = np.asarray(q, float), np.asarray(tau, float)
+    window = window_intervals(h) if window is None else window
     if len(q) < 4 * window:
         raise ValueError(f"need at least {4 * window} samples to diagnose, got {len(q)}")
     k, y_raw, psi_raw, _stuck = _momentum_rows(q, tau, h)
@@ -113,7 +123,7 @@ def recording_rows(
     # for part of it.
     still = (q[k + 1] == q[k]) | (np.sign(v[k]) != np.sign(v[k + 1]))
     guarded = still.copy()
-    for shift in range(1, STICK_GUARD_INTERVALS + 1):
+    for shift in range(1, max(1, round(STICK_GUARD_S / h)) + 1):
         guarded[:-shift] |= still[shift:]
         guarded[shift:] |= still[:-shift]
     weights = stick_weights(guarded, window - 1)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -233,3 +234,22 @@ def test_selection_on_null_accepts_nothing(null_recording):
     accepted, first = select(prob, candidates(theta, np.ptp(rec.q, axis=0)))
     assert accepted == []
     assert len(first) >= 10  # Stribeck only where slow sliding rows support it
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["null", "default_robot"])
+def test_a_1khz_recording_is_diagnosed_alike(name, tmp_path):
+    """The filter window is a time (20 ms), not a count of samples: at 1 kHz an 8-sample window
+    let velocity noise shrink θ and a 2 % torque gain 'appear' on a null recording."""
+    from profiles.experiment import load_experiment
+
+    text = Path(load_experiment("diagnosis").source).read_text()
+    toml = tmp_path / "diagnosis-1khz.toml"
+    toml.write_text(text.replace("period_s = 0.0025", "period_s = 0.001"))
+    effects = None if name == "default_robot" else CASES[name].effects
+    path = make_recording(tmp_path / "rec", toml, effects)
+    assert read_signals(path).period_s == pytest.approx(0.001)
+    doc = diagnose([read_signals(path)], REFERENCE).document
+    found = {(f["effect"], f["joint"]) for f in doc["findings"]}
+    expected = set() if name == "null" else {("coulomb_asymmetry", 1), ("torque_offset", 1)}
+    assert found == expected, doc["summary"]
