@@ -20,7 +20,6 @@ import numpy as np
 
 from hil.diagnose_columns import (
     RecordingRows,
-    _node_average,
     angle_offset_column,
     cogging_columns,
     gain_column,
@@ -115,12 +114,8 @@ def stribeck_velocities(speeds: np.ndarray | None) -> tuple[float, ...]:
 
 def usable_speeds(prob: Problem) -> list[np.ndarray]:
     """|q̇| (interval means) of the rows the model uses, per joint."""
-    return [
-        np.concatenate(
-            [np.abs(_node_average(r.v_nodes)[:, j])[r.weights[:, j] > 0] for r in prob.rows]
-        )
-        for j in (0, 1)
-    ]
+    v = np.abs(prob.v_mean)
+    return [v[prob.w[:, j] > 0, j] for j in (0, 1)]
 
 
 def candidates(
@@ -180,6 +175,16 @@ class Problem:
     @property
     def Psi(self) -> np.ndarray:
         return self.Psi_raw / self.scale[None, :, None]
+
+    @property
+    def v_mean(self) -> np.ndarray:
+        """Mean velocity over each row's interval, all recordings (K, 2)."""
+        return np.concatenate([r.v_mean for r in self.rows])
+
+    @property
+    def q_mean(self) -> np.ndarray:
+        """Mean position over each row's interval, all recordings (K, 2)."""
+        return np.concatenate([r.q_mean for r in self.rows])
 
     def columns(self, cand: Candidate) -> list[np.ndarray]:
         """X of every variant, stacked over recordings and scaled like the rows."""
@@ -306,10 +311,11 @@ def _gain_supported(
     cv: CrossValidation,
     base: CrossValidation,
     reference: np.ndarray | None,
+    library: Sequence[Candidate],
 ) -> bool:
     if reference is None:
         return True
-    other = next(c for c in candidates(base.beta[:9]) if c.kind == "gain" and c.joint != cand.joint)
+    other = next(c for c in library if c.kind == "gain" and c.joint != cand.joint)
     there = _cv(prob, extra, prob.columns(other))
     best = min(
         rigid_body_deviation(cv.beta, reference), rigid_body_deviation(there.beta, reference)
@@ -448,7 +454,10 @@ def select(
             if _passes(s[2], len(library))
             and _large_enough(s[0], s[1])
             and not _harms_other_joint(base, s[1], s[0])
-            and (s[0].kind != "gain" or _gain_supported(prob, extra, s[0], s[1], base, reference))
+            and (
+                s[0].kind != "gain"
+                or _gain_supported(prob, extra, s[0], s[1], base, reference, library)
+            )
         ]
         if not passing:
             passing = _passing_pair(prob, extra, base, scored, len(library))
@@ -499,18 +508,3 @@ def final_fit(prob: Problem, accepted: Sequence[Accepted]) -> FinalFit:
         ses.append(jack[at : at + p])
         at += p
     return FinalFit(cv.beta[:9], coefs, ses, cv)
-
-
-def refit_with_torque(
-    prob: Problem, accepted: Sequence[Accepted], y_raw: np.ndarray, skip: int
-) -> CrossValidation:
-    """Cross-validation of the model with the measured side replaced by ``y_raw`` (unscaled,
-    e.g. the exact lagged or delayed shaft torque) and accepted term ``skip`` left out."""
-    cols = [
-        prob.columns(a.cand)[a.cand.variants.index(a.variant)]
-        for i, a in enumerate(accepted)
-        if i != skip
-    ]
-    base = _design(prob, cols)
-    y = y_raw / prob.scale
-    return cross_validate(block_stats(base, y, prob.w, prob.blocks))

@@ -88,6 +88,16 @@ class RecordingRows:
     def t(self) -> np.ndarray:
         return self.k * self.h
 
+    @property
+    def v_mean(self) -> np.ndarray:
+        """Mean velocity over each row's interval (K, 2)."""
+        return _node_average(self.v_nodes)
+
+    @property
+    def q_mean(self) -> np.ndarray:
+        """Mean position over each row's interval (K, 2)."""
+        return _node_average(self.q_nodes)
+
 
 def moving_average(x: np.ndarray, window: int) -> np.ndarray:
     """F: the mean of the last ``window`` rows (fewer at the start), along the first axis."""

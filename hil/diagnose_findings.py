@@ -93,37 +93,20 @@ def _cv_with(
     return cross_validate(block_stats(base, y_raw / prob.scale, prob.w, prob.blocks))
 
 
-def _raw_y(prob: Problem) -> np.ndarray:
-    return prob.y * prob.scale
-
-
 def _shaft_rows(
     prob: Problem, joints: Sequence[int], kind: str, values: Sequence[float]
 ) -> np.ndarray:
-    """Stacked measured side with ``joints`` replaced by the exact lagged (``kind`` = lag) or
-    delayed shaft torque, ``values`` the time constant or delay of each joint."""
-    y = _raw_y(prob).copy()
-    parts = []
-    for rows in prob.rows:
-        if kind == "lag":
-            lagged = np.column_stack(
-                [
-                    lagged_torque_rows(rows, values[i])[:, i] if i in joints else rows.y[:, i]
-                    for i in (0, 1)
-                ]
+    """Stacked measured side (Nm) with ``joints`` replaced by the exact lagged (``kind`` = lag)
+    or delayed shaft torque, ``values`` the time constant or delay of each joint."""
+    shaft = lagged_torque_rows if kind == "lag" else delayed_torque_rows
+    return np.concatenate(
+        [
+            np.column_stack(
+                [shaft(rows, values[i])[:, i] if i in joints else rows.y[:, i] for i in (0, 1)]
             )
-            parts.append(lagged)
-        else:
-            parts.append(
-                np.column_stack(
-                    [
-                        delayed_torque_rows(rows, values[i])[:, i] if i in joints else rows.y[:, i]
-                        for i in (0, 1)
-                    ]
-                )
-            )
-    y[:] = np.concatenate(parts)
-    return y
+            for rows in prob.rows
+        ]
+    )
 
 
 def _least_squares_sse(prob: Problem, design: np.ndarray):
@@ -177,8 +160,10 @@ def classify_rate(
             values[j] = _search(sse)
         found[kind] = values
     lags, delays = found["lag"], found["delay"]
-    lag_cv = _cv_with(prob, accepted, skip, _shaft_rows(prob, joints, "lag", lags))
-    delay_cv = _cv_with(prob, accepted, skip, _shaft_rows(prob, joints, "delay", delays))
+    lag_rows = _shaft_rows(prob, joints, "lag", lags)
+    delay_rows = _shaft_rows(prob, joints, "delay", delays)
+    lag_cv = _cv_with(prob, accepted, skip, lag_rows)
+    delay_cv = _cv_with(prob, accepted, skip, delay_rows)
     n_tests = 2
     lag_better = evidence(delay_cv, lag_cv, joints)
     delay_better = evidence(lag_cv, delay_cv, joints)
@@ -217,21 +202,7 @@ def classify_rate(
             f.confounded_with = [
                 "transport_delay" if f.effect == "actuator_lag" else "actuator_lag"
             ]
-    shaft = (
-        _shaft_rows(prob, joints, "lag", lags)
-        if lag_ok
-        else _shaft_rows(prob, joints, "delay", delays)
-    )
-    return out, shaft
-
-
-def _offset(accepted: Sequence[Accepted], index: int) -> int:
-    """Position of accepted term ``index``'s first coefficient after θ's nine."""
-    return sum(_width(a) for a in accepted[:index])
-
-
-def _width(a: Accepted) -> int:
-    return term_width(a.cand)
+    return out, (lag_rows if lag_ok else delay_rows)
 
 
 def resolve_gain(
@@ -242,7 +213,7 @@ def resolve_gain(
     i = next(i for i, a in enumerate(accepted) if a.cand.kind == "gain")
     j = accepted[i].cand.joint
     other = 1 - j
-    y = _raw_y(prob)
+    y = prob.y_raw
     alt_cols = [
         np.concatenate([gain_column(r, other) for r in prob.rows]) / prob.scale[None, :, None]
     ]
@@ -261,7 +232,7 @@ def resolve_gain(
         },
     }
     # The accepted gain term is the last column of ``here`` only if it was accepted last.
-    r_here = float(here.beta[9 + _offset(accepted, i)])
+    r_here = float(here.beta[9 + sum(term_width(a.cand) for a in accepted[:i])])
     r_there = float(there.beta[-1])
     if dev_there >= GAIN_REFERENCE_RATIO * dev_here:
         return {j: r_here}, ev

@@ -15,7 +15,6 @@ from typing import Any
 import numpy as np
 
 from hil.diagnose import Problem
-from hil.diagnose_columns import _node_average
 
 # A grouping that explains less than this share of the residual variance is not reported as
 # carrying it.
@@ -43,11 +42,9 @@ def _terciles(x: np.ndarray) -> np.ndarray:
 
 def locate(prob: Problem, theta: np.ndarray) -> Location:
     """The residual of θ̂ on every joint, grouped (module doc)."""
-    e_all = (prob.y - prob.Psi @ theta) * prob.scale
+    e_all = prob.y_raw - prob.Psi_raw @ theta
     t = np.concatenate([r.t for r in prob.rows])
-    v = np.concatenate([_node_average(r.v_nodes) for r in prob.rows])
-    q = np.concatenate([_node_average(r.q_nodes) for r in prob.rows])
-    tau = prob.y * prob.scale
+    v, q, tau = prob.v_mean, prob.q_mean, prob.y_raw
     # time since the joint last stood still or reversed (the rows the fit leaves out)
     since = np.concatenate([_since_still(r.weights, r.h) for r in prob.rows])
     joints = []

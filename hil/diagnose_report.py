@@ -33,7 +33,7 @@ from hil.diagnose import (
     term_width,
     usable_speeds,
 )
-from hil.diagnose_columns import _node_average, moving_average
+from hil.diagnose_columns import moving_average
 from hil.diagnose_findings import (
     THETA_FC,
     Finding,
@@ -42,7 +42,7 @@ from hil.diagnose_findings import (
     resolve_gain,
 )
 from hil.diagnose_locate import locate
-from hil.diagnose_stats import block_stats, cross_validate, evidence, extend_stats
+from hil.diagnose_stats import block_stats, cross_validate, evidence, extend_stats_many
 from hil.metrics import nrmse
 from hil.openloop import OpenLoopExtras, simulate_open_loop
 
@@ -173,12 +173,7 @@ def _bin_columns(prob: Problem, joint: int, variable: str, bins: int = 8) -> np.
     """Indicator columns of quantile bins of the joint's velocity (signed) or position,
     averaged over intervals and filtered like the rows: a generic 'anything that depends on
     this state variable' model."""
-    values = np.concatenate(
-        [
-            _node_average(r.v_nodes if variable == "velocity" else r.q_nodes)[:, joint]
-            for r in prob.rows
-        ]
-    )
+    values = (prob.v_mean if variable == "velocity" else prob.q_mean)[:, joint]
     edges = np.quantile(values, np.linspace(0, 1, bins + 1)[1:-1])
     which = np.searchsorted(edges, values)
     cols = []
@@ -210,7 +205,7 @@ def unexplained(
     for j in (0, 1):
         for variable in ("velocity", "position"):
             X = _bin_columns(prob, j, variable)
-            cv = cross_validate(extend_stats(stats, design, X, y, prob.w, prob.blocks))
+            cv = cross_validate(extend_stats_many(stats, design, [X], y, prob.w, prob.blocks))
             ev = evidence(base, cv, [j])
             if ev.reduction >= 2 * MIN_REDUCTION and ev.sign_p <= FAMILY_ALPHA / tests:
                 out.append(
@@ -374,8 +369,8 @@ def before_after(
     )
     Z = _design(prob, cols)
     beta = fit_theta(Z, prob.y, w_train)
-    y = prob.y * prob.scale
-    pred0 = (prob.Psi @ theta0) * prob.scale
+    y = prob.y_raw
+    pred0 = prob.Psi_raw @ theta0
     pred1 = (Z @ beta) * prob.scale
     torque = {}
     for name, pred in (("before", pred0), ("after", pred1)):
@@ -575,8 +570,7 @@ def detectability_notes(prob: Problem) -> list[str]:
     """What the data cannot show (docs/diagnosis.md, 'What a recording needs')."""
     notes = []
     for j in (0, 1):
-        v = np.concatenate([_node_average(r.v_nodes)[:, j] for r in prob.rows])
-        w = np.concatenate([r.weights[:, j] for r in prob.rows])
+        v, w = prob.v_mean[:, j], prob.w[:, j]
         slow = int(np.sum((w > 0) & (np.abs(v) < 0.3)))
         if slow < 400:
             notes.append(

@@ -64,23 +64,6 @@ def _starts(blocks: np.ndarray) -> np.ndarray:
     return np.flatnonzero(np.r_[True, np.diff(blocks) > 0])
 
 
-def extend_stats(
-    base: BlockStats, Z: np.ndarray, X: np.ndarray, y: np.ndarray, w: np.ndarray, blocks: np.ndarray
-) -> BlockStats:
-    """Statistics of the design [Z, X] from those of Z (``base``): only the new cross terms are
-    computed, which is what makes testing hundreds of variants of a candidate cheap."""
-    starts = _starts(blocks)
-    wx = w[..., None] * X
-    cross = np.add.reduceat(Z[..., :, None] * wx[..., None, :], starts, axis=0)
-    xx = np.add.reduceat(X[..., :, None] * wx[..., None, :], starts, axis=0)
-    rx = np.add.reduceat(wx * y[..., None], starts, axis=0)
-    top = np.concatenate([base.G, cross], axis=-1)
-    bottom = np.concatenate([np.swapaxes(cross, -1, -2), xx], axis=-1)
-    return BlockStats(
-        np.concatenate([top, bottom], axis=-2), np.concatenate([base.r, rx], axis=-1), base.s
-    )
-
-
 def extend_stats_many(
     base: BlockStats,
     Z: np.ndarray,
@@ -89,9 +72,10 @@ def extend_stats_many(
     w: np.ndarray,
     blocks: np.ndarray,
 ) -> BlockStats:
-    """:func:`extend_stats` for many alternative X of the same width at once (a candidate's
-    variants): the cross terms of every variant come from one matrix product per block and
-    joint, which is what keeps a 400-variant cogging search to a fraction of a second."""
+    """Statistics of the designs [Z, X_v] for alternative X_v of the same width (a candidate's
+    variants), from those of Z (``base``): only the new cross terms are computed, those of every
+    variant from one matrix product per block and joint, which is what keeps a 400-variant
+    cogging search to a fraction of a second. Leading axis of G and r: the variant."""
     starts = _starts(blocks)
     ends = np.r_[starts[1:], len(blocks)]
     V, q = len(variants), variants[0].shape[-1]
