@@ -27,14 +27,17 @@ def _channel_text(channel: object) -> str:
 class CandumpWriter:
     """Append-only ``candump -L`` log of frames; python-can's CanutilsLogWriter format."""
 
-    def __init__(self, path: str | Path, channel: str = "can0") -> None:
+    def __init__(self, path: str | Path, channel: str = "vcan0") -> None:
         self.channel = channel
         self._channel_text = _channel_text(channel)
         self.file = open(path, "w", encoding="utf-8", buffering=BUFFER_BYTES)  # noqa: SIM115
         self.last_timestamp: float | None = None  # the first frame's (CanutilsLogWriter's rule)
 
     def write_frames(self, timestamp: float, frames: list[tuple[int, bytes]], rx: bool) -> None:
-        """Standard (11-bit) data frames ``(id, data)`` seen at one time, on the default channel."""
+        """Standard (11-bit) data frames ``(id, data)`` seen at one time, on the default channel.
+        No frames, no line: the timestamp floor is set by the first frame written, not a call."""
+        if not frames:
+            return
         first = self.last_timestamp
         if first is None:
             first = self.last_timestamp = timestamp
