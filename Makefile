@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: demo test test-slow bench lint format clean
+.PHONY: demo test test-slow bench lint format clean eds
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -37,6 +37,10 @@ lint: $(STAMP)
 format: $(STAMP)
 	$(BIN)/ruff format hil drivers virtual_robot profiles tests
 	$(BIN)/ruff check --fix hil drivers virtual_robot profiles tests
+
+# EDS and DBC from the object map (drivers/protocol/export.py); tests/test_interop.py checks them
+eds: $(STAMP)
+	$(BIN)/python -m drivers.protocol.export
 
 clean:
 	rm -rf $(VENV) runs build *.egg-info

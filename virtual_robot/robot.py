@@ -50,7 +50,6 @@ _LIVE_OBJECTS: dict[tuple[int, int], str] = {
     (0x6072, 0): "max_torque_permille",
     (0x6077, 0): "torque_actual_permille",
 }
-DEVICE_TYPE_SERVO = 0x00020192  # CiA 402 servo drive
 # (index, subindex) -> (lowest, highest) value of every object a transport may write
 _WRITABLE: dict[tuple[int, int], tuple[int, int]] = {
     (o.index, o.subindex): o.limits() for o in co.OBJECTS if o.access is not co.Access.RO
@@ -439,29 +438,10 @@ class VirtualRobot:
 
     @staticmethod
     def _initial_objects(p: DriveProfile) -> dict[tuple[int, int], int]:
-        """Power-on values. PDOs start invalid and unmapped: the host must configure them."""
-        n = p.node_id
-        store = {
-            (0x1000, 0): DEVICE_TYPE_SERVO,
-            (0x1017, 0): 0,
-            (0x1018, 1): p.vendor_id,
-            (0x1018, 2): p.product_code,
-            (0x1018, 3): 0x00010000,
-            (0x1400, 1): 0x80000000 | (co.RPDO1_BASE + n),
-            (0x1400, 2): co.TRANSMISSION_SYNC,
-            (0x1800, 1): 0x80000000 | (co.TPDO1_BASE + n),
-            (0x1800, 2): co.TRANSMISSION_SYNC,
-            (0x1801, 1): 0x80000000 | (co.TPDO2_BASE + n),
-            (0x1801, 2): co.TRANSMISSION_SYNC,
-            (0x6076, 0): round(p.rated_torque_Nm * 1000),  # mNm
-            (0x608F, 1): p.counts_per_rev,
-            (0x608F, 2): 1,
-        }
-        for m in (0x1600, 0x1A00, 0x1A01):
-            store[(m, 0)] = 0
-            store[(m, 1)] = 0
-            store[(m, 2)] = 0
-        return store
+        """Power-on values (the EDS defaults, drivers.protocol.cia402.power_on_objects)."""
+        return co.power_on_objects(
+            p.node_id, p.vendor_id, p.product_code, p.rated_torque_Nm, p.counts_per_rev
+        )
 
     def _write_stored(self, i: int, index: int, subindex: int, value: int) -> None:
         self._mapping_cache.clear()

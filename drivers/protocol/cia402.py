@@ -230,6 +230,37 @@ TPDO1_MAP = ((0x6041, 0), (0x6064, 0))  # statusword, position actual: 6 bytes
 TPDO2_MAP = ((0x606C, 0), (0x6077, 0))  # velocity actual, torque actual: 6 bytes
 TRANSMISSION_SYNC = 1  # synchronous, every SYNC
 
+DEVICE_TYPE_SERVO = 0x00020192  # 0x1000: CiA 402 servo drive
+IDENTITY_REVISION = 0x00010000  # 0x1018:3
+
+
+def power_on_objects(
+    node_id: int, vendor_id: int, product_code: int, rated_torque_Nm: float, counts_per_rev: int
+) -> dict[tuple[int, int], int]:
+    """A drive's stored objects at power-on (the EDS default values). PDOs start invalid and
+    unmapped: the host must configure them."""
+    store = {
+        (0x1000, 0): DEVICE_TYPE_SERVO,
+        (0x1017, 0): 0,
+        (0x1018, 1): vendor_id,
+        (0x1018, 2): product_code,
+        (0x1018, 3): IDENTITY_REVISION,
+        (0x1400, 1): 0x80000000 | (RPDO1_BASE + node_id),
+        (0x1400, 2): TRANSMISSION_SYNC,
+        (0x1800, 1): 0x80000000 | (TPDO1_BASE + node_id),
+        (0x1800, 2): TRANSMISSION_SYNC,
+        (0x1801, 1): 0x80000000 | (TPDO2_BASE + node_id),
+        (0x1801, 2): TRANSMISSION_SYNC,
+        (0x6076, 0): round(rated_torque_Nm * 1000),  # mNm
+        (0x608F, 1): counts_per_rev,
+        (0x608F, 2): 1,
+    }
+    for m in (0x1600, 0x1A00, 0x1A01):
+        store[(m, 0)] = 0
+        store[(m, 1)] = 0
+        store[(m, 2)] = 0
+    return store
+
 
 def pack_pdo(mapping: tuple[tuple[int, int], ...], values: tuple[int, ...]) -> bytes:
     return b"".join(OBJECT_MAP[m].encode(v) for m, v in zip(mapping, values, strict=True))
