@@ -161,9 +161,15 @@ def test_canopen_master_and_python_can_tools(socketcand_robot: dict[str, str]) -
     # seen to lose one frame of a hundred under load, so the count is not held to be exact
     assert seen[(0x080, b"")] >= 0.9 * log[(0x080, b"")]
     # the trap the doc warns of: the file after --bus-kwargs is taken for a keyword
+    player_argv = [sys.executable, "-m", "can.player", "-i", "socketcand", "-c", "can0"]
     trap = subprocess.run(
-        [sys.executable, "-m", "can.player", "-i", "socketcand", "-c", "can0", "--bus-kwargs"]
-        + [f"host={env['HOST']}", f"port={env['PORT']}", str(out / "bus.log")],
+        [
+            *player_argv,
+            "--bus-kwargs",
+            f"host={env['HOST']}",
+            f"port={env['PORT']}",
+            f"{out}/bus.log",
+        ],
         capture_output=True,
         text=True,
         timeout=30,
