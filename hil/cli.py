@@ -4,6 +4,16 @@
 embedded default (the virtual robot, no hardware, no root). The host never imports the plant's
 physics (DESIGN.md: the plant is the world, the host only knows its model): the virtual robot
 runs as its own process behind a real transport.
+
+Errors are one line, ``hil <command>: error: ...``. Exit status (README, docs/real-hardware.md):
+
+====  ==========================================================================================
+0     done
+1     the run or check failed (an incomplete recording, a failed comparison, an internal error)
+2     usage: bad arguments, or a profile, parameter file or recording that cannot be used
+3     link failure: the robot could not be reached or started, or the link to it failed
+130   interrupted (Ctrl-C); the drives were commanded to zero torque and disabled
+====  ==========================================================================================
 """
 
 from __future__ import annotations
@@ -15,6 +25,11 @@ import subprocess
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+
+from drivers.logsetup import add_verbosity_options, configure, verbosity
+from hil import __version__
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_LINK, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 
 # Subcommands that live in their own modules: name -> (module, help). Each module provides
 # ``add_arguments(parser)`` and ``main(args) -> int`` (exit status).
@@ -30,9 +45,21 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="hil", description="Hardware-in-the-loop bench host.")
-    sub = p.add_subparsers(dest="command", required=True)
-    r = sub.add_parser("run", help="record one experiment over a bench")
+    p.add_argument("--version", action="version", version=f"hil {__version__}")
+    add_verbosity_options(p)
+    # the same options after the subcommand (`hil run -v`); SUPPRESS keeps the top-level value
+    common = argparse.ArgumentParser(add_help=False, argument_default=argparse.SUPPRESS)
+    add_verbosity_options(common)
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    r = sub.add_parser("run", help="record one experiment over a bench", parents=[common])
     r.add_argument("--bench", default="virtual-slcan", help="bench profile name or TOML file")
+    r.add_argument(
+        "--attach",
+        metavar="CHANNEL",
+        default=None,
+        help="use the virtual robot already serving on CHANNEL (what `virtual-robot serve` "
+        "announced: a pty, or HOST:PORT for socketcand) instead of starting one",
+    )
     r.add_argument("--experiment", default="reyes-kelly", help="experiment profile or file")
     r.add_argument("--duration", type=float, default=None, help="seconds (default: experiment's)")
     r.add_argument("--out", required=True, help="run directory to write")
@@ -51,11 +78,15 @@ def _parser() -> argparse.ArgumentParser:
     )
     r.add_argument("--no-plot", action="store_true", help="skip positions.png")
     r.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
-    d = sub.add_parser("demo", help="the main job end to end on the default virtual robot")
+    d = sub.add_parser(
+        "demo", help="the main job end to end on the default virtual robot", parents=[common]
+    )
     d.add_argument("--out", default="runs/demo", help="directory for the demo's runs")
     d.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
     for name, (module, help_text) in COMMANDS.items():
-        importlib.import_module(module).add_arguments(sub.add_parser(name, help=help_text))
+        importlib.import_module(module).add_arguments(
+            sub.add_parser(name, help=help_text, parents=[common])
+        )
     return p
 
 
@@ -79,7 +110,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     )
     run = run_experiment("virtual-slcan", "reyes-kelly", run_dir, duration_s=10.0, progress=False)
     if run["status"] != "complete":
-        print(f"hil: error: demo run {run['status']}: {run['reason']}", file=sys.stderr)
+        print(f"hil demo: error: demo run {run['status']}: {run['reason']}", file=sys.stderr)
         return 1
     print(
         f"hil demo: the same experiment offline (virtual-robot simulate) -> {sim_dir}",
@@ -103,7 +134,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
     if proc.returncode != 0:
         reason = proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "no message"
-        print(f"hil: error: virtual robot simulation failed: {reason}", file=sys.stderr)
+        print(f"hil demo: error: virtual robot simulation failed: {reason}", file=sys.stderr)
         return 1
     sim = json.loads(proc.stdout)
     a, b = read_signals(run_dir), read_signals(sim_dir)
@@ -213,11 +244,27 @@ def _demo_identify(out: Path, fit_dir: Path) -> tuple[dict, str]:
     return run_identify(args)
 
 
+def _attached_bench(args: argparse.Namespace) -> str:
+    """``--attach``: the bench attached to the running robot, written into the run directory
+    (so the run records what it used); its path."""
+    from hil.run import UsageError
+    from profiles.bench import attached_bench_text, load_bench
+
+    if args.effects is not None or args.seed is not None:
+        raise UsageError("--effects and --seed belong to the robot; give them to its serve")
+    bench = load_bench(args.bench)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "bench-attached.toml"
+    path.write_text(attached_bench_text(bench, args.attach), encoding="utf-8")
+    return str(path)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from hil.run import run_experiment
 
     summary = run_experiment(
-        args.bench,
+        _attached_bench(args) if args.attach else args.bench,
         args.experiment,
         args.out,
         duration_s=args.duration,
@@ -237,21 +284,56 @@ def cmd_run(args: argparse.Namespace) -> int:
             )
         return 0
     print(
-        f"hil: {summary['status']}: {summary['reason']} "
+        f"hil run: {summary['status']}: {summary['reason']} "
         f"({summary['rows']} rows kept in {summary['signals']})",
         file=sys.stderr,
     )
-    return 130 if summary["status"] == "interrupted" else 1
+    return EXIT_INTERRUPTED if summary["status"] == "interrupted" else EXIT_FAILED
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
+    """Parse; an unknown option is reported by its subcommand's parser (its usage, its name)."""
+    parser = _parser()
+    args, extras = parser.parse_known_args(argv)
+    if extras:
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        sub.choices[args.command].error(f"unrecognized arguments: {' '.join(extras)}")
+    return args
+
+
+def exit_status(exc: BaseException) -> int:
+    """The exit status of an error that ended a command (the table in the module docstring)."""
+    import can
+
     from drivers.arm import LinkError
     from drivers.recording import RecordingError
     from hil.launch import LaunchError
     from hil.params import ParamsError
     from profiles import ProfileError
 
-    args = _parser().parse_args(argv)
+    if isinstance(exc, LinkError | LaunchError | ConnectionError | TimeoutError | can.CanError):
+        return EXIT_LINK
+    if isinstance(
+        exc,
+        ProfileError | ParamsError | RecordingError | ValueError | FileNotFoundError,
+    ):
+        return EXIT_USAGE
+    if isinstance(exc, IsADirectoryError | NotADirectoryError | PermissionError):
+        return EXIT_USAGE
+    return EXIT_FAILED
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    import can
+
+    from drivers.arm import LinkError
+    from drivers.recording import RecordingError
+    from hil.launch import LaunchError
+    from hil.params import ParamsError
+    from profiles import ProfileError
+
+    args = _parse(argv)
+    configure("hil", verbosity(args))
     try:
         if args.command == "run":
             return cmd_run(args)
@@ -260,21 +342,25 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command in COMMANDS:
             return int(importlib.import_module(COMMANDS[args.command][0]).main(args))
     except KeyboardInterrupt:
-        print("hil: interrupted; drives commanded to zero torque and disabled", file=sys.stderr)
-        return 130
+        print(
+            f"hil {args.command}: interrupted; drives commanded to zero torque and disabled",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
     except (
         ProfileError,
         ParamsError,
         RecordingError,
         LaunchError,
         LinkError,
+        can.CanError,
         OSError,
         ValueError,
         RuntimeError,
     ) as exc:
-        print(f"hil: error: {exc}", file=sys.stderr)
-        return 2
-    return 2
+        print(f"hil {args.command}: error: {exc}", file=sys.stderr)
+        return exit_status(exc)
+    return EXIT_USAGE
 
 
 if __name__ == "__main__":

@@ -137,7 +137,7 @@ def main(args: argparse.Namespace) -> int:
             print(f"plots: {', '.join(doc['plots'])}")
         print(f"runs and compare.json: {doc['out_dir']}")
     if doc["status"] != "complete":
-        print(f"hil: {doc['status']}: {'; '.join(doc['failures'])}", file=sys.stderr)
+        print(f"hil control: {doc['status']}: {'; '.join(doc['failures'])}", file=sys.stderr)
         return 130 if doc["status"] == "interrupted" else 1
     return 0
 
@@ -168,5 +168,5 @@ def _print_run(doc: dict[str, Any]) -> None:
 def _status(status: str, reason: str | None, signals: str, rows: int) -> int:
     if status == "complete":
         return 0
-    print(f"hil: {status}: {reason} ({rows} rows kept in {signals})", file=sys.stderr)
+    print(f"hil control: {status}: {reason} ({rows} rows kept in {signals})", file=sys.stderr)
     return 130 if status == "interrupted" else 1

@@ -47,7 +47,7 @@ def main(args: argparse.Namespace) -> int:
             nominal = load_params(args.params).theta
             reference = nominal
     except (RecordingError, ParamsError, OSError, ValueError) as exc:
-        print(f"hil diagnose: {exc}", file=sys.stderr)
+        print(f"hil diagnose: error: {exc}", file=sys.stderr)
         return 2
     for rec in recs:
         if rec.meta.get("status") not in (None, "complete"):
@@ -58,7 +58,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         result = diagnose(recs, reference, nominal_theta=nominal, progress=_progress)
     except ValueError as exc:
-        print(f"hil diagnose: {exc}", file=sys.stderr)
+        print(f"hil diagnose: error: {exc}", file=sys.stderr)
         return 2
     doc = result.document
     if args.out:

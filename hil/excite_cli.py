@@ -362,7 +362,7 @@ def main(args: argparse.Namespace) -> int:
                 rec_paper = _simulate(bench.robot, PAPER_EXPERIMENT, 10.0, tmp_dir / "paper")
                 rec = _simulate(bench.robot, str(out.resolve()), args.duration, tmp_dir / "design")
         except RuntimeError as exc:
-            print(f"hil: error: {exc} (the profile {out} is written)", file=sys.stderr)
+            print(f"hil excite: error: {exc} (the profile {out} is written)", file=sys.stderr)
             return 1
         paper = _realized(rec_paper, theta)
         realized = _realized(rec, theta)

@@ -121,7 +121,7 @@ def main(args: argparse.Namespace) -> int:
     if summary["status"] == "complete":
         return 0
     print(
-        f"hil: jitter run {summary['status']}: {summary['reason']} "
+        f"hil jitter: run {summary['status']}: {summary['reason']} "
         f"(figures of the {summary['rows']} rows recorded are above)",
         file=sys.stderr,
     )

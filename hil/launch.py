@@ -4,7 +4,9 @@ A bench with ``virtual = true`` runs ``virtual-robot serve`` as a subprocess and
 channel it announces (one JSON line on its stdout). The ``virtual`` transport (python-can's
 in-process bus) cannot cross a process boundary, so that one bench starts the very same server
 entry point in a thread instead: the only place the host loads ``virtual_robot``, and only its
-``serve`` function, never the physics directly.
+``serve`` function, never the physics directly. A bench with ``attach = true`` starts nothing: the
+robot already serves on the bench's channel (``virtual-robot serve``, ``hil run --attach``), and
+it keeps running after the host is done.
 """
 
 from __future__ import annotations
@@ -56,6 +58,9 @@ class VirtualRobotProcess:
 
     # ---- lifecycle ------------------------------------------------------------------------
     def __enter__(self) -> VirtualRobotProcess:
+        if self.bench.attach:  # somebody else's robot: use its channel, start and stop nothing
+            self.channel = {"channel": self.bench.channel, "attached": True}
+            return self
         if self.bench.in_process:
             self._start_thread()
         else:
@@ -66,6 +71,8 @@ class VirtualRobotProcess:
         self.stop()
 
     def alive(self) -> bool:
+        if self.bench.attach:
+            return True  # not ours to watch: a dead robot shows as a link failure
         if self.proc is not None:
             return self.proc.poll() is None
         return self._thread is not None and self._thread.is_alive()

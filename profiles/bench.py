@@ -2,6 +2,9 @@
 
 A real bench is a profile, not a code change: `transport`/`channel` point at can0, a USB slcan
 adapter or a serial port, `virtual = false`, and `confirm_real` must be passed on the command line.
+A virtual bench with `attach = true` and a `channel` uses a virtual robot that is already running
+(`virtual-robot serve`) instead of starting its own (:func:`attached_bench_text`, `hil run
+--attach`).
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ class BenchProfile:
     in_process: bool = False  # python-can `virtual`: the robot runs in a thread of the host
     timing_faults: TimingFaults | None = None  # [timing_faults] (profiles/timing_faults.py)
     pace_bus: bool = False  # virtual CAN: frames take their bit time at `bitrate` (can_bits)
+    attach: bool = False  # virtual: use the robot already serving on `channel`, start none
 
 
 def load_bench(name_or_path: str | Path) -> BenchProfile:
@@ -63,6 +67,7 @@ def load_bench(name_or_path: str | Path) -> BenchProfile:
             "limits",
             "pace_bus",
             "timing_faults",
+            "attach",
         }
     )
     protocol = f.string("protocol")
@@ -82,6 +87,13 @@ def load_bench(name_or_path: str | Path) -> BenchProfile:
     channel = f.string("channel", "")
     if not virtual and not channel:
         raise f.error("channel", "a real bench needs a channel (e.g. can0, /dev/ttyACM0)")
+    attach = f.boolean("attach", False)
+    if attach and (not virtual or not channel or transport == "virtual"):
+        raise f.error(
+            "attach",
+            "uses a running `virtual-robot serve`: needs virtual = true, a transport that "
+            "crosses processes (slcan, socketcand, socketcan, serial) and its channel",
+        )
     pace_bus = f.boolean("pace_bus", False)
     if pace_bus and (protocol != "can" or not virtual):
         raise f.error(
@@ -125,9 +137,32 @@ def load_bench(name_or_path: str | Path) -> BenchProfile:
         position_limit_rad=(position[0], position[1]),
         in_process=transport == "virtual",
         pace_bus=pace_bus,
+        attach=attach,
         timing_faults=(
             parse_timing_faults(f.table("timing_faults"), host_allowed=True)
             if f.has("timing_faults")
             else None
         ),
     )
+
+
+def attached_bench_text(bench: BenchProfile, channel: str) -> str:
+    """The TOML of ``bench`` attached to a running virtual robot on ``channel`` (the ``channel``
+    its ``virtual-robot serve`` announced: a pty path, or ``HOST:PORT`` for socketcand)."""
+    import json
+
+    if not bench.virtual:
+        raise ValueError(f"--attach needs a virtual bench; {bench.name} drives a real arm")
+    if bench.transport == "virtual":
+        raise ValueError(
+            f"--attach: bench {bench.name} runs its robot in-process; use a bench "
+            "with transport slcan, socketcand, socketcan or serial"
+        )
+    lines = Path(bench.source).read_text(encoding="utf-8").splitlines()
+    kept = [ln for ln in lines if not ln.replace(" ", "").startswith(("channel=", "attach="))]
+    head = [
+        f"# {bench.name} attached to a running virtual robot (hil run --attach)",
+        "attach = true",
+        f"channel = {json.dumps(channel)}",
+    ]
+    return "\n".join(head + kept) + "\n"

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 KINDS = ("robots", "drives", "benches", "effects", "experiments")
+_SINGULAR = {"benches": "bench", "effects": "effects"}  # the rest: drop the s
 
 _MISSING = object()
 
@@ -48,7 +49,7 @@ def resolve(kind: str, name_or_path: str | Path) -> Path:
         raise ProfileError(
             f"{kind}/{name_or_path}",
             None,
-            f"no {kind[:-1]} profile of that name (shipped: {names})",
+            f"no {_SINGULAR.get(kind, kind[:-1])} profile of that name (shipped: {names})",
         )
     return shipped
 

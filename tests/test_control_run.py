@@ -208,5 +208,5 @@ def test_cli_errors_are_one_line(args, needle, tmp_path, monkeypatch, capsys):
     err = capsys.readouterr()
     assert status == 2, (err.out, err.err)
     lines = err.err.strip().splitlines()
-    assert lines[-1].startswith("hil: error:") and needle in lines[-1], err.err
+    assert lines[-1].startswith(f"hil {args[0]}: error:") and needle in lines[-1], err.err
     assert err.out == ""

@@ -354,7 +354,7 @@ def test_cli_bad_arguments_are_one_line_errors(capsys, tmp_path, args, needle):
     captured = capsys.readouterr()
     assert captured.out == ""
     lines = captured.err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("hil: error:") and needle in lines[0]
+    assert len(lines) == 1 and lines[0].startswith("hil excite: error:") and needle in lines[0]
     assert not (tmp_path / "x.toml").exists()
 
 

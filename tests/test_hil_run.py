@@ -142,7 +142,7 @@ def test_virtual_robot_killed_mid_run(tmp_path):
     finally:
         proc.kill()
     assert proc.returncode == 1
-    lines = [ln for ln in err.splitlines() if ln.startswith("hil:") and "%" not in ln]
+    lines = [ln for ln in err.splitlines() if ln.startswith("hil run:")]
     assert len(lines) == 1 and ("gone" in lines[0] or "no feedback" in lines[0]), err
     rec = read_signals(tmp_path)
     meta = json.loads((tmp_path / "meta.json").read_text())

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import subprocess
 import sys
 import tomllib
@@ -578,7 +579,7 @@ def assert_cli_error(proc: subprocess.CompletedProcess[str], *needles: str) -> s
     assert "Traceback" not in proc.stderr
     lines = proc.stderr.splitlines()
     assert len(lines) == 1, proc.stderr
-    assert lines[0].startswith("virtual-robot: error:"), lines[0]
+    assert re.match(r"virtual-robot (simulate|serve): error:", lines[0]), lines[0]
     for needle in needles:
         assert needle in lines[0], (needle, lines[0])
     return lines[0]

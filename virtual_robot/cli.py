@@ -10,6 +10,7 @@ import threading
 import time
 from collections.abc import Sequence
 
+from drivers.logsetup import add_verbosity_options, configure, verbosity
 from drivers.recording import RecordingError
 from profiles import ProfileError
 from profiles.effects import load_effects
@@ -19,11 +20,23 @@ from virtual_robot.plant import DEFAULT_STEP_S
 
 
 def _parser() -> argparse.ArgumentParser:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        release = version("ddbench")
+    except PackageNotFoundError:  # run from a source tree that is not installed
+        release = "unknown"
     p = argparse.ArgumentParser(
         prog="virtual-robot", description="The emulated Reyes & Kelly direct-drive arm."
     )
-    sub = p.add_subparsers(dest="command", required=True)
-    s = sub.add_parser("simulate", help="run an experiment offline and write a recording")
+    p.add_argument("--version", action="version", version=f"virtual-robot {release}")
+    add_verbosity_options(p)
+    common = argparse.ArgumentParser(add_help=False, argument_default=argparse.SUPPRESS)
+    add_verbosity_options(common)
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    s = sub.add_parser(
+        "simulate", help="run an experiment offline and write a recording", parents=[common]
+    )
     s.add_argument("--robot", default="cicese", help="robot profile name or TOML file")
     s.add_argument("--experiment", default="reyes-kelly", help="experiment profile name or file")
     s.add_argument(
@@ -42,7 +55,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--no-plot", action="store_true", help="skip positions.png")
     s.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
 
-    v = sub.add_parser("serve", help="serve the drives over a bench's transport")
+    v = sub.add_parser("serve", help="serve the drives over a bench's transport", parents=[common])
     v.add_argument("--bench", default="virtual-slcan", help="bench profile name or TOML file")
     v.add_argument("--effects", default=None, help="effects profile name or file")
     v.add_argument("--seed", type=int, default=None, help="seed for any randomness (recorded)")
@@ -154,14 +167,19 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
+    parser = _parser()
+    args, extras = parser.parse_known_args(argv)
+    if extras:  # reported by the subcommand's parser: its usage, its name
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        sub.choices[args.command].error(f"unrecognized arguments: {' '.join(extras)}")
+    configure("virtual-robot", verbosity(args))
     try:
         if args.command == "simulate":
             return cmd_simulate(args)
         if args.command == "serve":
             return cmd_serve(args)
     except (ProfileError, RecordingError, ValueError, OSError) as exc:
-        print(f"virtual-robot: error: {exc}", file=sys.stderr)
+        print(f"virtual-robot {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("virtual-robot: interrupted; the recording so far is kept", file=sys.stderr)
