@@ -97,17 +97,25 @@ def configure(prog: str, verbosity: int = 0) -> logging.Handler:
     return handler
 
 
-def add_verbosity_options(parser: object) -> None:
-    """``-v``/``--verbose`` (repeatable) and ``-q``/``--quiet`` on an argparse parser."""
+def add_verbosity_options(parser: object, *, subcommand: bool = False) -> None:
+    """``-v``/``--verbose`` (repeatable) and ``-q``/``--quiet`` on an argparse parser. On a
+    subcommand's parser (``subcommand=True``) they have no default, so the values given before
+    the subcommand stand unless the option is given again after it."""
+    import argparse
+
     parser.add_argument(  # type: ignore[attr-defined]
         "-v",
         "--verbose",
         action="count",
-        default=0,
+        default=argparse.SUPPRESS if subcommand else 0,
         help="more log output (-v: warnings of python-can/canopen, -vv: debug)",
     )
     parser.add_argument(  # type: ignore[attr-defined]
-        "-q", "--quiet", action="store_true", help="errors only"
+        "-q",
+        "--quiet",
+        action="store_true",
+        default=argparse.SUPPRESS if subcommand else False,
+        help="errors only",
     )
 
 

@@ -48,8 +48,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"hil {__version__}")
     add_verbosity_options(p)
     # the same options after the subcommand (`hil run -v`); SUPPRESS keeps the top-level value
-    common = argparse.ArgumentParser(add_help=False, argument_default=argparse.SUPPRESS)
-    add_verbosity_options(common)
+    common = argparse.ArgumentParser(add_help=False)
+    add_verbosity_options(common, subcommand=True)
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     r = sub.add_parser("run", help="record one experiment over a bench", parents=[common])
     r.add_argument("--bench", default="virtual-slcan", help="bench profile name or TOML file")

@@ -31,8 +31,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--version", action="version", version=f"virtual-robot {release}")
     add_verbosity_options(p)
-    common = argparse.ArgumentParser(add_help=False, argument_default=argparse.SUPPRESS)
-    add_verbosity_options(common)
+    common = argparse.ArgumentParser(add_help=False)
+    add_verbosity_options(common, subcommand=True)
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     s = sub.add_parser(
         "simulate", help="run an experiment offline and write a recording", parents=[common]

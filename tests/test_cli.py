@@ -1,0 +1,145 @@
+"""The command lines' shared behaviour: --version, python -m hil, -v/-q and the log rate limit,
+one error format, exit codes, and `hil run --attach` to a running `virtual-robot serve`."""
+
+from __future__ import annotations
+
+import json
+import logging
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from drivers.logsetup import RateLimit, configure
+from hil import __version__
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _run(*argv: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, *argv], cwd=ROOT, capture_output=True, text=True, timeout=timeout
+    )
+
+
+def test_version_on_both_command_lines() -> None:
+    hil = _run("-m", "hil", "--version")
+    assert hil.returncode == 0 and hil.stdout.strip() == f"hil {__version__}"
+    robot = _run("-m", "virtual_robot.cli", "--version")
+    assert robot.returncode == 0 and robot.stdout.strip().startswith("virtual-robot ")
+
+
+@pytest.mark.parametrize(
+    ("argv", "prog"),
+    [
+        (("-m", "hil", "run", "--out", "x", "--bogus"), "hil run"),
+        (("-m", "virtual_robot.cli", "serve", "--bogus"), "virtual-robot serve"),
+    ],
+)
+def test_a_misspelled_option_is_reported_by_its_subcommand(argv, prog) -> None:
+    proc = _run(*argv)
+    assert proc.returncode == 2
+    assert proc.stderr.startswith(f"usage: {prog} ")
+    assert proc.stderr.splitlines()[-1] == f"{prog}: error: unrecognized arguments: --bogus"
+
+
+def test_bad_input_is_one_line_exit_2() -> None:
+    proc = _run("-m", "hil", "run", "--bench", "no-such", "--out", "x")
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.splitlines() == [
+        line for line in proc.stderr.splitlines() if line.startswith("hil run: error: ")
+    ]
+    assert "no bench profile of that name" in proc.stderr
+
+
+def _dead_port() -> int:
+    with socket.socket() as s:  # bound, never listening: connections are refused
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_a_dead_socketcand_port_gives_a_handful_of_lines_and_exit_3(tmp_path: Path) -> None:
+    """python-can retries the connection for 10 s, logging every refusal (about 700,000 lines
+    before the logging set-up); even with -v the rate limit leaves a handful, and the link
+    failure has its own exit status."""
+    port = _dead_port()
+    argv = ["-m", "hil", "-v", "run", "--bench", "virtual-socketcand", "--out", str(tmp_path)]
+    proc = _run(*argv, "--attach", f"127.0.0.1:{port}", "--duration", "0.1")
+    lines = proc.stderr.splitlines()
+    assert proc.returncode == 3, proc.stderr
+    assert 1 < len(lines) <= 8, proc.stderr[:2000]
+    assert lines[-1].startswith("hil run: error: cannot open the CAN bus")
+    assert "similar messages suppressed" in proc.stderr
+    quiet = _run(*argv[:2], *argv[3:], "--attach", f"127.0.0.1:{port}", "--duration", "0.1")
+    assert quiet.returncode == 3 and len(quiet.stderr.splitlines()) == 1, quiet.stderr
+
+
+def test_rate_limit_passes_a_burst_then_one_per_window() -> None:
+    limit = RateLimit(burst=3, window_s=3600)
+    record = logging.LogRecord("can", logging.WARNING, __file__, 1, "Failed", None, None)
+    passed = [limit.filter(logging.makeLogRecord(record.__dict__)) for _ in range(10_000)]
+    assert sum(passed) == 3
+    other = logging.LogRecord("can", logging.WARNING, __file__, 1, "other", None, None)
+    assert limit.filter(other)
+    limit.window_s = 0.0  # the window has passed: the next one goes out with the count
+    late = logging.makeLogRecord(record.__dict__)
+    assert limit.filter(late) and "9997 similar messages suppressed" in late.getMessage()
+
+
+def test_third_party_loggers_are_quiet_by_default() -> None:
+    handler = configure("test", 0)
+    try:
+        assert not logging.getLogger("can.interfaces.socketcand").isEnabledFor(logging.WARNING)
+        assert logging.getLogger("hil.run").isEnabledFor(logging.WARNING)
+        configure("test", 1)
+        assert logging.getLogger("canopen").isEnabledFor(logging.WARNING)
+        configure("test", -1)
+        assert not logging.getLogger("hil").isEnabledFor(logging.WARNING)
+    finally:
+        for h in list(logging.getLogger().handlers):
+            if getattr(h, "ddbench", False):
+                logging.getLogger().removeHandler(h)
+        del handler
+
+
+def test_hil_run_attaches_to_a_running_robot(tmp_path: Path) -> None:
+    """`virtual-robot serve` started by hand; `hil run --attach` records over it without
+    --confirm-real, and the robot serves on afterwards (a second run attaches again)."""
+    robot = subprocess.Popen(
+        [sys.executable, "-m", "virtual_robot.cli", "serve", "--bench", "virtual-socketcand"],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        info = json.loads(robot.stdout.readline())
+        for n in (1, 2):
+            out = tmp_path / f"run{n}"
+            proc = _run(
+                "-m",
+                "hil",
+                "run",
+                "--bench",
+                "virtual-socketcand",
+                "--attach",
+                info["channel"],
+                "--duration",
+                "0.5",
+                "--no-plot",
+                "--json",
+                "--out",
+                str(out),
+            )
+            assert proc.returncode == 0, proc.stderr
+            summary = json.loads(proc.stdout)
+            assert summary["status"] == "complete" and summary["rows"] == 200
+            meta = json.loads((out / "meta.json").read_text())
+            assert meta["channel"]["attached"] is True
+            assert "attach = true" in (out / "bench-attached.toml").read_text()
+        assert robot.poll() is None  # still serving
+    finally:
+        robot.terminate()
+        robot.wait(10)
