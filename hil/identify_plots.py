@@ -48,6 +48,9 @@ def plot_estimates(result: SchemeResult, reference: np.ndarray, path: Path) -> P
     return path
 
 
+_PANEL_TITLES = {"fit": "Fit recording", "held_out": "Held-out recording"}
+
+
 def plot_validation(
     scheme: str,
     discretization: str,
@@ -58,7 +61,8 @@ def plot_validation(
     (title, recording, simulated q, position NRMSE per joint)."""
     plt = _pyplot()
     fig, axes = plt.subplots(2, len(panels), figsize=(5.5 * len(panels), 6), squeeze=False)
-    for c, (title, rec, q_sim, err) in enumerate(panels):
+    for c, (name, rec, q_sim, err) in enumerate(panels):
+        title = _PANEL_TITLES.get(name, name)
         for j in range(2):
             ax = axes[j, c]
             ax.plot(rec.t, rec.q[:, j], lw=1.1, label="recorded")
