@@ -5,13 +5,13 @@ embedded default (the virtual robot, no hardware, no root). The host never impor
 physics (DESIGN.md: the plant is the world, the host only knows its model): the virtual robot
 runs as its own process behind a real transport.
 
-Errors are one line, ``hil <command>: error: ...``. Exit status (README, docs/real-hardware.md):
+Errors are one line, ``hil <command>: error: ...``. Exit status (docs/interop.md):
 
 ====  ==========================================================================================
 0     done
 1     the run or check failed (an incomplete recording, a failed comparison, an internal error)
 2     usage: bad arguments, or a profile, parameter file or recording that cannot be used
-3     link failure: the robot could not be reached or started, or the link to it failed
+3     link failure: the robot could not be reached or started (lost mid-run: 1, see meta.json)
 130   interrupted (Ctrl-C); the drives were commanded to zero torque and disabled
 ====  ==========================================================================================
 """
