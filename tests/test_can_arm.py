@@ -26,7 +26,6 @@ from drivers.can_arm import (
     frame_routes,
     parse_frame,
 )
-from drivers.candump import CandumpWriter
 from drivers.protocol import cia402 as co
 from drivers.recording import read_signals
 from profiles.drive import load_drive
@@ -496,39 +495,3 @@ def test_sdo_from_another_thread_during_cycles_is_answered(rig):
             s = arm.cycle((1.0, 0.1))
         assert not arm._direct
         assert [co.state_from_statusword(w) for w in s.status] == [State.OPERATION_ENABLED] * 2
-
-
-# ---- traffic log format -------------------------------------------------------------------------
-_MESSAGES = st.builds(
-    can.Message,
-    timestamp=st.floats(0, 2e9, allow_nan=False),
-    arbitration_id=st.integers(0, 0x7FF),
-    is_extended_id=st.booleans(),
-    is_remote_frame=st.booleans(),
-    is_error_frame=st.booleans(),
-    is_rx=st.booleans(),
-    channel=st.sampled_from([None, "can0", 3, "vcan1"]),
-    data=st.binary(max_size=8),
-)
-
-
-@settings(max_examples=200, deadline=None)
-@given(messages=st.lists(_MESSAGES, max_size=10), stamp=st.floats(0, 2e9, allow_nan=False))
-def test_candump_writer_writes_what_python_can_writes(messages, stamp, tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("log")
-    reference = can.CanutilsLogWriter(tmp / "ref.log", channel="slcan0")
-    ours = CandumpWriter(tmp / "ours.log", channel="slcan0")
-    frames = [(m.arbitration_id, bytes(m.data)) for m in messages]
-    for m in messages:
-        reference.on_message_received(m)
-        ours.write_message(m)
-    for rx in (True, False):  # the batch path: standard data frames seen at one time
-        for cob_id, data in frames:
-            msg = can.Message(
-                timestamp=stamp, arbitration_id=cob_id, data=data, is_extended_id=False, is_rx=rx
-            )
-            reference.on_message_received(msg)
-        ours.write_frames(stamp, frames, rx)
-    reference.stop()
-    ours.stop()
-    assert (tmp / "ours.log").read_text() == (tmp / "ref.log").read_text()
