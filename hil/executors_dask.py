@@ -98,7 +98,10 @@ class DaskExecutor(OrderedMap):
             host="127.0.0.1",  # loopback only
             dashboard_address=None,
             silence_logs=logging.ERROR,
-            scheduler_kwargs={"allowed_failures": 0},  # a dead worker fails its job at once
+            scheduler_kwargs={
+                "allowed_failures": 0,  # a dead worker fails its job at once
+                "dashboard_address": "127.0.0.1:0",  # its HTTP server: any free loopback port
+            },
         )
         client = Client(cluster)
 
@@ -200,12 +203,17 @@ class DaskExecutor(OrderedMap):
                 continue
             for future in sorted(done, key=lambda f: running[f][0]):
                 i, worker = running.pop(future)
-                if future.status == "finished":
-                    yield Outcome(i, jobs[i], future.result(), attempts=attempts[i])
+                status = future.status
+                result = future.result() if status == "finished" else None
+                exc = future.exception() if status == "error" else None
+                # the result is here now: let the worker forget it, or a later death of that
+                # worker would make the scheduler compute the job again
+                future.release()
+                if status == "finished":
+                    yield Outcome(i, jobs[i], result, attempts=attempts[i])
                     continue
-                exc = future.exception() if future.status == "error" else None
                 if exc is None or isinstance(exc, KilledWorker):
-                    if (out := lost(i, worker, "it died" if exc else future.status)) is not None:
+                    if (out := lost(i, worker, "it died" if exc else status)) is not None:
                         yield out
                 else:  # the job raised on each of its 1 + retries runs
                     yield failed(i, jobs[i], exc, attempts=attempts[i] + self.retries)
