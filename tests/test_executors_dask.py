@@ -2,7 +2,8 @@
 JSON byte for byte; a worker killed mid-sweep loses only its point, which is retried once and
 then reported with its parameters; a missing extra or an absent scheduler is a one-line error.
 
-The LocalCluster tests need the `dask` extra (`make test` installs it) and take ~30 s.
+The LocalCluster tests need the `dask` extra (`make test` installs it) and take ~30-60 s on
+a loaded 2-core machine; the own-cluster and diagnosis-set checks are `slow`.
 """
 
 from __future__ import annotations
@@ -174,6 +175,7 @@ def _die_once(markers: str, x: int) -> int:
     return x * x
 
 
+@pytest.mark.slow  # ~15 s on a loaded machine: a cluster of its own, a worker restarted
 def test_own_local_cluster_retries_a_dead_workers_job(tmp_path: Path) -> None:
     """`--executor dask`: a LocalCluster of its own (allowed-failures 0: the scheduler fails a
     dead worker's job at once), the job run again elsewhere, the cluster closed after."""
@@ -263,3 +265,30 @@ def _sleep(seconds: float) -> float:
 
     time.sleep(seconds)
     return seconds
+
+
+@pytest.mark.slow  # ~20 s on a loaded machine: two more interpreters and 4 simulations
+def test_diagnose_set_on_dask_is_the_serial_set(dask_client: Any, tmp_path: Path) -> None:
+    """tests/benchmarks/make_diagnose_set.py: the first 2 recordings of the blind-like set,
+    serial here and on the cluster from the command line: the same truth.json and the same
+    signals, byte for byte."""
+    import importlib.util
+    import subprocess
+
+    script = Path(__file__).parent / "benchmarks" / "make_diagnose_set.py"
+    spec = importlib.util.spec_from_file_location("make_diagnose_set", script)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert module.main(["--out", str(tmp_path / "serial"), "--only", "2"]) == 0
+    done = subprocess.run(
+        [sys.executable, str(script), "--out", str(tmp_path / "dask"), "--only", "2",
+         "--executor", dask_client.scheduler.address],
+        capture_output=True, text=True, timeout=BATCH_TIMEOUT_S,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    assert summary["recordings"] == 2 and summary["executor"]["kind"] == "dask"
+    assert done.stderr.count("make_diagnose_set: ") == 3  # the plan, then one line each
+    for rel in ("truth.json", "rec-01/signals.csv", "rec-02/signals.csv"):
+        assert (tmp_path / "serial" / rel).read_bytes() == (tmp_path / "dask" / rel).read_bytes()
