@@ -158,7 +158,9 @@ class LocalProcessExecutor(OrderedMap):
                     try:
                         yield Outcome(i, jobs[i], future.result())
                     except BrokenProcessPool as exc:  # a worker died: the pool is lost
-                        yield failed(i, jobs[i], exc)
+                        why = "a worker died and took the pool's unfinished jobs with it"
+                        out = failed(i, jobs[i], exc)
+                        yield Outcome(i, jobs[i], error=f"{out.error} ({why})", detail=out.detail)
                     except Exception as exc:
                         yield failed(i, jobs[i], exc)
 

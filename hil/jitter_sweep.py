@@ -456,7 +456,8 @@ def sweep(
             f"{len(points)} points on {executor.describe()} -> {out}",
             file=sys.stderr,
         )
-        if not out.is_absolute() and executor.describe().get("kind") == "dask":
+        where = executor.describe()
+        if not out.is_absolute() and where.get("scheduler", "LocalCluster") != "LocalCluster":
             print(
                 f"hil jitter: --out {out} is relative: each Dask worker writes its points "
                 "under its own working directory (docs/scaling.md)",
