@@ -203,8 +203,9 @@ def executor_kind(text: str) -> str:
     )
 
 
-def add_executor_arguments(p: argparse.ArgumentParser | Any, default: str = "process") -> None:
-    """``--executor`` and ``--workers``, the same for every command that fans out work."""
+def add_executor_arguments(p: Any, default: str = "process") -> None:
+    """``--executor`` and ``--workers`` on ``p`` (a parser or an argument group), the same for
+    every command that fans out work."""
     p.add_argument(
         "--executor",
         type=executor_kind,
@@ -218,7 +219,8 @@ def add_executor_arguments(p: argparse.ArgumentParser | Any, default: str = "pro
         "--workers",
         type=int,
         default=None,
-        help="worker processes of process/dask (default: one per CPU)",
+        help="worker processes of process and dask (default: one per CPU); a scheduler's "
+        "workers are its own",
     )
 
 
