@@ -151,8 +151,19 @@ class DaskExecutor(OrderedMap):
                 attempts=attempts[i],
             )
 
+        def give_up(why: str) -> Iterator[Outcome[T, R]]:
+            """Every job without a result, failed with ``why`` (the batch ends)."""
+            for future in running:
+                future.cancel()
+            for i in sorted([i for i, _ in running.values()] + list(pending)):
+                yield Outcome(i, jobs[i], error=why, attempts=attempts[i])
+
         while pending or running:
-            live = self._live_workers(client)
+            try:
+                live = self._live_workers(client)
+            except (OSError, TimeoutError) as exc:  # the scheduler is gone: keep what came back
+                yield from give_up(f"scheduler unreachable: {one_line(exc)}")
+                return
             self.workers_seen = max(self.workers_seen, len(live))
             for future, (i, worker) in list(running.items()):
                 if worker not in live and not future.done():  # gone, the job waits in vain
@@ -178,15 +189,9 @@ class DaskExecutor(OrderedMap):
                 )
                 running[future] = (i, worker)
             if deadline is not None and time.monotonic() > deadline:
-                for future in running:
-                    future.cancel()
-                for i in sorted([i for i, _ in running.values()] + list(pending)):
-                    yield Outcome(
-                        i,
-                        jobs[i],
-                        error=f"TimeoutError: no result within the batch's {self.timeout_s:g} s",
-                        attempts=attempts[i],
-                    )
+                yield from give_up(
+                    f"TimeoutError: no result within the batch's {self.timeout_s:g} s"
+                )
                 return
             if not running:
                 if not waiting_said:
