@@ -112,7 +112,9 @@ class DaskExecutor(OrderedMap):
         return client, close
 
     def _live_workers(self, client: Client) -> list[str]:
-        info = client.scheduler_info(n_workers=-1)["workers"]
+        """The scheduler's running workers, asked now. (Not ``client.scheduler_info()``: the
+        client's periodic refresh may replace its answer with one without the workers.)"""
+        info = client.sync(client.scheduler.identity, n_workers=-1)["workers"]
         return sorted(a for a, w in info.items() if w.get("status", "running") == "running")
 
     # ---- the batch ----------------------------------------------------------------------
@@ -136,6 +138,7 @@ class DaskExecutor(OrderedMap):
         running: dict[distributed.Future, tuple[int, str]] = {}
         deadline = None if self.timeout_s is None else time.monotonic() + self.timeout_s
         waiting_said = False
+        absent: dict[str, int] = {}  # polls in a row a busy worker was not on the list
 
         def lost(i: int, worker: str, why: str) -> Outcome[T, R] | None:
             """A job whose worker died: once more, or failed after ``retries`` more."""
@@ -166,8 +169,12 @@ class DaskExecutor(OrderedMap):
                 return
             self.workers_seen = max(self.workers_seen, len(live))
             for future, (i, worker) in list(running.items()):
-                if worker not in live and not future.done():  # gone, the job waits in vain
-                    del running[future]
+                if worker in live or future.done():
+                    absent.pop(worker, None)
+                    continue
+                absent[worker] = absent.get(worker, 0) + 1
+                if absent[worker] >= 2:  # gone (twice in a row): the job waits in vain
+                    del running[future], absent[worker]
                     future.cancel()
                     if (out := lost(i, worker, "it left the cluster")) is not None:
                         yield out
