@@ -1,58 +1,137 @@
-"""Executors: run independent jobs (the points of a sweep) one after another or in parallel.
+"""Executors: run independent jobs (the points of a sweep, the recordings of a set) one after
+another, on a local process pool, or on a Dask cluster.
 
-An executor is anything with ``map(fn, items)`` returning the results in the order of
-``items``. ``fn`` is a module-level function and the items and results are picklable, so the
-same sweep runs on any engine:
+``fn`` is a module-level function and the items and results are picklable, so the same batch
+runs on any engine. Every executor has
 
-* :class:`SerialExecutor`: in this process, one after another (tests, debugging).
-* :class:`LocalProcessExecutor`: a pool of worker processes on this machine
-  (``concurrent.futures.ProcessPoolExecutor``, ``max_workers`` default ``os.cpu_count()``).
-* A cluster engine plugs in with a few lines, e.g. Dask::
+* ``run(fn, items)``: yields one :class:`Outcome` per item *as each job finishes* (for progress
+  on stderr), a failed job included (its ``error``, the item it was given, the attempts made);
+* ``map(fn, items)``: the results in the order of the items (raises :class:`TaskFailedError` on the
+  first failed job), for callers that need all or nothing;
+* ``describe()``: what ran the jobs, for the batch's JSON.
 
-      class DaskExecutor:
-          def __init__(self, client):          # dask.distributed.Client
-              self.client = client
-          def map(self, fn, items):
-              return self.client.gather(self.client.map(fn, list(items), pure=False))
+Engines:
 
-  or Ray: ``remote = ray.remote(fn); return ray.get([remote.remote(x) for x in items])``.
+* :class:`SerialExecutor` (``--executor serial``): in this process, one after another.
+* :class:`LocalProcessExecutor` (``--executor process``, default): a pool of ``--workers``
+  spawned processes on this machine. A worker process that dies breaks the pool: the jobs not
+  yet finished are reported failed.
+* :class:`hil.executors_dask.DaskExecutor` (``--executor dask``: a ``LocalCluster`` of
+  ``--workers`` processes here; ``--executor tcp://HOST:8786``: an existing scheduler): needs
+  the optional extra ``pip install 'ddbench[dask]'``. One job per worker process at a time; a
+  worker that dies loses only its job, which runs once more on another worker and is then
+  reported failed (docs/scaling.md).
 
 Each job of a sweep starts its own virtual robot (a subprocess, or a thread for the in-process
 bench) and writes only under its own directory, so jobs share nothing but the file system.
+This module imports only the standard library (and hil.executors_dask on demand).
 """
 
 from __future__ import annotations
 
+import argparse
 import multiprocessing
 import os
+import traceback
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ProcessPoolExecutor
-from typing import Any, Protocol, TypeVar
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from typing import Any, Generic, Protocol, TypeVar
 
 T = TypeVar("T")
 R = TypeVar("R")
 
+KINDS = ("serial", "process", "dask")
+MISSING_DASK = "--executor dask needs the optional extra: pip install 'ddbench[dask]'"
+
+
+class ExecutorUnavailableError(RuntimeError):
+    """The executor asked for cannot run here (the extra is missing, no scheduler answered)."""
+
+
+class TaskFailedError(RuntimeError):
+    """A job of ``map`` failed (``outcome`` says which, with what, after how many attempts)."""
+
+    def __init__(self, outcome: Outcome[Any, Any]) -> None:
+        super().__init__(f"job {outcome.index + 1} failed: {outcome.error}")
+        self.outcome = outcome
+
+
+@dataclass(frozen=True)
+class Outcome(Generic[T, R]):
+    """How one job ended: ``result``, or ``error`` (one line) when it failed."""
+
+    index: int  # position of the item in the items given to run()
+    item: T
+    result: R | None = None
+    error: str | None = None
+    detail: str | None = None  # the traceback (or the worker's fate) behind ``error``
+    attempts: int = 1
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+
+def one_line(exc: BaseException) -> str:
+    """``Type: message`` on one line."""
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def failed(index: int, item: Any, exc: BaseException, attempts: int = 1) -> Outcome[Any, Any]:
+    """The outcome of a job that raised ``exc``."""
+    detail = "".join(traceback.format_exception(exc))
+    return Outcome(index, item, error=one_line(exc), detail=detail, attempts=attempts)
+
 
 class Executor(Protocol):
-    """Runs ``fn`` on every item; yields the results in the order of the items."""
+    """Runs ``fn`` on every item (see the module docstring)."""
 
-    def map(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterable[R]: ...
+    def run(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[Outcome[T, R]]: ...
+
+    def map(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]: ...
 
     def describe(self) -> dict[str, Any]: ...
 
 
-class SerialExecutor:
-    """One job after another, in this process."""
+class OrderedMap:
+    """``map`` from ``run``: the results in the order of the items, each as soon as it and
+    every one before it have finished."""
+
+    def run(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[Outcome[T, R]]:
+        raise NotImplementedError
 
     def map(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
-        for item in items:
-            yield fn(item)
+        done: dict[int, Outcome[T, R]] = {}
+        following = 0
+        for outcome in self.run(fn, items):
+            if not outcome.ok:
+                raise TaskFailedError(outcome)
+            done[outcome.index] = outcome
+            while following in done:
+                yield done.pop(following).result  # type: ignore[misc]
+                following += 1
+
+
+class SerialExecutor(OrderedMap):
+    """One job after another, in this process."""
+
+    def run(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[Outcome[T, R]]:
+        for i, item in enumerate(items):
+            try:
+                result = fn(item)
+            except Exception as exc:  # a job's failure is reported, the batch goes on
+                yield failed(i, item, exc)
+                continue
+            yield Outcome(i, item, result)
 
     def describe(self) -> dict[str, Any]:
         return {"kind": "serial", "workers": 1}
 
 
-class LocalProcessExecutor:
+class LocalProcessExecutor(OrderedMap):
     """A pool of ``max_workers`` processes (default: one per CPU). Workers are started with
     ``spawn`` (a clean interpreter: no inherited threads or open links) and reused for
     several jobs."""
@@ -63,23 +142,88 @@ class LocalProcessExecutor:
             raise ValueError(f"max_workers must be >= 1, got {workers}")
         self.max_workers = workers
 
-    def map(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
+    def run(self, fn: Callable[[T], R], items: Iterable[T]) -> Iterator[Outcome[T, R]]:
         jobs = list(items)
         if not jobs:
             return
         context = multiprocessing.get_context("spawn")
         workers = min(self.max_workers, len(jobs))
         with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
-            yield from pool.map(fn, jobs)
+            futures = {pool.submit(fn, job): i for i, job in enumerate(jobs)}
+            pending = set(futures)
+            while pending:
+                finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for future in sorted(finished, key=futures.__getitem__):
+                    i = futures[future]
+                    try:
+                        yield Outcome(i, jobs[i], future.result())
+                    except BrokenProcessPool as exc:  # a worker died: the pool is lost
+                        why = "a worker died and took the pool's unfinished jobs with it"
+                        out = failed(i, jobs[i], exc)
+                        yield Outcome(i, jobs[i], error=f"{out.error} ({why})", detail=out.detail)
+                    except Exception as exc:
+                        yield failed(i, jobs[i], exc)
 
     def describe(self) -> dict[str, Any]:
         return {"kind": "process", "workers": self.max_workers}
 
 
 def make_executor(kind: str, workers: int | None = None) -> Executor:
-    """``"serial"`` or ``"process"`` (``workers`` processes, default one per CPU)."""
+    """``"serial"``, ``"process"`` (``workers`` processes, default one per CPU), ``"dask"``
+    (a LocalCluster of ``workers`` processes) or a Dask scheduler address ``tcp://HOST:PORT``.
+    Raises :class:`ExecutorUnavailableError` when Dask is asked for and not installed."""
     if kind == "serial":
         return SerialExecutor()
     if kind == "process":
         return LocalProcessExecutor(workers)
-    raise ValueError(f"unknown executor {kind!r}; expected serial or process")
+    if kind == "dask" or is_scheduler_address(kind):
+        try:
+            from hil.executors_dask import DaskExecutor
+        except ImportError:  # dask.distributed is the optional extra
+            raise ExecutorUnavailableError(MISSING_DASK) from None
+        return DaskExecutor(None if kind == "dask" else kind, workers=workers)
+    raise ValueError(
+        f"unknown executor {kind!r}; expected serial, process, dask or a Dask scheduler "
+        "address tcp://HOST:PORT"
+    )
+
+
+def is_scheduler_address(text: str) -> bool:
+    """A Dask scheduler address: ``tcp://HOST:PORT`` (or tls://, ws://, wss://)."""
+    scheme, sep, rest = text.partition("://")
+    return bool(sep) and scheme in ("tcp", "tls", "ws", "wss") and bool(rest)
+
+
+def executor_kind(text: str) -> str:
+    """argparse type of ``--executor``: a kind of :data:`KINDS` or a scheduler address."""
+    if text in KINDS or is_scheduler_address(text):
+        return text
+    raise argparse.ArgumentTypeError(
+        f"{text!r}: expected serial, process, dask or a Dask scheduler address tcp://HOST:PORT"
+    )
+
+
+def add_executor_arguments(p: Any, default: str = "process") -> None:
+    """``--executor`` and ``--workers`` on ``p`` (a parser or an argument group), the same for
+    every command that fans out work."""
+    p.add_argument(
+        "--executor",
+        type=executor_kind,
+        default=default,
+        metavar="{serial,process,dask,tcp://HOST:PORT}",
+        help=f"where the jobs run (default {default}): serial, one after another; process, a "
+        "pool of local processes; dask, a Dask LocalCluster on this machine; tcp://HOST:PORT, "
+        "an existing Dask scheduler (docs/scaling.md)",
+    )
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="worker processes of process and dask (default: one per CPU); a scheduler's "
+        "workers are its own",
+    )
+
+
+def executor_from_args(args: argparse.Namespace, default: str = "process") -> Executor:
+    """The executor of ``--executor``/``--workers``."""
+    return make_executor(getattr(args, "executor", default), getattr(args, "workers", None))

@@ -17,8 +17,11 @@ frame is lost). Levels: ``START:STOP:N`` (N evenly spaced, units on either end: 
 or a comma list.
 
 The zero-fault lockstep run is the baseline. Points are independent and run on an executor
-(hil/executors.py: a local process pool by default, serial with ``--executor serial``; a Dask
-or Ray engine plugs in there). Output in ``--out``: ``sweep.json`` (every point and mean ± std
+(hil/executors.py: a local process pool by default, serial with ``--executor serial``, a Dask
+cluster with ``--executor dask`` or ``--executor tcp://HOST:8786``, docs/scaling.md); the
+sweep's JSON is the same on each, up to its wall times and the executor's description
+(:func:`reproducible`). A point whose worker died twice is listed in ``lost_points`` with its
+parameters; the others are kept. Output in ``--out``: ``sweep.json`` (every point and mean ± std
 over seeds), ``sweep-tracking.png``, ``sweep-parameters.png``, and one directory per point.
 """
 
@@ -38,7 +41,13 @@ from typing import Any
 import numpy as np
 
 from drivers.recording import write_json_atomic
-from hil.executors import Executor, make_executor
+from hil.executors import (
+    Executor,
+    ExecutorUnavailableError,
+    Outcome,
+    add_executor_arguments,
+    executor_from_args,
+)
 
 VARIABLES = {
     "latency": "s",
@@ -78,15 +87,7 @@ def add_sweep_arguments(p: argparse.ArgumentParser) -> None:
         default="normal",
         help="distribution of a jitter sweep (normal: half-normal |N(0, scale)|)",
     )
-    g.add_argument(
-        "--executor",
-        choices=("process", "serial"),
-        default="process",
-        help="process: a pool of local processes (default); serial: one after another",
-    )
-    g.add_argument(
-        "--workers", type=int, default=None, help="worker processes (default: one per CPU)"
-    )
+    add_executor_arguments(g)
     g.add_argument(
         "--study-duration",
         type=float,
@@ -442,12 +443,11 @@ def sweep(
     args: argparse.Namespace, executor: Executor | None = None, progress: bool = True
 ) -> dict[str, Any]:
     """Plan, run (on ``executor``, default from ``--executor``/``--workers``), summarize, plot;
-    returns sweep.json's document."""
+    returns sweep.json's document. Progress on stderr as each point finishes, in the order
+    they finish; the document lists the points in the plan's order whatever the executor."""
     variable, levels, seeds, points = plan(args)
     if executor is None:
-        executor = make_executor(
-            getattr(args, "executor", "process"), getattr(args, "workers", None)
-        )
+        executor = executor_from_args(args)
     out = Path(points[0].out_dir).parent
     out.mkdir(parents=True, exist_ok=True)
     if progress:
@@ -456,18 +456,26 @@ def sweep(
             f"{len(points)} points on {executor.describe()} -> {out}",
             file=sys.stderr,
         )
-    started = time.perf_counter()
-    results: list[dict[str, Any]] = []
-    for i, r in enumerate(executor.map(run_point, points)):
-        results.append(r)
-        if progress:
-            what = "baseline" if r["baseline"] else f"{variable} {_fmt_level(variable, r['level'])}"
+        where = executor.describe()
+        if not out.is_absolute() and where.get("scheduler", "LocalCluster") != "LocalCluster":
             print(
-                f"hil jitter: point {i + 1}/{len(points)} ({what}, seed {r['seed']}) in "
-                f"{r['wall_time_s']:.1f} s",
+                f"hil jitter: --out {out} is relative: each Dask worker writes its points "
+                "under its own working directory (docs/scaling.md)",
                 file=sys.stderr,
             )
+    started = time.perf_counter()
+    outcomes: list[Outcome[PointSpec, dict[str, Any]] | None] = [None] * len(points)
+    for k, outcome in enumerate(executor.run(run_point, points)):
+        outcomes[outcome.index] = outcome
+        if progress:
+            _print_progress(variable, k + 1, len(points), outcome)
     wall = time.perf_counter() - started
+    results = [o.result for o in outcomes if o is not None and o.ok]
+    lost = [
+        {"point": asdict(o.item), "error": o.error, "attempts": o.attempts}
+        for o in outcomes
+        if o is not None and not o.ok
+    ]
     failed = [
         f"{r['out_dir']}: {s} {c['status']} ({c['reason']})"
         for r in results
@@ -477,7 +485,17 @@ def sweep(
         f"{r['out_dir']}: identification {r['identify_failure']}"
         for r in results
         if "identify_failure" in r
-    ]
+    ] + [f"{x['point']['out_dir']}: point lost: {x['error']}" for x in lost]  # fmt: skip
+    baseline_ok = any(r["baseline"] for r in results)
+    # a run that fails at a fault level (a drive's watchdog, say) is a finding, listed in
+    # "failures" and left out of the statistics; the sweep fails if its baseline did, and is
+    # incomplete if a point was lost (its worker died, or it raised)
+    if not baseline_ok or any(f.startswith(points[0].out_dir + ":") for f in failed):
+        status = "failed"
+    elif lost:
+        status = "incomplete"
+    else:
+        status = "complete"
     doc: dict[str, Any] = {
         "kind": "hil jitter sweep",
         "variable": variable,
@@ -495,22 +513,62 @@ def sweep(
         "executor": executor.describe(),
         "points_run": len(points),
         "wall_time_s": wall,
-        # a run that fails at a fault level (a drive's watchdog, say) is a finding, listed
-        # in "failures" and left out of the statistics; the sweep fails if its baseline did
-        "status": "failed"
-        if any(f.startswith(points[0].out_dir + ":") for f in failed)
-        else "complete",
+        "status": status,
         "failures": failed,
+        "lost_points": lost,
         "out_dir": str(out),
-        **summarize(variable, levels, results),
-        "points": [asdict(p) | {"result": r} for p, r in zip(points, results, strict=True)],
+        **(
+            summarize(variable, levels, results)
+            if baseline_ok
+            else {"control": {}, "identify": {}, "degradation": {}}
+        ),
+        "points": [
+            asdict(p) | ({"result": o.result} if o is not None and o.ok else {"result": None})
+            for p, o in zip(points, outcomes, strict=True)
+        ],
         "plots": [],
     }
-    if not getattr(args, "no_plot", False):
+    if not getattr(args, "no_plot", False) and baseline_ok:
         from hil.sweep_plots import plot_sweep
 
         doc["plots"] = [str(p) for p in plot_sweep(doc, out)]
     write_json_atomic(out / SWEEP_JSON, doc)
+    return doc
+
+
+def _print_progress(
+    variable: str, k: int, n: int, outcome: Outcome[PointSpec, dict[str, Any]]
+) -> None:
+    spec = outcome.item
+    what = "baseline" if spec.baseline else f"{variable} {_fmt_level(variable, spec.level)}"
+    if outcome.ok:
+        r = outcome.result or {}
+        again = f", attempt {outcome.attempts}" if outcome.attempts > 1 else ""
+        print(
+            f"hil jitter: point {k}/{n} ({what}, seed {spec.seed}) in "
+            f"{r.get('wall_time_s', float('nan')):.1f} s{again}",
+            file=sys.stderr,
+        )
+        return
+    print(
+        f"hil jitter: point {k}/{n} ({what}, seed {spec.seed}) LOST after "
+        f"{outcome.attempts} attempt(s): {outcome.error} [{spec.out_dir}]",
+        file=sys.stderr,
+    )
+    if outcome.detail and not outcome.error.startswith("KilledWorker"):  # type: ignore[union-attr]
+        print(outcome.detail.rstrip(), file=sys.stderr)
+
+
+RUN_KEYS = ("wall_time_s", "executor")  # what differs between two runs of the same sweep
+
+
+def reproducible(doc: Any) -> Any:
+    """``doc`` without :data:`RUN_KEYS` at any depth: equal, as JSON, for the same sweep (its
+    seeds, levels, bench and --out) on any executor, since every point runs in lockstep."""
+    if isinstance(doc, dict):
+        return {k: reproducible(v) for k, v in doc.items() if k not in RUN_KEYS}
+    if isinstance(doc, list):
+        return [reproducible(v) for v in doc]
     return doc
 
 
@@ -562,6 +620,11 @@ def format_sweep(doc: dict[str, Any]) -> str:
 
 def run_sweep(args: argparse.Namespace) -> int:
     """`hil jitter --sweep`: exit status 0 when every point completed."""
-    doc = sweep(args, progress=True)
+    try:
+        executor = executor_from_args(args)
+        doc = sweep(args, executor, progress=True)
+    except ExecutorUnavailableError as exc:  # the extra is missing, or no scheduler answered
+        print(f"hil jitter: error: {exc}", file=sys.stderr)
+        return 2
     print(json.dumps(doc) if getattr(args, "json", False) else format_sweep(doc))
     return 0 if doc["status"] == "complete" else 1

@@ -94,7 +94,7 @@ def test_executors_map_in_order() -> None:
     assert pool.describe() == {"kind": "process", "workers": 2}
     assert make_executor("process").describe()["workers"] >= 1
     with pytest.raises(ValueError, match="unknown executor"):
-        make_executor("dask")
+        make_executor("ray")
 
 
 def test_summarize_means_and_spread_over_seeds() -> None:

@@ -13,8 +13,16 @@ with every sine's phase shifted at random (``seed`` in truth.json: another excit
 spectrum). Everything follows from ``--seed``. The recordings' meta.json do not name the effects.
 
     .venv/bin/python tests/benchmarks/make_diagnose_set.py [--out /tmp/diagnose_set] [--seed 0]
+        [--executor serial|process|dask|tcp://HOST:8786] [--workers N] [--only K]
 
-Prints one JSON summary on stdout (directory, count, wall time); progress on stderr. The
+The recordings are independent jobs on an executor (hil/executors.py; serial by default): the
+set is the same, byte for byte, on any of them. ``--only K`` makes the first K of the plan. On a
+Dask cluster each worker needs ddbench and this checkout's tests/ at the same path, and writes
+to ``--out`` (a shared file system, or truth.json alone is on this machine: docs/scaling.md).
+
+Prints one JSON summary on stdout (directory, count, wall time); progress on stderr as each
+recording is made. A recording that fails (or whose worker died twice) is listed under
+``failed`` in truth.json and the summary, with its parameters, and the exit status is 1. The
 directory is replaced if it holds a truth.json from an earlier run, and refused otherwise if not
 empty.
 """
@@ -35,6 +43,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # tests/, for diagnose_cases
 
 import diagnose_cases as dc
+
+from hil.executors import add_executor_arguments, executor_from_args
+
+TESTS_DIR = str(Path(__file__).resolve().parent.parent)
 
 EXPERIMENTS = ("reyes-kelly", "validation-multisine", "optimal-fourier", "diagnosis")
 COGGING_PERIODS = (48.0, 72.0, 96.0, 120.0, 144.0)
@@ -118,26 +130,39 @@ def _prepare(out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
 
 
+def make_one(job: dict[str, Any]) -> float:
+    """One recording of the set (a job of the executor, maybe on another machine's worker);
+    returns its wall time."""
+    if job["tests_dir"] not in sys.path:  # a Dask worker that did not start from this script
+        sys.path.insert(0, job["tests_dir"])
+    import diagnose_cases
+
+    t0 = time.perf_counter()
+    diagnose_cases.make_recording(
+        job["out_dir"], job["experiment"], job["effects"], seed=job["seed"]
+    )
+    return time.perf_counter() - t0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="/tmp/diagnose_set", help="directory of the set")
     parser.add_argument("--seed", type=int, default=0, help="seed of the set's random choices")
+    parser.add_argument("--only", type=int, default=None, help="make the first K recordings")
+    add_executor_arguments(parser, default="serial")
     args = parser.parse_args(argv)
+    executor = executor_from_args(args, default="serial")
     out = Path(args.out)
     _prepare(out)
-    plan = plan_set(args.seed)
-    started = time.perf_counter()
+    plan = plan_set(args.seed)[: args.only]
     entries = []
+    jobs = []
     for k, item in enumerate(plan):
         case: dc.Case = item["case"]
         name = f"rec-{k + 1:02d}"
-        t0 = time.perf_counter()
-        dc.make_recording(out / name, item["experiment"], case.effects, seed=item["seed"])
-        wall = time.perf_counter() - t0
-        print(
-            f"make_diagnose_set: {name} {item['experiment']:20s} {case.name} ({wall:.2f} s)",
-            file=sys.stderr,
-        )
+        jobs.append({"recording": name, "out_dir": str(out / name), "tests_dir": TESTS_DIR,
+                     "experiment": item["experiment"], "effects": case.effects,
+                     "seed": item["seed"]})  # fmt: skip
         entries.append(
             {
                 "recording": name,
@@ -150,22 +175,42 @@ def main(argv: list[str] | None = None) -> int:
                 "note": case.note,
             }
         )
+    print(f"make_diagnose_set: {len(jobs)} recordings on {executor.describe()} -> {out}",
+          file=sys.stderr)  # fmt: skip
+    started = time.perf_counter()
+    failed: list[dict[str, Any]] = []
+    for k, outcome in enumerate(executor.run(make_one, jobs)):
+        job, what = outcome.item, f"{entries[outcome.index]['case']}"
+        if outcome.ok:
+            print(f"make_diagnose_set: {k + 1}/{len(jobs)} {job['recording']} "
+                  f"{job['experiment']:20s} {what} ({outcome.result:.2f} s)",
+                  file=sys.stderr)  # fmt: skip
+            continue
+        print(f"make_diagnose_set: {k + 1}/{len(jobs)} {job['recording']} FAILED after "
+              f"{outcome.attempts} attempt(s): {outcome.error}", file=sys.stderr)  # fmt: skip
+        failed.append({**entries[outcome.index], "error": outcome.error,
+                       "attempts": outcome.attempts})  # fmt: skip
     wall = time.perf_counter() - started
+    lost = {f["recording"] for f in failed}
     truth = {
         "generated_by": "tests/benchmarks/make_diagnose_set.py",
         "seed": args.seed,
         "vocabulary": list(dc.VOCABULARY),
-        "recordings": entries,
+        "recordings": [e for e in entries if e["recording"] not in lost],
     }
+    if failed:
+        truth["failed"] = sorted(failed, key=lambda f: f["recording"])
     (out / "truth.json").write_text(json.dumps(truth, indent=1) + "\n", encoding="utf-8")
     summary = {
         "out_dir": str(out),
-        "recordings": len(entries),
-        "null": sum(e["null"] for e in entries),
+        "recordings": len(truth["recordings"]),
+        "null": sum(e["null"] for e in truth["recordings"]),
+        "failed": [f["recording"] for f in truth.get("failed", [])],
+        "executor": executor.describe(),
         "wall_time_s": round(wall, 2),
     }
     print(json.dumps(summary))
-    return 0
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":
