@@ -36,7 +36,7 @@ from typing import TextIO
 
 import serial
 
-from drivers.arm import Arm, Fault, LinkError, SafetyLimits, SafetyStop, Sample
+from drivers.arm import LIVENESS_POLL_S, Arm, Fault, LinkError, SafetyLimits, SafetyStop, Sample
 from drivers.protocol import gemini as gm
 from drivers.protocol.cia402 import (
     ERR_OVERSPEED,
@@ -71,7 +71,8 @@ class SerialArm(Arm):
         limits: SafetyLimits,
         log_path: str | Path | None = None,
         baudrate: int = 9600,
-        feedback_timeout_periods: int = 3,
+        feedback_budget_s: float | None = None,
+        feedback_timeout_periods: int | None = None,
     ) -> None:
         self._init_link(
             drives,
@@ -79,6 +80,7 @@ class SerialArm(Arm):
             mode=mode,
             timeout_s=timeout_s,
             limits=limits,
+            feedback_budget_s=feedback_budget_s,
             feedback_timeout_periods=feedback_timeout_periods,
         )
         self.port = port
@@ -90,6 +92,8 @@ class SerialArm(Arm):
         self._log: TextIO | None = None
         self._log_lines = 0
         self._rx = bytearray()
+        # a wait for replies checks the peer this often (a dead robot stops it at once)
+        self._poll_s = LIVENESS_POLL_S if self.mode == "realtime" else 0.05
         self._k: int | None = None  # cycles since start()
         self._counts = [0] * self.n_joints  # unwrapped encoder counts
         self._q_prev: tuple[float, ...] = ()
@@ -203,6 +207,8 @@ class SerialArm(Arm):
         sent = self.now()
         replies = self._transact(requests, timeout)
         received = self.now()
+        if self.mode == "realtime":
+            self.stats.waited(received - sent, self.period_s)
         feedback = [self._xtq(r) for r in replies]
         for j, (raw, _) in enumerate(feedback):
             self._counts[j] = unwrap_int32(self._counts[j], raw)
@@ -331,10 +337,14 @@ class SerialArm(Arm):
                 self.stats.timeouts += 1
                 raise self._error(
                     f"virtual robot/drive not responding on {self.port} after "
-                    f"{timeout:.3g} s (no reply to {waiting_for})"
+                    f"{timeout:.3g} s (no reply to {waiting_for}): stalled or gone"
                 )
+            if self.peer_gone():  # late and the other end is dead: say so now, not at the budget
+                raise self._error(f"the virtual robot process on {self.port} is gone")
             try:
-                ready, _, _ = select.select([self._ser.fileno()], [], [], remaining)
+                ready, _, _ = select.select(
+                    [self._ser.fileno()], [], [], min(remaining, self._poll_s)
+                )
                 if ready:
                     self._rx += self._ser.read(max(1, self._ser.in_waiting))
             except (serial.SerialException, OSError, ValueError) as exc:

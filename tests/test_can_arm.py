@@ -280,12 +280,12 @@ def test_watchdog_fault_is_reported_and_cleared(rig, tmp_path):
     rogue = rig.client()
     with rig.arm(tmp_path) as arm:
         arm.enable()
-        for _ in range(load_drive("dm1200a").watchdog_periods + 1):  # SYNCs, no torque: trips
+        for _ in range(load_drive("dm1200a").watchdog_periods(H) + 1):  # SYNCs, no torque: trips
             rogue.send(can.Message(arbitration_id=co.SYNC_ID, data=b"", is_extended_id=False))
-            time.sleep(0.01)
+            time.sleep(0.002)
         deadline = time.monotonic() + 1.0
         while len(arm.faults()) < 2 and time.monotonic() < deadline:
-            time.sleep(0.01)
+            time.sleep(0.002)
         faults = arm.faults()
         assert [(f.joint, f.error_code) for f in faults] == [(0, 0x8250), (1, 0x8250)]
         assert all(isinstance(f, Fault) and "watchdog" in f.text for f in faults)

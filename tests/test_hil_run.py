@@ -202,7 +202,7 @@ def test_host_killed_mid_run_watchdog_zeroes_torque(tmp_path):
         assert set(emcy) == {0x081, 0x082}, emcy
         if last_rpdo is not None:
             # the drive profile's watchdog periods of 2.5 ms, plus the robot's scheduling slack
-            periods = load_drive("dm1200a").watchdog_periods
+            periods = load_drive("dm1200a").watchdog_periods(H)
             assert max(emcy.values()) - last_rpdo < periods * H + 0.05
     finally:
         if sniffer is not None:

@@ -95,7 +95,7 @@ class VirtualRobot:
         self._t0 = clock() if clock is not None else 0.0
         self.lock = threading.RLock()
         self.profiles: tuple[DriveProfile, ...] = tuple(load_drive(n) for n in robot.drives)
-        self.drives = [DriveModel(p) for p in self.profiles]
+        self.drives = [DriveModel(p, period_s=period_s) for p in self.profiles]
         self.by_node = {p.node_id: i for i, p in enumerate(self.profiles)}
         self._node_drives = tuple(
             (p.node_id, d) for p, d in zip(self.profiles, self.drives, strict=True)

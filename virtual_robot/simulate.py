@@ -85,7 +85,7 @@ def simulate(
         q0=experiment.initial_q_rad,
         max_step_s=min(step_s, h),
     )
-    drives = [DriveModel(p) for p in drives_p]
+    drives = [DriveModel(p, period_s=h) for p in drives_p]
     for i, d in enumerate(drives):  # boot and enable exactly as a host would over the bus
         d.update(0.0, plant.measured_q[i], plant.dq[i])
         d.write_mode(MODE_CST)
