@@ -56,10 +56,14 @@ class VirtualRobotProcess:
 
     # ---- lifecycle ------------------------------------------------------------------------
     def __enter__(self) -> VirtualRobotProcess:
-        if self.bench.in_process:
-            self._start_thread()
-        else:
-            self._start_process()
+        try:
+            if self.bench.in_process:
+                self._start_thread()
+            else:
+                self._start_process()
+        except BaseException:  # Ctrl-C or SIGTERM during the launch: no robot left behind
+            self.stop()
+            raise
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -77,13 +81,16 @@ class VirtualRobotProcess:
     def stop(self) -> None:
         """SIGTERM, then SIGKILL after 3 s (subprocess); set the stop event (thread)."""
         self._stop.set()
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=3.0)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        if self.proc is not None:
+            if self.proc.poll() is None:
+                self.proc.send_signal(signal.SIGTERM)
+                try:
+                    self.proc.wait(timeout=3.0)
+                except subprocess.TimeoutExpired:
+                    self.proc.kill()
+            self.proc.wait()  # reaped on every path: no zombie robot
+            if self.proc.stdout is not None:
+                self.proc.stdout.close()
         if self._thread is not None:
             self._thread.join(timeout=3.0)
         if self._log is not None:

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from drivers.arm import Arm, LinkError, SafetyStop, Sample
+from drivers.process import interrupt_reason
 from drivers.protocol.cia402 import State, state_from_statusword
 from drivers.recording import RecordingWriter
 from hil.scheduler import DeadlineScheduler, Scheduling
@@ -135,14 +136,16 @@ def _run(
         status, reason = "safety_stop", str(exc)
     except (DriveFaultError, LinkError) as exc:
         status, reason = "failed", str(exc)
-    except KeyboardInterrupt:
-        status, reason = "interrupted", "interrupted by the user (Ctrl-C)"
+    except KeyboardInterrupt:  # Ctrl-C, SIGTERM or SIGHUP (drivers.process)
+        status, reason = "interrupted", interrupt_reason()
     wall = time.perf_counter() - started
-    timing = (
-        loop_timing(h, deadlines, releases, feedbacks, lost_feedback=arm.stats.timeouts)
-        if realtime
-        else {}
-    )
+    timing: dict[str, Any] = {}
+    if realtime:
+        timing = loop_timing(h, deadlines, releases, feedbacks, lost_feedback=arm.stats.timeouts)
+        # feedback later than one period but within the bench's feedback budget: timing events
+        timing["late_feedback"] = arm.stats.late_feedback
+        timing["max_feedback_wait_s"] = arm.stats.max_feedback_wait_s
+        timing["feedback_budget_s"] = arm.feedback_budget_s
     return LoopResult(rows, status, reason, timing, wall)
 
 

@@ -14,6 +14,7 @@ import numpy as np
 from drivers.arm import Arm, Sample
 from drivers.fault_injection import TimingFaultArm, with_host_faults
 from drivers.links import open_arm
+from drivers.process import process_stamp
 from drivers.recording import RecordingWriter, plot_positions, read_signals
 from hil import __version__
 from hil.launch import VirtualRobotProcess
@@ -135,6 +136,8 @@ def record_over_bench(
         arm = with_host_faults(
             open_arm(bench, channel, mode=mode, log_dir=out), bench.timing_faults, seed=seed
         )
+        if bench.virtual:  # a dead robot process ends a wait for feedback at once
+            arm.peer_alive = robot.alive
         policy = (
             realtime_scheduling(realtime_policy, peer_pid=robot.pid if bench.virtual else None)
             if realtime
@@ -144,7 +147,7 @@ def record_over_bench(
             policy as scheduling,
             RecordingWriter(
                 out,
-                meta(channel),
+                {**meta(channel), **process_stamp()},  # run_status(): a dead writer shows
                 extra_columns=extra_columns(2, realtime),
                 flush_every=1 if realtime else 50,
             ) as writer,

@@ -65,15 +65,17 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+PARENT_POLL_S = 0.05  # how soon a dead host is noticed (serve() then disables the drives)
+
+
 def _watch_parent(stop: threading.Event) -> None:
-    """Stop serving once our parent is gone (its drives are already faulted by the watchdog)."""
+    """Stop serving once our parent is gone; serving ends with the drives disabled (serve.py)."""
     parent = os.getppid()
 
     def run() -> None:
-        while not stop.wait(0.2):
+        while not stop.wait(PARENT_POLL_S):
             if os.getppid() != parent:
-                print("virtual-robot: host process gone; stopping", file=sys.stderr)
-                time.sleep(0.5)  # let the drives' watchdog report on the bus first
+                print("virtual-robot: host process gone; drives disabled, stopping", file=sys.stderr)
                 stop.set()
 
     threading.Thread(target=run, name="parent-watch", daemon=True).start()

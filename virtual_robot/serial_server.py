@@ -276,6 +276,8 @@ class SerialDriveServer:
         self._overflow = False
         self._pending.clear()
         self._connected = False
+        self.core.disable_all()  # nobody commands them any more: zero torque, disabled
+        self._say("host closed the port; drives disabled")
 
     def check_host(self, now: float | None = None) -> bool:
         """Lockstep: disable every drive once if the host went quiet. True if it did now."""
@@ -360,7 +362,8 @@ def serve_serial(
     done = threading.Event()
     timer: threading.Thread | None = None
     try:
-        server = SerialDriveServer(core, master)
+        # lockstep: a host silent for the bench's timeout_s (what the host waits for us) is gone
+        server = SerialDriveServer(core, master, host_timeout_s=bench.timeout_s)
         timer = core.start_period_timer(done)  # realtime only (None in lockstep)
         print(
             f"virtual-robot: serial drives on {path} ({core.mode}, h = {core.period_s * 1e3:g} ms;"
