@@ -92,6 +92,7 @@ _logger = logging.getLogger(__name__)
 FAULT_TEXT = {
     co.ERR_RPDO_TIMEOUT: "RPDO timeout (command watchdog)",
     co.ERR_OVERSPEED: "overspeed",
+    co.ERR_COMMUNICATION: "communication error (a second SYNC producer on the bus?)",
 }
 
 _OD_TYPES = {

@@ -161,7 +161,11 @@ def _check_enabled(arm: Arm, sample: Sample) -> None:
             continue
         detail = ""
         try:
-            codes = [f"0x{f.error_code:04X}" for f in arm.faults() if f.joint == joint]
+            codes = [
+                f"0x{f.error_code:04X}" + (f" ({f.text})" if f.text else "")
+                for f in arm.faults()
+                if f.joint == joint
+            ]
             detail = f", error {', '.join(codes)}" if codes else ""
         except Exception as exc:
             detail = f" (error code unreadable: {exc})"

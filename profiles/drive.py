@@ -8,7 +8,6 @@ from pathlib import Path
 
 from profiles.loader import Fields, load_toml
 
-
 WATCHDOG_DEFAULT_S = 0.2  # 2× the benches' default feedback budget (docs/virtual-robot.md)
 
 

@@ -7,7 +7,6 @@ import json
 import os
 import sys
 import threading
-import time
 from collections.abc import Sequence
 
 from drivers.recording import RecordingError
@@ -75,7 +74,9 @@ def _watch_parent(stop: threading.Event) -> None:
     def run() -> None:
         while not stop.wait(PARENT_POLL_S):
             if os.getppid() != parent:
-                print("virtual-robot: host process gone; drives disabled, stopping", file=sys.stderr)
+                print(
+                    "virtual-robot: host process gone; drives disabled, stopping", file=sys.stderr
+                )
                 stop.set()
 
     threading.Thread(target=run, name="parent-watch", daemon=True).start()

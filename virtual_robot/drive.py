@@ -265,6 +265,11 @@ class DriveModel:
             if self._watchdog >= self.watchdog_periods:
                 self._fault(ERR_RPDO_TIMEOUT, ERREG_GENERIC | ERREG_COMMUNICATION, now)
 
+    def communication_fault(self, code: int, now: float) -> None:
+        """Fault with a communication error ``code`` (torque off at once), e.g. the bus is
+        corrupted by a second SYNC producer."""
+        self._fault(code, ERREG_GENERIC | ERREG_COMMUNICATION, now)
+
     def _boot(self, now: float) -> None:
         if self._state is State.NOT_READY_TO_SWITCH_ON and now >= self._boot_time_s:
             self._state = State.SWITCH_ON_DISABLED  # transition 1

@@ -382,6 +382,14 @@ class VirtualRobot:
                 d.write_controlword(co.CW_DISABLE_VOLTAGE, now)
             self._apply_torques(now, from_host=False)
 
+    def fault_all(self, error_code: int) -> None:
+        """Every drive to FAULT with ``error_code`` (a communication error), torque zero."""
+        with self.lock:
+            now = self._catch_up()
+            for d in self.drives:
+                d.communication_fault(error_code, now)
+            self._apply_torques(now, from_host=False)
+
     def pop_emcy(self) -> list[tuple[int, Emcy]]:
         """EMCY events since the last call, as (node id, event)."""
         with self.lock:

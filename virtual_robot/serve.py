@@ -40,6 +40,7 @@ from typing import Any
 
 import can
 
+from drivers.protocol import cia402 as co
 from profiles.bench import BenchProfile
 from profiles.effects import load_effects
 from profiles.robot import load_robot
@@ -160,7 +161,22 @@ def serve(
         elif bench.transport == "socketcand":
             from virtual_robot.socketcand_hub import SocketcandHub
 
-            hub = SocketcandHub("127.0.0.1", 0, channel=SOCKETCAND_CHANNEL, log=log)
+            def sync_conflict(reason: str) -> None:  # the run is corrupt: stop it, say why
+                core.fault_all(co.ERR_COMMUNICATION)
+                log(f"{reason}; drives faulted (0x{co.ERR_COMMUNICATION:04X}), run stopped")
+
+            def host_gone(reason: str) -> None:
+                core.disable_all()
+                log(f"{reason}; drives disabled")
+
+            hub = SocketcandHub(
+                "127.0.0.1",
+                0,
+                channel=SOCKETCAND_CHANNEL,
+                log=log,
+                on_sync_conflict=sync_conflict,
+                on_sync_source_gone=host_gone,
+            )
             closers.append(hub.close)
             bus = hub.robot_bus()
             info.update(
