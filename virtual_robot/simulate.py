@@ -15,8 +15,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from drivers.recording import RecordingWriter, plot_positions, read_signals
 from drivers.units import counts_to_rad, torque_to_permille, unwrap_int32
 from profiles.drive import DriveProfile, load_drive
@@ -123,7 +121,7 @@ def simulate(
         },
     }
     faults: list[dict[str, Any]] = []
-    commanded_Nm = experiment.torque_table(np.arange(n_rows) * h).tolist()
+    commanded_Nm = experiment.torque_rows(h, n_rows)  # a block at a time: bounded memory
     started = time.perf_counter()
     last_report = started
     with RecordingWriter(out_dir, meta, extra_columns=("status1", "status2")) as rec:
