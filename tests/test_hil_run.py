@@ -244,13 +244,9 @@ position_rad = [[-1.0, 1.0], [-1.5, 1.5]]
 @pytest.mark.parametrize("bench", ["virtual-slcan", "virtual-serial"])
 def test_realtime_soak_400hz(bench, tmp_path):
     """30 s at 400 Hz: the run completes and its timing stays sane (loose bounds: CI is shared;
-    the strict figures are `make bench`'s). The shipped benches stop after 3 periods without
-    feedback, as they must; this VM stalls that long about once a minute, so the soak uses a
-    copy of the bench with feedback_timeout_periods = 20, to measure stability, not detection."""
-    text = resolve("benches", bench).read_text()
-    soak = tmp_path / "soak.toml"
-    assert "feedback_timeout_periods = 3" in text
-    soak.write_text(text.replace("feedback_timeout_periods = 3", "feedback_timeout_periods = 20"))
+    the strict figures are `make bench`'s). The shipped bench as it is: its feedback budget
+    (0.1 s) counts a VM stall as late feedback instead of ending the run."""
+    soak = resolve("benches", bench)
     out = tmp_path / "run"
     proc = hil(
         "run",
