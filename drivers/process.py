@@ -3,7 +3,8 @@
 * :func:`install_exit_signals`: SIGTERM and SIGHUP behave like Ctrl-C (a ``KeyboardInterrupt``
   in the main thread), so every way of stopping a run goes through the same safe path: zero
   torque, drives disabled, meta.json closed. Signals that arrive while that path runs are not
-  allowed to cut it short (the third one ends the process at once, for a hung clean-up).
+  allowed to cut it short (the third one ends the process at once, for a hung clean-up). A
+  signal that lands in the middle of an import is acted on as soon as the import is done.
 * :func:`process_stamp` / :func:`run_status`: a run's meta.json says ``running`` while its
   writer is at work; if the writer is killed (SIGKILL, power loss) the file keeps saying so.
   The stamp (pid, host, boot id, process start time) lets a reader tell such a run from a live
@@ -20,21 +21,46 @@ import signal
 import socket
 import sys
 from collections.abc import Mapping
+from types import FrameType
 from typing import Any
 
 EXIT_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
+IMPORT_RETRY_S = 0.005  # a signal during an import is acted on once the import is done
 _received: list[int] = []  # exit signals received so far (the first one is what stopped us)
 
 
-def _on_exit_signal(signum: int, _frame: object) -> None:
+def _on_exit_signal(signum: int, frame: FrameType | None) -> None:
     _received.append(signum)
     if len(_received) == 1:
-        raise KeyboardInterrupt
+        _interrupt_when_safe(frame)
+        return
     name = signal.Signals(signum).name
     if len(_received) >= 3:  # the clean-up hangs: the user insists
         print(f"{_prog()}: {name} again; exiting without clean-up", file=sys.stderr, flush=True)
         os._exit(128 + _received[0])
     print(f"{_prog()}: {name}: already stopping (drives being disabled)", file=sys.stderr)
+
+
+def _importing(frame: FrameType | None) -> bool:
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _interrupt_when_safe(frame: FrameType | None) -> None:
+    """Raise KeyboardInterrupt now, unless the main thread is importing a module: an
+    exception inside a C extension's import turns into a confusing ImportError (numpy's
+    does), so try again every few ms (SIGALRM) until the import is done."""
+    if not _importing(frame):
+        raise KeyboardInterrupt
+    signal.signal(signal.SIGALRM, _retry_interrupt)
+    signal.setitimer(signal.ITIMER_REAL, IMPORT_RETRY_S)
+
+
+def _retry_interrupt(_signum: int, frame: FrameType | None) -> None:
+    _interrupt_when_safe(frame)
 
 
 def _prog() -> str:

@@ -99,7 +99,6 @@ class SerialArm(Arm):
         self._q_prev: tuple[float, ...] = ()
         self._t_prev = 0.0
         self._sent_prev = 0.0  # host time of the previous sample's request
-        self._late_prev = False  # whether its reply came late (more than a period)
 
     # ---- Arm API ---------------------------------------------------------------------------
     def open(self) -> None:
@@ -178,7 +177,7 @@ class SerialArm(Arm):
         self._k = 0
         t = 0.0 if self.mode == "lockstep" else sent
         self._q_prev, self._t_prev = q, t
-        self._sent_prev, self._late_prev = sent, False
+        self._sent_prev = sent
         self._check_limits(q, None)
         zeros = (0.0,) * self.n_joints
         if self.mode == "lockstep":
@@ -223,16 +222,17 @@ class SerialArm(Arm):
         # time; receive times jitter with the host's read scheduling and would corrupt dq below
         t = self._k * self.period_s if self.mode == "lockstep" else sent
         dt = t - self._t_prev
-        late = self.mode == "realtime" and received - sent > self.period_s
-        if late or self._late_prev:
-            # a late reply: the robot sampled somewhere between our send and its reply (a
-            # stalled robot reads the request late), so the interval since the previous
-            # sample may be up to this reply's time minus the previous send. The longest
-            # interval keeps a stall from reading as overspeed (the drives check speed too).
+        if self.mode == "realtime":
+            # the robot samples when it reads the request, somewhere between our send and its
+            # reply (later if it was not scheduled), so the interval since the previous sample
+            # is anywhere up to this reply's time minus the previous send. The velocity check
+            # takes that longest interval: a robot that read one request late must not read
+            # as overspeed. It reads up to latency/period low; the drives' own overspeed
+            # check is exact.
             dt = max(dt, received - self._sent_prev)
         dq = tuple((a - b) / dt for a, b in zip(q, self._q_prev, strict=True)) if dt > 0 else None
         self._q_prev, self._t_prev = q, t
-        self._sent_prev, self._late_prev = sent, late
+        self._sent_prev = sent
         self._check_limits(q, dq)
         if self.mode == "lockstep":
             return Sample(t, q, status, applied, t, t, t)

@@ -22,7 +22,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"hil: {interrupt_reason()}; nothing was running yet", file=sys.stderr)
         return interrupt_exit_code()
-    return code
+    # the commands return 130 for an interrupted run; a shell reports 128 + the signal's number
+    return interrupt_exit_code() if code == 130 else code
 
 
 if __name__ == "__main__":
