@@ -174,7 +174,7 @@ def test_sigterm_and_sighup_stop_the_host_like_ctrl_c(tmp_path: Path, sig: int) 
 def test_ctrl_c_at_any_moment_is_one_line(tmp_path: Path) -> None:
     """Ctrl-C during imports, the robot's launch or the run: one line, no traceback, no robot
     left behind, and meta.json (if written) does not claim to be running."""
-    for k, delay in enumerate((0.0, 0.1, 0.3, 0.6, 1.0, 1.5)):
+    for k, delay in enumerate((0.0, 0.2, 0.6, 1.2)):
         out = tmp_path / f"r{k}"
         proc = _hil(out, "--bench", "virtual-slcan", "--mode", "realtime", "--duration", "30")
         _wait_handlers(proc.pid)  # from the entry point's first line on (not Python's start-up)
@@ -450,33 +450,34 @@ def _bench_with_period(tmp_path: Path, period: str) -> Path:
 @pytest.mark.parametrize(
     "argv",
     [
-        ["hil.entry", "run", "--duration", "inf"],
-        ["hil.entry", "run", "--duration", "nan"],
-        ["hil.entry", "run", "--duration", "-1"],
-        ["hil.entry", "run", "--duration", "1e9"],
-        ["hil.entry", "run", "--experiment", "{exp}"],
-        ["hil.entry", "run", "--bench", "{bench}"],
-        ["hil.entry", "jitter", "--duration", "inf"],
-        ["hil.entry", "jitter", "--duration", "5", "--feedback-budget", "1e-9"],
-        ["virtual_robot.cli", "simulate", "--duration", "inf"],
-        ["virtual_robot.cli", "simulate", "--step", "1e-12"],
-        ["virtual_robot.cli", "simulate", "--step", "0.01"],
-        ["virtual_robot.cli", "simulate", "--experiment", "{exp}"],
+        ["hil", "run", "--duration", "inf"],
+        ["hil", "run", "--duration", "nan"],
+        ["hil", "run", "--duration", "-1"],
+        ["hil", "run", "--duration", "1e9"],
+        ["hil", "run", "--experiment", "{exp}"],
+        ["hil", "run", "--bench", "{bench}"],
+        ["hil", "jitter", "--duration", "inf"],
+        ["hil", "jitter", "--duration", "5", "--feedback-budget", "1e-9"],
+        ["virtual-robot", "simulate", "--duration", "inf"],
+        ["virtual-robot", "simulate", "--step", "1e-12"],
+        ["virtual-robot", "simulate", "--step", "0.01"],
+        ["virtual-robot", "simulate", "--experiment", "{exp}"],
     ],
 )
-def test_bad_options_are_one_line_errors_before_anything_starts(tmp_path, argv) -> None:
+def test_bad_options_are_one_line_errors_before_anything_starts(tmp_path, capsys, argv) -> None:
+    from hil.cli import main as hil_main
+    from virtual_robot.cli import main as robot_main
+
     exp, bench = _experiment(tmp_path, "1e308"), _bench_with_period(tmp_path, "1e-9")
-    argv = [a.format(exp=exp, bench=bench) for a in argv]
+    prog, *args = [a.format(exp=exp, bench=bench) for a in argv]
     out = tmp_path / "out"
     started = time.monotonic()
-    proc = subprocess.run(
-        [sys.executable, "-m", *argv, "--out", str(out)],
-        capture_output=True, text=True, timeout=60, cwd=ROOT,
-    )  # fmt: skip
-    assert proc.returncode == 2, proc.stderr
-    assert proc.stderr.count("\n") == 1 and "error" in proc.stderr, proc.stderr
+    code = (hil_main if prog == "hil" else robot_main)([*args, "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.count("\n") == 1 and "error" in err, err
     assert not (out / "meta.json").exists()  # nothing started
-    assert time.monotonic() - started < 30
+    assert time.monotonic() - started < 10
 
 
 @settings(max_examples=200, deadline=None)
