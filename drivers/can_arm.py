@@ -1032,9 +1032,11 @@ class CanArm(Arm):
     def _read_feedback(self, until: float) -> bool:
         """Direct receive: read and dispatch frames until every TPDO is in or ``until``."""
         event = self._fb_event
+        check_peer_after = time.monotonic() + LOCKSTEP_LIVENESS_POLL_S  # not on the fast path
         while not event.is_set():
-            left = until - time.monotonic()
-            if left <= 0 or self.peer_gone():
+            now = time.monotonic()
+            left = until - now
+            if left <= 0 or (now > check_peer_after and self.peer_gone()):
                 return False
             try:
                 self._read_frames(min(left, LOCKSTEP_LIVENESS_POLL_S))

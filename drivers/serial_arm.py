@@ -350,7 +350,8 @@ class SerialArm(Arm):
                     f"virtual robot/drive not responding on {self.port} after "
                     f"{timeout:.3g} s (no reply to {waiting_for}): stalled or gone"
                 )
-            if self.peer_gone():  # late and the other end is dead: say so now, not at the budget
+            # waited a poll slice already and the other end is dead: say so now, not at the end
+            if timeout - remaining > self._poll_s and self.peer_gone():
                 raise self._error(f"the virtual robot process on {self.port} is gone")
             try:
                 ready, _, _ = select.select(

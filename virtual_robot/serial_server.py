@@ -12,7 +12,8 @@ Time (DESIGN.md "Time"):
   writes the target torque at the current robot time; when every unit has received its XTQ for
   the current period, ``core.sync()`` advances one period and samples, and every pending XTQ is
   answered, in the order received, with its unit's fresh counts and statusword. Other commands
-  answer at once from the current sample. If nothing arrives for ``host_timeout_s`` (5 s) after
+  answer at once from the current sample. If nothing arrives for ``host_timeout_s`` (the bench's
+  ``timeout_s``; 5 s by default) after
   the first command, every drive is disabled (``core.disable_all()``) and one line goes to stderr.
 * realtime: the drives' period timer runs (``core.start_period_timer``, the command watchdog);
   an XTQ applies at arrival (``core.write`` integrates the plant up to the clock first) and its
