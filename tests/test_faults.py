@@ -530,3 +530,31 @@ def test_bench_timing_fields_are_bounded(tmp_path: Path, period, budget) -> None
     else:
         assert MIN_PERIOD_S <= bench.period_s <= 1.0
         assert bench.period_s <= bench.feedback_budget_s <= 10.0
+
+
+# ---- budgets in time ----------------------------------------------------------------------
+def test_drive_watchdog_is_in_time_at_any_rate() -> None:
+    from profiles.drive import load_drive
+    from virtual_robot.drive import DriveModel
+
+    profile = load_drive("dm1200a")
+    for h in (0.0025, 0.001, 0.1):
+        n = profile.watchdog_periods(h)
+        assert (n - 1) * h < profile.watchdog_s <= n * h + 1e-12
+        assert DriveModel(profile, period_s=h).watchdog_periods == n
+
+
+def test_feedback_budget_alias_in_periods(tmp_path: Path) -> None:
+    text = resolve("benches", "virtual-slcan").read_text()
+    alias = tmp_path / "alias.toml"
+    alias.write_text(text.replace("feedback_budget_s = 0.1", "feedback_timeout_periods = 20"))
+    assert load_bench(alias).feedback_budget_s == pytest.approx(20 * 0.0025)
+    both = tmp_path / "both.toml"
+    both.write_text(
+        text.replace(
+            "feedback_budget_s = 0.1", "feedback_budget_s = 0.1\nfeedback_timeout_periods = 2"
+        )
+    )
+    with pytest.raises(ProfileError, match="not both"):
+        load_bench(both)
+    assert load_bench("virtual-slcan").feedback_budget_s == 0.1
