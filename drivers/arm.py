@@ -25,6 +25,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 DEFAULT_SPIN_S = 0.0002  # realtime wait without a scheduler: spin the last 0.2 ms
+DEFAULT_FEEDBACK_BUDGET_S = 0.1  # realtime: feedback later than this = link dead (bench profile)
+LIVENESS_POLL_S = 0.005  # a late wait checks every 5 ms whether the link or peer died
 
 
 class LinkError(RuntimeError):
@@ -100,7 +102,18 @@ class LinkStats:
     frames_sent: int = 0
     frames_received: int = 0
     timeouts: int = 0
+    # realtime timing events: feedback that came later than one period after its SYNC/request
+    # but within the feedback budget (the run goes on), and the longest wait seen
+    late_feedback: int = 0
+    max_feedback_wait_s: float = 0.0
     errors: list[str] = field(default_factory=list)
+
+    def waited(self, wait_s: float, period_s: float) -> None:
+        """Count one feedback wait (realtime): late if longer than one period."""
+        if wait_s > period_s:
+            self.late_feedback += 1
+        if wait_s > self.max_feedback_wait_s:
+            self.max_feedback_wait_s = wait_s
 
 
 class Arm(abc.ABC):
@@ -120,7 +133,8 @@ class Arm(abc.ABC):
         mode: str,
         timeout_s: float,
         limits: SafetyLimits,
-        feedback_timeout_periods: int = 3,
+        feedback_budget_s: float | None = None,
+        feedback_timeout_periods: int | None = None,
     ) -> None:
         """The settings every link shares, checked once here (subclasses call this first)."""
         if mode not in ("lockstep", "realtime"):
@@ -137,19 +151,35 @@ class Arm(abc.ABC):
         self.mode = mode
         self.timeout_s = float(timeout_s)
         self.limits = limits
-        if feedback_timeout_periods < 1:
-            raise ValueError("feedback_timeout_periods must be >= 1")
-        self.feedback_timeout_periods = int(feedback_timeout_periods)
+        if feedback_timeout_periods is not None:  # the older name, in periods
+            if feedback_budget_s is not None:
+                raise ValueError("feedback_budget_s or feedback_timeout_periods, not both")
+            if feedback_timeout_periods < 1:
+                raise ValueError("feedback_timeout_periods must be >= 1")
+            feedback_budget_s = feedback_timeout_periods * self.period_s
+        budget = DEFAULT_FEEDBACK_BUDGET_S if feedback_budget_s is None else feedback_budget_s
+        if not budget >= self.period_s or not math.isfinite(budget):
+            raise ValueError(f"feedback_budget_s must be at least one period, got {budget}")
+        self.feedback_budget_s = float(budget)
         self.stats = LinkStats()
 
     @property
     def feedback_timeout_s(self) -> float:
         """How long a cycle waits for feedback before the link is declared dead: ``timeout_s`` in
-        lockstep, ``feedback_timeout_periods`` periods in realtime (3 by default, so a dead robot
-        is noticed within 3 periods)."""
+        lockstep, ``feedback_budget_s`` in realtime. A closed transport or a dead peer
+        (:attr:`peer_alive`) ends the wait at once, whatever is left of it."""
         if self.mode == "lockstep":
             return self.timeout_s
-        return self.feedback_timeout_periods * self.period_s
+        return self.feedback_budget_s
+
+    # Set by whoever started the other end (hil.run: the virtual robot process): False once it
+    # is gone, so a wait for feedback stops at once instead of running out its budget.
+    peer_alive: Callable[[], bool] | None = None
+
+    def peer_gone(self) -> bool:
+        """True if :attr:`peer_alive` says the other end is gone."""
+        alive = self.peer_alive
+        return alive is not None and not alive()
 
     def now(self) -> float:
         """Host monotonic time in seconds since the link opened (the clock of deadlines)."""

@@ -37,7 +37,9 @@ the virtual robot process see README.md (Numbers).
 Time: ``Sample`` times are host seconds since :meth:`open` connected (``Arm.now()``). Lockstep:
 ``t`` = k·h and ``sent_at`` = ``received_at`` = ``deadline`` = ``t`` (the link's clock);
 realtime: RPDOs go out at once (the drive applies them on arrival), SYNC at ``deadline``,
-``t`` = SYNC send time, feedback must come within 3 periods.
+``t`` = SYNC send time; feedback later than one period is a timing event
+(``stats.late_feedback``), later than ``feedback_budget_s`` (bench profile) a dead link; a
+receive error (closed pty or socket) or a dead robot process ends the wait at once.
 
 Log: every frame sent and received goes to ``log_path`` in ``candump -L`` format, the lines
 python-can's :class:`can.CanutilsLogWriter` writes (:class:`drivers.candump.CandumpWriter`,
@@ -65,7 +67,7 @@ from canopen.nmt import NmtError
 from canopen.objectdictionary import ObjectDictionary, ODRecord, ODVariable, datatypes
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
-from drivers.arm import Arm, Fault, LinkError, SafetyLimits, SafetyStop, Sample
+from drivers.arm import LIVENESS_POLL_S, Arm, Fault, LinkError, SafetyLimits, SafetyStop, Sample
 from drivers.candump import CandumpWriter
 from drivers.protocol import cia402 as co
 from drivers.units import (
@@ -82,6 +84,7 @@ MAX_DEADLINE_AHEAD_S = 1.0  # a deadline further ahead than this (+10 periods) i
 SHORT_SDO_TIMEOUT_S = 0.2  # disable() and fault queries: best effort, do not hang on a dead link
 MAX_ERRORS_KEPT = 100
 RECEIVER_POLL_S = 0.01  # receive thread wake-up: bounds close() and pausing it
+LOCKSTEP_LIVENESS_POLL_S = 0.05  # a lockstep wait checks this often whether the robot is gone
 PAUSE_TIMEOUT_S = 1.0  # the receive thread did not stop reading: keep it (threaded cycle)
 
 _logger = logging.getLogger(__name__)
@@ -89,6 +92,7 @@ _logger = logging.getLogger(__name__)
 FAULT_TEXT = {
     co.ERR_RPDO_TIMEOUT: "RPDO timeout (command watchdog)",
     co.ERR_OVERSPEED: "overspeed",
+    co.ERR_COMMUNICATION: "communication error (a second SYNC producer on the bus?)",
 }
 
 _OD_TYPES = {
@@ -311,7 +315,8 @@ class CanArm(Arm):
     ``bus_factory`` builds the python-can bus at :meth:`open` (the arm owns and shuts it down).
     ``mode``: "lockstep" (the robot advances one period per SYNC; ``Sample.t`` = k·h; feedback
     timeout ``timeout_s``) or "realtime" (SYNC at the host's deadline; ``Sample.t`` = SYNC send
-    time; feedback timeout ``feedback_timeout_periods`` periods, 3 by default). ``log_path``:
+    time; feedback later than a period is counted, later than ``feedback_budget_s`` ends the
+    run, a closed bus at once). ``log_path``:
     file for the traffic log (an existing directory gets ``bus.log`` inside it); None: no log.
     """
 
@@ -325,7 +330,8 @@ class CanArm(Arm):
         timeout_s: float,
         limits: SafetyLimits,
         log_path: str | Path | None = None,
-        feedback_timeout_periods: int = 3,
+        feedback_budget_s: float | None = None,
+        feedback_timeout_periods: int | None = None,
     ) -> None:
         self._init_link(
             drives,
@@ -333,6 +339,7 @@ class CanArm(Arm):
             mode=mode,
             timeout_s=timeout_s,
             limits=limits,
+            feedback_budget_s=feedback_budget_s,
             feedback_timeout_periods=feedback_timeout_periods,
         )
         self._bus_factory = bus_factory
@@ -376,6 +383,7 @@ class CanArm(Arm):
         self._fb2: list[tuple[int, ...] | None] = [None] * self.n_joints
         self._missing = 0
         self._fb_last_at = math.nan
+        self._link_lost: str | None = None  # a receive error in the cycle's own thread
 
         self._emcy: dict[int, Fault] = {}  # joint → last active fault from EMCY
         self._booted: set[int] = set()
@@ -971,7 +979,7 @@ class CanArm(Arm):
             if self._direct_refused:
                 self._threaded_receive()
         else:
-            arrived = self._fb_event.wait(timeout)
+            arrived = self._wait_feedback(sent, timeout)
         if not arrived:
             with self._fb_lock:
                 self._collect_since = None
@@ -979,9 +987,9 @@ class CanArm(Arm):
             if fb1.count(None) + fb2.count(None) > 0:
                 self.stats.timeouts += 1
                 j = next(j for j in range(self.n_joints) if fb1[j] is None or fb2[j] is None)
-                message = (
-                    f"no feedback from node {self.node_ids[j]} within {timeout * 1000:g} ms: "
-                    "virtual robot or bus gone"
+                message = self._gone_reason() or (
+                    f"no feedback from node {self.node_ids[j]} within {timeout * 1000:g} ms "
+                    "(the feedback budget): virtual robot, drive or bus stalled or gone"
                 )
                 self._error(message)
                 raise LinkError(message)
@@ -989,18 +997,51 @@ class CanArm(Arm):
             fb1 = list(self._fb1)
             fb2 = list(self._fb2)
             received = self._fb_last_at
+        if self.mode == REALTIME:
+            self.stats.waited(received - sent, self.period_s)
         return sent - self._t0, received - self._t0, fb1, fb2  # type: ignore[return-value]
+
+    def _wait_feedback(self, sent: float, timeout: float) -> bool:
+        """Threaded receive: wait for the feedback event until ``sent + timeout``. Past one
+        period (late), poll every few ms whether the receive thread died (closed pty, reset
+        socket) or the peer process is gone, and stop at once if so."""
+        event = self._fb_event
+        if event.wait(min(timeout, self.period_s)):
+            return True
+        until = sent + timeout
+        while True:
+            if self._gone_reason():
+                return event.is_set()
+            left = until - time.monotonic()
+            if left <= 0:
+                return event.is_set()
+            if event.wait(min(left, LIVENESS_POLL_S)):
+                return True
+
+    def _gone_reason(self) -> str | None:
+        """Why the other end is certainly gone (not merely late), or None."""
+        receiver = self._receiver
+        if self._link_lost is not None:
+            return self._link_lost
+        if receiver is not None and receiver.exception is not None:
+            return f"CAN link lost: {_one_line(receiver.exception)}"
+        if self.peer_gone():
+            return "the virtual robot process is gone"
+        return None
 
     def _read_feedback(self, until: float) -> bool:
         """Direct receive: read and dispatch frames until every TPDO is in or ``until``."""
         event = self._fb_event
+        check_peer_after = time.monotonic() + LOCKSTEP_LIVENESS_POLL_S  # not on the fast path
         while not event.is_set():
-            left = until - time.monotonic()
-            if left <= 0:
+            now = time.monotonic()
+            left = until - now
+            if left <= 0 or (now > check_peer_after and self.peer_gone()):
                 return False
             try:
-                self._read_frames(left)
+                self._read_frames(min(left, LOCKSTEP_LIVENESS_POLL_S))
             except (can.CanError, OSError, RuntimeError) as exc:
+                self._link_lost = f"CAN link lost: {_one_line(exc)}"
                 self._error(f"CAN receive failed: {_one_line(exc)}")
                 return False
         return True

@@ -97,6 +97,14 @@ class TimingFaultArm(Arm):
     def opened_at(self) -> float | None:  # type: ignore[override]
         return self.inner.opened_at
 
+    @property
+    def peer_alive(self) -> Any:  # type: ignore[override]
+        return self.inner.peer_alive
+
+    @peer_alive.setter
+    def peer_alive(self, alive: Any) -> None:  # the inner link's waits check it
+        self.inner.peer_alive = alive
+
     def __getattr__(self, name: str) -> Any:  # anything else (drives, limits, ...) as is
         if name == "inner":
             raise AttributeError(name)

@@ -42,8 +42,7 @@ def can_bus_kwargs(bench: BenchProfile, channel: dict[str, Any]) -> dict[str, An
             "host": host or "127.0.0.1",
             "port": int(port),
             "channel": channel.get("interface_channel", "can0"),
-            # without TCP_NODELAY, Nagle holds small frames for ~40 ms: longer than the
-            # drives' command watchdog (8 periods, 20 ms)
+            # without TCP_NODELAY, Nagle holds small frames for ~40 ms: 16 periods at 400 Hz
             "tcp_tune": True,
         }
     if bench.transport == "socketcan":
@@ -82,7 +81,7 @@ def open_arm(
         "mode": mode,
         "timeout_s": bench.timeout_s,
         "limits": limits_of(bench),
-        "feedback_timeout_periods": bench.feedback_timeout_periods,
+        "feedback_budget_s": bench.feedback_budget_s,
     }
     if bench.protocol == "can":
         from drivers.can_arm import CanArm

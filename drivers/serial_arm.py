@@ -36,7 +36,7 @@ from typing import TextIO
 
 import serial
 
-from drivers.arm import Arm, Fault, LinkError, SafetyLimits, SafetyStop, Sample
+from drivers.arm import LIVENESS_POLL_S, Arm, Fault, LinkError, SafetyLimits, SafetyStop, Sample
 from drivers.protocol import gemini as gm
 from drivers.protocol.cia402 import (
     ERR_OVERSPEED,
@@ -71,7 +71,8 @@ class SerialArm(Arm):
         limits: SafetyLimits,
         log_path: str | Path | None = None,
         baudrate: int = 9600,
-        feedback_timeout_periods: int = 3,
+        feedback_budget_s: float | None = None,
+        feedback_timeout_periods: int | None = None,
     ) -> None:
         self._init_link(
             drives,
@@ -79,6 +80,7 @@ class SerialArm(Arm):
             mode=mode,
             timeout_s=timeout_s,
             limits=limits,
+            feedback_budget_s=feedback_budget_s,
             feedback_timeout_periods=feedback_timeout_periods,
         )
         self.port = port
@@ -90,10 +92,13 @@ class SerialArm(Arm):
         self._log: TextIO | None = None
         self._log_lines = 0
         self._rx = bytearray()
+        # a wait for replies checks the peer this often (a dead robot stops it at once)
+        self._poll_s = LIVENESS_POLL_S if self.mode == "realtime" else 0.05
         self._k: int | None = None  # cycles since start()
         self._counts = [0] * self.n_joints  # unwrapped encoder counts
         self._q_prev: tuple[float, ...] = ()
         self._t_prev = 0.0
+        self._sent_prev = 0.0  # host time of the previous sample's request
 
     # ---- Arm API ---------------------------------------------------------------------------
     def open(self) -> None:
@@ -172,6 +177,7 @@ class SerialArm(Arm):
         self._k = 0
         t = 0.0 if self.mode == "lockstep" else sent
         self._q_prev, self._t_prev = q, t
+        self._sent_prev = sent
         self._check_limits(q, None)
         zeros = (0.0,) * self.n_joints
         if self.mode == "lockstep":
@@ -203,6 +209,8 @@ class SerialArm(Arm):
         sent = self.now()
         replies = self._transact(requests, timeout)
         received = self.now()
+        if self.mode == "realtime":
+            self.stats.waited(received - sent, self.period_s)
         feedback = [self._xtq(r) for r in replies]
         for j, (raw, _) in enumerate(feedback):
             self._counts[j] = unwrap_int32(self._counts[j], raw)
@@ -214,8 +222,17 @@ class SerialArm(Arm):
         # time; receive times jitter with the host's read scheduling and would corrupt dq below
         t = self._k * self.period_s if self.mode == "lockstep" else sent
         dt = t - self._t_prev
+        if self.mode == "realtime":
+            # the robot samples when it reads the request, somewhere between our send and its
+            # reply (later if it was not scheduled), so the interval since the previous sample
+            # is anywhere up to this reply's time minus the previous send. The velocity check
+            # takes that longest interval: a robot that read one request late must not read
+            # as overspeed. It reads up to latency/period low; the drives' own overspeed
+            # check is exact.
+            dt = max(dt, received - self._sent_prev)
         dq = tuple((a - b) / dt for a, b in zip(q, self._q_prev, strict=True)) if dt > 0 else None
         self._q_prev, self._t_prev = q, t
+        self._sent_prev = sent
         self._check_limits(q, dq)
         if self.mode == "lockstep":
             return Sample(t, q, status, applied, t, t, t)
@@ -331,10 +348,15 @@ class SerialArm(Arm):
                 self.stats.timeouts += 1
                 raise self._error(
                     f"virtual robot/drive not responding on {self.port} after "
-                    f"{timeout:.3g} s (no reply to {waiting_for})"
+                    f"{timeout:.3g} s (no reply to {waiting_for}): stalled or gone"
                 )
+            # waited a poll slice already and the other end is dead: say so now, not at the end
+            if timeout - remaining > self._poll_s and self.peer_gone():
+                raise self._error(f"the virtual robot process on {self.port} is gone")
             try:
-                ready, _, _ = select.select([self._ser.fileno()], [], [], remaining)
+                ready, _, _ = select.select(
+                    [self._ser.fileno()], [], [], min(remaining, self._poll_s)
+                )
                 if ready:
                     self._rx += self._ser.read(max(1, self._ser.in_waiting))
             except (serial.SerialException, OSError, ValueError) as exc:

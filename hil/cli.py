@@ -341,12 +341,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_demo(args)
         if args.command in COMMANDS:
             return int(importlib.import_module(COMMANDS[args.command][0]).main(args))
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # Ctrl-C, SIGTERM or SIGHUP (drivers.process)
+        from drivers.process import interrupt_exit_code, interrupt_reason
+
         print(
-            f"hil {args.command}: interrupted; drives commanded to zero torque and disabled",
+            f"hil {args.command}: {interrupt_reason()}; drives at zero torque and disabled",
             file=sys.stderr,
         )
-        return EXIT_INTERRUPTED
+        return interrupt_exit_code()
     except (
         ProfileError,
         ParamsError,

@@ -43,6 +43,7 @@ from hil.params import ParamSet, load_params, robot_params
 from hil.run import UsageError, bench_meta, check_bench, record_over_bench
 from hil.trajectory import PointToPoint, khosla_kanade_moves
 from profiles.bench import BenchProfile
+from profiles.experiment import check_duration
 from profiles.tracking import TrackingProfile, load_tracking
 
 DEFAULT_EXPERIMENT = "khosla-kanade-tracking"
@@ -319,8 +320,10 @@ def prepare(
         start_hold_s=exp.start_hold_s,
     )
     duration = trajectory.duration_s if duration_s is None else duration_s
-    if not (math.isfinite(duration) and duration > 0):
-        raise UsageError(f"--duration must be > 0, got {duration}")
+    try:
+        check_duration(duration, bench.period_s)  # finite, > 0, ≤ 24 h, rows bounded
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     for name, values in (("--kp", kp), ("--kv", kv)):
         if values is not None and (
             len(values) != 2 or not all(math.isfinite(v) and v >= 0 for v in values)

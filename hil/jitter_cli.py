@@ -37,7 +37,8 @@ from hil.bench_variant import write_bench_variant
 from hil.run import UsageError, bench_meta, check_bench, record_over_bench
 from hil.scheduler import POLICIES
 from hil.timing_stats import cycle_timing, jitter_summary
-from profiles.experiment import load_experiment
+from profiles.bench import MAX_FEEDBACK_BUDGET_S
+from profiles.experiment import check_duration, load_experiment
 
 DEFAULT_DURATION_S = 10.0
 MAX_RATE_HZ = 5000.0
@@ -70,10 +71,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="auto: try SCHED_FIFO and mlockall, fall back with a warning; off: do not try",
     )
     p.add_argument(
+        "--feedback-budget",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="how late feedback may be before the host calls the link dead (default: the "
+        "bench's feedback_budget_s, 0.1 s); later than a period is counted as late",
+    )
+    p.add_argument(
         "--feedback-timeout-periods",
         type=int,
         default=None,
-        help="periods without feedback before the host stops (default: the bench's)",
+        help="the same budget in periods (older option, kept as an alias of --feedback-budget)",
     )
     p.add_argument(
         "--pace-bus",
@@ -110,6 +119,7 @@ def main(args: argparse.Namespace) -> int:
         seed=args.seed,
         realtime_policy=args.realtime_policy,
         feedback_timeout_periods=args.feedback_timeout_periods,
+        feedback_budget_s=args.feedback_budget,
         bench_overrides=overrides,
         confirm_real=args.confirm_real,
         plot=not args.no_plot,
@@ -165,6 +175,7 @@ def measure(
     seed: int | None = None,
     realtime_policy: str = "auto",
     feedback_timeout_periods: int | None = None,
+    feedback_budget_s: float | None = None,
     bench_overrides: dict[str, Any] | None = None,
     confirm_real: bool = False,
     plot: bool = True,
@@ -179,22 +190,36 @@ def measure(
     rate = 1.0 / base.period_s if rate_hz is None else float(rate_hz)
     if not 1.0 <= rate <= MAX_RATE_HZ:
         raise UsageError(f"--rate must be within 1..{MAX_RATE_HZ:g} Hz, got {rate:g}")
-    if not duration_s > 0:
-        raise UsageError(f"--duration must be > 0, got {duration_s}")
+    try:
+        check_duration(float(duration_s), 1.0 / rate)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     overrides: dict[str, Any] = {"period_s": 1.0 / rate}
-    if feedback_timeout_periods is not None:
-        overrides["feedback_timeout_periods"] = int(feedback_timeout_periods)
+    if feedback_timeout_periods is not None and feedback_budget_s is not None:
+        raise UsageError("--feedback-budget or --feedback-timeout-periods, not both")
+    if feedback_timeout_periods is not None:  # the alias, in periods of this rate
+        if not 1 <= feedback_timeout_periods <= 100_000:
+            raise UsageError(
+                "--feedback-timeout-periods must be within 1..100000, got "
+                f"{feedback_timeout_periods}"
+            )
+        feedback_budget_s = feedback_timeout_periods / rate
+    if feedback_budget_s is not None:
+        if not 1.0 / rate <= feedback_budget_s <= MAX_FEEDBACK_BUDGET_S:
+            raise UsageError(
+                f"--feedback-budget must be within one period ({1.0 / rate:g} s) and "
+                f"{MAX_FEEDBACK_BUDGET_S:g} s, got {feedback_budget_s:g}"
+            )
+        overrides["feedback_budget_s"] = float(feedback_budget_s)
+    elif base.feedback_budget_s < 1.0 / rate:  # a slow rate: at least one period
+        overrides["feedback_budget_s"] = 1.0 / rate
     overrides.update(bench_overrides or {})
     run_bench = write_bench_variant(base.source, out / "bench.toml", overrides, by="hil jitter")
     h = run_bench.period_s
     n = max(2, round(duration_s / h))
-    torques = (
-        load_experiment(experiment).torque_table(np.arange(n) * h).tolist()
-        if experiment is not None
-        else None
-    )
+    torques = load_experiment(experiment).torque_rows(h, n) if experiment is not None else None
     zero = [0.0, 0.0]
 
     def command(k: int, sample: Sample) -> list[float]:

@@ -61,10 +61,14 @@ class VirtualRobotProcess:
         if self.bench.attach:  # somebody else's robot: use its channel, start and stop nothing
             self.channel = {"channel": self.bench.channel, "attached": True}
             return self
-        if self.bench.in_process:
-            self._start_thread()
-        else:
-            self._start_process()
+        try:
+            if self.bench.in_process:
+                self._start_thread()
+            else:
+                self._start_process()
+        except BaseException:  # Ctrl-C or SIGTERM during the launch: no robot left behind
+            self.stop()
+            raise
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -84,13 +88,16 @@ class VirtualRobotProcess:
     def stop(self) -> None:
         """SIGTERM, then SIGKILL after 3 s (subprocess); set the stop event (thread)."""
         self._stop.set()
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=3.0)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        if self.proc is not None:
+            if self.proc.poll() is None:
+                self.proc.send_signal(signal.SIGTERM)
+                try:
+                    self.proc.wait(timeout=3.0)
+                except subprocess.TimeoutExpired:
+                    self.proc.kill()
+            self.proc.wait()  # reaped on every path: no zombie robot
+            if self.proc.stdout is not None:
+                self.proc.stdout.close()
         if self._thread is not None:
             self._thread.join(timeout=3.0)
         if self._log is not None:

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from drivers.arm import Arm, LinkError, SafetyStop, Sample
+from drivers.process import interrupt_reason
 from drivers.protocol.cia402 import State, state_from_statusword
 from drivers.recording import RecordingWriter
 from hil.scheduler import DeadlineScheduler, Scheduling
@@ -135,14 +136,16 @@ def _run(
         status, reason = "safety_stop", str(exc)
     except (DriveFaultError, LinkError) as exc:
         status, reason = "failed", str(exc)
-    except KeyboardInterrupt:
-        status, reason = "interrupted", "interrupted by the user (Ctrl-C)"
+    except KeyboardInterrupt:  # Ctrl-C, SIGTERM or SIGHUP (drivers.process)
+        status, reason = "interrupted", interrupt_reason()
     wall = time.perf_counter() - started
-    timing = (
-        loop_timing(h, deadlines, releases, feedbacks, lost_feedback=arm.stats.timeouts)
-        if realtime
-        else {}
-    )
+    timing: dict[str, Any] = {}
+    if realtime:
+        timing = loop_timing(h, deadlines, releases, feedbacks, lost_feedback=arm.stats.timeouts)
+        # feedback later than one period but within the bench's feedback budget: timing events
+        timing["late_feedback"] = arm.stats.late_feedback
+        timing["max_feedback_wait_s"] = arm.stats.max_feedback_wait_s
+        timing["feedback_budget_s"] = arm.feedback_budget_s
     return LoopResult(rows, status, reason, timing, wall)
 
 
@@ -158,7 +161,11 @@ def _check_enabled(arm: Arm, sample: Sample) -> None:
             continue
         detail = ""
         try:
-            codes = [f"0x{f.error_code:04X}" for f in arm.faults() if f.joint == joint]
+            codes = [
+                f"0x{f.error_code:04X}" + (f" ({f.text})" if f.text else "")
+                for f in arm.faults()
+                if f.joint == joint
+            ]
             detail = f", error {', '.join(codes)}" if codes else ""
         except Exception as exc:
             detail = f" (error code unreadable: {exc})"

@@ -9,18 +9,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from drivers.arm import Arm, Sample
 from drivers.fault_injection import TimingFaultArm, with_host_faults
 from drivers.links import open_arm
+from drivers.process import process_stamp
 from drivers.recording import RecordingWriter, plot_positions, read_signals
 from hil import __version__
 from hil.launch import VirtualRobotProcess
 from hil.loop import Command, LoopResult, extra_columns, run_loop
 from hil.scheduler import realtime_scheduling
 from profiles.bench import BenchProfile, load_bench
-from profiles.experiment import load_experiment
+from profiles.experiment import check_duration, load_experiment
 
 ROBOT_EVENTS = "robot-events.csv"  # realtime: the virtual robot's own sample and command times
 
@@ -135,6 +134,8 @@ def record_over_bench(
         arm = with_host_faults(
             open_arm(bench, channel, mode=mode, log_dir=out), bench.timing_faults, seed=seed
         )
+        if bench.virtual:  # a dead robot process ends a wait for feedback at once
+            arm.peer_alive = robot.alive
         policy = (
             realtime_scheduling(realtime_policy, peer_pid=robot.pid if bench.virtual else None)
             if realtime
@@ -144,7 +145,7 @@ def record_over_bench(
             policy as scheduling,
             RecordingWriter(
                 out,
-                meta(channel),
+                {**meta(channel), **process_stamp()},  # run_status(): a dead writer shows
                 extra_columns=extra_columns(2, realtime),
                 flush_every=1 if realtime else 50,
             ) as writer,
@@ -200,10 +201,8 @@ def run_experiment(
     mode = mode or bench.mode
     h = bench.period_s
     duration = experiment.duration_s if duration_s is None else duration_s
-    if not duration > 0:
-        raise UsageError(f"--duration must be > 0, got {duration}")
-    n = max(1, round(duration / h))
-    torques = experiment.torque_table(np.arange(n) * h).tolist()
+    n = check_duration(duration, h)
+    torques = experiment.torque_rows(h, n)  # computed a block at a time
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
 

@@ -18,6 +18,9 @@ from profiles.timing_faults import TimingFaults, parse_timing_faults
 PROTOCOLS = ("can", "serial")
 TRANSPORTS = {"can": ("slcan", "socketcan", "socketcand", "virtual"), "serial": ("serial",)}
 MODES = ("lockstep", "realtime")
+MIN_PERIOD_S = 1e-4  # 10 kHz: below this no Python loop over any link holds its period
+DEFAULT_FEEDBACK_BUDGET_S = 0.1  # survives the stalls of an ordinary desktop (docs/jitter.md)
+MAX_FEEDBACK_BUDGET_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -35,7 +38,10 @@ class BenchProfile:
     robot: str
     effects: str | None
     timeout_s: float  # lockstep feedback timeout, and SDO/request timeout
-    feedback_timeout_periods: int  # realtime: periods without feedback before the host stops
+    # realtime: how long the host waits for a period's feedback before it calls the link dead.
+    # Feedback later than one period but within this budget is a timing event (counted, the
+    # run goes on); a closed link or a dead robot process is detected at once, not after it.
+    feedback_budget_s: float
     torque_limit_Nm: tuple[float, float]
     velocity_limit_rad_s: tuple[float, float]
     position_limit_rad: tuple[tuple[float, float], tuple[float, float]]
@@ -63,6 +69,7 @@ def load_bench(name_or_path: str | Path) -> BenchProfile:
             "robot",
             "effects",
             "timeout_s",
+            "feedback_budget_s",
             "feedback_timeout_periods",
             "limits",
             "pace_bus",
@@ -117,6 +124,13 @@ def load_bench(name_or_path: str | Path) -> BenchProfile:
         if lo >= hi:
             raise limits.error(f"position_rad[{j}]", f"lower bound {lo} must be below {hi}")
         position.append((lo, hi))
+    period_s = f.number("period_s", 0.0025, positive=True, hi=1.0)
+    if period_s < MIN_PERIOD_S:
+        raise f.error(
+            "period_s",
+            f"{period_s:g} s is below {MIN_PERIOD_S * 1e6:g} µs: no host loop over these links "
+            "holds a period that short",
+        )
     return BenchProfile(
         name=f.string("name"),
         source=source,
@@ -127,11 +141,11 @@ def load_bench(name_or_path: str | Path) -> BenchProfile:
         bitrate=f.integer("bitrate", 1_000_000, lo=10_000, hi=1_000_000),
         baudrate=f.integer("baudrate", 9600, lo=300, hi=4_000_000),
         mode=mode,
-        period_s=f.number("period_s", 0.0025, positive=True, hi=1.0),
+        period_s=period_s,
         robot=f.string("robot", "cicese"),
         effects=f.string("effects") if f.has("effects") else None,
         timeout_s=f.number("timeout_s", 0.5, positive=True, hi=60.0),
-        feedback_timeout_periods=f.integer("feedback_timeout_periods", 3, lo=1, hi=1000),
+        feedback_budget_s=_feedback_budget(f, period_s),
         torque_limit_Nm=limits.numbers("torque_Nm", 2, positive=True),  # type: ignore[arg-type]
         velocity_limit_rad_s=limits.numbers("velocity_rad_s", 2, positive=True),  # type: ignore[arg-type]
         position_limit_rad=(position[0], position[1]),
@@ -166,3 +180,28 @@ def attached_bench_text(bench: BenchProfile, channel: str) -> str:
         f"channel = {json.dumps(channel)}",
     ]
     return "\n".join(head + kept) + "\n"
+
+
+def _feedback_budget(f: Fields, period_s: float) -> float:
+    """``feedback_budget_s`` (seconds), or the older ``feedback_timeout_periods`` (periods,
+    kept as an alias: n periods = n·period_s seconds); at least one period."""
+    if f.has("feedback_budget_s") and f.has("feedback_timeout_periods"):
+        raise f.error(
+            "feedback_timeout_periods",
+            "give feedback_budget_s (seconds) or its alias feedback_timeout_periods, not both",
+        )
+    if f.has("feedback_timeout_periods"):
+        n = f.integer("feedback_timeout_periods", lo=1, hi=100_000)
+        budget = n * period_s
+        if budget > MAX_FEEDBACK_BUDGET_S:
+            raise f.error(
+                "feedback_timeout_periods",
+                f"{n} periods of {period_s} s is {budget:g} s, above {MAX_FEEDBACK_BUDGET_S:g} s",
+            )
+        return budget
+    budget = f.number(
+        "feedback_budget_s", DEFAULT_FEEDBACK_BUDGET_S, positive=True, hi=MAX_FEEDBACK_BUDGET_S
+    )
+    if budget < period_s:
+        raise f.error("feedback_budget_s", f"{budget} s is shorter than one period ({period_s} s)")
+    return budget

@@ -8,6 +8,8 @@ from pathlib import Path
 
 from profiles.loader import Fields, load_toml
 
+WATCHDOG_DEFAULT_S = 0.2  # 2× the benches' default feedback budget (docs/virtual-robot.md)
+
 
 @dataclass(frozen=True)
 class DriveProfile:
@@ -19,13 +21,20 @@ class DriveProfile:
     rated_torque_Nm: float  # 0x6076: 1000 ‰
     max_torque_permille: int  # 0x6072
     max_velocity_rad_s: float  # overspeed fault threshold
-    watchdog_periods: int  # missing torque commands tolerated while enabled
+    # command watchdog (CiA 301 RPDO timeout, 0x8250): an enabled drive without a torque
+    # command for this long faults (zero torque). In time, so it means the same at any rate.
+    watchdog_s: float
     vendor_id: int = 0
     product_code: int = 0
 
     @property
     def rad_per_count(self) -> float:
         return 2.0 * math.pi / self.counts_per_rev
+
+    def watchdog_periods(self, period_s: float) -> int:
+        """The watchdog in drive periods at ``period_s``: the first whole number of periods
+        that covers ``watchdog_s`` (a drive counts its own period timer), at least 1."""
+        return max(1, math.ceil(self.watchdog_s / period_s - 1e-9))
 
     @property
     def max_torque_Nm(self) -> float:
@@ -45,6 +54,7 @@ def load_drive(name_or_path: str | Path) -> DriveProfile:
             "rated_torque_Nm",
             "max_torque_permille",
             "max_velocity_rad_s",
+            "watchdog_s",
             "watchdog_periods",
             "vendor_id",
             "product_code",
@@ -52,6 +62,11 @@ def load_drive(name_or_path: str | Path) -> DriveProfile:
     )
     if f.has("vendor"):
         f.string("vendor")
+    if f.has("watchdog_periods"):
+        raise f.error(
+            "watchdog_periods",
+            "the command watchdog is in time now: write watchdog_s (seconds), e.g. 0.2",
+        )
     return DriveProfile(
         model=f.string("model"),
         source=source,
@@ -61,7 +76,7 @@ def load_drive(name_or_path: str | Path) -> DriveProfile:
         rated_torque_Nm=f.number("rated_torque_Nm", positive=True),
         max_torque_permille=f.integer("max_torque_permille", lo=1, hi=32767),
         max_velocity_rad_s=f.number("max_velocity_rad_s", positive=True),
-        watchdog_periods=f.integer("watchdog_periods", lo=1, hi=1000),
+        watchdog_s=f.number("watchdog_s", WATCHDOG_DEFAULT_S, lo=1e-4, hi=10.0),
         vendor_id=f.integer("vendor_id", 0, lo=0, hi=0xFFFFFFFF),
         product_code=f.integer("product_code", 0, lo=0, hi=0xFFFFFFFF),
     )

@@ -90,8 +90,87 @@ class ExperimentProfile:
         """Commanded torques at every time in ``t``, shape (len(t), 2)."""
         return np.column_stack([self.joints[0].torque(t), self.joints[1].torque(t)])
 
+    def torque_rows(self, period_s: float, n: int) -> TorqueRows:
+        """τ(k·h) for k = 0..n−1, computed a block at a time (memory bounded by the block)."""
+        return TorqueRows(self, period_s, n)
 
+
+class TorqueRows:
+    """Row k = the commanded torques at t = k·h, as a list; rows are read in order.
+
+    The values are exactly ``torque_table(np.arange(n) * h)`` (element-wise, same arithmetic),
+    computed :data:`ROW_BLOCK` rows at a time instead of all at once: a 24 h run needs no more
+    memory than a 1 s one.
+    """
+
+    def __init__(self, experiment: ExperimentProfile, period_s: float, n: int) -> None:
+        self.experiment, self.h, self.n = experiment, period_s, n
+        self._start, self._rows = 0, []  # type: ignore[var-annotated]
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __getitem__(self, k: int) -> list[float]:
+        if not 0 <= k < self.n:
+            raise IndexError(k)
+        i = k - self._start
+        if not 0 <= i < len(self._rows):
+            self._start = k - k % ROW_BLOCK
+            stop = min(self.n, self._start + ROW_BLOCK)
+            self._rows = self.experiment.torque_table(np.arange(self._start, stop) * self.h)
+            self._rows = self._rows.tolist()
+            i = k - self._start
+        return self._rows[i]
+
+
+ROW_BLOCK = 4096
 KINDS = ("open_loop_torque",)
+# Bounds that say why (one-line errors before anything is allocated or started):
+MAX_TORQUE_NM = 1e4  # no direct-drive joint comes near 10 kNm; the bench clamps far below
+MAX_DURATION_S = 24 * 3600.0  # a day: longer runs are several runs
+MAX_ROWS = 100_000_000  # rows of one recording (≈ 5 GB of CSV)
+MIN_STEP_S = 1e-6  # integrator step: below 1 µs RK4 gains nothing and a run takes hours
+MAX_PLANT_STEPS = 1_000_000_000  # ≈ 1.5 h of RK4 at 5 µs a step
+
+
+def check_duration(duration_s: float, period_s: float, option: str = "--duration") -> int:
+    """The number of periods of a run of ``duration_s`` at ``period_s``; ValueError (one line,
+    naming ``option``) unless 0 < duration ≤ 24 h and the rows fit in one recording."""
+    if not math.isfinite(duration_s) or duration_s <= 0:
+        raise ValueError(f"{option} must be a finite number of seconds > 0, got {duration_s}")
+    if duration_s > MAX_DURATION_S:
+        raise ValueError(
+            f"{option} {duration_s:g} s is longer than {MAX_DURATION_S:g} s (24 h): "
+            "record a long test as several runs"
+        )
+    n = max(1, round(duration_s / period_s))
+    if n > MAX_ROWS:
+        raise ValueError(
+            f"{option} {duration_s:g} s at a period of {period_s:g} s is {n} rows, more than "
+            f"{MAX_ROWS} in one recording"
+        )
+    return n
+
+
+def check_step(step_s: float, period_s: float, duration_s: float) -> float:
+    """The integrator step; ValueError unless 1 µs ≤ step ≤ period and the run's plant steps
+    stay within :data:`MAX_PLANT_STEPS`."""
+    if not math.isfinite(step_s) or step_s <= 0:
+        raise ValueError(f"--step must be a finite number of seconds > 0, got {step_s}")
+    if step_s < MIN_STEP_S:
+        raise ValueError(f"--step {step_s:g} s is below 1 µs: RK4 gains nothing there")
+    if step_s > period_s:
+        raise ValueError(
+            f"--step {step_s:g} s is longer than the period {period_s:g} s: the plant integrates "
+            "at least once per period"
+        )
+    steps = duration_s / step_s
+    if steps > MAX_PLANT_STEPS:
+        raise ValueError(
+            f"--step {step_s:g} s over {duration_s:g} s is {steps:.3g} plant steps, more than "
+            f"{MAX_PLANT_STEPS:.0e}: use a larger step or a shorter run"
+        )
+    return step_s
 
 
 def _sine(st: Fields) -> Sine:
@@ -106,8 +185,8 @@ def _sine(st: Fields) -> Sine:
             "ramp_s", f"must be <= half the window (stop_s - start_s)/2 = {(stop - start) / 2}"
         )
     return Sine(
-        st.number("amplitude_Nm"),
-        st.number("omega_rad_s", lo=0.0),
+        st.number("amplitude_Nm", lo=-MAX_TORQUE_NM, hi=MAX_TORQUE_NM),
+        st.number("omega_rad_s", lo=0.0, hi=1e6),
         st.number("phase_rad", 0.0),
         start_s=start,
         stop_s=stop,
@@ -128,7 +207,7 @@ def _points(jt: Fields) -> tuple[tuple[float, float], ...]:
         t = row.number("t", lo=0.0)
         if points and t <= points[-1][0]:
             raise jt.error(f"points[{i}]", f"times must increase, got {t} after {points[-1][0]}")
-        points.append((t, row.number("tau")))
+        points.append((t, row.number("tau", lo=-MAX_TORQUE_NM, hi=MAX_TORQUE_NM)))
     return tuple(points)
 
 
@@ -152,10 +231,10 @@ def load_experiment(name_or_path: str | Path) -> ExperimentProfile:
         sines = [_sine(st) for st in jt.tables("sines")] if jt.has("sines") else []
         joints.append(
             JointExcitation(
-                jt.number("step_Nm", 0.0),
-                jt.number("step_rate_per_s", 1.0, lo=0.0),
+                jt.number("step_Nm", 0.0, lo=-MAX_TORQUE_NM, hi=MAX_TORQUE_NM),
+                jt.number("step_rate_per_s", 1.0, lo=0.0, hi=1e6),
                 tuple(sines),
-                offset_Nm=jt.number("offset_Nm", 0.0),
+                offset_Nm=jt.number("offset_Nm", 0.0, lo=-MAX_TORQUE_NM, hi=MAX_TORQUE_NM),
                 points=_points(jt) if jt.has("points") else (),
             )
         )
@@ -165,7 +244,7 @@ def load_experiment(name_or_path: str | Path) -> ExperimentProfile:
         source=source,
         kind=kind,
         period_s=f.number("period_s", positive=True, hi=1.0),
-        duration_s=f.number("duration_s", positive=True),
+        duration_s=f.number("duration_s", positive=True, hi=MAX_DURATION_S),
         initial_q_rad=initial,  # type: ignore[arg-type]
         joints=(joints[0], joints[1]),
     )

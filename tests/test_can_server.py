@@ -321,7 +321,7 @@ def test_rpdo_length_error_and_rejected_value(link: Link, monkeypatch: pytest.Mo
 def test_watchdog_over_the_bus(link: Link) -> None:
     host = link.host
     host.start_up()
-    periods = link.core.profiles[0].watchdog_periods
+    periods = link.core.drives[0].watchdog_periods
     for k in range(1, periods + 1):
         fb = host.sync()  # no RPDO: the command watchdog counts
         expected = co.State.FAULT if k == periods else co.State.OPERATION_ENABLED

@@ -219,7 +219,7 @@ def test_range_errors() -> None:
 
 
 def test_watchdog_boundary_and_fault_reset() -> None:
-    n = DM1200A.watchdog_periods
+    n = DM1200A.watchdog_periods(0.0025)
     assert n >= 2
     d = enabled()
     d.write_target_torque(500, 0.0)
@@ -252,7 +252,7 @@ def test_watchdog_boundary_and_fault_reset() -> None:
 
 
 def test_watchdog_fed_by_writes_and_reset_on_enable() -> None:
-    n = DM1200A.watchdog_periods
+    n = DM1200A.watchdog_periods(0.0025)
     d = enabled()
     for k in range(50):
         d.write_target_torque(100, k * DT)
@@ -277,7 +277,7 @@ def test_fault_reset_needs_rising_edge() -> None:
     d = enabled()
     d.write_controlword(0x8F, 0.0)  # bit 7 held high while enabled
     check_sw(d, State.OPERATION_ENABLED)
-    for k in range(DM1200A.watchdog_periods):
+    for k in range(DM1200A.watchdog_periods(0.0025)):
         d.update(k * DT, 0.0, 0.0)
     check_sw(d, State.FAULT)
     d.write_controlword(0x80, 0.0)  # bit 7 was already high: no edge
@@ -317,7 +317,7 @@ def test_overspeed_only_when_powered() -> None:
 def test_nmt_reset() -> None:
     d = enabled()
     d.write_max_torque(10)
-    for k in range(DM1200A.watchdog_periods):
+    for k in range(DM1200A.watchdog_periods(0.0025)):
         d.update(k * DT, 1.0, 0.0)
     assert d.state is State.FAULT
     counts = d.position_counts

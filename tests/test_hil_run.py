@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import signal
 import subprocess
 import sys
@@ -15,9 +14,9 @@ import can
 import numpy as np
 import pytest
 
+from drivers.process import run_status
 from drivers.recording import read_signals
 from profiles import resolve
-from profiles.drive import load_drive
 from profiles.experiment import load_experiment
 from profiles.robot import load_robot
 from virtual_robot.simulate import simulate
@@ -111,7 +110,7 @@ def _wait_for_channel(out: Path, timeout: float = 20.0) -> dict:
 
 def _start_hil(out: Path, *args: str) -> subprocess.Popen:
     return subprocess.Popen(
-        [sys.executable, "-m", "hil.cli", "run", "--out", str(out), "--no-plot", *args],
+        [sys.executable, "-m", "hil.entry", "run", "--out", str(out), "--no-plot", *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -129,7 +128,8 @@ def _wait_rows(out: Path, rows: int, timeout: float = 20.0) -> None:
 
 
 def test_virtual_robot_killed_mid_run(tmp_path):
-    """The host notices within 3 periods, says so in one line, keeps a readable recording."""
+    """The host notices at once (the link closed, the process is gone: not the feedback
+    budget running out), says so in one line, keeps a readable recording."""
     proc = _start_hil(
         tmp_path, "--bench", "virtual-slcan", "--mode", "realtime", "--duration", "60"
     )
@@ -147,9 +147,8 @@ def test_virtual_robot_killed_mid_run(tmp_path):
     rec = read_signals(tmp_path)
     meta = json.loads((tmp_path / "meta.json").read_text())
     assert meta["status"] == "failed" and meta["rows"] == len(rec) >= 200
-    # the host gave up after at most 3 periods without feedback (its realtime timeout)
-    within = re.search(r"within ([0-9.]+) ms", meta["reason"])
-    assert within and float(within.group(1)) <= 3 * H * 1e3 + 1e-9, meta["reason"]
+    # gone, not late: the reason is the closed link or the dead process, not the budget
+    assert "gone" in meta["reason"] and "within" not in meta["reason"], meta["reason"]
     assert time.monotonic() - killed_at < 30
     assert np.all(np.diff(rec.t) > 0)
 
@@ -176,37 +175,19 @@ def test_ctrl_c_zeroes_torque_disables_and_closes_the_recording(tmp_path):
         assert last[0:2] == b"\x00\x00" and last[2:4] == b"\x00\x00"  # controlword 0, torque 0
 
 
-def test_host_killed_mid_run_watchdog_zeroes_torque(tmp_path):
-    """SIGKILL the host: the drives' watchdog faults them (EMCY 0x8250) within its periods."""
+def test_host_killed_mid_run_drives_disabled_at_once(tmp_path):
+    """SIGKILL the host: the robot sees its SYNC producer disconnect (and its parent die),
+    disables the drives at once (zero torque) and exits; the drives' own watchdog
+    (tests/test_can_server.py, tests/test_serial.py) is the backstop for a hung host."""
     proc = _start_hil(
         tmp_path, "--bench", "virtual-socketcand", "--mode", "realtime", "--duration", "60"
     )
-    sniffer = None
     try:
         meta = _wait_for_channel(tmp_path)
-        host, _, port = meta["channel"]["channel"].rpartition(":")
-        sniffer = can.Bus(interface="socketcand", host=host, port=int(port), channel="can0")
         _wait_rows(tmp_path, 100)
         proc.kill()
         proc.wait()
-        last_rpdo, emcy = None, {}
-        deadline = time.monotonic() + 5.0
-        while time.monotonic() < deadline and len(emcy) < 2:
-            msg = sniffer.recv(timeout=0.2)
-            if msg is None:
-                continue
-            if msg.arbitration_id in (0x201, 0x202):
-                last_rpdo = msg.timestamp
-            if msg.arbitration_id in (0x081, 0x082) and msg.data[:2] == b"\x50\x82":
-                emcy[msg.arbitration_id] = msg.timestamp
-        assert set(emcy) == {0x081, 0x082}, emcy
-        if last_rpdo is not None:
-            # the drive profile's watchdog periods of 2.5 ms, plus the robot's scheduling slack
-            periods = load_drive("dm1200a").watchdog_periods
-            assert max(emcy.values()) - last_rpdo < periods * H + 0.05
     finally:
-        if sniffer is not None:
-            sniffer.shutdown()
         proc.kill()
     # the orphaned virtual robot stops by itself (--exit-with-parent)
     pid = meta["channel"]["pid"]
@@ -220,6 +201,10 @@ def test_host_killed_mid_run_watchdog_zeroes_torque(tmp_path):
     else:
         os.kill(pid, signal.SIGKILL)
         raise AssertionError("orphaned virtual robot did not stop")
+    log = (tmp_path / "virtual-robot.log").read_text()
+    assert "drives disabled" in log, log
+    assert json.loads((tmp_path / "meta.json").read_text())["status"] == "running"
+    assert run_status(json.loads((tmp_path / "meta.json").read_text())) == "died"
 
 
 def test_real_bench_needs_confirmation(tmp_path):
@@ -244,13 +229,9 @@ position_rad = [[-1.0, 1.0], [-1.5, 1.5]]
 @pytest.mark.parametrize("bench", ["virtual-slcan", "virtual-serial"])
 def test_realtime_soak_400hz(bench, tmp_path):
     """30 s at 400 Hz: the run completes and its timing stays sane (loose bounds: CI is shared;
-    the strict figures are `make bench`'s). The shipped benches stop after 3 periods without
-    feedback, as they must; this VM stalls that long about once a minute, so the soak uses a
-    copy of the bench with feedback_timeout_periods = 20, to measure stability, not detection."""
-    text = resolve("benches", bench).read_text()
-    soak = tmp_path / "soak.toml"
-    assert "feedback_timeout_periods = 3" in text
-    soak.write_text(text.replace("feedback_timeout_periods = 3", "feedback_timeout_periods = 20"))
+    the strict figures are `make bench`'s). The shipped bench as it is: its feedback budget
+    (0.1 s) counts a VM stall as late feedback instead of ending the run."""
+    soak = resolve("benches", bench)
     out = tmp_path / "run"
     proc = hil(
         "run",

@@ -26,10 +26,10 @@ SLCAN = Path(__file__).resolve().parents[1] / "profiles" / "benches" / "virtual-
 
 
 def realtime_bench(tmp_path: Path) -> Path:
-    """virtual-slcan with a 20-period feedback timeout: a VM stall must not end the run."""
+    """virtual-slcan under another name (its 0.1 s feedback budget outlasts VM stalls)."""
     text = SLCAN.read_text().replace('name = "virtual-slcan"', 'name = "slcan-rt"')
     path = tmp_path / "slcan-rt.toml"
-    path.write_text(text.replace("feedback_timeout_periods = 3", "feedback_timeout_periods = 20"))
+    path.write_text(text)
     return path
 
 

@@ -314,7 +314,7 @@ def test_kill_disables_and_zeroes_torque(server):
 def test_fault_error_and_reset(server):
     core = server.core
     server.handle_line("DRIVE1")
-    for _ in range(DRIVES[0].watchdog_periods):  # periods pass without a torque command
+    for _ in range(DRIVES[0].watchdog_periods(H)):  # periods pass without a torque command
         core.sync()
     assert states(core) == [co.State.FAULT] * 2
     assert server.handle_line("1_ERROR") == "*1_ERROR0x8250\r\n"
@@ -522,7 +522,7 @@ def test_realtime_watchdog_faults_when_the_host_stops_streaming():
         s0 = arm.start()
         s1 = arm.cycle((10.0, 1.0), deadline=arm.now() + H)
         assert s1.t > s0.t and s1.sent_at >= s1.deadline - 1e-9
-        time.sleep((DRIVES[0].watchdog_periods + 6) * H)  # no XTQ for > watchdog_periods
+        time.sleep((DRIVES[0].watchdog_periods(H) + 6) * H)  # no XTQ for > watchdog_periods
         tas = arm.request(1, "TAS")
         assert gm.tas_bit(tas, gm.TAS_DRIVE_FAULTED)
         assert co.state_from_statusword(gm.tas_to_statusword(tas)) is co.State.FAULT

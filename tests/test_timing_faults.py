@@ -305,10 +305,8 @@ def test_with_host_faults_wraps_only_when_needed() -> None:
 
 
 def realtime_bench(tmp_path: Path, name: str, extra: str = "") -> Path:
-    """virtual-slcan in realtime with a 20-period feedback timeout (a VM stall must not end a
-    short test run) and ``extra`` TOML appended."""
+    """virtual-slcan under another name with ``extra`` TOML appended."""
     text = SLCAN.read_text().replace('name = "virtual-slcan"', f'name = "{name}"')
-    text = text.replace("feedback_timeout_periods = 3", "feedback_timeout_periods = 20")
     path = tmp_path / f"{name}.toml"
     path.write_text(text + extra)
     return path

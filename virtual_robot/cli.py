@@ -7,14 +7,14 @@ import json
 import os
 import sys
 import threading
-import time
 from collections.abc import Sequence
 
 from drivers.logsetup import add_verbosity_options, configure, verbosity
 from drivers.recording import RecordingError
 from profiles import ProfileError
+from profiles.bench import BenchProfile, load_bench
 from profiles.effects import load_effects
-from profiles.experiment import load_experiment
+from profiles.experiment import check_duration, check_step, load_experiment
 from profiles.robot import load_robot
 from virtual_robot.plant import DEFAULT_STEP_S
 
@@ -66,6 +66,12 @@ def _parser() -> argparse.ArgumentParser:
         help="time mode (default: the bench's)",
     )
     v.add_argument(
+        "--confirm-real",
+        action="store_true",
+        help="serve on a real (non-virtual) bench's bus or a real CAN interface: the emulated "
+        "drives then answer beside real ones; the same confirmation `hil` asks for",
+    )
+    v.add_argument(
         "--exit-with-parent",
         action="store_true",
         help="stop when the process that started us dies (used by `hil`)",
@@ -78,18 +84,34 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+PARENT_POLL_S = 0.05  # how soon a dead host is noticed (serve() then disables the drives)
+
+
 def _watch_parent(stop: threading.Event) -> None:
-    """Stop serving once our parent is gone (its drives are already faulted by the watchdog)."""
+    """Stop serving once our parent is gone; serving ends with the drives disabled (serve.py)."""
     parent = os.getppid()
 
     def run() -> None:
-        while not stop.wait(0.2):
+        while not stop.wait(PARENT_POLL_S):
             if os.getppid() != parent:
-                print("virtual-robot: host process gone; stopping", file=sys.stderr)
-                time.sleep(0.5)  # let the drives' watchdog report on the bus first
+                print(
+                    "virtual-robot: host process gone; drives disabled, stopping", file=sys.stderr
+                )
                 stop.set()
 
     threading.Thread(target=run, name="parent-watch", daemon=True).start()
+
+
+def real_channel(bench: BenchProfile) -> str | None:
+    """What real bus serving ``bench`` would join, or None if it stays virtual: a bench with
+    ``virtual = false``, or SocketCAN on an interface that is not a vcan/vxcan."""
+    if not bench.virtual:
+        return f"the real bench's channel {bench.channel!r}"
+    if bench.transport == "socketcan":
+        channel = bench.channel or "vcan0"
+        if not channel.startswith(("vcan", "vxcan")):
+            return f"SocketCAN interface {channel!r} (not a vcan)"
+    return None
 
 
 def _progress(t: float, total: float) -> None:
@@ -99,12 +121,12 @@ def _progress(t: float, total: float) -> None:
 def cmd_simulate(args: argparse.Namespace) -> int:
     from virtual_robot.simulate import simulate
 
-    if args.duration is not None and not args.duration > 0:
-        raise ValueError(f"--duration must be > 0, got {args.duration}")
-    if not args.step > 0:
-        raise ValueError(f"--step must be > 0, got {args.step}")
     robot = load_robot(args.robot)
     experiment = load_experiment(args.experiment)
+    h = experiment.period_s
+    duration = experiment.duration_s if args.duration is None else args.duration
+    check_duration(duration, h)  # one-line errors before anything is allocated
+    check_step(args.step, h, duration)
     effects = load_effects(args.effects)
     result = simulate(
         robot,
@@ -134,10 +156,15 @@ def cmd_serve(args: argparse.Namespace) -> int:
     """Serve until SIGTERM/SIGINT; the first stdout line is the JSON announcement."""
     import signal
 
-    from profiles.bench import load_bench
     from virtual_robot.serve import serve
 
     bench = load_bench(args.bench)
+    real = real_channel(bench)
+    if real is not None and not args.confirm_real:
+        raise ValueError(
+            f"bench {bench.name} would put emulated drives on {real}: pass --confirm-real if "
+            "that is what you want (nodes of a real arm there would clash with them)"
+        )
     if args.effects is not None:
         load_effects(args.effects)  # fail fast, with the one-line error, before announcing
     stop = threading.Event()

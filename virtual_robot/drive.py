@@ -16,9 +16,12 @@ is at or after ``boot_time_s``. Controlwords written before that are ignored (no
 
 Command watchdog (CiA 301 "RPDO timeout", 0x8250): every update() made while the state is
 OPERATION_ENABLED increments a counter; write_target_torque() and entering OPERATION_ENABLED
-reset it to 0. The update() that brings the counter to ``watchdog_periods`` faults the drive:
-with watchdog_periods = N, a write followed by N - 1 updates is still enabled, the N-th update
-faults (the shipped profiles use N = 8: 20 ms at 400 Hz).
+reset it to 0. The profile gives the watchdog in time (``watchdog_s``); the drive counts it in
+periods of its own timer, N = ceil(watchdog_s / period). The update() that brings the counter to
+N faults the drive: a write followed by N - 1 updates is still enabled, the N-th update faults
+(the shipped profiles: 0.2 s, N = 80 at 400 Hz, 200 at 1 kHz; docs/virtual-robot.md says why).
+In realtime a stall of the robot process itself counts one period (its timer re-aligns), so
+only the host's silence trips it.
 
 Fault reaction: torque is zeroed at once and the state passes FAULT_REACTION_ACTIVE -> FAULT
 within the same call, so FAULT_REACTION_ACTIVE is never observed from outside.
@@ -159,8 +162,12 @@ def _ratio(num: float, den: float) -> float | Fraction:
 class DriveModel:
     """One emulated servo drive in torque mode (CiA 402 CST / TQ)."""
 
-    def __init__(self, profile: DriveProfile, boot_time_s: float = 0.0) -> None:
+    def __init__(
+        self, profile: DriveProfile, boot_time_s: float = 0.0, period_s: float = 0.0025
+    ) -> None:
         self.profile = profile
+        # the profile's watchdog (seconds) in periods of this drive's timer
+        self.watchdog_periods = profile.watchdog_periods(period_s)
         self._counts = 0  # unbounded encoder count
         self._velocity = 0  # counts/s, INT32-clamped
         self._t_prev: float | None = None
@@ -255,8 +262,13 @@ class DriveModel:
             self._fault(ERR_OVERSPEED, ERREG_GENERIC | ERREG_DEVICE_PROFILE, now)
         if count_period and self._state is State.OPERATION_ENABLED:
             self._watchdog += 1
-            if self._watchdog >= self.profile.watchdog_periods:
+            if self._watchdog >= self.watchdog_periods:
                 self._fault(ERR_RPDO_TIMEOUT, ERREG_GENERIC | ERREG_COMMUNICATION, now)
+
+    def communication_fault(self, code: int, now: float) -> None:
+        """Fault with a communication error ``code`` (torque off at once), e.g. the bus is
+        corrupted by a second SYNC producer."""
+        self._fault(code, ERREG_GENERIC | ERREG_COMMUNICATION, now)
 
     def _boot(self, now: float) -> None:
         if self._state is State.NOT_READY_TO_SWITCH_ON and now >= self._boot_time_s:

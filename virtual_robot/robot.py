@@ -94,7 +94,7 @@ class VirtualRobot:
         self._t0 = clock() if clock is not None else 0.0
         self.lock = threading.RLock()
         self.profiles: tuple[DriveProfile, ...] = tuple(load_drive(n) for n in robot.drives)
-        self.drives = [DriveModel(p) for p in self.profiles]
+        self.drives = [DriveModel(p, period_s=period_s) for p in self.profiles]
         self.by_node = {p.node_id: i for i, p in enumerate(self.profiles)}
         self._node_drives = tuple(
             (p.node_id, d) for p, d in zip(self.profiles, self.drives, strict=True)
@@ -379,6 +379,14 @@ class VirtualRobot:
             now = self._catch_up()
             for d in self.drives:
                 d.write_controlword(co.CW_DISABLE_VOLTAGE, now)
+            self._apply_torques(now, from_host=False)
+
+    def fault_all(self, error_code: int) -> None:
+        """Every drive to FAULT with ``error_code`` (a communication error), torque zero."""
+        with self.lock:
+            now = self._catch_up()
+            for d in self.drives:
+                d.communication_fault(error_code, now)
             self._apply_torques(now, from_host=False)
 
     def pop_emcy(self) -> list[tuple[int, Emcy]]:

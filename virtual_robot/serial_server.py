@@ -12,7 +12,8 @@ Time (DESIGN.md "Time"):
   writes the target torque at the current robot time; when every unit has received its XTQ for
   the current period, ``core.sync()`` advances one period and samples, and every pending XTQ is
   answered, in the order received, with its unit's fresh counts and statusword. Other commands
-  answer at once from the current sample. If nothing arrives for ``host_timeout_s`` (5 s) after
+  answer at once from the current sample. If nothing arrives for ``host_timeout_s`` (the bench's
+  ``timeout_s``; 5 s by default) after
   the first command, every drive is disabled (``core.disable_all()``) and one line goes to stderr.
 * realtime: the drives' period timer runs (``core.start_period_timer``, the command watchdog);
   an XTQ applies at arrival (``core.write`` integrates the plant up to the clock first) and its
@@ -276,6 +277,8 @@ class SerialDriveServer:
         self._overflow = False
         self._pending.clear()
         self._connected = False
+        self.core.disable_all()  # nobody commands them any more: zero torque, disabled
+        self._say("host closed the port; drives disabled")
 
     def check_host(self, now: float | None = None) -> bool:
         """Lockstep: disable every drive once if the host went quiet. True if it did now."""
@@ -360,7 +363,8 @@ def serve_serial(
     done = threading.Event()
     timer: threading.Thread | None = None
     try:
-        server = SerialDriveServer(core, master)
+        # lockstep: a host silent for the bench's timeout_s (what the host waits for us) is gone
+        server = SerialDriveServer(core, master, host_timeout_s=bench.timeout_s)
         timer = core.start_period_timer(done)  # realtime only (None in lockstep)
         print(
             f"virtual-robot: serial drives on {path} ({core.mode}, h = {core.period_s * 1e3:g} ms;"

@@ -15,8 +15,12 @@ The announcement (one dict, the CLI prints it as one JSON line) for CAN links:
 ``{"event": "ready", "protocol": "can", "transport", "channel", "bench", "mode", "period_s",
 "seed", "pid", "nodes", "bitrate"}`` plus ``interface_channel``, ``host``, ``port`` for socketcand.
 
-The CAN links are served by :class:`CanDriveServer` (CiA 301/402, see can_server.py), with a
-host-silence timeout of 5 s in lockstep (the drives' watchdog covers realtime). A bench with
+The CAN links are served by :class:`CanDriveServer` (CiA 301/402, see can_server.py). In
+lockstep the drives' command watchdog counts SYNCs (robot time stands still without them), so
+a wall-clock host-silence watchdog of the bench's ``timeout_s`` (the time the host itself waits
+for the robot in lockstep) disables the drives when the host hangs; in realtime the drives'
+own watchdog covers it. However serving ends (stop, signal, host gone), the drives are
+disabled at zero torque first. A bench with
 ``pace_bus = true`` gives the server a :class:`~virtual_robot.bus_pacing.BusPacer` at the
 bench's ``bitrate``: every frame then takes its bit time on the virtual bus, both ways (the
 announcement says ``"pace_bus"``; the bus load is logged on stderr when the server stops).
@@ -36,6 +40,7 @@ from typing import Any
 
 import can
 
+from drivers.protocol import cia402 as co
 from profiles.bench import BenchProfile
 from profiles.effects import load_effects
 from profiles.robot import load_robot
@@ -45,7 +50,6 @@ from virtual_robot.can_server import CanDriveServer
 from virtual_robot.robot import LOCKSTEP, REALTIME, VirtualRobot
 from virtual_robot.timing_faults import EventLog, RobotTiming
 
-IDLE_TIMEOUT_LOCKSTEP_S = 5.0
 SOCKETCAND_CHANNEL = "can0"
 
 
@@ -78,6 +82,14 @@ def build_core(
         clock=time.monotonic if mode == REALTIME else None,
         timing=timing,
     )
+
+
+def _safe_stop(core: VirtualRobot, log: Callable[[str], None]) -> None:
+    """Zero torque, drives disabled: every way serving ends goes through here."""
+    try:
+        core.disable_all()
+    except Exception as exc:  # a core in a bad state must not hide why serving ended
+        log(f"disabling the drives failed: {type(exc).__name__}: {exc}")
 
 
 def _finish(core: VirtualRobot, log: Callable[[str], None]) -> None:
@@ -122,6 +134,7 @@ def serve(
         try:
             return serve_serial(core, bench, announce=announce, stop=stop)
         finally:
+            _safe_stop(core, log)
             _finish(core, log)
 
     info: dict[str, Any] = {
@@ -148,7 +161,22 @@ def serve(
         elif bench.transport == "socketcand":
             from virtual_robot.socketcand_hub import SocketcandHub
 
-            hub = SocketcandHub("127.0.0.1", 0, channel=SOCKETCAND_CHANNEL, log=log)
+            def sync_conflict(reason: str) -> None:  # the run is corrupt: stop it, say why
+                core.fault_all(co.ERR_COMMUNICATION)
+                log(f"{reason}; drives faulted (0x{co.ERR_COMMUNICATION:04X}), run stopped")
+
+            def host_gone(reason: str) -> None:
+                core.disable_all()
+                log(f"{reason}; drives disabled")
+
+            hub = SocketcandHub(
+                "127.0.0.1",
+                0,
+                channel=SOCKETCAND_CHANNEL,
+                log=log,
+                on_sync_conflict=sync_conflict,
+                on_sync_source_gone=host_gone,
+            )
             closers.append(hub.close)
             bus = hub.robot_bus()
             info.update(
@@ -174,7 +202,7 @@ def serve(
         server = CanDriveServer(
             core,
             bus,
-            idle_timeout_s=IDLE_TIMEOUT_LOCKSTEP_S if core.mode == LOCKSTEP else None,
+            idle_timeout_s=bench.timeout_s if core.mode == LOCKSTEP else None,
             log=log,
             pacer=BusPacer(bench.bitrate) if bench.pace_bus else None,
         )
@@ -182,6 +210,7 @@ def serve(
         server.serve_forever(stop)
         return 0
     finally:
+        _safe_stop(core, log)
         for close in closers:
             close()
         _finish(core, log)

@@ -15,8 +15,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from drivers.recording import RecordingWriter, plot_positions, read_signals
 from drivers.units import counts_to_rad, torque_to_permille, unwrap_int32
 from profiles.drive import DriveProfile, load_drive
@@ -85,7 +83,7 @@ def simulate(
         q0=experiment.initial_q_rad,
         max_step_s=min(step_s, h),
     )
-    drives = [DriveModel(p) for p in drives_p]
+    drives = [DriveModel(p, period_s=h) for p in drives_p]
     for i, d in enumerate(drives):  # boot and enable exactly as a host would over the bus
         d.update(0.0, plant.measured_q[i], plant.dq[i])
         d.write_mode(MODE_CST)
@@ -123,7 +121,7 @@ def simulate(
         },
     }
     faults: list[dict[str, Any]] = []
-    commanded_Nm = experiment.torque_table(np.arange(n_rows) * h).tolist()
+    commanded_Nm = experiment.torque_rows(h, n_rows)  # a block at a time: bounded memory
     started = time.perf_counter()
     last_report = started
     with RecordingWriter(out_dir, meta, extra_columns=("status1", "status2")) as rec:

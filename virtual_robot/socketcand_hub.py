@@ -26,6 +26,15 @@ Bus semantics: every participant (a TCP client in raw mode or an in-process bus 
 :meth:`SocketcandHub.robot_bus`) receives every frame sent by every *other* participant, as
 on a CAN bus where a controller does not receive its own frames. Remote and error frames are not
 forwarded to TCP clients (the frame element cannot carry them).
+
+Robustness: one slow or stopped client cannot hold up the robot or the other clients (sends are
+non-blocking into a bounded per-client queue; a client whose queue overflows is dropped, with
+the reason logged); at most :attr:`SocketcandHub.MAX_CLIENTS` clients; the accept thread
+survives running out of descriptors (EMFILE) and keeps listening; non-ASCII and malformed
+elements are dropped, counted and logged at a bounded rate. The bus has one SYNC producer (the
+first participant to send a SYNC, the host): a SYNC from anyone else is not forwarded and
+``on_sync_conflict`` is told (serve.py faults the drives: a lockstep robot stepped by two SYNC
+sources would record garbage). ``on_sync_source_gone``: the producer disconnected (host gone).
 """
 
 from __future__ import annotations
@@ -44,7 +53,12 @@ import can
 
 _logger = logging.getLogger(__name__)
 MAX_ELEMENT = 200  # characters without a closing '>' before the buffer is discarded
-SEND_TIMEOUT_S = 1.0  # a client that does not read for this long is disconnected
+SYNC_ID = 0x080  # CiA 301 SYNC
+
+
+def _name(participant: object) -> str:
+    peer = getattr(participant, "peer", None)
+    return f"client {peer}" if peer else "the in-process robot bus"
 
 
 def frame_element(msg: can.Message) -> bytes:
@@ -132,7 +146,13 @@ class _HubBus(can.BusABC):
 
 
 class _Client:
-    """One TCP connection: handshake, then raw-mode frames both ways."""
+    """One TCP connection: handshake, then raw-mode frames both ways.
+
+    Output never blocks the sender (the robot's thread, or another client's): elements go into
+    this client's queue and out through a non-blocking ``send``; what the socket does not take
+    now, this client's own thread sends when the socket is writable. A queue above
+    :attr:`SocketcandHub.MAX_QUEUED_BYTES` (a client that does not read) drops the client.
+    """
 
     def __init__(self, hub: SocketcandHub, sock: socket.socket, peer: str) -> None:
         self.hub = hub
@@ -141,6 +161,7 @@ class _Client:
         self.state = "hi"  # hi -> open -> raw
         self.ready_at = 0.0
         self.pending: list[bytes] = []
+        self.out = bytearray()  # queued output the socket has not taken yet
         self.lock = threading.Lock()
         self.alive = True
         self.thread = threading.Thread(target=self.run, name=f"socketcand-{peer}", daemon=True)
@@ -162,40 +183,67 @@ class _Client:
             if self.pending and time.monotonic() >= self.ready_at:
                 self._send_locked(self.pending)
                 self.pending = []
+            elif self.out:
+                self._send_locked([])
 
     def reply(self, text: str) -> None:
         with self.lock:
-            self._send_locked([text.encode("ascii")])
+            self._send_locked([text.encode("ascii", errors="backslashreplace")])
 
     def _send_locked(self, elements: list[bytes]) -> None:
+        """Queue ``elements`` and send what the socket takes now, without waiting."""
         if not self.alive:
             return
+        for element in elements:
+            self.out += element
         try:
-            self.sock.sendall(b"".join(elements))
+            while self.out:
+                sent = self.sock.send(self.out)
+                del self.out[:sent]
+        except (BlockingIOError, InterruptedError):
+            pass
         except OSError as exc:
-            self.alive = False
-            self.hub._log(f"socketcand client {self.peer} dropped: {exc}")
-            with contextlib.suppress(OSError):
-                self.sock.shutdown(socket.SHUT_RDWR)
+            self._drop_locked(f"{exc}")
+            return
+        if len(self.out) > self.hub.MAX_QUEUED_BYTES:
+            self._drop_locked(f"not reading ({len(self.out)} bytes queued)")
+
+    def _drop_locked(self, reason: str) -> None:
+        self.alive = False
+        self.out.clear()
+        self.pending.clear()
+        self.hub._say("drop", f"socketcand client {self.peer} dropped: {reason}")
+        with contextlib.suppress(OSError):
+            self.sock.shutdown(socket.SHUT_RDWR)
 
     # ---- input ------------------------------------------------------------------------
     def run(self) -> None:
         buffer = ""
+        poller = select.poll()  # not select(): descriptors above 1023 are fine
+        fd = self.sock.fileno()
         try:
             self.reply("< hi >")
             while self.alive and not self.hub._closed.is_set():
                 wait = 0.05
                 if self.pending:
                     wait = max(0.0, min(wait, self.ready_at - time.monotonic()))
-                ready, _, _ = select.select([self.sock], [], [], wait)
+                events = select.POLLIN | (select.POLLOUT if self.out else 0)
+                poller.register(fd, events)
+                ready = poller.poll(wait * 1000.0)
                 self.flush_pending()
-                if not ready:
+                if not any(
+                    ev & (select.POLLIN | select.POLLHUP | select.POLLERR) for _, ev in ready
+                ):
                     continue
-                chunk = self.sock.recv(4096)
+                try:
+                    chunk = self.sock.recv(4096)
+                except (BlockingIOError, InterruptedError):
+                    continue
                 if not chunk:
                     break
                 _quickack(self.sock)
-                buffer += chunk.decode("ascii", errors="replace")
+                # latin-1: every byte is one character; non-ASCII is then malformed, not a crash
+                buffer += chunk.decode("latin-1")
                 buffer = self._elements(buffer)
         except OSError:
             pass
@@ -217,7 +265,7 @@ class _Client:
                 if start < 0:
                     return ""
                 if len(buffer) - start > MAX_ELEMENT:
-                    self.hub.malformed += 1
+                    self._malformed(buffer[start : start + 40], "element too long")
                     return ""
                 return buffer[start:]
             start = buffer.rfind("<", 0, end)
@@ -225,7 +273,18 @@ class _Client:
                 self._element(buffer[start : end + 1])
             buffer = buffer[end + 1 :]
 
+    def _malformed(self, element: str, why: str) -> None:
+        self.hub.malformed += 1
+        self.hub._say(
+            "malformed", f"socketcand client {self.peer}: {why}: {element[:60]!a} dropped"
+        )
+
     def _element(self, element: str) -> None:
+        if not element.isascii():
+            self._malformed(element, "non-ASCII element")
+            if self.state != "raw":
+                self.reply("< error non-ASCII element >")
+            return
         words = element[1:-1].split()
         command = words[0] if words else ""
         if command == "echo":
@@ -233,14 +292,13 @@ class _Client:
         elif self.state == "raw":
             msg = parse_send(element)
             if msg is None:
-                self.hub.malformed += 1
-                self.hub._log(f"socketcand client {self.peer}: malformed {element!r} dropped")
+                self._malformed(element, "malformed")
                 return
             msg.channel = self.hub.channel
             self.hub._dispatch(msg, source=self)
         elif self.state == "hi" and command == "open" and len(words) == 2:
             if words[1] != self.hub.channel:
-                self.reply(f"< error could not open bus {words[1]} >")
+                self.reply(f"< error could not open bus {words[1][:40]} >")
             else:
                 self.state = "open"
                 self.reply("< ok >")
@@ -250,7 +308,7 @@ class _Client:
             self.state = "raw"
             self.reply("< ok >")
         else:
-            self.hub.malformed += 1
+            self._malformed(element, "unknown command")
             self.reply("< error unknown command >")
 
 
@@ -262,6 +320,11 @@ class SocketcandHub:
     """
 
     HOLDOFF_S = 0.05  # after "< ok >" to rawmode, before the first frame goes to that client
+    # a client that does not read: about 2 s of a 400 Hz cycle's 7 frames, then it is dropped
+    MAX_QUEUED_BYTES = 256 * 1024
+    MAX_CLIENTS = 64  # more are refused (a bus of a host, a few monitors)
+    LOG_BURST = 5  # log lines of one kind before they are rate-limited
+    LOG_EVERY_S = 10.0  # then one line per kind per this, with the count of those left out
 
     def __init__(
         self,
@@ -270,6 +333,8 @@ class SocketcandHub:
         *,
         channel: str = "can0",
         log: Callable[[str], None] | None = None,
+        on_sync_conflict: Callable[[str], None] | None = None,
+        on_sync_source_gone: Callable[[str], None] | None = None,
     ) -> None:
         self.channel = channel
         self._log = log or _logger.info
@@ -282,6 +347,18 @@ class SocketcandHub:
         self._closed = threading.Event()
         self.frames = 0
         self.malformed = 0
+        self.refused = 0  # connections refused (too many clients)
+        self.accept_errors = 0  # accept() failures survived (EMFILE, ...)
+        self.foreign_syncs = 0  # SYNCs from a second producer, not forwarded
+        # CANopen has one SYNC producer: the first participant to send one; a SYNC from anyone
+        # else would step a lockstep robot twice and corrupt the run, so it is refused
+        self._sync_source: object | None = None
+        self._on_sync_conflict = on_sync_conflict
+        self._on_sync_source_gone = on_sync_source_gone
+        self._said: dict[
+            str, tuple[int, float, int]
+        ] = {}  # kind -> (lines, window start, left out)
+        self._say_lock = threading.Lock()
         self._accept_thread = threading.Thread(
             target=self._accept, name="socketcand-accept", daemon=True
         )
@@ -333,31 +410,103 @@ class SocketcandHub:
         self.close()
 
     # ---- internals ----------------------------------------------------------------------
+    def _say(self, kind: str, text: str) -> None:
+        """Log ``text``, at most :attr:`LOG_BURST` lines of one ``kind`` per :attr:`LOG_EVERY_S`
+        (a flood of garbage or refused connections must not flood the log)."""
+        now = time.monotonic()
+        with self._say_lock:
+            lines, since, left_out = self._said.get(kind, (0, now, 0))
+            if now - since >= self.LOG_EVERY_S:
+                if left_out:
+                    self._log(f"socketcand hub: {left_out} more '{kind}' lines left out")
+                lines, since, left_out = 0, now, 0
+            if lines >= self.LOG_BURST:
+                self._said[kind] = (lines, since, left_out + 1)
+                return
+            self._said[kind] = (lines + 1, since, left_out)
+        self._log(text)
+
     def _accept(self) -> None:
         while not self._closed.is_set():
             try:
                 sock, addr = self._server.accept()
             except TimeoutError:
                 continue
-            except OSError:
-                return
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            _quickack(sock)
-            sock.settimeout(SEND_TIMEOUT_S)
-            client = _Client(self, sock, f"{addr[0]}:{addr[1]}")
-            with self._lock:
+            except OSError as exc:
                 if self._closed.is_set():
-                    sock.close()
                     return
-                self._clients.append(client)
-            client.thread.start()
+                # EMFILE/ENFILE (out of descriptors), ENOBUFS, ECONNABORTED...: the clients
+                # already connected go on; try again shortly
+                self.accept_errors += 1
+                self._say("accept", f"socketcand hub: accept failed ({exc}); still listening")
+                self._closed.wait(0.1)
+                continue
+            peer = f"{addr[0]}:{addr[1]}"
+            try:
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                _quickack(sock)
+                sock.setblocking(False)  # sends never wait (_Client._send_locked)
+                with self._lock:
+                    full = len(self._clients) >= self.MAX_CLIENTS
+                if full:
+                    self.refused += 1
+                    self._say("refused", f"socketcand hub: {peer} refused: too many clients")
+                    with contextlib.suppress(OSError):
+                        sock.send(b"< error too many clients >")
+                    sock.close()
+                    continue
+                client = _Client(self, sock, peer)
+                with self._lock:
+                    if self._closed.is_set():
+                        sock.close()
+                        return
+                    self._clients.append(client)
+                client.thread.start()
+            except (OSError, RuntimeError) as exc:  # RuntimeError: no thread to be had
+                self.accept_errors += 1
+                self._say("accept", f"socketcand hub: client {peer} not served ({exc})")
+                with contextlib.suppress(OSError):
+                    sock.close()
+                self._remove_client_sock(sock)
+
+    def _remove_client_sock(self, sock: socket.socket) -> None:
+        with self._lock:
+            self._clients = [c for c in self._clients if c.sock is not sock]
+
+    def _is_sync(self, msg: can.Message) -> bool:
+        return (
+            msg.arbitration_id == SYNC_ID
+            and not msg.is_extended_id
+            and not msg.is_remote_frame
+            and not msg.is_error_frame
+        )
 
     def _dispatch(self, msg: can.Message, source: object) -> None:
-        """A frame sent by ``source`` reaches every other participant."""
+        """A frame sent by ``source`` reaches every other participant (a SYNC only if ``source``
+        is the bus's SYNC producer)."""
+        conflict = None
         with self._lock:
-            clients = [c for c in self._clients if c is not source]
-            locals_ = [b for b in self._locals if b is not source]
-            self.frames += 1
+            if self._is_sync(msg):
+                if self._sync_source is None:
+                    self._sync_source = source
+                elif source is not self._sync_source:
+                    self.foreign_syncs += 1
+                    if self.foreign_syncs == 1:
+                        conflict = (
+                            f"a second SYNC producer ({_name(source)}) on the bus besides "
+                            f"{_name(self._sync_source)}: its SYNCs are not forwarded"
+                        )
+                    msg = None  # type: ignore[assignment]
+            if msg is not None:
+                clients = [c for c in self._clients if c is not source]
+                locals_ = [b for b in self._locals if b is not source]
+                self.frames += 1
+        if conflict is not None:
+            self._log(f"socketcand hub: {conflict}")
+            if self._on_sync_conflict is not None:
+                self._on_sync_conflict(conflict)
+        if msg is None:
+            return
         for client in clients:
             client.deliver(msg)
         for bus in locals_:
@@ -379,6 +528,14 @@ class SocketcandHub:
         with self._lock:
             if client in self._clients:
                 self._clients.remove(client)
+            was_sync_source = client is self._sync_source
+            if was_sync_source:
+                self._sync_source = None
+        if was_sync_source and not self._closed.is_set():
+            reason = f"the SYNC producer {client.peer} (the host) disconnected"
+            self._log(f"socketcand hub: {reason}")
+            if self._on_sync_source_gone is not None:
+                self._on_sync_source_gone(reason)
 
     def _remove_local(self, bus: _HubBus) -> None:
         with self._lock:

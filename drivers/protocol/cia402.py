@@ -59,6 +59,7 @@ SW_FAULT = 0x0008  # bit 3
 ERR_NONE = 0x0000
 ERR_RPDO_TIMEOUT = 0x8250  # CiA 301: RPDO timeout (the command watchdog)
 ERR_OVERSPEED = 0x8400  # CiA 402: velocity / speed controller
+ERR_COMMUNICATION = 0x8100  # CiA 301: communication, generic (here: a second SYNC producer)
 
 # 0x1001 error register bits (CiA 301)
 ERREG_GENERIC = 0x01

@@ -59,11 +59,8 @@ def bus_load(log: Path, seconds: float) -> dict[str, float]:
     }
 
 
-# The shipped benches stop a realtime run after 3 periods without feedback (the issue asks the
-# host to notice a dead robot that fast). This VM stalls that long about once a minute, which
-# would end a 60 s timing run early; the benchmark measures the link's timing, so its copies of
-# the benches wait 20 periods. A stall still counts as the deadline misses it causes.
-BENCH_FEEDBACK_TIMEOUT_PERIODS = 20
+# The shipped benches' feedback budget (0.1 s) counts a VM stall as late feedback and the
+# deadline misses it causes; a dead robot is still detected at once (tests/test_faults.py).
 
 
 def bench_file(tmp: Path, base: str, period_s: float) -> Path:
@@ -71,13 +68,8 @@ def bench_file(tmp: Path, base: str, period_s: float) -> Path:
     text = resolve("benches", base).read_text()
     path = tmp / f"{base}-{round(1 / period_s)}hz.toml"
     old = f"period_s = {data['period_s']}"
-    assert old in text and "feedback_timeout_periods = 3" in text
+    assert old in text
     text = text.replace(old, f"period_s = {period_s}", 1)
-    text = text.replace(
-        "feedback_timeout_periods = 3",
-        f"feedback_timeout_periods = {BENCH_FEEDBACK_TIMEOUT_PERIODS}",
-        1,
-    )
     path.write_text(text)
     return path
 

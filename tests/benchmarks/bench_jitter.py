@@ -27,7 +27,6 @@ from typing import Any
 
 from hil.jitter_cli import measure
 
-FEEDBACK_TIMEOUT_PERIODS = 20
 nan = float("nan")
 
 
@@ -52,7 +51,6 @@ def run_one(bench: str, rate: float, seconds: float, policy: str, out: Path) -> 
         seconds,
         out,
         realtime_policy=policy,
-        feedback_timeout_periods=FEEDBACK_TIMEOUT_PERIODS,
         plot=False,
         progress=False,
     )

@@ -1,0 +1,162 @@
+"""Process life of a run: exit signals, and whether the process that wrote a run still lives.
+
+* :func:`install_exit_signals`: SIGTERM and SIGHUP behave like Ctrl-C (a ``KeyboardInterrupt``
+  in the main thread), so every way of stopping a run goes through the same safe path: zero
+  torque, drives disabled, meta.json closed. Signals that arrive while that path runs are not
+  allowed to cut it short (the third one ends the process at once, for a hung clean-up). A
+  signal that lands in the middle of an import is acted on as soon as the import is done.
+* :func:`process_stamp` / :func:`run_status`: a run's meta.json says ``running`` while its
+  writer is at work; if the writer is killed (SIGKILL, power loss) the file keeps saying so.
+  The stamp (pid, host, boot id, process start time) lets a reader tell such a run from a live
+  one: :func:`run_status` reports it as ``died``.
+
+Imports nothing of this project; both command lines (``hil``, ``virtual-robot``) use it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import sys
+from collections.abc import Mapping
+from types import FrameType
+from typing import Any
+
+EXIT_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
+IMPORT_RETRY_S = 0.005  # a signal during an import is acted on once the import is done
+_received: list[int] = []  # exit signals received so far (the first one is what stopped us)
+
+
+def _on_exit_signal(signum: int, frame: FrameType | None) -> None:
+    _received.append(signum)
+    if len(_received) == 1:
+        _interrupt_when_safe(frame)
+        return
+    name = signal.Signals(signum).name
+    if len(_received) >= 3:  # the clean-up hangs: the user insists
+        print(f"{_prog()}: {name} again; exiting without clean-up", file=sys.stderr, flush=True)
+        os._exit(128 + _received[0])
+    print(f"{_prog()}: {name}: already stopping (drives being disabled)", file=sys.stderr)
+
+
+def _importing(frame: FrameType | None) -> bool:
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _interrupt_when_safe(frame: FrameType | None) -> None:
+    """Raise KeyboardInterrupt now, unless the main thread is importing a module: an
+    exception inside a C extension's import turns into a confusing ImportError (numpy's
+    does), so try again every few ms (SIGALRM) until the import is done."""
+    if not _importing(frame):
+        raise KeyboardInterrupt
+    signal.signal(signal.SIGALRM, _retry_interrupt)
+    signal.setitimer(signal.ITIMER_REAL, IMPORT_RETRY_S)
+
+
+def _retry_interrupt(_signum: int, frame: FrameType | None) -> None:
+    _interrupt_when_safe(frame)
+
+
+def _prog() -> str:
+    return os.path.basename(sys.argv[0]) or "python"
+
+
+def install_exit_signals() -> None:
+    """SIGINT, SIGTERM and SIGHUP raise KeyboardInterrupt once in the main thread."""
+    for name in EXIT_SIGNALS:
+        with contextlib.suppress(ValueError, OSError, AttributeError):  # not the main thread
+            signal.signal(getattr(signal, name), _on_exit_signal)
+
+
+def exit_signal() -> int | None:
+    """The first exit signal received (signal number), or None."""
+    return _received[0] if _received else None
+
+
+def interrupt_reason() -> str:
+    """One line saying what stopped the process: Ctrl-C or the signal's name."""
+    signum = exit_signal()
+    if signum is None or signum == signal.SIGINT:
+        return "interrupted by the user (Ctrl-C)"
+    return f"stopped by {signal.Signals(signum).name}"
+
+
+def interrupt_exit_code() -> int:
+    """128 + the signal number, as a shell reports a process a signal ended (130 for Ctrl-C)."""
+    return 128 + (exit_signal() or signal.SIGINT)
+
+
+# ---- who is running a run --------------------------------------------------------------
+def _boot_id() -> str:
+    try:
+        with open("/proc/sys/kernel/random/boot_id") as f:
+            return f.read().strip()
+    except OSError:
+        return ""
+
+
+def _start_ticks(pid: int) -> int | None:
+    """Start time of process ``pid`` (clock ticks since boot, /proc/PID/stat field 22)."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            stat = f.read()
+    except OSError:
+        return None
+    try:  # the command name (field 2) may hold spaces and parentheses: split after its ')'
+        return int(stat[stat.rindex(b")") + 2 :].split()[19])
+    except (ValueError, IndexError):
+        return None
+
+
+def process_stamp() -> dict[str, Any]:
+    """meta.json's ``process``: enough to tell later whether this very process still runs."""
+    pid = os.getpid()
+    return {
+        "process": {
+            "pid": pid,
+            "host": socket.gethostname(),
+            "boot_id": _boot_id(),
+            "start_ticks": _start_ticks(pid),
+        }
+    }
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process: it exists
+        return True
+    return True
+
+
+def run_status(meta: Mapping[str, Any]) -> str:
+    """A run's status as a reader should report it.
+
+    meta.json's ``status``, except that a ``running`` run whose writer can be checked (this host,
+    this boot) and is gone, or is another process under a reused pid, is ``died``: it never
+    finished and never will. A run from another host or boot, or without a stamp, keeps what
+    the file says.
+    """
+    status = str(meta.get("status", "unknown"))
+    stamp = meta.get("process")
+    if status != "running" or not isinstance(stamp, Mapping):
+        return status
+    pid, host, boot = stamp.get("pid"), stamp.get("host"), stamp.get("boot_id")
+    if not isinstance(pid, int) or isinstance(pid, bool) or pid <= 0:
+        return status
+    if host != socket.gethostname() or not boot or boot != _boot_id():
+        return status  # cannot check from here
+    if not _alive(pid):
+        return "died"
+    ticks = stamp.get("start_ticks")
+    if isinstance(ticks, int) and _start_ticks(pid) not in (None, ticks):
+        return "died"  # the pid belongs to another process now
+    return status
