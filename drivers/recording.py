@@ -328,7 +328,7 @@ def _read_meta(meta_path: Path) -> dict[str, Any]:
             continue
         value = meta[key]
         if isinstance(value, bool) or not isinstance(value, types):
-            names = " or ".join(_JSON_NAMES[t] for t in types)
+            names = " or ".join(_JSON_NAMES[t] for t in types if not (t is int and float in types))
             got = json.dumps(value)[:40]
             raise RecordingError(f"{meta_path}: field {key!r} must be {names}, got {got}")
     if "period_s" in meta:
@@ -440,7 +440,7 @@ def _plan(
                     f"{csv_path}: missing column(s) {', '.join(missing)} "
                     f"(need {','.join(BASE_COLUMNS)})"
                 )
-        for name in ("t", *(f"{p}{j + 1}" for j in range(n) for p in ("q", "tau"))):
+        for name in ("t", *(f"{p}{j + 1}" for p in ("q", "tau") for j in range(n))):
             sources[name] = name
     for name, column in overrides.items():
         joint = int(name.lstrip("qta u")) if name != "t" else 0
@@ -625,8 +625,6 @@ def _assemble(
                 f"{_row(d + 1)}; shifted to this project's hold, {lost} row(s) dropped at "
                 "segment ends"
             )
-    if len(rows) > 1 and plan.sources["t"] != "t":
-        findings.append(f"times from the file's {plan.sources['t']!r} column")
     if plan.identity and len(rows) == n_rows:
         columns = {name: data[:, j] for j, name in enumerate(keep)}
     else:

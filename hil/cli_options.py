@@ -109,9 +109,9 @@ def add_out_options(p: argparse.ArgumentParser) -> None:
 def prepare_out_dir(
     out: str | Path, overwrite: bool, inputs: Sequence[str | Path | None] = ()
 ) -> Path:
-    """Make ``out`` an empty directory to write into: refuse a non-empty one (files of an
-    earlier run would mix with this one's) unless ``overwrite``, which empties it first, and
-    never one that holds one of the command's ``inputs``."""
+    """Make sure ``out`` is absent or an empty directory to write into: refuse a non-empty one
+    (files of an earlier run would mix with this one's) unless ``overwrite``, which empties it
+    first, and never one that holds one of the command's ``inputs``."""
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: exists and is not a directory")
@@ -135,5 +135,4 @@ def prepare_out_dir(
                 shutil.rmtree(child)
             else:
                 child.unlink()
-    out.mkdir(parents=True, exist_ok=True)
-    return out
+    return out  # created by the command when it writes (a refused run leaves nothing)

@@ -75,6 +75,7 @@ def main(args: argparse.Namespace) -> int:
     doc = result.document
     if args.out:
         out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
         write_json_atomic(out / "diagnosis.json", doc)
         if not args.no_plots:
             from hil.diagnose_plots import plot_diagnosis
