@@ -21,7 +21,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from drivers.recording import Recording, parse_column_map, read_signals
+import numpy as np
+
+from drivers.recording import Recording, RecordingError, parse_column_map, read_signals
 from profiles.recording_format import LOOP_DELAY_MAX
 
 TORQUE_SOURCES_HELP = "commanded (default), measured, or another source the --format offers"
@@ -87,14 +89,28 @@ def read_recording(
     command: str,
     min_rows: int = 2,
     extra_columns: bool = False,
+    allow_gaps: bool = False,
+    need_motion: bool = True,
 ) -> Recording:
     """Read ``path`` with the recording options of ``args``; print what the reader noticed
-    (gaps, irregular sampling, dropped duplicates, the loop delay) on stderr."""
+    (gaps, irregular sampling, dropped duplicates, the loop delay) on stderr. Refuse a
+    recording with gaps unless ``allow_gaps`` (the command analyses ``rec.segments()``
+    separately), and one where the arm never moves if ``need_motion``."""
     rec = read_signals(
         path, **recording_kwargs(args), extra_columns=extra_columns, min_rows=min_rows
     )
     for note in rec.findings_on_read:
         print(f"hil {command}: note: {rec.path}: {note}", file=sys.stderr)
+    if not allow_gaps and len(rec.segments()) > 1:
+        gap = next((f for f in rec.findings_on_read if "gap(s) in t" in f), "gaps in t")
+        raise RecordingError(
+            f"{rec.path}: {gap.split(';')[0]}; hil {command} does not splice segments: give "
+            "it each segment as a recording of its own"
+        )
+    if need_motion and len(rec) and np.all(np.ptp(rec.q, axis=0) == 0):
+        raise RecordingError(
+            f"{rec.path}: the arm does not move (every q is constant): nothing to {command}"
+        )
     return rec
 
 

@@ -183,7 +183,6 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         raise ValueError(f"--lambda must be > 0 rad/s, got {args.lam}")
     discretizations = ["exact", "paper"] if args.discretization == "both" else [args.discretization]
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
 
     online = None
     if args.from_recording:
@@ -212,6 +211,7 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             held_out = None
     if len(fit) < 8:
         raise ValueError(f"{fit.path}: only {len(fit)} rows, too short to identify")
+    out.mkdir(parents=True, exist_ok=True)  # after reading: a refused run writes nothing
     reference = robot_params(robot)
     h = fit.period_s
 
