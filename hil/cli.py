@@ -28,6 +28,7 @@ from pathlib import Path
 
 from drivers.logsetup import add_verbosity_options, configure, verbosity
 from hil import __version__
+from hil.cli_options import add_out_options, prepare_out_dir
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_LINK, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 
@@ -63,6 +64,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--experiment", default="reyes-kelly", help="experiment profile or file")
     r.add_argument("--duration", type=float, default=None, help="seconds (default: experiment's)")
     r.add_argument("--out", required=True, help="run directory to write")
+    add_out_options(r)
     r.add_argument(
         "--mode",
         choices=("lockstep", "realtime"),
@@ -82,6 +84,7 @@ def _parser() -> argparse.ArgumentParser:
         "demo", help="the main job end to end on the default virtual robot", parents=[common]
     )
     d.add_argument("--out", default="runs/demo", help="directory for the demo's runs")
+    add_out_options(d)
     d.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
     for name, (module, help_text) in COMMANDS.items():
         importlib.import_module(module).add_arguments(
@@ -101,7 +104,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from drivers.recording import read_signals
     from hil.run import run_experiment
 
-    out = Path(args.out)
+    out = prepare_out_dir(args.out, args.overwrite)
     run_dir, sim_dir = out / "hil-run-virtual-slcan", out / "simulate-reyes-kelly"
     print(
         f"hil demo: 10 s of the Reyes & Kelly (1997) excitation, eqs. (31)-(32), over the "
@@ -263,6 +266,7 @@ def _attached_bench(args: argparse.Namespace) -> str:
 def cmd_run(args: argparse.Namespace) -> int:
     from hil.run import run_experiment
 
+    prepare_out_dir(args.out, args.overwrite)
     summary = run_experiment(
         _attached_bench(args) if args.attach else args.bench,
         args.experiment,
