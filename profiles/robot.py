@@ -43,6 +43,11 @@ class Rotor:
     inertia_kgm2: float
     gear_ratio: float
     coupling: float  # +1 or −1
+    datasheet_inertia_kgm2: float | None = None
+
+    def inertia_from_theta(self, theta_rotor: float) -> float:
+        """Ir from θ_rotor = gr² Ir − coupling·gr·Ir (hil.model)."""
+        return theta_rotor / (self.gear_ratio**2 - self.coupling * self.gear_ratio)
 
 
 @dataclass(frozen=True)
@@ -220,12 +225,17 @@ def load_robot(name_or_path: str | Path) -> RobotProfile:
     rotor = None
     if f.has("rotor"):
         rt = f.table("rotor")
-        rt.only({"inertia_kgm2", "gear_ratio", "coupling"})
+        rt.only({"inertia_kgm2", "gear_ratio", "coupling", "datasheet_inertia_kgm2"})
         coupling = rt.number("coupling")
         if coupling not in (1.0, -1.0):
             raise rt.error("coupling", f"must be +1 or -1, got {coupling:g}")
         rotor = Rotor(
-            rt.number("inertia_kgm2", lo=0.0), rt.number("gear_ratio", positive=True), coupling
+            rt.number("inertia_kgm2", lo=0.0),
+            rt.number("gear_ratio", positive=True),
+            coupling,
+            rt.number("datasheet_inertia_kgm2", positive=True)
+            if rt.has("datasheet_inertia_kgm2")
+            else None,
         )
         if "rotor_inertia" not in terms:
             raise f.error("rotor", "a [rotor] needs model.terms to include rotor_inertia")
