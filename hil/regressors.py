@@ -135,6 +135,40 @@ def central_difference_unequal(q: np.ndarray, t: np.ndarray) -> np.ndarray:
     return v
 
 
+def local_polynomial_velocity(q: np.ndarray, t: np.ndarray, half_window: int) -> np.ndarray:
+    """v_k = slope at t_k of the least-squares quadratic through the samples k−m..k+m (real
+    times; m = ``half_window`` ≥ 1; m = 1 is the three-point derivative). Quantized positions
+    make the three-point derivative noisy, and that noise in the regressors biases least
+    squares towards zero (errors in variables, docs/real-data.md); a window of 2m + 1 samples
+    cuts the velocity noise by about m^1.5. The first and last m samples are NaN."""
+    q = np.asarray(q, dtype=float)
+    t = np.asarray(t, dtype=float)
+    n, m = len(q), int(half_window)
+    v = np.full_like(q, np.nan)
+    if m < 1 or n < 2 * m + 1:
+        return v
+    W = np.lib.stride_tricks.sliding_window_view(np.arange(n), 2 * m + 1)
+    centre = np.arange(m, n - m)
+    d = t[W] - t[centre][:, None]  # (K, 2m+1)
+    S = np.stack([np.sum(d**p, axis=1) for p in range(5)], -1)  # Σ d^p, p = 0..4
+    G = np.stack([S[:, [0, 1, 2]], S[:, [1, 2, 3]], S[:, [2, 3, 4]]], axis=1)  # of [1, d, d²]
+    for j in range(q.shape[1]):
+        x = q[W, j] - q[centre, j][:, None]  # relative: keeps the solve well scaled
+        rhs = np.stack([np.sum(x * d**p, axis=1) for p in range(3)], -1)
+        v[centre, j] = np.linalg.solve(G, rhs[..., None])[:, 1, 0]
+    return v
+
+
+def velocity_half_window(lam: float, t: np.ndarray) -> int:
+    """Samples each side for :func:`local_polynomial_velocity`: a half-width of 1/(4λ) s (at
+    least one sample). The slope of a quadratic fitted over ±T to a sinusoid of frequency ω is
+    low by about (ωT)²/10 relative: 0.16 % at ω = λ/2 (the excitation bandwidth that
+    :func:`data_bandwidth` doubles), while the velocity noise of the encoder quantum falls
+    as m^-1.5."""
+    h = float(np.median(np.diff(t)))
+    return max(1, round(1.0 / (4.0 * lam * h)))
+
+
 _GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(4)
 _GL_NODES = 0.5 * (_GL_NODES + 1.0)  # on [0, 1]
 _GL_WEIGHTS = 0.5 * _GL_WEIGHTS
@@ -283,10 +317,14 @@ def kinematics(
     *,
     model: ArmModel = NINE_PARAMETERS,
     t: np.ndarray | None = None,
+    half_window: int = 1,
+    keep: tuple[int, int] | None = None,
 ) -> Kinematics:
     """Velocities (backward difference for ``paper``, central for ``exact``) and, for
     ``exact``, the integrals over every interval with both end velocities known. ``t``: the
-    samples' real times (``exact`` only), used instead of k·h."""
+    samples' real times (``exact`` only), used instead of k·h; ``half_window`` > 1: velocities
+    by :func:`local_polynomial_velocity` over 2·half_window + 1 samples (real times only);
+    ``keep`` = (i, j): only intervals i..j−1 of the window (chunked building)."""
     if discretization == "paper":
         if t is not None:
             raise ValueError("the paper discretization assumes equal intervals; use exact")
@@ -296,7 +334,13 @@ def kinematics(
         return Kinematics(v, interval_integrals(q, v, h, model), model)
     t = np.asarray(t, dtype=float)
     dt = np.diff(t)
-    v = central_difference_unequal(q, t)
+    if half_window <= 1:
+        v = central_difference_unequal(q, t)
+    else:
+        v = local_polynomial_velocity(q, t, half_window)
+    if keep is not None:  # intervals outside keep lose an end velocity, hence their rows
+        v[: keep[0]] = np.nan
+        v[keep[1] + 1 :] = np.nan
     return Kinematics(v, interval_integrals(q, v, dt, model), model, dt)
 
 
@@ -388,6 +432,7 @@ def build_regression(
     *,
     model: ArmModel = NINE_PARAMETERS,
     t: np.ndarray | None = None,
+    half_window: int = 1,
 ) -> Regression:
     """The regression y(k) ≈ Ψ(k)ᵀθ of one scheme over a whole recording.
 
@@ -400,7 +445,7 @@ def build_regression(
     _check(q, tau, h, lam, discretization)
     if len(q) < 8:
         raise ValueError(f"need at least 8 samples to identify, got {len(q)}")
-    kin = kinematics(discretization, q, h, model=model, t=t)
+    kin = kinematics(discretization, q, h, model=model, t=t, half_window=half_window)
     raw = raw_rows(scheme, discretization, q, tau, h, kin)
     y = lfilter(*filter_coefficients(raw.y_filter, lam, h), raw.y, axis=0)
     Psi = sum(lfilter(*filter_coefficients(f, lam, h), x, axis=0) for f, x in raw.parts)
@@ -508,29 +553,35 @@ def iter_rows(
     model: ArmModel = NINE_PARAMETERS,
     *,
     chunk: int = 20000,
+    half_window: int | None = None,
 ):
     """The ``exact`` regression of a recording with real time stamps, in chunks of ``chunk``
     intervals with the filters' state carried across, so memory stays O(chunk · p) whatever the
-    recording's length. The rows equal :func:`build_regression`'s with ``t`` (up to the stick
-    rule, here :func:`quantized_stick`). Yields :class:`RowChunk`."""
+    recording's length. Velocities by :func:`local_polynomial_velocity` over
+    ±``half_window`` samples (default :func:`velocity_half_window`). The rows equal
+    :func:`build_regression`'s with ``t`` and the same ``half_window`` (up to the stick rule,
+    here :func:`quantized_stick`). Yields :class:`RowChunk`."""
     q, tau, t = (np.asarray(a, dtype=float) for a in (q, tau, t))
     h = float(np.median(np.diff(t)))
     _check(q, tau, h, lam, "exact")
     if len(q) < 8:
         raise ValueError(f"need at least 8 samples to identify, got {len(q)}")
     n = len(q)
+    m = velocity_half_window(lam, t) if half_window is None else max(1, int(half_window))
     stuck_all = quantized_stick(q, t)
     memory = stick_memory(lam, h)
     states: dict[str, np.ndarray] = {}
     last_stuck = None
-    for s in range(1, n - 2, chunk):
-        e = min(s + chunk, n - 2)
-        a, b = s - 1, e + 2
-        kin = kinematics("exact", q[a:b], h, model=model, t=t[a:b])
+    for s in range(m, n - m - 1, chunk):
+        e = min(s + chunk, n - m - 1)  # intervals s..e−1: both end velocities known
+        a, b = max(0, s - m), min(n, e + m + 1)
+        kin = kinematics(
+            "exact", q[a:b], h, model=model, t=t[a:b], half_window=m, keep=(s - a, e - a)
+        )
         raw = raw_rows(scheme, "exact", q[a:b], tau[a:b], h, kin)
         k_global = raw.index - 1 + a  # the interval each row is about
-        m = raw.y.shape[1]
-        stuck = stuck_all[k_global] if m == 2 else np.zeros((len(k_global), 1), bool)
+        n_out = raw.y.shape[1]
+        stuck = stuck_all[k_global] if n_out == 2 else np.zeros((len(k_global), 1), bool)
         ys = []
         for key, (name, x) in [("y", (raw.y_filter, raw.y))] + [
             (f"part{i}", part) for i, part in enumerate(raw.parts)
@@ -545,7 +596,7 @@ def iter_rows(
         # stick weights with the memory carried across chunks
         K = len(k_global)
         idx = np.arange(K)[:, None]
-        prev = np.full((1, m), -(10**9)) if last_stuck is None else last_stuck
+        prev = np.full((1, n_out), -(10**9)) if last_stuck is None else last_stuck
         last = np.maximum.accumulate(np.vstack([prev, np.where(stuck, idx, -(10**9))]), axis=0)[1:]
         weights = (idx - last > memory).astype(float)
         last_stuck = (last[-1:] - K) if K else prev
