@@ -531,13 +531,14 @@ def format_model_report(report: dict[str, Any], model: ArmModel) -> str:
         f"  estimate: {ident['method']}",
         "",
         f"{'parameter':14s}{'unit':>7s}{'identified':>16s}{'± SE (block)':>14s}"
-        f"{'SE (white)':>12s}{'profile':>12s}",
+        f"{'SE (white)':>12s}{'VIF':>8s}{'profile':>12s}",
     ]
     for row, ref in zip(ident["parameters"], report["profile_theta"], strict=True):
         value = f"{row['estimate']:.4g}" if row["identified"] else "not determined"
         lines.append(
             f"{row['parameter']:14s}{row['unit']:>7s}{value:>16s}"
-            f"{row['se_blocked_bootstrap']:>14.2g}{row['se_white']:>12.2g}{ref:>12.4g}"
+            f"{row['se_blocked_bootstrap']:>14.2g}{row['se_white']:>12.2g}"
+            f"{row['variance_inflation']:>8.0f}{ref:>12.4g}"
             + ("" if row["identified"] else f"   (estimate {row['estimate']:.3g})")
         )
     phys = ident["least_squares_physical"]

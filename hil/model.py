@@ -502,8 +502,9 @@ class ArmModel:
         if not self.terms:
             return physical_consistency(t)
         rot = t[self.term_columns("rotor_inertia")][0] if "rotor_inertia" in self.terms else 0.0
-        perp = t[self.term_columns("com_offset")][0] if "com_offset" in self.terms else 0.0
-        rho = float(np.hypot(t[1], perp))
+        perp = "com_offset" in self.terms
+        perp_value = t[self.term_columns("com_offset")][0] if perp else 0.0
+        rho = float(np.hypot(t[1], perp_value))
         m22 = t[2] + rot
         violations = []
         if not m22 > 0:
@@ -513,9 +514,9 @@ class ArmModel:
         for x in (rho, -rho):
             det = (t[0] + 2 * x) * m22 - (t[2] + x) ** 2
             if not det > 0:
+                where = "theta2 cos q2" + (" - theta2_perp sin q2" if perp else "")
                 violations.append(
-                    f"M(q) not positive definite where theta2 cos q2 - theta2_perp sin q2 = "
-                    f"{x:.4g}: det = {det:.4g} <= 0"
+                    f"M(q) not positive definite where {where} = {x:.4g}: det = {det:.4g} <= 0"
                 )
         for i in self.nonnegative_columns:
             if not t[i] >= 0:
