@@ -5,6 +5,14 @@ recursive least squares over the same data, all three schemes, under 1 s; one on
 well inside a 2.5 ms period. Also reports the whole online step (building the three regressor
 rows from the newest sample, filters, three RLS updates), which is what a control cycle pays.
 Medians of several repeats; ``--json`` prints one JSON document; exit 1 if a target is missed.
+
+``--long MINUTES`` (issue 12/13, bounded memory): instead, write a MINUTES-long 1 kHz recording
+(``t,q1,q2,tau1,tau2``: a multisine motion of the dfki-a0 arm with its rotor inertia, torques by
+its inverse dynamics, 20 % timing jitter, a 1.9e-4 rad encoder quantum) and run
+``hil identify --from it --robot dfki-a0`` under ``/usr/bin/time -v``; report its peak RSS and
+wall time against the target (< 4 GB; the identification builds its rows in chunks into
+per-block normal equations, so memory is O(N) for the recording's arrays and O(chunk · p) for
+the regression, not O(N · p²)). The 10-minute run takes a few minutes on the dev VM.
 """
 
 from __future__ import annotations
@@ -40,11 +48,89 @@ def timed(fn, repeats: int) -> float:
     return statistics.median(runs)
 
 
+TARGET_LONG_RSS_BYTES = 4 * 1024**3
+
+
+def write_long_recording(path: str, minutes: float, seed: int = 0) -> int:
+    """A ``minutes``-long 1 kHz recording of the dfki-a0 arm (see the module doc); rows."""
+    from hil.model import ArmModel
+
+    profile = load_robot("dfki-a0")
+    model, theta = ArmModel(profile.terms), profile.theta()
+    rng = np.random.default_rng(seed)
+    n = int(minutes * 60 * 1000)
+    t = np.r_[0.0, np.cumsum(0.001 * (1 + 0.2 * rng.uniform(-1, 1, n - 1)))]
+    w = 2 * np.pi * np.array([0.3, 0.7, 1.3, 2.1])
+    amp = np.array([[0.5, 0.3, 0.2, 0.1], [0.9, 0.5, 0.3, 0.2]])
+    ph = rng.uniform(0, 2 * np.pi, amp.shape)
+    quantum = 2 * np.pi / 32768
+    with open(path, "w") as f:
+        f.write("t,q1,q2,tau1,tau2\n")
+        for s in range(0, n, 100_000):  # in blocks: the generator stays small too
+            tt = t[s : s + 100_000, None, None]
+            arg = w * tt + ph
+            q = np.sum(amp * np.sin(arg), -1)
+            dq = np.sum(amp * w * np.cos(arg), -1)
+            ddq = np.sum(-amp * w**2 * np.sin(arg), -1)
+            tau = model.torque(theta, q, dq, ddq)
+            q = np.round(q / quantum) * quantum
+            np.savetxt(f, np.column_stack([tt[:, 0, 0], q, tau]), fmt="%.9g", delimiter=",")
+    return n
+
+
+def long_run(minutes: float, as_json: bool) -> int:
+    """Peak RSS of `hil identify` on a long generated recording (module doc)."""
+    import os
+    import re
+    import subprocess
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = os.path.join(tmp, "long.csv")
+        rows = write_long_recording(path, minutes)
+        size = os.path.getsize(path)
+        cmd = [
+            "/usr/bin/time", "-v", sys.executable, "-m", "hil.cli", "identify", "--from", path,
+            "--robot", "dfki-a0", "--no-plot", "--out", os.path.join(tmp, "out"), "--json",
+        ]  # fmt: skip
+        start = time.perf_counter()
+        run = subprocess.run(cmd, capture_output=True, text=True)
+        wall = time.perf_counter() - start
+    m = re.search(r"Maximum resident set size \(kbytes\): (\d+)", run.stderr)
+    rss = int(m.group(1)) * 1024 if m else -1
+    ok = run.returncode == 0 and 0 < rss < TARGET_LONG_RSS_BYTES
+    doc = {
+        "minutes": minutes,
+        "rows": rows,
+        "csv_bytes": size,
+        "exit_status": run.returncode,
+        "peak_rss_bytes": rss,
+        "wall_s": wall,
+        "target_rss_bytes": TARGET_LONG_RSS_BYTES,
+        "targets_met": ok,
+    }
+    if run.returncode != 0:
+        doc["stderr_tail"] = run.stderr[-2000:]
+    if as_json:
+        print(json.dumps(doc))
+    else:
+        print(
+            f"hil identify --robot dfki-a0 on {minutes:g} min at 1 kHz ({rows} rows, "
+            f"{size / 1e6:.0f} MB CSV): peak RSS {rss / 1e6:.0f} MB (target < "
+            f"{TARGET_LONG_RSS_BYTES / 1024**3:.0f} GiB), {wall:.0f} s wall, exit {run.returncode}"
+        )
+        if run.returncode != 0:
+            print(run.stderr[-2000:])
+    return 0 if ok else 1
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--json", action="store_true")
+    parser.add_argument("--long", type=float, default=None, metavar="MINUTES")
     args = parser.parse_args()
+    if args.long is not None:
+        return long_run(args.long, args.json)
     with tempfile.TemporaryDirectory() as tmp:
         simulate(load_robot("cicese"), load_experiment("reyes-kelly"), tmp, plot=False)
         rec = read_signals(tmp)
