@@ -13,6 +13,8 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from drivers.recording import RecordingError, read_signals, write_json_atomic
 from hil.diagnose_report import diagnose, percent
 from hil.params import ParamsError, load_params, robot_params
@@ -57,7 +59,7 @@ def main(args: argparse.Namespace) -> int:
             )
     try:
         result = diagnose(recs, reference, nominal_theta=nominal, progress=_progress)
-    except ValueError as exc:
+    except (ValueError, np.linalg.LinAlgError) as exc:
         print(f"hil diagnose: {exc}", file=sys.stderr)
         return 2
     doc = result.document
