@@ -19,6 +19,12 @@ import numpy as np
 
 from drivers.arm import Sample
 from drivers.recording import Recording, read_signals, write_json_atomic
+from hil.cli_options import (
+    add_out_options,
+    add_recording_options,
+    prepare_out_dir,
+    read_recording,
+)
 from hil.identify import (
     ESTIMATORS,
     PAPER_TABLE_II,
@@ -83,6 +89,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="scheme selected in params.json (hil control/diagnose read that one by default)",
     )
     p.add_argument("--out", default="runs/identify", help="output directory")
+    add_out_options(p)
+    add_recording_options(p)
     p.add_argument("--no-plot", action="store_true", help="skip the plots")
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
 
@@ -154,6 +162,7 @@ def _scheme_json(res: SchemeResult, reference: np.ndarray, validation: dict) -> 
 
 
 def main(args: argparse.Namespace) -> int:
+    prepare_out_dir(args.out, args.overwrite, inputs=(args.from_recording, args.validate))
     report, text = run_identify(args)
     print(json.dumps(report) if args.json else text)
     return 0
@@ -174,12 +183,15 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         raise ValueError(f"--lambda must be > 0 rad/s, got {args.lam}")
     discretizations = ["exact", "paper"] if args.discretization == "both" else [args.discretization]
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
 
     online = None
     if args.from_recording:
-        fit = read_signals(args.from_recording)
-        held_out = read_signals(args.validate) if args.validate else None
+        fit = read_recording(args, args.from_recording, command="identify", min_rows=8)
+        held_out = (
+            read_recording(args, args.validate, command="identify", min_rows=2)
+            if args.validate
+            else None
+        )
         robot = args.robot or fit.meta.get("robot") or "cicese"
     else:
         bench = args.bench or "virtual-slcan"
@@ -192,13 +204,14 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         )  # fmt: skip
         fit = _record(args, bench, args.experiment, out / "fit", online)
         if args.validate:
-            held_out = read_signals(args.validate)
+            held_out = read_recording(args, args.validate, command="identify", min_rows=2)
         elif args.validation_experiment != "none":
             held_out = _record(args, bench, args.validation_experiment, out / "validation", None)
         else:
             held_out = None
     if len(fit) < 8:
         raise ValueError(f"{fit.path}: only {len(fit)} rows, too short to identify")
+    out.mkdir(parents=True, exist_ok=True)  # after reading: a refused run writes nothing
     reference = robot_params(robot)
     h = fit.period_s
 
