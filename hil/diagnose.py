@@ -12,7 +12,7 @@ would separate them. Pure computation over arrays; reading files, plots and the 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -22,6 +22,7 @@ from hil.diagnose_columns import (
     RecordingRows,
     angle_offset_column,
     cogging_columns,
+    cogging_columns_many,
     gain_column,
     offset_column,
     recording_rows,
@@ -37,6 +38,7 @@ from hil.diagnose_stats import (
     evidence,
     extend_stats_many,
 )
+from hil.model import physical_consistency
 
 VOCABULARY = (
     "coulomb_asymmetry",
@@ -84,6 +86,8 @@ class Candidate:
     joint: int
     variants: tuple[Any, ...]
     columns: Callable[[RecordingRows, Any], np.ndarray]
+    # X of several variants at once, (K, 2, V, width), when that is cheaper than one by one
+    batch: Callable[[RecordingRows, tuple[Any, ...]], np.ndarray] | None = None
 
     @property
     def key(self) -> str:
@@ -140,6 +144,7 @@ def candidates(
                 j,
                 cogging_periods(angle_range_rad[j]),
                 lambda r, n, j=j: cogging_columns(r, j, n),
+                lambda r, ns, j=j: cogging_columns_many(r, j, ns),
             ),
             Candidate("rate", j, (None,), lambda r, _v, j=j: torque_rate_column(r, j)),
             Candidate(
@@ -166,7 +171,7 @@ class Problem:
     w: np.ndarray  # (K, 2)
     scale: np.ndarray  # (2,) noise scale per joint [Nm]
     blocks: np.ndarray  # (K,)
-    cache: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    cache: dict[tuple[str, int], np.ndarray] = field(default_factory=dict)
 
     @property
     def y(self) -> np.ndarray:
@@ -186,13 +191,43 @@ class Problem:
         """Mean position over each row's interval, all recordings (K, 2)."""
         return np.concatenate([r.q_mean for r in self.rows])
 
-    def columns(self, cand: Candidate) -> list[np.ndarray]:
-        """X of every variant, stacked over recordings and scaled like the rows."""
-        if cand.key not in self.cache:
-            self.cache[cand.key] = [
-                np.concatenate([cand.columns(r, v) for r in self.rows]) for v in cand.variants
-            ]
-        return [x / self.scale[None, :, None] for x in self.cache[cand.key]]
+    def _raw(self, cand: Candidate, index: int) -> np.ndarray:
+        return np.concatenate([cand.columns(r, cand.variants[index]) for r in self.rows])
+
+    def column(self, cand: Candidate, index: int) -> np.ndarray:
+        """X of one variant (by index), stacked over recordings and scaled like the rows. Kept
+        for the next call: the terms in the model are asked for again every round."""
+        key = (cand.key, index)
+        if key not in self.cache:
+            self.cache[key] = self._raw(cand, index)
+        return self.cache[key] / self.scale[None, :, None]
+
+    def chosen(self, a: Accepted) -> np.ndarray:
+        """X of an accepted term, at the variant it was accepted with."""
+        return self.column(a.cand, a.cand.variants.index(a.variant))
+
+    def variant_chunks(self, cand: Candidate) -> Iterator[list[np.ndarray] | np.ndarray]:
+        """X of every variant, a few at a time (at most CHUNK_BYTES of columns): a 400-period
+        cogging grid over a long recording would not fit in memory at once."""
+        # bytes per variant and row: the columns (2 joints × width floats) and, for a batch,
+        # its working arrays (a complex value at each of 4 interval nodes, then their mean)
+        per_row = 8 * 2 * term_width(cand) + (96 if cand.batch is not None else 0)
+        per = max(1, int(CHUNK_BYTES // (per_row * max(len(self.y_raw), 1))))
+        if len(cand.variants) == 1:
+            yield [self.column(cand, 0)]
+            return
+        for lo in range(0, len(cand.variants), per):
+            hi = min(lo + per, len(cand.variants))
+            if cand.batch is not None:
+                some = cand.variants[lo:hi]
+                X = np.concatenate([cand.batch(r, some) for r in self.rows])
+                yield X / self.scale[None, :, None, None]
+            else:
+                yield [self._raw(cand, i) / self.scale[None, :, None] for i in range(lo, hi)]
+
+
+# Memory for the columns of one chunk of a candidate's variants (bytes).
+CHUNK_BYTES = 64e6
 
 
 def _stack(rows: Sequence[RecordingRows]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -211,10 +246,41 @@ def fit_theta(Psi: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 def robust_scale(residual: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Per-joint noise scale: 1.4826 · median absolute residual of the usable rows."""
-    return np.array(
-        [1.4826 * np.median(np.abs(residual[w[:, j] > 0, j])) + 1e-12 for j in range(2)]
-    )
+    """Per-joint noise scale: 1.4826 · median absolute residual of the usable rows (1 Nm for a
+    joint without any: its rows carry no weight, so the scale only has to be finite)."""
+    out = np.ones(2)
+    for j in range(2):
+        used = residual[w[:, j] > 0, j]
+        if len(used):
+            out[j] = 1.4826 * np.median(np.abs(used)) + 1e-12
+    return out
+
+
+class DiagnosisError(ValueError):
+    """The recordings cannot be diagnosed (one line, naming the reason)."""
+
+
+# A joint needs this many usable rows (moving, not stuck) before anything about it is tested;
+# fewer, and the blocked cross-validation has next to nothing to hold out.
+MIN_USABLE_ROWS = 200
+
+
+def check_recording(name: str, t: np.ndarray, q: np.ndarray, tau: np.ndarray) -> None:
+    """Refuse what no diagnosis can use, with the row (CSV line) at fault: non-finite values,
+    time stamps that do not increase, too few rows. The reader rejects most of these already;
+    this guards arrays from anywhere."""
+    data = np.column_stack([t, q, tau])
+    if len(data) < 3:
+        raise DiagnosisError(f"{name}: {len(data)} rows, too few to diagnose")
+    bad = np.flatnonzero(~np.isfinite(data).all(axis=1))
+    if len(bad):
+        raise DiagnosisError(f"{name}: NaN or inf at line {bad[0] + 2}")
+    step = np.flatnonzero(np.diff(t) <= 0)
+    if len(step):
+        raise DiagnosisError(
+            f"{name}: time stamps do not increase at line {step[0] + 3} "
+            f"(t = {t[step[0] + 1]:g} after {t[step[0]]:g}): shuffled or duplicated rows?"
+        )
 
 
 def build_problem(
@@ -245,21 +311,22 @@ def _design(prob: Problem, extra: Sequence[np.ndarray]) -> np.ndarray:
 
 
 def _cv(
-    prob: Problem, extra: Sequence[np.ndarray], variants: Sequence[np.ndarray] = ()
+    prob: Problem, extra: Sequence[np.ndarray], cand: Candidate | None = None
 ) -> CrossValidation:
-    """Cross-validation of nominal + ``extra`` (+ each of ``variants`` as alternatives)."""
+    """Cross-validation of nominal + ``extra`` (+ each variant of ``cand`` as alternatives)."""
     base = _design(prob, extra)
     stats = block_stats(base, prob.y, prob.w, prob.blocks)
-    if not variants:
+    if cand is None:
         return cross_validate(stats)
+    y, w, blocks = prob.y, prob.w, prob.blocks
     return cross_validate(
-        extend_stats_many(stats, base, list(variants), prob.y, prob.w, prob.blocks)
+        extend_stats_many(stats, base, chunk, y, w, blocks) for chunk in prob.variant_chunks(cand)
     )
 
 
 def _rewhiten(prob: Problem, accepted: Sequence[Accepted]) -> None:
     """Noise scale per joint from the residual of the model with the accepted terms."""
-    cols = [prob.columns(a.cand)[a.cand.variants.index(a.variant)] for a in accepted]
+    cols = [prob.chosen(a) for a in accepted]
     Z = _design(prob, cols) * prob.scale[None, :, None]  # unscaled
     beta = fit_theta(Z, prob.y_raw, prob.w)
     prob.scale = robust_scale(prob.y_raw - Z @ beta, prob.w)
@@ -279,6 +346,22 @@ def _large_enough(cand: Candidate, cv: CrossValidation) -> bool:
     if cand.kind in POSITIVE_ONLY and size <= 0:
         return False
     return abs(size) >= PRACTICAL_FLOOR[cand.kind]
+
+
+# A torque gain error below this (the shaft gets less than half the command) is not a gain
+# error but a model that has stopped describing the arm.
+MIN_GAIN = -0.5
+
+
+def unphysical(cand: Candidate | None, cv: CrossValidation) -> list[str]:
+    """Why a fit is not physical (empty when it is): M(q) not positive definite or negative
+    friction in θ (hil.model.physical_consistency), or a gain that removes most of the torque."""
+    reasons = list(physical_consistency(cv.beta[:9])["violations"])
+    if cand is not None and cand.kind == "gain":
+        r = float(cv.beta[9:][-1])
+        if r <= MIN_GAIN:
+            reasons.append(f"a torque gain of {100 * r:+.0f} % removes most of the torque")
+    return reasons
 
 
 def _passes(ev: Evidence, tests: int) -> bool:
@@ -315,8 +398,10 @@ def _gain_supported(
 ) -> bool:
     if reference is None:
         return True
-    other = next(c for c in library if c.kind == "gain" and c.joint != cand.joint)
-    there = _cv(prob, extra, prob.columns(other))
+    other = next((c for c in library if c.kind == "gain" and c.joint != cand.joint), None)
+    if other is None:  # the other joint is not tested: nothing to weigh the gain against
+        return False
+    there = _cv(prob, extra, other)
     best = min(
         rigid_body_deviation(cv.beta, reference), rigid_body_deviation(there.beta, reference)
     )
@@ -343,8 +428,8 @@ def _passing_pair(
     )[:PAIR_POOL]
     pairs = [(a, b) for i, a in enumerate(pool) for b in pool[i + 1 :]]
     for a, b in pairs:
-        cols_a = prob.columns(a[0])[a[1].variant]
-        cols_b = prob.columns(b[0])[b[1].variant]
+        cols_a = prob.column(a[0], a[1].variant)
+        cols_b = prob.column(b[0], b[1].variant)
         joints = sorted(set(_joints(a[0])) | set(_joints(b[0])))
         ev = evidence(base, _cv(prob, [*extra, cols_a, cols_b]), joints)
         if _passes(ev, tests + len(pairs)):
@@ -368,8 +453,8 @@ def _eliminate(
         verdicts = []
         for i, a in enumerate(accepted):
             others = [b for k, b in enumerate(accepted) if k != i]
-            cols = [prob.columns(b.cand)[b.cand.variants.index(b.variant)] for b in others]
-            own = prob.columns(a.cand)[a.cand.variants.index(a.variant)]
+            cols = [prob.chosen(b) for b in others]
+            own = prob.chosen(a)
             ev = evidence(_cv(prob, cols), _cv(prob, [*cols, own]), _joints(a.cand))
             verdicts.append((ev, i))
         failing = [(ev.drop, i) for ev, i in verdicts if not _passes(ev, tests)]
@@ -399,14 +484,14 @@ def _confounding(
     taken = {a.cand.key for a in accepted}
     for i, a in enumerate(accepted):
         others = [b for k, b in enumerate(accepted) if k != i]
-        cols = [prob.columns(b.cand)[b.cand.variants.index(b.variant)] for b in others]
-        own = prob.columns(a.cand)[a.cand.variants.index(a.variant)]
+        cols = [prob.chosen(b) for b in others]
+        own = prob.chosen(a)
         without = _cv(prob, cols)
         with_own = _cv(prob, [*cols, own])
         for alt in library:
             if alt.key in taken or (alt.kind == "gain") != (a.cand.kind == "gain"):
                 continue
-            with_alt = _cv(prob, cols, prob.columns(alt))
+            with_alt = _cv(prob, cols, alt)
             joints = sorted(set(_joints(alt)) | set(_joints(a.cand)))
             if not _passes(evidence(without, with_alt, _joints(alt)), tests):
                 continue
@@ -425,9 +510,11 @@ def select(
     library: Sequence[Candidate],
     log: Callable[[str], None] | None = None,
     reference: np.ndarray | None = None,
+    rejected: dict[str, str] | None = None,
 ) -> tuple[list[Accepted], dict[str, Evidence]]:
     """Greedy forward selection with blocked cross-validation (module doc). ``reference``: θ
-    that a torque gain error must be supported by (:data:`GAIN_SUPPORT_RATIO`)."""
+    that a torque gain error must be supported by (:data:`GAIN_SUPPORT_RATIO`). ``rejected``
+    collects candidates that passed the test but whose refit is not physical, with the reason."""
     accepted: list[Accepted] = []
     extra: list[np.ndarray] = []
     first_round: dict[str, Evidence] = {}
@@ -436,8 +523,7 @@ def select(
         base = _cv(prob, extra)
         scored = []
         for cand in remaining:
-            cols = prob.columns(cand)
-            cv = _cv(prob, extra, cols)
+            cv = _cv(prob, extra, cand)
             ev = evidence(base, cv, _joints(cand))
             if not first_round.get(cand.key):
                 first_round[cand.key] = ev
@@ -459,12 +545,19 @@ def select(
                 or _gain_supported(prob, extra, s[0], s[1], base, reference, library)
             )
         ]
+        # never the basis of a finding: a refit that is not physical (said in the report)
+        for s in list(passing):
+            reasons = unphysical(s[0], s[1])
+            if reasons:
+                passing.remove(s)
+                if rejected is not None and s[0].key not in rejected:
+                    rejected[s[0].key] = "its refit is not physical: " + "; ".join(reasons)
         if not passing:
             passing = _passing_pair(prob, extra, base, scored, len(library))
             if not passing:
                 break
         cand, cv, ev = max(passing, key=lambda s: s[2].drop)
-        chosen_cols = prob.columns(cand)[cv.variant]
+        chosen_cols = prob.column(cand, cv.variant)
         acc = Accepted(cand, cand.variants[cv.variant], ev)
         accepted.append(acc)
         extra.append(chosen_cols)
@@ -472,7 +565,7 @@ def select(
         if cand.kind == "gain":  # gains on both joints: θ = 0, r = −1 fits anything (scale)
             remaining = [c for c in remaining if c.kind != "gain"]
         _rewhiten(prob, accepted)
-        extra = [prob.columns(a.cand)[a.cand.variants.index(a.variant)] for a in accepted]
+        extra = [prob.chosen(a) for a in accepted]
         if log:
             log(f"accepted {cand.key} variant {acc.variant} confounded {acc.confounded_with}")
     accepted = _eliminate(prob, accepted, len(library), log)
@@ -495,7 +588,7 @@ class FinalFit:
 
 
 def final_fit(prob: Problem, accepted: Sequence[Accepted]) -> FinalFit:
-    cols = [prob.columns(a.cand)[a.cand.variants.index(a.variant)] for a in accepted]
+    cols = [prob.chosen(a) for a in accepted]
     cv = _cv(prob, cols)
     n_blocks = cv.fold_beta.shape[0]
     jack = np.sqrt(

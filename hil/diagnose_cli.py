@@ -13,6 +13,8 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from drivers.recording import RecordingError, write_json_atomic
 from hil.cli_options import (
     add_out_options,
@@ -69,7 +71,7 @@ def main(args: argparse.Namespace) -> int:
             )
     try:
         result = diagnose(recs, reference, nominal_theta=nominal, progress=_progress)
-    except ValueError as exc:
+    except (ValueError, np.linalg.LinAlgError) as exc:
         print(f"hil diagnose: error: {exc}", file=sys.stderr)
         return 2
     doc = result.document

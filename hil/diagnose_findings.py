@@ -48,6 +48,7 @@ class Finding:
     estimate: dict[str, Any]
     evidence: dict[str, Any]
     confounded_with: list[str] = field(default_factory=list)
+    term: str = ""  # the accepted regression term it comes from (Candidate.key; "rate": lag/delay)
 
     def as_dict(self) -> dict[str, Any]:
         out = {
@@ -66,11 +67,7 @@ def _r(x: float, digits: int = 4) -> float:
 
 
 def _cols(prob: Problem, accepted: Sequence[Accepted], skip: set[int]) -> list[np.ndarray]:
-    return [
-        prob.columns(a.cand)[a.cand.variants.index(a.variant)]
-        for i, a in enumerate(accepted)
-        if i not in skip
-    ]
+    return [prob.chosen(a) for i, a in enumerate(accepted) if i not in skip]
 
 
 def _cv_with(
@@ -88,7 +85,7 @@ def _cv_with(
             col[:, a.cand.joint, 0] = -y_raw[:, a.cand.joint] / prob.scale[a.cand.joint]
             cols.append(col)
         else:
-            cols.append(prob.columns(a.cand)[a.cand.variants.index(a.variant)])
+            cols.append(prob.chosen(a))
     base = _design(prob, [*cols, *extra])
     return cross_validate(block_stats(base, y_raw / prob.scale, prob.w, prob.blocks))
 

@@ -30,6 +30,8 @@ class Location:
 
 def correlation_ratio(e: np.ndarray, groups: np.ndarray) -> tuple[float, dict[int, float]]:
     """η² of ``e`` grouped by integer labels, and each group's mean."""
+    if len(e) == 0:
+        return 0.0, {}
     total = float(np.sum((e - e.mean()) ** 2))
     means = {int(g): float(e[groups == g].mean()) for g in np.unique(groups)}
     between = sum(np.sum(groups == g) * (m - e.mean()) ** 2 for g, m in means.items())
@@ -37,6 +39,8 @@ def correlation_ratio(e: np.ndarray, groups: np.ndarray) -> tuple[float, dict[in
 
 
 def _terciles(x: np.ndarray) -> np.ndarray:
+    if len(x) == 0:
+        return np.zeros(0, int)
     return np.searchsorted(np.quantile(x, [1 / 3, 2 / 3]), x)
 
 
@@ -51,7 +55,7 @@ def locate(prob: Problem, theta: np.ndarray) -> Location:
     for j in (0, 1):
         ok = prob.w[:, j] > 0
         e = e_all[ok, j]
-        rms = float(np.sqrt(np.mean(e**2)))
+        rms = float(np.sqrt(np.mean(e**2))) if len(e) else 0.0
         groupings = {
             "direction of motion": (v[ok, j] > 0).astype(int),
             "speed": _terciles(np.abs(v[ok, j])),

@@ -70,19 +70,15 @@ def plot_diagnosis(result: DiagnosisResult, out: Path) -> list[Path]:
         ax = axes[j, 1]
         if sim:
             ax.plot(sim["t"], sim["q"][:, j], "k", lw=1, label="recorded")
-            ax.plot(
-                sim["t"],
-                sim["before"][:, j],
-                lw=0.8,
-                label=f"before ({percent(fit['before']['position_nrmse'][j])})",
-            )
-            ax.plot(
-                sim["t"],
-                sim["after"][:, j],
-                "--",
-                lw=0.8,
-                label=f"after ({percent(fit['after']['position_nrmse'][j])})",
-            )
+            for name, style in (("before", "-"), ("after", "--")):
+                if name in sim:  # a fit that is not physical is not simulated
+                    ax.plot(
+                        sim["t"],
+                        sim[name][:, j],
+                        style,
+                        lw=0.8,
+                        label=f"{name} ({percent(fit[name]['position_nrmse'][j])})",
+                    )
             ax.set(ylabel=f"q{j + 1} [rad]", xlabel="t [s]")
             ax.legend(fontsize=8)
             ax.grid(alpha=0.3)

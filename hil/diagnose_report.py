@@ -21,12 +21,16 @@ from drivers.recording import Recording
 from hil.diagnose import (
     FAMILY_ALPHA,
     MIN_REDUCTION,
+    MIN_USABLE_ROWS,
     Accepted,
     Candidate,
+    DiagnosisError,
     Problem,
     _design,
+    _joints,
     build_problem,
     candidates,
+    check_recording,
     final_fit,
     fit_theta,
     select,
@@ -44,6 +48,7 @@ from hil.diagnose_findings import (
 from hil.diagnose_locate import locate
 from hil.diagnose_stats import block_stats, cross_validate, evidence, extend_stats_many
 from hil.metrics import nrmse
+from hil.model import physical_consistency
 from hil.openloop import OpenLoopExtras, simulate_open_loop
 
 HELD_OUT_FRACTION = 0.25  # of a single recording: its last quarter
@@ -135,9 +140,13 @@ def interpret(
             if len(new) == 2:
                 new[0].confounded_with = new[1].confounded_with = ["torque_gain"]
                 confounded.append(["torque_gain", "torque_gain"])
+            for f in new:
+                f.term = a.cand.key
             findings += new
             continue
         new = _estimate(a.cand, a.variant, fit.coefficients[i], fit.theta)
+        for f in new:
+            f.term = a.cand.key
         for f in new:
             f.evidence = dict(ev)
         if a.cand.kind == "offset":
@@ -149,6 +158,7 @@ def interpret(
             rfit = final_fit(prob, swapped)
             for f in _estimate(rival, variant, rfit.coefficients[i], rfit.theta):
                 f.evidence = dict(ev)
+                f.term = a.cand.key
                 f.confounded_with = [new[0].effect]
                 new[0].confounded_with = [*new[0].confounded_with, f.effect]
                 findings.append(f)
@@ -163,6 +173,9 @@ def interpret(
     if any(f.confounded_with for f in rate):
         confounded.append(["actuator_lag", "transport_delay"])
     findings += rate
+    for f in findings:  # which term each finding stands on (the simulation gate drops terms)
+        if not f.term:
+            f.term = "rate" if f.effect in ("actuator_lag", "transport_delay") else ""
     return findings, confounded, shaft
 
 
@@ -195,7 +208,7 @@ def unexplained(
     still lowers the held-out error, something the vocabulary lacks lives there. ``shaft``: the
     exact lagged or delayed torque rows (Nm) to use instead of the first-order rate terms."""
     kept = [a for a in accepted if shaft is None or a.cand.kind != "rate"]
-    cols = [prob.columns(a.cand)[a.cand.variants.index(a.variant)] for a in kept]
+    cols = [prob.chosen(a) for a in kept]
     y = prob.y if shaft is None else shaft / prob.scale
     design = _design(prob, cols)
     stats = block_stats(design, y, prob.w, prob.blocks)
@@ -328,27 +341,25 @@ def _masks(prob: Problem) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, 
 SEGMENT_S = 1.0  # open-loop simulations restart from the recorded state this often
 
 
-def _segment_simulations(
-    theta0: np.ndarray,
-    theta1: np.ndarray,
-    extras: OpenLoopExtras,
+def _segment_simulation(
+    theta: np.ndarray,
+    extras: OpenLoopExtras | None,
     q: np.ndarray,
     tau: np.ndarray,
     h: float,
     first: int,
     last: int,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Open-loop simulations of samples first..last in segments of SEGMENT_S, each started from
+) -> np.ndarray:
+    """Open-loop simulation of samples first..last in segments of SEGMENT_S, each started from
     the recorded position and central-difference velocity: an arm this underdamped diverges
     from any model over many seconds, so one long run would measure chaos, not the model."""
     step = max(4, round(SEGMENT_S / h))
-    out0, out1 = [], []
+    out = []
     for a in range(first, last + 1, step):
         b = min(a + step, last + 1)
         dq0 = (q[a + 1] - q[a - 1]) / (2 * h) if 0 < a < len(q) - 1 else np.zeros(2)
-        out0.append(simulate_open_loop(theta0, tau[a:b], h, q0=q[a], dq0=dq0).q)
-        out1.append(simulate_open_loop(theta1, tau[a:b], h, q0=q[a], dq0=dq0, extras=extras).q)
-    return np.concatenate(out0), np.concatenate(out1)
+        out.append(simulate_open_loop(theta, tau[a:b], h, q0=q[a], dq0=dq0, extras=extras).q)
+    return np.concatenate(out)
 
 
 def before_after(
@@ -356,11 +367,14 @@ def before_after(
     accepted: Sequence[Accepted],
     findings: Sequence[Finding],
     nominal_theta: np.ndarray | None,
+    simulate_before: bool = True,
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Torque NRMSE and open-loop position NRMSE per joint on held-out data, nominal model
-    (``nominal_theta`` when given, else fitted on the training part) and with the accepted terms."""
+    (``nominal_theta`` when given, else fitted on the training part) and with the accepted terms.
+    A fit that is not physical is not simulated (its position NRMSE stays empty) and is named
+    in ``unphysical`` with the reasons."""
     train, test, spans = _masks(prob)
-    cols = [prob.columns(a.cand)[a.cand.variants.index(a.variant)] for a in accepted]
+    cols = [prob.chosen(a) for a in accepted]
     w_train = prob.w * train[:, None]
     theta0 = (
         fit_theta(prob.Psi, prob.y, w_train)
@@ -377,15 +391,22 @@ def before_after(
         torque[name] = [_nrmse_or_none(y, pred, test & (prob.w[:, j] > 0), j) for j in (0, 1)]
     extras = _extras(_training_findings(accepted, beta, findings))
     theta1 = beta[:9]
-    position: dict[str, list[float]] = {"before": [], "after": []}
+    position: dict[str, list[float | None]] = {"before": [], "after": []}
     sims: dict[str, Any] = {}
+    unphysical_fit: dict[str, list[str]] = {}
+    for name, theta in (("before", theta0), ("after", theta1)):
+        reasons = physical_consistency(theta)["violations"]
+        if reasons:  # it cannot be simulated, and is never the basis of a finding
+            unphysical_fit[name] = list(reasons)
     for rec_i, first, last in spans[-1:]:
         r = prob.rows[rec_i]
         q, h = r.q[first : last + 1], r.h
-        s0, s1 = _segment_simulations(theta0, theta1, extras, r.q, r.tau, h, first, last)
-        position["before"] = _finite(nrmse(q, s0))
-        position["after"] = _finite(nrmse(q, s1))
-        sims = {"t": np.arange(first, last + 1) * h, "q": q, "before": s0, "after": s1}
+        sims = {"t": np.arange(first, last + 1) * h, "q": q}
+        for name, theta, ex in (("before", theta0, None), ("after", theta1, extras)):
+            if name in unphysical_fit or (name == "before" and not simulate_before):
+                continue
+            sims[name] = _segment_simulation(theta, ex, r.q, r.tau, h, first, last)
+            position[name] = _finite(nrmse(q, sims[name]))
     held = (
         f"recording {len(prob.rows)}, not used for fitting"
         if len(prob.rows) > 1
@@ -404,6 +425,8 @@ def before_after(
             "theta": theta1.tolist(),
         },
     }
+    if unphysical_fit:
+        doc["unphysical"] = unphysical_fit
     return doc, {
         "torque": y,
         "pred_before": pred0,
@@ -495,7 +518,9 @@ def _who(f: Finding) -> str:
 
 
 def summary_words(findings: Sequence[Finding], fit: dict[str, Any], notes: Sequence[str]) -> str:
-    if not findings:
+    if not findings and any(n.startswith("I cannot tell") for n in notes):
+        lines = []  # the note says why, and that is all there is to say
+    elif not findings:
         lines = [
             "No missing physics found: the 9-parameter model explains the recordings to within "
             "their noise."
@@ -571,6 +596,8 @@ def detectability_notes(prob: Problem) -> list[str]:
     notes = []
     for j in (0, 1):
         v, w = prob.v_mean[:, j], prob.w[:, j]
+        if not np.any(w > 0):
+            continue  # said already: the joint has no usable row
         slow = int(np.sum((w > 0) & (np.abs(v) < 0.3)))
         if slow < 400:
             notes.append(
@@ -593,6 +620,93 @@ def detectability_notes(prob: Problem) -> list[str]:
     return notes
 
 
+# The held-out simulated position with a term may be this much worse (relative, summed over the
+# term's joints) than without it before the term is dropped: below that, two simulations of
+# nearly the same model differ by the integrator's rounding and the restarts, not the physics.
+SIMULATION_TOLERANCE = 0.02
+
+
+def _term_joints(prob: Problem, accepted: Sequence[Accepted], term: str) -> list[int]:
+    if term == "rate":
+        return sorted({a.cand.joint for a in accepted if a.cand.kind == "rate"})
+    a = next(a for a in accepted if a.cand.key == term)
+    return _joints(a.cand)
+
+
+def simulation_gate(
+    prob: Problem,
+    accepted: list[Accepted],
+    findings: list[Finding],
+    nominal_theta: np.ndarray | None,
+    say: Callable[[str], None],
+) -> tuple[list[Accepted], list[Finding], dict[str, str]]:
+    """A finding must improve the held-out simulated motion too, or it is not one: every term
+    is taken out in turn and the held-out open-loop simulation rerun; a term without which the
+    simulated position of its joint(s) is better by more than SIMULATION_TOLERANCE is dropped
+    (the one that hurts most first, then the rest are checked again). Returns the kept terms and
+    findings and, per dropped term, the reason."""
+    dropped: dict[str, str] = {}
+    while accepted:
+        fit, _ = before_after(prob, accepted, findings, nominal_theta, simulate_before=False)
+        with_all = fit["after"]["position_nrmse"]
+        if not with_all or None in with_all:
+            break  # nothing to simulate (or not physical: said elsewhere)
+        worst, worst_ratio = None, 1.0 + SIMULATION_TOLERANCE
+        for term in dict.fromkeys(f.term for f in findings if f.term):
+            keep = [
+                a
+                for a in accepted
+                if a.cand.key != term and not (term == "rate" and a.cand.kind == "rate")
+            ]
+            fit_wo, _ = before_after(
+                prob, keep, [f for f in findings if f.term != term], nominal_theta, False
+            )
+            without = fit_wo["after"]["position_nrmse"]
+            if not without or None in without:
+                continue
+            joints = _term_joints(prob, accepted, term)
+            e_with = sum(with_all[j] for j in joints)
+            e_without = sum(without[j] for j in joints)
+            ratio = e_with / max(e_without, 1e-12)
+            if ratio > worst_ratio:
+                worst, worst_ratio = term, ratio
+                worst_text = (
+                    "fits the torque but worsens the simulation: held-out simulated position "
+                    + ", ".join(
+                        f"joint {j + 1} {percent(without[j])} → {percent(with_all[j])}"
+                        for j in joints
+                    )
+                )
+        if worst is None:
+            break
+        say(f"diagnose: dropped {worst}: {worst_text}")
+        dropped[worst] = worst_text
+        accepted = [
+            a
+            for a in accepted
+            if a.cand.key != worst and not (worst == "rate" and a.cand.kind == "rate")
+        ]
+        findings = [f for f in findings if f.term != worst]
+    return accepted, findings, dropped
+
+
+def _rejection_notes(rejected: dict[str, str]) -> list[str]:
+    names = {
+        "offset": "coulomb_asymmetry / torque_offset",
+        "gain": "torque_gain",
+        "cogging": "cogging",
+        "stribeck": "stribeck",
+        "rate": "actuator_lag / transport_delay",
+        "angle": "angle_offset",
+    }
+    out = []
+    for key, why in rejected.items():
+        kind, _, joint = key.partition(":")
+        where = f" on joint {joint}" if joint else ""
+        out.append(f"Not a finding: {names.get(kind, kind)}{where} {why}.")
+    return out
+
+
 def diagnose(
     recordings: Sequence[Recording],
     reference_theta: np.ndarray,
@@ -604,17 +718,61 @@ def diagnose(
     started = time.perf_counter()
     say = progress or (lambda _m: None)
     say(f"diagnose: {len(recordings)} recording(s), fitting the nominal model")
+    for r in recordings:
+        check_recording(str(r.path), r.t, r.q, r.tau)
     prob, theta_fit = build_problem([(r.q, r.tau, r.period_s) for r in recordings])
+    usable = (prob.w > 0).sum(axis=0)
+    live = [j for j in (0, 1) if usable[j] >= MIN_USABLE_ROWS]
+    if not live:
+        raise DiagnosisError(
+            f"neither joint moves enough to diagnose ({usable[0]} / {usable[1]} usable rows, "
+            f"need {MIN_USABLE_ROWS}): constant or stuck signals?"
+        )
+    dead_notes = [
+        f"Joint {j + 1}: only {usable[j]} usable rows (it barely moves or stays stuck): "
+        "I cannot tell what its model leaves out."
+        for j in (0, 1)
+        if j not in live
+    ]
     where = locate(prob, theta_fit)
     ranges = np.ptp(np.concatenate([r.q for r in recordings]), axis=0)
-    library = candidates(theta_fit, ranges, usable_speeds(prob))
-    say(f"diagnose: testing {len(library)} candidates (both joints)")
-    accepted, first = select(prob, library, reference=reference_theta)
-    say(f"diagnose: accepted {[a.cand.key for a in accepted] or 'nothing'}; refitting")
-    findings, confounded, shaft = interpret(prob, accepted, library, reference_theta)
-    findings += unexplained(prob, accepted, shaft)
+    library = [
+        c
+        for c in candidates(theta_fit, ranges, usable_speeds(prob))
+        # a gain error shows only as the ratio of the joints' gains (docs/diagnosis.md, 4)
+        if all(j in live for j in _joints(c)) and (c.kind != "gain" or len(live) == 2)
+    ]
+    nominal_unphysical = physical_consistency(theta_fit)["violations"]
+    rejected: dict[str, str] = {}
+    if nominal_unphysical:
+        # nothing built on an unphysical fit is a finding: say so and stop there
+        say("diagnose: the nominal fit is not physical; no candidates tested")
+        accepted, first, findings, confounded = [], {}, [], []
+        cannot = [
+            "I cannot tell what the model leaves out: the nominal 9-parameter fit of these "
+            "recordings is not physical (" + "; ".join(nominal_unphysical) + "), so no finding "
+            "could stand on it. Record more varied motion of both joints, or check the torque "
+            "and angle columns."
+        ]
+    else:
+        cannot = []
+        say(f"diagnose: testing {len(library)} candidates (both joints)")
+        accepted, first = select(prob, library, reference=reference_theta, rejected=rejected)
+        say(f"diagnose: accepted {[a.cand.key for a in accepted] or 'nothing'}; refitting")
+        findings, confounded, shaft = interpret(prob, accepted, library, reference_theta)
+        findings += unexplained(prob, accepted, shaft)
+        accepted, findings, dropped = simulation_gate(prob, accepted, findings, nominal_theta, say)
+        rejected.update(dropped)
+        kept = {f.effect for f in findings}
+        confounded = [pair for pair in confounded if set(pair) <= kept]
     fit, fit_arrays = before_after(prob, accepted, findings, nominal_theta)
-    notes = detectability_notes(prob) + burst_notes(where.document)
+    notes = (
+        cannot
+        + dead_notes
+        + _rejection_notes(rejected)
+        + detectability_notes(prob)
+        + burst_notes(where.document)
+    )
     doc = {
         "findings": [f.as_dict() for f in findings],
         "confounded": confounded,
@@ -623,6 +781,11 @@ def diagnose(
         "location": where.document,
         "nominal_theta": theta_fit.tolist(),
         "candidates_tested": {k: ev.as_dict() for k, ev in first.items()},
+        "not_findings": rejected,
+        "physical": {
+            "nominal_consistent": not nominal_unphysical,
+            "nominal_violations": list(nominal_unphysical),
+        },
         "recordings": [str(r.path) for r in recordings],
         "notes": notes,
         "timing_s": round(time.perf_counter() - started, 2),

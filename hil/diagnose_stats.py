@@ -17,6 +17,7 @@ per joint.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,11 +50,17 @@ class BlockStats:
 
 def block_stats(Z: np.ndarray, y: np.ndarray, w: np.ndarray, blocks: np.ndarray) -> BlockStats:
     """Sufficient statistics of y ≈ Z β per block and joint (Z (K, 2, p), y and w (K, 2)); the
-    rows of a block are contiguous (``blocks`` non-decreasing)."""
+    rows of a block are contiguous (``blocks`` non-decreasing). One block at a time, so memory
+    stays O(K p), not O(K p²)."""
     starts = _starts(blocks)
-    wz = w[..., None] * Z
-    G = np.add.reduceat(wz[..., :, None] * Z[..., None, :], starts, axis=0)
-    r = np.add.reduceat(wz * y[..., None], starts, axis=0)
+    ends = np.r_[starts[1:], len(blocks)]
+    n_blocks, p = len(starts), Z.shape[-1]
+    G = np.empty((n_blocks, 2, p, p))
+    r = np.empty((n_blocks, 2, p))
+    for b, (lo, hi) in enumerate(zip(starts, ends, strict=True)):
+        wz = w[lo:hi, :, None] * Z[lo:hi]
+        G[b] = np.einsum("kja,kjc->jac", wz, Z[lo:hi])
+        r[b] = np.einsum("kja,kj->ja", wz, y[lo:hi])
     s = np.add.reduceat(w * y * y, starts, axis=0)
     return BlockStats(G, r, s)
 
@@ -67,27 +74,31 @@ def _starts(blocks: np.ndarray) -> np.ndarray:
 def extend_stats_many(
     base: BlockStats,
     Z: np.ndarray,
-    variants: list[np.ndarray],
+    variants: list[np.ndarray] | np.ndarray,
     y: np.ndarray,
     w: np.ndarray,
     blocks: np.ndarray,
 ) -> BlockStats:
     """Statistics of the designs [Z, X_v] for alternative X_v of the same width (a candidate's
-    variants), from those of Z (``base``): only the new cross terms are computed, those of every
-    variant from one matrix product per block and joint, which is what keeps a 400-variant
-    cogging search to a fraction of a second. Leading axis of G and r: the variant."""
+    variants, a list of (K, 2, q) or one array (K, 2, V, q)), from those of Z (``base``): only
+    the new cross terms are computed, those of every variant from one matrix product per block
+    and joint, which is what keeps a 400-variant cogging search to a fraction of a second. A
+    joint whose rows the variants leave at zero costs nothing. Leading axis of G and r: the
+    variant."""
     starts = _starts(blocks)
     ends = np.r_[starts[1:], len(blocks)]
-    V, q = len(variants), variants[0].shape[-1]
-    X = np.stack(variants, axis=2)  # (K, 2, V, q)
-    wX = w[:, :, None, None] * X
+    X = variants if isinstance(variants, np.ndarray) else np.stack(variants, axis=2)
+    V, q = X.shape[2], X.shape[3]
     n_blocks, p = len(starts), Z.shape[-1]
-    cross = np.empty((n_blocks, 2, p, V * q))
-    xx = np.empty((n_blocks, 2, V, q, q))
-    rx = np.empty((n_blocks, 2, V, q))
-    for b, (lo, hi) in enumerate(zip(starts, ends, strict=True)):
-        for j in (0, 1):
-            wxb = wX[lo:hi, j]  # (K_b, V, q)
+    cross = np.zeros((n_blocks, 2, p, V * q))
+    xx = np.zeros((n_blocks, 2, V, q, q))
+    rx = np.zeros((n_blocks, 2, V, q))
+    for j in (0, 1):
+        if not np.any(X[:, j]):
+            continue
+        wX = w[:, j, None, None] * X[:, j]  # (K, V, q)
+        for b, (lo, hi) in enumerate(zip(starts, ends, strict=True)):
+            wxb = wX[lo:hi]  # (K_b, V, q)
             cross[b, j] = Z[lo:hi, j, :].T @ wxb.reshape(hi - lo, V * q)
             xx[b, j] = np.einsum("kva,kvc->vac", X[lo:hi, j], wxb)
             rx[b, j] = np.einsum("kva,k->va", wxb, y[lo:hi, j])
@@ -133,30 +144,89 @@ class CrossValidation:
     sse: np.ndarray  # (2,) in-sample, full data
 
 
-def cross_validate(stats: BlockStats) -> CrossValidation:
+def cross_validate(stats: BlockStats | Iterable[BlockStats]) -> CrossValidation:
     """Leave-one-block-out fits of every variant; each fold keeps the variant that fits its
-    training blocks best (least training error), and is scored on the block it left out."""
+    training blocks best (least training error), and is scored on the block it left out.
+    ``stats`` may come in chunks of variants (an iterable, variants numbered in order), so that a
+    long grid never has to be held in memory at once."""
+    chunks = [stats] if isinstance(stats, BlockStats) else stats
+    best: _Folds | None = None
+    offset = 0
+    for chunk in chunks:
+        part = _folds(chunk, offset)
+        offset += part.n_variants
+        best = part if best is None else best.merge(part)
+    if best is None:
+        raise ValueError("no variants to cross-validate")
+    return best.result()
+
+
+@dataclass
+class _Folds:
+    """Per fold: the best variant's training error, held-out error and coefficients; and the
+    full-data best. Chunks of variants merge by keeping the lower training error (first on ties,
+    as one argmin over all variants would)."""
+
+    train_sse: np.ndarray  # (B,)
+    held: np.ndarray  # (B, 2)
+    fold_variant: np.ndarray  # (B,)
+    fold_beta: np.ndarray  # (B, p)
+    full_sse: float
+    variant: int
+    beta: np.ndarray
+    sse: np.ndarray
+    n_variants: int
+
+    def merge(self, other: _Folds) -> _Folds:
+        better = other.train_sse < self.train_sse
+        self.train_sse = np.where(better, other.train_sse, self.train_sse)
+        self.held = np.where(better[:, None], other.held, self.held)
+        self.fold_variant = np.where(better, other.fold_variant, self.fold_variant)
+        self.fold_beta = np.where(better[:, None], other.fold_beta, self.fold_beta)
+        if other.full_sse < self.full_sse:
+            self.full_sse, self.variant = other.full_sse, other.variant
+            self.beta, self.sse = other.beta, other.sse
+        self.n_variants += other.n_variants
+        return self
+
+    def result(self) -> CrossValidation:
+        return CrossValidation(
+            self.held, self.fold_variant, self.fold_beta, self.variant, self.beta, self.sse
+        )
+
+
+def _folds(stats: BlockStats, offset: int) -> _Folds:
+    """The leave-one-block-out fits of one chunk of variants (numbered from ``offset``), all
+    folds at once."""
     G, r, s = stats.G, stats.r, stats.s
     if G.ndim == 4:  # one variant
         G, r = G[None], r[None]
     n_blocks = s.shape[0]
-    G_all, r_all, s_all = G.sum(axis=(1, 2)), r.sum(axis=(1, 2)), s.sum()
-    held = np.zeros((n_blocks, 2))
-    fold_variant = np.zeros(n_blocks, int)
-    fold_beta = np.zeros((n_blocks, G.shape[-1]))
-    for b in range(n_blocks):
-        Gt = G_all - G[:, b].sum(axis=1)
-        rt = r_all - r[:, b].sum(axis=1)
-        beta = _solve(Gt, rt)  # (V, p)
-        train_sse = (s_all - s[b].sum()) - np.einsum("vp,vp->v", beta, rt)
-        v = int(np.argmin(train_sse))
-        fold_variant[b], fold_beta[b] = v, beta[v]
-        held[b] = _sse(G[v, b], r[v, b], s[b], beta[v])
+    G_blk, r_blk = G.sum(axis=2), r.sum(axis=2)  # (V, B, p, p), (V, B, p)
+    G_all, r_all, s_all = G_blk.sum(axis=1), r_blk.sum(axis=1), s.sum()
+    Gt = G_all[:, None] - G_blk
+    rt = r_all[:, None] - r_blk
+    beta = _solve(Gt, rt)  # (V, B, p)
+    train = (s_all - s.sum(axis=1))[None] - np.einsum("vbp,vbp->vb", beta, rt)
+    v = np.argmin(train, axis=0)  # (B,)
+    b = np.arange(n_blocks)
+    fold_beta = beta[v, b]  # (B, p)
+    held = _sse(G[v, b], r[v, b], s, fold_beta[:, None, :])
     beta_full = _solve(G_all, r_all)
     full_sse = s_all - np.einsum("vp,vp->v", beta_full, r_all)
-    v = int(np.argmin(full_sse))
-    sse = _sse(G[v].sum(axis=0), r[v].sum(axis=0), s.sum(axis=0), beta_full[v])
-    return CrossValidation(held, fold_variant, fold_beta, v, beta_full[v], sse)
+    vf = int(np.argmin(full_sse))
+    sse = _sse(G[vf].sum(axis=0), r[vf].sum(axis=0), s.sum(axis=0), beta_full[vf])
+    return _Folds(
+        train[v, b],
+        held,
+        v + offset,
+        fold_beta,
+        float(full_sse[vf]),
+        vf + offset,
+        beta_full[vf],
+        sse,
+        G.shape[0],
+    )
 
 
 @dataclass(frozen=True)
@@ -199,6 +269,8 @@ def evidence(base: CrossValidation, extended: CrossValidation, joints: list[int]
     # test asks "is the error lower block after block" on a scale-free measure.
     ratio = np.log(np.maximum(before, 1e-300) / np.maximum(after, 1e-300))
     n = len(ratio)
+    if n == 0:  # no block has a usable row on these joints: no evidence either way
+        return Evidence(reduction=0.0, t=0.0, blocks_improved=0, blocks=0, drop=0.0)
     spread = ratio.std(ddof=1) if n > 1 else 0.0
     mean = ratio.mean()
     t = float(mean / (spread / np.sqrt(n))) if spread > 0 else (np.inf if mean > 0 else 0.0)

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 from diagnose_cases import CASES, make_recording
 
-from drivers.recording import read_signals
+from drivers.recording import Recording, read_signals
 from hil.cli import main as hil_main
-from hil.diagnose import build_problem, candidates, select
+from hil.diagnose import DiagnosisError, build_problem, candidates, select
 from hil.diagnose_columns import (
     delayed_torque_rows,
     lagged_torque_rows,
@@ -153,6 +153,57 @@ def test_cli_bad_input_one_line_error(tmp_path, capsys):
     assert hil_main(["diagnose", str(bad)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("hil diagnose:")
+
+
+def _recording_like(rec, t, q, tau) -> Recording:
+    columns = {"t": t, "q1": q[:, 0], "q2": q[:, 1], "tau1": tau[:, 0], "tau2": tau[:, 1]}
+    return Recording(rec.path, columns, dict(rec.meta))
+
+
+@pytest.mark.parametrize("damage", ["shuffled", "duplicated", "zeros", "nan", "one_joint_still"])
+def test_degenerate_data_is_a_one_line_error_or_cannot_tell(null_recording, damage, tmp_path):
+    """Issue 13's bad inputs, handed to the diagnosis directly (the reader rejects most of them
+    before): a clear error naming the reason, or a report that says what it cannot tell."""
+    rec = read_signals(null_recording)
+    t, q, tau = rec.t.copy(), rec.q.copy(), rec.tau.copy()
+    if damage == "shuffled":
+        order = np.random.default_rng(0).permutation(len(t))
+        t, q, tau = t[order], q[order], tau[order]
+    elif damage == "duplicated":
+        t, q, tau = np.repeat(t, 2), np.repeat(q, 2, axis=0), np.repeat(tau, 2, axis=0)
+    elif damage == "zeros":
+        q[:], tau[:] = 0.0, 0.0
+    elif damage == "nan":
+        q[100, 1] = np.nan
+    elif damage == "one_joint_still":
+        q[:, 1] = q[0, 1]
+    bad = _recording_like(rec, t, q, tau)
+    if damage == "one_joint_still":
+        doc = diagnose([bad], REFERENCE).document
+        assert not [f for f in doc["findings"] if f["joint"] == 2]
+        assert any("Joint 2: only" in n and "cannot tell" in n for n in doc["notes"])
+        return
+    with pytest.raises(DiagnosisError) as err:
+        diagnose([bad], REFERENCE)
+    message = str(err.value)
+    assert "\n" not in message
+    expected = {
+        "shuffled": "do not increase",
+        "duplicated": "do not increase",
+        "zeros": "neither joint moves",
+        "nan": "NaN",
+    }[damage]
+    assert expected in message
+
+
+def test_cli_degenerate_csv_one_line_error(null_recording, tmp_path, capsys):
+    rec = read_signals(null_recording)
+    path = tmp_path / "zeros.csv"
+    rows = [f"{t:.6f},0,0,0,0" for t in rec.t]
+    path.write_text("t,q1,q2,tau1,tau2\n" + "\n".join(rows) + "\n")
+    assert hil_main(["diagnose", str(path)]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("hil ")]
+    assert len(err) == 1 and "hil diagnose:" in err[0]
 
 
 # --- the catalogue of concealed effects (slow) ------------------------------------------------
