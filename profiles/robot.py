@@ -1,4 +1,7 @@
-"""Robot profile: Table I physical parameters of a 2-DOF vertical arm, and the θ they imply."""
+"""Robot profiles: Table I physical parameters of a 2-DOF vertical arm and the θ they imply
+(:class:`RobotProfile`), and arms described by a URDF plus what a URDF does not hold
+(:class:`UrdfRobotProfile`: friction, rotor inertia, gear ratio, drives). Imports only
+:mod:`profiles.loader`."""
 
 from __future__ import annotations
 
@@ -31,6 +34,7 @@ class RobotProfile:
     coulomb_positive_Nm: tuple[float, float]
     coulomb_negative_Nm: tuple[float, float]
     drives: tuple[str, str]
+    urdf: str | None = None  # the same arm as a URDF (profiles/robots/*.urdf), for hil.urdf_model
 
     def theta(self) -> np.ndarray:
         """θ1..θ9 of Reyes & Kelly (1997) Section 5; θ8 is the mean of the two joint-1 directions.
@@ -82,7 +86,7 @@ def _link(f: Fields, key: str, *, needs_length: bool) -> Link:
 def load_robot(name_or_path: str | Path) -> RobotProfile:
     data, source = load_toml("robots", name_or_path)
     f = Fields(data, source)
-    f.only({"name", "description", "gravity_m_s2", "link1", "link2", "friction", "joints"})
+    f.only({"name", "description", "gravity_m_s2", "link1", "link2", "friction", "joints", "urdf"})
     fr = f.table("friction")
     fr.only({"viscous_Nms", "coulomb_positive_Nm", "coulomb_negative_Nm"})
     joints = f.table("joints")
@@ -97,4 +101,76 @@ def load_robot(name_or_path: str | Path) -> RobotProfile:
         coulomb_positive_Nm=fr.numbers("coulomb_positive_Nm", 2, lo=0.0),
         coulomb_negative_Nm=fr.numbers("coulomb_negative_Nm", 2, lo=0.0),
         drives=joints.strings("drives", 2),
+        urdf=str(_urdf_path(f, source)) if f.has("urdf") else None,
+    )
+
+
+@dataclass(frozen=True)
+class UrdfRobotProfile:
+    """An n-joint arm: a URDF (rigid bodies and kinematics) plus, per joint, what a URDF does not
+    hold: viscous and Coulomb friction, rotor inertia reflected to the joint (armature) and gear
+    ratio, and the drive profile of each joint when there is one."""
+
+    name: str
+    source: str
+    urdf: str  # absolute path of the URDF file
+    gravity_m_s2: float
+    n_joints: int
+    viscous_Nms: tuple[float, ...]
+    coulomb_positive_Nm: tuple[float, ...]
+    coulomb_negative_Nm: tuple[float, ...]
+    armature_kgm2: tuple[float, ...]
+    gear_ratio: tuple[float, ...]
+    drives: tuple[str, ...] | None
+
+    @property
+    def coulomb_Nm(self) -> tuple[float, ...]:
+        """Symmetric Coulomb level per joint: the mean of the two directions."""
+        return tuple(
+            (p + n) / 2
+            for p, n in zip(self.coulomb_positive_Nm, self.coulomb_negative_Nm, strict=True)
+        )
+
+
+def _urdf_path(f: Fields, source: str) -> Path:
+    """The URDF a profile names: relative paths are relative to the profile's own folder."""
+    path = Path(f.string("urdf"))
+    if not path.is_absolute():
+        path = Path(source).parent / path
+    if not path.is_file():
+        raise f.error("urdf", f"no such URDF file: {path}")
+    return path.resolve()
+
+
+def load_urdf_robot(name_or_path: str | Path) -> UrdfRobotProfile:
+    """A robot profile with a ``urdf`` field, for :class:`hil.urdf_model.UrdfArmModel`.
+
+    Fields: ``urdf`` (path, relative to the profile), ``gravity_m_s2``, ``[joints] count``,
+    ``[friction] viscous_Nms / coulomb_positive_Nm / coulomb_negative_Nm`` (one number per joint),
+    optional ``[joints] armature_kgm2`` (default 0), ``gear_ratio`` (default 1) and ``drives``.
+    The 2-DOF closed-form tables (``link1``, ``link2``) may sit beside them (cicese.toml) and are
+    not read here.
+    """
+    data, source = load_toml("robots", name_or_path)
+    f = Fields(data, source)
+    f.only({"name", "description", "gravity_m_s2", "link1", "link2", "friction", "joints", "urdf"})
+    if not f.has("urdf"):
+        raise f.error("urdf", "missing: this robot profile names no URDF")
+    joints = f.table("joints")
+    joints.only({"count", "drives", "armature_kgm2", "gear_ratio"})
+    n = joints.integer("count", 2, lo=1) if f.has("link1") else joints.integer("count", lo=1)
+    fr = f.table("friction")
+    fr.only({"viscous_Nms", "coulomb_positive_Nm", "coulomb_negative_Nm"})
+    return UrdfRobotProfile(
+        name=f.string("name"),
+        source=source,
+        urdf=str(_urdf_path(f, source)),
+        gravity_m_s2=f.number("gravity_m_s2", positive=True),
+        n_joints=n,
+        viscous_Nms=fr.numbers("viscous_Nms", n, lo=0.0),
+        coulomb_positive_Nm=fr.numbers("coulomb_positive_Nm", n, lo=0.0),
+        coulomb_negative_Nm=fr.numbers("coulomb_negative_Nm", n, lo=0.0),
+        armature_kgm2=joints.numbers("armature_kgm2", n, [0.0] * n, lo=0.0),
+        gear_ratio=joints.numbers("gear_ratio", n, [1.0] * n, positive=True),
+        drives=joints.strings("drives", n) if joints.has("drives") else None,
     )
