@@ -28,6 +28,17 @@ error) or 1 (scalar). ``discretization`` selects how continuous time is brought 
     samples their filter memory spreads them to are given zero weight (``Regression.weights``).
 
 Filter bandwidth ``lam`` is in rad/s (the paper's "λ = 50 Hz": see docs/identification.md).
+
+Real recordings (``t`` given): the ``exact`` rows are written per interval with that interval's
+own length h_k = t_{k+1} − t_k (impulse h_k τ_k, Hermite integrals over h_k, velocities at the
+samples by the three-point derivative on the unequal grid), so irregular sampling and gaps cost
+nothing but the rows' noise. The row filter stays one LTI low-pass over the row sequence with
+the coefficient of the median interval: any fixed linear filter applied alike to both sides of
+y_k = Ψ_k θ keeps the equation exact, so the filter need not follow the clock. ``paper`` assumes
+equal intervals and refuses irregular ones.
+
+Every builder takes the model object (:class:`hil.model.ArmModel`, default the 9-parameter
+model) whose columns it fills; p = ``model.n_params``.
 """
 
 from __future__ import annotations
@@ -37,12 +48,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
-from hil.model import (
-    energy_regressor,
-    friction_power_regressor,
-    momentum_regressor,
-    static_regressor,
-)
+from hil.model import ArmModel
+
+NINE_PARAMETERS = ArmModel(())
 
 SCHEMES = ("filtered_dynamic", "supplied_energy", "filtered_power")
 DISCRETIZATIONS = ("paper", "exact")
@@ -60,7 +68,7 @@ class Regression:
     discretization: str
     t: np.ndarray  # (K,)
     y: np.ndarray  # (K, m)
-    Psi: np.ndarray  # (K, m, 9)
+    Psi: np.ndarray  # (K, m, p)
     weights: np.ndarray  # (K, m)
     lam: float
     period_s: float
@@ -116,6 +124,17 @@ def central_difference(q: np.ndarray, h: float) -> np.ndarray:
     return v
 
 
+def central_difference_unequal(q: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """v_k of the parabola through (t_{k−1}, q_{k−1}), (t_k, q_k), (t_{k+1}, q_{k+1}), the
+    three-point derivative on an unequal grid; equal intervals give (q_{k+1} − q_{k−1}) / 2h.
+    The ends are NaN (not used)."""
+    v = np.full_like(q, np.nan)
+    h0 = (t[1:-1] - t[:-2])[:, None]
+    h1 = (t[2:] - t[1:-1])[:, None]
+    v[1:-1] = (h0**2 * q[2:] - h1**2 * q[:-2] + (h1**2 - h0**2) * q[1:-1]) / (h0 * h1 * (h0 + h1))
+    return v
+
+
 _GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(4)
 _GL_NODES = 0.5 * (_GL_NODES + 1.0)  # on [0, 1]
 _GL_WEIGHTS = 0.5 * _GL_WEIGHTS
@@ -168,27 +187,45 @@ class IntervalIntegrals:
     k = first..last (K intervals), on the cubic Hermite interpolant of q."""
 
     k: np.ndarray  # (K,) interval index (starts at sample k)
-    R: np.ndarray  # (K, 2, 9)  ∫ R(q, q̇) dt
+    R: np.ndarray  # (K, 2, p)  ∫ R(q, q̇) dt
     friction_work: np.ndarray  # (K, 4)  ∫ [q̇1², q̇2², |q̇1|, |q̇2|] dt
     stuck: np.ndarray  # (K, 2)  joint did not move over the interval (stick)
 
 
-def interval_integrals(q: np.ndarray, v: np.ndarray, h: float) -> IntervalIntegrals:
-    """∫ R dt and ∫ q̇ᵀφ_F dt over every interval whose two end velocities are known."""
+def interval_integrals(
+    q: np.ndarray,
+    v: np.ndarray,
+    h: float | np.ndarray,
+    model: ArmModel = NINE_PARAMETERS,
+) -> IntervalIntegrals:
+    """∫ R dt and ∫ q̇ᵀφ_F dt over every interval whose two end velocities are known.
+
+    ``h``: the common interval (s), or every interval's own length, shape (N − 1,)."""
     ok = np.isfinite(v).all(axis=1)
     k = np.flatnonzero(ok[:-1] & ok[1:])
     q0, q1 = q[k], q[k + 1]
-    d0, d1 = h * v[k], h * v[k + 1]
+    if np.ndim(h) == 0:
+        hk: float | np.ndarray = h
+        d0, d1 = h * v[k], h * v[k + 1]
+    else:
+        hk = np.asarray(h, dtype=float)[k]
+        d0, d1 = hk[:, None] * v[k], hk[:, None] * v[k + 1]
     # All Gauss–Legendre nodes at once: shape (nodes, K, 2).
     nodes = _GL_NODES[:, None, None]
     qs, ds = _hermite(q0[None], q1[None], d0[None], d1[None], nodes)
-    R = np.tensordot(_GL_WEIGHTS * h, static_regressor(qs, ds / h), axes=(0, 0))
+    if np.ndim(hk) == 0:
+        R = np.tensordot(_GL_WEIGHTS * hk, model.static_regressor(qs, ds / hk), axes=(0, 0))
+        sq = np.tensordot(_GL_WEIGHTS * hk, (ds / hk) ** 2, axes=(0, 0))  # degree 4: exact
+    else:
+        hn = hk[None, :, None]
+        R = np.einsum("n,nkmp->kmp", _GL_WEIGHTS, model.static_regressor(qs, ds / hn))
+        R *= hk[:, None, None]
+        sq = np.einsum("n,nkj->kj", _GL_WEIGHTS, (ds / hn) ** 2) * hk[:, None]
     sgn_int, abs_int = _sign_and_abs_integrals(q0, q1, d0, d1)
     dq = q1 - q0
     # Viscous (θ6, θ7) and Coulomb (θ8, θ9) columns exactly: ∫ q̇ dt = Δq, ∫ sgn q̇ dt piecewise.
     R[:, 0, 5], R[:, 1, 6] = dq[:, 0], dq[:, 1]
-    R[:, 0, 7], R[:, 1, 8] = h * sgn_int[:, 0], h * sgn_int[:, 1]
-    sq = np.tensordot(_GL_WEIGHTS * h, (ds / h) ** 2, axes=(0, 0))  # degree 4: exact
+    R[:, 0, 7], R[:, 1, 8] = hk * sgn_int[:, 0], hk * sgn_int[:, 1]
     friction_work = np.column_stack([sq, abs_int])
     stuck = (dq == 0) & (np.abs(v[k]) < 1e-12) & (np.abs(v[k + 1]) < 1e-12)
     return IntervalIntegrals(k, R, friction_work, stuck)
@@ -216,7 +253,7 @@ def _check(q: np.ndarray, tau: np.ndarray, h: float, lam: float, discretization:
 @dataclass(frozen=True)
 class RawRows:
     """Unfiltered rows of one regression: the output ``y`` goes through filter ``y_filter``;
-    the regressor is the sum over ``parts`` of (filter name, array (K, m, 9)) each filtered.
+    the regressor is the sum over ``parts`` of (filter name, array (K, m, p)) each filtered.
     ``index``: the sample each row belongs to; ``stuck`` (K, m): the row's own interval had
     that joint stuck (static friction the model has no term for)."""
 
@@ -230,19 +267,37 @@ class RawRows:
 @dataclass(frozen=True)
 class Kinematics:
     """What every scheme's rows share: sample velocities and, for ``exact``, the interval
-    integrals. Computed once per window by :func:`kinematics`."""
+    integrals. Computed once per window by :func:`kinematics`. ``dt``: every interval's own
+    length when the window has real time stamps (None: all equal to h)."""
 
     v: np.ndarray
     intervals: IntervalIntegrals | None
+    model: ArmModel = NINE_PARAMETERS
+    dt: np.ndarray | None = None
 
 
-def kinematics(discretization: str, q: np.ndarray, h: float) -> Kinematics:
+def kinematics(
+    discretization: str,
+    q: np.ndarray,
+    h: float,
+    *,
+    model: ArmModel = NINE_PARAMETERS,
+    t: np.ndarray | None = None,
+) -> Kinematics:
     """Velocities (backward difference for ``paper``, central for ``exact``) and, for
-    ``exact``, the integrals over every interval with both end velocities known."""
+    ``exact``, the integrals over every interval with both end velocities known. ``t``: the
+    samples' real times (``exact`` only), used instead of k·h."""
     if discretization == "paper":
-        return Kinematics(backward_difference(q, h), None)
-    v = central_difference(q, h)
-    return Kinematics(v, interval_integrals(q, v, h))
+        if t is not None:
+            raise ValueError("the paper discretization assumes equal intervals; use exact")
+        return Kinematics(backward_difference(q, h), None, model)
+    if t is None:
+        v = central_difference(q, h)
+        return Kinematics(v, interval_integrals(q, v, h, model), model)
+    t = np.asarray(t, dtype=float)
+    dt = np.diff(t)
+    v = central_difference_unequal(q, t)
+    return Kinematics(v, interval_integrals(q, v, dt, model), model, dt)
 
 
 def raw_rows(
@@ -252,55 +307,60 @@ def raw_rows(
     tau: np.ndarray,
     h: float,
     kin: Kinematics | None = None,
+    *,
+    model: ArmModel | None = None,
+    t: np.ndarray | None = None,
 ) -> RawRows:
     """The unfiltered rows of ``scheme`` for every sample (paper) or interval (exact) of the
     window ``q``, ``tau`` whose inputs are complete (exact needs one sample either side).
-    ``kin``: :func:`kinematics` of the same window, when several schemes share it."""
+    ``kin``: :func:`kinematics` of the same window, when several schemes share it (its model
+    and time stamps are then used); else ``model`` (default 9 parameters) and ``t``."""
     if scheme not in SCHEMES:
         raise ValueError(f"unknown scheme {scheme!r}; expected one of {', '.join(SCHEMES)}")
     n = len(q)
-    kin = kin if kin is not None else kinematics(discretization, q, h)
+    if kin is None:
+        kin = kinematics(discretization, q, h, model=model or NINE_PARAMETERS, t=t)
+    model = kin.model
+    p = model.n_params
     v = kin.v
     if discretization == "paper":
         index = np.arange(n)
         if scheme == "filtered_dynamic":  # eq. (24), Section 5.1
             parts = (
-                ("paper_bandpass", momentum_regressor(q, v)),
-                ("paper_lowpass", static_regressor(q, v)),
+                ("paper_bandpass", model.momentum_regressor(q, v)),
+                ("paper_lowpass", model.static_regressor(q, v)),
             )
             return RawRows(index, tau, "paper_lowpass", parts, np.zeros((n, 2), bool))
         power = np.sum(tau * v, axis=1)[:, None]
-        energy = energy_regressor(q, v)[:, None, :]
-        friction = friction_power_regressor(v)[:, None, :]
-        zeros = np.zeros((n, 1, 4))
+        energy = model.energy_regressor(q, v)[:, None, :]  # zero on the friction columns
+        friction = model.friction_power_regressor(v)[:, None, :]  # zero elsewhere
         if scheme == "supplied_energy":  # eq. (28), Section 5.2: ℰ(0) = 0, trapezoid integrals
-            parts = (
-                ("none", np.concatenate([energy, zeros], axis=2)),
-                ("trapezoid", np.concatenate([np.zeros((n, 1, 5)), friction], axis=2)),
-            )
+            parts = (("none", energy), ("trapezoid", friction))
             return RawRows(index, power, "trapezoid", parts, np.zeros((n, 1), bool))
-        parts = (  # eq. (30), Section 5.3
-            ("paper_bandpass", np.concatenate([energy, zeros], axis=2)),
-            ("paper_lowpass", np.concatenate([np.zeros((n, 1, 5)), friction], axis=2)),
-        )
+        parts = (("paper_bandpass", energy), ("paper_lowpass", friction))  # eq. (30), Sec. 5.3
         return RawRows(index, power, "paper_lowpass", parts, np.zeros((n, 1), bool))
     ii = kin.intervals
     assert ii is not None
     k = ii.k
+    hk: float | np.ndarray = h if kin.dt is None else kin.dt[k][:, None]
     if scheme == "filtered_dynamic":
         # Momentum balance over [t_k, t_{k+1}]: h τ_k = [P(t_{k+1}) − P(t_k) + ∫R dt] θ, / h.
-        P0 = momentum_regressor(q[k], v[k])
-        P1 = momentum_regressor(q[k + 1], v[k + 1])
-        parts = (("interval_lowpass", (P1 - P0 + ii.R) / h),)
+        P0 = model.momentum_regressor(q[k], v[k])
+        P1 = model.momentum_regressor(q[k + 1], v[k + 1])
+        hr = hk if np.ndim(hk) == 0 else hk[:, :, None]
+        parts = (("interval_lowpass", (P1 - P0 + ii.R) / hr),)
         return RawRows(k + 1, tau[k], "interval_lowpass", parts, ii.stuck)
     # Energy balance over [t_k, t_{k+1}]: τ_kᵀΔq_k = [Δφ_ℰ, ∫q̇ᵀφ_F dt] θ   (eqs. (25), (27)).
     work = np.sum(tau[k] * (q[k + 1] - q[k]), axis=1)[:, None]
-    d_energy = energy_regressor(q[k + 1], v[k + 1]) - energy_regressor(q[k], v[k])
-    rows = np.concatenate([d_energy, ii.friction_work], axis=1)[:, None, :]
+    d_energy = model.energy_regressor(q[k + 1], v[k + 1]) - model.energy_regressor(q[k], v[k])
+    fw = np.zeros((len(k), p))
+    fw[:, list(model.friction_columns)] = ii.friction_work
+    rows = (d_energy + fw)[:, None, :]
     stuck = np.zeros((len(k), 1), bool)  # static friction does no work: energy rows hold
     if scheme == "supplied_energy":  # Σ from the first interval: eq. (28)
         return RawRows(k + 1, work, "cumulative_sum", (("cumulative_sum", rows),), stuck)
-    return RawRows(k + 1, work / h, "interval_lowpass", (("interval_lowpass", rows / h),), stuck)
+    hr = hk if np.ndim(hk) == 0 else hk[:, :, None]
+    return RawRows(k + 1, work / hk, "interval_lowpass", (("interval_lowpass", rows / hr),), stuck)
 
 
 def stick_memory(lam: float, h: float) -> int:
@@ -325,18 +385,25 @@ def build_regression(
     h: float,
     lam: float = 50.0,
     discretization: str = "exact",
+    *,
+    model: ArmModel = NINE_PARAMETERS,
+    t: np.ndarray | None = None,
 ) -> Regression:
     """The regression y(k) ≈ Ψ(k)ᵀθ of one scheme over a whole recording.
 
     ``filtered_dynamic``: eq. (24), vector error; ``supplied_energy``: eq. (28), scalar;
     ``filtered_power``: eq. (30), scalar. See the module doc for the two discretizations.
+    ``model``: whose columns (default the 9-parameter model); ``t``: the samples' real times
+    (``exact`` only; ``h`` is then the nominal period that sets the row filter's coefficient).
     """
     q, tau = np.asarray(q, float), np.asarray(tau, float)
     _check(q, tau, h, lam, discretization)
     if len(q) < 8:
         raise ValueError(f"need at least 8 samples to identify, got {len(q)}")
-    raw = raw_rows(scheme, discretization, q, tau, h)
+    kin = kinematics(discretization, q, h, model=model, t=t)
+    raw = raw_rows(scheme, discretization, q, tau, h, kin)
     y = lfilter(*filter_coefficients(raw.y_filter, lam, h), raw.y, axis=0)
     Psi = sum(lfilter(*filter_coefficients(f, lam, h), x, axis=0) for f, x in raw.parts)
     weights = stick_weights(raw.stuck, stick_memory(lam, h))
-    return Regression(scheme, discretization, raw.index * h, y, Psi, weights, lam, h)
+    row_t = raw.index * h if t is None else np.asarray(t, dtype=float)[raw.index]
+    return Regression(scheme, discretization, row_t, y, Psi, weights, lam, h)
