@@ -41,7 +41,7 @@ from scipy.linalg import qr
 
 from profiles.robot import UrdfRobotProfile, load_urdf_robot
 
-TERMS = ("rotor_inertia",)
+TERMS = ("rotor_inertia", "friction_offset")
 BODY_PARAMS = ("m", "mx", "my", "mz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
 BODY_UNITS = ("kg", "kg m", "kg m", "kg m", *(("kg m²",) * 6))
 # Random samples for the base-parameter QR: enough rows to make every structural dependency
@@ -77,6 +77,7 @@ class UrdfArmModel:
         gravity_m_s2: float = 9.81,
         viscous: ArrayLike | None = None,
         coulomb: ArrayLike | None = None,
+        friction_offset: ArrayLike | None = None,
         armature: ArrayLike | None = None,
         gear_ratio: ArrayLike | None = None,
         terms: tuple[str, ...] = (),
@@ -115,34 +116,45 @@ class UrdfArmModel:
 
         self.viscous = per_joint(viscous, 0.0, "viscous friction")
         self.coulomb = per_joint(coulomb, 0.0, "Coulomb friction")
+        self.friction_offset = per_joint(friction_offset, 0.0, "friction offset")
         self.armature = per_joint(armature, 0.0, "armature")
         self.gear_ratio = per_joint(gear_ratio, 1.0, "gear ratio")
 
         bodies = [f"{p}{j}" for j in range(1, n + 1) for p in BODY_PARAMS]
         arm = [f"Ia{j}" for j in range(1, n + 1)] if "rotor_inertia" in self.terms else []
         friction = [f"fv{j}" for j in range(1, n + 1)] + [f"fc{j}" for j in range(1, n + 1)]
+        if "friction_offset" in self.terms:
+            friction += [f"fo{j}" for j in range(1, n + 1)]
+        self.n_friction = len(friction)
         self.standard_names = tuple(bodies + arm + friction)
-        self.standard_units = BODY_UNITS * n + ("kg m²",) * len(arm) + ("Nm s",) * n + ("Nm",) * n
+        self.standard_units = (
+            BODY_UNITS * n + ("kg m²",) * len(arm) + ("Nm s",) * n + ("Nm",) * (len(friction) - n)
+        )
         self.n_body_params = 10 * n
         self.n_rigid_standard = self.n_body_params + len(arm)  # columns the QR sorts out
         inertias = [m.inertias[j].toDynamicParameters() for j in range(1, m.njoints)]
+        offsets = self.friction_offset if "friction_offset" in self.terms else []
         self.standard_theta = np.concatenate(
-            [*inertias, self.armature[: len(arm)] if arm else [], self.viscous, self.coulomb]
+            [*inertias, self.armature if arm else [], self.viscous, self.coulomb, offsets]
         )
         self.base = self._base_parameters(np.random.default_rng(seed))
         self._set_names()
 
     @classmethod
     def from_profile(
-        cls, profile: UrdfRobotProfile | str | Path, *, terms: tuple[str, ...] = ()
+        cls, profile: UrdfRobotProfile | str | Path, *, terms: tuple[str, ...] | None = None
     ) -> UrdfArmModel:
-        """The model of a robot profile that names a URDF (profiles/robots/<name>.toml)."""
+        """The model of a robot profile that names a URDF (profiles/robots/<name>.toml), with
+        the profile's ``terms`` unless ``terms`` is given."""
         p = profile if isinstance(profile, UrdfRobotProfile) else load_urdf_robot(profile)
+        terms = p.terms if terms is None else terms
         model = cls(
             p.urdf,
             gravity_m_s2=p.gravity_m_s2,
             viscous=p.viscous_Nms,
             coulomb=p.coulomb_Nm,
+            # asymmetric Coulomb levels: the mean times sgn q̇ plus half their difference
+            friction_offset=(np.subtract(p.coulomb_positive_Nm, p.coulomb_negative_Nm) / 2),
             armature=p.armature_kgm2,
             gear_ratio=p.gear_ratio,
             terms=terms,
@@ -180,10 +192,12 @@ class UrdfArmModel:
         if "rotor_inertia" in self.terms:
             cols.append(eye[None] * velocity_like[:, None, :])
         if dq is None:
-            cols.append(np.zeros((N, n, 2 * n)))
+            cols.append(np.zeros((N, n, self.n_friction)))
         else:
             cols.append(eye[None] * dq[:, None, :])
             cols.append(eye[None] * np.sign(dq)[:, None, :])  # Reyes & Kelly (1997) eq. (12)
+            if "friction_offset" in self.terms:
+                cols.append(np.broadcast_to(eye, (N, n, n)))
         return np.concatenate(cols, axis=-1)
 
     def standard_regressor(self, q: ArrayLike, dq: ArrayLike, ddq: ArrayLike) -> np.ndarray:
@@ -203,15 +217,18 @@ class UrdfArmModel:
     def _kinetic_gradient(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """∂φ_K/∂q, (N, n, 10n): Σ_bodies vᵀ I ∂v/∂q_i, from Pinocchio's ∂v/∂q (LOCAL frame)."""
         m, d, n = self._free, self._free_data, self.n_joints
-        out = np.zeros((len(q), n, self.n_body_params))
+        N = len(q)
+        V = np.empty((N, n, 6))  # body j's spatial velocity (linear, angular), LOCAL
+        D = np.empty((N, n, n, 6))  # ∂v_j/∂q_i, indexed [k, j, i]
         zero = np.zeros(n)
-        for k in range(len(q)):
+        for k in range(N):
             pin.computeForwardKinematicsDerivatives(m, d, q[k], dq[k], zero)
-            for j in range(1, m.njoints):
-                dv_dq, _ = pin.getJointVelocityDerivatives(m, d, j, pin.LOCAL)
-                v = d.v[j].vector
-                out[k, :, 10 * (j - 1) : 10 * j] = _bilinear_inertia_regressor(v, dv_dq.T)
-        return out
+            for j in range(n):
+                dv_dq, _ = pin.getJointVelocityDerivatives(m, d, j + 1, pin.LOCAL)
+                D[k, j] = dv_dq.T
+                V[k, j] = pin.getVelocity(m, d, j + 1, pin.LOCAL).vector
+        rows = _bilinear_inertia_regressor(V[:, :, None, :], D)  # (N, n_body, n_joint, 10)
+        return rows.transpose(0, 2, 1, 3).reshape(N, n, self.n_body_params)
 
     def _standard_static(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         zero = np.zeros_like(q)
@@ -225,7 +242,7 @@ class UrdfArmModel:
         cols = [out]
         if "rotor_inertia" in self.terms:
             cols.append(0.5 * dq**2)
-        cols.append(np.zeros((len(q), 2 * self.n_joints)))
+        cols.append(np.zeros((len(q), self.n_friction)))
         return np.concatenate(cols, axis=-1)
 
     def _standard_potential(self, q: np.ndarray) -> np.ndarray:
@@ -235,7 +252,7 @@ class UrdfArmModel:
             out[k] = pin.computePotentialEnergyRegressor(m, d, q[k])
         # zero at q = 0 (the hanging/home configuration), as hil.model.energy_regressor
         out -= pin.computePotentialEnergyRegressor(m, d, np.zeros(self.n_joints))
-        extra = self.n_rigid_standard - self.n_body_params + 2 * self.n_joints
+        extra = self.n_rigid_standard - self.n_body_params + self.n_friction
         return np.concatenate([out, np.zeros((len(q), extra))], axis=-1)
 
     # --- base parameters -----------------------------------------------------------------------
@@ -283,10 +300,24 @@ class UrdfArmModel:
         return self.base.expand @ t
 
     def term_columns(self, term: str) -> slice:
-        """The base columns a model term owns: ``friction`` (f_v per joint, then f_c per joint)."""
+        """The base columns a model term owns: ``friction`` (f_v per joint, f_c per joint and,
+        with that term, the offsets), ``friction_offset`` (f_o per joint)."""
         if term == "friction":
-            return slice(self.n_params - 2 * self.n_joints, self.n_params)
-        raise ValueError(f"unknown term {term!r} for a URDF model (friction)")
+            return slice(self.n_params - self.n_friction, self.n_params)
+        if term == "friction_offset" and term in self.terms:
+            return slice(self.n_params - self.n_joints, self.n_params)
+        raise KeyError(f"model has no term {term!r} (friction, {', '.join(self.terms)})")
+
+    @property
+    def friction_columns(self) -> tuple[int, ...]:
+        """Viscous and Coulomb columns (≥ 0 for a physical arm)."""
+        start = self.n_params - self.n_friction
+        return tuple(range(start, start + 2 * self.n_joints))
+
+    @property
+    def nonnegative_columns(self) -> tuple[int, ...]:
+        """Friction coefficients (the base columns of the armature mix with link inertias)."""
+        return self.friction_columns
 
     def _to_base(self, Y_std: np.ndarray) -> np.ndarray:
         return Y_std[..., self.base.independent]
@@ -329,7 +360,10 @@ class UrdfArmModel:
         """q̇ᵀ φ_F: the power friction dissipates, per base parameter, shape (..., p)."""
         (dq,), lead = self._samples(dq)
         out = np.zeros((len(dq), self.n_params))
-        out[:, self.term_columns("friction")] = np.concatenate([dq**2, np.abs(dq)], axis=-1)
+        power = [dq**2, np.abs(dq)] + (
+            [dq] if "friction_offset" in self.terms else []
+        )  # q̇ᵀ φ_F per column
+        out[:, self.term_columns("friction")] = np.concatenate(power, axis=-1)
         return out.reshape(*lead, -1)
 
     def mass_matrix(self, theta: ArrayLike, q: ArrayLike) -> np.ndarray:
@@ -347,27 +381,30 @@ class UrdfArmModel:
         """g(q) = ∂U/∂q, shape (..., n)."""
         (q,), lead = self._samples(q)
         zero = np.zeros_like(q)
-        Y = self._to_base(self.standard_regressor(q, zero, zero))
-        return (Y @ np.asarray(theta, dtype=float)).reshape(*lead, self.n_joints)
+        return self._rigid_only(self._rigid_torque(False, q, zero, zero), theta, lead)
+
+    def _rigid_only(self, rigid: np.ndarray, theta: ArrayLike, lead: tuple[int, ...]):
+        Y = np.concatenate([rigid, np.zeros((*rigid.shape[:2], self._n_extra))], axis=-1)
+        return (self._to_base(Y) @ np.asarray(theta, dtype=float)).reshape(*lead, self.n_joints)
 
     def coriolis_vector(self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
         """C(q, q̇) q̇, shape (..., n)."""
         (q, dq), lead = self._samples(q, dq)
-        zero = np.zeros_like(q)
-        rigid = self._rigid_torque(True, q, dq, zero)
-        Y = np.concatenate([rigid, np.zeros((*rigid.shape[:2], self._n_extra))], axis=-1)
-        return (self._to_base(Y) @ np.asarray(theta, dtype=float)).reshape(*lead, self.n_joints)
+        return self._rigid_only(self._rigid_torque(True, q, dq, np.zeros_like(q)), theta, lead)
 
     @property
     def _n_extra(self) -> int:
         return len(self.standard_names) - self.n_body_params
 
     def friction_torque(self, theta: ArrayLike, dq: ArrayLike) -> np.ndarray:
-        """f(q̇) = f_v q̇ + f_c sgn q̇ per joint, shape (..., n)   (eq. (12))."""
+        """f(q̇) = f_v q̇ + f_c sgn q̇ [+ f_o] per joint, shape (..., n)   (eq. (12))."""
         (dq,), lead = self._samples(dq)
         t = np.asarray(theta, dtype=float)[self.term_columns("friction")]
         n = self.n_joints
-        return (t[:n] * dq + t[n:] * np.sign(dq)).reshape(*lead, n)
+        f = t[:n] * dq + t[n : 2 * n] * np.sign(dq)
+        if "friction_offset" in self.terms:
+            f = f + t[2 * n :]
+        return f.reshape(*lead, n)
 
     def torque(self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike, ddq: ArrayLike) -> np.ndarray:
         """τ = M(q) q̈ + C(q, q̇) q̇ + g(q) + f(q̇), shape (..., n)   (eq. (15))."""
@@ -408,26 +445,29 @@ class UrdfArmModel:
         return {"consistent": not violations, "violations": violations}
 
 
-def _bilinear_inertia_regressor(v: np.ndarray, W: np.ndarray) -> np.ndarray:
-    """Rows vᵀ I(π) w_i as regressors in π (Pinocchio's order), for each row w_i of W (n, 6).
+def _bilinear_inertia_regressor(v: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """vᵀ I(π) w as a regressor in π (Pinocchio's order), shape (..., 10), broadcasting v, w
+    (..., 6).
 
     Spatial vectors are (linear, angular); the inertia about the frame origin with first moment
     h = m c and rotational inertia Ī gives vᵀ I w = m v_l·w_l + h·(v_l × w_a + w_l × v_a)
     + v_aᵀ Ī w_a (Featherstone (2008) eq. (2.63)).
     """
-    vl, va = v[:3], v[3:]
-    wl, wa = W[:, :3], W[:, 3:]
-    h = np.cross(vl, wa) + np.cross(wl, va)
-    x, y, z = va
-    return np.column_stack(
+    v, w = np.broadcast_arrays(v, w)
+    vx, vy, vz, ax, ay, az = np.moveaxis(v, -1, 0)
+    wx, wy, wz, bx, by, bz = np.moveaxis(w, -1, 0)
+    return np.stack(
         [
-            wl @ vl,
-            h,
-            x * wa[:, 0],
-            x * wa[:, 1] + y * wa[:, 0],
-            y * wa[:, 1],
-            x * wa[:, 2] + z * wa[:, 0],
-            y * wa[:, 2] + z * wa[:, 1],
-            z * wa[:, 2],
-        ]
+            vx * wx + vy * wy + vz * wz,
+            (vy * bz - vz * by) + (wy * az - wz * ay),
+            (vz * bx - vx * bz) + (wz * ax - wx * az),
+            (vx * by - vy * bx) + (wx * ay - wy * ax),
+            ax * bx,
+            ax * by + ay * bx,
+            ay * by,
+            ax * bz + az * bx,
+            ay * bz + az * by,
+            az * bz,
+        ],
+        axis=-1,
     )

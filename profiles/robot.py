@@ -122,6 +122,7 @@ class UrdfRobotProfile:
     armature_kgm2: tuple[float, ...]
     gear_ratio: tuple[float, ...]
     drives: tuple[str, ...] | None
+    terms: tuple[str, ...] = ()  # model terms beyond rigid bodies + friction (hil.urdf_model)
 
     @property
     def coulomb_Nm(self) -> tuple[float, ...]:
@@ -147,13 +148,19 @@ def load_urdf_robot(name_or_path: str | Path) -> UrdfRobotProfile:
 
     Fields: ``urdf`` (path, relative to the profile), ``gravity_m_s2``, ``[joints] count``,
     ``[friction] viscous_Nms / coulomb_positive_Nm / coulomb_negative_Nm`` (one number per joint),
-    optional ``[joints] armature_kgm2`` (default 0), ``gear_ratio`` (default 1) and ``drives``.
+    optional ``[joints] armature_kgm2`` (default 0), ``gear_ratio`` (default 1) and ``drives``,
+    and ``terms`` (model terms, :data:`hil.urdf_model.TERMS`).
     The 2-DOF closed-form tables (``link1``, ``link2``) may sit beside them (cicese.toml) and are
     not read here.
     """
     data, source = load_toml("robots", name_or_path)
     f = Fields(data, source)
-    f.only({"name", "description", "gravity_m_s2", "link1", "link2", "friction", "joints", "urdf"})
+    f.only(
+        {
+            *("name", "description", "gravity_m_s2", "link1", "link2", "friction", "joints"),
+            *("urdf", "terms"),
+        }
+    )
     if not f.has("urdf"):
         raise f.error("urdf", "missing: this robot profile names no URDF")
     joints = f.table("joints")
@@ -173,4 +180,12 @@ def load_urdf_robot(name_or_path: str | Path) -> UrdfRobotProfile:
         armature_kgm2=joints.numbers("armature_kgm2", n, [0.0] * n, lo=0.0),
         gear_ratio=joints.numbers("gear_ratio", n, [1.0] * n, positive=True),
         drives=joints.strings("drives", n) if joints.has("drives") else None,
+        terms=_terms(f),
     )
+
+
+def _terms(f: Fields) -> tuple[str, ...]:
+    value = f.data.get("terms", [])
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise f.error("terms", "must be a list of model term names")
+    return tuple(value)
