@@ -2,17 +2,20 @@
 regressor of :class:`hil.urdf_model.UrdfArmModel` (batch least squares, filtered, on the real
 time stamps), its held-out validation, and a reader for the Gaz et al. (2019) Panda log layout.
 
-Method (Gautier (1997) "parallel filtering"): positions are smoothed by a zero-phase low-pass;
-velocities and accelerations are the three-point derivatives on the real (unequal) time grid;
-then the torque regressor Y(q, q̇, q̈) and the measured torque τ are low-pass filtered by one and
-the same zero-phase filter and decimated, so each kept row y = Ψ θ stays exact whatever the
-filter (a fixed linear combination of rows applied to both sides); the filter removes the
-noise the differentiation amplified and the decimation keeps the solve small. Least squares is
-:func:`hil.estimators.least_squares`.
+Method (Gautier (1997) "parallel filtering"): positions are smoothed by a zero-phase low-pass
+that respects the real time stamps (see :func:`smoothed_motion`), velocities and accelerations
+are the derivatives of the smoothed positions at the real stamps; then the torque regressor
+Y(q, q̇, q̈) and the measured torque τ are low-pass filtered by one and the same zero-phase
+filter and decimated, so each kept row y = Ψ θ stays exact whatever the filter (a fixed linear
+combination of rows applied to both sides); the filter removes the noise the differentiation
+amplified and the decimation keeps the solve small. The solve is
+:func:`hil.estimators.weighted_least_squares` (per-joint noise levels from the residuals: the
+Panda's joint torques span 0.5 to 40 Nm, and plain least squares would all but ignore the
+wrist).
 
 The Panda log layout (``rbt_log/exciting_traj_{time,positions,torques}.txt``: one number a
 line, 7 joints of a sample on 7 consecutive lines) is read by :func:`read_one_per_line_log`
-into the standard recording ``t, q1..qn, tau1..taun``. Imports hil.estimators, hil.regressors,
+into the standard recording ``t, q1..qn, tau1..taun``. Imports hil.estimators and
 hil.urdf_model; no plotting.
 """
 
@@ -22,10 +25,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 from scipy.signal import butter, sosfiltfilt
 
 from hil.estimators import weighted_least_squares
-from hil.regressors import central_difference_unequal
 from hil.urdf_model import UrdfArmModel
 
 # Smoothing of positions before differentiation, and of both sides of the regression.
@@ -109,18 +112,20 @@ def _lowpass(x: np.ndarray, cutoff_hz: float, period_s: float) -> np.ndarray:
 
 
 def smoothed_motion(rec: TorqueRecording, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -> Motion:
-    """q smoothed by the zero-phase low-pass, q̇ and q̈ by three-point derivatives on the real
-    time stamps (not k·h), ends (EDGE_S) dropped."""
+    """q, q̇, q̈ at the recording's real time stamps, smoothed: q is interpolated (cubic spline
+    through the samples at their real times) onto a uniform grid at the median interval,
+    low-passed there (zero phase), and the cubic spline of the result gives q, q̇ and q̈ back at
+    the real stamps. A filter run over the raw rows as if they were equally spaced would turn
+    time-stamp jitter into velocity and acceleration errors. Ends (EDGE_S) are dropped."""
     t = rec.t
     period = float(np.median(np.diff(t)))
     if not 0 < cutoff_hz < 0.5 / period:
         raise ValueError(f"cutoff {cutoff_hz} Hz must be in (0, {0.5 / period:.4g}) Hz")
-    q = _lowpass(rec.q, cutoff_hz, period)
-    dq = central_difference_unequal(q, t)
-    ddq = central_difference_unequal(np.nan_to_num(dq), t)
+    grid = np.arange(t[0], t[-1], period)
+    smooth = CubicSpline(grid, _lowpass(CubicSpline(t, rec.q)(grid), cutoff_hz, period))
     keep = (t >= t[0] + EDGE_S) & (t <= t[-1] - EDGE_S)
-    keep[:2] = keep[-2:] = False
-    return Motion(t[keep], q[keep], dq[keep], ddq[keep], rec.tau[keep], cutoff_hz)
+    tk = t[keep]
+    return Motion(tk, smooth(tk), smooth(tk, 1), smooth(tk, 2), rec.tau[keep], cutoff_hz)
 
 
 @dataclass(frozen=True)

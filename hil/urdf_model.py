@@ -90,11 +90,7 @@ class UrdfArmModel:
         self.urdf = str(urdf)
         self.name = name
         self.terms = tuple(terms)
-        try:
-            self._model = pin.buildModelFromUrdf(self.urdf)
-        except (RuntimeError, ValueError) as exc:
-            raise ValueError(f"{self.urdf}: cannot build a model from this URDF: {exc}") from None
-        m = self._model
+        self._model = m = _build(self.urdf)
         if m.nq != m.nv or any(j.nq != 1 for j in m.joints[1:]):
             raise ValueError(
                 f"{self.urdf}: only 1-DOF revolute/prismatic joints are supported "
@@ -148,7 +144,10 @@ class UrdfArmModel:
         the profile's ``terms`` unless ``terms`` is given."""
         p = profile if isinstance(profile, UrdfRobotProfile) else load_urdf_robot(profile)
         terms = p.terms if terms is None else terms
-        model = cls(
+        n_urdf = _build(p.urdf).nv
+        if n_urdf != p.n_joints:
+            raise ValueError(f"{p.source}: profile says {p.n_joints} joints, {p.urdf} has {n_urdf}")
+        return cls(
             p.urdf,
             gravity_m_s2=p.gravity_m_s2,
             viscous=p.viscous_Nms,
@@ -160,11 +159,6 @@ class UrdfArmModel:
             terms=terms,
             name=p.name,
         )
-        if model.n_joints != p.n_joints:
-            raise ValueError(
-                f"{p.source}: profile says {p.n_joints} joints, {p.urdf} has {model.n_joints}"
-            )
-        return model
 
     # --- standard regressors (all standard columns) ---------------------------------------------
 
@@ -415,8 +409,9 @@ class UrdfArmModel:
     def physical_consistency(self, theta_standard: ArrayLike | None = None) -> dict[str, object]:
         """Check a *standard*-parameter vector: per body m > 0 and the pseudo-inertia
         J = [[½ tr(I) 1 − I, m c], [m cᵀ, m]] positive semidefinite (Wensing, Kim & Slotine
-        (2018)); armature and friction ≥ 0. Base parameters alone cannot be checked: many
-        standard vectors share them. Returns ``{"consistent": bool, "violations": [...]}``."""
+        (2018)); armature, viscous and Coulomb coefficients ≥ 0. Base parameters alone cannot
+        be checked: many standard vectors share them.
+        Returns ``{"consistent": bool, "violations": [...]}``."""
         t = self.standard_theta if theta_standard is None else np.asarray(theta_standard, float)
         violations = []
         for j in range(self.n_joints):
@@ -439,10 +434,18 @@ class UrdfArmModel:
                     f"body of {name}: pseudo-inertia not positive semidefinite "
                     f"(smallest eigenvalue {low:.4g})"
                 )
-        for i in range(self.n_rigid_standard, len(t)):
+        # armature, viscous and Coulomb coefficients; the offsets may take either sign
+        for i in range(self.n_body_params, self.n_rigid_standard + 2 * self.n_joints):
             if not t[i] >= 0:
                 violations.append(f"negative {self.standard_names[i]} = {t[i]:.4g}")
         return {"consistent": not violations, "violations": violations}
+
+
+def _build(urdf: str) -> pin.Model:
+    try:
+        return pin.buildModelFromUrdf(urdf)
+    except (RuntimeError, ValueError) as exc:
+        raise ValueError(f"{urdf}: cannot build a model from this URDF: {exc}") from None
 
 
 def _bilinear_inertia_regressor(v: np.ndarray, w: np.ndarray) -> np.ndarray:

@@ -163,6 +163,7 @@ def load_urdf_robot(name_or_path: str | Path) -> UrdfRobotProfile:
     )
     if not f.has("urdf"):
         raise f.error("urdf", "missing: this robot profile names no URDF")
+    urdf = str(_urdf_path(f, source))
     joints = f.table("joints")
     joints.only({"count", "drives", "armature_kgm2", "gear_ratio"})
     n = joints.integer("count", 2, lo=1) if f.has("link1") else joints.integer("count", lo=1)
@@ -171,7 +172,7 @@ def load_urdf_robot(name_or_path: str | Path) -> UrdfRobotProfile:
     return UrdfRobotProfile(
         name=f.string("name"),
         source=source,
-        urdf=str(_urdf_path(f, source)),
+        urdf=urdf,
         gravity_m_s2=f.number("gravity_m_s2", positive=True),
         n_joints=n,
         viscous_Nms=fr.numbers("viscous_Nms", n, lo=0.0),
