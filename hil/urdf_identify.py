@@ -5,10 +5,10 @@ time stamps), its held-out validation, and a reader for the Gaz et al. (2019) Pa
 Method (Gautier (1997) "parallel filtering"): positions are smoothed by a zero-phase low-pass
 that respects the real time stamps (see :func:`smoothed_motion`), velocities and accelerations
 are the derivatives of the smoothed positions at the real stamps; then the torque regressor
-Y(q, q̇, q̈) and the measured torque τ are low-pass filtered by one and the same zero-phase
-filter and decimated, so each kept row y = Ψ θ stays exact whatever the filter (a fixed linear
-combination of rows applied to both sides); the filter removes the noise the differentiation
-amplified and the decimation keeps the solve small. The solve is
+Y(q, q̇, q̈) and the measured torque τ are averaged over blocks of rows by one and the same
+filter, so each kept row y = Ψ θ stays exact (a fixed linear combination of rows applied to both
+sides); the smoothing removes the noise differentiation would amplify and the block average
+keeps the solve small. The solve is
 :func:`hil.estimators.weighted_least_squares` (per-joint noise levels from the residuals: the
 Panda's joint torques span 0.5 to 40 Nm, and plain least squares would all but ignore the
 wrist).
@@ -141,13 +141,16 @@ class FilteredRows:
 def filtered_rows(
     motion: Motion, Y: np.ndarray, *, decimate: int = DEFAULT_DECIMATE
 ) -> FilteredRows:
-    """Filter the regressor ``Y`` (N, n, p) and the torques of ``motion`` by the same zero-phase
-    low-pass (``motion.cutoff_hz``) and keep every ``decimate``-th row."""
-    period = float(np.median(np.diff(motion.t)))
+    """Average the regressor ``Y`` (N, n, p) and the torques of ``motion`` over blocks of
+    ``decimate`` consecutive rows (a moving mean, then every ``decimate``-th row): the same
+    linear combination of rows on both sides, so every averaged row is as exact as the rows it
+    averages, and it costs one pass over the data."""
     N, n, p = Y.shape
-    both = np.concatenate([motion.tau, Y.reshape(N, n * p)], axis=1)
-    both = _lowpass(both, motion.cutoff_hz, period)[::decimate]
-    return FilteredRows(motion.t[::decimate], both[:, :n], both[:, n:].reshape(-1, n, p))
+    K = N // decimate
+    both = np.concatenate([motion.tau[: K * decimate], Y[: K * decimate].reshape(-1, n * p)], 1)
+    both = both.reshape(K, decimate, -1).mean(axis=1)
+    t = motion.t[: K * decimate].reshape(K, decimate).mean(axis=1)
+    return FilteredRows(t, both[:, :n], both[:, n:].reshape(K, n, p))
 
 
 @dataclass(frozen=True)
