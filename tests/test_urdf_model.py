@@ -95,9 +95,13 @@ def test_cicese_urdf_regressors_equal_closed_form_columns(cicese):
     for ours, cf in pairs:
         assert np.abs(ours[..., ALIGNED] - (cf @ T)[..., ALIGNED]).max() < 1e-12
     energy = cicese.energy_regressor(q, dq)
-    assert np.abs(energy[..., ALIGNED[:4]] - (closed_form.energy_regressor(q, dq) @ T[:5])[
-        ..., ALIGNED[:4]
-    ]).max() < 1e-12
+    assert (
+        np.abs(
+            energy[..., ALIGNED[:4]]
+            - (closed_form.energy_regressor(q, dq) @ T[:5])[..., ALIGNED[:4]]
+        ).max()
+        < 1e-12
+    )
     power = cicese.friction_power_regressor(dq)
     assert np.abs(power[..., 6:] - closed_form.friction_power_regressor(dq)).max() < 1e-12
     # the centre-of-mass offsets are real columns the closed form has not
@@ -173,11 +177,13 @@ def test_physical_consistency_flags_impossible_bodies(panda):
 
 
 def test_rotor_inertia_term_adds_armature_columns(cicese):
-    arm = UrdfArmModel(cicese.urdf, gravity_m_s2=9.81, armature=[0.0, 0.05], terms=("rotor_inertia",))
+    arm = UrdfArmModel(
+        cicese.urdf, gravity_m_s2=9.81, armature=[0.0, 0.05], terms=("rotor_inertia",)
+    )
     # the joint-1 armature is absorbed by Iyy1; the joint-2 armature is its own base parameter
     assert arm.n_params == cicese.n_params + 1
     assert "Ia2" in arm.meanings and not any(m.startswith("Ia1") for m in arm.meanings)
-    q, dq, ddq = _samples(2)
+    q, _, _ = _samples(2)
     M = arm.mass_matrix(arm.base_theta(), q)
     M0 = cicese.mass_matrix(cicese.base_theta(), q)
     assert np.allclose(M - M0, np.diag([0.0, 0.05]), atol=1e-12)
@@ -225,12 +231,12 @@ def test_identification_recovers_a_simulated_arm(cicese):
     """Torques of the URDF arm itself along a multisine, on jittered time stamps: the fit finds
     its base parameters and predicts the held-out torque."""
     t = np.cumsum(RNG.uniform(0.8e-3, 1.2e-3, 12_000))
-    w = np.array([[0.7, 1.9, 3.1], [1.1, 2.3, 2.9]])
-    q = np.stack([(np.sin(np.outer(t, w[i])) * [0.8, 0.4, 0.2]).sum(1) for i in range(2)], 1)
-    dq = np.stack([(np.cos(np.outer(t, w[i])) * w[i] * [0.8, 0.4, 0.2]).sum(1) for i in range(2)], 1)
-    ddq = np.stack(
-        [(-np.sin(np.outer(t, w[i])) * w[i] ** 2 * [0.8, 0.4, 0.2]).sum(1) for i in range(2)], 1
-    )
+    w = np.array([[0.7, 1.9, 3.1], [1.1, 2.3, 2.9]])[None]  # rad/s, (1, joint, harmonic)
+    a = np.array([0.8, 0.4, 0.2])
+    arg = t[:, None, None] * w
+    q = (a * np.sin(arg)).sum(-1)
+    dq = (a * w * np.cos(arg)).sum(-1)
+    ddq = (-a * w**2 * np.sin(arg)).sum(-1)
     truth = cicese.base_theta()
     tau = cicese.torque(truth, q, dq, ddq)
     result = identify_torque(cicese, TorqueRecording(t, q, tau, "simulated"), cutoff_hz=5.0)
@@ -251,16 +257,19 @@ def test_panda_identification_against_the_published_model(panda):
     held = result.rows.t >= result.fit_until_s
     motion = smoothed_motion(rec)
     keep = motion.t >= result.fit_until_s - 1.0  # their model on the held-out stretch only
-    sub = type(motion)(*(x[keep] for x in (motion.t, motion.q, motion.dq, motion.ddq, motion.tau)),
-                       motion.cutoff_hz)
+    sub = type(motion)(
+        *(x[keep] for x in (motion.t, motion.q, motion.dq, motion.ddq, motion.tau)),
+        motion.cutoff_hz,
+    )
     theirs_tau = gaz_reference.GazModel().torque(sub.q, sub.dq, sub.ddq)
     theirs = filtered_rows(sub, theirs_tau[..., None])
     tail = theirs.t >= result.fit_until_s
     ours = result.nrmse_held_out
     reference = nrmse(theirs.Y[tail, :, 0], theirs.tau[tail])
     # the URDF's nominal parameters, for scale
-    nominal = nrmse(np.einsum("knp,p->kn", result.rows.Y[held], panda.base_theta()),
-                    result.rows.tau[held])
+    nominal = nrmse(
+        np.einsum("knp,p->kn", result.rows.Y[held], panda.base_theta()), result.rows.tau[held]
+    )
     assert np.all(ours < 0.25), ours
     assert ours.mean() < 1.15 * reference.mean(), (ours, reference)
     assert ours.mean() < 0.5 * nominal.mean(), (ours, nominal)

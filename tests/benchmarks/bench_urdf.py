@@ -149,7 +149,8 @@ def main() -> int:
         ident = doc["identify_60s_7joints_1kHz"]
         print(
             f"identify 60 s, 7 joints, 1 kHz: {ident['seconds']:.2f} s wall, "
-            f"{ident['cpu_seconds']:.2f} s CPU (target < {TARGET_IDENTIFY_S:.0f} s); held-out NRMSE max {ident['held_out_nrmse_max']:.4f}; "
+            f"{ident['cpu_seconds']:.2f} s CPU (target < {TARGET_IDENTIFY_S:.0f} s); "
+            f"held-out NRMSE max {ident['held_out_nrmse_max']:.4f}; "
             f"base parameters within {ident['max_relative_error_of_base_parameters']:.2%}"
         )
         table = doc.get("panda_gaz2019")
