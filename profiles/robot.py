@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from profiles.loader import Fields, load_toml
+from profiles.loader import Fields, ProfileError, load_toml
 
 
 @dataclass(frozen=True)
@@ -86,6 +86,13 @@ def _link(f: Fields, key: str, *, needs_length: bool) -> Link:
 def load_robot(name_or_path: str | Path) -> RobotProfile:
     data, source = load_toml("robots", name_or_path)
     f = Fields(data, source)
+    if f.has("urdf") and not f.has("link1"):
+        raise ProfileError(
+            source,
+            None,
+            "an arm described by its URDF only: the 2-DOF closed-form model cannot use it "
+            "(hil.urdf_model.UrdfArmModel can; see docs/urdf.md)",
+        )
     f.only({"name", "description", "gravity_m_s2", "link1", "link2", "friction", "joints", "urdf"})
     fr = f.table("friction")
     fr.only({"viscous_Nms", "coulomb_positive_Nm", "coulomb_negative_Nm"})

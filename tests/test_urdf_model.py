@@ -273,3 +273,10 @@ def test_panda_identification_against_the_published_model(panda):
     assert np.all(ours < 0.25), ours
     assert ours.mean() < 1.15 * reference.mean(), (ours, reference)
     assert ours.mean() < 0.5 * nominal.mean(), (ours, nominal)
+
+
+def test_planar_loader_refuses_a_urdf_only_arm_in_one_line():
+    with pytest.raises(ProfileError, match="described by its URDF only") as exc:
+        load_robot("panda")
+    assert "\n" not in str(exc.value)
+    assert load_robot("cicese").urdf == load_urdf_robot("cicese").urdf
