@@ -13,15 +13,20 @@ from __future__ import annotations
 
 import csv
 import io
+import itertools
 import json
+import math
 import os
+import re
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from profiles.recording_format import LOOP_DELAY_MAX, load_format
 
 BASE_COLUMNS = ("t", "q1", "q2", "tau1", "tau2")
 SIGNALS = "signals.csv"
@@ -119,91 +124,614 @@ def _fmt(value: float | int) -> str:
     return repr(float(value))
 
 
+# --- reading -------------------------------------------------------------------------------------
+
+# An interval this many times the median interval is a gap (rows lost or cut out): the rows on
+# either side are different segments, which the analysis must not splice.
+GAP_FACTOR = 10.0
+# Intervals outside [1/f, f] × median (and not gaps) make the sampling "irregular" (a finding).
+IRREGULAR_FACTOR = 1.5
+# A sample period must lie in [PERIOD_MIN_S, PERIOD_MAX_S): a bench samples at ≥ 1 Hz (slower is
+# t in ms, or a wrong period_s), and 1 µs is below any loop this bench or a real arm runs.
+PERIOD_MIN_S = 1e-6
+PERIOD_MAX_S = 1.0
+CHUNK_LINES = 1 << 16  # lines parsed at once: bounded memory for the text, fast C parsing
+# meta.json fields an analysis reads, with the JSON types they must have
+_META_TYPES: dict[str, tuple[type, ...]] = {
+    "period_s": (float, int),
+    "rows": (int,),
+    "status": (str,),
+    "robot": (str, type(None)),
+    "mode": (str, type(None)),
+    "kind": (str, type(None)),
+    "protocol": (str, type(None)),
+    "bench": (str, type(None)),
+    "bench_profile": (str, type(None)),
+    "experiment": (str, type(None)),
+    "experiment_profile": (str, type(None)),
+    "effects": (str, type(None)),
+    "seed": (int, type(None)),
+    "columns": (list,),
+}
+
+
+_JSON_NAMES = {int: "an integer", float: "a number", str: "a string", list: "a list",
+               type(None): "null"}  # fmt: skip
+
+
 @dataclass
 class Recording:
-    """A loaded recording: columns as float arrays, plus meta.json if there was one."""
+    """A loaded recording: columns as float arrays, plus meta.json if there was one.
+
+    ``columns`` holds ``t``, ``q1..qN``, ``tau1..tauN`` in this project's convention (row k's
+    tau held over [t_k, t_{k+1}), whatever the file's own loop order was) and, unless the reader
+    was told otherwise, the file's other columns (realigned rows, original names). ``t`` is the
+    file's own time stamps, never replaced by k·h; ``period_s`` is a nominal period for display
+    and defaults only. ``findings_on_read`` says what the reader noticed (gaps, irregular
+    sampling, dropped duplicates, the loop delay applied); ``segments()`` the row ranges between
+    gaps, which an analysis must not splice.
+    """
 
     path: Path
     columns: dict[str, np.ndarray]
     meta: dict[str, Any] = field(default_factory=dict)
     dropped_partial_row: bool = False
+    n_joints: int = 0  # 0: count the q1, tau1, q2, tau2, ... pairs in ``columns``
+    torque_source: str = "commanded"
+    loop_delay: int = 0
+    time_source: str = "stamps"
+    time_column: str = "t"  # the file's column the times came from
+    findings_on_read: list[str] = field(default_factory=list)
+    segment_starts: tuple[int, ...] = ()  # rows where a segment begins after a gap (not 0)
+
+    def __post_init__(self) -> None:
+        if not self.n_joints:
+            while (
+                f"q{self.n_joints + 1}" in self.columns
+                and f"tau{self.n_joints + 1}" in self.columns
+            ):
+                self.n_joints += 1
 
     @property
     def t(self) -> np.ndarray:
+        """The real sample times, s."""
         return self.columns["t"]
 
     @property
+    def dt(self) -> np.ndarray:
+        """The real intervals t_{k+1} − t_k, s, shape (N − 1,)."""
+        return np.diff(self.t)
+
+    @property
     def q(self) -> np.ndarray:
-        """Joint angles, shape (N, 2)."""
-        return np.column_stack([self.columns["q1"], self.columns["q2"]])
+        """Joint angles, shape (N, n_joints)."""
+        return np.column_stack([self.columns[f"q{j + 1}"] for j in range(self.n_joints)])
 
     @property
     def tau(self) -> np.ndarray:
-        """Held torques, shape (N, 2)."""
-        return np.column_stack([self.columns["tau1"], self.columns["tau2"]])
+        """Held torques, shape (N, n_joints): row k's acts over [t_k, t_{k+1})."""
+        return np.column_stack([self.columns[f"tau{j + 1}"] for j in range(self.n_joints)])
 
     @property
     def period_s(self) -> float:
+        """Nominal period: meta.json's (checked against t on read), else the median interval.
+        For display and defaults only; the real intervals are :attr:`dt`."""
         if "period_s" in self.meta:
             return float(self.meta["period_s"])
         if len(self.t) < 2:
             raise RecordingError(f"{self.path}: fewer than two rows, cannot infer the period")
         return float(np.median(np.diff(self.t)))
 
+    def segments(self) -> list[slice]:
+        """Row ranges between gaps (one slice when there is none): analyse them separately."""
+        edges = [0, *self.segment_starts, len(self)]
+        return [slice(a, b) for a, b in itertools.pairwise(edges) if b > a]
+
+    def segment(self, rows: slice) -> Recording:
+        """The recording restricted to ``rows`` (one of :meth:`segments`)."""
+        start, stop, _ = rows.indices(len(self))
+        return replace(
+            self,
+            columns={name: col[start:stop] for name, col in self.columns.items()},
+            findings_on_read=list(self.findings_on_read),
+            segment_starts=tuple(s - start for s in self.segment_starts if start < s < stop),
+        )
+
     def __len__(self) -> int:
         return len(self.t)
 
 
-def read_signals(path: str | Path) -> Recording:
-    """Read a run directory or a bare CSV with at least the columns t,q1,q2,tau1,tau2.
+@dataclass
+class _Plan:
+    """Which file columns become t, q1..qN, tau1..tauN, and how the torque is aligned."""
 
-    A torn last line (a crash mid-write) is dropped and flagged; any other malformed row is an
-    error naming the file and line.
+    sources: dict[str, str]  # canonical name -> file column
+    n_joints: int
+    torque_source: str
+    loop_delay: int
+    own_grid: bool  # t is this bench's k·period_s (checked exactly against meta.json)
+    identity: bool  # the file is already in this project's convention, names and rows
+
+
+def read_signals(
+    path: str | Path,
+    *,
+    fmt: str | None = None,
+    columns: str | Mapping[str, str] | None = None,
+    torque: str | None = None,
+    loop_delay: int | None = None,
+    extra_columns: bool = True,
+    min_rows: int = 0,
+) -> Recording:
+    """Read a run directory, a bare CSV with the columns t,q1..qN,tau1..tauN, or a foreign CSV.
+
+    ``fmt``: a recording-format profile (profiles/formats/<name>.toml, or a path) naming the
+    file's columns, its torque sources and their loop delays. ``columns``: a map
+    ``"t=time,q1=pos1,..."`` (or a dict) from this project's names to the file's, applied over
+    the format's. ``torque``: a torque source the format offers (default: the format's).
+    ``loop_delay`` (rows): the file's tau of row i acts between the q of rows i+d and i+d+1;
+    the reader shifts tau so row k's is held over [t_k, t_{k+1}) and drops the rows left without
+    a torque (default: the torque source's, 0 for this project's files). ``extra_columns``:
+    keep the file's other columns (False: only t, q, tau; less memory). ``min_rows``: fewer rows
+    is an error.
+
+    Checked on read, each failure a one-line :class:`RecordingError` naming the file and line:
+    a malformed row, NaN/inf in t, q or tau, t not strictly increasing, t inconsistent with
+    meta.json's ``period_s``, a meta field of the wrong type or range. Noted in
+    ``findings_on_read``: exact duplicate rows (dropped), gaps (segments), irregular intervals.
+    A torn last line (a crash mid-write) is dropped and flagged.
     """
     path = Path(path)
     csv_path = path / SIGNALS if path.is_dir() else path
-    meta: dict[str, Any] = {}
-    if path.is_dir() and (path / META).is_file():
-        try:
-            meta = json.loads((path / META).read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise RecordingError(f"{path / META}: not valid JSON ({exc})") from None
-        if not isinstance(meta, dict):
-            raise RecordingError(f"{path / META}: not a JSON object")
+    meta = _read_meta(path / META) if path.is_dir() and (path / META).is_file() else {}
+    if isinstance(min_rows, bool) or not isinstance(min_rows, int) or min_rows < 0:
+        raise ValueError(f"min_rows must be an integer >= 0, got {min_rows!r}")
     try:
-        text = csv_path.read_text()
+        f = open(csv_path, encoding="utf-8", newline=None)  # noqa: SIM115 (closed below)
     except OSError as exc:
         raise RecordingError(f"{csv_path}: cannot read ({exc.strerror})") from None
-    except UnicodeDecodeError as exc:
-        raise RecordingError(f"{csv_path}: not UTF-8 text ({exc})") from None
-    lines = text.splitlines()
-    if not lines:
-        raise RecordingError(f"{csv_path}: empty file, no header")
-    header = next(csv.reader(io.StringIO(lines[0])), [])  # a blank first line: no columns
-    header = [h.strip() for h in header]
-    missing = [c for c in BASE_COLUMNS if c not in header]
+    with f:
+        try:
+            first = f.readline()
+            if not first:
+                raise RecordingError(f"{csv_path}: empty file, no header")
+            header = [h.strip() for h in next(csv.reader(io.StringIO(first)), [])]
+            plan = _plan(csv_path, header, meta, fmt, columns, torque, loop_delay)
+            keep = list(header) if extra_columns else list(dict.fromkeys(plan.sources.values()))
+            if len(set(header)) != len(header) and extra_columns:
+                dup = next(h for h in header if header.count(h) > 1)
+                raise RecordingError(f"{csv_path}: column {dup!r} appears twice in the header")
+            data, dropped = _parse_body(f, csv_path, header, [header.index(c) for c in keep])
+        except UnicodeDecodeError as exc:
+            raise RecordingError(f"{csv_path}: not UTF-8 text ({exc})") from None
+        except OSError as exc:
+            raise RecordingError(f"{csv_path}: cannot read ({exc.strerror})") from None
+    where = csv_path.parent if path.is_dir() else csv_path
+    rec = _assemble(where, csv_path, data, keep, plan, meta, dropped)
+    if len(rec) < min_rows:
+        what = "no rows (header only)" if len(rec) == 0 else f"only {len(rec)} row(s)"
+        raise RecordingError(f"{csv_path}: {what}; need at least {min_rows}")
+    return rec
+
+
+def _read_meta(meta_path: Path) -> dict[str, Any]:
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise RecordingError(f"{meta_path}: not valid JSON ({exc})") from None
+    except OSError as exc:
+        raise RecordingError(f"{meta_path}: cannot read ({exc.strerror})") from None
+    if not isinstance(meta, dict):
+        raise RecordingError(f"{meta_path}: not a JSON object")
+    for key, types in _META_TYPES.items():
+        if key not in meta:
+            continue
+        value = meta[key]
+        if isinstance(value, bool) or not isinstance(value, types):
+            names = " or ".join(_JSON_NAMES[t] for t in types if not (t is int and float in types))
+            got = json.dumps(value)[:40]
+            raise RecordingError(f"{meta_path}: field {key!r} must be {names}, got {got}")
+    if "period_s" in meta:
+        h = float(meta["period_s"])
+        if not (math.isfinite(h) and PERIOD_MIN_S <= h < PERIOD_MAX_S):
+            raise RecordingError(
+                f"{meta_path}: field 'period_s' must be a finite number of seconds in "
+                f"[{PERIOD_MIN_S:g}, {PERIOD_MAX_S:g}), got {meta['period_s']!r}"
+            )
+    if "rows" in meta and meta["rows"] < 0:
+        raise RecordingError(f"{meta_path}: field 'rows' must be >= 0, got {meta['rows']}")
+    if "columns" in meta and not all(isinstance(c, str) for c in meta["columns"]):
+        raise RecordingError(f"{meta_path}: field 'columns' must be a list of strings")
+    return meta
+
+
+_CANONICAL = re.compile(r"^(t|q[1-9][0-9]*|tau[1-9][0-9]*)$")
+
+
+def parse_column_map(text: str | Mapping[str, str]) -> dict[str, str]:
+    """``"t=time,q1=pos1,tau1=tau_con1"`` (or a dict) → {canonical name: file column}, checked:
+    names are t, qJ or tauJ, each given once, file columns non-empty."""
+    if isinstance(text, Mapping):
+        pairs = [(str(k), str(v)) for k, v in text.items()]
+    else:
+        pairs = []
+        for item in str(text).split(","):
+            if not item.strip():
+                continue
+            name, sep, column = item.partition("=")
+            if not sep:
+                raise ValueError(f"column map: {item.strip()!r} is not NAME=COLUMN")
+            pairs.append((name.strip(), column.strip()))
+    out: dict[str, str] = {}
+    for name, column in pairs:
+        if not _CANONICAL.match(name):
+            raise ValueError(f"column map: {name!r} is not t, qJ or tauJ (J = 1, 2, ...)")
+        if not column:
+            raise ValueError(f"column map: {name}= names no column")
+        if name in out:
+            raise ValueError(f"column map: {name} given twice")
+        out[name] = column
+    if not out:
+        raise ValueError("column map: empty (expected e.g. t=time,q1=pos1,tau1=tau_con1)")
+    return out
+
+
+def _plan(
+    csv_path: Path,
+    header: list[str],
+    meta: dict[str, Any],
+    fmt: str | None,
+    columns: str | Mapping[str, str] | None,
+    torque: str | None,
+    loop_delay: int | None,
+) -> _Plan:
+    try:
+        overrides = parse_column_map(columns) if columns is not None else {}
+    except ValueError as exc:
+        raise RecordingError(f"{csv_path}: {exc}") from None
+    if loop_delay is not None and (
+        isinstance(loop_delay, bool)
+        or not isinstance(loop_delay, int | np.integer)
+        or abs(int(loop_delay)) > LOOP_DELAY_MAX
+    ):
+        raise RecordingError(
+            f"{csv_path}: loop delay must be an integer number of rows in "
+            f"[-{LOOP_DELAY_MAX}, {LOOP_DELAY_MAX}], got {loop_delay!r}"
+        )
+    have = set(header)
+    sources: dict[str, str] = {}
+    if fmt is not None:
+        form = load_format(fmt)
+        layout = form.layout_for(header)
+        if layout is None:
+            need = "; ".join(
+                f"{lay.name or 'layout'}: {', '.join(sorted(lay.required() - have))}"
+                for lay in form.layouts
+            )
+            raise RecordingError(f"{csv_path}: not a {form.name} file (missing {need})")
+        source_name = torque if torque is not None else layout.default_torque
+        if source_name not in layout.torques:
+            raise RecordingError(
+                f"{csv_path}: format {form.name} ({layout.name}) has no {source_name!r} torque "
+                f"(offers {', '.join(layout.torques)})"
+            )
+        src = layout.torques[source_name]
+        n = layout.n_joints
+        sources["t"] = layout.time
+        for j in range(n):
+            sources[f"q{j + 1}"] = layout.positions[j]
+            sources[f"tau{j + 1}"] = src.columns[j]
+        default_delay = src.loop_delay
+    else:
+        if torque not in (None, "commanded"):
+            raise RecordingError(
+                f"{csv_path}: a file read without --format holds one torque, 'commanded' "
+                f"(got {torque!r}); name the column with --columns tau1=...,tau2=..."
+            )
+        source_name = "commanded"
+        default_delay = 0
+        n = 0
+        while {f"q{n + 1}", f"tau{n + 1}"} <= have | set(overrides):
+            n += 1
+        if not overrides:
+            missing = [c for c in BASE_COLUMNS if c not in have]
+            if missing:
+                raise RecordingError(
+                    f"{csv_path}: missing column(s) {', '.join(missing)} "
+                    f"(need {','.join(BASE_COLUMNS)})"
+                )
+        for name in ("t", *(f"{p}{j + 1}" for p in ("q", "tau") for j in range(n))):
+            sources[name] = name
+    for name, column in overrides.items():
+        joint = int(name.lstrip("qta u")) if name != "t" else 0
+        if joint > n:
+            raise RecordingError(
+                f"{csv_path}: column map names {name} but the recording has {n} joint(s) "
+                f"(map q1..qN and tau1..tauN together)"
+            )
+        sources[name] = column
+    if any(name.startswith("tau") for name in overrides):
+        source_name = "columns"
+    if n < 1:
+        raise RecordingError(f"{csv_path}: no joints (map q1 and tau1 at least)")
+    missing = sorted({c for c in sources.values() if c not in have})
     if missing:
         raise RecordingError(
-            f"{csv_path}: missing column(s) {', '.join(missing)} (need {','.join(BASE_COLUMNS)})"
+            f"{csv_path}: no column(s) {', '.join(missing)} in the header "
+            f"({', '.join(header[:12])}{', ...' if len(header) > 12 else ''})"
         )
-    body = lines[1:]
+    delay = int(loop_delay) if loop_delay is not None else default_delay
+    own = fmt is None and sources["t"] == "t"
+    identity = fmt is None and delay == 0 and all(k == v for k, v in sources.items())
+    return _Plan(
+        sources=sources,
+        n_joints=n,
+        torque_source=source_name,
+        loop_delay=delay,
+        own_grid=own and "period_s" in meta,
+        identity=identity,
+    )
+
+
+def _parse_body(
+    f: io.TextIOBase, csv_path: Path, header: list[str], keep: list[int]
+) -> tuple[np.ndarray, bool]:
+    """Parse the rows after the header into a (rows, len(keep)) float array, chunk by chunk:
+    the text of at most :data:`CHUNK_LINES` lines is held at once; the array grows in place."""
+    ncols = len(header)
+    cap = 0
+    out = np.empty((0, len(keep)))
+    rows = 0
     dropped = False
-    if body and not text.endswith("\n"):
-        body = body[:-1]  # the writer always ends rows with a newline: this one was torn
-        dropped = True
-    data = np.empty((len(body), len(header)))
-    for i, line in enumerate(body):
-        cells = line.split(",")
-        if len(cells) != len(header):
+    size = os.fstat(f.fileno()).st_size if hasattr(f, "fileno") else 0
+    line_no = 2  # file line of the chunk's first row (the header is line 1)
+    while True:
+        lines = list(itertools.islice(f, CHUNK_LINES))
+        if not lines:
+            break
+        if not lines[-1].endswith("\n"):
+            lines.pop()  # the writer always ends rows with a newline: this one was torn
+            dropped = True
+        if not lines:
+            break
+        block = _parse_chunk(lines, csv_path, ncols, line_no)
+        if rows + len(block) > cap:
+            if cap == 0:  # size the array from the first chunk's bytes per row
+                per_row = max(1.0, sum(len(s) for s in lines) / len(lines))
+                cap = max(len(block), int(size / per_row * 1.02) + 16)
+            else:
+                cap = max(rows + len(block), int(cap * 1.25))
+            out.resize((cap, len(keep)), refcheck=False)
+        out[rows : rows + len(block)] = block[:, keep]
+        rows += len(block)
+        line_no += len(lines)
+        if dropped:
+            break
+    out.resize((rows, len(keep)), refcheck=False)
+    return out, dropped
+
+
+def _parse_chunk(lines: list[str], csv_path: Path, ncols: int, line_no: int) -> np.ndarray:
+    """Rows of text → floats: numpy's C parser first; where it refuses (or skips a blank line),
+    line by line, for the exact error or for what Python's float() accepts and it does not."""
+    try:
+        block = np.loadtxt(lines, delimiter=",", comments=None, dtype=float, ndmin=2)
+        if block.shape == (len(lines), ncols):
+            return block
+    except Exception:  # any refusal: the line-by-line parse below says why
+        pass
+    block = np.empty((len(lines), ncols))
+    for i, line in enumerate(lines):
+        text = line.rstrip("\n")
+        cells = text.split(",")
+        if len(cells) != ncols:
             raise RecordingError(
-                f"{csv_path}:{i + 2}: {len(cells)} fields, header has {len(header)}"
+                f"{csv_path}:{line_no + i}: {len(cells)} fields, header has {ncols}"
             )
         try:
-            data[i] = [float(c) for c in cells]
+            block[i] = [float(c) for c in cells]
         except ValueError:
-            raise RecordingError(f"{csv_path}:{i + 2}: not a number in {line[:60]!r}") from None
-    columns = {name: data[:, j] for j, name in enumerate(header)}
-    return Recording(csv_path.parent if path.is_dir() else csv_path, columns, meta, dropped)
+            raise RecordingError(
+                f"{csv_path}:{line_no + i}: not a number in {text[:60]!r}"
+            ) from None
+    return block
+
+
+def _assemble(
+    where: Path,
+    csv_path: Path,
+    data: np.ndarray,
+    keep: list[str],
+    plan: _Plan,
+    meta: dict[str, Any],
+    dropped: bool,
+) -> Recording:
+    """Check t, drop exact duplicates, find gaps, apply the loop delay: the :class:`Recording`."""
+    col = {name: j for j, name in enumerate(keep)}
+    used = [col[plan.sources[name]] for name in plan.sources]
+    findings: list[str] = []
+    if dropped:
+        findings.append("dropped a torn last line (a crash mid-write)")
+    n_rows = len(data)
+    # NaN / inf where the analysis reads: the file's line
+    for name, j in zip(plan.sources, used, strict=True):
+        bad = ~np.isfinite(data[:, j])
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise RecordingError(
+                f"{csv_path}:{i + 2}: {plan.sources[name]} = {float(data[i, j])!r} is not a "
+                "finite number"
+            )
+    t = data[:, col[plan.sources["t"]]]
+    dt = np.diff(t)
+    back = dt < 0
+    if back.any():
+        i = int(np.argmax(back)) + 1
+        raise RecordingError(
+            f"{csv_path}:{i + 2}: t steps back from {float(t[i - 1])!r} to {float(t[i])!r} s "
+            "(rows out of order? t must increase)"
+        )
+    rows = np.arange(n_rows)
+    same_t = np.flatnonzero(dt == 0) + 1
+    if len(same_t):
+        vals = data[:, used]
+        differs = np.any(vals[same_t] != vals[same_t - 1], axis=1)
+        if differs.any():
+            i = int(same_t[np.argmax(differs)])
+            raise RecordingError(
+                f"{csv_path}:{i + 2}: t = {float(t[i])!r} s again with other values (two "
+                "samples at one time)"
+            )
+        # An exact copy of the row before carries no information; kept, it would count the
+        # same sample twice (with period_s from meta.json: time stretched, θ1 off by 4×).
+        findings.append(
+            f"dropped {len(same_t)} exact duplicate row(s) (first at line {int(same_t[0]) + 2})"
+        )
+        rows = np.delete(rows, same_t)
+        t = t[rows]
+        dt = np.diff(t)
+    starts = _check_times(csv_path, t, dt, plan, meta, findings)
+    n = len(rows)
+    if "rows" in meta and meta.get("status") == "complete" and meta["rows"] != n_rows:
+        findings.append(f"meta.json says {meta['rows']} rows, the file holds {n_rows}")
+    # loop delay: the file's tau of row i acts over [t_{i+d}, t_{i+d+1}); per segment, so that a
+    # torque never crosses a gap
+    d = plan.loop_delay
+    tau_rows = rows
+    if d != 0 or len(same_t):
+        edges = [0, *starts, n]
+        keep_pos, tau_pos, new_starts = [], [], []
+        length = 0
+        lost = 0
+        for a, b in itertools.pairwise(edges):
+            if b - a <= abs(d):
+                lost += b - a
+                continue
+            if length:
+                new_starts.append(length)
+            k = np.arange(a + max(d, 0), b + min(d, 0))
+            keep_pos.append(k)
+            tau_pos.append(k - d)
+            length += len(k)
+            lost += (b - a) - len(k)
+        keep_idx = np.concatenate(keep_pos) if keep_pos else np.zeros(0, dtype=int)
+        tau_idx = np.concatenate(tau_pos) if tau_pos else np.zeros(0, dtype=int)
+        tau_rows = rows[tau_idx]
+        rows = rows[keep_idx]
+        starts = new_starts
+        if d != 0:
+            findings.append(
+                f"loop delay {d}: the file's torque of row i acts between rows {_row(d)} and "
+                f"{_row(d + 1)}; shifted to this project's hold, {lost} row(s) dropped at "
+                "segment ends"
+            )
+    if plan.identity and len(rows) == n_rows:
+        columns = {name: data[:, j] for j, name in enumerate(keep)}
+    else:
+        columns = {"t": data[rows, col[plan.sources["t"]]]}
+        for j in range(plan.n_joints):
+            columns[f"q{j + 1}"] = data[rows, col[plan.sources[f"q{j + 1}"]]]
+        for j in range(plan.n_joints):
+            columns[f"tau{j + 1}"] = data[tau_rows, col[plan.sources[f"tau{j + 1}"]]]
+        for name in keep:
+            if name not in columns:
+                columns[name] = data[rows, col[name]]
+    return Recording(
+        where,
+        columns,
+        meta,
+        dropped,
+        n_joints=plan.n_joints,
+        torque_source=plan.torque_source,
+        loop_delay=d,
+        time_source="stamps",
+        time_column=plan.sources["t"],
+        findings_on_read=findings,
+        segment_starts=tuple(int(s) for s in starts),
+    )
+
+
+def _check_times(
+    csv_path: Path,
+    t: np.ndarray,
+    dt: np.ndarray,
+    plan: _Plan,
+    meta: dict[str, Any],
+    findings: list[str],
+) -> list[int]:
+    """t against meta.json's period_s, gaps and irregular intervals; returns the rows where a
+    segment begins after a gap. ``t`` is strictly increasing here."""
+    if len(t) < 2:
+        return []
+    if plan.own_grid:
+        # this bench's writer: t = k·h exactly (repr round-trips), from 0
+        h = float(meta["period_s"])
+        k = np.rint(t / h)
+        off = np.abs(t - k * h) > 1e-6 * h + 4 * np.spacing(np.abs(t))
+        if off.any():
+            i = int(np.argmax(off))
+            raise RecordingError(
+                f"{csv_path}:{i + 2}: t = {float(t[i])!r} s is not a multiple of meta.json's "
+                f"period_s = {h!r} s (t in other units, or period_s wrong?)"
+            )
+        steps = np.diff(k)
+        if np.median(steps) != 1:
+            raise RecordingError(
+                f"{csv_path}: t advances {np.median(steps):g} × meta.json's period_s = {h!r} s "
+                "per row; this bench writes one period per row (t in ms, or period_s wrong?)"
+            )
+        if k[0] != 0:
+            raise RecordingError(
+                f"{csv_path}:2: t starts at {float(t[0])!r} s; this bench writes t = k·period_s "
+                "from 0 (t shifted, or the first rows cut out?)"
+            )
+        gaps = np.flatnonzero(steps > 1)
+        _note_gaps(findings, t, gaps, (steps[gaps] - 1).astype(int))
+        return [int(g) + 1 for g in gaps]
+    med = float(np.median(dt))
+    if med >= PERIOD_MAX_S:
+        raise RecordingError(
+            f"{csv_path}: the median interval of {plan.sources['t']} is {med:g} s, not a "
+            f"dynamics recording (t in ms?)"
+        )
+    if "period_s" in meta:
+        h = float(meta["period_s"])
+        if not 0.5 <= med / h <= 2.0:
+            raise RecordingError(
+                f"{csv_path}: median interval of {plan.sources['t']} {med:g} s is inconsistent "
+                f"with meta.json's period_s = {h!r} s"
+            )
+    is_gap = dt > GAP_FACTOR * med
+    gaps = np.flatnonzero(is_gap)
+    _note_gaps(findings, t, gaps, np.rint(dt[gaps] / med).astype(int) - 1)
+    inner = dt[~is_gap]
+    if len(inner) and (
+        inner.max() > IRREGULAR_FACTOR * med or inner.min() < med / IRREGULAR_FACTOR
+    ):
+        late = int(np.sum(inner > IRREGULAR_FACTOR * med))
+        findings.append(
+            f"irregular sampling: intervals {inner.min() * 1e3:.3g} to {inner.max() * 1e3:.3g} "
+            f"ms, median {med * 1e3:.3g} ms, {late} over {IRREGULAR_FACTOR:g}× the median; "
+            "the real time stamps are kept"
+        )
+    return [int(g) + 1 for g in gaps]
+
+
+def _row(offset: int) -> str:
+    return f"i{offset:+d}" if offset else "i"
+
+
+def _note_gaps(findings: list[str], t: np.ndarray, gaps: np.ndarray, missing: np.ndarray) -> None:
+    if not len(gaps):
+        return
+    shown = ", ".join(
+        f"{t[g]:.6g} to {t[g + 1]:.6g} s (~{m} rows)"
+        for g, m in zip(gaps[:3], missing[:3], strict=True)
+    )
+    more = f" and {len(gaps) - 3} more" if len(gaps) > 3 else ""
+    findings.append(
+        f"{len(gaps)} gap(s) in t: {shown}{more}; {len(gaps) + 1} segments, not to be spliced"
+    )
 
 
 def plot_positions(

@@ -16,6 +16,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from hil.cli_options import add_out_options, prepare_out_dir
+
 # Subcommands that live in their own modules: name -> (module, help). Each module provides
 # ``add_arguments(parser)`` and ``main(args) -> int`` (exit status).
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -36,6 +38,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--experiment", default="reyes-kelly", help="experiment profile or file")
     r.add_argument("--duration", type=float, default=None, help="seconds (default: experiment's)")
     r.add_argument("--out", required=True, help="run directory to write")
+    add_out_options(r)
     r.add_argument(
         "--mode",
         choices=("lockstep", "realtime"),
@@ -53,6 +56,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
     d = sub.add_parser("demo", help="the main job end to end on the default virtual robot")
     d.add_argument("--out", default="runs/demo", help="directory for the demo's runs")
+    add_out_options(d)
     d.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
     for name, (module, help_text) in COMMANDS.items():
         importlib.import_module(module).add_arguments(sub.add_parser(name, help=help_text))
@@ -70,7 +74,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from drivers.recording import read_signals
     from hil.run import run_experiment
 
-    out = Path(args.out)
+    out = prepare_out_dir(args.out, args.overwrite)
     run_dir, sim_dir = out / "hil-run-virtual-slcan", out / "simulate-reyes-kelly"
     print(
         f"hil demo: 10 s of the Reyes & Kelly (1997) excitation, eqs. (31)-(32), over the "
@@ -216,6 +220,7 @@ def _demo_identify(out: Path, fit_dir: Path) -> tuple[dict, str]:
 def cmd_run(args: argparse.Namespace) -> int:
     from hil.run import run_experiment
 
+    prepare_out_dir(args.out, args.overwrite)
     summary = run_experiment(
         args.bench,
         args.experiment,

@@ -38,7 +38,7 @@ from hil.controllers import (
     Reference,
     make_controller,
 )
-from hil.model import inverse_dynamics
+from hil.model import inverse_dynamics, physical_consistency
 from hil.params import ParamSet, load_params, robot_params
 from hil.run import UsageError, bench_meta, check_bench, record_over_bench
 from hil.trajectory import PointToPoint, khosla_kanade_moves
@@ -103,6 +103,7 @@ def parameter_sets(
             item = LabelledParams(Path(spec.source).stem or "params", spec)
         else:
             item = parse_params_spec(spec)
+        _check_physical(item)
         label, n = item.label, 2
         while any(p.label == label for p in out):
             label, n = f"{item.label}-{n}", n + 1
@@ -110,6 +111,20 @@ def parameter_sets(
     if not out:
         raise UsageError("no parameter set to run with")
     return out
+
+
+def _check_physical(item: LabelledParams) -> None:
+    """Refuse θ̃ whose inertia matrix M(q) is not positive definite for every q (θ all zero, a
+    failed fit): the CT, FED and RFED laws would command nonsense, and PD's parameters are the
+    same file's. Negative friction coefficients only weaken the compensation and are let
+    through."""
+    inertia = [
+        v for v in physical_consistency(item.params.theta)["violations"] if v.startswith("M(q)")
+    ]
+    if inertia:
+        raise UsageError(
+            f"--params {item.label} ({item.params.source}): not a physical arm: {inertia[0]}"
+        )
 
 
 # ---- the per-period command -------------------------------------------------------------------

@@ -15,6 +15,7 @@ import json
 import sys
 from typing import Any
 
+from hil.cli_options import add_out_options, prepare_out_dir
 from hil.controllers import SCHEME_TITLES, SCHEMES
 
 
@@ -54,6 +55,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--kp", type=float, nargs=2, metavar=("KP1", "KP2"), help="position gains")
     p.add_argument("--kv", type=float, nargs=2, metavar=("KV1", "KV2"), help="velocity gains")
     p.add_argument("--out", default=None, help="directory (default: runs/control-SCHEME|compare)")
+    add_out_options(p)
     p.add_argument(
         "--mode", choices=("lockstep", "realtime"), default=None, help="default: the bench's"
     )
@@ -89,6 +91,7 @@ def main(args: argparse.Namespace) -> int:
         if len(args.params) > 1:
             raise UsageError("one --params file per run; several need --compare")
         out = args.out or f"runs/control-{args.scheme}"
+        prepare_out_dir(out, args.overwrite)
         print(
             f"hil control: {SCHEME_TITLES[args.scheme]} over {args.bench} -> {out}",
             file=sys.stderr,
@@ -105,6 +108,7 @@ def main(args: argparse.Namespace) -> int:
 
     schemes = [s.strip() for s in args.schemes.split(",") if s.strip()]
     out = args.out or "runs/control-compare"
+    prepare_out_dir(out, args.overwrite)
     print(
         f"hil control: comparing {', '.join(s.upper() for s in schemes)} over {args.bench} -> "
         f"{out}",

@@ -13,7 +13,13 @@ import json
 import sys
 from pathlib import Path
 
-from drivers.recording import RecordingError, read_signals, write_json_atomic
+from drivers.recording import RecordingError, write_json_atomic
+from hil.cli_options import (
+    add_out_options,
+    add_recording_options,
+    prepare_out_dir,
+    read_recording,
+)
 from hil.diagnose_report import diagnose, percent
 from hil.params import ParamsError, load_params, robot_params
 
@@ -30,6 +36,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "reference for telling which joint a torque gain error is on",
     )
     p.add_argument("--out", default=None, help="write diagnosis.json and plots here")
+    add_out_options(p)
+    add_recording_options(p)
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
 
@@ -40,7 +48,11 @@ def _progress(message: str) -> None:
 
 def main(args: argparse.Namespace) -> int:
     try:
-        recs = [read_signals(path) for path in args.recordings]
+        if args.out:
+            prepare_out_dir(args.out, args.overwrite, inputs=args.recordings)
+        recs = [
+            read_recording(args, path, command="diagnose", min_rows=2) for path in args.recordings
+        ]
         reference = robot_params(args.robot).theta
         nominal = None
         if args.params:

@@ -150,3 +150,143 @@ def weighted_least_squares(
         smooth = np.convolve(r2[:, j], kernel, mode="same")
         var[:, j] = np.maximum(smooth, 1e-6 * level + 1e-300)
     return least_squares(Psi, y, base / var)
+
+
+# ---- normal equations in blocks: bounded memory, bounded estimates, uncertainty -----------------
+
+
+class BlockNormalEquations:
+    """Σ ΨᵀΨ, Σ Ψᵀy, Σ yᵀy per output channel and per time block, accumulated chunk by chunk.
+
+    Memory is O(blocks · m · p²) whatever the number of rows, and everything the estimates and
+    their uncertainty need is here: a (weighted) least-squares solve sums the blocks; a blocked
+    bootstrap resamples them (rows within a block stay together, so residual correlation shorter
+    than a block is kept).
+    """
+
+    def __init__(self, n_params: int, n_outputs: int, block_s: float) -> None:
+        if not block_s > 0:
+            raise ValueError(f"block length must be > 0 s, got {block_s}")
+        self.p, self.m, self.block_s = n_params, n_outputs, float(block_s)
+        self._H: dict[int, np.ndarray] = {}
+        self._g: dict[int, np.ndarray] = {}
+        self._yy: dict[int, np.ndarray] = {}
+        self._n: dict[int, np.ndarray] = {}
+        self.t0: float | None = None
+
+    def add(self, t: np.ndarray, y: np.ndarray, Psi: np.ndarray, weights: np.ndarray) -> None:
+        """Add rows (t (K,), y (K, m), Psi (K, m, p), weights (K, m) in {0, 1} or ≥ 0)."""
+        if len(t) == 0:
+            return
+        if self.t0 is None:
+            self.t0 = float(t[0])
+        block = np.floor((np.asarray(t) - self.t0) / self.block_s).astype(int)
+        sw = np.sqrt(np.asarray(weights, dtype=float))
+        A = Psi * sw[..., None]
+        b = y * sw
+        for blk in np.unique(block):
+            sel = block == blk
+            Ab, bb = A[sel], b[sel]
+            H = np.einsum("kmp,kmq->mpq", Ab, Ab)
+            g = np.einsum("kmp,km->mp", Ab, bb)
+            yy = np.einsum("km,km->m", bb, bb)
+            n = np.sum(sw[sel] > 0, axis=0)
+            if blk in self._H:
+                self._H[blk] += H
+                self._g[blk] += g
+                self._yy[blk] += yy
+                self._n[blk] += n
+            else:
+                self._H[blk], self._g[blk], self._yy[blk], self._n[blk] = H, g, yy, n
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(H (B, m, p, p), g (B, m, p), yy (B, m), n (B, m)) over the non-empty blocks."""
+        keys = sorted(k for k in self._H if self._n[k].sum() > 0)
+        if not keys:
+            raise ValueError("no usable rows (every row excluded)")
+        return (
+            np.stack([self._H[k] for k in keys]),
+            np.stack([self._g[k] for k in keys]),
+            np.stack([self._yy[k] for k in keys]),
+            np.stack([self._n[k] for k in keys]),
+        )
+
+
+def solve_normal_equations(H: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """argmin θᵀHθ − 2gᵀθ with column scaling (units of θ differ by orders of magnitude)."""
+    d = np.sqrt(np.diag(H))
+    d[d == 0] = 1.0
+    Hs = H / np.outer(d, d)
+    sol, *_ = np.linalg.lstsq(Hs, g / d, rcond=None)
+    return sol / d
+
+
+def channel_weights(H, g, yy, n, theta) -> np.ndarray:
+    """1/σ_j² per output channel from the residuals of θ (feasible weighted least squares, so a
+    joint with ten times the torque does not drown the other's equation)."""
+    rss = np.einsum("bm->m", yy) - 2 * np.einsum("bmp,p->m", g, theta)
+    rss = rss + np.einsum("p,bmpq,q->m", theta, H, theta)
+    var = np.maximum(rss, 1e-300) / np.maximum(n.sum(axis=0), 1)
+    return 1.0 / var
+
+
+def combine(H, g, yy, w) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Weighted sums over channels, per block: (H (B, p, p), g (B, p), yy (B,))."""
+    return (
+        np.einsum("m,bmpq->bpq", w, H),
+        np.einsum("m,bmp->bp", w, g),
+        np.einsum("m,bm->b", w, yy),
+    )
+
+
+def bounded_quadratic_fit(
+    H: np.ndarray,
+    g: np.ndarray,
+    lower: np.ndarray,
+    constraints: list | None = None,
+    x0: np.ndarray | None = None,
+) -> tuple[np.ndarray, str]:
+    """argmin θᵀHθ − 2gᵀθ subject to θ ≥ ``lower`` (−inf for free) and optional nonlinear
+    inequality constraints c(θ) ≥ 0 (scipy form). Bounds alone: a bounded linear least-squares
+    problem on the Cholesky factor of H (scipy ``lsq_linear``); with constraints: SLSQP from
+    the bounded solution. Returns (θ, method)."""
+    from scipy.optimize import lsq_linear, minimize
+
+    p = len(g)
+    d = np.sqrt(np.diag(H))
+    d[d == 0] = 1.0
+    Hs = H / np.outer(d, d) + 1e-12 * np.eye(p)
+    gs = g / d
+    L = np.linalg.cholesky(Hs)
+    rhs = np.linalg.solve(L, gs)  # ‖Lᵀx − L⁻¹g‖² = xᵀHx − 2gᵀx + const
+    lo = np.where(np.isfinite(lower), lower * d, -np.inf)
+    res = lsq_linear(L.T, rhs, bounds=(lo, np.full(p, np.inf)), method="bvls")
+    xs = res.x
+    if not constraints:
+        return xs / d, "bounded least squares (lsq_linear, BVLS)"
+    scaled = [{"type": "ineq", "fun": (lambda x, f=c["fun"]: f(x / d))} for c in constraints]
+    if all(c["fun"](xs) >= 0 for c in scaled):
+        return xs / d, "bounded least squares (lsq_linear, BVLS)"
+    out = minimize(
+        lambda x: float(x @ Hs @ x - 2 * gs @ x),
+        xs if x0 is None else x0 * d,
+        jac=lambda x: 2 * (Hs @ x) - 2 * gs,
+        bounds=[(lo_i, None) for lo_i in lo],
+        constraints=scaled,
+        method="SLSQP",
+        options={"maxiter": 500, "ftol": 1e-14},
+    )
+    return out.x / d, f"constrained least squares (SLSQP: {out.message})"
+
+
+def blocked_bootstrap(
+    H: np.ndarray, g: np.ndarray, *, draws: int = 200, seed: int = 0
+) -> np.ndarray:
+    """θ of ``draws`` resamples of the blocks (with replacement); shape (draws, p)."""
+    rng = np.random.default_rng(seed)
+    B = len(H)
+    out = np.empty((draws, H.shape[-1]))
+    for i in range(draws):
+        pick = np.bincount(rng.integers(0, B, B), minlength=B).astype(float)
+        out[i] = solve_normal_equations(np.einsum("b,bpq->pq", pick, H), pick @ g)
+    return out

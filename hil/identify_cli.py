@@ -19,6 +19,12 @@ import numpy as np
 
 from drivers.arm import Sample
 from drivers.recording import Recording, read_signals, write_json_atomic
+from hil.cli_options import (
+    add_out_options,
+    add_recording_options,
+    prepare_out_dir,
+    read_recording,
+)
 from hil.identify import (
     ESTIMATORS,
     PAPER_TABLE_II,
@@ -28,7 +34,7 @@ from hil.identify import (
     table_ii_rows,
     validate,
 )
-from hil.model import THETA_NAMES
+from hil.model import TERMS, THETA_NAMES, ArmModel
 from hil.online import OnlineIdentifier
 from hil.params import robot_params, save_params
 from hil.regressors import DISCRETIZATIONS, SCHEMES
@@ -72,8 +78,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--lambda",
         dest="lam",
         type=float,
-        default=50.0,
-        help="filter bandwidth λ in rad/s (default 50; " + PAPER_LAMBDA_NOTE + ")",
+        default=None,
+        help="filter bandwidth λ in rad/s (default 50 for the 9-parameter schemes ("
+        + PAPER_LAMBDA_NOTE
+        + "); for a model with terms or a foreign recording: twice the excitation bandwidth "
+        "read from the data)",
+    )
+    p.add_argument(
+        "--terms",
+        default=None,
+        help="model terms to identify, comma-separated from "
+        + ", ".join(TERMS)
+        + " ('' for none); default: the --robot profile's. With terms (or --format), "
+        "identification takes the model-object path: exact rows on the real time stamps, "
+        "bounded estimates, uncertainty (docs/real-data.md)",
+    )
+    p.add_argument(
+        "--window",
+        type=float,
+        default=None,
+        help="model-object path: seconds per restarted open-loop simulation window "
+        "(default 0.1 s: long enough to integrate the dynamics, short enough that a "
+        "closed-loop recording's model error cannot grow unchecked)",
     )
     p.add_argument("--estimator", choices=ESTIMATORS, default="rls", help="reported estimate")
     p.add_argument("--robot", default=None, help="robot profile for the reference column")
@@ -83,6 +109,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="scheme selected in params.json (hil control/diagnose read that one by default)",
     )
     p.add_argument("--out", default="runs/identify", help="output directory")
+    add_out_options(p)
+    add_recording_options(p)
     p.add_argument("--no-plot", action="store_true", help="skip the plots")
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
 
@@ -154,6 +182,7 @@ def _scheme_json(res: SchemeResult, reference: np.ndarray, validation: dict) -> 
 
 
 def main(args: argparse.Namespace) -> int:
+    prepare_out_dir(args.out, args.overwrite, inputs=(args.from_recording, args.validate))
     report, text = run_identify(args)
     print(json.dumps(report) if args.json else text)
     return 0
@@ -170,16 +199,24 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         )
     if args.params_scheme not in schemes:
         raise ValueError(f"--params-scheme {args.params_scheme} is not among --schemes")
-    if not args.lam > 0:
+    if args.lam is not None and not args.lam > 0:
         raise ValueError(f"--lambda must be > 0 rad/s, got {args.lam}")
+    if args.from_recording and _model_path(args):
+        return run_identify_model(args)
+    if args.lam is None:
+        args.lam = 50.0
     discretizations = ["exact", "paper"] if args.discretization == "both" else [args.discretization]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
     online = None
     if args.from_recording:
-        fit = read_signals(args.from_recording)
-        held_out = read_signals(args.validate) if args.validate else None
+        fit = read_recording(args, args.from_recording, command="identify", min_rows=8)
+        held_out = (
+            read_recording(args, args.validate, command="identify", min_rows=2)
+            if args.validate
+            else None
+        )
         robot = args.robot or fit.meta.get("robot") or "cicese"
     else:
         bench = args.bench or "virtual-slcan"
@@ -192,7 +229,7 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         )  # fmt: skip
         fit = _record(args, bench, args.experiment, out / "fit", online)
         if args.validate:
-            held_out = read_signals(args.validate)
+            held_out = read_recording(args, args.validate, command="identify", min_rows=2)
         elif args.validation_experiment != "none":
             held_out = _record(args, bench, args.validation_experiment, out / "validation", None)
         else:
@@ -358,4 +395,189 @@ def _validation_text(
             lines.append(
                 row(f"{s} ({disc})", report["discretizations"][disc]["schemes"][s]["validation"])
             )
+    return "\n".join(lines)
+
+
+# ---- the model-object path: real recordings, any model terms ---------------------------------
+
+SIMULATION_WINDOW_S = 0.1
+
+
+def _robot_terms(args: argparse.Namespace) -> tuple[str, tuple[str, ...]]:
+    from profiles.robot import load_robot
+
+    robot = args.robot or "cicese"
+    terms = load_robot(robot).terms
+    if args.terms is not None:
+        terms = tuple(t.strip() for t in args.terms.split(",") if t.strip())
+        ArmModel(terms)  # raises on an unknown or repeated term
+    return robot, terms
+
+
+def _model_path(args: argparse.Namespace) -> bool:
+    """Identify with a model object when the arm has terms, --terms is given, or the recording
+    is foreign (--format): the 9-parameter Table II path is the CICESE reproduction."""
+    if args.terms is not None or getattr(args, "recording_format", None):
+        return True
+    return bool(_robot_terms(args)[1])
+
+
+def run_identify_model(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
+    """`hil identify --from A [--validate B] --robot R [--terms ...]`: θ of the model object
+    from A, side by side with the robot profile's θ, both validated on B (same rows, same
+    filter): held-out torque prediction and restarted short-window simulation."""
+    from hil.identify import identify_model, torque_prediction_error
+    from hil.openloop import simulate_windows
+    from profiles.robot import load_robot
+
+    robot, terms = _robot_terms(args)
+    profile = load_robot(robot)
+    model = ArmModel(terms)
+    out = Path(args.out)
+    fit = read_recording(args, args.from_recording, command="identify", min_rows=8)
+    held_out = (
+        read_recording(args, args.validate, command="identify", min_rows=8)
+        if args.validate
+        else None
+    )
+    _say(f"identifying {robot} model (terms: {', '.join(terms) or 'none'}) from {fit.path}")
+    res = identify_model(fit.t, fit.q, fit.tau, model, lam=args.lam)
+    # the profile's θ in the identified model's columns (terms it lacks are zero there; terms
+    # the model lacks are dropped, which the report says)
+    prof_model = profile.model()
+    prof_theta = profile.theta()
+    reference = np.zeros(model.n_params)
+    reference[:9] = prof_theta[:9]
+    dropped = [t for t in prof_model.terms if t not in terms]
+    for term in terms:
+        if term in prof_model.terms:
+            reference[model.term_columns(term)] = prof_theta[prof_model.term_columns(term)]
+    window = args.window or SIMULATION_WINDOW_S
+    candidates = {"identified": res.theta, f"profile {robot}": reference}
+    validation: dict[str, Any] = {}
+    for name, rec in (("fit", fit), ("held_out", held_out)):
+        if rec is None:
+            continue
+        validation[name] = {
+            label: {
+                "torque_nrmse": torque_prediction_error(th, model, rec.t, rec.q, rec.tau, res.lam),
+                "simulation": simulate_windows(model, th, rec.t, rec.q, rec.tau, window_s=window)
+                if model.physical_consistency(th)["consistent"]
+                else None,
+            }
+            for label, th in candidates.items()
+        }
+    report: dict[str, Any] = {
+        "recording": str(fit.path),
+        "validation_recording": str(held_out.path) if held_out is not None else None,
+        "robot": robot,
+        "profile_reference": profile.reference,
+        "profile_terms": list(prof_model.terms),
+        "profile_terms_not_in_model": dropped,
+        "torque_source": getattr(fit, "torque_source", None),
+        "loop_delay": getattr(fit, "loop_delay", None),
+        "identification": res.to_json(),
+        "profile_theta": reference.tolist(),
+        "validation": validation,
+        "simulation_window_s": window,
+    }
+    if profile.rotor is not None and "rotor_inertia" in terms:
+        col = model.term_columns("rotor_inertia").start
+        se = res.se_block[col]
+        report["rotor_inertia"] = {
+            "identified_kgm2": profile.rotor.inertia_from_theta(res.theta[col]),
+            "se_kgm2": profile.rotor.inertia_from_theta(se),
+            "identified": bool(res.identified[col]),
+            "profile_kgm2": profile.rotor.inertia_kgm2,
+            "datasheet_kgm2": profile.rotor.datasheet_inertia_kgm2,
+            "gear_ratio": profile.rotor.gear_ratio,
+        }
+    out.mkdir(parents=True, exist_ok=True)
+    save_params(
+        out / "params.json",
+        {
+            "filtered_dynamic": {
+                "theta": res.theta,
+                "discretization": "exact",
+                "lambda_rad_s": res.lam,
+                "estimator": res.method,
+                "physical_consistency": res.consistency,
+                "identified": res.identified.tolist(),
+                "se_blocked_bootstrap": res.se_block.tolist(),
+            }
+        },
+        selected="filtered_dynamic",
+        robot=robot,
+        recording=str(fit.path),
+        discretization="exact",
+        model_terms=list(terms),
+    )
+    report["params_files"] = [str(out / "params.json")]
+    write_json_atomic(out / "identify.json", report)
+    return report, format_model_report(report, model)
+
+
+def format_model_report(report: dict[str, Any], model: ArmModel) -> str:
+    """The side-by-side text of :func:`run_identify_model`."""
+    ident = report["identification"]
+    robot = report["robot"]
+    lines = [
+        f"Identification of the {robot} model (terms: {', '.join(model.terms) or 'none'}) from "
+        f"{report['recording']}",
+        f"  rows: filtered_dynamic, exact on the real time stamps, λ = {ident['lambda_rad_s']:.3g}"
+        f" rad/s; {ident['rows']} rows ({ident['rows_excluded_stick']} excluded: stuck joint); "
+        f"uncertainty: blocked bootstrap over {ident['blocks']} blocks of "
+        f"{ident['block_s']:.3g} s",
+        f"  estimate: {ident['method']}",
+        "",
+        f"{'parameter':14s}{'unit':>7s}{'identified':>16s}{'± SE (block)':>14s}"
+        f"{'SE (white)':>12s}{'profile':>12s}",
+    ]
+    for row, ref in zip(ident["parameters"], report["profile_theta"], strict=True):
+        value = f"{row['estimate']:.4g}" if row["identified"] else "not determined"
+        lines.append(
+            f"{row['parameter']:14s}{row['unit']:>7s}{value:>16s}"
+            f"{row['se_blocked_bootstrap']:>14.2g}{row['se_white']:>12.2g}{ref:>12.4g}"
+            + ("" if row["identified"] else f"   (estimate {row['estimate']:.3g})")
+        )
+    phys = ident["least_squares_physical"]
+    lines.append(
+        "  plain least squares: "
+        + ("physical" if phys["consistent"] else "NOT physical: " + "; ".join(phys["violations"]))
+    )
+    if "rotor_inertia" in report:
+        r = report["rotor_inertia"]
+        lines.append(
+            f"  rotor inertia Ir = θ_rotor / (gr² ∓ gr) = {r['identified_kgm2']:.3g} ± "
+            f"{r['se_kgm2']:.2g} kg m² (profile {r['profile_kgm2']:.3g}, datasheet "
+            + (f"{r['datasheet_kgm2']:.3g}" if r["datasheet_kgm2"] else "n/a")
+            + f"; gear ratio {r['gear_ratio']:g})"
+        )
+    if report["profile_terms_not_in_model"]:
+        lines.append(
+            "  the profile's terms not in this model (left out of its column): "
+            + ", ".join(report["profile_terms_not_in_model"])
+        )
+    for note in ident["notes"]:
+        lines.append(f"  note: {note}")
+    lines += [
+        "",
+        "Validation (NRMSE per joint, %): torque = filtered torque prediction (same rows, same "
+        f"filter for both); simulation = open loop restarted every "
+        f"{report['simulation_window_s']:g} s from the recorded state",
+        f"{'':26s}{'torque j1':>10s}{'j2':>8s}{'simulation j1':>15s}{'j2':>8s}",
+    ]
+    for where, vals in report["validation"].items():
+        for label, v in vals.items():
+            sim = v["simulation"]
+            simtxt = (
+                f"{100 * sim['position_nrmse'][0]:>15.2f}{100 * sim['position_nrmse'][1]:>8.2f}"
+                if sim
+                else f"{'not physical':>23s}"
+            )
+            lines.append(
+                f"{where + ': ' + label:26s}{100 * v['torque_nrmse'][0]:>10.2f}"
+                f"{100 * v['torque_nrmse'][1]:>8.2f}{simtxt}"
+            )
+    lines.append(f"\nparameters: {report['params_files'][0]}")
     return "\n".join(lines)

@@ -34,6 +34,7 @@ import numpy as np
 from drivers.arm import Sample
 from drivers.recording import META, read_signals, write_json_atomic
 from hil.bench_variant import write_bench_variant
+from hil.cli_options import add_out_options, prepare_out_dir
 from hil.run import UsageError, bench_meta, check_bench, record_over_bench
 from hil.scheduler import POLICIES
 from hil.timing_stats import cycle_timing, jitter_summary
@@ -56,6 +57,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help=f"seconds of loop (default {DEFAULT_DURATION_S:g})",
     )
     p.add_argument("--out", default=None, help="run directory (default runs/jitter-BENCH-RATEhz)")
+    add_out_options(p)
     p.add_argument(
         "--experiment",
         default=None,
@@ -95,6 +97,7 @@ def main(args: argparse.Namespace) -> int:
         return int(importlib.import_module(SWEEP_MODULE).run_sweep(args))
     rate = args.rate
     out = args.out or _default_out(args.bench, rate)
+    prepare_out_dir(out, args.overwrite)
     overrides: dict[str, Any] = {}
     if args.pace_bus:
         overrides["pace_bus"] = True

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from drivers.recording import write_json_atomic
-from hil.model import N_PARAMS, THETA_NAMES, THETA_UNITS
+from hil.model import TERMS, ArmModel
 
 KIND = "ddbench parameters"
 
@@ -40,6 +40,7 @@ class ParamSet:
     source: str
     scheme: str | None = None
     document: dict[str, Any] = field(default_factory=dict)
+    terms: tuple[str, ...] = ()  # hil.model.ArmModel terms θ is written in (θ1..θ9 first)
 
 
 def robot_params(robot: str = "cicese") -> ParamSet:
@@ -47,20 +48,28 @@ def robot_params(robot: str = "cicese") -> ParamSet:
     from profiles.robot import load_robot
 
     profile = load_robot(robot)
-    return ParamSet(profile.theta(), source=profile.source, scheme="profile")
+    return ParamSet(profile.theta(), source=profile.source, scheme="profile", terms=profile.terms)
 
 
-def _theta_of(entry: Any, where: str) -> np.ndarray:
+def _terms_of(doc: dict[str, Any], where: str) -> tuple[str, ...]:
+    terms = doc.get("model_terms", [])
+    if not isinstance(terms, list) or any(t not in TERMS for t in terms):
+        raise ParamsError(f"{where}: 'model_terms' must be a list of {', '.join(TERMS)}")
+    return tuple(terms)
+
+
+def _theta_of(entry: Any, where: str, terms: tuple[str, ...] = ()) -> np.ndarray:
     if not isinstance(entry, dict) or "theta" not in entry:
         raise ParamsError(f"{where}: no 'theta' list")
     theta = entry["theta"]
+    names = ArmModel(terms).names
     if isinstance(theta, dict):
-        missing = [n for n in THETA_NAMES if n not in theta]
+        missing = [n for n in names if n not in theta]
         if missing:
             raise ParamsError(f"{where}: 'theta' lacks {', '.join(missing)}")
-        theta = [theta[n] for n in THETA_NAMES]
-    if not isinstance(theta, list) or len(theta) != N_PARAMS:
-        raise ParamsError(f"{where}: 'theta' must be a list of {N_PARAMS} numbers")
+        theta = [theta[n] for n in names]
+    if not isinstance(theta, list) or len(theta) != len(names):
+        raise ParamsError(f"{where}: 'theta' must be a list of {len(names)} numbers")
     if not all(isinstance(x, int | float) and not isinstance(x, bool) for x in theta):
         raise ParamsError(f"{where}: 'theta' must hold numbers only")
     if not all(math.isfinite(x) for x in theta):
@@ -79,17 +88,19 @@ def load_params(path: str | Path, scheme: str | None = None) -> ParamSet:
         raise ParamsError(f"{path}: not valid JSON ({exc})") from None
     if not isinstance(doc, dict):
         raise ParamsError(f"{path}: not a JSON object")
+    terms = _terms_of(doc, str(path))
     schemes = doc.get("schemes")
     if schemes is None:
         if scheme is not None:
             raise ParamsError(f"{path}: has no schemes, cannot select {scheme!r}")
-        return ParamSet(_theta_of(doc, str(path)), str(path), doc.get("scheme"), doc)
+        return ParamSet(_theta_of(doc, str(path), terms), str(path), doc.get("scheme"), doc, terms)
     if not isinstance(schemes, dict) or not schemes:
         raise ParamsError(f"{path}: 'schemes' must be a non-empty object")
     name = scheme or doc.get("selected") or next(iter(schemes))
     if name not in schemes:
         raise ParamsError(f"{path}: no scheme {name!r}; it has {', '.join(sorted(schemes))}")
-    return ParamSet(_theta_of(schemes[name], f"{path}: scheme {name}"), str(path), name, doc)
+    theta = _theta_of(schemes[name], f"{path}: scheme {name}", terms)
+    return ParamSet(theta, str(path), name, doc, terms)
 
 
 def save_params(
@@ -100,15 +111,16 @@ def save_params(
     robot: str,
     **meta: Any,
 ) -> Path:
-    """Write a parameter file; each ``schemes[name]`` holds at least ``"theta"`` (9 numbers)."""
+    """Write a parameter file; each ``schemes[name]`` holds at least ``"theta"`` (9 numbers, or
+    those of ``ArmModel(meta["model_terms"])``)."""
     if selected not in schemes:
         raise ValueError(f"selected scheme {selected!r} not among {sorted(schemes)}")
     doc = {
         "kind": KIND,
         "robot": robot,
         "selected": selected,
-        "names": list(THETA_NAMES),
-        "units": list(THETA_UNITS),
+        "names": list(ArmModel(tuple(meta.get("model_terms", ()))).names),
+        "units": list(ArmModel(tuple(meta.get("model_terms", ()))).units),
         **meta,
         "schemes": {
             name: {**entry, "theta": [float(x) for x in np.asarray(entry["theta"])]}

@@ -135,6 +135,40 @@ def central_difference_unequal(q: np.ndarray, t: np.ndarray) -> np.ndarray:
     return v
 
 
+def local_polynomial_velocity(q: np.ndarray, t: np.ndarray, half_window: int) -> np.ndarray:
+    """v_k = slope at t_k of the least-squares quadratic through the samples k−m..k+m (real
+    times; m = ``half_window`` ≥ 1; m = 1 is the three-point derivative). Quantized positions
+    make the three-point derivative noisy, and that noise in the regressors biases least
+    squares towards zero (errors in variables, docs/real-data.md); a window of 2m + 1 samples
+    cuts the velocity noise by about m^1.5. The first and last m samples are NaN."""
+    q = np.asarray(q, dtype=float)
+    t = np.asarray(t, dtype=float)
+    n, m = len(q), int(half_window)
+    v = np.full_like(q, np.nan)
+    if m < 1 or n < 2 * m + 1:
+        return v
+    W = np.lib.stride_tricks.sliding_window_view(np.arange(n), 2 * m + 1)
+    centre = np.arange(m, n - m)
+    d = t[W] - t[centre][:, None]  # (K, 2m+1)
+    S = np.stack([np.sum(d**p, axis=1) for p in range(5)], -1)  # Σ d^p, p = 0..4
+    G = np.stack([S[:, [0, 1, 2]], S[:, [1, 2, 3]], S[:, [2, 3, 4]]], axis=1)  # of [1, d, d²]
+    for j in range(q.shape[1]):
+        x = q[W, j] - q[centre, j][:, None]  # relative: keeps the solve well scaled
+        rhs = np.stack([np.sum(x * d**p, axis=1) for p in range(3)], -1)
+        v[centre, j] = np.linalg.solve(G, rhs[..., None])[:, 1, 0]
+    return v
+
+
+def velocity_half_window(lam: float, t: np.ndarray) -> int:
+    """Samples each side for :func:`local_polynomial_velocity`: a half-width of 1/(4λ) s (at
+    least one sample). The slope of a quadratic fitted over ±T to a sinusoid of frequency ω is
+    low by about (ωT)²/10 relative: 0.16 % at ω = λ/2 (the excitation bandwidth that
+    :func:`data_bandwidth` doubles), while the velocity noise of the encoder quantum falls
+    as m^-1.5."""
+    h = float(np.median(np.diff(t)))
+    return max(1, round(1.0 / (4.0 * lam * h)))
+
+
 _GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(4)
 _GL_NODES = 0.5 * (_GL_NODES + 1.0)  # on [0, 1]
 _GL_WEIGHTS = 0.5 * _GL_WEIGHTS
@@ -283,10 +317,14 @@ def kinematics(
     *,
     model: ArmModel = NINE_PARAMETERS,
     t: np.ndarray | None = None,
+    half_window: int = 1,
+    keep: tuple[int, int] | None = None,
 ) -> Kinematics:
     """Velocities (backward difference for ``paper``, central for ``exact``) and, for
     ``exact``, the integrals over every interval with both end velocities known. ``t``: the
-    samples' real times (``exact`` only), used instead of k·h."""
+    samples' real times (``exact`` only), used instead of k·h; ``half_window`` > 1: velocities
+    by :func:`local_polynomial_velocity` over 2·half_window + 1 samples (real times only);
+    ``keep`` = (i, j): only intervals i..j−1 of the window (chunked building)."""
     if discretization == "paper":
         if t is not None:
             raise ValueError("the paper discretization assumes equal intervals; use exact")
@@ -296,7 +334,13 @@ def kinematics(
         return Kinematics(v, interval_integrals(q, v, h, model), model)
     t = np.asarray(t, dtype=float)
     dt = np.diff(t)
-    v = central_difference_unequal(q, t)
+    if half_window <= 1:
+        v = central_difference_unequal(q, t)
+    else:
+        v = local_polynomial_velocity(q, t, half_window)
+    if keep is not None:  # intervals outside keep lose an end velocity, hence their rows
+        v[: keep[0]] = np.nan
+        v[keep[1] + 1 :] = np.nan
     return Kinematics(v, interval_integrals(q, v, dt, model), model, dt)
 
 
@@ -388,6 +432,7 @@ def build_regression(
     *,
     model: ArmModel = NINE_PARAMETERS,
     t: np.ndarray | None = None,
+    half_window: int = 1,
 ) -> Regression:
     """The regression y(k) ≈ Ψ(k)ᵀθ of one scheme over a whole recording.
 
@@ -400,10 +445,159 @@ def build_regression(
     _check(q, tau, h, lam, discretization)
     if len(q) < 8:
         raise ValueError(f"need at least 8 samples to identify, got {len(q)}")
-    kin = kinematics(discretization, q, h, model=model, t=t)
+    kin = kinematics(discretization, q, h, model=model, t=t, half_window=half_window)
     raw = raw_rows(scheme, discretization, q, tau, h, kin)
     y = lfilter(*filter_coefficients(raw.y_filter, lam, h), raw.y, axis=0)
     Psi = sum(lfilter(*filter_coefficients(f, lam, h), x, axis=0) for f, x in raw.parts)
     weights = stick_weights(raw.stuck, stick_memory(lam, h))
     row_t = raw.index * h if t is None else np.asarray(t, dtype=float)[raw.index]
     return Regression(scheme, discretization, row_t, y, Psi, weights, lam, h)
+
+
+# --- real recordings: bandwidth, stick detection under quantization, rows in chunks ----------
+
+
+def excitation_bandwidth(q: np.ndarray, t: np.ndarray, fraction: float = 0.95) -> float:
+    """ω (rad/s) below which ``fraction`` of the detrended position variance lies, the largest
+    over the joints: the excitation's bandwidth, read from the data. The paper puts λ at about
+    twice its highest excitation frequency (26 rad/s → 50 rad/s); :func:`data_bandwidth`
+    follows that rule."""
+    q = np.asarray(q, dtype=float)
+    t = np.asarray(t, dtype=float)
+    h = float(np.median(np.diff(t)))
+    # The spectrum of the samples as if equally spaced at the median interval: irregularity
+    # smears, but does not move, a band that is much lower than the sample rate.
+    q2d = q.reshape(len(q), -1)
+    coef = np.polynomial.polynomial.polyfit(t - t[0], q2d, 1)
+    x = q2d - (coef[0] + np.outer(t - t[0], coef[1]))
+    power = np.abs(np.fft.rfft(x, axis=0)) ** 2
+    power[0] = 0.0
+    freq = np.fft.rfftfreq(len(x), h)
+    cum = np.cumsum(power, axis=0)
+    total = cum[-1]
+    omegas = [
+        2 * np.pi * freq[np.searchsorted(cum[:, j], fraction * total[j])]
+        for j in range(x.shape[1])
+        if total[j] > 0
+    ]
+    return float(max(omegas)) if omegas else float("nan")
+
+
+def data_bandwidth(q: np.ndarray, t: np.ndarray) -> float:
+    """The row filter's λ (rad/s) from the data: twice :func:`excitation_bandwidth` (the
+    paper's rule, Section 6), at least 2π·0.5 Hz and at most a tenth of the sample rate in
+    rad/s (beyond that the rows hold mostly differentiation noise)."""
+    h = float(np.median(np.diff(t)))
+    lam = 2.0 * excitation_bandwidth(q, t)
+    if not np.isfinite(lam):
+        lam = 50.0
+    return float(np.clip(lam, 2 * np.pi * 0.5, 0.1 * 2 * np.pi / h))
+
+
+def quantized_stick(q: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(N − 1, 2): interval k has joint j stuck, telling a stuck joint from a reversal.
+
+    With an encoder quantum Δ, a joint reversing at acceleration a stays on one count for
+    about 2√(2Δ/a), so an interval with no encoder motion is only a stick when its run of
+    unchanged counts lasts longer than twice that (Δ: the smallest non-zero step seen; a: the
+    RMS of the joint's acceleration from second differences over the same quantum-free scale).
+    """
+    q = np.asarray(q, dtype=float)
+    t = np.asarray(t, dtype=float)
+    dq = np.diff(q, axis=0)
+    dt = np.diff(t)
+    still = dq == 0
+    out = np.zeros_like(still)
+    for j in range(q.shape[1]):
+        steps = np.abs(dq[:, j])
+        moved = steps[steps > 0]
+        if moved.size == 0:
+            out[:, j] = still[:, j]
+            continue
+        quantum = float(moved.min())
+        # acceleration on a 10-sample scale, where quantization is small against motion
+        s = 10
+        if len(q) > 2 * s + 1:
+            hs = float(np.median(dt)) * s
+            acc = (q[2 * s :, j] - 2 * q[s:-s, j] + q[: -2 * s, j]) / hs**2
+            a_rms = float(np.sqrt(np.mean(acc**2)))
+        else:
+            a_rms = 0.0
+        dwell = 4.0 * np.sqrt(2 * quantum / a_rms) if a_rms > 0 else np.inf
+        # run lengths (in seconds) of consecutive still intervals
+        col = still[:, j]
+        edges = np.flatnonzero(np.diff(np.r_[0, col.astype(np.int8), 0]))
+        for start, stop in zip(edges[::2], edges[1::2], strict=True):
+            if np.sum(dt[start:stop]) > dwell:
+                out[start:stop, j] = True
+    return out
+
+
+@dataclass(frozen=True)
+class RowChunk:
+    """Filtered rows of one chunk: ``y`` (K, m), ``Psi`` (K, m, p), ``weights`` (K, m),
+    ``t`` (K,) the time of each row."""
+
+    t: np.ndarray
+    y: np.ndarray
+    Psi: np.ndarray
+    weights: np.ndarray
+
+
+def iter_rows(
+    scheme: str,
+    q: np.ndarray,
+    tau: np.ndarray,
+    t: np.ndarray,
+    lam: float,
+    model: ArmModel = NINE_PARAMETERS,
+    *,
+    chunk: int = 20000,
+    half_window: int | None = None,
+):
+    """The ``exact`` regression of a recording with real time stamps, in chunks of ``chunk``
+    intervals with the filters' state carried across, so memory stays O(chunk · p) whatever the
+    recording's length. Velocities by :func:`local_polynomial_velocity` over
+    ±``half_window`` samples (default :func:`velocity_half_window`). The rows equal
+    :func:`build_regression`'s with ``t`` and the same ``half_window`` (up to the stick rule,
+    here :func:`quantized_stick`). Yields :class:`RowChunk`."""
+    q, tau, t = (np.asarray(a, dtype=float) for a in (q, tau, t))
+    h = float(np.median(np.diff(t)))
+    _check(q, tau, h, lam, "exact")
+    if len(q) < 8:
+        raise ValueError(f"need at least 8 samples to identify, got {len(q)}")
+    n = len(q)
+    m = velocity_half_window(lam, t) if half_window is None else max(1, int(half_window))
+    stuck_all = quantized_stick(q, t)
+    memory = stick_memory(lam, h)
+    states: dict[str, np.ndarray] = {}
+    last_stuck = None
+    for s in range(m, n - m - 1, chunk):
+        e = min(s + chunk, n - m - 1)  # intervals s..e−1: both end velocities known
+        a, b = max(0, s - m), min(n, e + m + 1)
+        kin = kinematics(
+            "exact", q[a:b], h, model=model, t=t[a:b], half_window=m, keep=(s - a, e - a)
+        )
+        raw = raw_rows(scheme, "exact", q[a:b], tau[a:b], h, kin)
+        k_global = raw.index - 1 + a  # the interval each row is about
+        n_out = raw.y.shape[1]
+        stuck = stuck_all[k_global] if n_out == 2 else np.zeros((len(k_global), 1), bool)
+        ys = []
+        for key, (name, x) in [("y", (raw.y_filter, raw.y))] + [
+            (f"part{i}", part) for i, part in enumerate(raw.parts)
+        ]:
+            bcoef, acoef = filter_coefficients(name, lam, h)
+            zi = states.get(key)
+            if zi is None:
+                zi = np.zeros((max(len(acoef), len(bcoef)) - 1, *x.shape[1:]))
+            out, states[key] = lfilter(bcoef, acoef, x, axis=0, zi=zi)
+            ys.append(out)
+        y, Psi = ys[0], sum(ys[1:])
+        # stick weights with the memory carried across chunks
+        K = len(k_global)
+        idx = np.arange(K)[:, None]
+        prev = np.full((1, n_out), -(10**9)) if last_stuck is None else last_stuck
+        last = np.maximum.accumulate(np.vstack([prev, np.where(stuck, idx, -(10**9))]), axis=0)[1:]
+        weights = (idx - last > memory).astype(float)
+        last_stuck = (last[-1:] - K) if K else prev
+        yield RowChunk(t[raw.index + a], y, Psi, weights)

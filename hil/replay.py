@@ -113,7 +113,7 @@ def trace_from_run(
     """The recording of ``run_dir`` and its timing trace (module docstring). ``source``:
     "auto" (robot events if present), "robot" or "host"; ``compute_s``: host stamps only
     (default: :data:`COMPUTE_S` of the run's kind)."""
-    rec = read_signals(run_dir)
+    rec = read_signals(run_dir, min_rows=2)
     if rec.meta.get("mode") != "realtime" and "sync_sent_s" not in rec.columns:
         raise UsageError(f"{run_dir}: not a realtime run (meta.json mode {rec.meta.get('mode')})")
     events = Path(run_dir) / ROBOT_EVENTS
@@ -170,7 +170,7 @@ def _rerun(rec: Recording, bench: str, effects: str, out: Path) -> dict[str, Any
     meta = rec.meta
     kind = meta.get("kind")
     n = len(rec)
-    h = float(meta.get("period_s") or rec.period_s)
+    h = rec.period_s  # meta.json's, checked against t on read (the run's own t = k·h)
     if kind in ("hil run", "hil jitter"):
         from hil.run import run_experiment
 

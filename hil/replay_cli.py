@@ -7,6 +7,7 @@ import argparse
 import json
 import sys
 
+from hil.cli_options import add_out_options, prepare_out_dir
 from hil.replay import COMPUTE_S, format_replay, replay_run
 
 
@@ -16,6 +17,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--bench", default=None, help="virtual bench to replay on (default: the recorded one)"
     )
     p.add_argument("--out", default=None, help="output directory (default: RUN_DIR-replay)")
+    add_out_options(p)
     p.add_argument(
         "--trace-source",
         choices=("auto", "robot", "host"),
@@ -40,6 +42,7 @@ def main(args: argparse.Namespace) -> int:
     if args.compute is not None and not args.compute >= 0:
         raise ValueError(f"--compute must be >= 0 s, got {args.compute}")
     out = args.out or f"{str(args.run_dir).rstrip('/')}-replay"
+    prepare_out_dir(out, args.overwrite, inputs=(args.run_dir,))
     print(f"hil replay: {args.run_dir} in lockstep with its timing -> {out}", file=sys.stderr)
     doc = replay_run(
         args.run_dir,

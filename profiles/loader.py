@@ -8,7 +8,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-KINDS = ("robots", "drives", "benches", "effects", "experiments")
+KINDS = ("robots", "drives", "benches", "effects", "experiments", "formats")
 
 _MISSING = object()
 

@@ -1,0 +1,138 @@
+"""Options shared by the `hil` commands: how to read a recording, and where to write output.
+
+* :func:`add_recording_options` / :func:`read_recording`: ``--format``, ``--columns``,
+  ``--torque``, ``--loop-delay`` for every command that reads a recording (identify --from and
+  --validate, diagnose, replay), turned into :func:`drivers.recording.read_signals` arguments
+  (docs/recordings.md).
+* :func:`add_out_options` / :func:`prepare_out_dir`: ``--overwrite``; a command refuses to write
+  into a non-empty output directory without it, so two runs never mix their files.
+
+Bad values raise ``ValueError`` / :class:`~drivers.recording.RecordingError` with a one-line
+message; ``hil``'s main turns them into ``hil <command>: error: ...`` and exit status 2.
+Imports drivers and profiles only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from drivers.recording import Recording, parse_column_map, read_signals
+from profiles.recording_format import LOOP_DELAY_MAX
+
+TORQUE_SOURCES_HELP = "commanded (default), measured, or another source the --format offers"
+
+
+def add_recording_options(p: argparse.ArgumentParser) -> None:
+    """``--format``, ``--columns``, ``--torque``, ``--loop-delay`` (docs/recordings.md)."""
+    g = p.add_argument_group("reading recordings (docs/recordings.md)")
+    g.add_argument(
+        "--format",
+        dest="recording_format",
+        default=None,
+        metavar="NAME|FILE",
+        help="recording-format profile of foreign CSVs (profiles/formats: dfki); default: this "
+        "bench's t,q1,q2,tau1,tau2",
+    )
+    g.add_argument(
+        "--columns",
+        default=None,
+        metavar="MAP",
+        help="column map over the format's, e.g. t=time,q1=pos_meas1,q2=pos_meas2,"
+        "tau1=tau_con1,tau2=tau_con2",
+    )
+    g.add_argument("--torque", default=None, metavar="SOURCE", help=TORQUE_SOURCES_HELP)
+    g.add_argument(
+        "--loop-delay",
+        type=int,
+        default=None,
+        metavar="ROWS",
+        help="the file's tau of row i acts between the q of rows i+d and i+d+1 (default: the "
+        "format's; 0 for this bench's recordings)",
+    )
+
+
+def recording_kwargs(args: argparse.Namespace) -> dict[str, Any]:
+    """The :func:`read_signals` keyword arguments the options ask for, checked."""
+    columns = getattr(args, "columns", None)
+    if columns is not None:
+        try:
+            parse_column_map(columns)
+        except ValueError as exc:
+            raise ValueError(f"--columns: {exc}") from None
+    delay = getattr(args, "loop_delay", None)
+    if delay is not None and abs(delay) > LOOP_DELAY_MAX:
+        raise ValueError(
+            f"--loop-delay must be in [-{LOOP_DELAY_MAX}, {LOOP_DELAY_MAX}] rows, got {delay}"
+        )
+    torque = getattr(args, "torque", None)
+    if torque is not None and not torque.strip():
+        raise ValueError("--torque names no torque source")
+    return {
+        "fmt": getattr(args, "recording_format", None),
+        "columns": columns,
+        "torque": torque,
+        "loop_delay": delay,
+    }
+
+
+def read_recording(
+    args: argparse.Namespace,
+    path: str | Path,
+    *,
+    command: str,
+    min_rows: int = 2,
+    extra_columns: bool = False,
+) -> Recording:
+    """Read ``path`` with the recording options of ``args``; print what the reader noticed
+    (gaps, irregular sampling, dropped duplicates, the loop delay) on stderr."""
+    rec = read_signals(
+        path, **recording_kwargs(args), extra_columns=extra_columns, min_rows=min_rows
+    )
+    for note in rec.findings_on_read:
+        print(f"hil {command}: note: {rec.path}: {note}", file=sys.stderr)
+    return rec
+
+
+def add_out_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="empty a non-empty --out directory first (without it, such a --out is refused)",
+    )
+
+
+def prepare_out_dir(
+    out: str | Path, overwrite: bool, inputs: Sequence[str | Path | None] = ()
+) -> Path:
+    """Make sure ``out`` is absent or an empty directory to write into: refuse a non-empty one
+    (files of an earlier run would mix with this one's) unless ``overwrite``, which empties it
+    first, and never one that holds one of the command's ``inputs``."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out}: exists and is not a directory")
+    if out.is_dir() and any(out.iterdir()):
+        if not overwrite:
+            raise ValueError(
+                f"--out {out}: directory is not empty (files of another run would mix with "
+                "this one's); pass --overwrite to empty it, or choose another directory"
+            )
+        here = Path.cwd().resolve()
+        target = out.resolve()
+        for item in inputs:
+            if item is not None and (
+                Path(item).resolve() == target or target in Path(item).resolve().parents
+            ):
+                raise ValueError(f"--out {out}: holds the input {item}; choose another directory")
+        if target == here or target in here.parents or target == Path.home().resolve():
+            raise ValueError(f"--out {out}: refusing to empty the current or home directory")
+        for child in target.iterdir():
+            if child.is_dir() and not child.is_symlink():
+                shutil.rmtree(child)
+            else:
+                child.unlink()
+    return out  # created by the command when it writes (a refused run leaves nothing)
