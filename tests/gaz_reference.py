@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import os
 import re
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -106,7 +105,6 @@ class GazModel:
     """M(q), g(q), c(q, q̇), friction(q̇) and τ of the published model, vectorized over samples."""
 
     def __init__(self, root: Path = MODEL_DIR) -> None:
-        sys.setrecursionlimit(max(sys.getrecursionlimit(), 100_000))  # long generated sums
         self._mass = _Generated(root / FILES["mass"], "Bstack_hat")
         self._gravity = _Generated(root / FILES["gravity"], "g_li_hat")
         fp = dict(_statements(root / FILES["friction"]))["fp"]
