@@ -168,6 +168,28 @@ def nrmse(predicted: np.ndarray, measured: np.ndarray) -> np.ndarray:
     return err / np.std(measured, axis=0)
 
 
+def regression_rows(
+    model: UrdfArmModel,
+    rec: TorqueRecording,
+    *,
+    cutoff_hz: float = DEFAULT_CUTOFF_HZ,
+    decimate: int = DEFAULT_DECIMATE,
+) -> FilteredRows:
+    """The rows τ ≈ Y θ of a recording: smoothed motion, torque regressor, block average."""
+    if rec.n_joints != model.n_joints:
+        raise ValueError(
+            f"{rec.source}: {rec.n_joints} joints in the recording, the model has {model.n_joints}"
+        )
+    motion = smoothed_motion(rec, cutoff_hz=cutoff_hz)
+    Y = model.torque_regressor(motion.q, motion.dq, motion.ddq)
+    return filtered_rows(motion, Y, decimate=decimate)
+
+
+def torque_nrmse(theta: np.ndarray, rows: FilteredRows) -> np.ndarray:
+    """Per-joint NRMSE of the torque θ predicts on ``rows`` (see :func:`nrmse`)."""
+    return nrmse(np.einsum("knp,p->kn", rows.Y, theta), rows.tau)
+
+
 def identify_torque(
     model: UrdfArmModel,
     rec: TorqueRecording,
@@ -177,20 +199,19 @@ def identify_torque(
     held_out: float = 0.25,
 ) -> TorqueIdentification:
     """Batch least squares of the base parameters and friction on the first (1 − held_out) of
-    the recording's time span; the normalized error of the torque prediction on the rest."""
-    if rec.n_joints != model.n_joints:
-        raise ValueError(
-            f"{rec.source}: {rec.n_joints} joints in the recording, the model has {model.n_joints}"
-        )
-    motion = smoothed_motion(rec, cutoff_hz=cutoff_hz)
-    Y = model.torque_regressor(motion.q, motion.dq, motion.ddq)
-    rows = filtered_rows(motion, Y, decimate=decimate)
+    the recording's time span; the normalized error of the torque prediction on the rest
+    (``held_out`` = 0: fit on everything, no held-out error)."""
+    rows = regression_rows(model, rec, cutoff_hz=cutoff_hz, decimate=decimate)
     split = rec.t[0] + (1.0 - held_out) * (rec.t[-1] - rec.t[0])
-    fit = rows.t < split
-    if fit.sum() < model.n_params or (~fit).sum() < 2:
-        raise ValueError(f"{rec.source}: too few rows to fit {model.n_params} parameters")
+    fit = rows.t < split if held_out > 0 else np.ones(len(rows.t), dtype=bool)
+    if fit.sum() * model.n_joints < 2 * model.n_params or (held_out > 0 and (~fit).sum() < 2):
+        raise ValueError(
+            f"{rec.source}: {len(rows.t)} rows after averaging, too few to fit "
+            f"{model.n_params} parameters"
+        )
     theta = weighted_least_squares(rows.Y[fit], rows.tau[fit])
     predicted = np.einsum("knp,p->kn", rows.Y, theta)
-    return TorqueIdentification(
-        theta, split, rows, predicted, nrmse(predicted[~fit], rows.tau[~fit])
+    held = (
+        nrmse(predicted[~fit], rows.tau[~fit]) if held_out > 0 else np.full(model.n_joints, np.nan)
     )
+    return TorqueIdentification(theta, split, rows, predicted, held)

@@ -280,3 +280,45 @@ def test_planar_loader_refuses_a_urdf_only_arm_in_one_line():
         load_robot("panda")
     assert "\n" not in str(exc.value)
     assert load_robot("cicese").urdf == load_urdf_robot("cicese").urdf
+
+
+def _synthetic_csv(path, model: UrdfArmModel, seconds: float, seed: int) -> np.ndarray:
+    """A jittered 1 kHz multisine of ``model``'s own torques (1 % noise) as a standard CSV."""
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(rng.uniform(0.8e-3, 1.2e-3, int(seconds * 1000)))
+    w = rng.uniform(0.5, 4.0, (model.n_joints, 3))
+    a = rng.uniform(0.05, 0.25, (model.n_joints, 3))
+    arg = t[:, None, None] * w + rng.uniform(0, 6, (model.n_joints, 3))
+    q = (a * np.sin(arg)).sum(-1) + np.array([0, 0, 0, -1.6, 0, 1.8, 0])
+    dq = (a * w * np.cos(arg)).sum(-1)
+    ddq = (-a * w**2 * np.sin(arg)).sum(-1)
+    tau = model.torque(model.base_theta(), q, dq, ddq)
+    tau += 0.01 * tau.std(0) * rng.normal(size=tau.shape)
+    TorqueRecording(t, q, tau).write_csv(path)
+    return tau
+
+
+def test_hil_identify_robot_panda_on_a_standard_csv(tmp_path, panda, capsys):
+    import json
+
+    from hil.cli import main as hil_main
+
+    csv = tmp_path / "panda.csv"
+    _synthetic_csv(csv, panda, 12.0, 3)
+    code = hil_main(["identify", "--from", str(csv), "--robot", "panda", "--out",
+                     str(tmp_path / "out"), "--json"])  # fmt: skip
+    assert code == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["model"] == "urdf" and len(report["parameters"]) == panda.n_params
+    assert (tmp_path / "out" / "identify.json").is_file()
+    nrmse_identified = np.array(report["validation"]["torque_nrmse_identified"])
+    assert nrmse_identified.max() < 0.05, nrmse_identified
+    # a 2-joint recording for a 7-joint arm: one line, no report
+    two = tmp_path / "two.csv"
+    TorqueRecording(np.arange(50) * 1e-3, np.zeros((50, 2)), np.zeros((50, 2))).write_csv(two)
+    code = hil_main(["identify", "--from", str(two), "--robot", "panda", "--out",
+                     str(tmp_path / "out2")])  # fmt: skip
+    assert code != 0
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("two.csv: 2 joints (q1..q2), robot panda has 7") and "\n" not in err
+    assert not (tmp_path / "out2" / "identify.json").exists()
