@@ -644,6 +644,7 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
                 model.names, model.meanings, model.units, res.theta, nominal, strict=True
             )
         ],
+        "physical_consistency": model.physical_consistency(res.theta),
         "validation": {
             "on": where,
             "torque_nrmse_identified": torque_nrmse(res.theta, rows).tolist(),
@@ -664,6 +665,12 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             f"{p['name']:8s} {p['identified']:12.5g} {p['nominal']:12.5g}  {p['unit']:8s} "
             f"{p['meaning']}"
         )
+    pc = report["physical_consistency"]
+    lines.append(
+        "physically consistent (friction >= 0, M(q) > 0 at sampled q)"
+        if pc["consistent"]
+        else "NOT physically consistent: " + "; ".join(pc["violations"])
+    )
     v = report["validation"]
     lines.append(f"held-out torque NRMSE per joint on {v['on']}:")
     lines.append("  identified " + " ".join(f"{x:6.3f}" for x in v["torque_nrmse_identified"]))

@@ -50,6 +50,8 @@ BASE_SAMPLES = 400
 # A column is dependent when its pivot is below this fraction of the largest pivot. Structural
 # zeros come out near 1e-15 relative; genuine columns of real arms are above 1e-6.
 RANK_TOL = 1e-9
+# Configurations at which a base-parameter vector's M(q) must be positive definite.
+CONSISTENCY_SAMPLES = 256
 
 
 @dataclass(frozen=True)
@@ -406,13 +408,43 @@ class UrdfArmModel:
 
     # --- physical consistency ------------------------------------------------------------------
 
-    def physical_consistency(self, theta_standard: ArrayLike | None = None) -> dict[str, object]:
-        """Check a *standard*-parameter vector: per body m > 0 and the pseudo-inertia
-        J = [[½ tr(I) 1 − I, m c], [m cᵀ, m]] positive semidefinite (Wensing, Kim & Slotine
-        (2018)); armature, viscous and Coulomb coefficients ≥ 0. Base parameters alone cannot
-        be checked: many standard vectors share them.
-        Returns ``{"consistent": bool, "violations": [...]}``."""
-        t = self.standard_theta if theta_standard is None else np.asarray(theta_standard, float)
+    def _base_consistency(self, theta: np.ndarray) -> dict[str, object]:
+        violations = []
+        for i in self.friction_columns:
+            if not theta[i] >= 0:
+                violations.append(f"negative {self.meanings[i]} = {theta[i]:.4g}")
+        lo, hi = self._model.lowerPositionLimit, self._model.upperPositionLimit
+        finite = np.isfinite(lo) & np.isfinite(hi) & (hi > lo)
+        lo, hi = np.where(finite, lo, -np.pi), np.where(finite, hi, np.pi)
+        q = np.random.default_rng(1).uniform(lo, hi, (CONSISTENCY_SAMPLES, self.n_joints))
+        low = np.linalg.eigvalsh(self.mass_matrix(theta, q))[:, 0]
+        worst = int(np.argmin(low))
+        if not low[worst] > 0:
+            where = ", ".join(f"{x:.3g}" for x in q[worst])
+            violations.append(
+                f"M(q) not positive definite: smallest eigenvalue {low[worst]:.4g} at q = "
+                f"[{where}] (and {int(np.sum(low <= 0)) - 1} more of {CONSISTENCY_SAMPLES})"
+            )
+        return {"consistent": not violations, "violations": violations}
+
+    def physical_consistency(self, theta: ArrayLike | None = None) -> dict[str, object]:
+        """Check θ; returns ``{"consistent": bool, "violations": [...]}`` (one sentence each).
+
+        A *standard*-parameter vector (default: the URDF's) is checked body by body: m > 0 and
+        the pseudo-inertia J = [[½ tr(I) 1 − I, m c], [m cᵀ, m]] positive semidefinite
+        (Wensing, Kim & Slotine (2018)); armature, viscous and Coulomb coefficients ≥ 0.
+        A *base*-parameter vector (length ``n_params``) cannot be judged body by body (many
+        standard vectors share it); it is checked for what it decides: viscous and Coulomb
+        coefficients ≥ 0 and M(q) positive definite at CONSISTENCY_SAMPLES random
+        configurations within the URDF's joint limits (a sampled, not a proof, check)."""
+        t = self.standard_theta if theta is None else np.asarray(theta, dtype=float)
+        if t.shape == (self.n_params,):
+            return self._base_consistency(t)
+        if t.shape != (len(self.standard_names),):
+            raise ValueError(
+                f"theta must hold {self.n_params} base or {len(self.standard_names)} standard "
+                f"parameters, got shape {t.shape}"
+            )
         violations = []
         for j in range(self.n_joints):
             m, mc, Ixx, Ixy, Iyy, Ixz, Iyz, Izz = (

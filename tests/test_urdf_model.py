@@ -174,6 +174,16 @@ def test_physical_consistency_flags_impossible_bodies(panda):
     text = " | ".join(found["violations"])
     assert "panda_joint1: mass -1 kg <= 0" in text
     assert "panda_joint2: pseudo-inertia not positive semidefinite" in text
+    # base parameters: friction signs and M(q) > 0 at sampled configurations
+    b = panda.base_theta()
+    assert panda.physical_consistency(b)["consistent"]
+    b_bad = b.copy()
+    b_bad[panda.meanings.index("Izz7")] = -1.0
+    b_bad[panda.friction_columns[0]] = -0.1
+    text = " | ".join(panda.physical_consistency(b_bad)["violations"])
+    assert "negative fv1 = -0.1" in text and "M(q) not positive definite" in text
+    with pytest.raises(ValueError, match="base or 91 standard parameters"):
+        panda.physical_consistency(np.zeros(5))
 
 
 def test_rotor_inertia_term_adds_armature_columns(cicese):
