@@ -30,6 +30,7 @@ bench: $(STAMP)
 	$(BIN)/python tests/benchmarks/bench_diagnose.py
 	$(BIN)/python tests/benchmarks/bench_sweep.py
 	$(BIN)/python tests/benchmarks/bench_slcan_sdo.py
+	$(BIN)/python tests/benchmarks/bench_urdf.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check hil drivers virtual_robot profiles tests

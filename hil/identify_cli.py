@@ -201,6 +201,8 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         raise ValueError(f"--params-scheme {args.params_scheme} is not among --schemes")
     if args.lam is not None and not args.lam > 0:
         raise ValueError(f"--lambda must be > 0 rad/s, got {args.lam}")
+    if args.from_recording and _urdf_robot(args):
+        return run_identify_urdf(args)
     if args.from_recording and _model_path(args):
         return run_identify_model(args)
     if args.lam is None:
@@ -582,3 +584,97 @@ def format_model_report(report: dict[str, Any], model: ArmModel) -> str:
             )
     lines.append(f"\nparameters: {report['params_files'][0]}")
     return "\n".join(lines)
+
+
+# ---- arms described by a URDF (hil.urdf_model): any number of joints -------------------------
+
+
+def _urdf_robot(args: argparse.Namespace) -> bool:
+    """The --robot profile describes its arm by a URDF only (no 2-DOF closed form)."""
+    from profiles.loader import load_toml
+
+    if not args.robot:
+        return False
+    data, _ = load_toml("robots", args.robot)
+    return "urdf" in data and "link1" not in data
+
+
+def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
+    """`hil identify --from A [--validate B] --robot R` for a URDF arm: base parameters and
+    friction by weighted batch least squares on the torque regressor (hil.urdf_identify),
+    validated on B, or on the last quarter of A's time when no B is given; beside the
+    URDF's and profile's nominal parameters on the same rows."""
+    from hil.urdf_identify import TorqueRecording, identify_torque, regression_rows, torque_nrmse
+    from hil.urdf_model import UrdfArmModel
+
+    if args.terms is not None:
+        raise ValueError("--terms: a URDF arm takes its terms from the profile's [model] terms")
+    model = UrdfArmModel.from_profile(args.robot)
+    fit = read_recording(args, args.from_recording, command="identify", min_rows=8)
+    if fit.n_joints != model.n_joints:
+        raise ValueError(
+            f"{fit.path}: {fit.n_joints} joints (q1..q{fit.n_joints}), robot {args.robot} has "
+            f"{model.n_joints}"
+        )
+    _say(
+        f"identifying {args.robot} ({model.n_joints} joints, {model.n_params} base parameters) "
+        f"from {fit.path}"
+    )
+    held_out = 0.0 if args.validate else 0.25
+    res = identify_torque(
+        model, TorqueRecording(fit.t, fit.q, fit.tau, str(fit.path)), held_out=held_out
+    )
+    nominal = model.base_theta()
+    if args.validate:
+        val = read_recording(args, args.validate, command="identify", min_rows=8)
+        rows = regression_rows(model, TorqueRecording(val.t, val.q, val.tau, str(val.path)))
+        where = str(val.path)
+    else:
+        keep = res.rows.t >= res.fit_until_s
+        rows = type(res.rows)(res.rows.t[keep], res.rows.tau[keep], res.rows.Y[keep])
+        where = f"last 25 % of {fit.path} (t >= {res.fit_until_s:.3f} s)"
+    report: dict[str, Any] = {
+        "recording": str(fit.path),
+        "robot": args.robot,
+        "model": "urdf",
+        "urdf": model.urdf,
+        "terms": list(model.terms),
+        "parameters": [
+            {"name": n, "meaning": m, "unit": u, "identified": float(x), "nominal": float(y)}
+            for n, m, u, x, y in zip(
+                model.names, model.meanings, model.units, res.theta, nominal, strict=True
+            )
+        ],
+        "physical_consistency": model.physical_consistency(res.theta),
+        "validation": {
+            "on": where,
+            "torque_nrmse_identified": torque_nrmse(res.theta, rows).tolist(),
+            "torque_nrmse_nominal": torque_nrmse(nominal, rows).tolist(),
+        },
+    }
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out / "identify.json", report)
+    lines = [
+        f"Identification of {args.robot} from {fit.path} ({model.n_joints} joints, base "
+        f"parameters by pivoted QR of the torque regressor; terms: "
+        f"{', '.join(model.terms) or 'none'})",
+        f"{'':8s} {'identified':>12s} {'nominal':>12s}  unit     meaning",
+    ]
+    for p in report["parameters"]:
+        lines.append(
+            f"{p['name']:8s} {p['identified']:12.5g} {p['nominal']:12.5g}  {p['unit']:8s} "
+            f"{p['meaning']}"
+        )
+    pc = report["physical_consistency"]
+    lines.append(
+        "physically consistent (friction >= 0, M(q) > 0 at sampled q)"
+        if pc["consistent"]
+        else "NOT physically consistent: " + "; ".join(pc["violations"])
+    )
+    v = report["validation"]
+    lines.append(f"held-out torque NRMSE per joint on {v['on']}:")
+    lines.append("  identified " + " ".join(f"{x:6.3f}" for x in v["torque_nrmse_identified"]))
+    lines.append("  nominal    " + " ".join(f"{x:6.3f}" for x in v["torque_nrmse_nominal"]))
+    lines.append(f"report: {out / 'identify.json'}")
+    return report, "\n".join(lines)

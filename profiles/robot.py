@@ -8,7 +8,12 @@ owners publish it); optionally the motors' rotors (``[rotor]``: inertia, gear ra
 sign with which motor 2's rotor turns relative to link 1); friction as Coulomb levels or as the
 smooth ``cf · atan(k q̇)`` law (level cf·π/2); and ``[model] terms`` (of
 :data:`hil.model.TERMS`) the arm has. :meth:`RobotProfile.theta` gives θ in the parametrisation
-of :meth:`RobotProfile.model` (θ1..θ9, then each term's parameters)."""
+of :meth:`RobotProfile.model` (θ1..θ9, then each term's parameters).
+
+Arms of any number of joints are described by a URDF plus what a URDF does not hold
+(:class:`UrdfRobotProfile`, :func:`load_urdf_robot`, for :mod:`hil.urdf_model`): friction per
+joint, rotor inertia (armature), gear ratio, drives. A 2-DOF profile may name the same arm's
+URDF (``urdf``, cicese.toml)."""
 
 from __future__ import annotations
 
@@ -19,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from hil.model import TERMS, ArmModel
-from profiles.loader import Fields, load_toml
+from profiles.loader import Fields, ProfileError, load_toml
 
 
 @dataclass(frozen=True)
@@ -66,6 +71,7 @@ class RobotProfile:
     terms: tuple[str, ...] = ()
     rotor: Rotor | None = None
     reference: str = ""
+    urdf: str | None = None  # the same arm as a URDF (profiles/robots/*.urdf), for hil.urdf_model
 
     def model(self) -> ArmModel:
         """The model object with this arm's terms."""
@@ -189,6 +195,13 @@ def _coulomb(fr: Fields) -> tuple[tuple[float, float], tuple[float, float]]:
 def load_robot(name_or_path: str | Path) -> RobotProfile:
     data, source = load_toml("robots", name_or_path)
     f = Fields(data, source)
+    if f.has("urdf") and not f.has("link1"):
+        raise ProfileError(
+            source,
+            None,
+            "an arm described by its URDF only: the 2-DOF closed-form model cannot use it "
+            "(hil.urdf_model.UrdfArmModel can; see docs/urdf.md)",
+        )
     f.only(
         {
             "name",
@@ -201,6 +214,7 @@ def load_robot(name_or_path: str | Path) -> RobotProfile:
             "friction",
             "joints",
             "model",
+            "urdf",
         }
     )
     fr = f.table("friction")
@@ -258,4 +272,99 @@ def load_robot(name_or_path: str | Path) -> RobotProfile:
         terms=terms,
         rotor=rotor,
         reference=f.string("reference", ""),
+        urdf=str(_urdf_path(f, source)) if f.has("urdf") else None,
     )
+
+
+@dataclass(frozen=True)
+class UrdfRobotProfile:
+    """An n-joint arm: a URDF (rigid bodies and kinematics) plus, per joint, what a URDF does not
+    hold: viscous and Coulomb friction, rotor inertia reflected to the joint (armature) and gear
+    ratio, and the drive profile of each joint when there is one."""
+
+    name: str
+    source: str
+    urdf: str  # absolute path of the URDF file
+    gravity_m_s2: float
+    n_joints: int
+    viscous_Nms: tuple[float, ...]
+    coulomb_positive_Nm: tuple[float, ...]
+    coulomb_negative_Nm: tuple[float, ...]
+    armature_kgm2: tuple[float, ...]
+    gear_ratio: tuple[float, ...]
+    drives: tuple[str, ...] | None
+    terms: tuple[str, ...] = ()  # model terms beyond rigid bodies + friction (hil.urdf_model)
+
+    @property
+    def coulomb_Nm(self) -> tuple[float, ...]:
+        """Symmetric Coulomb level per joint: the mean of the two directions."""
+        return tuple(
+            (p + n) / 2
+            for p, n in zip(self.coulomb_positive_Nm, self.coulomb_negative_Nm, strict=True)
+        )
+
+
+def _urdf_path(f: Fields, source: str) -> Path:
+    """The URDF a profile names: relative paths are relative to the profile's own folder."""
+    path = Path(f.string("urdf"))
+    if not path.is_absolute():
+        path = Path(source).parent / path
+    if not path.is_file():
+        raise f.error("urdf", f"no such URDF file: {path}")
+    return path.resolve()
+
+
+def load_urdf_robot(name_or_path: str | Path) -> UrdfRobotProfile:
+    """A robot profile with a ``urdf`` field, for :class:`hil.urdf_model.UrdfArmModel`.
+
+    Fields: ``urdf`` (path, relative to the profile), ``gravity_m_s2``, ``[joints] count``,
+    ``[friction] viscous_Nms / coulomb_positive_Nm / coulomb_negative_Nm`` (one number per joint),
+    optional ``[joints] armature_kgm2`` (default 0), ``gear_ratio`` (default 1) and ``drives``,
+    and ``[model] terms`` (:data:`hil.urdf_model.TERMS`).
+    The 2-DOF closed-form tables (``link1``, ``link2``) may sit beside them (cicese.toml) and are
+    not read here.
+    """
+    data, source = load_toml("robots", name_or_path)
+    f = Fields(data, source)
+    planar = f.has("link1")
+    if not planar:  # the 2-DOF tables of a planar profile are checked by load_robot
+        f.only(
+            {"name", "description", "reference", "gravity_m_s2", "friction", "joints"}
+            | {"urdf", "model"}
+        )
+    if not f.has("urdf"):
+        raise f.error("urdf", "missing: this robot profile names no URDF")
+    urdf = str(_urdf_path(f, source))
+    joints = f.table("joints")
+    joints.only({"count", "drives", "armature_kgm2", "gear_ratio"})
+    n = joints.integer("count", 2, lo=1) if f.has("link1") else joints.integer("count", lo=1)
+    fr = f.table("friction")
+    fr.only({"viscous_Nms", "coulomb_positive_Nm", "coulomb_negative_Nm"})
+    return UrdfRobotProfile(
+        name=f.string("name"),
+        source=source,
+        urdf=urdf,
+        gravity_m_s2=f.number("gravity_m_s2", positive=True),
+        n_joints=n,
+        viscous_Nms=fr.numbers("viscous_Nms", n, lo=0.0),
+        coulomb_positive_Nm=fr.numbers("coulomb_positive_Nm", n, lo=0.0),
+        coulomb_negative_Nm=fr.numbers("coulomb_negative_Nm", n, lo=0.0),
+        armature_kgm2=joints.numbers("armature_kgm2", n, [0.0] * n, lo=0.0),
+        gear_ratio=joints.numbers("gear_ratio", n, [1.0] * n, positive=True),
+        drives=joints.strings("drives", n) if joints.has("drives") else None,
+        terms=_terms(f),
+    )
+
+
+def _terms(f: Fields) -> tuple[str, ...]:
+    """``[model] terms`` of a URDF-only profile (hil.urdf_model.TERMS). A planar profile's
+    ``[model] terms`` name closed-form terms (hil.model.TERMS) and are not read here: its URDF
+    already holds what they add (centres of mass off the link line)."""
+    if f.has("link1") or not f.has("model"):
+        return ()
+    mt = f.table("model")
+    mt.only({"terms"})
+    value = mt.data.get("terms", [])
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise mt.error("terms", "must be a list of model term names")
+    return tuple(value)

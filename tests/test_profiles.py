@@ -21,7 +21,7 @@ from profiles import ProfileError, available
 from profiles.drive import DriveProfile, load_drive
 from profiles.effects import EffectsProfile, load_effects
 from profiles.experiment import ExperimentProfile, JointExcitation, Sine, load_experiment
-from profiles.robot import RobotProfile, load_robot
+from profiles.robot import RobotProfile, UrdfRobotProfile, load_robot, load_urdf_robot
 from profiles.tracking import TrackingProfile, load_tracking
 from virtual_robot.simulate import simulate
 
@@ -102,7 +102,11 @@ def test_toml_writer_round_trips_shipped_profiles():
 # --- every shipped profile loads ----------------------------------------------------------------
 
 LOADERS = {
-    "robots": (load_robot, RobotProfile),
+    # arms described by a URDF only (panda) load with load_urdf_robot
+    "robots": (
+        lambda name: (load_robot if _is_planar(name) else load_urdf_robot)(name),
+        (RobotProfile, UrdfRobotProfile),
+    ),
     "drives": (load_drive, DriveProfile),
     "effects": (load_effects, EffectsProfile),
     "experiments": (
@@ -110,6 +114,11 @@ LOADERS = {
         (ExperimentProfile, TrackingProfile),
     ),
 }
+
+
+def _is_planar(name: str | Path) -> bool:
+    path = name if isinstance(name, Path) else PROFILES_DIR / "robots" / f"{name}.toml"
+    return "link1" in tomllib.loads(path.read_text())
 
 
 def _is_tracking(name: str | Path) -> bool:

@@ -1,0 +1,175 @@
+"""Benchmark: arms from a URDF through Pinocchio (hil/urdf_model.py, hil/urdf_identify.py).
+
+1. µs per sample of M(q) and the regressors, 2 joints (cicese.urdf; the closed form beside it)
+   and 7 joints (panda.urdf).
+2. Identification of 60 s of 7-joint data at 1 kHz (jittered stamps, torque regressor, parallel
+   filtering, weighted batch least squares): target under 10 s. The data are the Panda URDF's
+   own torques along a multisine plus 1 % noise, so the fit is also checked.
+3. With the Panda excitation of Gaz et al. (2019) present in ../shared/realdata (GPL-3, read
+   only from there): the held-out torque NRMSE per joint of our identification and of their
+   published model on the same rows — the table of docs/urdf.md.
+
+``--json`` prints one JSON document; exit 1 if the identification target is missed (on CPU
+time: the work is single-threaded; wall time is printed beside it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+import hil.model as closed_form
+from hil.urdf_identify import (
+    TorqueRecording,
+    filtered_rows,
+    identify_torque,
+    nrmse,
+    read_one_per_line_log,
+    smoothed_motion,
+)
+from hil.urdf_model import UrdfArmModel
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import gaz_reference  # tests/gaz_reference.py
+
+TARGET_IDENTIFY_S = 10.0
+SAMPLES = 2000
+
+
+def per_sample_us(fn, n: int, repeats: int = 3) -> float:
+    runs = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        runs.append(time.perf_counter() - start)
+    return statistics.median(runs) / n * 1e6
+
+
+def model_timings(model: UrdfArmModel, rng: np.random.Generator) -> dict[str, float]:
+    n = model.n_joints
+    q, dq, ddq = rng.uniform(-2, 2, (3, SAMPLES, n))
+    b = model.base_theta()
+    return {
+        "mass_matrix": per_sample_us(lambda: model.mass_matrix(b, q), SAMPLES),
+        "torque_regressor": per_sample_us(lambda: model.torque_regressor(q, dq, ddq), SAMPLES),
+        "momentum_regressor": per_sample_us(lambda: model.momentum_regressor(q, dq), SAMPLES),
+        "static_regressor": per_sample_us(lambda: model.static_regressor(q, dq), SAMPLES),
+        "energy_regressor": per_sample_us(lambda: model.energy_regressor(q, dq), SAMPLES),
+    }
+
+
+def closed_form_timings(rng: np.random.Generator) -> dict[str, float]:
+    q, dq, ddq = rng.uniform(-2, 2, (3, SAMPLES, 2))
+    theta = np.ones(9)
+    return {
+        "mass_matrix": per_sample_us(lambda: closed_form.mass_matrix(theta, q), SAMPLES),
+        "torque_regressor": per_sample_us(
+            lambda: closed_form.dynamic_regressor(q, dq, ddq), SAMPLES
+        ),
+    }
+
+
+def synthetic_panda(model: UrdfArmModel, rng: np.random.Generator, seconds: float = 60.0):
+    """A multisine around a mid configuration at 1 kHz with ±20 % jitter; torque with 1 % noise."""
+    t = np.cumsum(rng.uniform(0.8e-3, 1.2e-3, int(seconds * 1000)))
+    w = rng.uniform(0.5, 4.0, (7, 4))
+    a = rng.uniform(0.05, 0.25, (7, 4))
+    phase = rng.uniform(0, 2 * np.pi, (7, 4))
+    mid = np.array([0.0, 0.0, 0.0, -1.6, 0.0, 1.8, 0.0])
+    arg = t[:, None, None] * w + phase
+    q = mid + (a * np.sin(arg)).sum(-1)
+    dq = (a * w * np.cos(arg)).sum(-1)
+    ddq = (-a * w**2 * np.sin(arg)).sum(-1)
+    truth = model.base_theta()
+    tau = model.torque(truth, q, dq, ddq)
+    tau = tau + 0.01 * tau.std(0) * rng.normal(size=tau.shape)
+    return TorqueRecording(t, q, tau, "synthetic"), truth
+
+
+def panda_table(model: UrdfArmModel) -> dict | None:
+    if not gaz_reference.available():
+        return None
+    rec = read_one_per_line_log(gaz_reference.LOG_DIR)
+    result = identify_torque(model, rec)
+    held = result.rows.t >= result.fit_until_s
+    motion = smoothed_motion(rec)
+    theirs = filtered_rows(
+        motion, gaz_reference.GazModel().torque(motion.q, motion.dq, motion.ddq)[..., None]
+    )
+    nominal = np.einsum("knp,p->kn", result.rows.Y[held], model.base_theta())
+    return {
+        "source": str(gaz_reference.LOG_DIR),
+        "samples": len(rec.t),
+        "fit_until_s": result.fit_until_s - rec.t[0],
+        "ours": result.nrmse_held_out.tolist(),
+        "gaz_2019": nrmse(theirs.Y[held, :, 0], theirs.tau[held]).tolist(),
+        "urdf_nominal": nrmse(nominal, result.rows.tau[held]).tolist(),
+    }
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", action="store_true")
+    parser.add_argument("--no-panda", action="store_true", help="skip the real-data table")
+    args = parser.parse_args()
+    rng = np.random.default_rng(0)
+    cicese, panda = UrdfArmModel.from_profile("cicese"), UrdfArmModel.from_profile("panda")
+    doc: dict = {
+        "us_per_sample": {
+            "closed_form_2": closed_form_timings(rng),
+            "urdf_2 (cicese)": model_timings(cicese, rng),
+            "urdf_7 (panda)": model_timings(panda, rng),
+        }
+    }
+    rec, truth = synthetic_panda(panda, rng)
+    start, cpu = time.perf_counter(), time.process_time()
+    result = identify_torque(panda, rec)
+    elapsed, cpu = time.perf_counter() - start, time.process_time() - cpu
+    doc["identify_60s_7joints_1kHz"] = {
+        "seconds": elapsed,
+        "cpu_seconds": cpu,
+        "target_s": TARGET_IDENTIFY_S,
+        "held_out_nrmse_max": float(result.nrmse_held_out.max()),
+        "max_relative_error_of_base_parameters": float(
+            np.max(np.abs(result.theta - truth) / np.maximum(np.abs(truth), 1e-2))
+        ),
+    }
+    if not args.no_panda:
+        doc["panda_gaz2019"] = panda_table(panda) or "data not found: skipped"
+    if args.json:
+        print(json.dumps(doc, indent=2))
+    else:
+        for name, timings in doc["us_per_sample"].items():
+            print(f"{name:18s} " + "  ".join(f"{k} {v:7.1f} µs" for k, v in timings.items()))
+        ident = doc["identify_60s_7joints_1kHz"]
+        print(
+            f"identify 60 s, 7 joints, 1 kHz: {ident['seconds']:.2f} s wall, "
+            f"{ident['cpu_seconds']:.2f} s CPU (target < {TARGET_IDENTIFY_S:.0f} s); "
+            f"held-out NRMSE max {ident['held_out_nrmse_max']:.4f}; "
+            f"base parameters within {ident['max_relative_error_of_base_parameters']:.2%}"
+        )
+        table = doc.get("panda_gaz2019")
+        if isinstance(table, dict):
+            print(f"Panda (Gaz et al. 2019), held-out NRMSE after {table['fit_until_s']:.2f} s:")
+            print("| joint | ours | Gaz et al. (2019) model | URDF nominal |")
+            print("|---|---|---|---|")
+            for j in range(7):
+                print(
+                    f"| {j + 1} | {table['ours'][j]:.3f} | {table['gaz_2019'][j]:.3f} | "
+                    f"{table['urdf_nominal'][j]:.3f} |"
+                )
+        elif table:
+            print(f"Panda table: {table}")
+    # judged on CPU time: the work is single-threaded, and on this shared 2-core VM the wall
+    # clock mostly measures the other agents' load (both are printed)
+    return 0 if cpu < TARGET_IDENTIFY_S else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
