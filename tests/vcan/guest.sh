@@ -9,13 +9,27 @@ export PYTHONDONTWRITEBYTECODE=1   # the source tree is read-only in the guest
 export MPLBACKEND=Agg
 
 ip link set up lo
-# README.md "vcan loopback", as written there:
-ip link add dev vcan0 type vcan && ip link set up vcan0
+# README.md's "vcan loopback" block, as written there (it creates vcan0), in the venv README
+# activates (its --out is under /tmp: the source tree is read-only here)
+awk '/^### vcan loopback/ {s = 1} s && /^```sh/ {b = 1; next} b && /^```/ {exit} b' README.md \
+    > /tmp/readme-vcan.sh
+echo "--- README.md vcan loopback block:"
+cat /tmp/readme-vcan.sh
+[ -s /tmp/readme-vcan.sh ] || { echo "no vcan loopback block in README.md"; echo 2 > "$out/status"; exit 2; }
+(. .venv/bin/activate && sh -ex /tmp/readme-vcan.sh) > "$out/readme.log" 2>&1
+readme=$?
+cat "$out/readme.log"
+echo "--- README block exit status $readme"
 ip -brief link show vcan0 || { echo "vcan0 could not be created"; echo 2 > "$out/status"; exit 2; }
 
+# shellcheck disable=SC2046  # extra arguments, word-split on purpose
 {
-    .venv/bin/python -m pytest -q -p no:cacheprovider -m vcan -o addopts=-ra \
-        --junitxml="$out/junit.xml" tests/vcan tests/test_can_server.py
+    .venv/bin/python -m pytest -q -p no:cacheprovider -m vcan -o addopts=-ra --durations=5 \
+        --junitxml="$out/junit.xml" $(cat "$out/pytest-args" 2>/dev/null) \
+        tests/vcan tests/test_can_server.py
     echo $? > "$out/status"
 } 2>&1 | tee "$out/pytest.log"
-exit "$(cat "$out/status")"
+status=$(cat "$out/status")
+[ "$readme" = 0 ] || { echo "the README block failed"; [ "$status" != 0 ] || status=1; }
+echo "$status" > "$out/status"
+exit "$status"

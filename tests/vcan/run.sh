@@ -12,7 +12,9 @@
 # does not boot). Everything is bounded: DDBENCH_VCAN_TIMEOUT seconds for the guest (default 480).
 #
 # Environment: DDBENCH_VCAN_CACHE (downloaded .deb files, default /var/tmp/ddbench-vcan),
-# DDBENCH_VCAN_ACCEL (default "tcg -cpu max": a nested KVM guest was seen to hang at boot).
+# DDBENCH_VCAN_ACCEL (default "tcg -cpu max": a nested KVM guest was seen to hang at boot),
+# DDBENCH_VCAN_PYTEST_ARGS (extra pytest arguments in the guest, e.g. "-x -k realtime"),
+# DDBENCH_VCAN_KEEP (a directory: the guest's pytest.log, junit.xml and console log are copied there).
 set -uo pipefail
 cd "$(dirname "$0")/../.."
 ROOT=$(pwd -P)
@@ -94,6 +96,8 @@ python3 tests/vcan/initramfs.py --modules "$MODULES" --busybox "$WORK/busybox/bi
     --init tests/vcan/init.sh --out "$WORK/initramfs.cpio" || skip "cannot build the initramfs"
 rm -rf "$WORK/kernel/lib"   # ~400 MB of modules, no longer needed
 mkdir "$WORK/results"
+# extra pytest arguments for the guest (e.g. "-k realtime -x"), read by tests/vcan/guest.sh
+printf '%s\n' "${DDBENCH_VCAN_PYTEST_ARGS:-}" > "$WORK/results/pytest-args"
 
 # --- boot ------------------------------------------------------------------------------------
 say "booting $(basename "$VMLINUZ") under qemu ($ACCEL), at most ${TIMEOUT} s"
@@ -111,6 +115,9 @@ wait "$QEMU_PID"
 qemu_rc=$?
 QEMU_PID=
 elapsed=$(($(date +%s) - START))
+if [ -n "${DDBENCH_VCAN_KEEP:-}" ]; then
+    mkdir -p "$DDBENCH_VCAN_KEEP" && cp -r "$WORK/results/." "$WORK/console.log" "$DDBENCH_VCAN_KEEP/"
+fi
 
 if [ ! -f "$WORK/results/booted" ]; then
     tail -n 20 "$WORK/console.log" 2>/dev/null | sed 's/^/  console: /'
