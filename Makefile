@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: demo test test-slow bench lint format clean eds
+.PHONY: demo test test-slow test-vcan bench lint format clean eds
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -21,6 +21,11 @@ test: $(STAMP)
 
 test-slow: $(STAMP)
 	$(BIN)/python -m pytest -q -m slow
+
+# the vcan/SocketCAN tests on a real Linux kernel in a QEMU guest (docs/vcan.md); skips, with the
+# reason, where it cannot run
+test-vcan: $(STAMP)
+	tests/vcan/run.sh
 
 bench: $(STAMP)
 	$(BIN)/python tests/benchmarks/bench_simulate.py

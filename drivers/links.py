@@ -52,10 +52,34 @@ def can_bus_kwargs(bench: BenchProfile, channel: dict[str, Any]) -> dict[str, An
     raise ValueError(f"{bench.source}: transport {bench.transport!r} is not a CAN transport")
 
 
+def open_socketcan(channel: str) -> Any:
+    """python-can SocketCAN bus on ``channel``; a missing interface is a one-line OSError.
+
+    The interface is looked up first: python-can logs a second line of its own when the bind fails.
+    """
+    import socket
+
+    import can
+
+    try:
+        socket.if_nametoindex(channel)
+    except OSError:
+        if channel.startswith("vcan"):
+            make = f"ip link add dev {channel} type vcan && ip link set up {channel}"
+            raise OSError(f"{channel} missing: run `{make}` (docs/vcan.md)") from None
+        raise OSError(f"socketcan channel {channel} missing: no such network interface") from None
+    try:
+        return can.Bus(interface="socketcan", channel=channel)
+    except Exception as exc:  # CanError is not an OSError; the CLIs report OSErrors
+        raise OSError(f"cannot open socketcan channel {channel}: {exc}") from exc
+
+
 def make_can_bus(kwargs: dict[str, Any]) -> Any:
     """``can.Bus(**kwargs)``; slcan goes through :class:`drivers.slcan.SelectSlcanBus`."""
     import can
 
+    if kwargs.get("interface") == "socketcan" and set(kwargs) == {"interface", "channel"}:
+        return open_socketcan(kwargs["channel"])
     if kwargs.get("interface") == "slcan":
         from drivers.slcan import SelectSlcanBus
 

@@ -570,6 +570,7 @@ def test_socketcand_end_to_end_with_a_sniffer(
             robot_bus.shutdown()
 
 
+@pytest.mark.vcan
 def test_socketcan_vcan0(served: Callable[[can.BusABC], CanDriveServer]) -> None:
     try:
         robot_bus = can.Bus(interface="socketcan", channel="vcan0")

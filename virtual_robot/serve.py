@@ -186,11 +186,10 @@ def serve(
                 port=hub.port,
             )
         elif bench.transport == "socketcan":
+            from drivers.links import open_socketcan
+
             channel = bench.channel or "vcan0"
-            try:
-                bus = can.Bus(interface="socketcan", channel=channel)
-            except Exception as exc:  # CanError is not an OSError; the CLI reports OSErrors
-                raise OSError(f"cannot open socketcan channel {channel}: {exc}") from exc
+            bus = open_socketcan(channel)
             info["channel"] = channel
         elif bench.transport == "virtual":
             channel = bench.channel or "ddbench"
