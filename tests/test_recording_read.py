@@ -474,3 +474,21 @@ def test_out_dir_refused_when_not_empty_unless_overwrite(tmp_path):
     (tmp_path / "file").write_text("x")
     with pytest.raises(ValueError, match="not a directory"):
         prepare_out_dir(tmp_path / "file", True)
+
+
+def test_realtime_run_read_on_its_host_stamps(tmp_path):
+    """A realtime run's t column is k·h; `--columns t=sync_sent_s` reads it on the host's
+    stamps instead, checked against meta.json's period_s."""
+    rng = np.random.default_rng(3)
+    stamps = 1234.5 + np.arange(100) * H + rng.uniform(0, 0.3 * H, 100)
+    with RecordingWriter(tmp_path / "rt", {"period_s": H, "mode": "realtime"},
+                         extra_columns=("sync_sent_s",)) as w:  # fmt: skip
+        for k in range(100):
+            w.write([k * H, 0.01 * k, 0.0, 1.0, 0.0, float(stamps[k])])
+    rec = read_signals(tmp_path / "rt", columns="t=sync_sent_s")
+    assert rec.t.tobytes() == stamps.tobytes() and rec.time_column == "sync_sent_s"
+    assert rec.period_s == H
+    set_meta(tmp_path / "rt", period_s=10 * H)
+    with pytest.raises(RecordingError) as exc:
+        read_signals(tmp_path / "rt", columns="t=sync_sent_s")
+    assert "inconsistent with meta.json's period_s" in one_line_error(exc)
