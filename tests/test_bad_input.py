@@ -192,20 +192,21 @@ def test_recording_options_reach_identify(tmp_path, capsys):
     assert_one_line_error(code, err)
 
 
+# IndexError in hil/diagnose_locate.py _terciles on this branch; fixed on h12-diag (then the
+# test passes, reported as XPASS): drop the mark once both are merged
+XFAIL_TERCILES = "hil/diagnose_locate.py _terciles (fixed on h12-diag)"
+
+
 @pytest.mark.parametrize(
     "kind",
     [
         pytest.param(
             "one-joint",
-            marks=pytest.mark.xfail(
-                strict=True, raises=IndexError, reason="hil/diagnose_locate.py _terciles (h12-diag)"
-            ),
+            marks=pytest.mark.xfail(strict=False, raises=IndexError, reason=XFAIL_TERCILES),
         ),
         pytest.param(
             "step",
-            marks=pytest.mark.xfail(
-                strict=True, raises=IndexError, reason="hil/diagnose_locate.py _terciles (h12-diag)"
-            ),
+            marks=pytest.mark.xfail(strict=False, raises=IndexError, reason=XFAIL_TERCILES),
         ),
     ],
 )
