@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from drivers.recording import write_json_atomic
+from hil.cli_options import prepare_out_dir
 from hil.executors import Executor, make_executor
 
 VARIABLES = {
@@ -449,6 +450,7 @@ def sweep(
             getattr(args, "executor", "process"), getattr(args, "workers", None)
         )
     out = Path(points[0].out_dir).parent
+    prepare_out_dir(out, getattr(args, "overwrite", False))
     out.mkdir(parents=True, exist_ok=True)
     if progress:
         print(
