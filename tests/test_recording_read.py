@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from drivers.recording import (
@@ -410,16 +410,22 @@ def test_t_out_of_order_is_an_error(tmp_path, t, data):
     max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
 )
 @given(t=increasing_t, d=st.integers(-3, 3))
+@example(t=np.cumsum([0.0, 0.00390625, 0.00021, 0.00021]), d=1)  # a gap after row 0
 def test_loop_delay_aligns_rows(tmp_path, t, d):
     path = _csv(tmp_path / "s.csv", t)
     raw = read_signals(path)
     rec = read_signals(path, loop_delay=d)
-    n = len(t)
-    assert len(rec) == max(0, n - abs(d)) or (n <= abs(d) and len(rec) == 0)
+    # each segment (between gaps) loses |d| rows; a torque never comes from another segment
+    segments = raw.segments()
+    assert len(rec) == sum(max(0, s.stop - s.start - abs(d)) for s in segments)
+    segment_of = np.zeros(len(t), dtype=int)
+    for number, s in enumerate(segments):
+        segment_of[s] = number
     for k in range(len(rec)):
         i = int(np.searchsorted(t, rec.t[k]))  # the file row of output row k
         assert rec.q[k].tolist() == raw.q[i].tolist()
         assert rec.tau[k].tolist() == raw.tau[i - d].tolist()
+        assert segment_of[i] == segment_of[i - d]
 
 
 json_values = st.recursive(
