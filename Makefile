@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/hil demo --out runs/demo
+	$(BIN)/hil demo --out runs/demo --overwrite
 
 test: $(STAMP)
 	$(BIN)/ruff check hil drivers virtual_robot profiles tests

@@ -443,7 +443,7 @@ def _plan(
         for name in ("t", *(f"{p}{j + 1}" for p in ("q", "tau") for j in range(n))):
             sources[name] = name
     for name, column in overrides.items():
-        joint = int(name.lstrip("qta u")) if name != "t" else 0
+        joint = int(name.removeprefix("tau").removeprefix("q")) if name != "t" else 0
         if joint > n:
             raise RecordingError(
                 f"{csv_path}: column map names {name} but the recording has {n} joint(s) "

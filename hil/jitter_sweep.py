@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from drivers.recording import write_json_atomic
+from hil.cli_options import prepare_out_dir
 from hil.executors import (
     Executor,
     ExecutorUnavailableError,
@@ -449,6 +450,7 @@ def sweep(
     if executor is None:
         executor = executor_from_args(args)
     out = Path(points[0].out_dir).parent
+    prepare_out_dir(out, getattr(args, "overwrite", False))
     out.mkdir(parents=True, exist_ok=True)
     if progress:
         print(

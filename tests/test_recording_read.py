@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from drivers.recording import (
@@ -370,7 +370,9 @@ def _csv(path: Path, t: np.ndarray, seed: int = 0) -> Path:
     return path
 
 
-increasing_t = st.lists(st.floats(1e-4, 5e-3, allow_nan=False), min_size=1, max_size=60).map(
+# intervals within a factor 5 of each other: no gaps (an interval > 10x the median starts a new
+# segment, and the loop delay shifts within segments; test_gap_* cover that)
+increasing_t = st.lists(st.floats(1e-3, 5e-3, allow_nan=False), min_size=1, max_size=60).map(
     lambda d: np.cumsum([0.0, *d])
 )
 
@@ -410,16 +412,22 @@ def test_t_out_of_order_is_an_error(tmp_path, t, data):
     max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
 )
 @given(t=increasing_t, d=st.integers(-3, 3))
+@example(t=np.cumsum([0.0, 0.00390625, 0.00021, 0.00021]), d=1)  # a gap after row 0
 def test_loop_delay_aligns_rows(tmp_path, t, d):
     path = _csv(tmp_path / "s.csv", t)
     raw = read_signals(path)
     rec = read_signals(path, loop_delay=d)
-    n = len(t)
-    assert len(rec) == max(0, n - abs(d)) or (n <= abs(d) and len(rec) == 0)
+    # each segment (between gaps) loses |d| rows; a torque never comes from another segment
+    segments = raw.segments()
+    assert len(rec) == sum(max(0, s.stop - s.start - abs(d)) for s in segments)
+    segment_of = np.zeros(len(t), dtype=int)
+    for number, s in enumerate(segments):
+        segment_of[s] = number
     for k in range(len(rec)):
         i = int(np.searchsorted(t, rec.t[k]))  # the file row of output row k
         assert rec.q[k].tolist() == raw.q[i].tolist()
         assert rec.tau[k].tolist() == raw.tau[i - d].tolist()
+        assert segment_of[i] == segment_of[i - d]
 
 
 json_values = st.recursive(
@@ -474,3 +482,21 @@ def test_out_dir_refused_when_not_empty_unless_overwrite(tmp_path):
     (tmp_path / "file").write_text("x")
     with pytest.raises(ValueError, match="not a directory"):
         prepare_out_dir(tmp_path / "file", True)
+
+
+def test_realtime_run_read_on_its_host_stamps(tmp_path):
+    """A realtime run's t column is k·h; `--columns t=sync_sent_s` reads it on the host's
+    stamps instead, checked against meta.json's period_s."""
+    rng = np.random.default_rng(3)
+    stamps = 1234.5 + np.arange(100) * H + rng.uniform(0, 0.3 * H, 100)
+    with RecordingWriter(tmp_path / "rt", {"period_s": H, "mode": "realtime"},
+                         extra_columns=("sync_sent_s",)) as w:  # fmt: skip
+        for k in range(100):
+            w.write([k * H, 0.01 * k, 0.0, 1.0, 0.0, float(stamps[k])])
+    rec = read_signals(tmp_path / "rt", columns="t=sync_sent_s")
+    assert rec.t.tobytes() == stamps.tobytes() and rec.time_column == "sync_sent_s"
+    assert rec.period_s == H
+    set_meta(tmp_path / "rt", period_s=10 * H)
+    with pytest.raises(RecordingError) as exc:
+        read_signals(tmp_path / "rt", columns="t=sync_sent_s")
+    assert "inconsistent with meta.json's period_s" in one_line_error(exc)
