@@ -29,6 +29,7 @@ import time
 import uuid
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import CancelledError
 from typing import Any, TypeVar
 
 import distributed
@@ -213,6 +214,9 @@ class DaskExecutor(OrderedMap):
                 )
             except TimeoutError:
                 continue
+            except CancelledError as exc:  # the client lost its scheduler
+                yield from give_up(f"scheduler unreachable: {one_line(exc)}")
+                return
             for future in sorted(done, key=lambda f: running[f][0]):
                 i, worker = running.pop(future)
                 status = future.status
