@@ -283,6 +283,24 @@ def test_panda_identification_against_the_published_model(panda):
     assert np.all(ours < 0.25), ours
     assert ours.mean() < 1.15 * reference.mean(), (ours, reference)
     assert ours.mean() < 0.5 * nominal.mean(), (ours, nominal)
+    # least squares leaves M(q) indefinite here; the consistent fit predicts as well and is not
+    assert not panda.physical_consistency(result.theta)["consistent"]
+    feasible = identify_torque(panda, rec, consistent=True)
+    assert panda.physical_consistency(feasible.theta_standard)["consistent"]
+    assert panda.physical_consistency(feasible.theta)["consistent"]
+    assert feasible.nrmse_held_out.mean() < 1.15 * reference.mean()
+
+
+def test_log_cholesky_parametrization_round_trips_and_is_always_consistent():
+    from hil.urdf_identify import _cholesky_from_pi, _pi_from_cholesky
+
+    arm = UrdfArmModel.from_profile("panda")
+    pi = arm.standard_theta[10:20]  # body 2 of the URDF
+    assert np.allclose(_pi_from_cholesky(_cholesky_from_pi(pi)), pi, atol=1e-5)
+    for _ in range(20):
+        theta = arm.standard_theta.copy()
+        theta[:10] = _pi_from_cholesky(RNG.normal(size=10))
+        assert arm.physical_consistency(theta)["consistent"]
 
 
 def test_planar_loader_refuses_a_urdf_only_arm_in_one_line():
