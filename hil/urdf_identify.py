@@ -15,8 +15,8 @@ wrist).
 
 The Panda log layout (``rbt_log/exciting_traj_{time,positions,torques}.txt``: one number a
 line, 7 joints of a sample on 7 consecutive lines) is read by :func:`read_one_per_line_log`
-into the standard recording ``t, q1..qn, tau1..taun``. Imports hil.estimators and
-hil.urdf_model; no plotting.
+into the standard recording ``t, q1..qn, tau1..taun``. Imports hil.estimators,
+hil.metrics and hil.urdf_model; no plotting.
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ from scipy.interpolate import CubicSpline
 from scipy.signal import butter, sosfiltfilt
 
 from hil.estimators import weighted_least_squares
+from hil.metrics import nrmse
 from hil.urdf_model import UrdfArmModel
 
 # Smoothing of positions before differentiation, and of both sides of the regression.
@@ -166,12 +167,6 @@ class TorqueIdentification:
     method: str = "weighted least squares"
 
 
-def nrmse(predicted: np.ndarray, measured: np.ndarray) -> np.ndarray:
-    """Per joint: RMS(τ̂ − τ) / standard deviation of τ (a constant predictor scores 1)."""
-    err = np.sqrt(np.mean((predicted - measured) ** 2, axis=0))
-    return err / np.std(measured, axis=0)
-
-
 def regression_rows(
     model: UrdfArmModel,
     rec: TorqueRecording,
@@ -190,8 +185,8 @@ def regression_rows(
 
 
 def torque_nrmse(theta: np.ndarray, rows: FilteredRows) -> np.ndarray:
-    """Per-joint NRMSE of the torque θ predicts on ``rows`` (see :func:`nrmse`)."""
-    return nrmse(np.einsum("knp,p->kn", rows.Y, theta), rows.tau)
+    """Per-joint NRMSE of the torque θ predicts on ``rows`` (:func:`hil.metrics.nrmse`)."""
+    return nrmse(rows.tau, np.einsum("knp,p->kn", rows.Y, theta))
 
 
 def identify_torque(
@@ -222,7 +217,7 @@ def identify_torque(
         theta, method = model.base_theta(theta_standard), "physically consistent least squares"
     predicted = np.einsum("knp,p->kn", rows.Y, theta)
     held = (
-        nrmse(predicted[~fit], rows.tau[~fit]) if held_out > 0 else np.full(model.n_joints, np.nan)
+        nrmse(rows.tau[~fit], predicted[~fit]) if held_out > 0 else np.full(model.n_joints, np.nan)
     )
     return TorqueIdentification(theta, split, rows, predicted, held, theta_standard, method)
 

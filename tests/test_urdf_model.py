@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 import hil.model as closed_form
+from hil.metrics import nrmse
 from hil.urdf_identify import (
     TorqueRecording,
     filtered_rows,
     identify_torque,
-    nrmse,
     read_one_per_line_log,
     smoothed_motion,
 )
@@ -275,10 +275,10 @@ def test_panda_identification_against_the_published_model(panda):
     theirs = filtered_rows(sub, theirs_tau[..., None])
     tail = theirs.t >= result.fit_until_s
     ours = result.nrmse_held_out
-    reference = nrmse(theirs.Y[tail, :, 0], theirs.tau[tail])
+    reference = nrmse(theirs.tau[tail], theirs.Y[tail, :, 0])
     # the URDF's nominal parameters, for scale
     nominal = nrmse(
-        np.einsum("knp,p->kn", result.rows.Y[held], panda.base_theta()), result.rows.tau[held]
+        result.rows.tau[held], np.einsum("knp,p->kn", result.rows.Y[held], panda.base_theta())
     )
     assert np.all(ours < 0.25), ours
     assert ours.mean() < 1.15 * reference.mean(), (ours, reference)

@@ -25,11 +25,11 @@ from pathlib import Path
 import numpy as np
 
 import hil.model as closed_form
+from hil.metrics import nrmse
 from hil.urdf_identify import (
     TorqueRecording,
     filtered_rows,
     identify_torque,
-    nrmse,
     read_one_per_line_log,
     smoothed_motion,
 )
@@ -114,8 +114,8 @@ def panda_table(model: UrdfArmModel) -> dict | None:
         "samples": len(rec.t),
         "fit_until_s": result.fit_until_s - rec.t[0],
         "ours": result.nrmse_held_out.tolist(),
-        "gaz_2019": nrmse(theirs.Y[held, :, 0], theirs.tau[held]).tolist(),
-        "urdf_nominal": nrmse(nominal, result.rows.tau[held]).tolist(),
+        "gaz_2019": nrmse(theirs.tau[held], theirs.Y[held, :, 0]).tolist(),
+        "urdf_nominal": nrmse(result.rows.tau[held], nominal).tolist(),
     }
 
 
