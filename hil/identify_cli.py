@@ -112,6 +112,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_out_options(p)
     add_recording_options(p)
     p.add_argument("--no-plot", action="store_true", help="skip the plots")
+    p.add_argument(
+        "--consistent",
+        action="store_true",
+        help="URDF arms (docs/urdf.md): constrain the fit to physically consistent parameters",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
 
 
@@ -203,6 +208,11 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         raise ValueError(f"--lambda must be > 0 rad/s, got {args.lam}")
     if args.from_recording and _urdf_robot(args):
         return run_identify_urdf(args)
+    if getattr(args, "consistent", False):
+        raise ValueError(
+            "--consistent is for arms described by a URDF with --from (docs/urdf.md); the "
+            "2-DOF model path bounds its fit when least squares is not physical"
+        )
     if args.from_recording and _model_path(args):
         return run_identify_model(args)
     if args.lam is None:
@@ -622,7 +632,10 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     )
     held_out = 0.0 if args.validate else 0.25
     res = identify_torque(
-        model, TorqueRecording(fit.t, fit.q, fit.tau, str(fit.path)), held_out=held_out
+        model,
+        TorqueRecording(fit.t, fit.q, fit.tau, str(fit.path)),
+        held_out=held_out,
+        consistent=args.consistent,
     )
     nominal = model.base_theta()
     if args.validate:
@@ -639,6 +652,10 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         "model": "urdf",
         "urdf": model.urdf,
         "terms": list(model.terms),
+        "method": res.method,
+        "standard_parameters": None
+        if res.theta_standard is None
+        else dict(zip(model.standard_names, res.theta_standard.tolist(), strict=True)),
         "parameters": [
             {"name": n, "meaning": m, "unit": u, "identified": float(x), "nominal": float(y)}
             for n, m, u, x, y in zip(
@@ -658,7 +675,7 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     lines = [
         f"Identification of {args.robot} from {fit.path} ({model.n_joints} joints, base "
         f"parameters by pivoted QR of the torque regressor; terms: "
-        f"{', '.join(model.terms) or 'none'})",
+        f"{', '.join(model.terms) or 'none'}; {res.method})",
         f"{'':8s} {'identified':>12s} {'nominal':>12s}  unit     meaning",
     ]
     for p in report["parameters"]:

@@ -15,8 +15,8 @@ wrist).
 
 The Panda log layout (``rbt_log/exciting_traj_{time,positions,torques}.txt``: one number a
 line, 7 joints of a sample on 7 consecutive lines) is read by :func:`read_one_per_line_log`
-into the standard recording ``t, q1..qn, tau1..taun``. Imports hil.estimators and
-hil.urdf_model; no plotting.
+into the standard recording ``t, q1..qn, tau1..taun``. Imports hil.estimators,
+hil.metrics and hil.urdf_model; no plotting.
 """
 
 from __future__ import annotations
@@ -29,11 +29,14 @@ from scipy.interpolate import CubicSpline
 from scipy.signal import butter, sosfiltfilt
 
 from hil.estimators import weighted_least_squares
+from hil.metrics import nrmse
 from hil.urdf_model import UrdfArmModel
 
 # Smoothing of positions before differentiation, and of both sides of the regression.
 DEFAULT_CUTOFF_HZ = 4.0
 DEFAULT_DECIMATE = 10
+# Weight of the pull towards the URDF's bodies in the consistent fit, relative to the data's.
+REGULARIZATION = 1e-4
 # Rows dropped at each end: the zero-phase filters' start-up transients.
 EDGE_S = 0.5
 
@@ -160,12 +163,8 @@ class TorqueIdentification:
     rows: FilteredRows
     predicted: np.ndarray  # (K, n): Ψ θ on every row
     nrmse_held_out: np.ndarray  # (n,)
-
-
-def nrmse(predicted: np.ndarray, measured: np.ndarray) -> np.ndarray:
-    """Per joint: RMS(τ̂ − τ) / standard deviation of τ (a constant predictor scores 1)."""
-    err = np.sqrt(np.mean((predicted - measured) ** 2, axis=0))
-    return err / np.std(measured, axis=0)
+    theta_standard: np.ndarray | None = None  # the consistent fit's standard parameters
+    method: str = "weighted least squares"
 
 
 def regression_rows(
@@ -186,8 +185,8 @@ def regression_rows(
 
 
 def torque_nrmse(theta: np.ndarray, rows: FilteredRows) -> np.ndarray:
-    """Per-joint NRMSE of the torque θ predicts on ``rows`` (see :func:`nrmse`)."""
-    return nrmse(np.einsum("knp,p->kn", rows.Y, theta), rows.tau)
+    """Per-joint NRMSE of the torque θ predicts on ``rows`` (:func:`hil.metrics.nrmse`)."""
+    return nrmse(rows.tau, np.einsum("knp,p->kn", rows.Y, theta))
 
 
 def identify_torque(
@@ -197,10 +196,12 @@ def identify_torque(
     cutoff_hz: float = DEFAULT_CUTOFF_HZ,
     decimate: int = DEFAULT_DECIMATE,
     held_out: float = 0.25,
+    consistent: bool = False,
 ) -> TorqueIdentification:
     """Batch least squares of the base parameters and friction on the first (1 − held_out) of
     the recording's time span; the normalized error of the torque prediction on the rest
-    (``held_out`` = 0: fit on everything, no held-out error)."""
+    (``held_out`` = 0: fit on everything, no held-out error). ``consistent``: the fit is
+    constrained to physically consistent standard parameters (:func:`consistent_fit`)."""
     rows = regression_rows(model, rec, cutoff_hz=cutoff_hz, decimate=decimate)
     split = rec.t[0] + (1.0 - held_out) * (rec.t[-1] - rec.t[0])
     fit = rows.t < split if held_out > 0 else np.ones(len(rows.t), dtype=bool)
@@ -210,8 +211,108 @@ def identify_torque(
             f"{model.n_params} parameters"
         )
     theta = weighted_least_squares(rows.Y[fit], rows.tau[fit])
+    theta_standard, method = None, "weighted least squares"
+    if consistent:
+        theta_standard = consistent_fit(model, rows.Y[fit], rows.tau[fit], theta)
+        theta, method = model.base_theta(theta_standard), "physically consistent least squares"
     predicted = np.einsum("knp,p->kn", rows.Y, theta)
     held = (
-        nrmse(predicted[~fit], rows.tau[~fit]) if held_out > 0 else np.full(model.n_joints, np.nan)
+        nrmse(rows.tau[~fit], predicted[~fit]) if held_out > 0 else np.full(model.n_joints, np.nan)
     )
-    return TorqueIdentification(theta, split, rows, predicted, held)
+    return TorqueIdentification(theta, split, rows, predicted, held, theta_standard, method)
+
+
+# --- physically consistent fit ------------------------------------------------------------------
+
+
+def _pi_from_cholesky(x: np.ndarray) -> np.ndarray:
+    """Ten dynamic parameters of a body from its log-Cholesky factor x (10,): the pseudo-inertia
+    J = L Lᵀ, L lower triangular with diagonal exp(x[:4]) (Rucker & Wensing (2022)), so J is
+    positive definite for every x; J = [[Σ, h], [hᵀ, m]], Σ = ½ tr(I) 1 − I ⇒ I = tr(Σ) 1 − Σ."""
+    L = np.zeros((4, 4))
+    L[np.diag_indices(4)] = np.exp(x[:4])
+    L[np.tril_indices(4, -1)] = x[4:]
+    J = L @ L.T
+    S, h, m = J[:3, :3], J[:3, 3], J[3, 3]
+    inertia = np.trace(S) * np.eye(3) - S
+    return np.array(
+        [m, *h, inertia[0, 0], inertia[0, 1], inertia[1, 1], inertia[0, 2], inertia[1, 2],
+         inertia[2, 2]]
+    )  # fmt: skip
+
+
+def _cholesky_from_pi(pi: np.ndarray) -> np.ndarray:
+    m, h = pi[0], pi[1:4]
+    inertia = np.array([[pi[4], pi[5], pi[7]], [pi[5], pi[6], pi[8]], [pi[7], pi[8], pi[9]]])
+    J = np.zeros((4, 4))
+    J[:3, :3] = 0.5 * np.trace(inertia) * np.eye(3) - inertia
+    J[:3, 3] = J[3, :3] = h
+    J[3, 3] = m
+    w, V = np.linalg.eigh(J)
+    J = (V * np.maximum(w, 1e-6 * max(w.max(), 1e-9))) @ V.T  # nudge onto the PD cone
+    L = np.linalg.cholesky(J)
+    return np.concatenate([np.log(np.diag(L)), L[np.tril_indices(4, -1)]])
+
+
+def consistent_fit(
+    model: UrdfArmModel, Y: np.ndarray, tau: np.ndarray, theta_ls: np.ndarray
+) -> np.ndarray:
+    """Standard parameters minimizing the same weighted torque error as the least squares,
+    constrained to physical consistency: every body's pseudo-inertia positive definite (by the
+    log-Cholesky parametrization), armature, viscous and Coulomb coefficients ≥ 0 (as squares);
+    offsets free. Started from the URDF's bodies and the least-squares friction; solved by
+    scipy's trust-region least squares on the QR-reduced problem. Returns θ_std."""
+    from scipy.optimize import least_squares as nonlinear_least_squares
+
+    K, n, p = Y.shape
+    sigma = np.std(tau - np.einsum("knp,p->kn", Y, theta_ls), axis=0)  # per-joint noise level
+    sigma[sigma == 0] = 1.0
+    A = (Y / sigma[None, :, None]).reshape(K * n, p) @ model.base.expand
+    b = (tau / sigma).reshape(K * n)
+    Q, R = np.linalg.qr(A)  # ‖A π − b‖² = ‖R π − Qᵀ b‖² + const
+    c = Q.T @ b
+    nb, n_pos = model.n_body_params // 10, model.n_rigid_standard - model.n_body_params + 2 * n
+    std0 = model.standard_theta.copy()
+    # friction from the least squares, clipped to the physical side
+    fr = model.term_columns("friction")
+    std0[model.n_rigid_standard :] = theta_ls[fr]
+    bodies = [_cholesky_from_pi(std0[10 * j : 10 * j + 10]) for j in range(nb)]
+    positive = np.sqrt(np.maximum(std0[model.n_body_params : model.n_body_params + n_pos], 1e-8))
+    free = std0[model.n_body_params + n_pos :]
+    x0 = np.concatenate([*bodies, positive, free])
+
+    def standard(x: np.ndarray) -> np.ndarray:
+        pis = [_pi_from_cholesky(x[10 * j : 10 * j + 10]) for j in range(nb)]
+        pos = x[10 * nb : 10 * nb + n_pos] ** 2
+        return np.concatenate([*pis, pos, x[10 * nb + n_pos :]])
+
+    def jacobian_of_standard(x: np.ndarray) -> np.ndarray:
+        # block diagonal: each body's 10 parameters depend on its own 10 numbers only
+        Jp = np.zeros((len(x), len(x)))
+        step = 1e-7
+        for j in range(nb):
+            sl = slice(10 * j, 10 * j + 10)
+            for k in range(10):
+                e = np.zeros(10)
+                e[k] = step
+                Jp[sl, 10 * j + k] = (
+                    _pi_from_cholesky(x[sl] + e) - _pi_from_cholesky(x[sl] - e)
+                ) / (2 * step)
+        i = np.arange(10 * nb, 10 * nb + n_pos)
+        Jp[i, i] = 2 * x[i]
+        i = np.arange(10 * nb + n_pos, len(x))
+        Jp[i, i] = 1.0
+        return Jp
+
+    # A weak pull towards the start (the URDF's bodies) keeps the directions the data do not
+    # determine where the URDF puts them, and makes the problem well posed.
+    reg = REGULARIZATION * np.linalg.norm(R) / np.sqrt(len(x0))
+
+    def residual(x: np.ndarray) -> np.ndarray:
+        return np.concatenate([R @ standard(x) - c, reg * (x - x0)])
+
+    def jacobian(x: np.ndarray) -> np.ndarray:
+        return np.vstack([R @ jacobian_of_standard(x), reg * np.eye(len(x))])
+
+    sol = nonlinear_least_squares(residual, x0, jac=jacobian, method="trf", max_nfev=500)
+    return standard(sol.x)

@@ -67,9 +67,12 @@ class BaseParameters:
 class UrdfArmModel:
     """M, C q̇, g, friction and regressors of an n-joint arm described by a URDF (see module doc).
 
-    ``terms=("rotor_inertia",)`` adds one armature parameter per joint (I_a q̈ at joint i). The
-    rigid-body part comes from the URDF; ``viscous``/``coulomb``/``armature`` give the nominal
-    (reference) values of the other standard parameters.
+    Terms (:data:`TERMS`): ``rotor_inertia`` adds one armature parameter per joint (I_a q̈ at
+    joint i, the rotor inertia reflected through the gear, gr² I_rotor); ``friction_offset``
+    adds a constant torque per joint (asymmetric Coulomb friction, torque-sensor offset). The
+    rigid-body part comes from the URDF; ``viscous``/``coulomb``/``friction_offset``/
+    ``armature`` give the nominal (reference) values of the other standard parameters.
+    ``gear_ratio`` is kept for the drives; the dynamics take the armature already reflected.
     """
 
     def __init__(

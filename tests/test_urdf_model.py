@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 import hil.model as closed_form
+from hil.metrics import nrmse
 from hil.urdf_identify import (
     TorqueRecording,
     filtered_rows,
     identify_torque,
-    nrmse,
     read_one_per_line_log,
     smoothed_motion,
 )
@@ -275,14 +275,32 @@ def test_panda_identification_against_the_published_model(panda):
     theirs = filtered_rows(sub, theirs_tau[..., None])
     tail = theirs.t >= result.fit_until_s
     ours = result.nrmse_held_out
-    reference = nrmse(theirs.Y[tail, :, 0], theirs.tau[tail])
+    reference = nrmse(theirs.tau[tail], theirs.Y[tail, :, 0])
     # the URDF's nominal parameters, for scale
     nominal = nrmse(
-        np.einsum("knp,p->kn", result.rows.Y[held], panda.base_theta()), result.rows.tau[held]
+        result.rows.tau[held], np.einsum("knp,p->kn", result.rows.Y[held], panda.base_theta())
     )
     assert np.all(ours < 0.25), ours
     assert ours.mean() < 1.15 * reference.mean(), (ours, reference)
     assert ours.mean() < 0.5 * nominal.mean(), (ours, nominal)
+    # least squares leaves M(q) indefinite here; the consistent fit predicts as well and is not
+    assert not panda.physical_consistency(result.theta)["consistent"]
+    feasible = identify_torque(panda, rec, consistent=True)
+    assert panda.physical_consistency(feasible.theta_standard)["consistent"]
+    assert panda.physical_consistency(feasible.theta)["consistent"]
+    assert feasible.nrmse_held_out.mean() < 1.15 * reference.mean()
+
+
+def test_log_cholesky_parametrization_round_trips_and_is_always_consistent():
+    from hil.urdf_identify import _cholesky_from_pi, _pi_from_cholesky
+
+    arm = UrdfArmModel.from_profile("panda")
+    pi = arm.standard_theta[10:20]  # body 2 of the URDF
+    assert np.allclose(_pi_from_cholesky(_cholesky_from_pi(pi)), pi, atol=1e-5)
+    for _ in range(20):
+        theta = arm.standard_theta.copy()
+        theta[:10] = _pi_from_cholesky(RNG.normal(size=10))
+        assert arm.physical_consistency(theta)["consistent"]
 
 
 def test_planar_loader_refuses_a_urdf_only_arm_in_one_line():

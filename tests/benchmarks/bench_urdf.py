@@ -25,11 +25,11 @@ from pathlib import Path
 import numpy as np
 
 import hil.model as closed_form
+from hil.metrics import nrmse
 from hil.urdf_identify import (
     TorqueRecording,
     filtered_rows,
     identify_torque,
-    nrmse,
     read_one_per_line_log,
     smoothed_motion,
 )
@@ -103,13 +103,19 @@ def panda_table(model: UrdfArmModel) -> dict | None:
         motion, gaz_reference.GazModel().torque(motion.q, motion.dq, motion.ddq)[..., None]
     )
     nominal = np.einsum("knp,p->kn", result.rows.Y[held], model.base_theta())
+    start = time.process_time()
+    feasible = identify_torque(model, rec, consistent=True)
+    feasible_cpu = time.process_time() - start
     return {
+        "ours_consistent": feasible.nrmse_held_out.tolist(),
+        "consistent_fit_cpu_s": feasible_cpu,
+        "ls_physically_consistent": model.physical_consistency(result.theta)["consistent"],
         "source": str(gaz_reference.LOG_DIR),
         "samples": len(rec.t),
         "fit_until_s": result.fit_until_s - rec.t[0],
         "ours": result.nrmse_held_out.tolist(),
-        "gaz_2019": nrmse(theirs.Y[held, :, 0], theirs.tau[held]).tolist(),
-        "urdf_nominal": nrmse(nominal, result.rows.tau[held]).tolist(),
+        "gaz_2019": nrmse(theirs.tau[held], theirs.Y[held, :, 0]).tolist(),
+        "urdf_nominal": nrmse(result.rows.tau[held], nominal).tolist(),
     }
 
 
@@ -157,13 +163,19 @@ def main() -> int:
         table = doc.get("panda_gaz2019")
         if isinstance(table, dict):
             print(f"Panda (Gaz et al. 2019), held-out NRMSE after {table['fit_until_s']:.2f} s:")
-            print("| joint | ours | Gaz et al. (2019) model | URDF nominal |")
-            print("|---|---|---|---|")
+            print(
+                "| joint | ours (LS) | ours (consistent) | Gaz et al. (2019) model | URDF nominal |"
+            )
+            print("|---|---|---|---|---|")
             for j in range(7):
                 print(
-                    f"| {j + 1} | {table['ours'][j]:.3f} | {table['gaz_2019'][j]:.3f} | "
-                    f"{table['urdf_nominal'][j]:.3f} |"
+                    f"| {j + 1} | {table['ours'][j]:.3f} | {table['ours_consistent'][j]:.3f} | "
+                    f"{table['gaz_2019'][j]:.3f} | {table['urdf_nominal'][j]:.3f} |"
                 )
+            print(
+                f"LS parameters physically consistent: {table['ls_physically_consistent']}; "
+                f"consistent fit {table['consistent_fit_cpu_s']:.1f} s CPU"
+            )
         elif table:
             print(f"Panda table: {table}")
     # judged on CPU time: the work is single-threaded, and on this shared 2-core VM the wall
