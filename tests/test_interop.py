@@ -210,3 +210,21 @@ def test_miniterm_on_the_serial_drive(tmp_path: Path) -> None:
         os.close(master)
         os.close(slave)
         _stop(robot)
+
+
+def test_cantools_decodes_the_bus_log_of_a_hil_run(tmp_path: Path) -> None:
+    hil = [sys.executable, "-m", "hil", "run", "--bench", "virtual-slcan", "--duration", "0.05"]
+    run = subprocess.run(
+        [*hil, "--no-plot", "--out", str(tmp_path)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert run.returncode == 0, run.stderr
+    # the doc's command, on the run's bus.log
+    decoded = _run("cantools-decode", _env(OUT=str(tmp_path))).stdout.splitlines()
+    frames = _frames(tmp_path / "bus.log")
+    for name, cob in (("TPDO2_dm1015b", 0x282), ("RPDO1_dm1200a", 0x201)):
+        lines = [line for line in decoded if f":: {name}(" in line]
+        assert len(lines) == sum(n for (c, _), n in frames.items() if c == cob) >= 20
