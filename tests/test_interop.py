@@ -121,6 +121,7 @@ def test_canopen_master_and_python_can_tools(socketcand_robot: dict[str, str]) -
             assert select.select([logger.stdout], [], [], 30)[0], "can.logger did not start"
             assert logger.stdout.readline()
         master = _run("canopen-master", env)
+        assert "identity: 3 entries, product code 0x00001200\n" in master.stdout, master.stderr
         moved = re.search(r"OPERATION ENABLED: moved (-?\d+) counts", master.stdout)
         assert moved, master.stdout + master.stderr
         assert abs(int(moved[1])) > 1000  # 20 Nm for 100 lockstep periods moves the shoulder
