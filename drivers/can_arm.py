@@ -123,8 +123,10 @@ def _od_variable(obj: co.Obj) -> ODVariable:
 
 
 def _record_name(objs: Sequence[co.Obj]) -> str:
-    """The words the members' names share ("identity", "RPDO1 mapping"), else the index."""
-    words = [o.name.split() for o in objs]
+    """The words the members' names share ("identity", "RPDO1 mapping"), else the index; the
+    generic sub-index 0 ("highest sub-index supported") does not count."""
+    named = [o for o in objs if o.subindex] or objs
+    words = [o.name.split() for o in named]
     common: list[str] = []
     for column in zip(*words, strict=False):
         if any(w != column[0] for w in column):

@@ -8,8 +8,9 @@ server" about 700,000 times in its 10 s before ``hil`` printed its one-line erro
 * the project's loggers (``hil``, ``drivers``, ``virtual_robot``, ``profiles``) at WARNING, the
   third-party ones (``can``, ``canopen``, everything else) at ERROR; ``-v`` lowers both by one
   step (INFO / WARNING), ``-vv`` to DEBUG, ``-q`` raises them to ERROR / CRITICAL;
-* a rate limit on the handler: a message repeated from one logger passes :data:`BURST` times,
-  then at most once per :data:`WINDOW_S`, that line saying how many were suppressed.
+* a rate limit on the handler: a message repeated from one logger passes :data:`BURST` times
+  (the last of them saying so), then at most once per :data:`WINDOW_S`, that line saying how
+  many were suppressed.
 
 Lives in ``drivers`` because both command lines (host and virtual robot) use it; imports the
 standard library only.
@@ -50,6 +51,8 @@ class RateLimit(logging.Filter):
         state[0] += 1
         if state[0] <= self.burst:
             state[1] = now
+            if state[0] == self.burst:  # say so now: the loop may end before the window does
+                record.msg = f"{record.msg} (repeats shown once per {self.window_s:g} s from here)"
             return True
         if now - state[1] < self.window_s:
             state[2] += 1

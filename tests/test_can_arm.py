@@ -15,6 +15,7 @@ import can
 import numpy as np
 import pytest
 from canopen.objectdictionary import ODRecord
+from canopen.sdo import SdoAbortedError
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -253,6 +254,20 @@ def test_sdo_abort_names_node_object_and_text(rig):
         "node 1: SDO write 0x6041:0 (statusword) aborted 0x06010002: "
         "attempt to write a read only object"
     )
+
+
+def test_canopen_reads_the_number_of_entries_and_cannot_write_it(rig):
+    """Sub-index 0 of a record by the canopen library, as any CANopen master reads it."""
+    arm = rig.arm()
+    arm.open()
+    for node in arm.nodes:
+        assert node.sdo[0x1018][0].raw == 3  # vendor id, product code, revision
+        assert node.sdo[0x1800][0].raw == 2  # COB-ID, transmission type
+        assert len(node.sdo[0x1018]) == 3  # canopen sizes a record by its sub-index 0
+        with pytest.raises(SdoAbortedError) as err:
+            node.sdo.download(0x1018, 0, b"\x05")
+        assert err.value.code == co.ABORT_READ_ONLY == 0x06010002
+        assert node.sdo[0x1018][0].raw == 3
 
 
 # ---- state machine, faults ------------------------------------------------------------------

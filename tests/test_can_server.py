@@ -221,6 +221,8 @@ def test_tpdo_follows_any_configured_mapping(link: Link) -> None:
         (co.sdo_upload_request(0x2000, 0), co.ABORT_NO_OBJECT),
         (co.sdo_upload_request(0x6041, 5), co.ABORT_NO_SUBINDEX),
         (co.sdo_download_request(0x6041, 0, b"\x06\x00"), co.ABORT_READ_ONLY),
+        (co.sdo_download_request(0x1018, 0, b"\x03"), co.ABORT_READ_ONLY),  # number of entries
+        (co.sdo_download_request(0x1018, 4, b"\x00\x00\x00\x00"), co.ABORT_NO_SUBINDEX),
         (co.sdo_download_request(0x6060, 0, b"\x03"), co.ABORT_VALUE_RANGE),
         (co.sdo_download_request(0x6040, 0, b"\x06\x00\x00\x00"), co.ABORT_LENGTH),  # 4 for 2
         (co.sdo_download_request(0x6060, 0, b"\x0a\x00"), co.ABORT_LENGTH),  # 2 for 1
@@ -239,6 +241,26 @@ def test_sdo_errors_are_abort_frames(link: Link, request_frame: bytes, code: int
     assert len(reply.data) == 8
     assert link.server.errors == 0
     assert link.host.read(1, 0x6041, 0)  # still serving
+
+
+def test_sub_index_0_of_every_record_is_its_number_of_entries(link: Link) -> None:
+    """CiA 301: sub-index 0 of a record is served, read-only; its value is the record's highest
+    sub-index in the one object map, also after an NMT reset node."""
+    host = link.host
+    highest: dict[int, int] = {}
+    for index, sub in co.OBJECT_MAP:
+        highest[index] = max(highest.get(index, 0), sub)
+    records = {i: n for i, n in highest.items() if n > 0 and i not in (0x1600, 0x1A00, 0x1A01)}
+    assert records == co.RECORD_ENTRIES
+    assert records == {0x1018: 3, 0x1400: 2, 0x1800: 2, 0x1801: 2, 0x608F: 2}
+    for n in NODES:
+        for index, entries in records.items():
+            assert host.read(n, index, 0) == entries
+            write = co.sdo_download_request(index, 0, bytes([entries]))
+            assert host.abort_code(n, write) == co.ABORT_READ_ONLY
+    host.nmt(co.NMT_RESET_NODE, 1)
+    assert host.read(1, 0x1018, 0) == 3
+    assert link.server.errors == 0
 
 
 def test_sdo_download_without_size_indication_and_client_abort(link: Link) -> None:

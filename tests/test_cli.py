@@ -71,7 +71,7 @@ def test_a_dead_socketcand_port_gives_a_handful_of_lines_and_exit_3(tmp_path: Pa
     assert proc.returncode == 3, proc.stderr
     assert 1 < len(lines) <= 8, proc.stderr[:2000]
     assert lines[-1].startswith("hil run: error: cannot open the CAN bus")
-    assert "similar messages suppressed" in proc.stderr
+    assert "repeats shown once per 10 s from here" in proc.stderr
     quiet = _run(*argv[:2], *argv[3:], "--attach", f"127.0.0.1:{port}", "--duration", "0.1")
     assert quiet.returncode == 3 and len(quiet.stderr.splitlines()) == 1, quiet.stderr
 
@@ -79,8 +79,10 @@ def test_a_dead_socketcand_port_gives_a_handful_of_lines_and_exit_3(tmp_path: Pa
 def test_rate_limit_passes_a_burst_then_one_per_window() -> None:
     limit = RateLimit(burst=3, window_s=3600)
     record = logging.LogRecord("can", logging.WARNING, __file__, 1, "Failed", None, None)
-    passed = [limit.filter(logging.makeLogRecord(record.__dict__)) for _ in range(10_000)]
-    assert sum(passed) == 3
+    records = [logging.makeLogRecord(record.__dict__) for _ in range(10_000)]
+    passed = [limit.filter(r) for r in records]
+    assert sum(passed) == 3 and passed[:3] == [True] * 3
+    assert records[2].getMessage() == "Failed (repeats shown once per 3600 s from here)"
     other = logging.LogRecord("can", logging.WARNING, __file__, 1, "other", None, None)
     assert limit.filter(other)
     limit.window_s = 0.0  # the window has passed: the next one goes out with the count

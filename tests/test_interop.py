@@ -121,6 +121,7 @@ def test_canopen_master_and_python_can_tools(socketcand_robot: dict[str, str]) -
             assert select.select([logger.stdout], [], [], 30)[0], "can.logger did not start"
             assert logger.stdout.readline()
         master = _run("canopen-master", env)
+        assert "identity: 3 entries, product code 0x00001200\n" in master.stdout, master.stderr
         moved = re.search(r"OPERATION ENABLED: moved (-?\d+) counts", master.stdout)
         assert moved, master.stdout + master.stderr
         assert abs(int(moved[1])) > 1000  # 20 Nm for 100 lockstep periods moves the shoulder
@@ -210,3 +211,21 @@ def test_miniterm_on_the_serial_drive(tmp_path: Path) -> None:
         os.close(master)
         os.close(slave)
         _stop(robot)
+
+
+def test_cantools_decodes_the_bus_log_of_a_hil_run(tmp_path: Path) -> None:
+    hil = [sys.executable, "-m", "hil", "run", "--bench", "virtual-slcan", "--duration", "0.05"]
+    run = subprocess.run(
+        [*hil, "--no-plot", "--out", str(tmp_path)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert run.returncode == 0, run.stderr
+    # the doc's command, on the run's bus.log
+    decoded = _run("cantools-decode", _env(OUT=str(tmp_path))).stdout.splitlines()
+    frames = _frames(tmp_path / "bus.log")
+    for name, cob in (("TPDO2_dm1015b", 0x282), ("RPDO1_dm1200a", 0x201)):
+        lines = [line for line in decoded if f":: {name}(" in line]
+        assert len(lines) == sum(n for (c, _), n in frames.items() if c == cob) >= 20

@@ -174,7 +174,8 @@ class Obj:
 
 
 RO, RW = Access.RO, Access.RW
-OBJECTS: tuple[Obj, ...] = (
+# The objects as declared; OBJECTS below adds sub-index 0 of the records that do not declare it.
+_DECLARED: tuple[Obj, ...] = (
     Obj(0x1000, 0, "device type", "<I", RO),
     Obj(0x1001, 0, "error register", "<B", RO),
     Obj(0x1017, 0, "producer heartbeat time ms", "<H", RW),
@@ -205,6 +206,27 @@ OBJECTS: tuple[Obj, ...] = (
     Obj(0x6077, 0, "torque actual value (per mille)", "<h", RO, pdo=True),
     Obj(0x608F, 1, "position encoder increments", "<I", RO),
     Obj(0x608F, 2, "position encoder motor revolutions", "<I", RO),
+)
+
+
+def _record_entries(objects: tuple[Obj, ...]) -> dict[int, int]:
+    """Index -> highest sub-index, of every record (an index with sub-indices above 0) that does
+    not declare its sub-index 0. CiA 301: sub-index 0 of a record is its number of entries, a
+    read-only UNSIGNED8 every device serves."""
+    declared = {(o.index, o.subindex) for o in objects}
+    highest: dict[int, int] = {}
+    for o in objects:
+        if o.subindex and (o.index, 0) not in declared:
+            highest[o.index] = max(highest.get(o.index, 0), o.subindex)
+    return highest
+
+
+RECORD_ENTRIES: dict[int, int] = _record_entries(_DECLARED)  # 0x1018: 3, 0x1800: 2, ...
+OBJECTS: tuple[Obj, ...] = tuple(
+    sorted(
+        (*_DECLARED, *(Obj(i, 0, "highest sub-index supported", "<B", RO) for i in RECORD_ENTRIES)),
+        key=lambda o: (o.index, o.subindex),
+    )
 )
 OBJECT_MAP: dict[tuple[int, int], Obj] = {(o.index, o.subindex): o for o in OBJECTS}
 INDICES = frozenset(o.index for o in OBJECTS)
@@ -256,6 +278,8 @@ def power_on_objects(
         (0x608F, 1): counts_per_rev,
         (0x608F, 2): 1,
     }
+    for index, entries in RECORD_ENTRIES.items():  # constants, read-only
+        store[(index, 0)] = entries
     for m in (0x1600, 0x1A00, 0x1A01):
         store[(m, 0)] = 0
         store[(m, 1)] = 0

@@ -8,9 +8,9 @@ differ from what this module writes.
 
 * **EDS** (CiA 306 v4.0): every object of the map with its type, access and power-on default.
   Records (0x1018, 0x1400, 0x1800, 0x1801, 0x1600, 0x1A00, 0x1A01, 0x608F) carry sub-index 0
-  (highest sub-index supported) as CiA 306 requires; the drives serve it by SDO only for the
-  mapping records (0x1600/0x1A00/0x1A01, the number of entries), for the others the EDS value is
-  the answer. COB-IDs are written ``$NODEID+...`` so the file serves any node id.
+  as CiA 306 requires: it is in the map (``cia402.RECORD_ENTRIES``: the highest sub-index,
+  read-only; in the mapping records the number of mapped objects, writable), and the drives
+  serve it by SDO. COB-IDs are written ``$NODEID+...`` so the file serves any node id.
 * **DBC**: the cyclic traffic of a robot's drives, in SI units (rad, rad/s, Nm) scaled by each
   drive's profile: SYNC, RPDO1 (controlword, target torque), TPDO1 (statusword, position),
   TPDO2 (velocity, torque), EMCY, heartbeat, and NMT. SDO is left out (multiplexed by index).
@@ -148,9 +148,6 @@ def eds_text(drive: DriveProfile, name: str) -> str:
             f"SubNumber={highest + 1}",
             "",
         ]
-        if 0 not in subs:  # a constant: the highest sub-index
-            sub0 = co.Obj(index, 0, "highest sub-index supported", "<B", co.Access.RO)
-            lines += _variable(f"{index:04X}sub0", sub0.name, sub0, f"0x{highest:02X}", "const")
         for sub in sorted(subs):
             obj = subs[sub]
             lines += _variable(
