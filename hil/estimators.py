@@ -255,12 +255,16 @@ def bounded_quadratic_fit(
     p = len(g)
     d = np.sqrt(np.diag(H))
     d[d == 0] = 1.0
-    Hs = H / np.outer(d, d) + 1e-12 * np.eye(p)
+    Hs = H / np.outer(d, d)
     gs = g / d
-    L = np.linalg.cholesky(Hs)
-    rhs = np.linalg.solve(L, gs)  # ‖Lᵀx − L⁻¹g‖² = xᵀHx − 2gᵀx + const
+    # Hs = V diag(w) Vᵀ: ‖diag(√w) Vᵀx − diag(1/√w) Vᵀg‖² = xᵀHx − 2gᵀx + const; directions
+    # the data leave flat (w ≈ 0, a column of zeros or exact collinearity) drop out
+    w, V = np.linalg.eigh(0.5 * (Hs + Hs.T))
+    keep = w > 1e-12 * max(float(w.max()), 1e-300)
+    A = np.sqrt(w[keep])[:, None] * V[:, keep].T
+    rhs = (V[:, keep].T @ gs) / np.sqrt(w[keep])
     lo = np.where(np.isfinite(lower), lower * d, -np.inf)
-    res = lsq_linear(L.T, rhs, bounds=(lo, np.full(p, np.inf)), method="bvls")
+    res = lsq_linear(A, rhs, bounds=(lo, np.full(p, np.inf)), method="bvls")
     xs = res.x
     if not constraints:
         return xs / d, "bounded least squares (lsq_linear, BVLS)"

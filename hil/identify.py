@@ -80,9 +80,12 @@ def identify(
     discretization: str = "exact",
     lam: float = 50.0,
     estimator: str = "rls",
+    t: np.ndarray | None = None,
 ) -> dict[str, SchemeResult]:
     """Identify θ with each scheme: regression (eqs. (24), (28), (30)), then recursive least
-    squares (eqs. (20)-(22), P(0) = 1000·I, θ̂(0) = 0), batch and weighted least squares."""
+    squares (eqs. (20)-(22), P(0) = 1000·I, θ̂(0) = 0), batch and weighted least squares.
+    ``t``: the samples' real times when they are not k·h (:func:`irregular_times`); the
+    ``exact`` rows then use each interval's own length; ``paper`` keeps the paper's k·h."""
     if estimator not in ESTIMATORS:
         raise ValueError(
             f"unknown estimator {estimator!r}; expected one of {', '.join(ESTIMATORS)}"
@@ -90,7 +93,8 @@ def identify(
     out = {}
     for scheme in schemes:
         t0 = time.perf_counter()
-        reg = build_regression(scheme, q, tau, period_s, lam, discretization)
+        times = t if discretization == "exact" else None
+        reg = build_regression(scheme, q, tau, period_s, lam, discretization, t=times)
         t1 = time.perf_counter()
         theta_ls = least_squares(reg.Psi, reg.y, reg.weights)
         t2 = time.perf_counter()
@@ -123,6 +127,18 @@ def identify(
             },
         )
     return out
+
+
+def irregular_times(rec: Recording, tolerance: float = 1e-6) -> np.ndarray | None:
+    """The recording's real sample times if any interval differs from its nominal period by
+    more than ``tolerance`` (relative), else None: equal intervals take the k·h formulas, whose
+    numbers are the ones every earlier result was computed with."""
+    t = np.asarray(rec.t, dtype=float)
+    if len(t) < 2:
+        return None
+    dt = np.diff(t)
+    h = rec.period_s
+    return t if np.max(np.abs(dt - h)) > tolerance * h else None
 
 
 def initial_velocity(rec: Recording) -> tuple[float, float]:

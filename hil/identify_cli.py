@@ -31,6 +31,7 @@ from hil.identify import (
     SchemeResult,
     format_table_ii,
     identify,
+    irregular_times,
     table_ii_rows,
     validate,
 )
@@ -271,9 +272,14 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     for disc in discretizations:
         _say(f"identifying ({disc}, λ = {args.lam:g} rad/s, {', '.join(schemes)})")
         t0 = time.perf_counter()
+        times = irregular_times(fit)
+        if times is not None and disc == "exact":
+            _say("irregular sample intervals: exact rows use each interval's own length")
+        elif times is not None:
+            _say("irregular sample intervals: the paper discretization assumes k·h (its method)")
         results = identify(
             fit.q, fit.tau, h, schemes=schemes, discretization=disc, lam=args.lam,
-            estimator=args.estimator,
+            estimator=args.estimator, t=times,
         )  # fmt: skip
         elapsed = time.perf_counter() - t0
         all_results[disc] = results

@@ -264,7 +264,7 @@ FRICTION_COLUMNS = (5, 6, 7, 8)  # θ6, θ7 (viscous), θ8, θ9 (Coulomb)
 ENERGY_COLUMNS_BASE = 5  # θ1..θ5 enter the energy
 
 
-def _term_momentum(term: str, q2: np.ndarray, dq1: np.ndarray, dq2: np.ndarray) -> list:
+def _term_momentum(term: str, q1, q2, dq1, dq2) -> list:
     """Columns of P = ∂φ_L/∂q̇ a term adds, as [(row1, row2) per parameter]."""
     z = np.zeros_like(q2)
     if term == "rotor_inertia":
@@ -364,25 +364,22 @@ class ArmModel:
         return t
 
     # --- regressors --------------------------------------------------------------------------
-    def momentum_regressor(self, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
-        """P(q, q̇) with P θ = M(q) q̇, shape (..., 2, p)."""
-        base = momentum_regressor(q, dq)
-        if not self.terms:
-            return base
-        _, q2 = _pair(q)
-        dq1, dq2 = _pair(dq)
-        extra = [c for t in self.terms for c in _term_momentum(t, q2, dq1, dq2)]
-        return np.concatenate([base, _stack_rows(extra)], -1)
-
-    def static_regressor(self, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
-        """R(q, q̇) = −∂φ_L/∂q + φ_F with τ = d/dt[P θ] + R θ, shape (..., 2, p)."""
-        base = static_regressor(q, dq)
+    def _with_terms(self, base: np.ndarray, columns, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
+        """``base`` (..., 2, 9) with each term's (row1, row2) columns from ``columns`` appended."""
         if not self.terms:
             return base
         q1, q2 = _pair(q)
         dq1, dq2 = _pair(dq)
-        extra = [c for t in self.terms for c in _term_static(t, q1, q2, dq1, dq2)]
+        extra = [c for t in self.terms for c in columns(t, q1, q2, dq1, dq2)]
         return np.concatenate([base, _stack_rows(extra)], -1)
+
+    def momentum_regressor(self, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
+        """P(q, q̇) with P θ = M(q) q̇, shape (..., 2, p)."""
+        return self._with_terms(momentum_regressor(q, dq), _term_momentum, q, dq)
+
+    def static_regressor(self, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
+        """R(q, q̇) = −∂φ_L/∂q + φ_F with τ = d/dt[P θ] + R θ, shape (..., 2, p)."""
+        return self._with_terms(static_regressor(q, dq), _term_static, q, dq)
 
     def dynamic_regressor(self, q: ArrayLike, dq: ArrayLike, ddq: ArrayLike) -> np.ndarray:
         """Y(q, q̇, q̈) with Y θ = M q̈ + C q̇ + g + f, shape (..., 2, p)."""

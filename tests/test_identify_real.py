@@ -286,3 +286,9 @@ def test_identify_cli_on_the_committed_dfki_file(tmp_path, capsys):
     # parameters the data does not determine are named, not given as numbers
     for row in ident["parameters"]:
         assert (row["value"] is None) == (not row["identified"])
+    # the parameter file says its model terms, and reads back in them
+    from hil.params import load_params
+
+    ps = load_params(tmp_path / "out-rotor_inertia" / "params.json")
+    assert ps.terms == ("rotor_inertia",) and len(ps.theta) == 10
+    assert np.allclose(ps.theta, ident["theta"])
