@@ -184,7 +184,8 @@ def test_recording_options_reach_identify(tmp_path, capsys):
     code, err = run_hil(argv, capsys)
     assert "loop delay 1" in err and "irregular sampling" in err
     if code == 0:
-        assert json.loads((out / "identify.json").read_text())["rows"] == 4996
+        doc = json.loads((out / "identify.json").read_text())
+        assert doc["loop_delay"] == 1 and doc["torque_source"] == "commanded"
     for bad in (["--torque", "bogus"], ["--loop-delay", "1000"], ["--columns", "x=y"]):
         code, err = run_hil([*argv, *bad, "--overwrite"], capsys)
         assert_one_line_error(code, err)
@@ -192,23 +193,9 @@ def test_recording_options_reach_identify(tmp_path, capsys):
     assert_one_line_error(code, err)
 
 
-# IndexError in hil/diagnose_locate.py _terciles on this branch; fixed on h12-diag (then the
-# test passes, reported as XPASS): drop the mark once both are merged
-XFAIL_TERCILES = "hil/diagnose_locate.py _terciles (fixed on h12-diag)"
-
-
 @pytest.mark.parametrize(
     "kind",
-    [
-        pytest.param(
-            "one-joint",
-            marks=pytest.mark.xfail(strict=False, raises=IndexError, reason=XFAIL_TERCILES),
-        ),
-        pytest.param(
-            "step",
-            marks=pytest.mark.xfail(strict=False, raises=IndexError, reason=XFAIL_TERCILES),
-        ),
-    ],
+    ["one-joint", "step"],
 )
 def test_diagnose_degenerate_motion_inside_the_analysis(tmp_path, capsys, kind):
     """Data the boundary lets through (the arm moves) but the diagnosis cannot handle."""

@@ -343,7 +343,9 @@ def test_hil_identify_robot_panda_on_a_standard_csv(tmp_path, panda, capsys):
     assert nrmse_identified.max() < 0.05, nrmse_identified
     # a 2-joint recording for a 7-joint arm: one line, no report
     two = tmp_path / "two.csv"
-    TorqueRecording(np.arange(50) * 1e-3, np.zeros((50, 2)), np.zeros((50, 2))).write_csv(two)
+    t50 = np.arange(50) * 1e-3
+    q50 = np.column_stack([np.sin(20 * t50), np.cos(20 * t50)])  # it moves: only n is wrong
+    TorqueRecording(t50, q50, np.zeros((50, 2))).write_csv(two)
     code = hil_main(["identify", "--from", str(two), "--robot", "panda", "--out",
                      str(tmp_path / "out2")])  # fmt: skip
     assert code != 0
