@@ -129,5 +129,6 @@ if [ ! -f "$WORK/results/status" ]; then
     exit 1
 fi
 status=$(cat "$WORK/results/status")
+say "README.md's vcan block in the guest: exit status $(cat "$WORK/results/readme-status" 2>/dev/null || echo '?')"
 say "guest kernel $(cat "$WORK/results/booted"), pytest exit status $status, ${elapsed} s in all"
 exit "$status"

@@ -89,7 +89,7 @@ class Sniffer:
 
     def _run(self) -> None:
         while not self.stop.is_set():
-            msg = self.bus.recv(0.05)
+            msg = self.bus.recv(0.5)
             if msg is not None:
                 self.frames.append(msg)
 
