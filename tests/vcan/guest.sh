@@ -1,7 +1,8 @@
 #!/bin/sh
 # Runs inside the `make test-vcan` guest (a real Linux kernel with vcan), from the project
 # directory on the host's root file system (read-only over 9p); writes to $1, the results share:
-#   pytest.log, junit.xml, status (pytest's exit status).
+#   readme.log, readme-status (README.md's vcan block), pytest.log, junit.xml, status (pytest's
+#   exit status, or 1 when the README block failed and pytest did not).
 # Outside the guest it runs too, on any Linux machine where you are root and vcan0 can be made.
 set -u
 out=${1:?usage: tests/vcan/guest.sh RESULTS_DIR}
@@ -16,9 +17,11 @@ awk '/^### vcan loopback/ {s = 1} s && /^```sh/ {b = 1; next} b && /^```/ {exit}
 echo "--- README.md vcan loopback block:"
 cat /tmp/readme-vcan.sh
 [ -s /tmp/readme-vcan.sh ] || { echo "no vcan loopback block in README.md"; echo 2 > "$out/status"; exit 2; }
-(. .venv/bin/activate && sh -ex /tmp/readme-vcan.sh) > "$out/readme.log" 2>&1
-readme=$?
-cat "$out/readme.log"
+{
+    (. .venv/bin/activate && sh -ex /tmp/readme-vcan.sh)
+    echo $? > "$out/readme-status"
+} 2>&1 | tee "$out/readme.log"
+readme=$(cat "$out/readme-status")
 echo "--- README block exit status $readme"
 ip -brief link show vcan0 || { echo "vcan0 could not be created"; echo 2 > "$out/status"; exit 2; }
 

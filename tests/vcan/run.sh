@@ -78,8 +78,9 @@ WORK=$(mktemp -d "${TMPDIR:-/tmp}/ddbench-vcan.XXXXXX") || skip "mktemp failed"
 QEMU_PID=
 cleanup() {
     if [ -n "$QEMU_PID" ] && kill -0 "$QEMU_PID" 2>/dev/null; then
-        kill "$QEMU_PID" 2>/dev/null
-        sleep 1
+        kill "$QEMU_PID" 2>/dev/null   # timeout(1) passes it on to qemu
+        for _ in 1 2 3 4 5; do kill -0 "$QEMU_PID" 2>/dev/null || break; sleep 1; done
+        pkill -9 -P "$QEMU_PID" 2>/dev/null
         kill -9 "$QEMU_PID" 2>/dev/null
     fi
     rm -rf "$WORK"
@@ -128,5 +129,6 @@ if [ ! -f "$WORK/results/status" ]; then
     exit 1
 fi
 status=$(cat "$WORK/results/status")
+say "README.md's vcan block in the guest: exit status $(cat "$WORK/results/readme-status" 2>/dev/null || echo '?')"
 say "guest kernel $(cat "$WORK/results/booted"), pytest exit status $status, ${elapsed} s in all"
 exit "$status"

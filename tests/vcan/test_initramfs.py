@@ -6,7 +6,10 @@ Runs on the host in `make test`; `make test-vcan` booting is the end-to-end chec
 from __future__ import annotations
 
 import importlib.util
+import os
+import shutil
 import stat
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -127,3 +130,21 @@ def test_cli_reports_a_missing_module_in_one_line(moddir, tmp_path, capsys):
     assert initramfs.main([*args, "--out", str(tmp_path / "b.cpio"), "9p"]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "kernel module 9p not found" in err
+
+
+def test_run_script_skips_with_a_reason_and_status_0(tmp_path):
+    """`make test-vcan` where it cannot run: exit 0 and one "skipped: <reason>" line."""
+    tree = tmp_path / "checkout"
+    (tree / "tests/vcan").mkdir(parents=True)
+    shutil.copy(HERE / "run.sh", tree / "tests/vcan/run.sh")
+    proc = subprocess.run(
+        ["bash", str(tree / "tests/vcan/run.sh")],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+        env={**os.environ, "DDBENCH_VCAN_CACHE": str(tmp_path / "cache")},
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines()[-1].startswith("test-vcan: skipped: ")
+    assert not (tmp_path / "cache").exists()  # nothing downloaded for a run that cannot happen
