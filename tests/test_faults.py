@@ -49,7 +49,7 @@ def _meta(out: Path) -> dict:
     return json.loads((out / "meta.json").read_text())
 
 
-def _wait_rows(out: Path, rows: int, timeout: float = 30.0) -> dict:
+def _wait_rows(out: Path, rows: int, timeout: float = 60.0) -> dict:
     """Wait until the run has its robot announced and ``rows`` rows on disk; its meta."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
