@@ -40,6 +40,14 @@ from profiles.timing_faults import (
     stream,
 )
 
+SPIN_S = 2e-4  # sleep until this close to a target time, then spin
+
+
+def sleep_until(target: float, clock: Any = time.monotonic) -> None:
+    """Sleep until ``clock() >= target``, spinning the last 0.2 ms (sleep alone overshoots)."""
+    while (left := target - clock()) > 0:
+        time.sleep(left - SPIN_S if left > 2 * SPIN_S else 0)
+
 
 @dataclass
 class HostFaultStats:
@@ -88,16 +96,6 @@ class TimingFaultArm(Arm):
     @property
     def opened_at(self) -> float | None:  # type: ignore[override]
         return self.inner.opened_at
-
-    @property
-    def deadline_waiter(self) -> Any:  # type: ignore[override]
-        return self.inner.deadline_waiter
-
-    @deadline_waiter.setter
-    def deadline_waiter(self, waiter: Any) -> None:
-        # the loop's scheduler waits for the inner link's deadlines too (and the injected
-        # delays below): the same waiting as a run without faults, so only the delay differs
-        self.inner.deadline_waiter = waiter
 
     @property
     def peer_alive(self) -> Any:  # type: ignore[override]
@@ -187,13 +185,13 @@ class TimingFaultArm(Arm):
             stats.delay_sum_s += delay
             stats.max_delay_s = max(stats.max_delay_s, delay)
             if delay > 0:
-                self.wait_for_deadline(self.inner.now() + delay)
+                sleep_until(self.inner.now() + delay, self.inner.now)
         due = None if deadline is None else deadline + delay
         sample = self.inner.cycle(sent, due)
         self._held = sent
         if realtime:
             if f.feedback_delay_s > 0:
-                self.wait_for_deadline(self.inner.now() + f.feedback_delay_s)
+                sleep_until(self.inner.now() + f.feedback_delay_s, self.inner.now)
                 sample = replace(sample, received_at=self.inner.now())
             sample = replace(sample, deadline=math.nan if deadline is None else float(deadline))
         if (
