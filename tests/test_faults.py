@@ -49,10 +49,17 @@ def _meta(out: Path) -> dict:
     return json.loads((out / "meta.json").read_text())
 
 
-def _wait_rows(out: Path, rows: int, timeout: float = 60.0) -> dict:
+def _wait_rows(
+    out: Path, rows: int, proc: subprocess.Popen | None = None, timeout: float = 60.0
+) -> dict:
     """Wait until the run has its robot announced and ``rows`` rows on disk; its meta."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
+        if proc is not None and proc.poll() is not None:  # ended early: say why
+            _, err = proc.communicate()
+            log = out / "virtual-robot.log"
+            robot = log.read_text()[-500:] if log.is_file() else ""
+            raise AssertionError(f"hil exited {proc.returncode} early: {err}\n{robot}")
         try:
             meta = _meta(out)
             csv = out / "signals.csv"
@@ -121,7 +128,7 @@ def test_robot_stopped_briefly_is_late_not_gone(tmp_path: Path) -> None:
     the late feedback instead of calling the robot gone."""
     proc = _hil(tmp_path, "--bench", "virtual-serial", "--mode", "realtime", "--duration", "3")
     try:
-        pid = _wait_rows(tmp_path, 100)["channel"]["pid"]
+        pid = _wait_rows(tmp_path, 100, proc)["channel"]["pid"]
         os.kill(pid, signal.SIGSTOP)
         time.sleep(0.06)
         os.kill(pid, signal.SIGCONT)
@@ -139,7 +146,7 @@ def test_robot_stopped_briefly_is_late_not_gone(tmp_path: Path) -> None:
 def test_robot_killed_is_gone_at_once_over_serial(tmp_path: Path) -> None:
     proc = _hil(tmp_path, "--bench", "virtual-serial", "--mode", "realtime", "--duration", "60")
     try:
-        pid = _wait_rows(tmp_path, 100)["channel"]["pid"]
+        pid = _wait_rows(tmp_path, 100, proc)["channel"]["pid"]
         os.kill(pid, signal.SIGKILL)
         _, err = proc.communicate(timeout=30)
     finally:
@@ -156,7 +163,7 @@ def test_robot_killed_is_gone_at_once_over_serial(tmp_path: Path) -> None:
 def test_sigterm_and_sighup_stop_the_host_like_ctrl_c(tmp_path: Path, sig: int) -> None:
     proc = _hil(tmp_path, "--bench", "virtual-slcan", "--mode", "realtime", "--duration", "60")
     try:
-        robot = _wait_rows(tmp_path, 100)["channel"]["pid"]
+        robot = _wait_rows(tmp_path, 100, proc)["channel"]["pid"]
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=30)
     finally:
@@ -200,7 +207,7 @@ def test_lockstep_host_killed_robot_disables_at_once(tmp_path: Path) -> None:
     """kill -9 of the host in lockstep: the robot zeroes torque, disables and exits."""
     proc = _hil(tmp_path, "--bench", "virtual-slcan", "--duration", "600")
     try:
-        robot = _wait_rows(tmp_path, 200)["channel"]["pid"]
+        robot = _wait_rows(tmp_path, 200, proc)["channel"]["pid"]
         proc.kill()
         proc.wait()
     finally:
@@ -364,7 +371,7 @@ def test_hub_survives_descriptor_exhaustion(tmp_path: Path) -> None:
 def test_second_sync_source_stops_a_lockstep_run(tmp_path: Path) -> None:
     proc = _hil(tmp_path, "--bench", "virtual-socketcand", "--duration", "600")
     try:
-        channel = _wait_rows(tmp_path, 200)["channel"]
+        channel = _wait_rows(tmp_path, 200, proc)["channel"]
         rogue = can.Bus(
             interface="socketcand", host=channel["host"], port=channel["port"], channel="can0"
         )
