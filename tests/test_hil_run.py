@@ -95,7 +95,7 @@ def test_same_seed_same_recording(tmp_path):
     assert (a / "signals.csv").read_bytes() == (b / "signals.csv").read_bytes()
 
 
-def _wait_for_channel(out: Path, timeout: float = 20.0) -> dict:
+def _wait_for_channel(out: Path, timeout: float = 60.0) -> dict:  # start-up under load
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         try:
@@ -117,7 +117,7 @@ def _start_hil(out: Path, *args: str) -> subprocess.Popen:
     )
 
 
-def _wait_rows(out: Path, rows: int, timeout: float = 20.0) -> None:
+def _wait_rows(out: Path, rows: int, timeout: float = 60.0) -> None:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         csv = out / "signals.csv"
