@@ -284,10 +284,11 @@ def check_recording(name: str, t: np.ndarray, q: np.ndarray, tau: np.ndarray) ->
 
 
 def build_problem(
-    recordings: Sequence[tuple[np.ndarray, np.ndarray, float]],
+    recordings: Sequence[tuple[np.ndarray, ...]],
 ) -> tuple[Problem, np.ndarray]:
-    """Nominal regression of (q, τ, h) recordings and its 9-parameter fit θ̂."""
-    rows = [recording_rows(q, tau, h) for q, tau, h in recordings]
+    """Nominal regression of (q, τ, h) or (q, τ, h, t) recordings (t: the real sample times)
+    and its 9-parameter fit θ̂."""
+    rows = [recording_rows(r[0], r[1], r[2], t=r[3] if len(r) > 3 else None) for r in recordings]
     y, Psi, w = _stack(rows)
     theta = fit_theta(Psi, y, w)
     scale = robust_scale(y - Psi @ theta, w)
@@ -601,3 +602,26 @@ def final_fit(prob: Problem, accepted: Sequence[Accepted]) -> FinalFit:
         ses.append(jack[at : at + p])
         at += p
     return FinalFit(cv.beta[:9], coefs, ses, cv)
+
+
+def physical_gate(
+    prob: Problem, accepted: list[Accepted], rejected: dict[str, str]
+) -> list[Accepted]:
+    """The final model must be physical too: a term accepted early can drift once others join
+    (a gain error that ends up removing most of the torque). While the refit with every
+    accepted term is not physical, the last accepted term goes (the others stood without it),
+    with the reason in ``rejected``."""
+    accepted = list(accepted)
+    while accepted:
+        fit = final_fit(prob, accepted)
+        reasons = list(physical_consistency(fit.theta)["violations"])
+        for a, coef in zip(accepted, fit.coefficients, strict=True):
+            if a.cand.kind == "gain" and float(coef[0]) <= MIN_GAIN:
+                reasons.append(
+                    f"a torque gain of {100 * float(coef[0]):+.0f} % removes most of the torque"
+                )
+        if not reasons:
+            break
+        last = accepted.pop()
+        rejected[last.cand.key] = "its refit is not physical: " + "; ".join(reasons)
+    return accepted

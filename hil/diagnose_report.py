@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -33,6 +34,7 @@ from hil.diagnose import (
     check_recording,
     final_fit,
     fit_theta,
+    physical_gate,
     select,
     term_width,
     usable_speeds,
@@ -349,15 +351,22 @@ def _segment_simulation(
     h: float,
     first: int,
     last: int,
+    stamps: np.ndarray | None = None,
 ) -> np.ndarray:
     """Open-loop simulation of samples first..last in segments of SEGMENT_S, each started from
     the recorded position and central-difference velocity: an arm this underdamped diverges
-    from any model over many seconds, so one long run would measure chaos, not the model."""
+    from any model over many seconds, so one long run would measure chaos, not the model.
+    ``stamps``: the real sample times; a segment also ends at every interval that is not h
+    (a stall, a dropped sample), so each is integrated over its true intervals."""
     step = max(4, round(SEGMENT_S / h))
+    t = np.arange(len(q)) * h if stamps is None else stamps
+    odd = np.flatnonzero(np.abs(np.diff(t) / h - 1.0) > 0.01)  # interval i: samples i → i+1
+    cuts = sorted({*range(first, last + 1, step), *(int(i) + 1 for i in odd)})
+    cuts = [c for c in cuts if first <= c <= last] + [last + 1]
     out = []
-    for a in range(first, last + 1, step):
-        b = min(a + step, last + 1)
-        dq0 = (q[a + 1] - q[a - 1]) / (2 * h) if 0 < a < len(q) - 1 else np.zeros(2)
+    for a, b in itertools.pairwise(cuts):
+        inside = 0 < a < len(q) - 1
+        dq0 = (q[a + 1] - q[a - 1]) / (t[a + 1] - t[a - 1]) if inside else np.zeros(2)
         out.append(simulate_open_loop(theta, tau[a:b], h, q0=q[a], dq0=dq0, extras=extras).q)
     return np.concatenate(out)
 
@@ -401,11 +410,12 @@ def before_after(
     for rec_i, first, last in spans[-1:]:
         r = prob.rows[rec_i]
         q, h = r.q[first : last + 1], r.h
-        sims = {"t": np.arange(first, last + 1) * h, "q": q}
+        times = np.arange(len(r.q)) * h if r.stamps is None else r.stamps
+        sims = {"t": times[first : last + 1], "q": q}
         for name, theta, ex in (("before", theta0, None), ("after", theta1, extras)):
             if name in unphysical_fit or (name == "before" and not simulate_before):
                 continue
-            sims[name] = _segment_simulation(theta, ex, r.q, r.tau, h, first, last)
+            sims[name] = _segment_simulation(theta, ex, r.q, r.tau, h, first, last, r.stamps)
             position[name] = _finite(nrmse(q, sims[name]))
     held = (
         f"recording {len(prob.rows)}, not used for fitting"
@@ -517,9 +527,24 @@ def _who(f: Finding) -> str:
     return f"Joint {f.joint}" if f.joint else "Both joints"
 
 
+# Held-out torque NRMSE above which "nothing found" is not called "the model is complete".
+MODEL_EXPLAINS = 0.05
+
+
 def summary_words(findings: Sequence[Finding], fit: dict[str, Any], notes: Sequence[str]) -> str:
     if not findings and any(n.startswith("I cannot tell") for n in notes):
         lines = []  # the note says why, and that is all there is to say
+    elif not findings and (
+        any(n.startswith("Not a finding") for n in notes)
+        or max((x for x in fit["before"]["torque_nrmse"] if x is not None), default=0.0)
+        > MODEL_EXPLAINS
+    ):
+        before = fit["before"]["torque_nrmse"]
+        lines = [
+            "No finding, and I cannot say the model is complete: it leaves a held-out torque "
+            f"NRMSE of {percent(before[0])} / {percent(before[1])}, and nothing in the "
+            "vocabulary explains that residual on held-out data with a physical refit."
+        ]
     elif not findings:
         lines = [
             "No missing physics found: the 9-parameter model explains the recordings to within "
@@ -720,7 +745,7 @@ def diagnose(
     say(f"diagnose: {len(recordings)} recording(s), fitting the nominal model")
     for r in recordings:
         check_recording(str(r.path), r.t, r.q, r.tau)
-    prob, theta_fit = build_problem([(r.q, r.tau, r.period_s) for r in recordings])
+    prob, theta_fit = build_problem([(r.q, r.tau, r.period_s, r.t) for r in recordings])
     usable = (prob.w > 0).sum(axis=0)
     live = [j for j in (0, 1) if usable[j] >= MIN_USABLE_ROWS]
     if not live:
@@ -758,6 +783,7 @@ def diagnose(
         cannot = []
         say(f"diagnose: testing {len(library)} candidates (both joints)")
         accepted, first = select(prob, library, reference=reference_theta, rejected=rejected)
+        accepted = physical_gate(prob, accepted, rejected)
         say(f"diagnose: accepted {[a.cand.key for a in accepted] or 'nothing'}; refitting")
         findings, confounded, shaft = interpret(prob, accepted, library, reference_theta)
         findings += unexplained(prob, accepted, shaft)
@@ -780,6 +806,7 @@ def diagnose(
         "summary": summary_words(findings, fit, notes),
         "location": where.document,
         "nominal_theta": theta_fit.tolist(),
+        "noise": [r.noise.as_dict(r.h) if r.noise else None for r in prob.rows],
         "candidates_tested": {k: ev.as_dict() for k, ev in first.items()},
         "not_findings": rejected,
         "physical": {

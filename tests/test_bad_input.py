@@ -192,23 +192,7 @@ def test_recording_options_reach_identify(tmp_path, capsys):
     assert_one_line_error(code, err)
 
 
-@pytest.mark.parametrize(
-    "kind",
-    [
-        pytest.param(
-            "one-joint",
-            marks=pytest.mark.xfail(
-                strict=True, raises=IndexError, reason="hil/diagnose_locate.py _terciles (h12-diag)"
-            ),
-        ),
-        pytest.param(
-            "step",
-            marks=pytest.mark.xfail(
-                strict=True, raises=IndexError, reason="hil/diagnose_locate.py _terciles (h12-diag)"
-            ),
-        ),
-    ],
-)
+@pytest.mark.parametrize("kind", ["one-joint", "step"])
 def test_diagnose_degenerate_motion_inside_the_analysis(tmp_path, capsys, kind):
     """Data the boundary lets through (the arm moves) but the diagnosis cannot handle."""
     n = 600
