@@ -34,7 +34,9 @@ from hil.diagnose import (
     check_recording,
     final_fit,
     fit_theta,
+    jackknife_se,
     physical_gate,
+    physical_theta,
     select,
     term_width,
     usable_speeds,
@@ -50,7 +52,6 @@ from hil.diagnose_findings import (
 from hil.diagnose_locate import locate
 from hil.diagnose_stats import block_stats, cross_validate, evidence, extend_stats_many
 from hil.metrics import nrmse
-from hil.model import physical_consistency
 from hil.openloop import OpenLoopExtras, simulate_open_loop
 
 HELD_OUT_FRACTION = 0.25  # of a single recording: its last quarter
@@ -377,6 +378,7 @@ def before_after(
     findings: Sequence[Finding],
     nominal_theta: np.ndarray | None,
     simulate_before: bool = True,
+    friction_se: np.ndarray | None = None,
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Torque NRMSE and open-loop position NRMSE per joint on held-out data, nominal model
     (``nominal_theta`` when given, else fitted on the training part) and with the accepted terms.
@@ -404,9 +406,13 @@ def before_after(
     sims: dict[str, Any] = {}
     unphysical_fit: dict[str, list[str]] = {}
     for name, theta in (("before", theta0), ("after", theta1)):
-        reasons = physical_consistency(theta)["violations"]
+        clipped, reasons = physical_theta(theta, friction_se)
         if reasons:  # it cannot be simulated, and is never the basis of a finding
-            unphysical_fit[name] = list(reasons)
+            unphysical_fit[name] = reasons
+        elif name == "before":
+            theta0 = clipped  # friction within its uncertainty of zero simulated as zero
+        else:
+            theta1 = clipped
     for rec_i, first, last in spans[-1:]:
         r = prob.rows[rec_i]
         q, h = r.q[first : last + 1], r.h
@@ -664,6 +670,7 @@ def simulation_gate(
     findings: list[Finding],
     nominal_theta: np.ndarray | None,
     say: Callable[[str], None],
+    se: np.ndarray | None = None,
 ) -> tuple[list[Accepted], list[Finding], dict[str, str]]:
     """A finding must improve the held-out simulated motion too, or it is not one: every term
     is taken out in turn and the held-out open-loop simulation rerun; a term without which the
@@ -672,7 +679,9 @@ def simulation_gate(
     findings and, per dropped term, the reason."""
     dropped: dict[str, str] = {}
     while accepted:
-        fit, _ = before_after(prob, accepted, findings, nominal_theta, simulate_before=False)
+        fit, _ = before_after(
+            prob, accepted, findings, nominal_theta, simulate_before=False, friction_se=se
+        )
         with_all = fit["after"]["position_nrmse"]
         if not with_all or None in with_all:
             break  # nothing to simulate (or not physical: said elsewhere)
@@ -684,7 +693,7 @@ def simulation_gate(
                 if a.cand.key != term and not (term == "rate" and a.cand.kind == "rate")
             ]
             fit_wo, _ = before_after(
-                prob, keep, [f for f in findings if f.term != term], nominal_theta, False
+                prob, keep, [f for f in findings if f.term != term], nominal_theta, False, se
             )
             without = fit_wo["after"]["position_nrmse"]
             if not without or None in without:
@@ -767,7 +776,10 @@ def diagnose(
         # a gain error shows only as the ratio of the joints' gains (docs/diagnosis.md, 4)
         if all(j in live for j in _joints(c)) and (c.kind != "gain" or len(live) == 2)
     ]
-    nominal_unphysical = physical_consistency(theta_fit)["violations"]
+    nominal_se = jackknife_se(
+        cross_validate(block_stats(prob.Psi, prob.y, prob.w, prob.blocks)).fold_beta
+    )
+    nominal_unphysical = physical_theta(theta_fit, nominal_se)[1]
     rejected: dict[str, str] = {}
     if nominal_unphysical:
         # nothing built on an unphysical fit is a finding: say so and stop there
@@ -791,7 +803,7 @@ def diagnose(
         rejected.update(dropped)
         kept = {f.effect for f in findings}
         confounded = [pair for pair in confounded if set(pair) <= kept]
-    fit, fit_arrays = before_after(prob, accepted, findings, nominal_theta)
+    fit, fit_arrays = before_after(prob, accepted, findings, nominal_theta, friction_se=nominal_se)
     notes = (
         cannot
         + dead_notes
