@@ -683,8 +683,23 @@ def simulation_gate(
             prob, accepted, findings, nominal_theta, simulate_before=False, friction_se=se
         )
         with_all = fit["after"]["position_nrmse"]
+        if "after" in fit.get("unphysical", {}):
+            # the refit on the training part cannot be simulated: the terms cannot be shown to
+            # improve the motion, so the last accepted goes (the others stood without it)
+            last = accepted[-1].cand.key
+            group = "rate" if accepted[-1].cand.kind == "rate" else last
+            why = "its held-out refit is not physical (" + "; ".join(fit["unphysical"]["after"])
+            dropped[group] = why + "), so it cannot be shown to improve the simulated motion"
+            say(f"diagnose: dropped {group}: {dropped[group]}")
+            accepted = [
+                a
+                for a in accepted
+                if a.cand.key != group and not (group == "rate" and a.cand.kind == "rate")
+            ]
+            findings = [f for f in findings if f.term != group]
+            continue
         if not with_all or None in with_all:
-            break  # nothing to simulate (or not physical: said elsewhere)
+            break  # no held-out stretch to simulate
         worst, worst_ratio = None, 1.0 + SIMULATION_TOLERANCE
         for term in dict.fromkeys(f.term for f in findings if f.term):
             keep = [
@@ -799,7 +814,9 @@ def diagnose(
         say(f"diagnose: accepted {[a.cand.key for a in accepted] or 'nothing'}; refitting")
         findings, confounded, shaft = interpret(prob, accepted, library, reference_theta)
         findings += unexplained(prob, accepted, shaft)
-        accepted, findings, dropped = simulation_gate(prob, accepted, findings, nominal_theta, say)
+        accepted, findings, dropped = simulation_gate(
+            prob, accepted, findings, nominal_theta, say, nominal_se
+        )
         rejected.update(dropped)
         kept = {f.effect for f in findings}
         confounded = [pair for pair in confounded if set(pair) <= kept]
