@@ -46,7 +46,8 @@ def row(name: str, doc: dict) -> str:
     )
     rejected = ", ".join(doc.get("not_findings", {})) or "–"
     noise = doc["noise"][0] or {}
-    windows = f"{noise.get('velocity_half_window', '?')} / {1000 * noise.get('filter_window_s', 0):.0f} ms"
+    half, window_s = noise.get("velocity_half_window", "?"), noise.get("filter_window_s", 0)
+    windows = f"{half} / {1000 * window_s:.0f} ms"
     return f"| {name} | {nominal} | {found} | {rejected} | {torque} | {sim} | {windows} |"
 
 
