@@ -368,7 +368,10 @@ def _segment_simulation(
     for a, b in itertools.pairwise(cuts):
         inside = 0 < a < len(q) - 1
         dq0 = (q[a + 1] - q[a - 1]) / (t[a + 1] - t[a - 1]) if inside else np.zeros(2)
-        out.append(simulate_open_loop(theta, tau[a:b], h, q0=q[a], dq0=dq0, extras=extras).q)
+        ex = extras
+        if extras is not None and a > 0:  # the lag and delay line start settled, not at rest
+            ex = replace(extras, initial_command_Nm=(float(tau[a - 1, 0]), float(tau[a - 1, 1])))
+        out.append(simulate_open_loop(theta, tau[a:b], h, q0=q[a], dq0=dq0, extras=ex).q)
     return np.concatenate(out)
 
 
@@ -379,12 +382,17 @@ def before_after(
     nominal_theta: np.ndarray | None,
     simulate_before: bool = True,
     friction_se: np.ndarray | None = None,
+    shaft: np.ndarray | None = None,
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Torque NRMSE and open-loop position NRMSE per joint on held-out data, nominal model
     (``nominal_theta`` when given, else fitted on the training part) and with the accepted terms.
     A fit that is not physical is not simulated (its position NRMSE stays empty) and is named
-    in ``unphysical`` with the reasons."""
+    in ``unphysical`` with the reasons. ``shaft``: the exact lagged or delayed torque rows (Nm)
+    of a found lag or delay; the refit then explains them instead of carrying the first-order
+    rate columns, so θ is the one the simulation with that lag or delay needs."""
     train, test, spans = _masks(prob)
+    if shaft is not None:
+        accepted = [a for a in accepted if a.cand.kind != "rate"]
     cols = [prob.chosen(a) for a in accepted]
     w_train = prob.w * train[:, None]
     theta0 = (
@@ -393,10 +401,12 @@ def before_after(
         else np.asarray(nominal_theta, float)
     )
     Z = _design(prob, cols)
-    beta = fit_theta(Z, prob.y, w_train)
+    target = prob.y if shaft is None else shaft / prob.scale
+    beta = fit_theta(Z, target, w_train)
     y = prob.y_raw
     pred0 = prob.Psi_raw @ theta0
-    pred1 = (Z @ beta) * prob.scale
+    # the model's torque prediction: what it leaves of the measured side, on the recorded rows
+    pred1 = y - (target - Z @ beta) * prob.scale
     torque = {}
     for name, pred in (("before", pred0), ("after", pred1)):
         torque[name] = [_nrmse_or_none(y, pred, test & (prob.w[:, j] > 0), j) for j in (0, 1)]
@@ -671,7 +681,8 @@ def simulation_gate(
     nominal_theta: np.ndarray | None,
     say: Callable[[str], None],
     se: np.ndarray | None = None,
-) -> tuple[list[Accepted], list[Finding], dict[str, str]]:
+    shaft: np.ndarray | None = None,
+) -> tuple[list[Accepted], list[Finding], dict[str, str], np.ndarray | None]:
     """A finding must improve the held-out simulated motion too, or it is not one: every term
     is taken out in turn and the held-out open-loop simulation rerun; a term without which the
     simulated position of its joint(s) is better by more than SIMULATION_TOLERANCE is dropped
@@ -679,9 +690,7 @@ def simulation_gate(
     findings and, per dropped term, the reason."""
     dropped: dict[str, str] = {}
     while accepted:
-        fit, _ = before_after(
-            prob, accepted, findings, nominal_theta, simulate_before=False, friction_se=se
-        )
+        fit, _ = before_after(prob, accepted, findings, nominal_theta, False, se, shaft)
         with_all = fit["after"]["position_nrmse"]
         if "after" in fit.get("unphysical", {}):
             # the refit on the training part cannot be simulated: the terms cannot be shown to
@@ -697,6 +706,7 @@ def simulation_gate(
                 if a.cand.key != group and not (group == "rate" and a.cand.kind == "rate")
             ]
             findings = [f for f in findings if f.term != group]
+            shaft = None if group == "rate" else shaft
             continue
         if not with_all or None in with_all:
             break  # no held-out stretch to simulate
@@ -708,7 +718,13 @@ def simulation_gate(
                 if a.cand.key != term and not (term == "rate" and a.cand.kind == "rate")
             ]
             fit_wo, _ = before_after(
-                prob, keep, [f for f in findings if f.term != term], nominal_theta, False, se
+                prob,
+                keep,
+                [f for f in findings if f.term != term],
+                nominal_theta,
+                False,
+                se,
+                None if term == "rate" else shaft,
             )
             without = fit_wo["after"]["position_nrmse"]
             if not without or None in without:
@@ -736,7 +752,8 @@ def simulation_gate(
             if a.cand.key != worst and not (worst == "rate" and a.cand.kind == "rate")
         ]
         findings = [f for f in findings if f.term != worst]
-    return accepted, findings, dropped
+        shaft = None if worst == "rate" else shaft
+    return accepted, findings, dropped, shaft
 
 
 def _rejection_notes(rejected: dict[str, str]) -> list[str]:
@@ -800,6 +817,7 @@ def diagnose(
         # nothing built on an unphysical fit is a finding: say so and stop there
         say("diagnose: the nominal fit is not physical; no candidates tested")
         accepted, first, findings, confounded = [], {}, [], []
+        shaft = None
         cannot = [
             "I cannot tell what the model leaves out: the nominal 9-parameter fit of these "
             "recordings is not physical (" + "; ".join(nominal_unphysical) + "), so no finding "
@@ -814,13 +832,15 @@ def diagnose(
         say(f"diagnose: accepted {[a.cand.key for a in accepted] or 'nothing'}; refitting")
         findings, confounded, shaft = interpret(prob, accepted, library, reference_theta)
         findings += unexplained(prob, accepted, shaft)
-        accepted, findings, dropped = simulation_gate(
-            prob, accepted, findings, nominal_theta, say, nominal_se
+        accepted, findings, dropped, shaft = simulation_gate(
+            prob, accepted, findings, nominal_theta, say, nominal_se, shaft
         )
         rejected.update(dropped)
         kept = {f.effect for f in findings}
         confounded = [pair for pair in confounded if set(pair) <= kept]
-    fit, fit_arrays = before_after(prob, accepted, findings, nominal_theta, friction_se=nominal_se)
+    fit, fit_arrays = before_after(
+        prob, accepted, findings, nominal_theta, friction_se=nominal_se, shaft=shaft
+    )
     notes = (
         cannot
         + dead_notes
