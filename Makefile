@@ -32,7 +32,7 @@ bench: $(STAMP)
 	$(BIN)/python tests/benchmarks/bench_hil.py
 	$(BIN)/python tests/benchmarks/bench_identify.py
 	$(BIN)/python tests/benchmarks/bench_jitter.py
-	$(BIN)/python tests/benchmarks/bench_diagnose.py
+	$(BIN)/python tests/benchmarks/bench_diagnose.py --long
 	$(BIN)/python tests/benchmarks/bench_sweep.py
 	$(BIN)/python tests/benchmarks/bench_slcan_sdo.py
 	$(BIN)/python tests/benchmarks/bench_urdf.py

@@ -284,10 +284,11 @@ def check_recording(name: str, t: np.ndarray, q: np.ndarray, tau: np.ndarray) ->
 
 
 def build_problem(
-    recordings: Sequence[tuple[np.ndarray, np.ndarray, float]],
+    recordings: Sequence[tuple[np.ndarray, ...]],
 ) -> tuple[Problem, np.ndarray]:
-    """Nominal regression of (q, τ, h) recordings and its 9-parameter fit θ̂."""
-    rows = [recording_rows(q, tau, h) for q, tau, h in recordings]
+    """Nominal regression of (q, τ, h) or (q, τ, h, t) recordings (t: the real sample times)
+    and its 9-parameter fit θ̂."""
+    rows = [recording_rows(r[0], r[1], r[2], t=r[3] if len(r) > 3 else None) for r in recordings]
     y, Psi, w = _stack(rows)
     theta = fit_theta(Psi, y, w)
     scale = robust_scale(y - Psi @ theta, w)
@@ -353,10 +354,36 @@ def _large_enough(cand: Candidate, cv: CrossValidation) -> bool:
 MIN_GAIN = -0.5
 
 
+# A friction coefficient is called negative only when it is below zero by more than this many
+# of its own (blocked jackknife) standard errors: a viscous term the recording cannot determine
+# scatters around zero, and -0.002 ± 0.004 Nm s is not a verdict on the arm.
+SE_TOLERANCE = 2.0
+FRICTION = slice(5, 9)  # θ6..θ9
+
+
+def jackknife_se(fold_beta: np.ndarray) -> np.ndarray:
+    """Standard error of each coefficient from the leave-one-block-out fits."""
+    n = fold_beta.shape[0]
+    return np.sqrt((n - 1) / n * np.sum((fold_beta - fold_beta.mean(0)) ** 2, axis=0))
+
+
+def physical_theta(theta: np.ndarray, se: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
+    """θ1..θ9 with friction coefficients that are negative within SE_TOLERANCE of their
+    standard errors ``se`` set to zero, and what is still not physical about it
+    (hil.model.physical_consistency: M(q) positive definite for every q, friction ≥ 0)."""
+    th = np.array(theta[:9], float)
+    if se is not None:
+        fr = th[FRICTION]
+        fr[(fr < 0) & (fr >= -SE_TOLERANCE * np.asarray(se, float)[FRICTION])] = 0.0
+        th[FRICTION] = fr
+    return th, list(physical_consistency(th)["violations"])
+
+
 def unphysical(cand: Candidate | None, cv: CrossValidation) -> list[str]:
     """Why a fit is not physical (empty when it is): M(q) not positive definite or negative
-    friction in θ (hil.model.physical_consistency), or a gain that removes most of the torque."""
-    reasons = list(physical_consistency(cv.beta[:9])["violations"])
+    friction in θ beyond its uncertainty (:func:`physical_theta`), or a gain that removes most of
+    the torque."""
+    reasons = physical_theta(cv.beta, jackknife_se(cv.fold_beta)[:9])[1]
     if cand is not None and cand.kind == "gain":
         r = float(cv.beta[9:][-1])
         if r <= MIN_GAIN:
@@ -601,3 +628,26 @@ def final_fit(prob: Problem, accepted: Sequence[Accepted]) -> FinalFit:
         ses.append(jack[at : at + p])
         at += p
     return FinalFit(cv.beta[:9], coefs, ses, cv)
+
+
+def physical_gate(
+    prob: Problem, accepted: list[Accepted], rejected: dict[str, str]
+) -> list[Accepted]:
+    """The final model must be physical too: a term accepted early can drift once others join
+    (a gain error that ends up removing most of the torque). While the refit with every
+    accepted term is not physical, the last accepted term goes (the others stood without it),
+    with the reason in ``rejected``."""
+    accepted = list(accepted)
+    while accepted:
+        fit = final_fit(prob, accepted)
+        reasons = physical_theta(fit.theta, jackknife_se(fit.cv.fold_beta)[:9])[1]
+        for a, coef in zip(accepted, fit.coefficients, strict=True):
+            if a.cand.kind == "gain" and float(coef[0]) <= MIN_GAIN:
+                reasons.append(
+                    f"a torque gain of {100 * float(coef[0]):+.0f} % removes most of the torque"
+                )
+        if not reasons:
+            break
+        last = accepted.pop()
+        rejected[last.cand.key] = "its refit is not physical: " + "; ".join(reasons)
+    return accepted

@@ -35,6 +35,7 @@ from hil.regressors import (
     _hermite,
     central_difference,
     kinematics,
+    quantized_stick,
     raw_rows,
     stick_weights,
 )
@@ -58,6 +59,86 @@ def window_intervals(h: float) -> int:
     return max(4, round(WINDOW_S / h))
 
 
+# Noise from the data (docs/diagnosis.md, "Noise and time stamps"): position noise σ_q is the
+# larger of the encoder quantum's Δ/√12 (Δ the smallest step seen) and what the third
+# differences hold (Δ³q of a smooth motion is ~0, of white noise has variance 20 σ_q²); a
+# velocity fitted over 2m + 1 samples then has noise σ_v(m) = σ_q √(3 / (m(m+1)(2m+1))) / h,
+# and a window of W intervals leaves
+# √2 σ_v / (W h) in the momentum differences. m grows until σ_v is VELOCITY_NOISE of the
+# velocity's RMS (at most MAX_HALF_WINDOW_S either side: the fit's own bias grows as (ω m h)²);
+# W until the momentum noise is MOMENTUM_NOISE of the acceleration's RMS (least squares shrinks
+# θ by about its square, errors in variables), never below WINDOW_S, at most MAX_WINDOW_S.
+VELOCITY_NOISE = 0.01
+MOMENTUM_NOISE = 0.02
+MAX_HALF_WINDOW_S = 0.005
+MAX_WINDOW_S = 0.2
+# An interval this many times the median is a gap (a stall, dropped samples): no row spans it.
+GAP_FACTOR = 3.0
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """What the data say about their own noise, per joint, and the windows it implies."""
+
+    quantum_rad: tuple[float, float]
+    velocity_noise_rad_s: tuple[float, float]  # of the velocity estimate actually used
+    half_window: int  # samples either side of each velocity estimate
+    window: int  # intervals of the moving-average filter F
+    irregular_intervals: int  # intervals off the median by more than 1 %
+    gaps: int  # intervals over GAP_FACTOR × the median
+
+    def as_dict(self, h: float) -> dict[str, object]:
+        return {
+            "encoder_quantum_rad": [float(f"{x:.3g}") for x in self.quantum_rad],
+            "velocity_noise_rad_s": [float(f"{x:.3g}") for x in self.velocity_noise_rad_s],
+            "velocity_half_window": self.half_window,
+            "filter_window_s": round(self.window * h, 4),
+            "irregular_intervals": self.irregular_intervals,
+            "gaps": self.gaps,
+        }
+
+
+def _velocity_noise(sigma_q: np.ndarray, h: float, m: int) -> np.ndarray:
+    return sigma_q * np.sqrt(3.0 / (m * (m + 1) * (2 * m + 1))) / h
+
+
+def noise_model(q: np.ndarray, t: np.ndarray) -> NoiseModel:
+    """Encoder quantum, velocity-estimate noise, and the windows they call for (module doc)."""
+    dt = np.diff(t)
+    h = float(np.median(dt))
+    steps = np.abs(np.diff(q, axis=0))
+    quantum = np.array([float(s[s > 0].min()) if np.any(s > 0) else 0.0 for s in steps.T])
+    third = np.diff(q, 3, axis=0)
+    sigma_q = np.maximum(quantum / np.sqrt(12.0), np.sqrt(np.mean(third**2, axis=0) / 20.0))
+    v = np.diff(q, axis=0) / dt[:, None]
+    v_rms = np.sqrt(np.mean(v**2, axis=0))
+    s = 10  # acceleration on a 10-sample scale, where quantization is small against motion
+    if len(q) > 2 * s + 1:
+        a = (q[2 * s :] - 2 * q[s:-s] + q[: -2 * s]) / (s * h) ** 2
+        a_rms = np.sqrt(np.mean(a**2, axis=0))
+    else:
+        a_rms = np.full(2, np.inf)
+    moving = v_rms > 0
+    m = 1
+    while m * h < MAX_HALF_WINDOW_S and np.any(
+        _velocity_noise(sigma_q, h, m)[moving] > VELOCITY_NOISE * v_rms[moving]
+    ):
+        m += 1
+    sigma_v = _velocity_noise(sigma_q, h, m)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        need = np.where(a_rms > 0, np.sqrt(2) * sigma_v / (MOMENTUM_NOISE * a_rms * h), 0.0)
+    window = max(window_intervals(h), int(np.ceil(np.max(need[np.isfinite(need)], initial=0))))
+    window = min(window, max(window_intervals(h), round(MAX_WINDOW_S / h)))
+    return NoiseModel(
+        (float(quantum[0]), float(quantum[1])),
+        (float(sigma_v[0]), float(sigma_v[1])),
+        m,
+        window,
+        int(np.sum(np.abs(dt / h - 1) > 0.01)),
+        int(np.sum(dt > GAP_FACTOR * h)),
+    )
+
+
 @dataclass(frozen=True)
 class RecordingRows:
     """One recording's nominal regression y ≈ Ψ θ (rows (K, 2), Ψ (K, 2, 9), weights (K, 2))
@@ -79,6 +160,9 @@ class RecordingRows:
     k: np.ndarray
     q_nodes: np.ndarray
     v_nodes: np.ndarray
+    stamps: np.ndarray | None = None  # real sample times when the rows use them (else k·h)
+    half_window: int = 1  # samples either side of each velocity estimate
+    noise: NoiseModel | None = None
 
     @property
     def rows(self) -> int:
@@ -86,7 +170,8 @@ class RecordingRows:
 
     @property
     def t(self) -> np.ndarray:
-        return self.k * self.h
+        """Time of each row's interval start (s)."""
+        return self.k * self.h if self.stamps is None else self.stamps[self.k]
 
     @property
     def v_mean(self) -> np.ndarray:
@@ -109,29 +194,58 @@ def moving_average(x: np.ndarray, window: int) -> np.ndarray:
 
 
 def _momentum_rows(
-    q: np.ndarray, tau: np.ndarray, h: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Unfiltered interval rows: k, τ_k (K, 2), [ΔP + ∫R dt]/h (K, 2, 9), interval stuck (K, 2)."""
-    kin = kinematics("exact", q, h)
+    q: np.ndarray,
+    tau: np.ndarray,
+    h: float,
+    t: np.ndarray | None = None,
+    half_window: int = 1,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Unfiltered interval rows: k, τ_k (K, 2), [ΔP + ∫R dt]/h_k (K, 2, 9), interval stuck
+    (K, 2), sample velocities (N, 2). ``t``: real time stamps (each interval its own h_k)."""
+    kin = kinematics("exact", q, h, t=t, half_window=half_window)
     raw = raw_rows("filtered_dynamic", "exact", q, tau, h, kin)
     assert kin.intervals is not None
-    return kin.intervals.k, raw.y, raw.parts[0][1], kin.intervals.stuck
+    return kin.intervals.k, raw.y, raw.parts[0][1], kin.intervals.stuck, kin.v
 
 
 def recording_rows(
-    q: np.ndarray, tau: np.ndarray, h: float, window: int | None = None
+    q: np.ndarray,
+    tau: np.ndarray,
+    h: float,
+    window: int | None = None,
+    t: np.ndarray | None = None,
 ) -> RecordingRows:
     """The nominal regression of one recording and its interval nodes (``window``: intervals
-    of F, default :func:`window_intervals`)."""
+    of F, default from the data's noise, :func:`noise_model`). ``t``: the real sample times;
+    when they are regular and the encoder fine, the rows are those of equal intervals h."""
     q, tau = np.asarray(q, float), np.asarray(tau, float)
-    window = window_intervals(h) if window is None else window
+    times = np.arange(len(q)) * h if t is None else np.asarray(t, float)
+    noise = noise_model(q, times) if len(q) > 2 else None
+    if window is None:
+        window = noise.window if noise is not None else window_intervals(h)
     if len(q) < 4 * window:
         raise ValueError(f"need at least {4 * window} samples to diagnose, got {len(q)}")
-    k, y_raw, psi_raw, _stuck = _momentum_rows(q, tau, h)
-    v = central_difference(q, h)
-    # No encoder motion over the interval, or the velocity reverses in it: the joint may stick
-    # for part of it.
-    still = (q[k + 1] == q[k]) | (np.sign(v[k]) != np.sign(v[k + 1]))
+    regular = noise is None or (noise.irregular_intervals == 0 and noise.half_window == 1)
+    if regular:
+        k, y_raw, psi_raw, _stuck, _v = _momentum_rows(q, tau, h)
+        v = central_difference(q, h)
+        # No encoder motion over the interval, or the velocity reverses in it: the joint may
+        # stick for part of it.
+        still = (q[k + 1] == q[k]) | (np.sign(v[k]) != np.sign(v[k + 1]))
+        hk: float | np.ndarray = h
+        stamps, half = None, 1
+    else:
+        assert noise is not None
+        half = noise.half_window
+        k, y_raw, psi_raw, _stuck, v = _momentum_rows(q, tau, h, times, half)
+        # A coarse encoder stays on one count through a reversal: a stick only when the run
+        # of unchanged counts outlasts that (hil.regressors.quantized_stick). A gap (a stall,
+        # dropped samples) is left out like a stick: nothing is known inside it.
+        dt = np.diff(times)
+        still = quantized_stick(q, times)[k] | (np.sign(v[k]) != np.sign(v[k + 1]))
+        still |= (dt[k] > GAP_FACTOR * h)[:, None]
+        hk = dt[k][None, :, None]
+        stamps = times
     guarded = still.copy()
     for shift in range(1, max(1, round(STICK_GUARD_S / h)) + 1):
         guarded[:-shift] |= still[shift:]
@@ -139,7 +253,7 @@ def recording_rows(
     weights = stick_weights(guarded, window - 1)
     weights[: window - 1] = 0.0  # windows not yet full
     nodes = _GL_NODES[:, None, None]
-    qs, ds = _hermite(q[k][None], q[k + 1][None], h * v[k][None], h * v[k + 1][None], nodes)
+    qs, ds = _hermite(q[k][None], q[k + 1][None], hk * v[k][None], hk * v[k + 1][None], nodes)
     return RecordingRows(
         moving_average(y_raw, window),
         moving_average(psi_raw, window),
@@ -150,7 +264,10 @@ def recording_rows(
         window,
         k,
         qs,
-        ds / h,
+        ds / hk,
+        stamps,
+        half,
+        noise,
     )
 
 
@@ -272,7 +389,8 @@ def angle_offset_column(
     A constant shift leaves every velocity unchanged, so the rows are rebuilt exactly."""
     shift = np.zeros(2)
     shift[joint] = step_rad
-    plus = moving_average(_momentum_rows(rows.q + shift, rows.tau, rows.h)[2], rows.window)
-    minus = moving_average(_momentum_rows(rows.q - shift, rows.tau, rows.h)[2], rows.window)
+    args = (rows.h, rows.stamps, rows.half_window)
+    plus = moving_average(_momentum_rows(rows.q + shift, rows.tau, *args)[2], rows.window)
+    minus = moving_average(_momentum_rows(rows.q - shift, rows.tau, *args)[2], rows.window)
     d = (plus - minus) @ np.asarray(theta, float) / (2 * step_rad)
     return -d[:, :, None]

@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -33,6 +34,9 @@ from hil.diagnose import (
     check_recording,
     final_fit,
     fit_theta,
+    jackknife_se,
+    physical_gate,
+    physical_theta,
     select,
     term_width,
     usable_speeds,
@@ -48,7 +52,6 @@ from hil.diagnose_findings import (
 from hil.diagnose_locate import locate
 from hil.diagnose_stats import block_stats, cross_validate, evidence, extend_stats_many
 from hil.metrics import nrmse
-from hil.model import physical_consistency
 from hil.openloop import OpenLoopExtras, simulate_open_loop
 
 HELD_OUT_FRACTION = 0.25  # of a single recording: its last quarter
@@ -349,16 +352,26 @@ def _segment_simulation(
     h: float,
     first: int,
     last: int,
+    stamps: np.ndarray | None = None,
 ) -> np.ndarray:
     """Open-loop simulation of samples first..last in segments of SEGMENT_S, each started from
     the recorded position and central-difference velocity: an arm this underdamped diverges
-    from any model over many seconds, so one long run would measure chaos, not the model."""
+    from any model over many seconds, so one long run would measure chaos, not the model.
+    ``stamps``: the real sample times; a segment also ends at every interval that is not h
+    (a stall, a dropped sample), so each is integrated over its true intervals."""
     step = max(4, round(SEGMENT_S / h))
+    t = np.arange(len(q)) * h if stamps is None else stamps
+    odd = np.flatnonzero(np.abs(np.diff(t) / h - 1.0) > 0.01)  # interval i: samples i → i+1
+    cuts = sorted({*range(first, last + 1, step), *(int(i) + 1 for i in odd)})
+    cuts = [c for c in cuts if first <= c <= last] + [last + 1]
     out = []
-    for a in range(first, last + 1, step):
-        b = min(a + step, last + 1)
-        dq0 = (q[a + 1] - q[a - 1]) / (2 * h) if 0 < a < len(q) - 1 else np.zeros(2)
-        out.append(simulate_open_loop(theta, tau[a:b], h, q0=q[a], dq0=dq0, extras=extras).q)
+    for a, b in itertools.pairwise(cuts):
+        inside = 0 < a < len(q) - 1
+        dq0 = (q[a + 1] - q[a - 1]) / (t[a + 1] - t[a - 1]) if inside else np.zeros(2)
+        ex = extras
+        if extras is not None and a > 0:  # the lag and delay line start settled, not at rest
+            ex = replace(extras, initial_command_Nm=(float(tau[a - 1, 0]), float(tau[a - 1, 1])))
+        out.append(simulate_open_loop(theta, tau[a:b], h, q0=q[a], dq0=dq0, extras=ex).q)
     return np.concatenate(out)
 
 
@@ -368,12 +381,18 @@ def before_after(
     findings: Sequence[Finding],
     nominal_theta: np.ndarray | None,
     simulate_before: bool = True,
+    friction_se: np.ndarray | None = None,
+    shaft: np.ndarray | None = None,
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Torque NRMSE and open-loop position NRMSE per joint on held-out data, nominal model
     (``nominal_theta`` when given, else fitted on the training part) and with the accepted terms.
     A fit that is not physical is not simulated (its position NRMSE stays empty) and is named
-    in ``unphysical`` with the reasons."""
+    in ``unphysical`` with the reasons. ``shaft``: the exact lagged or delayed torque rows (Nm)
+    of a found lag or delay; the refit then explains them instead of carrying the first-order
+    rate columns, so θ is the one the simulation with that lag or delay needs."""
     train, test, spans = _masks(prob)
+    if shaft is not None:
+        accepted = [a for a in accepted if a.cand.kind != "rate"]
     cols = [prob.chosen(a) for a in accepted]
     w_train = prob.w * train[:, None]
     theta0 = (
@@ -382,10 +401,12 @@ def before_after(
         else np.asarray(nominal_theta, float)
     )
     Z = _design(prob, cols)
-    beta = fit_theta(Z, prob.y, w_train)
+    target = prob.y if shaft is None else shaft / prob.scale
+    beta = fit_theta(Z, target, w_train)
     y = prob.y_raw
     pred0 = prob.Psi_raw @ theta0
-    pred1 = (Z @ beta) * prob.scale
+    # the model's torque prediction: what it leaves of the measured side, on the recorded rows
+    pred1 = y - (target - Z @ beta) * prob.scale
     torque = {}
     for name, pred in (("before", pred0), ("after", pred1)):
         torque[name] = [_nrmse_or_none(y, pred, test & (prob.w[:, j] > 0), j) for j in (0, 1)]
@@ -395,17 +416,22 @@ def before_after(
     sims: dict[str, Any] = {}
     unphysical_fit: dict[str, list[str]] = {}
     for name, theta in (("before", theta0), ("after", theta1)):
-        reasons = physical_consistency(theta)["violations"]
+        clipped, reasons = physical_theta(theta, friction_se)
         if reasons:  # it cannot be simulated, and is never the basis of a finding
-            unphysical_fit[name] = list(reasons)
+            unphysical_fit[name] = reasons
+        elif name == "before":
+            theta0 = clipped  # friction within its uncertainty of zero simulated as zero
+        else:
+            theta1 = clipped
     for rec_i, first, last in spans[-1:]:
         r = prob.rows[rec_i]
         q, h = r.q[first : last + 1], r.h
-        sims = {"t": np.arange(first, last + 1) * h, "q": q}
+        times = np.arange(len(r.q)) * h if r.stamps is None else r.stamps
+        sims = {"t": times[first : last + 1], "q": q}
         for name, theta, ex in (("before", theta0, None), ("after", theta1, extras)):
             if name in unphysical_fit or (name == "before" and not simulate_before):
                 continue
-            sims[name] = _segment_simulation(theta, ex, r.q, r.tau, h, first, last)
+            sims[name] = _segment_simulation(theta, ex, r.q, r.tau, h, first, last, r.stamps)
             position[name] = _finite(nrmse(q, sims[name]))
     held = (
         f"recording {len(prob.rows)}, not used for fitting"
@@ -517,9 +543,24 @@ def _who(f: Finding) -> str:
     return f"Joint {f.joint}" if f.joint else "Both joints"
 
 
+# Held-out torque NRMSE above which "nothing found" is not called "the model is complete".
+MODEL_EXPLAINS = 0.05
+
+
 def summary_words(findings: Sequence[Finding], fit: dict[str, Any], notes: Sequence[str]) -> str:
     if not findings and any(n.startswith("I cannot tell") for n in notes):
         lines = []  # the note says why, and that is all there is to say
+    elif not findings and (
+        any(n.startswith("Not a finding") for n in notes)
+        or max((x for x in fit["before"]["torque_nrmse"] if x is not None), default=0.0)
+        > MODEL_EXPLAINS
+    ):
+        before = fit["before"]["torque_nrmse"]
+        lines = [
+            "No finding, and I cannot say the model is complete: it leaves a held-out torque "
+            f"NRMSE of {percent(before[0])} / {percent(before[1])}, and nothing in the "
+            "vocabulary explains that residual on held-out data with a physical refit."
+        ]
     elif not findings:
         lines = [
             "No missing physics found: the 9-parameter model explains the recordings to within "
@@ -639,7 +680,9 @@ def simulation_gate(
     findings: list[Finding],
     nominal_theta: np.ndarray | None,
     say: Callable[[str], None],
-) -> tuple[list[Accepted], list[Finding], dict[str, str]]:
+    se: np.ndarray | None = None,
+    shaft: np.ndarray | None = None,
+) -> tuple[list[Accepted], list[Finding], dict[str, str], np.ndarray | None]:
     """A finding must improve the held-out simulated motion too, or it is not one: every term
     is taken out in turn and the held-out open-loop simulation rerun; a term without which the
     simulated position of its joint(s) is better by more than SIMULATION_TOLERANCE is dropped
@@ -647,10 +690,26 @@ def simulation_gate(
     findings and, per dropped term, the reason."""
     dropped: dict[str, str] = {}
     while accepted:
-        fit, _ = before_after(prob, accepted, findings, nominal_theta, simulate_before=False)
+        fit, _ = before_after(prob, accepted, findings, nominal_theta, False, se, shaft)
         with_all = fit["after"]["position_nrmse"]
+        if "after" in fit.get("unphysical", {}):
+            # the refit on the training part cannot be simulated: the terms cannot be shown to
+            # improve the motion, so the last accepted goes (the others stood without it)
+            last = accepted[-1].cand.key
+            group = "rate" if accepted[-1].cand.kind == "rate" else last
+            why = "its held-out refit is not physical (" + "; ".join(fit["unphysical"]["after"])
+            dropped[group] = why + "), so it cannot be shown to improve the simulated motion"
+            say(f"diagnose: dropped {group}: {dropped[group]}")
+            accepted = [
+                a
+                for a in accepted
+                if a.cand.key != group and not (group == "rate" and a.cand.kind == "rate")
+            ]
+            findings = [f for f in findings if f.term != group]
+            shaft = None if group == "rate" else shaft
+            continue
         if not with_all or None in with_all:
-            break  # nothing to simulate (or not physical: said elsewhere)
+            break  # no held-out stretch to simulate
         worst, worst_ratio = None, 1.0 + SIMULATION_TOLERANCE
         for term in dict.fromkeys(f.term for f in findings if f.term):
             keep = [
@@ -659,7 +718,13 @@ def simulation_gate(
                 if a.cand.key != term and not (term == "rate" and a.cand.kind == "rate")
             ]
             fit_wo, _ = before_after(
-                prob, keep, [f for f in findings if f.term != term], nominal_theta, False
+                prob,
+                keep,
+                [f for f in findings if f.term != term],
+                nominal_theta,
+                False,
+                se,
+                None if term == "rate" else shaft,
             )
             without = fit_wo["after"]["position_nrmse"]
             if not without or None in without:
@@ -687,7 +752,8 @@ def simulation_gate(
             if a.cand.key != worst and not (worst == "rate" and a.cand.kind == "rate")
         ]
         findings = [f for f in findings if f.term != worst]
-    return accepted, findings, dropped
+        shaft = None if worst == "rate" else shaft
+    return accepted, findings, dropped, shaft
 
 
 def _rejection_notes(rejected: dict[str, str]) -> list[str]:
@@ -720,7 +786,7 @@ def diagnose(
     say(f"diagnose: {len(recordings)} recording(s), fitting the nominal model")
     for r in recordings:
         check_recording(str(r.path), r.t, r.q, r.tau)
-    prob, theta_fit = build_problem([(r.q, r.tau, r.period_s) for r in recordings])
+    prob, theta_fit = build_problem([(r.q, r.tau, r.period_s, r.t) for r in recordings])
     usable = (prob.w > 0).sum(axis=0)
     live = [j for j in (0, 1) if usable[j] >= MIN_USABLE_ROWS]
     if not live:
@@ -742,12 +808,16 @@ def diagnose(
         # a gain error shows only as the ratio of the joints' gains (docs/diagnosis.md, 4)
         if all(j in live for j in _joints(c)) and (c.kind != "gain" or len(live) == 2)
     ]
-    nominal_unphysical = physical_consistency(theta_fit)["violations"]
+    nominal_se = jackknife_se(
+        cross_validate(block_stats(prob.Psi, prob.y, prob.w, prob.blocks)).fold_beta
+    )
+    nominal_unphysical = physical_theta(theta_fit, nominal_se)[1]
     rejected: dict[str, str] = {}
     if nominal_unphysical:
         # nothing built on an unphysical fit is a finding: say so and stop there
         say("diagnose: the nominal fit is not physical; no candidates tested")
         accepted, first, findings, confounded = [], {}, [], []
+        shaft = None
         cannot = [
             "I cannot tell what the model leaves out: the nominal 9-parameter fit of these "
             "recordings is not physical (" + "; ".join(nominal_unphysical) + "), so no finding "
@@ -758,14 +828,19 @@ def diagnose(
         cannot = []
         say(f"diagnose: testing {len(library)} candidates (both joints)")
         accepted, first = select(prob, library, reference=reference_theta, rejected=rejected)
+        accepted = physical_gate(prob, accepted, rejected)
         say(f"diagnose: accepted {[a.cand.key for a in accepted] or 'nothing'}; refitting")
         findings, confounded, shaft = interpret(prob, accepted, library, reference_theta)
         findings += unexplained(prob, accepted, shaft)
-        accepted, findings, dropped = simulation_gate(prob, accepted, findings, nominal_theta, say)
+        accepted, findings, dropped, shaft = simulation_gate(
+            prob, accepted, findings, nominal_theta, say, nominal_se, shaft
+        )
         rejected.update(dropped)
         kept = {f.effect for f in findings}
         confounded = [pair for pair in confounded if set(pair) <= kept]
-    fit, fit_arrays = before_after(prob, accepted, findings, nominal_theta)
+    fit, fit_arrays = before_after(
+        prob, accepted, findings, nominal_theta, friction_se=nominal_se, shaft=shaft
+    )
     notes = (
         cannot
         + dead_notes
@@ -780,6 +855,7 @@ def diagnose(
         "summary": summary_words(findings, fit, notes),
         "location": where.document,
         "nominal_theta": theta_fit.tolist(),
+        "noise": [r.noise.as_dict(r.h) if r.noise else None for r in prob.rows],
         "candidates_tested": {k: ev.as_dict() for k, ev in first.items()},
         "not_findings": rejected,
         "physical": {

@@ -101,10 +101,17 @@ class OpenLoopExtras:
     stribeck_breakaway_ratio: tuple[float, float] | None = None
     stribeck_velocity_rad_s: tuple[float, float] | None = None
     stribeck_exponent: float = 2.0
+    # The command held before t = 0 (None: zero, the arm starts from rest). A simulation restarted
+    # inside a recording (the diagnosis's held-out segments) starts settled on the previous
+    # row's command: the lag state and the delay line's rows before 0 equal it.
+    initial_command_Nm: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         def put(name: str, value: object) -> None:
             object.__setattr__(self, name, value)
+
+        if self.initial_command_Nm is not None:
+            put("initial_command_Nm", _pair("initial_command_Nm", self.initial_command_Nm))
 
         for name in (
             "torque_offset_Nm",

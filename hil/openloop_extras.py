@@ -80,18 +80,21 @@ def _period_segments(h: float, n_sub: int, arrival: float | None) -> list[tuple[
     return segments
 
 
-def _commands(torques: np.ndarray, delay_s: float, h: float) -> tuple[list, list, float | None]:
+def _commands(
+    torques: np.ndarray, delay_s: float, h: float, initial: Pair | None = None
+) -> tuple[list, list, float | None]:
     """Amplifier inputs per period: (before the arrival, after it, arrival offset or None).
 
     With d = m h + ρ (0 ≤ ρ < h): period k starts with row k − m − 1 (ρ > 0) or k − m (ρ = 0)
-    and switches to row k − m at kh + ρ; rows before 0 are zero torque.
+    and switches to row k − m at kh + ρ; rows before 0 are zero torque (``initial``: that
+    command instead).
     """
     rows = torques.tolist()
     n = len(rows)
     m = math.floor(delay_s / h + _TIME_TOL / h)
     rho = delay_s - m * h
     arrival = rho if rho > _TIME_TOL else None
-    zero = [0.0, 0.0]
+    zero = [0.0, 0.0] if initial is None else list(initial)
     after = [rows[k - m] if k - m >= 0 else zero for k in range(n)]
     if arrival is None:
         return after, after, None
@@ -183,7 +186,9 @@ def integrate_with_extras(
     lag_t = ex.actuator_lag_s
     has_lag = lag_t[0] > 0.0 or lag_t[1] > 0.0
     gain, offset = ex.torque_gain, ex.torque_offset_Nm
-    lag = [0.0, 0.0]  # amplifier output before gain/offset (the lag state)
+    settled = ex.initial_command_Nm
+    # amplifier output before gain/offset (the lag state): settled on the command before t = 0
+    lag = [0.0, 0.0] if settled is None else [settled[0], settled[1]]
 
     def amplifier(cmd: list, dt: float) -> tuple[Pair, Pair]:
         """Applied torque (mean over dt, before cogging) and the lag state at dt."""
@@ -195,7 +200,7 @@ def integrate_with_extras(
             m2 = e2 = cmd[1]
         return ((1.0 + gain[0]) * m1 + offset[0], (1.0 + gain[1]) * m2 + offset[1]), (e1, e2)
 
-    before, after, arrival = _commands(torques, ex.transport_delay_s, h)
+    before, after, arrival = _commands(torques, ex.transport_delay_s, h, settled)
     segments = _period_segments(h, n_sub, arrival)
 
     n_rows = torques.shape[0]

@@ -17,16 +17,24 @@ from diagnose_cases import CASES, make_recording
 
 from drivers.recording import Recording, read_signals
 from hil.cli import main as hil_main
-from hil.diagnose import DiagnosisError, build_problem, candidates, select
+from hil.diagnose import DiagnosisError, build_problem, candidates, select, unphysical
 from hil.diagnose_columns import (
     delayed_torque_rows,
     lagged_torque_rows,
     moving_average,
+    noise_model,
     offset_column,
     recording_rows,
+    window_intervals,
 )
 from hil.diagnose_report import diagnose
-from hil.diagnose_stats import block_index, block_stats, cross_validate, evidence
+from hil.diagnose_stats import (
+    CrossValidation,
+    block_index,
+    block_stats,
+    cross_validate,
+    evidence,
+)
 from hil.params import robot_params
 from virtual_robot.effects import amplifier_lag_step
 
@@ -304,3 +312,69 @@ def test_a_1khz_recording_is_diagnosed_alike(name, tmp_path):
     found = {(f["effect"], f["joint"]) for f in doc["findings"]}
     expected = set() if name == "null" else {("coulomb_asymmetry", 1), ("torque_offset", 1)}
     assert found == expected, doc["summary"]
+
+
+# --- noise, time stamps, physical gates (issue 12) ----------------------------------------------
+
+DFKI_FILE = (
+    Path(__file__).parent / "data" / "dfki" / "design_A.0__20220815__sys_id__trajectory_00.csv"
+)
+
+
+def test_noise_model_keeps_the_fine_encoder_window_and_widens_a_coarse_one(null_recording):
+    rec = read_signals(null_recording)
+    fine = noise_model(rec.q, rec.t)
+    assert fine.half_window == 1 and fine.window == window_intervals(rec.period_s)
+    assert fine.irregular_intervals == 0 and fine.gaps == 0
+    # the same motion read by a 3.8e-4 rad encoder (the DFKI arm's step): wider windows
+    quantum = 3.8e-4
+    coarse = noise_model(np.round(rec.q / quantum) * quantum, rec.t)
+    assert coarse.quantum_rad[0] == pytest.approx(quantum, rel=1e-6)
+    assert coarse.half_window > 1 and coarse.window > fine.window
+    # a stall of 5 periods is a gap
+    t = rec.t.copy()
+    t[2000:] += 5 * rec.period_s
+    stalled = noise_model(rec.q, t)
+    assert stalled.gaps == 1 and stalled.irregular_intervals == 1
+
+
+def test_unphysical_refit_is_never_a_finding():
+    cand = candidates(REFERENCE)[2]
+    assert cand.kind == "gain"
+    beta = np.r_[REFERENCE, -0.7]
+    cv = CrossValidation(
+        np.zeros((2, 2)), np.zeros(2, int), np.zeros((2, 10)), 0, beta, np.zeros(2)
+    )
+    assert any("removes most of the torque" in r for r in unphysical(cand, cv))
+    bad = np.r_[REFERENCE, 0.0]
+    bad[5] = -0.1  # negative viscous friction
+    cv = CrossValidation(np.zeros((2, 2)), np.zeros(2, int), np.zeros((2, 10)), 0, bad, np.zeros(2))
+    assert any("negative friction" in r for r in unphysical(cand, cv))
+    assert (
+        unphysical(
+            cand,
+            CrossValidation(
+                cv.held_out_sse, cv.fold_variant, cv.fold_beta, 0, np.r_[REFERENCE, 0.02], cv.sse
+            ),
+        )
+        == []
+    )
+
+
+def test_real_recording_gives_a_report_and_no_finding_worse_than_nominal(tmp_path, capsys):
+    """A DFKI recording (irregular 2 ms stamps, 3.8e-4 rad encoder): no traceback, a report,
+    windows from its noise, and nothing reported that makes the held-out fit worse."""
+    argv = ["diagnose", str(DFKI_FILE), "--format", "dfki", "--robot", "dfki-a0", "--json"]
+    assert hil_main([*argv, "--no-plots"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    noise = doc["noise"][0]
+    assert noise["filter_window_s"] > 0.02 and noise["velocity_half_window"] > 1
+    assert noise["irregular_intervals"] > 0
+    if doc["physical"]["nominal_consistent"]:
+        before, after = doc["fit"]["before"], doc["fit"]["after"]
+        for j in (0, 1):
+            if doc["findings"]:
+                assert after["torque_nrmse"][j] <= before["torque_nrmse"][j] * 1.01
+    else:
+        assert doc["findings"] == [] and "I cannot tell" in doc["summary"]
+    assert doc["summary"]
