@@ -184,7 +184,8 @@ def test_recording_options_reach_identify(tmp_path, capsys):
     code, err = run_hil(argv, capsys)
     assert "loop delay 1" in err and "irregular sampling" in err
     if code == 0:
-        assert json.loads((out / "identify.json").read_text())["rows"] == 4996
+        doc = json.loads((out / "identify.json").read_text())
+        assert doc["loop_delay"] == 1 and doc["torque_source"] == "commanded"
     for bad in (["--torque", "bogus"], ["--loop-delay", "1000"], ["--columns", "x=y"]):
         code, err = run_hil([*argv, *bad, "--overwrite"], capsys)
         assert_one_line_error(code, err)
@@ -241,3 +242,39 @@ def test_meta_period_of_a_run_checked_by_every_reader(tmp_path, capsys):
             code, err = run_hil(argv, capsys)
             assert_one_line_error(code, err)
             assert "period_s" in err
+
+
+@pytest.mark.parametrize("kind", [*REFUSED, "duplicated"])
+def test_replay_of_degenerate_recordings(tmp_path, capsys, kind):
+    run = write_run(tmp_path / "rec", degenerate(kind, 300), mode="realtime", kind="hil run")
+    code, err = run_hil(["replay", str(run), "--out", str(tmp_path / "r"), "--no-plot"], capsys)
+    assert_one_line_error(code, err)
+    assert not (tmp_path / "r").exists()
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    columns=st.none() | st.text(alphabet="tqau12=,_ xyz", max_size=30),
+    delay=st.none() | st.integers(-(10**6), 10**6),
+    torque=st.none() | st.sampled_from(["commanded", "measured", "", " ", "bogus"]),
+    fmt=st.none() | st.sampled_from(["dfki", "nope"]),
+)
+def test_recording_options_are_read_or_refused_in_one_line(columns, delay, torque, fmt):
+    """Any --columns / --loop-delay / --torque / --format: a recording or a one-line error."""
+    import argparse
+
+    from drivers.recording import RecordingError
+    from hil.cli_options import read_recording
+    from profiles import ProfileError
+
+    args = argparse.Namespace(
+        recording_format=fmt, columns=columns, loop_delay=delay, torque=torque
+    )
+    try:
+        rec = read_recording(args, DFKI_FILE, command="identify")
+    except (ValueError, RecordingError, ProfileError) as exc:
+        assert "\n" not in str(exc) and str(exc)
+        return
+    assert len(rec) > 4000 and rec.n_joints >= 1
+    if delay is not None:
+        assert abs(delay) <= 100 and rec.loop_delay == delay
