@@ -66,6 +66,7 @@ def test_a_dead_socketcand_port_gives_a_handful_of_lines_and_exit_3(tmp_path: Pa
     failure has its own exit status."""
     port = _dead_port()
     argv = ["-m", "hil", "-v", "run", "--bench", "virtual-socketcand", "--out", str(tmp_path)]
+    argv += ["--overwrite"]  # the second run writes to the same directory
     proc = _run(*argv, "--attach", f"127.0.0.1:{port}", "--duration", "0.1")
     lines = proc.stderr.splitlines()
     assert proc.returncode == 3, proc.stderr

@@ -165,7 +165,12 @@ def test_robot_killed_is_gone_at_once_over_serial(tmp_path: Path) -> None:
     meta = _meta(tmp_path)
     assert meta["status"] == "failed"
     assert "gone" in meta["reason"] and "not responding" not in meta["reason"], meta["reason"]
-    assert len([ln for ln in err.splitlines() if ln.startswith("hil:") and "%" not in ln]) == 1
+    assert (
+        len(
+            [ln for ln in err.splitlines() if ln.startswith(("hil:", "hil run:")) and "%" not in ln]
+        )
+        == 1
+    )
 
 
 # ---- signals and exits ----------------------------------------------------------------------
@@ -206,7 +211,9 @@ def test_ctrl_c_at_any_moment_is_one_line(tmp_path: Path) -> None:
             proc.kill()
         assert proc.returncode == 130, (delay, err)
         assert "Traceback" not in err, (delay, err)
-        said = [ln for ln in err.splitlines() if ln.startswith("hil:") and "%" not in ln]
+        said = [
+            ln for ln in err.splitlines() if ln.startswith(("hil:", "hil run:")) and "%" not in ln
+        ]
         assert len(said) == 1, (delay, err)
         if (out / "meta.json").is_file():
             assert run_status(_meta(out)) != "running", (delay, _meta(out))

@@ -233,7 +233,7 @@ def test_missing_vcan_interface_is_one_line_naming_the_command(tmp_path):
     """Runs everywhere: a bench on an interface that does not exist says how to create it."""
     bench = bench_copy("virtual-vcan", tmp_path, {'channel = "vcan0"': 'channel = "vcan9"'})
     proc = hil("run", "--bench", str(bench), "--duration", "0.1", "--out", str(tmp_path / "r"))
-    assert proc.returncode == 2
+    assert proc.returncode == 3  # a link failure (docs/interop.md, exit codes)
     assert proc.stderr.count("\n") == 1, proc.stderr
     assert "vcan9 missing: run `ip link add dev vcan9 type vcan && ip link set up vcan9`" in (
         proc.stderr
