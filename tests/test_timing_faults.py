@@ -332,9 +332,11 @@ def test_host_latency_is_measured_in_the_recorded_timestamps(tmp_path: Path) -> 
         )
         assert run["status"] == "complete", run["reason"]
         c = read_signals(tmp_path / name).columns
+        # the fastest tenth of the cycles: an injected delay is a floor every cycle keeps, while
+        # a loaded machine only adds (the median moved by 5 ms beside other work)
         lateness[name] = (
-            np.median((c["sync_sent_s"] - c["deadline_s"])[1:]),
-            np.median(c["feedback_s"] - c["sync_sent_s"]),
+            np.percentile((c["sync_sent_s"] - c["deadline_s"])[1:], 10),
+            np.percentile(c["feedback_s"] - c["sync_sent_s"], 10),
         )
     added_release = lateness["late"][0] - lateness["plain"][0]
     added_feedback = lateness["late"][1] - lateness["plain"][1]
