@@ -203,7 +203,9 @@ class SerialArm(Arm):
         ]
         timeout = self.feedback_timeout_s
         if self.mode == "realtime":
+            asked = self.now()
             self._transact(requests, timeout)  # apply now; the sample comes at the deadline
+            self.stats.waited(self.now() - asked, self.period_s)  # a late reply is late too
             if deadline is not None:
                 self.wait_for_deadline(deadline)
         sent = self.now()

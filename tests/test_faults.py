@@ -135,8 +135,13 @@ def _last_rpdos_zero(out: Path) -> None:
 # ---- gone vs late ---------------------------------------------------------------------------
 def test_robot_stopped_briefly_is_late_not_gone(tmp_path: Path) -> None:
     """SIGSTOP the robot for 60 ms (an ordinary desktop stall): the run completes and counts
-    the late feedback instead of calling the robot gone."""
-    proc = _hil(tmp_path, "--bench", "virtual-serial", "--mode", "realtime", "--duration", "3")
+    the late feedback instead of calling the robot gone. Zero torque (`hil jitter`): an
+    open-loop excitation held through a stall may swing a joint into the bench's limits."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hil.entry", "jitter", "--bench", "virtual-serial", "--rate", "400",
+         "--duration", "3", "--no-plot", "--out", str(tmp_path)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+    )  # fmt: skip
     try:
         pid = _wait_rows(tmp_path, 100, proc)["channel"]["pid"]
         os.kill(pid, signal.SIGSTOP)
