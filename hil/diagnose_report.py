@@ -289,10 +289,15 @@ def _finite(values: Sequence[float]) -> list[float | None]:
     return [float(v) if np.isfinite(v) else None for v in values]
 
 
+# Fewer usable held-out rows than this on a joint, and its NRMSE is not reported (a handful of
+# rows with nearly equal torque divide by a range of ~0).
+MIN_HELD_OUT_ROWS = 50
+
+
 def _nrmse_or_none(y: np.ndarray, pred: np.ndarray, rows: np.ndarray, j: int) -> float | None:
-    """NRMSE of joint j over ``rows``; None when the held-out part has no usable row for it
-    (the joint stood still throughout)."""
-    if rows.sum() < 2 or np.ptp(y[rows, j]) == 0:
+    """NRMSE of joint j over ``rows``; None when the held-out part has too few usable rows for
+    it (the joint stood still throughout)."""
+    if rows.sum() < MIN_HELD_OUT_ROWS or np.ptp(y[rows, j]) == 0:
         return None
     return float(nrmse(y[rows, j], pred[rows, j]))
 
@@ -726,10 +731,28 @@ def simulation_gate(
                 se,
                 None if term == "rate" else shaft,
             )
+            joints = _term_joints(prob, accepted, term)
+            # the held-out torque first: a term whose refit predicts it no better is no finding
+            tq_with = [fit["after"]["torque_nrmse"][j] for j in joints]
+            tq_without = [fit_wo["after"]["torque_nrmse"][j] for j in joints]
+            pairs = [(a, b) for a, b in zip(tq_with, tq_without, strict=True) if None not in (a, b)]
+            # at least the CV test's MIN_REDUCTION of squared error: half of it in NRMSE
+            if pairs and sum(a for a, _ in pairs) > (1 - MIN_REDUCTION / 2) * sum(
+                b for _, b in pairs
+            ):
+                ratio = 1e6 * sum(a for a, _ in pairs) / max(sum(b for _, b in pairs), 1e-12)
+                if ratio > worst_ratio:
+                    worst, worst_ratio = term, ratio
+                    worst_text = "does not improve the held-out torque: " + ", ".join(
+                        f"joint {j + 1} {percent(b)} → {percent(a)}"
+                        for j, (a, b) in zip(
+                            joints, zip(tq_with, tq_without, strict=True), strict=True
+                        )
+                    )
+                continue
             without = fit_wo["after"]["position_nrmse"]
             if not without or None in without:
                 continue
-            joints = _term_joints(prob, accepted, term)
             e_with = sum(with_all[j] for j in joints)
             e_without = sum(without[j] for j in joints)
             ratio = e_with / max(e_without, 1e-12)
