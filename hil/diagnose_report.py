@@ -690,7 +690,9 @@ def simulation_gate(
 ) -> tuple[list[Accepted], list[Finding], dict[str, str], np.ndarray | None]:
     """A finding must improve the held-out simulated motion too, or it is not one: every term
     is taken out in turn and the held-out open-loop simulation rerun; a term without which the
-    simulated position of its joint(s) is better by more than SIMULATION_TOLERANCE is dropped
+    held-out torque of its joint(s) is no worse, the torque or simulated position of another
+    joint is better, or the simulated position of its joint(s) is better by more than
+    SIMULATION_TOLERANCE is dropped
     (the one that hurts most first, then the rest are checked again). Returns the kept terms and
     findings and, per dropped term, the reason."""
     dropped: dict[str, str] = {}
@@ -748,6 +750,28 @@ def simulation_gate(
                         for j, (a, b) in zip(
                             joints, zip(tq_with, tq_without, strict=True), strict=True
                         )
+                    )
+                continue
+            # nor may it make another joint worse: a finding on one joint that costs another
+            # joint held-out torque or motion is no improvement of the model
+            others = [j for j in range(len(fit["after"]["torque_nrmse"])) if j not in joints]
+            harmed = [
+                (j, name, b, a)
+                for j in others
+                for name, key in (
+                    ("torque", "torque_nrmse"),
+                    ("simulated position", "position_nrmse"),
+                )
+                for a, b in [(fit["after"][key][j], fit_wo["after"][key][j])]
+                if None not in (a, b) and a > (1 + SIMULATION_TOLERANCE) * b + 1e-12
+            ]
+            if harmed:
+                ratio = max(a / max(b, 1e-12) for _, _, b, a in harmed)
+                if 1e6 * ratio > worst_ratio:
+                    worst, worst_ratio = term, 1e6 * ratio
+                    worst_text = "makes another joint worse: held-out " + ", ".join(
+                        f"{name} of joint {j + 1} {percent(b)} → {percent(a)}"
+                        for j, name, b, a in harmed
                     )
                 continue
             without = fit_wo["after"]["position_nrmse"]

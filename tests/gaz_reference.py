@@ -13,26 +13,13 @@ central differences.
 
 from __future__ import annotations
 
-import os
 import re
 from pathlib import Path
 
 import numpy as np
+from realdata import realdata
 
-
-def _realdata(name: str) -> Path:
-    """``shared/realdata/<name>`` beside the repository (or beside a folder holding it, for a
-    git worktree), or under $DDBENCH_REALDATA."""
-    if os.environ.get("DDBENCH_REALDATA"):
-        return Path(os.environ["DDBENCH_REALDATA"]) / name
-    repo = Path(__file__).resolve().parents[1]
-    for parent in repo.parents:
-        if (parent / "shared" / "realdata" / name).is_dir():
-            return parent / "shared" / "realdata" / name
-    return repo.parent / "shared" / "realdata" / name
-
-
-MODEL_DIR = _realdata("panda-gaz2019")
+MODEL_DIR = realdata("panda-gaz2019")
 FILES = {
     "mass": "model/matlab_dyn_model_panda_get_MassMatrix.m",
     "gravity": "model/matlab_dyn_model_panda_get_GravityVector.m",

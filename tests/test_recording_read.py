@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
+from realdata import realdata
 
 from drivers.recording import (
     BASE_COLUMNS,
@@ -28,7 +29,7 @@ from profiles.recording_format import load_format
 
 DATA = Path(__file__).parent / "data" / "dfki"
 DFKI_FILE = DATA / "design_A.0__20220815__sys_id__trajectory_00.csv"
-SHARED = Path("/work/shared/realdata/dfki-double-pendulum/records")
+SHARED = realdata("dfki-double-pendulum") / "records"
 H = 0.0025
 
 
