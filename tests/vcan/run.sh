@@ -112,6 +112,8 @@ timeout -k 10 "$TIMEOUT" qemu-system-x86_64 -nodefaults -no-user-config -display
     -virtfs "local,path=$WORK/results,mount_tag=results,security_model=none" \
     </dev/null &
 QEMU_PID=$!
+# poll rather than block in `wait`, which here did not return for a trapped SIGTERM
+while kill -0 "$QEMU_PID" 2>/dev/null; do sleep 1; done
 wait "$QEMU_PID"
 qemu_rc=$?
 QEMU_PID=
