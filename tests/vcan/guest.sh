@@ -27,7 +27,7 @@ ip -brief link show vcan0 || { echo "vcan0 could not be created"; echo 2 > "$out
 
 # shellcheck disable=SC2046  # extra arguments, word-split on purpose
 {
-    .venv/bin/python -m pytest -q -p no:cacheprovider -m vcan -o addopts=-ra --durations=5 \
+    .venv/bin/python -m pytest -v -p no:cacheprovider -m vcan -o addopts=-ra --durations=5 \
         --junitxml="$out/junit.xml" $(cat "$out/pytest-args" 2>/dev/null) \
         tests/vcan tests/test_can_server.py
     echo $? > "$out/status"

