@@ -816,7 +816,7 @@ def _rejection_notes(rejected: dict[str, str]) -> list[str]:
     for key, why in rejected.items():
         kind, _, joint = key.partition(":")
         where = f" on joint {joint}" if joint else ""
-        out.append(f"Not a finding: {names.get(kind, kind)}{where} {why}.")
+        out.append(f"Not a finding: {names.get(kind, kind)}{where}: {why}.")
     return out
 
 
