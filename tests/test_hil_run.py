@@ -13,6 +13,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+from cli_run import hil
 
 from drivers.process import run_status
 from drivers.recording import read_signals
@@ -23,16 +24,6 @@ from virtual_robot.simulate import simulate
 
 H = 0.0025
 BENCHES = ["virtual-inprocess", "virtual-slcan", "virtual-socketcand", "virtual-serial"]
-
-
-def hil(*args: str, timeout: float = 180) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "hil.cli", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        check=False,
-    )
 
 
 @pytest.fixture(scope="module")

@@ -12,8 +12,6 @@ import contextlib
 import json
 import re
 import socket
-import subprocess
-import sys
 import threading
 from collections import Counter
 from pathlib import Path
@@ -21,6 +19,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+from cli_run import hil
 
 from drivers.recording import read_signals
 from profiles import resolve
@@ -65,16 +64,6 @@ def bench_copy(name: str, where: Path, changes: dict[str, str]) -> Path:
     path = where / f"{name}.toml"
     path.write_text(text)
     return path
-
-
-def hil(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "hil.cli", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        check=False,
-    )
 
 
 @pytest.fixture(scope="module")
