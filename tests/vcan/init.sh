@@ -25,15 +25,21 @@ echo "$(uname -r)" > /results/booted
 if ! mount -t 9p -o trans=virtio,version=9p2000.L,msize=262144,ro,cache=loose hostroot /root; then
     say "cannot mount the host root"; echo 125 > /results/status; halt
 fi
+: "${ddbench_dir:?ddbench_dir missing from the kernel command line}"
+# the project may live under /tmp or /var/tmp (a CI clone, say): hold on to it before the writable
+# tmpfs mounts below hide those folders, and put it back at the same path on top of them
+mkdir -p /project
+mount --bind "/root$ddbench_dir" /project || { say "no $ddbench_dir in the host root"; halt; }
 mount -t proc proc /root/proc
 mount -t sysfs sys /root/sys
 mount -t devtmpfs dev /root/dev
 mount -t tmpfs -o size=512m tmp /root/tmp
 mount -t tmpfs tmp /root/var/tmp
-mkdir -p /root/tmp/results
+mkdir -p /root/tmp/results "/root$ddbench_dir" 2>/dev/null
+mount --bind /project "/root$ddbench_dir"
 mount --bind /results /root/tmp/results
 
-say "running tests/vcan/guest.sh in ${ddbench_dir:?ddbench_dir missing from the kernel command line}"
+say "running tests/vcan/guest.sh in $ddbench_dir"
 chroot /root /usr/bin/env -i PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin \
     HOME=/tmp TMPDIR=/tmp LANG=C.UTF-8 \
     /bin/sh -c "cd '$ddbench_dir' && exec tests/vcan/guest.sh /tmp/results"
