@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from diagnose_cases import CASES, make_recording
+from diagnose_cases import CASES, OUT_OF_VOCABULARY, make_recording
 from realdata import realdata
 
 from drivers.recording import Recording, read_signals
@@ -274,6 +274,19 @@ def test_null_cases_have_no_findings(name, experiment, tmp_path):
     path = make_recording(tmp_path / "rec", experiment, CASES[name].effects)
     doc = diagnose([read_signals(path)], REFERENCE).document
     assert doc["findings"] == [], doc["summary"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(OUT_OF_VOCABULARY))
+def test_out_of_vocabulary_physics_is_not_named(name, tmp_path):
+    """Issue 12: a velocity-squared drag was named `stribeck` (a v_s at the top of the grid and a
+    5x breakaway). The lack-of-fit check (a generic function of the joint's velocity in the
+    term's place) must turn it into `unexplained` or nothing, never a vocabulary name."""
+    path = make_recording(tmp_path / "rec", "diagnosis", OUT_OF_VOCABULARY[name].effects)
+    doc = diagnose([read_signals(path)], REFERENCE).document
+    named = [f for f in doc["findings"] if f["effect"] != "unexplained"]
+    assert not named, doc["summary"]
+    assert "stribeck:1" in doc["not_findings"], doc["not_findings"]
 
 
 @pytest.mark.slow
