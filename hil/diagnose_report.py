@@ -37,6 +37,7 @@ from hil.diagnose import (
     jackknife_se,
     physical_gate,
     physical_theta,
+    relinearise_angle,
     select,
     term_width,
     usable_speeds,
@@ -958,7 +959,7 @@ def diagnose(
         cannot = []
         say(f"diagnose: testing {len(library)} candidates (both joints)")
         accepted, first = select(prob, library, reference=reference_theta, rejected=rejected)
-        accepted = physical_gate(prob, accepted, rejected)
+        accepted = physical_gate(prob, relinearise_angle(prob, accepted), rejected)
         accepted = lack_of_fit(prob, accepted, rejected, say)
         accepted = settle_gain_joint(prob, accepted, library, reference_theta)
         say(f"diagnose: accepted {[a.cand.key for a in accepted] or 'nothing'}; refitting")
