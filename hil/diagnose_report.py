@@ -905,6 +905,30 @@ def _rejection_notes(rejected: dict[str, str]) -> list[str]:
     return out
 
 
+# What the reader noticed in the time stamps (drivers/recording.py, ``findings_on_read``), by
+# the words its notes start with or contain, and the timing finding each is.
+TIMING_NOTES = (
+    ("irregular sampling", "irregular_sampling"),
+    ("gap(s) in t", "gaps"),
+    ("loop delay", "loop_delay"),
+    ("exact duplicate row", "dropped_samples"),
+)
+
+
+def timing_findings(recordings: Sequence[Recording]) -> list[dict[str, str]]:
+    """The reader's notes on the time stamps as timing findings: irregular sampling, gaps
+    (stalls or spliced data: segments never joined), the loop delay the torque was shifted by,
+    duplicated rows dropped. They come from the stamps, not from a fit, so they stand as they
+    are; the diagnosis has already used them (real intervals, gaps left out, torque realigned)."""
+    out = []
+    for r in recordings:
+        for note in r.findings_on_read:
+            kind = next((k for needle, k in TIMING_NOTES if needle in note), None)
+            if kind is not None:
+                out.append({"kind": kind, "recording": str(r.path), "note": note})
+    return out
+
+
 def diagnose(
     recordings: Sequence[Recording],
     reference_theta: np.ndarray,
@@ -982,11 +1006,17 @@ def diagnose(
         + detectability_notes(prob)
         + burst_notes(where.document)
     )
+    timing = timing_findings(recordings)
+    summary = summary_words(findings, fit, notes)
+    if timing:
+        kinds = sorted({t["kind"].replace("_", " ") for t in timing})
+        summary += f" Timing, from the time stamps: {', '.join(kinds)} (see timing)."
     doc = {
         "findings": [f.as_dict() for f in findings],
+        "timing": timing,
         "confounded": confounded,
         "fit": fit,
-        "summary": summary_words(findings, fit, notes),
+        "summary": summary,
         "location": where.document,
         "nominal_theta": theta_fit.tolist(),
         "noise": [r.noise.as_dict(r.h) if r.noise else None for r in prob.rows],

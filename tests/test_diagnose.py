@@ -123,7 +123,7 @@ def test_short_recording_is_a_clear_error():
 def test_null_recording_has_no_findings(null_recording):
     rec = read_signals(null_recording)
     doc = diagnose([rec], REFERENCE).document
-    assert doc["findings"] == [] and doc["confounded"] == []
+    assert doc["findings"] == [] and doc["confounded"] == [] and doc["timing"] == []
     assert "No missing physics" in doc["summary"]
     # the model explains the recording: torque NRMSE well under 1 % on both joints
     assert max(doc["fit"]["before"]["torque_nrmse"]) < 0.01
@@ -415,6 +415,10 @@ def test_real_recording_gives_a_report_and_no_finding_worse_than_nominal(tmp_pat
     noise = doc["noise"][0]
     assert noise["filter_window_s"] > 0.02 and noise["velocity_half_window"] > 1
     assert noise["irregular_intervals"] > 0
+    # the reader's notes on the stamps are timing findings (issue 12)
+    kinds = {t["kind"] for t in doc["timing"]}
+    assert {"irregular_sampling", "loop_delay"} <= kinds, doc["timing"]
+    assert "Timing, from the time stamps" in doc["summary"]
     if doc["physical"]["nominal_consistent"]:
         before, after = doc["fit"]["before"], doc["fit"]["after"]
         for j in (0, 1):
