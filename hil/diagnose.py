@@ -600,6 +600,32 @@ def select(
     return accepted, first_round
 
 
+# An angle offset's column is −∂(Ψθ)/∂q_j at a θ; relinearised this many times about the refit.
+RELINEARISE_ANGLE = 3
+
+
+def relinearise_angle(prob: Problem, accepted: list[Accepted]) -> list[Accepted]:
+    """Rebuild an accepted angle-offset column about the θ refitted with it (a Gauss–Newton
+    step). The candidate's column is built with the nominal θ̂, which the offset itself biases
+    (it moves gravity torque between sin and cos of the angles); one δ then cannot fit both
+    joints' rows, and what is left on the other joint looks like another effect there (issue
+    12: an encoder offset on joint 1 left a position-dependent residual on joint 2)."""
+    out = list(accepted)
+    for i, a in enumerate(out):
+        if a.cand.kind != "angle":
+            continue
+        for _ in range(RELINEARISE_ANGLE):
+            theta = final_fit(prob, out).theta
+            j = a.cand.joint
+            cand = Candidate(
+                "angle", j, (None,), lambda r, _v, j=j, th=theta: angle_offset_column(r, j, th)
+            )
+            prob.cache.pop((cand.key, 0), None)
+            a = Accepted(cand, None, a.evidence, a.confounded_with, a.rival_variants)
+            out[i] = a
+    return out
+
+
 # --- the final model ---------------------------------------------------------------------------
 
 

@@ -110,6 +110,9 @@ def format_report(doc: dict) -> str:
                 f"-{100 * ev.get('held_out_error_reduction', 0):.1f} % in "
                 f"{ev.get('blocks_improved', '?')}/{ev.get('blocks', '?')} blocks{conf}"
             )
+    if doc.get("timing"):
+        lines += ["", "Timing (from the time stamps):"]
+        lines += [f"  {t['kind'].replace('_', ' ')}: {t['note']}" for t in doc["timing"]]
     fit = doc["fit"]
     lines += ["", f"Fit on held-out data ({fit['held_out']}), NRMSE per joint:"]
     for name in ("before", "after"):

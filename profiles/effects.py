@@ -56,6 +56,7 @@ class EffectsProfile:
     torque_offset_Nm: Pair = (0.0, 0.0)
     payload: Payload | None = None
     coulomb: Coulomb | None = None  # replaces the robot profile's Coulomb levels
+    velocity_squared_drag_Nms2: Pair | None = None  # τ_drag = −c q̇|q̇| per joint
     enabled: tuple[str, ...] = field(default_factory=tuple)
     timing_faults: TimingFaults | None = None  # robot side only (profiles/timing_faults.py)
 
@@ -70,6 +71,7 @@ EFFECT_NAMES = (
     "torque_offset",
     "payload",
     "coulomb",
+    "velocity_squared_drag",
 )
 
 
@@ -137,6 +139,10 @@ def parse_effects(data: dict, source: str) -> EffectsProfile:
         kw["coulomb"] = Coulomb(
             t.numbers("positive_Nm", 2, lo=0.0), t.numbers("negative_Nm", 2, lo=0.0)
         )
+    if f.has("velocity_squared_drag"):
+        t = f.table("velocity_squared_drag")
+        t.only({"coefficient_Nms2"})
+        kw["velocity_squared_drag_Nms2"] = t.numbers("coefficient_Nms2", 2, lo=0.0)
     if f.has("timing_faults"):
         kw["timing_faults"] = parse_timing_faults(f.table("timing_faults"), host_allowed=False)
     kw["enabled"] = tuple(k for k in data if k in EFFECT_NAMES)

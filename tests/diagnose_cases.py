@@ -274,6 +274,18 @@ def _catalogue_cases() -> dict[str, Case]:
 CASES: dict[str, Case] = _catalogue_cases()
 NULL_CASES = tuple(name for name, c in CASES.items() if c.is_null)
 
+# Physics outside the vocabulary: the diagnosis may call it `unexplained` or say nothing, but must
+# not name a vocabulary effect for it (issue 12). Not in CASES: their truth has no vocabulary name.
+OUT_OF_VOCABULARY: dict[str, Case] = {
+    # a velocity-squared drag τ = −c q̇|q̇| on joint 1: 1.5 Nm at 1 rad/s, ~12 Nm at its 2.8 rad/s
+    # (95th percentile of |q̇1| on the diagnosis excitation), against Coulomb 7.6 Nm
+    "drag_j1": Case(
+        "drag_j1",
+        {**symmetric_base(), "velocity_squared_drag": {"coefficient_Nms2": [1.5, 0.0]}},
+        note="velocity-squared drag on joint 1: out of vocabulary (unexplained)",
+    ),
+}
+
 
 # ---- recordings ----------------------------------------------------------------------------
 

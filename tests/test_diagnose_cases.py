@@ -11,7 +11,7 @@ import pytest
 from drivers.recording import read_signals
 from profiles.effects import parse_effects
 from profiles.robot import load_robot
-from virtual_robot.plant import PlantParams
+from virtual_robot.plant import Plant, PlantParams
 
 
 def test_catalogue_covers_the_vocabulary_on_both_joints():
@@ -64,6 +64,32 @@ def test_each_case_is_the_physics_its_truth_names(name):
             assert params.breakaway_positive_Nm[other] == params.coulomb_positive_Nm[other]
     if not case.truth:
         assert set(case.effects) <= {"coulomb", "payload"}
+
+
+def test_velocity_squared_drag_adds_c_v_squared_to_the_sliding_friction():
+    case = dc.OUT_OF_VOCABULARY["drag_j1"]
+    params = PlantParams.from_profiles(load_robot("cicese"), parse_effects(case.effects, "<d>"))
+    assert params.drag_Nms2 == (1.5, 0.0)
+    plant = Plant(params)
+    coulomb = dc.SYMMETRIC_COULOMB_NM
+    # τ_drag = −c q̇|q̇|: magnitude c q̇² on top of the Coulomb level, none at rest, none on joint 2
+    assert plant._friction_level(0, 1.0, 2.0) == pytest.approx(coulomb[0] + 1.5 * 4.0)
+    assert plant._friction_level(0, -1.0, 2.0) == pytest.approx(coulomb[0] + 1.5 * 4.0)
+    assert plant._friction_level(0, 1.0, 0.0) == pytest.approx(coulomb[0])
+    assert plant._friction_level(1, 1.0, 2.0) == pytest.approx(coulomb[1])
+
+
+def test_drag_slows_joint_1_under_the_same_commands(tmp_path):
+    drag = read_signals(
+        dc.make_recording(
+            tmp_path / "d", "reyes-kelly", dc.OUT_OF_VOCABULARY["drag_j1"].effects, 1.0
+        )
+    )
+    null = read_signals(
+        dc.make_recording(tmp_path / "n", "reyes-kelly", dc.CASES["null"].effects, 1.0)
+    )
+    assert np.array_equal(drag.tau, null.tau)  # open loop
+    assert np.abs(np.diff(drag.q[:, 0])).sum() < np.abs(np.diff(null.q[:, 0])).sum()
 
 
 def test_scale_magnitude():

@@ -33,6 +33,15 @@ def stribeck_level(
     )
 
 
+def velocity_squared_drag(coefficient_Nms2: float, speed: float) -> float:
+    """Magnitude of a velocity-squared (fluid / windage) drag at speed |v|: c v².
+
+    The drag torque τ_drag = −c q̇ |q̇| opposes the motion like Coulomb and viscous friction, so the
+    plant adds this magnitude to the sliding friction level; it vanishes at rest (no static band).
+    """
+    return coefficient_Nms2 * speed * speed
+
+
 def cogging_torque(
     q: float, periods_per_rev: float, amplitude_Nm: float, phase_rad: float
 ) -> float:

@@ -32,6 +32,7 @@ from virtual_robot.effects import (
     gain_offset,
     payload_theta,
     stribeck_level,
+    velocity_squared_drag,
 )
 
 # 0.5 ms = 2 kHz, five RK4 steps per 2.5 ms control period. Halving it changes q on the 10 s
@@ -61,6 +62,7 @@ class PlantParams:
     torque_gain_error: Pair = (0.0, 0.0)
     torque_offset_Nm: Pair = (0.0, 0.0)
     encoder_offset_rad: Pair = (0.0, 0.0)
+    drag_Nms2: Pair = (0.0, 0.0)  # velocity-squared drag coefficient c per joint
 
     @classmethod
     def from_profiles(
@@ -101,6 +103,7 @@ class PlantParams:
             torque_gain_error=effects.torque_gain_error,
             torque_offset_Nm=effects.torque_offset_Nm,
             encoder_offset_rad=effects.encoder_offset_rad,
+            drag_Nms2=effects.velocity_squared_drag_Nms2 or (0.0, 0.0),
             **kw,
         )
 
@@ -145,6 +148,9 @@ class Plant:
         self._delay = TransportDelay(params.transport_delay_s) if params.transport_delay_s else None
         p = params
         self._has_stribeck = p.stribeck_velocity_rad_s is not None
+        self._has_drag = any(c != 0.0 for c in p.drag_Nms2)
+        # friction magnitude depends on the speed (evaluated at every derivative, not per step)
+        self._speed_dependent = self._has_stribeck or self._has_drag
         self._has_cogging = any(a != 0.0 for a in p.cogging_amplitude_Nm)
         self._has_lag = any(tc > 0.0 for tc in p.amplifier_lag_s)
         self._constants = (*params.theta, *params.viscous_Nms)
@@ -259,16 +265,20 @@ class Plant:
         return (means[0], means[1]), (ends[0], ends[1])
 
     def _friction_level(self, i: int, direction: float, speed: float) -> float:
-        """Magnitude of Coulomb (or Stribeck) friction on joint i sliding in ``direction``."""
+        """Magnitude of Coulomb (or Stribeck) friction, plus velocity-squared drag, on joint i
+        sliding in ``direction`` (the drag c q̇|q̇| has magnitude c q̇², zero at rest)."""
         p = self.params
         coulomb = p.coulomb_positive_Nm[i] if direction > 0 else p.coulomb_negative_Nm[i]
-        if not self._has_stribeck:
-            return coulomb
-        breakaway = p.breakaway_positive_Nm[i] if direction > 0 else p.breakaway_negative_Nm[i]
-        assert p.stribeck_velocity_rad_s is not None
-        return stribeck_level(
-            coulomb, breakaway, speed, p.stribeck_velocity_rad_s[i], p.stribeck_exponent
-        )
+        level = coulomb
+        if self._has_stribeck:
+            breakaway = p.breakaway_positive_Nm[i] if direction > 0 else p.breakaway_negative_Nm[i]
+            assert p.stribeck_velocity_rad_s is not None
+            level = stribeck_level(
+                coulomb, breakaway, speed, p.stribeck_velocity_rad_s[i], p.stribeck_exponent
+            )
+        if self._has_drag:
+            level += velocity_squared_drag(p.drag_Nms2[i], speed)
+        return level
 
     def _deriv(
         self,
@@ -297,7 +307,7 @@ class Plant:
         m11 = t1 + 2.0 * t2 * c2
         m12 = t3 + t2 * c2
         stuck1, stuck2, level1, level2 = self._mode
-        if self._has_stribeck:
+        if self._speed_dependent:
             level1 = self._slip_dir1 * self._friction_level(0, self._slip_dir1, abs(v1))
             level2 = self._slip_dir2 * self._friction_level(1, self._slip_dir2, abs(v2))
         power = tau1 * v1 + tau2 * v2
@@ -366,7 +376,7 @@ class Plant:
             d1 * self._friction_level(0, d1, 0.0),
             d2 * self._friction_level(1, d2, 0.0),
         )
-        if self._mode[0] or self._mode[1] or self._has_cogging or self._has_stribeck:
+        if self._mode[0] or self._mode[1] or self._has_cogging or self._speed_dependent:
             self._active_deriv = self._deriv
             self._fast_rk4 = None
         else:
