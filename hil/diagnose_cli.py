@@ -112,7 +112,7 @@ def format_report(doc: dict) -> str:
             )
     if doc.get("timing"):
         lines += ["", "Timing (from the time stamps):"]
-        lines += [f"  {t['kind'].replace('_', ' ')}: {t['note']}" for t in doc["timing"]]
+        lines += [f"  {t['note']}" for t in doc["timing"]]  # each note names its kind
     fit = doc["fit"]
     lines += ["", f"Fit on held-out data ({fit['held_out']}), NRMSE per joint:"]
     for name in ("before", "after"):
