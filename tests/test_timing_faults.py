@@ -313,8 +313,12 @@ def realtime_bench(tmp_path: Path, name: str, extra: str = "") -> Path:
 
 
 def test_host_latency_is_measured_in_the_recorded_timestamps(tmp_path: Path) -> None:
-    """Realtime: 1 ms of host-side latency makes every SYNC leave 1 ms after its deadline and
-    every command 1 ms later; the recording's stamps show it as 1 ms ± the natural jitter."""
+    """Realtime: 1 ms of host-side latency makes every SYNC leave at least 1 ms after its
+    deadline and the feedback arrive at least 0.5 ms later; the recording's stamps show it.
+
+    Only floors are asserted: the injected delay is a sleep that never ends early, so every cycle
+    keeps it, while a loaded machine only adds to it (CI beside other work measured 2.6 ms for
+    the 10th percentile where a quiet machine gives 1.0 ms)."""
     lateness = {}
     for name, extra in (
         ("plain", ""),
@@ -332,16 +336,16 @@ def test_host_latency_is_measured_in_the_recorded_timestamps(tmp_path: Path) -> 
         )
         assert run["status"] == "complete", run["reason"]
         c = read_signals(tmp_path / name).columns
-        # the fastest tenth of the cycles: an injected delay is a floor every cycle keeps, while
-        # a loaded machine only adds (the median moved by 5 ms beside other work)
+        # row 0 is the start-up sample, not a cycle
         lateness[name] = (
-            np.percentile((c["sync_sent_s"] - c["deadline_s"])[1:], 10),
-            np.percentile(c["feedback_s"] - c["sync_sent_s"], 10),
+            (c["sync_sent_s"] - c["deadline_s"])[1:],
+            (c["feedback_s"] - c["sync_sent_s"])[1:],
         )
-    added_release = lateness["late"][0] - lateness["plain"][0]
-    added_feedback = lateness["late"][1] - lateness["plain"][1]
-    assert added_release == pytest.approx(1e-3, abs=2.5e-4)
-    assert added_feedback == pytest.approx(5e-4, abs=2.5e-4)
+    release, feedback = lateness["late"]
+    assert release.min() >= 1e-3 - 1e-6
+    assert feedback.min() >= 5e-4 - 1e-6
+    # the floor is the injection's, not the machine's: without it the fastest cycles are faster
+    assert lateness["plain"][0].min() < release.min()
     meta = json.loads((tmp_path / "late" / "meta.json").read_text())
     injected = meta["timing_faults"]["host_injected"]
     assert injected["cycles"] == 400 and injected["mean_delay_s"] == pytest.approx(1e-3)
