@@ -172,7 +172,7 @@ class Arm(abc.ABC):
             return self.timeout_s
         return self.feedback_budget_s
 
-    # Set by whoever started the other end (hil.run: the virtual robot process): False once it
+    # Set by whoever started the other end (hil.bench.run: the virtual robot process): False once it
     # is gone, so a wait for feedback stops at once instead of running out its budget.
     peer_alive: Callable[[], bool] | None = None
 
@@ -185,7 +185,7 @@ class Arm(abc.ABC):
         """Host monotonic time in seconds since the link opened (the clock of deadlines)."""
         return time.monotonic() - (self.opened_at if self.opened_at is not None else 0.0)
 
-    # Set by the loop runner (hil.scheduler.DeadlineScheduler.wait_until): waits until a
+    # Set by the loop runner (hil.bench.scheduler.DeadlineScheduler.wait_until): waits until a
     # deadline on the clock of :meth:`now`. None: :meth:`wait_for_deadline`'s own sleep + spin.
     deadline_waiter: Callable[[float], object] | None = None
 

@@ -67,6 +67,22 @@ def _prog() -> str:
     return os.path.basename(sys.argv[0]) or "python"
 
 
+def limit_blas_threads() -> None:
+    """One BLAS thread for this process (and the processes it starts), called where a command
+    starts, never on import.
+
+    The matrices here are small (at most about 8000×9) and the machine may have two cores shared
+    with a realtime loop: OpenBLAS worker threads spin, steal the loop's core and made an 8000×9
+    least-squares solve 10× slower under load. Before numpy is loaded the environment variable
+    does it (children inherit it); after, threadpoolctl limits the loaded library.
+    """
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    if "numpy" in sys.modules:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=1, user_api="blas")
+
+
 def install_exit_signals() -> None:
     """SIGINT, SIGTERM and SIGHUP raise KeyboardInterrupt once in the main thread."""
     for name in EXIT_SIGNALS:

@@ -35,12 +35,21 @@ EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_LINK, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 # Subcommands that live in their own modules: name -> (module, help). Each module provides
 # ``add_arguments(parser)`` and ``main(args) -> int`` (exit status).
 COMMANDS: dict[str, tuple[str, str]] = {
-    "identify": ("hil.identify_cli", "identify θ1..θ9 (Reyes & Kelly 1997), print Table II"),
-    "control": ("hil.control_cli", "track a trajectory with PD, CT, FED or RFED; --compare"),
-    "excite": ("hil.excite_cli", "design an optimal Fourier excitation, write its profile"),
-    "diagnose": ("hil.diagnose_cli", "find the physics the model leaves out (mismatch diagnosis)"),
-    "jitter": ("hil.jitter_cli", "measure realtime loop timing: jitter, latency, misses, bus load"),
-    "replay": ("hil.replay_cli", "re-run a realtime run in lockstep with its timing trace imposed"),
+    "identify": ("hil.identify.cli", "identify θ1..θ9 (Reyes & Kelly 1997), print Table II"),
+    "control": ("hil.control.cli", "track a trajectory with PD, CT, FED or RFED; --compare"),
+    "excite": (
+        "hil.identify.excite_cli",
+        "design an optimal Fourier excitation, write its profile",
+    ),
+    "diagnose": ("hil.diagnose.cli", "find the physics the model leaves out (mismatch diagnosis)"),
+    "jitter": (
+        "hil.timing.jitter_cli",
+        "measure realtime loop timing: jitter, latency, misses, bus load",
+    ),
+    "replay": (
+        "hil.timing.replay_cli",
+        "re-run a realtime run in lockstep with its timing trace imposed",
+    ),
 }
 
 
@@ -102,7 +111,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     import numpy as np
 
     from drivers.recording import read_signals
-    from hil.run import run_experiment
+    from hil.bench.run import run_experiment
 
     out = prepare_out_dir(args.out, args.overwrite)
     run_dir, sim_dir = out / "hil-run-virtual-slcan", out / "simulate-reyes-kelly"
@@ -185,11 +194,11 @@ def _demo_diagnose(out: Path) -> tuple[dict, str]:
     """Record the diagnosis excitation (fast multisine, then slow moves with holds) over the
     bench and diagnose it: the default robot's joint-1 Coulomb friction depends on direction."""
     from drivers.recording import read_signals, write_json_atomic
-    from hil.diagnose_cli import format_report
-    from hil.diagnose_plots import plot_diagnosis
-    from hil.diagnose_report import diagnose
-    from hil.params import robot_params
-    from hil.run import run_experiment
+    from hil.bench.run import run_experiment
+    from hil.diagnose.cli import format_report
+    from hil.diagnose.plots import plot_diagnosis
+    from hil.diagnose.report import diagnose
+    from hil.model.params import robot_params
 
     run_dir, diag_dir = out / "hil-run-diagnosis", out / "diagnose"
     print(
@@ -210,7 +219,7 @@ def _demo_diagnose(out: Path) -> tuple[dict, str]:
 def _demo_control(out: Path, params: Path) -> tuple[dict, str]:
     """Control step of the demo: PD, CT, FED and RFED (Khosla & Kanade 1987) tracking the
     Section 4.2 trajectory over virtual-slcan, with the profile's θ and the identified θ."""
-    from hil.control import compare_schemes, format_table
+    from hil.control.tracking import compare_schemes, format_table
 
     control_dir = out / "control"
     print(
@@ -227,8 +236,8 @@ def _demo_control(out: Path, params: Path) -> tuple[dict, str]:
 def _demo_identify(out: Path, fit_dir: Path) -> tuple[dict, str]:
     """Identification step of the demo: the recording above is the fit; a held-out multisine
     runs over the same bench; exact and paper discretizations side by side."""
-    from hil.identify_cli import run_identify
-    from hil.run import run_experiment
+    from hil.bench.run import run_experiment
+    from hil.identify.cli import run_identify
 
     held_dir = out / "hil-run-validation-multisine"
     print(
@@ -250,7 +259,7 @@ def _demo_identify(out: Path, fit_dir: Path) -> tuple[dict, str]:
 def _attached_bench(args: argparse.Namespace) -> str:
     """``--attach``: the bench attached to the running robot, written into the run directory
     (so the run records what it used); its path."""
-    from hil.run import UsageError
+    from hil.bench.run import UsageError
     from profiles.bench import attached_bench_text, load_bench
 
     if args.effects is not None or args.seed is not None:
@@ -264,7 +273,7 @@ def _attached_bench(args: argparse.Namespace) -> str:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from hil.run import run_experiment
+    from hil.bench.run import run_experiment
 
     prepare_out_dir(args.out, args.overwrite)
     summary = run_experiment(
@@ -311,8 +320,8 @@ def exit_status(exc: BaseException) -> int:
 
     from drivers.arm import LinkError
     from drivers.recording import RecordingError
-    from hil.launch import LaunchError
-    from hil.params import ParamsError
+    from hil.bench.launch import LaunchError
+    from hil.model.params import ParamsError
     from profiles import ProfileError
 
     if isinstance(exc, LinkError | LaunchError | ConnectionError | TimeoutError | can.CanError):
@@ -332,8 +341,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     from drivers.arm import LinkError
     from drivers.recording import RecordingError
-    from hil.launch import LaunchError
-    from hil.params import ParamsError
+    from hil.bench.launch import LaunchError
+    from hil.model.params import ParamsError
     from profiles import ProfileError
 
     args = _parse(argv)

@@ -10,10 +10,16 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
-from drivers.process import install_exit_signals, interrupt_exit_code, interrupt_reason
+from drivers.process import (
+    install_exit_signals,
+    interrupt_exit_code,
+    interrupt_reason,
+    limit_blas_threads,
+)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    limit_blas_threads()  # before numpy loads
     install_exit_signals()
     try:
         from hil.cli import main as cli_main

@@ -41,7 +41,8 @@ class Sine:
 class JointExcitation:
     """τ(t) = offset_Nm + step_Nm (1 − e^{−step_rate t}) + Σ_k w_k(t) A_k sin(ω_k t + φ_k) + p(t)
     (eqs. (31)-(32); the constant ``offset_Nm``, default 0, carries the mean of a designed
-    periodic torque, hil/excitation.py; w_k is a sine's time window, 1 by default; p(t) is the
+    periodic torque, hil/identify/excitation.py; w_k is a sine's time window, 1 by default; p(t) is
+    the
     piecewise-linear torque through ``points`` (t_s, τ_Nm), held at its first value before the
     first point and at its last value after the last, 0 when there are no points)."""
 

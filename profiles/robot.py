@@ -7,11 +7,11 @@ Reyes & Kelly (1997) Table I, or about its joint axis, ``inertia_about_joint_kgm
 owners publish it); optionally the motors' rotors (``[rotor]``: inertia, gear ratio, and the
 sign with which motor 2's rotor turns relative to link 1); friction as Coulomb levels or as the
 smooth ``cf · atan(k q̇)`` law (level cf·π/2); and ``[model] terms`` (of
-:data:`hil.model.TERMS`) the arm has. :meth:`RobotProfile.theta` gives θ in the parametrisation
-of :meth:`RobotProfile.model` (θ1..θ9, then each term's parameters).
+:data:`TERMS`) the arm has. :meth:`RobotProfile.theta` gives θ in the parametrisation of
+``hil.model.closed_form.ArmModel(profile.terms)`` (θ1..θ9, then each term's parameters).
 
 Arms of any number of joints are described by a URDF plus what a URDF does not hold
-(:class:`UrdfRobotProfile`, :func:`load_urdf_robot`, for :mod:`hil.urdf_model`): friction per
+(:class:`UrdfRobotProfile`, :func:`load_urdf_robot`, for :mod:`hil.model.urdf`): friction per
 joint, rotor inertia (armature), gear ratio, drives. A 2-DOF profile may name the same arm's
 URDF (``urdf``, cicese.toml)."""
 
@@ -23,8 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
-from hil.model import TERMS, ArmModel
 from profiles.loader import Fields, ProfileError, load_toml
+
+# The closed-form model's optional terms a profile may name under ``[model] terms``
+# (hil.model.closed_form builds them: ArmModel(profile.terms)); the profile is the vocabulary so
+# that this bottom layer imports nothing from hil.
+TERMS = ("rotor_inertia", "com_offset")
 
 
 @dataclass(frozen=True)
@@ -51,7 +55,7 @@ class Rotor:
     datasheet_inertia_kgm2: float | None = None
 
     def inertia_from_theta(self, theta_rotor: float) -> float:
-        """Ir from θ_rotor = gr² Ir − coupling·gr·Ir (hil.model)."""
+        """Ir from θ_rotor = gr² Ir − coupling·gr·Ir (hil.model.closed_form)."""
         return theta_rotor / (self.gear_ratio**2 - self.coupling * self.gear_ratio)
 
 
@@ -71,15 +75,11 @@ class RobotProfile:
     terms: tuple[str, ...] = ()
     rotor: Rotor | None = None
     reference: str = ""
-    urdf: str | None = None  # the same arm as a URDF (profiles/robots/*.urdf), for hil.urdf_model
-
-    def model(self) -> ArmModel:
-        """The model object with this arm's terms."""
-        return ArmModel(self.terms)
+    urdf: str | None = None  # the same arm as a URDF (profiles/robots/*.urdf), for hil.model.urdf
 
     def theta(self) -> np.ndarray:
         """θ of :meth:`model`: θ1..θ9 of Reyes & Kelly (1997) Section 5 (θ8, θ9 the mean of the
-        two directions), then each term's parameters (hil.model):
+        two directions), then each term's parameters (hil.model.closed_form):
 
         θ1 = m1 lc1² + m2 l1² + m2 lc2² + I1 + I2 [+ (gr² + 1) Ir],  θ2 = l1 m2 lc2,
         θ3 = m2 lc2² + I2 [+ coupling·gr·Ir],  θ4 = g (lc1 m1 + m2 l1),  θ5 = g m2 lc2,
@@ -125,7 +125,9 @@ class RobotProfile:
             I2 += m2 * self.link2.com_across_m**2
         theta1 = m1 * lc1**2 + m2 * l1**2 + m2 * lc2**2 + I1 + I2
         theta3 = m2 * lc2**2 + I2
-        if self.rotor is not None:  # hil.model: K_r = ½ Ir (gr q̇1)² + ½ Ir (q̇1 + c gr q̇2)²
+        if (
+            self.rotor is not None
+        ):  # hil.model.closed_form: K_r = ½ Ir (gr q̇1)² + ½ Ir (q̇1 + c gr q̇2)²
             r = self.rotor
             theta1 += (r.gear_ratio**2 + 1) * r.inertia_kgm2
             theta3 += r.coupling * r.gear_ratio * r.inertia_kgm2
@@ -200,7 +202,7 @@ def load_robot(name_or_path: str | Path) -> RobotProfile:
             source,
             None,
             "an arm described by its URDF only: the 2-DOF closed-form model cannot use it "
-            "(hil.urdf_model.UrdfArmModel can; see docs/urdf.md)",
+            "(hil.model.urdf.UrdfArmModel can; see docs/urdf.md)",
         )
     f.only(
         {
@@ -293,7 +295,7 @@ class UrdfRobotProfile:
     armature_kgm2: tuple[float, ...]
     gear_ratio: tuple[float, ...]
     drives: tuple[str, ...] | None
-    terms: tuple[str, ...] = ()  # model terms beyond rigid bodies + friction (hil.urdf_model)
+    terms: tuple[str, ...] = ()  # model terms beyond rigid bodies + friction (hil.model.urdf)
 
     @property
     def coulomb_Nm(self) -> tuple[float, ...]:
@@ -315,12 +317,12 @@ def _urdf_path(f: Fields, source: str) -> Path:
 
 
 def load_urdf_robot(name_or_path: str | Path) -> UrdfRobotProfile:
-    """A robot profile with a ``urdf`` field, for :class:`hil.urdf_model.UrdfArmModel`.
+    """A robot profile with a ``urdf`` field, for :class:`hil.model.urdf.UrdfArmModel`.
 
     Fields: ``urdf`` (path, relative to the profile), ``gravity_m_s2``, ``[joints] count``,
     ``[friction] viscous_Nms / coulomb_positive_Nm / coulomb_negative_Nm`` (one number per joint),
     optional ``[joints] armature_kgm2`` (default 0), ``gear_ratio`` (default 1) and ``drives``,
-    and ``[model] terms`` (:data:`hil.urdf_model.TERMS`).
+    and ``[model] terms`` (:data:`hil.model.urdf.TERMS`).
     The 2-DOF closed-form tables (``link1``, ``link2``) may sit beside them (cicese.toml) and are
     not read here.
     """
@@ -357,8 +359,9 @@ def load_urdf_robot(name_or_path: str | Path) -> UrdfRobotProfile:
 
 
 def _terms(f: Fields) -> tuple[str, ...]:
-    """``[model] terms`` of a URDF-only profile (hil.urdf_model.TERMS). A planar profile's
-    ``[model] terms`` name closed-form terms (hil.model.TERMS) and are not read here: its URDF
+    """``[model] terms`` of a URDF-only profile (hil.model.urdf.TERMS). A planar profile's
+    ``[model] terms`` name closed-form terms (hil.model.closed_form.TERMS) and are not read here:
+    its URDF
     already holds what they add (centres of mass off the link line)."""
     if f.has("link1") or not f.has("model"):
         return ()

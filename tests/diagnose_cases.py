@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from drivers.recording import META, write_json_atomic
-from hil.diagnose import VOCABULARY as DIAGNOSIS_VOCABULARY
+from hil.diagnose.selection import VOCABULARY as DIAGNOSIS_VOCABULARY
 from profiles.effects import load_effects
 from profiles.experiment import ExperimentProfile, load_experiment
 from profiles.robot import load_robot

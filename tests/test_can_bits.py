@@ -15,7 +15,7 @@ from drivers.protocol.can_bits import (
     stuff_bit_count,
     stuffed_region,
 )
-from hil.bus_load import cyclic_bus_load, read_candump
+from hil.timing.bus_load import cyclic_bus_load, read_candump
 from profiles import ProfileError
 from profiles.bench import load_bench
 from virtual_robot.bus_pacing import BusPacer

@@ -95,7 +95,7 @@ def test_third_party_loggers_are_quiet_by_default() -> None:
     handler = configure("test", 0)
     try:
         assert not logging.getLogger("can.interfaces.socketcand").isEnabledFor(logging.WARNING)
-        assert logging.getLogger("hil.run").isEnabledFor(logging.WARNING)
+        assert logging.getLogger("hil.bench.run").isEnabledFor(logging.WARNING)
         configure("test", 1)
         assert logging.getLogger("canopen").isEnabledFor(logging.WARNING)
         configure("test", -1)

@@ -12,9 +12,9 @@ import pytest
 
 from drivers.recording import read_signals
 from hil.cli import main as cli_main
-from hil.control import compare_schemes, format_table, prepare, run_control
-from hil.control_plots import plot_comparison, plot_run, read_control_log
-from hil.params import robot_params
+from hil.control.plots import plot_comparison, plot_run, read_control_log
+from hil.control.tracking import compare_schemes, format_table, prepare, run_control
+from hil.model.params import robot_params
 
 BENCH = "virtual-inprocess"
 SHORT_S = 1.5

@@ -1,4 +1,5 @@
-"""Controllers (hil/controllers.py), reference trajectory (hil/trajectory.py), tracking profile.
+"""Controllers (hil/control/controllers.py), reference trajectory (hil/control/trajectory.py),
+tracking profile.
 
 Pure tests, no bench: the control laws against Khosla & Kanade (1987) eqs. (2)-(4), the quintic
 moves of Section 4.2, and computed torque closing the loop on the host model itself (where the
@@ -13,13 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hil.control import (
-    parameter_sets,
-    parse_params_spec,
-    reference_torque_margin,
-    tracking_errors,
-)
-from hil.controllers import (
+from hil.bench.run import UsageError
+from hil.control.controllers import (
     BackwardDifference,
     ComputedTorque,
     Feedforward,
@@ -30,7 +26,14 @@ from hil.controllers import (
     make_controller,
     typical_inertia,
 )
-from hil.model import (
+from hil.control.tracking import (
+    parameter_sets,
+    parse_params_spec,
+    reference_torque_margin,
+    tracking_errors,
+)
+from hil.control.trajectory import PointToPoint, khosla_kanade_moves, quintic
+from hil.model.closed_form import (
     coriolis_vector,
     forward_dynamics,
     friction_torque,
@@ -38,9 +41,7 @@ from hil.model import (
     inverse_dynamics,
     mass_matrix,
 )
-from hil.params import robot_params
-from hil.run import UsageError
-from hil.trajectory import PointToPoint, khosla_kanade_moves, quintic
+from hil.model.params import robot_params
 from profiles import ProfileError
 from profiles.experiment import load_experiment
 from profiles.tracking import load_tracking

@@ -19,8 +19,7 @@ from realdata import realdata
 
 from drivers.recording import Recording, read_signals
 from hil.cli import main as hil_main
-from hil.diagnose import DiagnosisError, build_problem, candidates, select, unphysical
-from hil.diagnose_columns import (
+from hil.diagnose.columns import (
     delayed_torque_rows,
     lagged_torque_rows,
     moving_average,
@@ -29,15 +28,16 @@ from hil.diagnose_columns import (
     recording_rows,
     window_intervals,
 )
-from hil.diagnose_report import diagnose
-from hil.diagnose_stats import (
+from hil.diagnose.report import diagnose
+from hil.diagnose.selection import DiagnosisError, build_problem, candidates, select, unphysical
+from hil.diagnose.stats import (
     CrossValidation,
     block_index,
     block_stats,
     cross_validate,
     evidence,
 )
-from hil.params import robot_params
+from hil.model.params import robot_params
 from virtual_robot.effects import amplifier_lag_step
 
 REFERENCE = robot_params("cicese").theta

@@ -1,4 +1,5 @@
-"""Excitation design (hil/excitation.py, `hil excite`) and the shipped optimal-fourier profile."""
+"""Excitation design (hil/identify/excitation.py, `hil excite`) and the shipped optimal-fourier
+profile."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import pytest
 
 from drivers.recording import read_signals
 from hil import cli
-from hil.excitation import (
+from hil.identify.excitation import (
     ExcitationLimits,
     FourierParametrization,
     FourierTrajectory,
@@ -30,7 +31,7 @@ from hil.excitation import (
     torque_fit_error,
     trajectory_extremes,
 )
-from hil.params import robot_params
+from hil.model.params import robot_params
 from profiles import ProfileError
 from profiles.bench import load_bench
 from profiles.experiment import JointExcitation, Sine, load_experiment
@@ -145,7 +146,7 @@ def test_asymmetry_bias_is_the_least_squares_error_it_predicts():
 
 
 def inverse_dynamics_asymmetric(q, dq, ddq):
-    from hil.model import inverse_dynamics
+    from hil.model.closed_form import inverse_dynamics
 
     tau = inverse_dynamics(THETA, q, dq, ddq)
     tau[:, 0] += ASYMMETRY[0] * np.abs(np.sign(dq[:, 0]))
@@ -400,10 +401,10 @@ def test_cli_designs_checks_and_writes_a_profile_that_loads(capsys, tmp_path):
 
 
 def test_identification_error_before_and_after(paper_realized, shipped_realized):
-    """hil.identify (exact, the issue's default) on the world's open-loop responses: eqs.
+    """hil.identify.schemes (exact, the issue's default) on the world's open-loop responses: eqs.
     (31)-(32) lose 15 % of θ6 in the supplied-energy scheme to the Coulomb asymmetry; the
     designed excitation keeps every θ_i of every scheme within 3 %."""
-    from hil.identify import identify
+    from hil.identify.schemes import identify
 
     def worst(rec) -> dict[str, float]:
         results = identify(rec.q, rec.tau, rec.period_s)

@@ -21,15 +21,9 @@ from typing import Any
 import pytest
 
 from hil import cli
-from hil.executors import (
-    MISSING_DASK,
-    ExecutorUnavailableError,
-    Outcome,
-    SerialExecutor,
-    TaskFailedError,
-    make_executor,
-)
-from hil.jitter_sweep import PointSpec, add_sweep_arguments, reproducible, run_point, sweep
+from hil.bench.executors import MISSING_DASK, SerialExecutor, make_executor
+from hil.bench.jobs import ExecutorUnavailableError, Outcome, TaskFailedError
+from hil.timing.sweep import PointSpec, add_sweep_arguments, reproducible, run_point, sweep
 
 BATCH_TIMEOUT_S = 180.0  # a hung cluster fails the test instead of blocking `make test`
 
@@ -80,7 +74,7 @@ def _raise_on_three(x: int) -> int:
 def test_missing_extra_is_a_one_line_error(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
-    monkeypatch.setitem(sys.modules, "hil.executors_dask", None)  # as without the extra
+    monkeypatch.setitem(sys.modules, "hil.bench.executors_dask", None)  # as without the extra
     rc = cli.main(["jitter", "--sweep", "latency=0:1ms:2", "--executor", "dask", "--out",
                    str(tmp_path / "s"), "--bench", "virtual-inprocess"])  # fmt: skip
     err = capsys.readouterr().err
@@ -98,7 +92,7 @@ def test_unknown_executor_is_refused_by_the_parser(capsys: pytest.CaptureFixture
 
 def test_no_scheduler_is_a_one_line_error() -> None:
     pytest.importorskip("distributed")
-    from hil.executors_dask import DaskExecutor
+    from hil.bench.executors_dask import DaskExecutor
 
     with socket.socket() as s:  # a port nobody listens on
         s.bind(("127.0.0.1", 0))
@@ -113,7 +107,7 @@ def test_no_scheduler_is_a_one_line_error() -> None:
 
 
 def test_outcomes_and_map_on_a_cluster(dask_client: Any) -> None:
-    from hil.executors_dask import DaskExecutor
+    from hil.bench.executors_dask import DaskExecutor
 
     executor = DaskExecutor(client=dask_client, timeout_s=BATCH_TIMEOUT_S, log=None)
     assert list(executor.map(_square, range(6))) == [0, 1, 4, 9, 16, 25]
@@ -219,7 +213,7 @@ def test_a_killed_worker_loses_only_its_point(
     """3 points on 2 workers: the 1 ms point's worker dies once (it is retried and kept), the
     2 ms point's worker dies on both attempts (it is reported lost, with its parameters), the
     baseline is untouched; the sweep is written, status incomplete."""
-    from hil.executors_dask import DaskExecutor
+    from hil.bench.executors_dask import DaskExecutor
 
     markers = tmp_path / "markers"
     markers.mkdir()
@@ -253,7 +247,7 @@ def test_a_killed_worker_loses_only_its_point(
 
 
 def test_batch_timeout_reports_the_unfinished(dask_client: Any) -> None:
-    from hil.executors_dask import DaskExecutor
+    from hil.bench.executors_dask import DaskExecutor
 
     executor = DaskExecutor(client=dask_client, timeout_s=0.5, log=None)
     outcomes = list(executor.run(_sleep, [3.0]))

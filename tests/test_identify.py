@@ -15,16 +15,16 @@ import numpy as np
 import pytest
 
 from drivers.recording import read_signals
-from hil.estimators import (
+from hil.identify.online import OnlineIdentifier
+from hil.identify.schemes import format_table_ii, identify, validate
+from hil.model.estimators import (
     RecursiveLeastSquares,
     least_squares,
     recursive_least_squares,
     weighted_least_squares,
 )
-from hil.identify import format_table_ii, identify, validate
-from hil.online import OnlineIdentifier
-from hil.params import load_params, robot_params
-from hil.regressors import SCHEMES, build_regression
+from hil.model.params import load_params, robot_params
+from hil.model.regressors import SCHEMES, build_regression
 from profiles.effects import load_effects
 from profiles.experiment import load_experiment
 from profiles.robot import load_robot

@@ -1,4 +1,4 @@
-"""Identification of real recordings with a model object (hil.identify.identify_model): real
+"""Identification of real recordings with a model object (hil.identify.schemes.identify_model): real
 time stamps, the rotor-inertia term, bounded estimates, uncertainty, bounded memory; the DFKI
 robot profiles; `hil identify --format dfki --robot dfki-a0` end to end on the committed file."""
 
@@ -13,11 +13,11 @@ import pytest
 
 from drivers.recording import read_signals
 from hil.cli import main as hil_main
-from hil.estimators import BlockNormalEquations, bounded_quadratic_fit
-from hil.identify import identify_model, torque_prediction_error
-from hil.model import ArmModel
-from hil.openloop import simulate_windows
-from hil.regressors import build_regression, iter_rows, velocity_half_window
+from hil.identify.schemes import identify_model, torque_prediction_error
+from hil.model.closed_form import ArmModel
+from hil.model.estimators import BlockNormalEquations, bounded_quadratic_fit
+from hil.model.openloop import simulate_windows
+from hil.model.regressors import build_regression, iter_rows, velocity_half_window
 from profiles.loader import ProfileError
 from profiles.robot import load_robot
 
@@ -112,7 +112,7 @@ def test_rotor_inertia_identified_from_irregular_quantized_samples(arm):
 
 def test_real_time_stamps_matter(arm):
     """Rows written on k·h instead of the real intervals (30 % jitter) give worse estimates."""
-    from hil.estimators import least_squares
+    from hil.model.estimators import least_squares
 
     theta, t, q, tau = arm
     h = float(np.median(np.diff(t)))
@@ -151,7 +151,7 @@ def test_windowed_velocities_remove_the_quantization_bias(arm):
     """Three-point velocities of a 1.9e-4 rad encoder at 2 ms put noise in the inertial
     columns that biases least squares (errors in variables); the local-polynomial window does
     not. Both on the same rows and filter."""
-    from hil.estimators import least_squares
+    from hil.model.estimators import least_squares
 
     theta, t, q, tau = arm
     h = float(np.median(np.diff(t)))
@@ -197,7 +197,7 @@ def test_unphysical_least_squares_is_reported_and_bounded():
 
 
 def test_bounded_fit_restores_a_positive_definite_mass_matrix():
-    from hil.identify import mass_matrix_constraints
+    from hil.identify.schemes import mass_matrix_constraints
 
     model = ArmModel(("rotor_inertia", "com_offset"))
     H = np.eye(model.n_params)
@@ -235,10 +235,10 @@ def test_dfki_profiles_follow_the_owners_parameters():
         (I2 + gr**2 * Ir) - (I2 - gr * Ir),  # M22 beyond M12's constant part
     ]  # fmt: skip
     assert np.allclose(a0.theta(), expected, rtol=1e-9)
-    assert a0.model().terms == ("rotor_inertia",)
+    assert ArmModel(a0.terms).terms == ("rotor_inertia",)
     assert a0.rotor.inertia_from_theta(a0.theta()[9]) == pytest.approx(Ir)
     c0 = load_robot("dfki-c0")
-    assert c0.model().physical_consistency(c0.theta())["consistent"]
+    assert ArmModel(c0.terms).physical_consistency(c0.theta())["consistent"]
 
 
 def test_robot_profile_term_errors(tmp_path):
@@ -287,7 +287,7 @@ def test_identify_cli_on_the_committed_dfki_file(tmp_path, capsys):
     for row in ident["parameters"]:
         assert (row["value"] is None) == (not row["identified"])
     # the parameter file says its model terms, and reads back in them
-    from hil.params import load_params
+    from hil.model.params import load_params
 
     ps = load_params(tmp_path / "out-rotor_inertia" / "params.json")
     assert ps.terms == ("rotor_inertia",) and len(ps.theta) == 10

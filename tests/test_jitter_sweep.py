@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from hil.executors import LocalProcessExecutor, SerialExecutor, make_executor
-from hil.jitter_sweep import (
+from hil.bench.executors import LocalProcessExecutor, SerialExecutor, make_executor
+from hil.timing.sweep import (
     PointSpec,
     add_sweep_arguments,
     parse_sweep,

@@ -1,4 +1,5 @@
-"""hil.model (the host's model) against virtual_robot.dynamics (the world's reference equations).
+"""hil.model.closed_form (the host's model) against virtual_robot.dynamics (the world's reference
+equations).
 
 Also the regressor identities the identification schemes rely on (Reyes & Kelly 1997 eqs.
 (8), (11)-(15)), and the physical-consistency check.
@@ -9,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hil import model
-from hil.params import robot_params
+from hil.model import closed_form as model
+from hil.model.params import robot_params
 from virtual_robot import dynamics
 
 N = 64
@@ -95,7 +96,7 @@ def test_friction_and_its_place_in_the_dynamics(theta, states):
     # forward and inverse dynamics are each other's inverse (with friction, q̇ ≠ 0)
     ddq_back = model.forward_dynamics(theta, q, dq, model.inverse_dynamics(theta, q, dq, ddq))
     np.testing.assert_allclose(ddq_back, ddq, atol=1e-9)
-    # sgn(0) = 0 in the model's f (stiction is hil.openloop's business)
+    # sgn(0) = 0 in the model's f (stiction is hil.model.openloop's business)
     assert np.array_equal(model.friction_torque(theta, [0.0, 0.0]), [0.0, 0.0])
 
 

@@ -1,4 +1,5 @@
-"""hil.model.ArmModel: the 9-parameter model unchanged, and the extra terms (rotor inertia,
+"""hil.model.closed_form.ArmModel: the 9-parameter model unchanged, and the extra terms (rotor
+inertia,
 centre-of-mass offset) against an arm written from its bodies, independently of the regressors.
 
 The reference arm here is written from positions and velocities of its bodies (two links with
@@ -11,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hil import model
-from hil.model import TERMS, ArmModel
+from hil.model import closed_form as model
+from hil.model.closed_form import TERMS, ArmModel
 
 G = 9.81
 # A made-up arm with every effect present (SI units).

@@ -1,4 +1,5 @@
-"""hil.openloop (the host's open-loop simulation of its model) against the world, and on its own."""
+"""hil.model.openloop (the host's open-loop simulation of its model) against the world, and on its
+own."""
 
 from __future__ import annotations
 
@@ -8,10 +9,10 @@ import numpy as np
 import pytest
 
 from drivers.recording import read_signals
-from hil import model
-from hil.metrics import nrmse
-from hil.openloop import OpenLoopExtras, simulate_open_loop
-from hil.params import robot_params
+from hil.model import closed_form as model
+from hil.model.metrics import nrmse
+from hil.model.openloop import OpenLoopExtras, simulate_open_loop
+from hil.model.params import robot_params
 from profiles.effects import Cogging, Coulomb, EffectsProfile, Stribeck, load_effects
 from profiles.experiment import load_experiment
 from profiles.robot import load_robot
@@ -265,7 +266,7 @@ def test_bad_input_is_rejected_with_a_clear_message(theta, kwargs, message):
     assert "\n" not in str(info.value)
 
 
-# ---- hil.metrics.nrmse ---------------------------------------------------------------------------
+# ---- hil.model.metrics.nrmse -----------------------------------------------------------------
 
 
 def test_nrmse_definition():
@@ -412,7 +413,7 @@ def test_extras_match_the_plant_state_to_round_off(theta, name):
 def test_extras_match_the_plant_on_the_diagnosis_experiment(theta):
     """20 s of fast excitation, then slow moves and holds: every extra at once, including the
     chattering case of a lagged break-away (the plant skips the rest of that step; so does the
-    host, see hil/openloop_extras.py). Measured 2.5e-14 rad."""
+    host, see hil/model/openloop_effects.py). Measured 2.5e-14 rad."""
     effects, extras = EXTRAS_CASES["all_with_asymmetric_coulomb"]
     tau = load_experiment("diagnosis").torque_table(np.arange(8000) * H)
     world = measured_world(effects, tau)

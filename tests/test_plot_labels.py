@@ -63,7 +63,7 @@ def test_an_incomplete_run_is_marked_on_its_plot(saved, tmp_path, meta, torn, ma
 
 
 def test_validation_panels_are_titled_in_words(saved, tmp_path) -> None:
-    from hil.identify_plots import plot_validation
+    from hil.identify.plots import plot_validation
 
     rec = _recording({})
     panels = [(name, rec, rec.q, [0.1, 0.2]) for name in ("fit", "held_out")]

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from drivers.recording import read_signals
-from hil.control import run_control
-from hil.replay import replay_run, trace_from_run
-from hil.run import UsageError, run_experiment
+from hil.bench.run import UsageError, run_experiment
+from hil.control.tracking import run_control
+from hil.timing.replay import replay_run, trace_from_run
 from profiles.effects import load_effects
 from profiles.experiment import load_experiment
 from profiles.robot import load_robot

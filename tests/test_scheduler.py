@@ -9,8 +9,8 @@ import random
 
 import pytest
 
-from hil import scheduler as sched_mod
-from hil.scheduler import (
+from hil.bench import scheduler as sched_mod
+from hil.bench.scheduler import (
     MIN_SPIN_S,
     DeadlineScheduler,
     acquire_realtime,

@@ -15,7 +15,7 @@ import pytest
 from drivers.arm import Arm, Fault, LinkStats, Sample
 from drivers.fault_injection import TimingFaultArm, with_host_faults
 from drivers.recording import read_signals
-from hil.run import run_experiment
+from hil.bench.run import run_experiment
 from profiles import ProfileError
 from profiles.bench import load_bench
 from profiles.effects import load_effects

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hil.timing_stats import cycle_timing, jitter_summary, loop_timing
+from hil.bench.timing_stats import cycle_timing, jitter_summary, loop_timing
 
 
 def synthetic(

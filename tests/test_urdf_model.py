@@ -1,4 +1,4 @@
-"""hil.urdf_model: an arm from a URDF through Pinocchio, exact against the CICESE closed form, its
+"""hil.model.urdf: an arm from a URDF through Pinocchio, exact against the CICESE closed form, its
 base parameters, and the identification of the real Panda excitation of Gaz et al. (2019)."""
 
 from __future__ import annotations
@@ -7,16 +7,16 @@ import gaz_reference
 import numpy as np
 import pytest
 
-import hil.model as closed_form
-from hil.metrics import nrmse
-from hil.urdf_identify import (
+import hil.model.closed_form as closed_form
+from hil.identify.urdf import (
     TorqueRecording,
     filtered_rows,
     identify_torque,
     read_one_per_line_log,
     smoothed_motion,
 )
-from hil.urdf_model import UrdfArmModel, _bilinear_inertia_regressor
+from hil.model.metrics import nrmse
+from hil.model.urdf import UrdfArmModel, _bilinear_inertia_regressor
 from profiles import ProfileError
 from profiles.robot import load_robot, load_urdf_robot
 
@@ -292,7 +292,7 @@ def test_panda_identification_against_the_published_model(panda):
 
 
 def test_log_cholesky_parametrization_round_trips_and_is_always_consistent():
-    from hil.urdf_identify import _cholesky_from_pi, _pi_from_cholesky
+    from hil.identify.urdf import _cholesky_from_pi, _pi_from_cholesky
 
     arm = UrdfArmModel.from_profile("panda")
     pi = arm.standard_theta[10:20]  # body 2 of the URDF

@@ -10,6 +10,7 @@ import threading
 from collections.abc import Sequence
 
 from drivers.logsetup import add_verbosity_options, configure, verbosity
+from drivers.process import limit_blas_threads
 from drivers.recording import RecordingError
 from profiles import ProfileError
 from profiles.bench import BenchProfile, load_bench
@@ -200,6 +201,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
         sub.choices[args.command].error(f"unrecognized arguments: {' '.join(extras)}")
     configure("virtual-robot", verbosity(args))
+    limit_blas_threads()
     try:
         if args.command == "simulate":
             return cmd_simulate(args)

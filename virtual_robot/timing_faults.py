@@ -15,7 +15,7 @@ The virtual robot applies a late command late: its physics runs on the command's
   adds to d_k too. Command frames do not overtake each other: a_k >= a_{k-1}. Host-side drops
   and stalls are the host's own (drivers/fault_injection.py).
 * **trace** (lockstep): sample n is taken at ``sample_s[n]`` and the command of cycle k takes
-  effect at ``command_s[k]``, both from a timing trace (hil/replay.py writes one from a
+  effect at ``command_s[k]``, both from a timing trace (hil/timing/replay.py writes one from a
   recorded realtime run), instead of n·h and t_k.
 
 Seeded: the jitter and drop draws of each side come from their own numpy streams of the seed,
@@ -171,7 +171,7 @@ class RobotTiming:
 class EventLog:
     """The robot's own times of its samples and of the host's commands (realtime runs), one CSV
     line per event: ``event,n,t`` with ``n`` the number of SYNCs before it and ``t`` robot time.
-    ``hil replay`` reads it to impose the run's timing exactly (hil/replay.py)."""
+    ``hil replay`` reads it to impose the run's timing exactly (hil/timing/replay.py)."""
 
     COLUMNS = ("event", "n", "t")
 

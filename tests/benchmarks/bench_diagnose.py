@@ -28,8 +28,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from diagnose_cases import CASES, make_recording
 
 from drivers.recording import read_signals
-from hil.diagnose_report import diagnose
-from hil.params import robot_params
+from hil.diagnose.report import diagnose
+from hil.model.params import robot_params
 
 TARGET_S = 30.0
 LONG_TARGET_S, LONG_TARGET_BYTES = 60.0, 1e9
@@ -48,7 +48,7 @@ def long_case(minutes: float) -> None:
         path = make_recording(Path(tmp) / "long", toml, None)
         code = (
             "import sys, time; from drivers.recording import read_signals; "
-            "from hil.diagnose_report import diagnose; from hil.params import robot_params; "
+            "from hil.diagnose.report import diagnose; from hil.model.params import robot_params; "
             "rec = read_signals(sys.argv[1]); t = time.perf_counter(); "
             "doc = diagnose([rec], robot_params('cicese').theta).document; "
             "print(len(rec), round(time.perf_counter() - t, 1), "

@@ -29,8 +29,8 @@ from typing import Any
 
 import can
 
-import hil.run
-from hil.run import run_experiment
+import hil.bench.run
+from hil.bench.run import run_experiment
 from profiles import resolve
 
 BITRATE = 1_000_000
@@ -96,7 +96,7 @@ def loop_cpu() -> Iterator[dict[str, float]]:
     """CPU seconds of this process (the host) and of its children (the virtual robot) spent
     during ``run_loop``, i.e. the cycles only (start-up and plots excluded)."""
     spent: dict[str, float] = {}
-    inner = hil.run.run_loop
+    inner = hil.bench.run.run_loop
 
     def measured(*args: Any, **kwargs: Any) -> Any:
         kids = _children()
@@ -107,11 +107,11 @@ def loop_cpu() -> Iterator[dict[str, float]]:
             spent["host_s"] = time.process_time() - host0
             spent["robot_s"] = sum(_cpu_s(pid) - t for pid, t in kids0.items())
 
-    hil.run.run_loop = measured  # type: ignore[assignment]
+    hil.bench.run.run_loop = measured  # type: ignore[assignment]
     try:
         yield spent
     finally:
-        hil.run.run_loop = inner  # type: ignore[assignment]
+        hil.bench.run.run_loop = inner  # type: ignore[assignment]
 
 
 def lockstep(tmp: Path, runs: int) -> dict[str, Any]:

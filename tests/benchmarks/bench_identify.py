@@ -27,9 +27,9 @@ import time
 import numpy as np
 
 from drivers.recording import read_signals
-from hil.estimators import RecursiveLeastSquares, least_squares, recursive_least_squares
-from hil.online import OnlineIdentifier
-from hil.regressors import SCHEMES, build_regression
+from hil.identify.online import OnlineIdentifier
+from hil.model.estimators import RecursiveLeastSquares, least_squares, recursive_least_squares
+from hil.model.regressors import SCHEMES, build_regression
 from profiles.experiment import load_experiment
 from profiles.robot import load_robot
 from virtual_robot.simulate import simulate
@@ -53,7 +53,7 @@ TARGET_LONG_RSS_BYTES = 4 * 1024**3
 
 def write_long_recording(path: str, minutes: float, seed: int = 0) -> int:
     """A ``minutes``-long 1 kHz recording of the dfki-a0 arm (see the module doc); rows."""
-    from hil.model import ArmModel
+    from hil.model.closed_form import ArmModel
 
     profile = load_robot("dfki-a0")
     model, theta = ArmModel(profile.terms), profile.theta()

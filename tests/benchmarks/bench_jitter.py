@@ -25,7 +25,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from hil.jitter_cli import measure
+from hil.timing.jitter_cli import measure
 
 nan = float("nan")
 

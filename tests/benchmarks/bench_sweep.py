@@ -10,7 +10,7 @@ executor of ``--executors`` (default serial, process, dask: a :class:`SerialExec
 left out with a note when the extra is missing), and prints the wall times and the speed-ups,
 with the load average before and after. Every executor writes into the same ``--out`` path (one
 after another), so the sweep documents must be identical up to wall times and the executor
-(:func:`hil.jitter_sweep.reproducible`); that is checked. ``--json`` prints one JSON document.
+(:func:`hil.timing.sweep.reproducible`); that is checked. ``--json`` prints one JSON document.
 No target: a report.
 """
 
@@ -25,8 +25,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from hil.executors import make_executor
-from hil.jitter_sweep import add_sweep_arguments, reproducible, sweep
+from hil.bench.executors import make_executor
+from hil.timing.sweep import add_sweep_arguments, reproducible, sweep
 
 
 def sweep_args(bench: str, out: str, sweep_spec: str) -> argparse.Namespace:

@@ -1,4 +1,4 @@
-"""Benchmark: arms from a URDF through Pinocchio (hil/urdf_model.py, hil/urdf_identify.py).
+"""Benchmark: arms from a URDF through Pinocchio (hil/model/urdf.py, hil/identify/urdf.py).
 
 1. µs per sample of M(q) and the regressors, 2 joints (cicese.urdf; the closed form beside it)
    and 7 joints (panda.urdf).
@@ -24,16 +24,16 @@ from pathlib import Path
 
 import numpy as np
 
-import hil.model as closed_form
-from hil.metrics import nrmse
-from hil.urdf_identify import (
+import hil.model.closed_form as closed_form
+from hil.identify.urdf import (
     TorqueRecording,
     filtered_rows,
     identify_torque,
     read_one_per_line_log,
     smoothed_motion,
 )
-from hil.urdf_model import UrdfArmModel
+from hil.model.metrics import nrmse
+from hil.model.urdf import UrdfArmModel
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import gaz_reference  # tests/gaz_reference.py

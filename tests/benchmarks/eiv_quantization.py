@@ -20,8 +20,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from test_identify_real import ROTOR, simulated_arm
 
-from hil.estimators import least_squares
-from hil.regressors import build_regression, velocity_half_window
+from hil.model.estimators import least_squares
+from hil.model.regressors import build_regression, velocity_half_window
 
 
 def main() -> int:

@@ -15,7 +15,7 @@ spectrum). Everything follows from ``--seed``. The recordings' meta.json do not 
     .venv/bin/python tests/benchmarks/make_diagnose_set.py [--out /tmp/diagnose_set] [--seed 0]
         [--executor serial|process|dask|tcp://HOST:8786] [--workers N] [--only K]
 
-The recordings are independent jobs on an executor (hil/executors.py; serial by default): the
+The recordings are independent jobs on an executor (hil/bench/executors.py; serial by default): the
 set is the same, byte for byte, on any of them. ``--only K`` makes the first K of the plan. On a
 Dask cluster each worker needs ddbench and this checkout's tests/ at the same path, and writes
 to ``--out`` (a shared file system, or truth.json alone is on this machine: docs/scaling.md).
@@ -44,7 +44,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # tests/, for d
 
 import diagnose_cases as dc
 
-from hil.executors import add_executor_arguments, executor_from_args
+from hil.bench.executors import add_executor_arguments, executor_from_args
 
 TESTS_DIR = str(Path(__file__).resolve().parent.parent)
 

@@ -6,9 +6,10 @@ profile), same rows and same filter for both.
 
 For each design (A.0: the six 2022-08-15 sys_id trajectories, profile dfki-a0; C.0: the seven
 2022-09-14 ones, profile dfki-c0) and each recording as the fit: θ of the profile's model
-(hil.identify.identify_model, λ from the data), then on every other recording of the design the
-held-out torque NRMSE of the identified θ and of the profile's θ (hil.identify.
-torque_prediction_error at the fit's λ) and the restarted 0.1 s simulation (hil.openloop.
+(hil.identify.schemes.identify_model, λ from the data), then on every other recording of the design
+the
+held-out torque NRMSE of the identified θ and of the profile's θ (hil.identify.schemes.
+torque_prediction_error at the fit's λ) and the restarted 0.1 s simulation (hil.model.openloop.
 simulate_windows). A joint held at zero torque (C.0's passive-joint trajectories) has no
 torque NRMSE (its spread is zero): means are over the joints and recordings where it is
 defined. Prints one row per fit recording (means over its held-out recordings) and
@@ -27,8 +28,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from drivers.recording import read_signals
-from hil.identify import identify_model, torque_prediction_error
-from hil.openloop import simulate_windows
+from hil.identify.schemes import identify_model, torque_prediction_error
+from hil.model.closed_form import ArmModel
+from hil.model.openloop import simulate_windows
 from profiles.robot import load_robot
 
 RECORDS = Path("/work/shared/realdata/dfki-double-pendulum/records")
@@ -52,16 +54,15 @@ def main() -> int:
             print(f"{design}: fewer than two recordings under {args.records}; skipped")
             continue
         profile = load_robot(robot)
-        model = profile.model()
+        model = ArmModel(profile.terms)
         if args.terms is not None:
-            from hil.model import ArmModel
-
             model = ArmModel(tuple(t for t in args.terms.split(",") if t))
         ref = np.zeros(model.n_params)
         ref[:9] = profile.theta()[:9]
+        profile_model = ArmModel(profile.terms)
         for term in model.terms:
             if term in profile.terms:
-                ref[model.term_columns(term)] = profile.theta()[profile.model().term_columns(term)]
+                ref[model.term_columns(term)] = profile.theta()[profile_model.term_columns(term)]
         recs = [read_signals(f, fmt="dfki", torque=args.torque) for f in files]
         print(f"\n== design {design}: profile {robot} ({profile.reference}); model terms: "
               f"{', '.join(model.terms) or 'none'}; torque {args.torque}")  # fmt: skip

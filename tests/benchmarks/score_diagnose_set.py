@@ -42,8 +42,8 @@ FINDING_SIZE = {
 
 def _diagnose(path: str) -> tuple[str, dict, float]:
     from drivers.recording import read_signals
-    from hil.diagnose_report import diagnose
-    from hil.params import robot_params
+    from hil.diagnose.report import diagnose
+    from hil.model.params import robot_params
 
     t0 = time.perf_counter()
     doc = diagnose([read_signals(path)], robot_params("cicese").theta).document

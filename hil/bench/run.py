@@ -1,0 +1,262 @@
+"""`hil run`: record one experiment over a bench (virtual or real), as the recording format says."""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from drivers.arm import Arm, Sample
+from drivers.fault_injection import TimingFaultArm, with_host_faults
+from drivers.links import open_arm
+from drivers.process import process_stamp
+from drivers.recording import RecordingWriter, plot_positions, read_signals
+from hil import __version__
+from hil.bench.launch import VirtualRobotProcess
+from hil.bench.loop import Command, LoopResult, extra_columns, run_loop
+from hil.bench.scheduler import realtime_scheduling
+from profiles.bench import BenchProfile, load_bench
+from profiles.experiment import check_duration, load_experiment
+
+ROBOT_EVENTS = "robot-events.csv"  # realtime: the virtual robot's own sample and command times
+
+
+def timing_fault_meta(
+    arm: Arm, bench: BenchProfile, effects: str | None, seed: int | None
+) -> dict[str, Any]:
+    """meta.json's ``timing_faults``: the profiles' faults and what the host injected (the
+    virtual robot's counts are in virtual-robot.log); nothing if no fault is configured."""
+    from profiles.effects import load_effects
+    from profiles.timing_faults import combine
+
+    effects_faults = None
+    if bench.virtual and (effects or bench.effects):
+        effects_faults = load_effects(effects or bench.effects).timing_faults
+    faults = combine(bench.timing_faults, effects_faults)
+    if faults is None:
+        return {}
+    doc: dict[str, Any] = {**faults.with_seed(seed).describe()}
+    if isinstance(arm, TimingFaultArm):
+        doc["host_injected"] = arm.describe()
+    return {"timing_faults": doc}
+
+
+class UsageError(ValueError):
+    """A request the bench refuses (e.g. a real bench without --confirm-real)."""
+
+
+def _progress(done: int, total: int) -> None:
+    print(f"hil: {done}/{total} periods ({100 * done / total:.0f} %)", file=sys.stderr)
+
+
+@dataclass
+class BenchRun:
+    """How a recording over a bench ended (meta.json holds the same)."""
+
+    result: LoopResult
+    reason: str | None
+    realtime_factor: float | None
+    traffic_log: str | None
+
+
+def check_bench(bench_name: str, *, confirm_real: bool, effects: str | None) -> BenchProfile:
+    """Load a bench profile and refuse what it must not do (a real arm without confirmation)."""
+    bench: BenchProfile = load_bench(bench_name)
+    if not bench.virtual and not confirm_real:
+        raise UsageError(
+            f"bench {bench.name} drives a real arm on {bench.channel}: pass "
+            "--confirm-real once you have checked the limits in " + bench.source
+        )
+    if effects is not None and not bench.virtual:
+        raise UsageError("--effects only applies to a virtual bench")
+    return bench
+
+
+def bench_meta(
+    kind: str, bench: BenchProfile, channel: dict[str, Any], mode: str
+) -> dict[str, Any]:
+    """The first fields of meta.json: what ran, over which bench and link."""
+    return {
+        "kind": kind,
+        "version": __version__,
+        "bench": bench.name,
+        "bench_profile": bench.source,
+        "protocol": bench.protocol,
+        "transport": bench.transport,
+        "channel": channel or bench.channel,
+        "virtual": bench.virtual,
+        "mode": mode,
+        "period_s": bench.period_s,
+    }
+
+
+def record_over_bench(
+    bench: BenchProfile,
+    out: Path,
+    command: Command,
+    n_periods: int,
+    meta: Callable[[dict[str, Any]], dict[str, Any]],
+    *,
+    mode: str,
+    effects: str | None = None,
+    seed: int | None = None,
+    progress: bool = True,
+    realtime_policy: str = "auto",
+) -> BenchRun:
+    """Start the bench's virtual robot (if virtual), open the arm, run ``command`` for
+    ``n_periods`` through the loop runner and record it in ``out``.
+
+    ``meta(channel)`` gives meta.json's fields once the link's channel is known. The drives end
+    at zero torque and disabled on every path; meta.json says how the run ended. Realtime:
+    ``realtime_policy`` "auto" tries SCHED_FIFO and a memory lock (hil.bench.scheduler) before the
+    link opens, "off" does not.
+    """
+    realtime = mode == "realtime"
+    h = bench.period_s
+    launcher = (
+        VirtualRobotProcess(
+            bench,
+            mode=mode,
+            effects=effects,
+            seed=seed,
+            log_path=out / "virtual-robot.log",
+            event_log=out / ROBOT_EVENTS if realtime else None,  # for `hil replay`
+        )
+        if bench.virtual
+        else contextlib.nullcontext()
+    )
+    with launcher as robot:
+        channel = robot.channel if bench.virtual else {}
+        # host-side timing faults of the bench profile, if any (drivers/fault_injection.py)
+        arm = with_host_faults(
+            open_arm(bench, channel, mode=mode, log_dir=out), bench.timing_faults, seed=seed
+        )
+        if bench.virtual:  # a dead robot process ends a wait for feedback at once
+            arm.peer_alive = robot.alive
+        policy = (
+            realtime_scheduling(realtime_policy, peer_pid=robot.pid if bench.virtual else None)
+            if realtime
+            else contextlib.nullcontext()
+        )
+        with (
+            policy as scheduling,
+            RecordingWriter(
+                out,
+                {**meta(channel), **process_stamp()},  # run_status(): a dead writer shows
+                extra_columns=extra_columns(2, realtime),
+                flush_every=1 if realtime else 50,
+            ) as writer,
+        ):
+            with arm:
+                arm.enable()
+                result = run_loop(
+                    arm,
+                    command,
+                    n_periods,
+                    writer,
+                    realtime=realtime,
+                    progress=_progress if progress else None,
+                    scheduling=scheduling,
+                )
+            reason = result.reason
+            factor = n_periods * h / result.wall_time_s if result.wall_time_s else None
+            if bench.virtual and result.status == "failed" and not robot.alive():
+                reason = f"virtual robot (pid {robot.pid}) is gone; {reason}"
+            writer.close(
+                result.status,
+                reason=reason,
+                timing=result.timing,
+                wall_time_s=result.wall_time_s,
+                realtime_factor=factor,
+                link=vars(arm.stats),
+                traffic_log=arm.traffic_log(),
+                **timing_fault_meta(arm, bench, effects, seed),
+            )
+    return BenchRun(result, reason, factor, arm.traffic_log())
+
+
+def run_experiment(
+    bench_name: str,
+    experiment_name: str,
+    out_dir: str | Path,
+    *,
+    duration_s: float | None = None,
+    mode: str | None = None,
+    effects: str | None = None,
+    seed: int | None = None,
+    confirm_real: bool = False,
+    plot: bool = True,
+    progress: bool = True,
+    observer: Callable[[int, Sample], None] | None = None,
+) -> dict[str, Any]:
+    """Run an open-loop experiment over a bench; returns the summary that `--json` prints.
+
+    ``observer(k, sample)``, if given, sees every period's feedback as it arrives (e.g. online
+    identification); sample k carries q_k and the quantized torque of period k − 1."""
+    bench = check_bench(bench_name, confirm_real=confirm_real, effects=effects)
+    experiment = load_experiment(experiment_name)
+    mode = mode or bench.mode
+    h = bench.period_s
+    duration = experiment.duration_s if duration_s is None else duration_s
+    n = check_duration(duration, h)
+    torques = experiment.torque_rows(h, n)  # computed a block at a time
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+
+    def command(k: int, sample: Sample) -> list[float]:
+        if observer is not None:
+            observer(k, sample)
+        return torques[k]
+
+    def meta(channel: dict[str, Any]) -> dict[str, Any]:
+        fields = {
+            **bench_meta("hil run", bench, channel, mode),
+            "duration_s": n * h,
+            "experiment": experiment.name,
+            "experiment_profile": experiment.source,
+            "effects": effects,
+            "seed": seed,
+            "robot": bench.robot,
+        }
+        if abs(experiment.period_s - h) > 1e-12:
+            fields["note"] = f"experiment period {experiment.period_s} s; the bench's {h} s is used"
+        return fields
+
+    run = record_over_bench(
+        bench,
+        out,
+        command,
+        n,
+        meta,
+        mode=mode,
+        effects=effects,
+        seed=seed,
+        progress=progress,
+    )
+    result, reason, factor = run.result, run.reason, run.realtime_factor
+    summary = {
+        "out_dir": str(out),
+        "signals": str(out / "signals.csv"),
+        "rows": result.rows,
+        "status": result.status,
+        "reason": reason,
+        "bench": bench.name,
+        "mode": mode,
+        "wall_time_s": round(result.wall_time_s, 4),
+        "realtime_factor": round(factor, 2) if factor else None,
+        "timing": result.timing,
+        "traffic_log": run.traffic_log,
+        "plot": None,
+    }
+    if plot and result.rows > 1:
+        summary["plot"] = str(
+            plot_positions(
+                read_signals(out),
+                out / "positions.png",
+                title=f"hil run: {bench.name} ({mode}), {experiment.name}",
+            )
+        )
+    return summary

@@ -1,0 +1,176 @@
+"""`hil control`: track the Khosla & Kanade (1987) trajectory with PD, CT, FED or RFED over a bench.
+
+    hil control --bench virtual-slcan --scheme ct [--params FILE] [--out DIR] [--json]
+    hil control --compare [--params [LABEL=]FILE[#SCHEME] ...] [--out DIR] [--json]
+
+``--compare`` runs every scheme with the robot profile's θ and then with each ``--params`` set,
+and prints Khosla & Kanade's Table 2 layout (maximum and RMS position and velocity tracking errors
+per joint per scheme) per parameter set; ``--json`` prints the same as one JSON document.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from hil.cli_options import add_out_options, prepare_out_dir
+from hil.control.controllers import SCHEME_TITLES, SCHEMES
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--bench", default="virtual-slcan", help="bench profile name or TOML file")
+    what = p.add_mutually_exclusive_group()
+    what.add_argument("--scheme", choices=SCHEMES, help="one controller: pd, ct, fed or rfed")
+    what.add_argument(
+        "--compare", action="store_true", help="run every scheme and print the Table 2 layout"
+    )
+    p.add_argument(
+        "--schemes",
+        default=",".join(SCHEMES),
+        help="with --compare: which schemes, comma-separated (default: all)",
+    )
+    p.add_argument(
+        "--params",
+        action="append",
+        default=[],
+        metavar="[LABEL=]FILE[#SCHEME]",
+        help="model parameters from a `hil identify` file (default: the robot profile's); "
+        "with --compare repeatable, each one more block of the table after the profile's",
+    )
+    p.add_argument(
+        "--no-profile-params",
+        action="store_true",
+        help="with --compare: leave out the robot profile's parameters",
+    )
+    p.add_argument(
+        "--experiment",
+        default="khosla-kanade-tracking",
+        help="tracking experiment profile or file (trajectory, gains, J, velocity estimate)",
+    )
+    p.add_argument(
+        "--duration", type=float, default=None, help="seconds (default: the whole trajectory)"
+    )
+    p.add_argument("--kp", type=float, nargs=2, metavar=("KP1", "KP2"), help="position gains")
+    p.add_argument("--kv", type=float, nargs=2, metavar=("KV1", "KV2"), help="velocity gains")
+    p.add_argument("--out", default=None, help="directory (default: runs/control-SCHEME|compare)")
+    add_out_options(p)
+    p.add_argument(
+        "--mode", choices=("lockstep", "realtime"), default=None, help="default: the bench's"
+    )
+    p.add_argument("--effects", default=None, help="virtual bench: concealed effects profile")
+    p.add_argument("--seed", type=int, default=None, help="virtual bench: seed (recorded)")
+    p.add_argument(
+        "--confirm-real",
+        action="store_true",
+        help="required to drive a real arm (a bench with virtual = false)",
+    )
+    p.add_argument("--no-plot", action="store_true", help="skip the plots")
+    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+
+
+def main(args: argparse.Namespace) -> int:
+    from hil.bench.run import UsageError
+    from hil.control.tracking import compare_schemes, format_table, run_control
+
+    common: dict[str, Any] = {
+        "experiment": args.experiment,
+        "duration_s": args.duration,
+        "mode": args.mode,
+        "effects": args.effects,
+        "seed": args.seed,
+        "kp": args.kp,
+        "kv": args.kv,
+        "confirm_real": args.confirm_real,
+        "plot": not args.no_plot,
+    }
+    if not args.compare:
+        if args.scheme is None:
+            raise UsageError("give --scheme pd|ct|fed|rfed, or --compare")
+        if len(args.params) > 1:
+            raise UsageError("one --params file per run; several need --compare")
+        out = args.out or f"runs/control-{args.scheme}"
+        prepare_out_dir(out, args.overwrite)
+        print(
+            f"hil control: {SCHEME_TITLES[args.scheme]} over {args.bench} -> {out}",
+            file=sys.stderr,
+        )
+        doc = run_control(
+            args.bench, args.scheme, out, params=args.params[0] if args.params else None, **common
+        )
+        run = doc["run"]
+        if args.json:
+            print(json.dumps(doc))
+        else:
+            _print_run(doc)
+        return _status(run["status"], run.get("reason"), run["signals"], run["rows"])
+
+    schemes = [s.strip() for s in args.schemes.split(",") if s.strip()]
+    out = args.out or "runs/control-compare"
+    prepare_out_dir(out, args.overwrite)
+    print(
+        f"hil control: comparing {', '.join(s.upper() for s in schemes)} over {args.bench} -> "
+        f"{out}",
+        file=sys.stderr,
+    )
+
+    def report(run: dict[str, Any]) -> None:
+        err = run.get("max_position_error_rad")
+        detail = "" if err is None else f", max |e| = {err[0]:.4f} / {err[1]:.4f} rad"
+        print(
+            f"hil control: {run['params']}/{run['scheme']}: {run['status']}{detail}",
+            file=sys.stderr,
+        )
+
+    doc = compare_schemes(
+        args.bench,
+        out,
+        params=args.params,
+        include_profile=not args.no_profile_params,
+        schemes=schemes,
+        progress=False,
+        on_run=report,
+        **common,
+    )
+    if args.json:
+        print(json.dumps(doc))
+    else:
+        print(format_table(doc))
+        if doc["plots"]:
+            print(f"plots: {', '.join(doc['plots'])}")
+        print(f"runs and compare.json: {doc['out_dir']}")
+    if doc["status"] != "complete":
+        print(f"hil control: {doc['status']}: {'; '.join(doc['failures'])}", file=sys.stderr)
+        return 130 if doc["status"] == "interrupted" else 1
+    return 0
+
+
+def _print_run(doc: dict[str, Any]) -> None:
+    run = doc["run"]
+    print(f"{SCHEME_TITLES[run['scheme']]}, {run['params']} parameters, over {doc['bench']}")
+    if "max_position_error_rad" in run:
+        for j in range(2):
+            print(
+                f"  joint {j + 1}: position error max {run['max_position_error_rad'][j]:.4f} "
+                f"rad, RMS {run['rms_position_error_rad'][j]:.4f} rad; velocity error max "
+                f"{run['max_velocity_error_rad_s'][j]:.3f} rad/s, RMS "
+                f"{run['rms_velocity_error_rad_s'][j]:.3f} rad/s"
+            )
+    print(
+        f"  clipped cycles: {run['clipped_cycles'][0]} / {run['clipped_cycles'][1]}; peak "
+        f"torque {run['peak_torque_law_Nm'][0]:.1f} / {run['peak_torque_law_Nm'][1]:.2f} Nm "
+        f"(limits {run['torque_limit_Nm'][0]:g} / {run['torque_limit_Nm'][1]:g} Nm)"
+    )
+    print(
+        f"  recording: {run['signals']} ({run['rows']} rows, {run['realtime_factor']}x real time)"
+    )
+    if run["plots"]:
+        print(f"  plots: {', '.join(run['plots'])}")
+
+
+def _status(status: str, reason: str | None, signals: str, rows: int) -> int:
+    if status == "complete":
+        return 0
+    print(f"hil control: {status}: {reason} ({rows} rows kept in {signals})", file=sys.stderr)
+    return 130 if status == "interrupted" else 1

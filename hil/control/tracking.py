@@ -1,0 +1,633 @@
+"""`hil control`: run a tracking controller (PD, CT, FED, RFED) over a bench, and compare them.
+
+One run: the bench is set up as for `hil run` (:func:`hil.bench.run.record_over_bench`: virtual
+robot,
+arm, recording), and each period the loop calls a command that estimates the velocity from the
+encoder readings (backward difference), evaluates the reference (hil/control/trajectory.py) at t =
+k·h
+and the controller (hil/control/controllers.py), and returns the torque clipped at the drive limits.
+
+A run directory holds the standard ``signals.csv`` / ``meta.json`` / traffic log, plus
+``control.csv`` (row k: the reference, the velocity estimate, the control law's torque before
+clipping, the clip flags and the torque split), ``control.json`` (the tracking errors and clip
+counts) and the plots. :func:`compare_schemes` runs every scheme with every parameter set and
+returns the Table 2 document that `hil control --compare --json` prints.
+
+Tracking errors (Khosla & Kanade 1987, Section 4.1, "dynamic tracking accuracy"): position error
+e_k = q_d(t_k) − q_k on the encoder readings; velocity error q̇_d(t_k) − q̇_k with q̇_k the central
+difference (q_{k+1} − q_{k−1}) / 2h of the recording (centred on t_k, unlike the backward
+difference the controller uses in real time). Maximum and RMS over the run, per joint. t_k is
+k·h in lockstep; in realtime, the time the sample was actually taken (:func:`sample_times`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivers.arm import Sample
+from drivers.recording import read_signals, write_json_atomic
+from hil.bench.run import UsageError, bench_meta, check_bench, record_over_bench
+from hil.control.controllers import (
+    SCHEMES,
+    BackwardDifference,
+    Controller,
+    Gains,
+    Reference,
+    make_controller,
+)
+from hil.control.signals import central_velocity, sample_times
+from hil.control.trajectory import PointToPoint, khosla_kanade_moves
+from hil.model.closed_form import inverse_dynamics, physical_consistency
+from hil.model.params import ParamSet, load_params, robot_params
+from profiles.bench import BenchProfile
+from profiles.experiment import check_duration
+from profiles.tracking import TrackingProfile, load_tracking
+
+DEFAULT_EXPERIMENT = "khosla-kanade-tracking"
+CONTROL_CSV = "control.csv"
+CONTROL_JSON = "control.json"
+PROFILE_LABEL = "profile"
+
+
+# ---- parameter sets ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class LabelledParams:
+    """θ̃ for the controllers' model and the name it has in tables and directories."""
+
+    label: str
+    params: ParamSet
+
+    def describe(self) -> dict[str, Any]:
+        return {
+            "label": self.label,
+            "source": self.params.source,
+            "scheme": self.params.scheme,
+            "theta": [float(x) for x in self.params.theta],
+        }
+
+
+def parse_params_spec(spec: str) -> LabelledParams:
+    """``[LABEL=]FILE[#SCHEME]`` -> θ̃ of FILE (its selected scheme, or SCHEME), named LABEL.
+
+    Without a label: the file's stem, or ``DIR/params`` for a ``params.json`` (as written by
+    `hil identify`), with ``#SCHEME`` appended when one is picked.
+    """
+    label, sep, rest = spec.partition("=")
+    if not sep:
+        label, rest = "", spec
+    path_text, _, scheme = rest.partition("#")
+    if not path_text:
+        raise UsageError(f"--params {spec!r}: no file (expected [LABEL=]FILE[#SCHEME])")
+    params = load_params(path_text, scheme or None)
+    if not label:
+        path = Path(path_text)
+        label = path.stem if path.stem != "params" else f"{path.parent.name or '.'}/params"
+        if scheme:
+            label += f"#{scheme}"
+    return LabelledParams(label, params)
+
+
+def parameter_sets(
+    specs: Sequence[str | LabelledParams | ParamSet], *, include_profile: bool, robot: str
+) -> list[LabelledParams]:
+    """The profile's θ (if asked) followed by each spec, with unique labels."""
+    out: list[LabelledParams] = []
+    if include_profile:
+        out.append(LabelledParams(PROFILE_LABEL, robot_params(robot)))
+    for spec in specs:
+        if isinstance(spec, LabelledParams):
+            item = spec
+        elif isinstance(spec, ParamSet):
+            item = LabelledParams(Path(spec.source).stem or "params", spec)
+        else:
+            item = parse_params_spec(spec)
+        _check_physical(item)
+        label, n = item.label, 2
+        while any(p.label == label for p in out):
+            label, n = f"{item.label}-{n}", n + 1
+        out.append(LabelledParams(label, item.params))
+    if not out:
+        raise UsageError("no parameter set to run with")
+    return out
+
+
+def _check_physical(item: LabelledParams) -> None:
+    """Refuse θ̃ whose inertia matrix M(q) is not positive definite for every q (θ all zero, a
+    failed fit): the CT, FED and RFED laws would command nonsense, and PD's parameters are the
+    same file's. Negative friction coefficients only weaken the compensation and are let
+    through."""
+    inertia = [
+        v for v in physical_consistency(item.params.theta)["violations"] if v.startswith("M(q)")
+    ]
+    if inertia:
+        raise UsageError(
+            f"--params {item.label} ({item.params.source}): not a physical arm: {inertia[0]}"
+        )
+
+
+# ---- the per-period command -------------------------------------------------------------------
+class ControlLog:
+    """``control.csv``, written row by row (flushed every ``flush_every`` rows, and on close)."""
+
+    def __init__(self, path: Path, part_names: Sequence[str], flush_every: int = 50) -> None:
+        self.part_names = tuple(part_names)
+        self.columns = (
+            "t",
+            "qd1",
+            "qd2",
+            "dqd1",
+            "dqd2",
+            "ddqd1",
+            "ddqd2",
+            "dq1_est",
+            "dq2_est",
+            "tau_law1",
+            "tau_law2",
+            "clipped1",
+            "clipped2",
+            *(f"{name}{j}" for name in self.part_names for j in (1, 2)),
+        )
+        self.flush_every = max(1, flush_every)
+        self.rows = 0
+        self._file = open(path, "w")  # noqa: SIM115 (closed in close())
+        self._file.write(",".join(self.columns) + "\n")
+        self._file.flush()
+
+    def write(self, values: Sequence[float]) -> None:
+        self._file.write(",".join(repr(float(v)) for v in values) + "\n")
+        self.rows += 1
+        if self.rows % self.flush_every == 0:
+            self._file.flush()
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._file.close()
+
+    def __enter__(self) -> ControlLog:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class TrackingCommand:
+    """``command(k, sample)`` for the loop runner: velocity estimate, reference, control law."""
+
+    def __init__(
+        self,
+        controller: Controller,
+        trajectory: PointToPoint,
+        period_s: float,
+        n_periods: int,
+        log: ControlLog | None = None,
+    ) -> None:
+        self.controller = controller
+        self.period_s = period_s
+        # the reference at t_k = k·h for every period, computed once (a pure function of t)
+        self.reference = trajectory.at(np.arange(n_periods) * period_s)
+        self.velocity = BackwardDifference(period_s)
+        self.log = log
+        self.clipped_cycles = [0, 0]
+        self.peak_tau_law = [0.0, 0.0]
+
+    def __call__(self, k: int, sample: Sample) -> tuple[float, ...]:
+        t = k * self.period_s
+        q = np.asarray(sample.q_rad, dtype=float)
+        dq = self.velocity(q)
+        qd, dqd, ddqd = (r[k] for r in self.reference)
+        cmd = self.controller(t, q, dq, Reference(qd, dqd, ddqd))
+        for j in range(2):
+            if cmd.clipped[j]:
+                self.clipped_cycles[j] += 1
+            self.peak_tau_law[j] = max(self.peak_tau_law[j], abs(float(cmd.tau_law[j])))
+        if self.log is not None:
+            row = [t, *qd, *dqd, *ddqd, *dq, *cmd.tau_law, *cmd.clipped]
+            for name in self.log.part_names:
+                row.extend(cmd.parts[name])
+            self.log.write(row)
+        return (float(cmd.tau[0]), float(cmd.tau[1]))
+
+
+# ---- metrics ----------------------------------------------------------------------------------
+def tracking_errors(
+    t: np.ndarray, q: np.ndarray, trajectory: PointToPoint
+) -> dict[str, list[float]]:
+    """Max and RMS position and velocity tracking errors per joint (Khosla & Kanade Table 2);
+    ``t`` are the sample times (:func:`sample_times`)."""
+    qd, dqd, _ = trajectory.at(t)
+    e = qd - q
+    ev = dqd - central_velocity(t, q)
+    return {
+        "max_position_error_rad": np.max(np.abs(e), axis=0).tolist(),
+        "rms_position_error_rad": np.sqrt(np.mean(e**2, axis=0)).tolist(),
+        "max_velocity_error_rad_s": np.max(np.abs(ev), axis=0).tolist(),
+        "rms_velocity_error_rad_s": np.sqrt(np.mean(ev**2, axis=0)).tolist(),
+    }
+
+
+def reference_torque_margin(
+    theta: np.ndarray, trajectory: PointToPoint, limits: Sequence[float], h: float
+) -> dict[str, list[float]]:
+    """Peak |τ_d| of the inverse dynamics along the reference (θ̃, friction included) and the
+    fraction of each drive limit left: what the trajectory costs before any feedback."""
+    t = np.arange(0.0, trajectory.duration_s + h / 2, h)
+    qd, dqd, ddqd = trajectory.at(t)
+    peak = np.max(np.abs(inverse_dynamics(theta, qd, dqd, ddqd)), axis=0)
+    lim = np.asarray(limits, dtype=float)
+    return {
+        "peak_reference_torque_Nm": peak.tolist(),
+        "torque_limit_Nm": lim.tolist(),
+        "margin_fraction": (1.0 - peak / lim).tolist(),
+    }
+
+
+# ---- one run ----------------------------------------------------------------------------------
+@dataclass
+class ControlSetup:
+    """What every run of a comparison shares: bench, experiment, gains, duration."""
+
+    bench: BenchProfile
+    experiment: TrackingProfile
+    trajectory: PointToPoint
+    gains: Gains
+    mode: str
+    n_periods: int
+    effects: str | None = None
+    seed: int | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def period_s(self) -> float:
+        return self.bench.period_s
+
+    def describe(self) -> dict[str, Any]:
+        e = self.experiment
+        return {
+            "bench": self.bench.name,
+            "mode": self.mode,
+            "period_s": self.period_s,
+            "duration_s": self.n_periods * self.period_s,
+            "experiment": e.name,
+            "experiment_profile": e.source,
+            "trajectory": {
+                "amplitude_rad": list(e.amplitude_rad),
+                "pattern": list(e.pattern),
+                "move_s": e.move_s,
+                "hold_s": e.hold_s,
+                "start_hold_s": e.start_hold_s,
+                "full_duration_s": self.trajectory.duration_s,
+                **self.trajectory.peaks(),
+            },
+            "gains": {
+                "kp": list(self.gains.kp),
+                "kv": list(self.gains.kv),
+                "damping_ratio": self.gains.damping_ratio(),
+            },
+            "typical_q_rad": list(e.typical_q_rad),
+            "velocity_estimate": e.velocity,
+            "ct_friction_velocity": e.ct_friction_velocity,
+            "effects": self.effects,
+            "seed": self.seed,
+            "notes": list(self.notes),
+        }
+
+
+def prepare(
+    bench_name: str,
+    *,
+    experiment: str = DEFAULT_EXPERIMENT,
+    duration_s: float | None = None,
+    mode: str | None = None,
+    effects: str | None = None,
+    seed: int | None = None,
+    kp: Sequence[float] | None = None,
+    kv: Sequence[float] | None = None,
+    confirm_real: bool = False,
+) -> ControlSetup:
+    """Load and check everything a run needs, before anything starts moving."""
+    bench = check_bench(bench_name, confirm_real=confirm_real, effects=effects)
+    exp = load_tracking(experiment)
+    trajectory = khosla_kanade_moves(
+        exp.amplitude_rad,
+        exp.pattern,
+        move_s=exp.move_s,
+        hold_s=exp.hold_s,
+        start_hold_s=exp.start_hold_s,
+    )
+    duration = trajectory.duration_s if duration_s is None else duration_s
+    try:
+        check_duration(duration, bench.period_s)  # finite, > 0, ≤ 24 h, rows bounded
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    for name, values in (("--kp", kp), ("--kv", kv)):
+        if values is not None and (
+            len(values) != 2 or not all(math.isfinite(v) and v >= 0 for v in values)
+        ):
+            raise UsageError(f"{name} takes two finite gains >= 0 (joint 1, joint 2)")
+    gains = Gains(tuple(kp or exp.kp), tuple(kv or exp.kv))
+    notes = []
+    if abs(exp.period_s - bench.period_s) > 1e-12:
+        notes.append(f"experiment period {exp.period_s} s; the bench's {bench.period_s} s is used")
+    return ControlSetup(
+        bench=bench,
+        experiment=exp,
+        trajectory=trajectory,
+        gains=gains,
+        mode=mode or bench.mode,
+        n_periods=max(2, round(duration / bench.period_s)),
+        effects=effects,
+        seed=seed,
+        notes=notes,
+    )
+
+
+def _controller(setup: ControlSetup, scheme: str, theta: np.ndarray) -> Controller:
+    return make_controller(
+        scheme,
+        theta,
+        setup.gains,
+        setup.bench.torque_limit_Nm,
+        q_typical=setup.experiment.typical_q_rad,
+        friction_velocity=setup.experiment.ct_friction_velocity,
+    )
+
+
+def run_scheme(
+    setup: ControlSetup,
+    scheme: str,
+    params: LabelledParams,
+    out_dir: str | Path,
+    *,
+    plot: bool = True,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Run one scheme over the bench and record it; returns the run's summary (control.json)."""
+    controller = _controller(setup, scheme, params.params.theta)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    h = setup.period_s
+    realtime = setup.mode == "realtime"
+
+    def meta(channel: dict[str, Any]) -> dict[str, Any]:
+        return {
+            **bench_meta("hil control", setup.bench, channel, setup.mode),
+            "duration_s": setup.n_periods * h,
+            "scheme": scheme,
+            "params": params.describe(),
+            "typical_inertia_J": controller.J.tolist(),
+            **{k: v for k, v in setup.describe().items() if k not in ("bench", "mode")},
+            "robot": setup.bench.robot,
+        }
+
+    with ControlLog(out / CONTROL_CSV, controller.part_names, 1 if realtime else 50) as log:
+        command = TrackingCommand(controller, setup.trajectory, h, setup.n_periods, log)
+        run = record_over_bench(
+            setup.bench,
+            out,
+            command,
+            setup.n_periods,
+            meta,
+            mode=setup.mode,
+            effects=setup.effects,
+            seed=setup.seed,
+            progress=progress,
+        )
+    result = run.result
+    summary: dict[str, Any] = {
+        "scheme": scheme,
+        "params": params.label,
+        "out_dir": str(out),
+        "signals": str(out / "signals.csv"),
+        "status": result.status,
+        "reason": run.reason,
+        "rows": result.rows,
+        "realtime_factor": round(run.realtime_factor, 2) if run.realtime_factor else None,
+        "clipped_cycles": list(command.clipped_cycles),
+        "peak_torque_law_Nm": list(command.peak_tau_law),
+        "torque_limit_Nm": list(setup.bench.torque_limit_Nm),
+        "typical_inertia_J": controller.J.tolist(),
+        "plots": [],
+    }
+    if result.rows >= 2:
+        rec = read_signals(out)
+        summary.update(tracking_errors(sample_times(rec), rec.q, setup.trajectory))
+        if plot:
+            from hil.control.plots import plot_run
+
+            summary["plots"] = [
+                str(p) for p in plot_run(out, setup.trajectory, scheme, params.label)
+            ]
+    write_json_atomic(out / CONTROL_JSON, summary)
+    return summary
+
+
+def run_control(
+    bench_name: str,
+    scheme: str,
+    out_dir: str | Path,
+    *,
+    params: str | LabelledParams | ParamSet | None = None,
+    experiment: str = DEFAULT_EXPERIMENT,
+    duration_s: float | None = None,
+    mode: str | None = None,
+    effects: str | None = None,
+    seed: int | None = None,
+    kp: Sequence[float] | None = None,
+    kv: Sequence[float] | None = None,
+    confirm_real: bool = False,
+    plot: bool = True,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """`hil control --scheme S`: one run with the profile's θ or those of ``params``."""
+    if scheme not in SCHEMES:
+        raise UsageError(f"unknown scheme {scheme!r}; expected one of {', '.join(SCHEMES)}")
+    setup = prepare(
+        bench_name,
+        experiment=experiment,
+        duration_s=duration_s,
+        mode=mode,
+        effects=effects,
+        seed=seed,
+        kp=kp,
+        kv=kv,
+        confirm_real=confirm_real,
+    )
+    (chosen,) = parameter_sets(
+        [params] if params is not None else [],
+        include_profile=params is None,
+        robot=setup.bench.robot,
+    )
+    summary = run_scheme(setup, scheme, chosen, out_dir, plot=plot, progress=progress)
+    return {
+        "kind": "hil control",
+        **setup.describe(),
+        "params": chosen.describe(),
+        "reference_torque": reference_torque_margin(
+            chosen.params.theta, setup.trajectory, setup.bench.torque_limit_Nm, setup.period_s
+        ),
+        "run": summary,
+    }
+
+
+# ---- comparison (Table 2) ---------------------------------------------------------------------
+def compare_schemes(
+    bench: str,
+    out_dir: str | Path,
+    *,
+    duration_s: float | None = None,
+    params: Sequence[str | LabelledParams | ParamSet] = (),
+    include_profile: bool = True,
+    schemes: Sequence[str] = SCHEMES,
+    experiment: str = DEFAULT_EXPERIMENT,
+    mode: str | None = None,
+    effects: str | None = None,
+    seed: int | None = None,
+    kp: Sequence[float] | None = None,
+    kv: Sequence[float] | None = None,
+    confirm_real: bool = False,
+    plot: bool = True,
+    progress: bool = True,
+    on_run: Callable[[dict[str, Any]], None] | None = None,
+) -> dict[str, Any]:
+    """Run every scheme with every parameter set (the profile's θ first, then each of
+    ``params``: ``[LABEL=]FILE[#SCHEME]`` strings or loaded sets) and return the comparison
+    document: Table 2 (max and RMS position and velocity errors per joint per scheme) per
+    parameter set, clip counts, and each model-based scheme's gain over PD.
+
+    Runs go to ``out_dir/<params label>/<scheme>/``; the document to ``out_dir/compare.json``.
+    """
+    unknown = [s for s in schemes if s not in SCHEMES]
+    if unknown or not schemes:
+        raise UsageError(f"unknown scheme(s) {unknown}; expected some of {', '.join(SCHEMES)}")
+    setup = prepare(
+        bench,
+        experiment=experiment,
+        duration_s=duration_s,
+        mode=mode,
+        effects=effects,
+        seed=seed,
+        kp=kp,
+        kv=kv,
+        confirm_real=confirm_real,
+    )
+    sets = parameter_sets(params, include_profile=include_profile, robot=setup.bench.robot)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    results: dict[str, dict[str, Any]] = {}
+    ratios: dict[str, dict[str, list[float | None]]] = {}
+    failed = []
+    interrupted = False
+    for ps in sets:
+        if interrupted:
+            break
+        results[ps.label] = {}
+        for scheme in schemes:
+            run = run_scheme(
+                setup, scheme, ps, out / _safe(ps.label) / scheme, plot=plot, progress=progress
+            )
+            results[ps.label][scheme] = run
+            if run["status"] != "complete":
+                failed.append(f"{ps.label}/{scheme}: {run['status']} ({run['reason']})")
+            if on_run is not None:
+                on_run(run)
+            if run["status"] == "interrupted":  # Ctrl-C stops the comparison, not just one run
+                interrupted = True
+                break
+        ratios[ps.label] = improvement_over_pd(results[ps.label])
+    sets = [ps for ps in sets if ps.label in results]
+    doc: dict[str, Any] = {
+        "kind": "hil control compare",
+        **setup.describe(),
+        "schemes": list(schemes),
+        "parameter_sets": [ps.describe() for ps in sets],
+        "reference_torque": {
+            ps.label: reference_torque_margin(
+                ps.params.theta, setup.trajectory, setup.bench.torque_limit_Nm, setup.period_s
+            )
+            for ps in sets
+        },
+        "results": results,
+        "max_position_error_reduction_vs_pd": ratios,
+        "status": "interrupted" if interrupted else "failed" if failed else "complete",
+        "failures": failed,
+        "out_dir": str(out),
+        "plots": [],
+    }
+    if plot:
+        from hil.control.plots import plot_comparison
+
+        doc["plots"] = [
+            str(p)
+            for ps in sets
+            for p in plot_comparison(
+                out, results[ps.label], setup.trajectory, ps.label, _safe(ps.label)
+            )
+        ]
+    write_json_atomic(out / "compare.json", doc)
+    return doc
+
+
+def improvement_over_pd(runs: dict[str, dict[str, Any]]) -> dict[str, list[float | None]]:
+    """max |e| of PD / max |e| of each scheme, per joint (None where a number is missing)."""
+    pd = runs.get("pd", {}).get("max_position_error_rad")
+    out: dict[str, list[float | None]] = {}
+    if pd is None:
+        return out
+    for scheme, run in runs.items():
+        err = run.get("max_position_error_rad")
+        if scheme == "pd" or err is None:
+            continue
+        out[scheme] = [p / e if e > 0 else None for p, e in zip(pd, err, strict=True)]
+    return out
+
+
+def _safe(label: str) -> str:
+    """A parameter-set label as one directory name."""
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in label) or "params"
+
+
+# ---- text output ------------------------------------------------------------------------------
+def format_table(doc: dict[str, Any]) -> str:
+    """Table 2 of Khosla & Kanade (1987) per parameter set: joints as rows, schemes as column
+    pairs (position, velocity error); once for the maximum and once for the RMS errors."""
+    lines: list[str] = []
+    schemes = doc["schemes"]
+    width = 21
+    for ps in doc["parameter_sets"]:
+        runs = doc["results"][ps["label"]]
+        lines.append(f"parameters: {ps['label']} ({ps['source']})")
+        for stat, title in (("max", "maximum"), ("rms", "RMS")):
+            lines.append(f"  {title} tracking errors, position [rad] / velocity [rad/s]")
+            lines.append("  joint " + "".join(f"{s.upper():>{width}}" for s in schemes))
+            for j in range(2):
+                cells = []
+                for s in schemes:
+                    run = runs.get(s, {})  # absent if the comparison was interrupted
+                    pos = run.get(f"{stat}_position_error_rad")
+                    vel = run.get(f"{stat}_velocity_error_rad_s")
+                    cell = "-" if pos is None else f"{pos[j]:.4f} / {vel[j]:.3f}"
+                    cells.append(f"{cell:>{width}}")
+                lines.append(f"  {j + 1:>5} " + "".join(cells))
+        clips = ", ".join(
+            f"{s.upper()} {runs[s]['clipped_cycles'][0]}/{runs[s]['clipped_cycles'][1]}"
+            for s in schemes
+            if s in runs
+        )
+        lines.append(f"  clipped cycles (joint 1/2): {clips}")
+        ratio = doc["max_position_error_reduction_vs_pd"].get(ps["label"], {})
+        if ratio:
+            parts = [
+                f"{s.upper()} " + "/".join("-" if r is None else f"{r:.1f}x" for r in v)
+                for s, v in ratio.items()
+            ]
+            lines.append("  max position error of PD / scheme (joint 1/2): " + ", ".join(parts))
+        lines.append("")
+    if doc.get("failures"):
+        lines.append("failed runs: " + "; ".join(doc["failures"]))
+    return "\n".join(lines).rstrip()

@@ -1,0 +1,132 @@
+"""`hil diagnose RECORDING [RECORDING ...] --robot cicese [--params FILE] [--out DIR] [--json]`:
+find the physics the 9-parameter model leaves out (docs/diagnosis.md).
+
+Reads recordings in the standard format (a run directory or a CSV with t,q1,q2,tau1,tau2), from
+this bench or a real one; prints the findings and the before/after fit in words, or one JSON
+document with ``--json``; writes ``diagnosis.json`` and plots to ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from drivers.recording import RecordingError, write_json_atomic
+from hil.cli_options import (
+    add_out_options,
+    add_recording_options,
+    prepare_out_dir,
+    read_recording,
+)
+from hil.diagnose.report import diagnose, percent
+from hil.model.params import ParamsError, load_params, robot_params
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("recordings", nargs="+", help="run directories or CSV files (t,q1,q2,tau1,tau2)")
+    p.add_argument(
+        "--robot", default="cicese", help="robot profile: the reference θ (default cicese)"
+    )
+    p.add_argument(
+        "--params",
+        default=None,
+        help="params.json (hil identify): the nominal model's θ for the before/after fit and the "
+        "reference for telling which joint a torque gain error is on",
+    )
+    p.add_argument("--out", default=None, help="write diagnosis.json and plots here")
+    add_out_options(p)
+    add_recording_options(p)
+    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+
+
+def _progress(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def main(args: argparse.Namespace) -> int:
+    try:
+        if args.out:
+            prepare_out_dir(args.out, args.overwrite, inputs=args.recordings)
+        recs = [
+            read_recording(args, path, command="diagnose", min_rows=2) for path in args.recordings
+        ]
+        reference = robot_params(args.robot).theta
+        nominal = None
+        if args.params:
+            nominal = load_params(args.params).theta
+            reference = nominal
+    except (RecordingError, ParamsError, OSError, ValueError) as exc:
+        print(f"hil diagnose: error: {exc}", file=sys.stderr)
+        return 2
+    for rec in recs:
+        if rec.meta.get("status") not in (None, "complete"):
+            _progress(
+                f"hil diagnose: note: {rec.path} is a {rec.meta.get('status')} recording; "
+                f"using its {len(rec)} rows"
+            )
+    try:
+        result = diagnose(recs, reference, nominal_theta=nominal, progress=_progress)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        print(f"hil diagnose: error: {exc}", file=sys.stderr)
+        return 2
+    doc = result.document
+    if args.out:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(out / "diagnosis.json", doc)
+        if not args.no_plots:
+            from hil.diagnose.plots import plot_diagnosis
+
+            doc["plots"] = [str(p) for p in plot_diagnosis(result, out)]
+            write_json_atomic(out / "diagnosis.json", doc)
+    if args.json:
+        print(json.dumps(doc, default=float))
+    else:
+        print(format_report(doc))
+    return 0
+
+
+def format_report(doc: dict) -> str:
+    lines = ["Mismatch diagnosis", ""]
+    if not doc["findings"]:
+        lines.append("Findings: none.")
+    else:
+        lines.append("Findings:")
+        for f in doc["findings"]:
+            est = ", ".join(f"{k} {v}" for k, v in f["estimate"].items())
+            ev = f["evidence"]
+            conf = (
+                f"  (confounded with {', '.join(f['confounded_with'])})"
+                if f.get("confounded_with")
+                else ""
+            )
+            lines.append(
+                f"  {f['effect']:18s} joint {f['joint'] or 'both'}: {est}; held-out error "
+                f"-{100 * ev.get('held_out_error_reduction', 0):.1f} % in "
+                f"{ev.get('blocks_improved', '?')}/{ev.get('blocks', '?')} blocks{conf}"
+            )
+    if doc.get("timing"):
+        lines += ["", "Timing (from the time stamps):"]
+        lines += [f"  {t['note']}" for t in doc["timing"]]  # each note names its kind
+    fit = doc["fit"]
+    lines += ["", f"Fit on held-out data ({fit['held_out']}), NRMSE per joint:"]
+    for name in ("before", "after"):
+        t = fit[name]["torque_nrmse"]
+        pz = fit[name]["position_nrmse"]
+        pos = f"; simulated position {percent(pz[0])} / {percent(pz[1])}" if pz else ""
+        lines.append(f"  {name:6s}: torque {percent(t[0])} / {percent(t[1])}{pos}")
+    lines += ["", "Where the nominal model's residual lives:"]
+    for j in doc["location"]["joints"]:
+        carried = ", ".join(j["carried_by"]) or "nothing in particular (noise-like)"
+        lines.append(
+            f"  joint {j['joint']}: RMS {j['residual_rms_Nm']:.3g} Nm "
+            f"(robust scale {j['robust_scale_Nm']:.3g} Nm), "
+            f"carried by {carried}"
+        )
+    lines += ["", doc["summary"]]
+    return "\n".join(lines)

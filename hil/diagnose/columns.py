@@ -1,0 +1,398 @@
+"""Regression columns of the physics a 9-parameter model leaves out (the diagnosis vocabulary).
+
+The nominal model is the momentum balance of Reyes & Kelly (1997) eq. (24) written over sample
+intervals as the ``exact`` regressions of :mod:`hil.model.regressors` do: y(k) = F[τ](k) ≈ Ψ(k) θ,
+one
+row per joint, F a moving average over a short window (:func:`recording_rows`). Every candidate
+below adds columns X so that y ≈ Ψ θ + X β with β its physical parameters, built over the same
+intervals and through the same filter as Ψ, so the extended regression is as consistent as the
+nominal one. Equations (τ the
+commanded torque, τ_a the torque applied to the shaft, q the encoder reading, q̇ its velocity):
+
+``torque_offset``      τ_a = τ + c                         X = −1,                 β = c [Nm]
+``coulomb_asymmetry``  f = F⁺ for q̇ > 0, −F⁻ for q̇ < 0: the same column as a torque offset
+                       (F± = θ_fc ∓ c), see :func:`offset_column` and docs/diagnosis.md
+``torque_gain``        τ_a = (1 + r) τ                     X = −F[τ_j],            β = r
+``cogging``            τ_a = τ + A sin(n q + φ)            X = −[sin nq, cos nq],  β = A(cos, sin)φ
+``stribeck``           f += ΔF sgn(q̇) exp(−(|q̇|/v_s)^δ)    X = +that shape,         β = ΔF [Nm]
+``actuator_lag``       T τ̇_a + τ_a = τ (first-order lag)   X ≈ F[τ̇], F[τ̈] (two probe lags)
+``transport_delay``    τ_a(t) = τ(t − d)                    the same columns (decided later)
+``angle_offset``       q = q_true + δ                       X = −∂(Ψθ)/∂q_j,        β = δ [rad]
+
+Lag and delay share their first-order column; :func:`lagged_torque_rows` and
+:func:`delayed_torque_rows` give the exact shaft torques that tell them apart. Pure functions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter
+
+from hil.model.regressors import (
+    _GL_NODES,
+    _GL_WEIGHTS,
+    _hermite,
+    central_difference,
+    kinematics,
+    quantized_stick,
+    raw_rows,
+    stick_weights,
+)
+
+# Window of the moving-average filter F, in seconds (20 ms: 8 intervals at 400 Hz, about the
+# noise bandwidth of the identification's λ = 50 rad/s low-pass). A finite window matters here:
+# a stuck interval spoils only the rows whose window holds it, where the low-pass spreads it over
+# ~55 rows, and a joint that reverses often would leave few rows to diagnose. It is a time, not a
+# count: at 1 kHz an 8-interval window left the momentum differences so noisy against their
+# signal that least squares shrank θ (errors in variables) and a 2 % "gain error" appeared on a
+# null recording.
+WINDOW_S = 0.02
+# Intervals without encoder motion or with a velocity reversal, and those within this time either
+# side, are left out: the joint comes to rest or breaks away inside them, so part of each carries
+# static friction the model has no term for (tens of σ of residual on joint 2 otherwise).
+STICK_GUARD_S = 0.005
+
+
+def window_intervals(h: float) -> int:
+    """The moving-average window for sample period ``h`` (at least 4 intervals)."""
+    return max(4, round(WINDOW_S / h))
+
+
+# Noise from the data (docs/diagnosis.md, "Noise and time stamps"): position noise σ_q is the
+# larger of the encoder quantum's Δ/√12 (Δ the smallest step seen) and what the third
+# differences hold (Δ³q of a smooth motion is ~0, of white noise has variance 20 σ_q²); a
+# velocity fitted over 2m + 1 samples then has noise σ_v(m) = σ_q √(3 / (m(m+1)(2m+1))) / h,
+# and a window of W intervals leaves
+# √2 σ_v / (W h) in the momentum differences. m grows until σ_v is VELOCITY_NOISE of the
+# velocity's RMS (at most MAX_HALF_WINDOW_S either side: the fit's own bias grows as (ω m h)²);
+# W until the momentum noise is MOMENTUM_NOISE of the acceleration's RMS (least squares shrinks
+# θ by about its square, errors in variables), never below WINDOW_S, at most MAX_WINDOW_S.
+VELOCITY_NOISE = 0.01
+MOMENTUM_NOISE = 0.02
+MAX_HALF_WINDOW_S = 0.005
+MAX_WINDOW_S = 0.2
+# An interval this many times the median is a gap (a stall, dropped samples): no row spans it.
+GAP_FACTOR = 3.0
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """What the data say about their own noise, per joint, and the windows it implies."""
+
+    quantum_rad: tuple[float, float]
+    velocity_noise_rad_s: tuple[float, float]  # of the velocity estimate actually used
+    half_window: int  # samples either side of each velocity estimate
+    window: int  # intervals of the moving-average filter F
+    irregular_intervals: int  # intervals off the median by more than 1 %
+    gaps: int  # intervals over GAP_FACTOR × the median
+
+    def as_dict(self, h: float) -> dict[str, object]:
+        return {
+            "encoder_quantum_rad": [float(f"{x:.3g}") for x in self.quantum_rad],
+            "velocity_noise_rad_s": [float(f"{x:.3g}") for x in self.velocity_noise_rad_s],
+            "velocity_half_window": self.half_window,
+            "filter_window_s": round(self.window * h, 4),
+            "irregular_intervals": self.irregular_intervals,
+            "gaps": self.gaps,
+        }
+
+
+def _velocity_noise(sigma_q: np.ndarray, h: float, m: int) -> np.ndarray:
+    return sigma_q * np.sqrt(3.0 / (m * (m + 1) * (2 * m + 1))) / h
+
+
+def noise_model(q: np.ndarray, t: np.ndarray) -> NoiseModel:
+    """Encoder quantum, velocity-estimate noise, and the windows they call for (module doc)."""
+    dt = np.diff(t)
+    h = float(np.median(dt))
+    steps = np.abs(np.diff(q, axis=0))
+    quantum = np.array([float(s[s > 0].min()) if np.any(s > 0) else 0.0 for s in steps.T])
+    third = np.diff(q, 3, axis=0)
+    sigma_q = np.maximum(quantum / np.sqrt(12.0), np.sqrt(np.mean(third**2, axis=0) / 20.0))
+    v = np.diff(q, axis=0) / dt[:, None]
+    v_rms = np.sqrt(np.mean(v**2, axis=0))
+    s = 10  # acceleration on a 10-sample scale, where quantization is small against motion
+    if len(q) > 2 * s + 1:
+        a = (q[2 * s :] - 2 * q[s:-s] + q[: -2 * s]) / (s * h) ** 2
+        a_rms = np.sqrt(np.mean(a**2, axis=0))
+    else:
+        a_rms = np.full(2, np.inf)
+    moving = v_rms > 0
+    m = 1
+    while m * h < MAX_HALF_WINDOW_S and np.any(
+        _velocity_noise(sigma_q, h, m)[moving] > VELOCITY_NOISE * v_rms[moving]
+    ):
+        m += 1
+    sigma_v = _velocity_noise(sigma_q, h, m)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        need = np.where(a_rms > 0, np.sqrt(2) * sigma_v / (MOMENTUM_NOISE * a_rms * h), 0.0)
+    window = max(window_intervals(h), int(np.ceil(np.max(need[np.isfinite(need)], initial=0))))
+    window = min(window, max(window_intervals(h), round(MAX_WINDOW_S / h)))
+    return NoiseModel(
+        (float(quantum[0]), float(quantum[1])),
+        (float(sigma_v[0]), float(sigma_v[1])),
+        m,
+        window,
+        int(np.sum(np.abs(dt / h - 1) > 0.01)),
+        int(np.sum(dt > GAP_FACTOR * h)),
+    )
+
+
+@dataclass(frozen=True)
+class RecordingRows:
+    """One recording's nominal regression y ≈ Ψ θ (rows (K, 2), Ψ (K, 2, 9), weights (K, 2))
+    and what the candidate columns are built from.
+
+    Row i is the momentum balance (Reyes & Kelly 1997, eq. (24) without its filter, over sample
+    intervals as :mod:`hil.model.regressors` ``exact`` writes it) averaged over the ``window``
+    intervals
+    ending at interval ``k[i]``. ``q_nodes``, ``v_nodes`` (nodes, K, 2): positions and velocities
+    at the Gauss–Legendre nodes of each interval on the cubic Hermite interpolant (the one
+    :func:`hil.model.regressors.interval_integrals` uses)."""
+
+    y: np.ndarray
+    Psi: np.ndarray
+    weights: np.ndarray
+    q: np.ndarray
+    tau: np.ndarray
+    h: float
+    window: int
+    k: np.ndarray
+    q_nodes: np.ndarray
+    v_nodes: np.ndarray
+    stamps: np.ndarray | None = None  # real sample times when the rows use them (else k·h)
+    half_window: int = 1  # samples either side of each velocity estimate
+    noise: NoiseModel | None = None
+
+    @property
+    def rows(self) -> int:
+        return len(self.k)
+
+    @property
+    def t(self) -> np.ndarray:
+        """Time of each row's interval start (s)."""
+        return self.k * self.h if self.stamps is None else self.stamps[self.k]
+
+    @property
+    def v_mean(self) -> np.ndarray:
+        """Mean velocity over each row's interval (K, 2)."""
+        return _node_average(self.v_nodes)
+
+    @property
+    def q_mean(self) -> np.ndarray:
+        """Mean position over each row's interval (K, 2)."""
+        return _node_average(self.q_nodes)
+
+
+def moving_average(x: np.ndarray, window: int) -> np.ndarray:
+    """F: the mean of the last ``window`` rows (fewer at the start), along the first axis."""
+    c = np.cumsum(x, axis=0)
+    out = c.copy()
+    out[window:] = c[window:] - c[:-window]
+    n = np.minimum(np.arange(1, len(x) + 1), window).reshape((-1,) + (1,) * (x.ndim - 1))
+    return out / n
+
+
+def _momentum_rows(
+    q: np.ndarray,
+    tau: np.ndarray,
+    h: float,
+    t: np.ndarray | None = None,
+    half_window: int = 1,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Unfiltered interval rows: k, τ_k (K, 2), [ΔP + ∫R dt]/h_k (K, 2, 9), interval stuck
+    (K, 2), sample velocities (N, 2). ``t``: real time stamps (each interval its own h_k)."""
+    kin = kinematics("exact", q, h, t=t, half_window=half_window)
+    raw = raw_rows("filtered_dynamic", "exact", q, tau, h, kin)
+    assert kin.intervals is not None
+    return kin.intervals.k, raw.y, raw.parts[0][1], kin.intervals.stuck, kin.v
+
+
+def recording_rows(
+    q: np.ndarray,
+    tau: np.ndarray,
+    h: float,
+    window: int | None = None,
+    t: np.ndarray | None = None,
+) -> RecordingRows:
+    """The nominal regression of one recording and its interval nodes (``window``: intervals
+    of F, default from the data's noise, :func:`noise_model`). ``t``: the real sample times;
+    when they are regular and the encoder fine, the rows are those of equal intervals h."""
+    q, tau = np.asarray(q, float), np.asarray(tau, float)
+    times = np.arange(len(q)) * h if t is None else np.asarray(t, float)
+    noise = noise_model(q, times) if len(q) > 2 else None
+    if window is None:
+        window = noise.window if noise is not None else window_intervals(h)
+    if len(q) < 4 * window:
+        raise ValueError(f"need at least {4 * window} samples to diagnose, got {len(q)}")
+    regular = noise is None or (noise.irregular_intervals == 0 and noise.half_window == 1)
+    if regular:
+        k, y_raw, psi_raw, _stuck, _v = _momentum_rows(q, tau, h)
+        v = central_difference(q, h)
+        # No encoder motion over the interval, or the velocity reverses in it: the joint may
+        # stick for part of it.
+        still = (q[k + 1] == q[k]) | (np.sign(v[k]) != np.sign(v[k + 1]))
+        hk: float | np.ndarray = h
+        stamps, half = None, 1
+    else:
+        assert noise is not None
+        half = noise.half_window
+        k, y_raw, psi_raw, _stuck, v = _momentum_rows(q, tau, h, times, half)
+        # A coarse encoder stays on one count through a reversal: a stick only when the run
+        # of unchanged counts outlasts that (hil.model.regressors.quantized_stick). A gap (a stall,
+        # dropped samples) is left out like a stick: nothing is known inside it.
+        dt = np.diff(times)
+        still = quantized_stick(q, times)[k] | (np.sign(v[k]) != np.sign(v[k + 1]))
+        still |= (dt[k] > GAP_FACTOR * h)[:, None]
+        hk = dt[k][None, :, None]
+        stamps = times
+    guarded = still.copy()
+    for shift in range(1, max(1, round(STICK_GUARD_S / h)) + 1):
+        guarded[:-shift] |= still[shift:]
+        guarded[shift:] |= still[:-shift]
+    weights = stick_weights(guarded, window - 1)
+    weights[: window - 1] = 0.0  # windows not yet full
+    nodes = _GL_NODES[:, None, None]
+    qs, ds = _hermite(q[k][None], q[k + 1][None], hk * v[k][None], hk * v[k + 1][None], nodes)
+    return RecordingRows(
+        moving_average(y_raw, window),
+        moving_average(psi_raw, window),
+        weights,
+        q,
+        tau,
+        h,
+        window,
+        k,
+        qs,
+        ds / hk,
+        stamps,
+        half,
+        noise,
+    )
+
+
+def _filtered(rows: RecordingRows, raw: np.ndarray) -> np.ndarray:
+    """F of per-interval averages ``raw`` (K, ...), as Ψ and y have."""
+    return moving_average(raw, rows.window)
+
+
+def _node_average(values: np.ndarray) -> np.ndarray:
+    """(1/h)∫ over each interval by Gauss–Legendre on the nodes: (nodes, K, ...) → (K, ...)."""
+    return np.tensordot(_GL_WEIGHTS, values, axes=(0, 0))
+
+
+def _on_joint(column: np.ndarray, joint: int) -> np.ndarray:
+    """(K, p) column(s) of one joint's row → (K, 2, p) with zeros in the other row."""
+    out = np.zeros((column.shape[0], 2, column.shape[1]))
+    out[:, joint, :] = column
+    return out
+
+
+def offset_column(rows: RecordingRows, joint: int) -> np.ndarray:
+    """Torque offset c on ``joint`` (τ_a = τ + c): X = −F[1]. A direction-dependent Coulomb
+    friction gives the same column on every row the model uses (rows with the joint stuck carry
+    weight 0): F⁺ = θ_fc − c, F⁻ = θ_fc + c."""
+    return _on_joint(-_filtered(rows, np.ones((rows.rows, 1))), joint)
+
+
+def gain_column(rows: RecordingRows, joint: int) -> np.ndarray:
+    """Torque gain error r on ``joint`` (τ_a = (1 + r) τ): X = −F[τ_j] = −y_j."""
+    return _on_joint(-rows.y[:, joint : joint + 1], joint)
+
+
+def cogging_columns(rows: RecordingRows, joint: int, periods_per_rev: float) -> np.ndarray:
+    """Cogging A sin(n q + φ) added to the shaft torque: X = −F[sin n q, cos n q] (K, 2, 2)."""
+    return cogging_columns_many(rows, joint, [periods_per_rev])[:, :, 0, :]
+
+
+def cogging_columns_many(
+    rows: RecordingRows, joint: int, periods_per_rev: list[float] | tuple[float, ...]
+) -> np.ndarray:
+    """:func:`cogging_columns` of several periods at once, (K, 2, V, 2): e^{i n q} at the nodes
+    by one complex power and then a rotation per step of n (no sine per variant), one node
+    average and one filter pass for all."""
+    q = rows.q_nodes[:, :, joint]  # (nodes, K)
+    n = np.asarray(periods_per_rev, float)
+    mean = np.empty((q.shape[1], len(n)), complex)  # (K, V): node average of e^{i n q}
+    z = np.exp(1j * n[0] * q)
+    once = np.exp(1j * q)
+    for i in range(len(n)):
+        if i:
+            step = n[i] - n[i - 1]
+            z *= once if step == 1 else np.exp(1j * step * q)
+        mean[:, i] = _GL_WEIGHTS @ z
+    raw = np.stack([mean.imag, mean.real], axis=-1)  # sin, cos
+    out = np.zeros((rows.rows, 2, len(n), 2))
+    out[:, joint] = -_filtered(rows, raw)
+    return out
+
+
+def stribeck_shape(v: np.ndarray, velocity_rad_s: float, exponent: float = 2.0) -> np.ndarray:
+    """sgn(q̇) exp(−(|q̇|/v_s)^δ): the Stribeck excess of friction per Nm of breakaway excess."""
+    return np.sign(v) * np.exp(-((np.abs(v) / velocity_rad_s) ** exponent))
+
+
+def stribeck_column(
+    rows: RecordingRows, joint: int, velocity_rad_s: float, exponent: float = 2.0
+) -> np.ndarray:
+    """Stribeck friction ΔF sgn(q̇) exp(−(|q̇|/v_s)^δ) on ``joint``: X = +F[shape] (K, 2, 1)."""
+    shape = stribeck_shape(rows.v_nodes[:, :, joint], velocity_rad_s, exponent)
+    return _on_joint(_filtered(rows, _node_average(shape)[:, None]), joint)
+
+
+def lagged_torque_rows(rows: RecordingRows, time_constant_s: float) -> np.ndarray:
+    """F[τ_a] for τ_a the first-order lag of the held torque (exact under zero-order hold), (K, 2).
+
+    The lag state x_k at t_k obeys x_{k+1} = e^{−h/T} x_k + (1 − e^{−h/T}) τ_k and the average of
+    τ_a over [t_k, t_{k+1}) is τ_k + (x_k − τ_k) (T/h)(1 − e^{−h/T}) (the virtual robot's
+    ``amplifier_lag_step``); x_0 = τ_0 (the recording starts settled)."""
+    tau, h = rows.tau, rows.h
+    if time_constant_s <= 0:
+        return rows.y.copy()
+    decay = np.exp(-h / time_constant_s)
+    free = decay ** np.arange(len(tau))[:, None] * tau[0]  # x_0 = τ_0
+    x = lfilter([0.0, 1.0 - decay], [1.0, -decay], tau, axis=0) + free
+    mean = tau + (x - tau) * (time_constant_s / h) * (1.0 - decay)
+    return _filtered(rows, mean[rows.k])
+
+
+def delayed_torque_rows(rows: RecordingRows, delay_s: float) -> np.ndarray:
+    """F[τ_a] for τ_a(t) = τ(t − d) of the held torque (exact under zero-order hold), (K, 2):
+    with d = (m + f) h, the average over [t_k, t_{k+1}) is (1 − f) τ_{k−m} + f τ_{k−m−1}."""
+    tau, h = rows.tau, rows.h
+    m = int(np.floor(delay_s / h))
+    f = delay_s / h - m
+    idx = np.arange(len(tau))
+    a = tau[np.clip(idx - m, 0, None)]
+    b = tau[np.clip(idx - m - 1, 0, None)]
+    return _filtered(rows, ((1.0 - f) * a + f * b)[rows.k])
+
+
+# Probe lags for the rate columns: F[τ − τ_a]/T → F[τ̇] as T → 0; a second, longer probe spans
+# the second-order term (T² τ̈), so a lag of a few ms leaves no residual for another candidate
+# to pick up while the exact lag or delay is decided later.
+RATE_PROBES_S = (1e-4, 4e-3)
+
+
+def torque_rate_column(rows: RecordingRows, joint: int) -> np.ndarray:
+    """Columns of a lag or delay on ``joint``: X = F[τ − τ_a(T_i)]/T_i for the two probe lags
+    (K, 2, 2); for a small lag T, β₁ + β₂ ≈ T (both columns tend to F[τ̇])."""
+    cols = [(rows.y - lagged_torque_rows(rows, T)) / T for T in RATE_PROBES_S]
+    return _on_joint(np.stack([c[:, joint] for c in cols], axis=-1), joint)
+
+
+def angle_offset_column(
+    rows: RecordingRows, joint: int, theta: np.ndarray, step_rad: float = 1e-4
+) -> np.ndarray:
+    """Encoder zero offset δ on ``joint`` (reading = true angle + δ): the model holds at q − δ,
+    Ψ(q − δ e_j) θ ≈ Ψ(q) θ − δ ∂(Ψθ)/∂q_j, so X = −∂(Ψθ)/∂q_j (central difference), (K, 2, 1).
+    A constant shift leaves every velocity unchanged, so the rows are rebuilt exactly."""
+    shift = np.zeros(2)
+    shift[joint] = step_rad
+    args = (rows.h, rows.stamps, rows.half_window)
+    plus = moving_average(_momentum_rows(rows.q + shift, rows.tau, *args)[2], rows.window)
+    minus = moving_average(_momentum_rows(rows.q - shift, rows.tau, *args)[2], rows.window)
+    d = (plus - minus) @ np.asarray(theta, float) / (2 * step_rad)
+    return -d[:, :, None]

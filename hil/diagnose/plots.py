@@ -1,0 +1,94 @@
+"""Plots of a diagnosis: where the nominal residual lives, and the before/after fit."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+from hil.diagnose.report import DiagnosisResult, percent
+
+
+def plot_diagnosis(result: DiagnosisResult, out: Path) -> list[Path]:
+    """residual.png (against time, velocity and position, per joint) and fit.png (held-out
+    torque and simulated position, before and after)."""
+    loc = result.arrays["location"]
+    paths = []
+    fig, axes = plt.subplots(2, 3, figsize=(14, 7))
+    for j in (0, 1):
+        ok = loc["usable"][:, j]
+        e = loc["residual"][ok, j]
+        axes[j, 0].plot(loc["t"][ok], e, ".", ms=1)
+        axes[j, 0].set(
+            xlabel="t [s] (concatenated recordings)", ylabel=f"joint {j + 1} residual [Nm]"
+        )
+        axes[j, 1].plot(loc["v"][ok, j], e, ".", ms=1, alpha=0.4)
+        axes[j, 1].set(xlabel=f"q̇{j + 1} [rad/s]")
+        axes[j, 2].plot(loc["q"][ok, j], e, ".", ms=1, alpha=0.4)
+        axes[j, 2].set(xlabel=f"q{j + 1} [rad]")
+        for ax in axes[j]:
+            ax.grid(alpha=0.3)
+    found = (
+        ", ".join(
+            f"{f['effect']} (joint {f['joint'] or 'both'})" for f in result.document["findings"]
+        )
+        or "none"
+    )
+    fig.suptitle(
+        f"Nominal 9-parameter model: torque residual F[τ] − Ψθ̂. Findings: {found}", fontsize=10
+    )
+    fig.tight_layout()
+    paths.append(out / "residual.png")
+    fig.savefig(paths[-1], dpi=90)
+    plt.close(fig)
+
+    fig, axes = plt.subplots(2, 2, figsize=(14, 7), sharex="col")
+    test = result.arrays["test"]
+    fit = result.document["fit"]
+    for j in (0, 1):
+        ax = axes[j, 0]
+        idx = np.flatnonzero(test)
+        # rows the model cannot explain (a joint at rest or reversing) are gaps, not lines
+        gap = np.where(loc["usable"][idx, j], 0.0, np.nan)
+        for name, style in (("before", "-"), ("after", "-")):
+            err = result.arrays["torque"][idx, j] - result.arrays[f"pred_{name}"][idx, j]
+            ax.plot(
+                idx,
+                err + gap,
+                style,
+                lw=0.6,
+                label=f"{name} ({percent(fit[name]['torque_nrmse'][j])})",
+            )
+        ax.set(ylabel=f"joint {j + 1} torque error [Nm]", xlabel="held-out row")
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3)
+        sim = result.arrays["simulation"]
+        ax = axes[j, 1]
+        if sim:
+            ax.plot(sim["t"], sim["q"][:, j], "k", lw=1, label="recorded")
+            for name, style in (("before", "-"), ("after", "--")):
+                if name in sim:  # a fit that is not physical is not simulated
+                    ax.plot(
+                        sim["t"],
+                        sim[name][:, j],
+                        style,
+                        lw=0.8,
+                        label=f"{name} ({percent(fit[name]['position_nrmse'][j])})",
+                    )
+            ax.set(ylabel=f"q{j + 1} [rad]", xlabel="t [s]")
+            ax.legend(fontsize=8)
+            ax.grid(alpha=0.3)
+    fig.suptitle(
+        f"Held-out fit, before and after modelling the findings ({fit['held_out']}); "
+        "open-loop simulations restart every second",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    paths.append(out / "fit.png")
+    fig.savefig(paths[-1], dpi=90)
+    plt.close(fig)
+    return paths

@@ -1,0 +1,703 @@
+"""`hil identify`: run the excitation over a bench (or take a recording), identify θ1..θ9 with
+the three schemes of Reyes & Kelly (1997), print Table II, validate, write params.json and plots.
+
+Over a bench, recursive least squares also runs online, one update per control cycle while the
+experiment runs (:class:`hil.identify.online.OnlineIdentifier`); the report checks that its final θ̂
+equals the batch computation on the recording.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivers.arm import Sample
+from drivers.recording import Recording, read_signals, write_json_atomic
+from hil.cli_options import (
+    add_out_options,
+    add_recording_options,
+    prepare_out_dir,
+    read_recording,
+)
+from hil.identify.online import OnlineIdentifier
+from hil.identify.schemes import (
+    ESTIMATORS,
+    PAPER_TABLE_II,
+    SchemeResult,
+    format_table_ii,
+    identify,
+    irregular_times,
+    table_ii_rows,
+    validate,
+)
+from hil.model.closed_form import TERMS, THETA_NAMES, ArmModel
+from hil.model.params import robot_params, save_params
+from hil.model.regressors import DISCRETIZATIONS, SCHEMES
+
+PAPER_LAMBDA_NOTE = (
+    'the paper\'s "λ = 50 Hz" is read as λ = 50 rad/s in f(s) = λ/(s + λ) (about twice its '
+    "highest excitation frequency, 26 rad/s); --lambda 314.16 is the 2π·50 rad/s reading"
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    src = p.add_mutually_exclusive_group()
+    src.add_argument(
+        "--bench", help="bench profile to run the excitation over (default virtual-slcan)"
+    )
+    src.add_argument("--from", dest="from_recording", help="identify from this recording instead")
+    p.add_argument("--validate", help="held-out recording for validation (not used to fit)")
+    p.add_argument("--experiment", default="reyes-kelly", help="excitation (default: eqs. 31-32)")
+    p.add_argument(
+        "--validation-experiment",
+        default="validation-multisine",
+        help="held-out excitation run over the bench ('none' to skip)",
+    )
+    p.add_argument("--duration", type=float, default=None, help="seconds of excitation")
+    p.add_argument("--mode", choices=("lockstep", "realtime"), default=None)
+    p.add_argument("--effects", default=None, help="virtual bench: concealed effects profile")
+    p.add_argument("--seed", type=int, default=None, help="virtual bench: seed")
+    p.add_argument("--confirm-real", action="store_true", help="required for a real arm")
+    p.add_argument(
+        "--schemes",
+        default=",".join(SCHEMES),
+        help="comma-separated: filtered_dynamic,supplied_energy,filtered_power",
+    )
+    p.add_argument(
+        "--discretization",
+        choices=(*DISCRETIZATIONS, "both"),
+        default="exact",
+        help="exact (consistent, default), paper (faithful reproduction) or both",
+    )
+    p.add_argument(
+        "--lambda",
+        dest="lam",
+        type=float,
+        default=None,
+        help="filter bandwidth λ in rad/s (default 50 for the 9-parameter schemes ("
+        + PAPER_LAMBDA_NOTE
+        + "); for a model with terms or a foreign recording: twice the excitation bandwidth "
+        "read from the data)",
+    )
+    p.add_argument(
+        "--terms",
+        default=None,
+        help="model terms to identify, comma-separated from "
+        + ", ".join(TERMS)
+        + " ('' for none); default: the --robot profile's. With terms (or --format), "
+        "identification takes the model-object path: exact rows on the real time stamps, "
+        "bounded estimates, uncertainty (docs/real-data.md)",
+    )
+    p.add_argument(
+        "--window",
+        type=float,
+        default=None,
+        help="model-object path: seconds per restarted open-loop simulation window "
+        "(default 0.1 s: long enough to integrate the dynamics, short enough that a "
+        "closed-loop recording's model error cannot grow unchecked)",
+    )
+    p.add_argument("--estimator", choices=ESTIMATORS, default="rls", help="reported estimate")
+    p.add_argument("--robot", default=None, help="robot profile for the reference column")
+    p.add_argument(
+        "--params-scheme",
+        default="filtered_dynamic",
+        help="scheme selected in params.json (hil control/diagnose read that one by default)",
+    )
+    p.add_argument("--out", default="runs/identify", help="output directory")
+    add_out_options(p)
+    add_recording_options(p)
+    p.add_argument("--no-plot", action="store_true", help="skip the plots")
+    p.add_argument(
+        "--consistent",
+        action="store_true",
+        help="URDF arms (docs/urdf.md): constrain the fit to physically consistent parameters",
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+
+
+def _say(msg: str) -> None:
+    print(f"hil identify: {msg}", file=sys.stderr)
+
+
+def _record(
+    args: argparse.Namespace,
+    bench: str,
+    experiment: str,
+    out: Path,
+    online: OnlineIdentifier | None,
+) -> Recording:
+    from hil.bench.run import run_experiment
+
+    last: dict[str, Any] = {}
+
+    def observer(k: int, sample: Sample) -> None:
+        # sample k: q_k and the quantized torque of period k − 1, so row k − 1 is complete now
+        if online is not None and k > 0:
+            online.push(last["q"], sample.tau_Nm)
+        last["q"] = sample.q_rad
+
+    _say(f"running {experiment} over {bench} -> {out}")
+    run = run_experiment(
+        bench,
+        experiment,
+        out,
+        duration_s=args.duration,
+        mode=args.mode,
+        effects=args.effects,
+        seed=args.seed,
+        confirm_real=args.confirm_real,
+        plot=not args.no_plot,
+        progress=not args.json,
+        observer=observer,
+    )
+    if run["status"] != "complete":
+        raise RuntimeError(
+            f"{experiment} over {bench} {run['status']}: {run['reason']} "
+            f"({run['rows']} rows kept in {run['signals']})"
+        )
+    rec = read_signals(out)
+    if online is not None:
+        online.push(rec.q[-1], rec.tau[-1])  # the last row's torque is only in the recording
+    return rec
+
+
+def _scheme_json(res: SchemeResult, reference: np.ndarray, validation: dict) -> dict[str, Any]:
+    return {
+        "theta": res.theta.tolist(),
+        "relative_error": res.relative_error(reference).tolist(),
+        "estimator": res.estimator,
+        "theta_rls": res.theta_rls.tolist(),
+        "theta_ls": res.theta_ls.tolist(),
+        "theta_wls": res.theta_wls.tolist(),
+        "rows": res.rows,
+        "rows_excluded_stick": res.rows_excluded,
+        "physical_consistency": res.consistency,
+        "validation": {
+            name: {k: v for k, v in val.items() if k != "simulated_q"}
+            for name, val in validation.items()
+        },
+        "timing_s": res.timing_s,
+        "history": {"t": res.history_t.tolist(), "theta": res.history.tolist()},
+    }
+
+
+def main(args: argparse.Namespace) -> int:
+    prepare_out_dir(args.out, args.overwrite, inputs=(args.from_recording, args.validate))
+    report, text = run_identify(args)
+    print(json.dumps(report) if args.json else text)
+    return 0
+
+
+def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
+    """Everything `hil identify` does; returns the JSON report and the text to print."""
+    schemes = [s.strip() for s in args.schemes.split(",") if s.strip()]
+    unknown = [s for s in schemes if s not in SCHEMES]
+    if unknown or not schemes:
+        raise ValueError(
+            f"unknown scheme(s) {', '.join(unknown) or '(none given)'}; "
+            f"expected some of {', '.join(SCHEMES)}"
+        )
+    if args.params_scheme not in schemes:
+        raise ValueError(f"--params-scheme {args.params_scheme} is not among --schemes")
+    if args.lam is not None and not args.lam > 0:
+        raise ValueError(f"--lambda must be > 0 rad/s, got {args.lam}")
+    if args.from_recording and _urdf_robot(args):
+        return run_identify_urdf(args)
+    if getattr(args, "consistent", False):
+        raise ValueError(
+            "--consistent is for arms described by a URDF with --from (docs/urdf.md); the "
+            "2-DOF model path bounds its fit when least squares is not physical"
+        )
+    if args.from_recording and _model_path(args):
+        return run_identify_model(args)
+    if args.lam is None:
+        args.lam = 50.0
+    discretizations = ["exact", "paper"] if args.discretization == "both" else [args.discretization]
+    out = Path(args.out)
+
+    online = None
+    if args.from_recording:
+        fit = read_recording(args, args.from_recording, command="identify", min_rows=8)
+        held_out = (
+            read_recording(args, args.validate, command="identify", min_rows=2)
+            if args.validate
+            else None
+        )
+        robot = args.robot or fit.meta.get("robot") or "cicese"
+    else:
+        bench = args.bench or "virtual-slcan"
+        from profiles.bench import load_bench
+
+        robot = args.robot or load_bench(bench).robot
+        online = OnlineIdentifier(
+            load_bench(bench).period_s, schemes=schemes, discretization=discretizations[0],
+            lam=args.lam,
+        )  # fmt: skip
+        fit = _record(args, bench, args.experiment, out / "fit", online)
+        if args.validate:
+            held_out = read_recording(args, args.validate, command="identify", min_rows=2)
+        elif args.validation_experiment != "none":
+            held_out = _record(args, bench, args.validation_experiment, out / "validation", None)
+        else:
+            held_out = None
+    if len(fit) < 8:
+        raise ValueError(f"{fit.path}: only {len(fit)} rows, too short to identify")
+    out.mkdir(parents=True, exist_ok=True)  # after reading: a refused run writes nothing
+    reference = robot_params(robot)
+    h = fit.period_s
+
+    report: dict[str, Any] = {
+        "recording": str(fit.path),
+        "validation_recording": str(held_out.path) if held_out is not None else None,
+        "robot": robot,
+        "reference": {"source": reference.source, "theta": reference.theta.tolist()},
+        "names": list(THETA_NAMES),
+        "lambda_rad_s": args.lam,
+        "lambda_note": PAPER_LAMBDA_NOTE,
+        "estimator": args.estimator,
+        "period_s": h,
+        "rows": len(fit),
+        "paper_table_ii": PAPER_TABLE_II,
+        "discretizations": {},
+        "plots": [],
+    }
+    texts = []
+    all_results: dict[str, dict[str, SchemeResult]] = {}
+    for disc in discretizations:
+        _say(f"identifying ({disc}, λ = {args.lam:g} rad/s, {', '.join(schemes)})")
+        t0 = time.perf_counter()
+        times = irregular_times(fit)
+        if times is not None and disc == "exact":
+            _say("irregular sample intervals: exact rows use each interval's own length")
+        elif times is not None:
+            _say("irregular sample intervals: the paper discretization assumes k·h (its method)")
+        results = identify(
+            fit.q, fit.tau, h, schemes=schemes, discretization=disc, lam=args.lam,
+            estimator=args.estimator, t=times,
+        )  # fmt: skip
+        elapsed = time.perf_counter() - t0
+        all_results[disc] = results
+        entry: dict[str, Any] = {
+            "table_ii": table_ii_rows(reference.theta, results),
+            "schemes": {},
+            "timing_s": {
+                "total": elapsed,
+                "batch_least_squares": sum(
+                    r.timing_s["regression"] + r.timing_s["least_squares"] for r in results.values()
+                ),
+                "recursive_least_squares": sum(
+                    r.timing_s["regression"] + r.timing_s["recursive_least_squares"]
+                    for r in results.values()
+                ),
+            },
+        }
+        for scheme, res in results.items():
+            validation = {"fit": validate(res.theta, fit, lam=args.lam)}
+            if held_out is not None:
+                validation["held_out"] = validate(res.theta, held_out, lam=args.lam)
+            entry["schemes"][scheme] = _scheme_json(res, reference.theta, validation)
+            if not args.no_plot:
+                from hil.identify.plots import plot_estimates, plot_validation
+
+                p1 = plot_estimates(res, reference.theta, out / f"theta-{disc}-{scheme}.png")
+                panels = [
+                    (name, rec, validation[name]["simulated_q"],
+                     validation[name]["position_nrmse"])
+                    for name, rec in (("fit", fit), ("held_out", held_out))
+                    if rec is not None
+                ]  # fmt: skip
+                p2 = plot_validation(scheme, disc, panels, out / f"validation-{disc}-{scheme}.png")
+                report["plots"] += [str(p1), str(p2)]
+        report["discretizations"][disc] = entry
+        texts.append(
+            format_table_ii(
+                reference.theta,
+                results,
+                title=f"Table II layout — {disc} discretization, λ = {args.lam:g} rad/s, "
+                f"estimator {args.estimator} (relative error to {robot} profile)",
+            )
+        )
+
+    profile_validation = {"fit": validate(reference.theta, fit, lam=args.lam)}
+    if held_out is not None:
+        profile_validation["held_out"] = validate(reference.theta, held_out, lam=args.lam)
+    report["profile_validation"] = {
+        name: {k: v for k, v in val.items() if k != "simulated_q"}
+        for name, val in profile_validation.items()
+    }
+
+    if online is not None:
+        primary = all_results[discretizations[0]]
+        diffs = {
+            s: float(
+                np.max(
+                    np.abs(online.theta[s] - primary[s].theta_rls) / np.abs(primary[s].theta_rls)
+                )
+            )
+            for s in schemes
+        }
+        report["online"] = {
+            "discretization": discretizations[0],
+            "samples": online.samples,
+            "theta": {s: v.tolist() for s, v in online.theta.items()},
+            "max_relative_difference_to_batch_rls": diffs,
+            "cost_per_cycle_us": online.cost_per_sample_s() * 1e6,
+        }
+
+    params_files = []
+    for i, disc in enumerate(discretizations):
+        path = out / ("params.json" if i == 0 else f"params-{disc}.json")
+        save_params(
+            path,
+            {s: {"theta": r.theta, "discretization": disc, "lambda_rad_s": args.lam,
+                 "estimator": args.estimator, "physical_consistency": r.consistency}
+             for s, r in all_results[disc].items()},
+            selected=args.params_scheme,
+            robot=robot,
+            recording=str(fit.path),
+            discretization=disc,
+        )  # fmt: skip
+        params_files.append(str(path))
+    report["params_files"] = params_files
+    write_json_atomic(out / "identify.json", report)
+
+    lines = [
+        "\n\n".join(texts),
+        "",
+        _validation_text(report, discretizations, schemes, held_out is not None),
+    ]
+    if online is not None:
+        o = report["online"]
+        worst = max(o["max_relative_difference_to_batch_rls"].values())
+        lines.append(
+            f"\nonline RLS ({o['discretization']}, updated every cycle during the run): "
+            f"{o['cost_per_cycle_us']:.0f} µs per cycle for {len(schemes)} schemes; final θ̂ "
+            f"matches the batch RLS to {worst:.1e} (relative)"
+        )
+    lines.append(f"\nparameters: {', '.join(params_files)} (selected: {args.params_scheme})")
+    lines.append(f"report:     {out / 'identify.json'}")
+    if report["plots"]:
+        lines.append(f"plots:      {out}/theta-*.png, {out}/validation-*.png")
+    return report, "\n".join(lines)
+
+
+def _validation_text(
+    report: dict[str, Any], discretizations: list[str], schemes: list[str], held: bool
+) -> str:
+    lines = ["Validation (NRMSE per joint, %): position = open-loop simulation driven by the "
+             "recorded torques; torque = filtered torque prediction"]  # fmt: skip
+    head = f"{'':28s}{'fit position':>18s}"
+    if held:
+        head += f"{'held-out position':>22s}{'held-out torque':>20s}"
+    lines.append(head)
+
+    def row(label: str, val: dict[str, Any]) -> str:
+        fp = val["fit"]["position_nrmse"]
+        text = f"{label:28s}{100 * fp[0]:>8.2f}{100 * fp[1]:>10.2f}"
+        if held:
+            hp, ht = val["held_out"]["position_nrmse"], val["held_out"]["torque_nrmse"]
+            text += (
+                f"{100 * hp[0]:>11.2f}{100 * hp[1]:>11.2f}{100 * ht[0]:>10.2f}{100 * ht[1]:>10.2f}"
+            )
+        return text
+
+    lines.append(row("profile parameters", report["profile_validation"]))
+    for disc in discretizations:
+        for s in schemes:
+            lines.append(
+                row(f"{s} ({disc})", report["discretizations"][disc]["schemes"][s]["validation"])
+            )
+    return "\n".join(lines)
+
+
+# ---- the model-object path: real recordings, any model terms ---------------------------------
+
+SIMULATION_WINDOW_S = 0.1
+
+
+def _robot_terms(args: argparse.Namespace) -> tuple[str, tuple[str, ...]]:
+    from profiles.robot import load_robot
+
+    robot = args.robot or "cicese"
+    terms = load_robot(robot).terms
+    if args.terms is not None:
+        terms = tuple(t.strip() for t in args.terms.split(",") if t.strip())
+        ArmModel(terms)  # raises on an unknown or repeated term
+    return robot, terms
+
+
+def _model_path(args: argparse.Namespace) -> bool:
+    """Identify with a model object when the arm has terms, --terms is given, or the recording
+    is foreign (--format): the 9-parameter Table II path is the CICESE reproduction."""
+    if args.terms is not None or getattr(args, "recording_format", None):
+        return True
+    return bool(_robot_terms(args)[1])
+
+
+def run_identify_model(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
+    """`hil identify --from A [--validate B] --robot R [--terms ...]`: θ of the model object
+    from A, side by side with the robot profile's θ, both validated on B (same rows, same
+    filter): held-out torque prediction and restarted short-window simulation."""
+    from hil.identify.schemes import identify_model, torque_prediction_error
+    from hil.model.openloop import simulate_windows
+    from profiles.robot import load_robot
+
+    robot, terms = _robot_terms(args)
+    profile = load_robot(robot)
+    model = ArmModel(terms)
+    out = Path(args.out)
+    fit = read_recording(args, args.from_recording, command="identify", min_rows=8)
+    held_out = (
+        read_recording(args, args.validate, command="identify", min_rows=8)
+        if args.validate
+        else None
+    )
+    _say(f"identifying {robot} model (terms: {', '.join(terms) or 'none'}) from {fit.path}")
+    res = identify_model(fit.t, fit.q, fit.tau, model, lam=args.lam)
+    # the profile's θ in the identified model's columns (terms it lacks are zero there; terms
+    # the model lacks are dropped, which the report says)
+    prof_model = ArmModel(profile.terms)
+    prof_theta = profile.theta()
+    reference = np.zeros(model.n_params)
+    reference[:9] = prof_theta[:9]
+    dropped = [t for t in prof_model.terms if t not in terms]
+    for term in terms:
+        if term in prof_model.terms:
+            reference[model.term_columns(term)] = prof_theta[prof_model.term_columns(term)]
+    window = args.window or SIMULATION_WINDOW_S
+    candidates = {"identified": res.theta, f"profile {robot}": reference}
+    validation: dict[str, Any] = {}
+    for name, rec in (("fit", fit), ("held_out", held_out)):
+        if rec is None:
+            continue
+        validation[name] = {
+            label: {
+                "torque_nrmse": torque_prediction_error(th, model, rec.t, rec.q, rec.tau, res.lam),
+                "simulation": simulate_windows(model, th, rec.t, rec.q, rec.tau, window_s=window)
+                if model.physical_consistency(th)["consistent"]
+                else None,
+            }
+            for label, th in candidates.items()
+        }
+    report: dict[str, Any] = {
+        "recording": str(fit.path),
+        "validation_recording": str(held_out.path) if held_out is not None else None,
+        "robot": robot,
+        "profile_reference": profile.reference,
+        "profile_terms": list(prof_model.terms),
+        "profile_terms_not_in_model": dropped,
+        "torque_source": getattr(fit, "torque_source", None),
+        "loop_delay": getattr(fit, "loop_delay", None),
+        "identification": res.to_json(),
+        "profile_theta": reference.tolist(),
+        "validation": validation,
+        "simulation_window_s": window,
+    }
+    if profile.rotor is not None and "rotor_inertia" in terms:
+        col = model.term_columns("rotor_inertia").start
+        se = res.se_block[col]
+        report["rotor_inertia"] = {
+            "identified_kgm2": profile.rotor.inertia_from_theta(res.theta[col]),
+            "se_kgm2": profile.rotor.inertia_from_theta(se),
+            "identified": bool(res.identified[col]),
+            "profile_kgm2": profile.rotor.inertia_kgm2,
+            "datasheet_kgm2": profile.rotor.datasheet_inertia_kgm2,
+            "gear_ratio": profile.rotor.gear_ratio,
+        }
+    out.mkdir(parents=True, exist_ok=True)
+    save_params(
+        out / "params.json",
+        {
+            "filtered_dynamic": {
+                "theta": res.theta,
+                "discretization": "exact",
+                "lambda_rad_s": res.lam,
+                "estimator": res.method,
+                "physical_consistency": res.consistency,
+                "identified": res.identified.tolist(),
+                "se_blocked_bootstrap": res.se_block.tolist(),
+            }
+        },
+        selected="filtered_dynamic",
+        robot=robot,
+        recording=str(fit.path),
+        discretization="exact",
+        model_terms=list(terms),
+    )
+    report["params_files"] = [str(out / "params.json")]
+    write_json_atomic(out / "identify.json", report)
+    return report, format_model_report(report, model)
+
+
+def format_model_report(report: dict[str, Any], model: ArmModel) -> str:
+    """The side-by-side text of :func:`run_identify_model`."""
+    ident = report["identification"]
+    robot = report["robot"]
+    lines = [
+        f"Identification of the {robot} model (terms: {', '.join(model.terms) or 'none'}) from "
+        f"{report['recording']}",
+        f"  rows: filtered_dynamic, exact on the real time stamps, λ = {ident['lambda_rad_s']:.3g}"
+        f" rad/s; {ident['rows']} rows ({ident['rows_excluded_stick']} excluded: stuck joint); "
+        f"uncertainty: blocked bootstrap over {ident['blocks']} blocks of "
+        f"{ident['block_s']:.3g} s",
+        f"  estimate: {ident['method']}",
+        "",
+        f"{'parameter':14s}{'unit':>7s}{'identified':>16s}{'± SE (block)':>14s}"
+        f"{'SE (white)':>12s}{'VIF':>8s}{'profile':>12s}",
+    ]
+    for row, ref in zip(ident["parameters"], report["profile_theta"], strict=True):
+        value = f"{row['estimate']:.4g}" if row["identified"] else "not determined"
+        lines.append(
+            f"{row['parameter']:14s}{row['unit']:>7s}{value:>16s}"
+            f"{row['se_blocked_bootstrap']:>14.2g}{row['se_white']:>12.2g}"
+            f"{row['variance_inflation']:>8.0f}{ref:>12.4g}"
+            + ("" if row["identified"] else f"   (estimate {row['estimate']:.3g})")
+        )
+    phys = ident["least_squares_physical"]
+    lines.append(
+        "  plain least squares: "
+        + ("physical" if phys["consistent"] else "NOT physical: " + "; ".join(phys["violations"]))
+    )
+    if "rotor_inertia" in report:
+        r = report["rotor_inertia"]
+        lines.append(
+            f"  rotor inertia Ir = θ_rotor / (gr² ∓ gr) = {r['identified_kgm2']:.3g} ± "
+            f"{r['se_kgm2']:.2g} kg m² (profile {r['profile_kgm2']:.3g}, datasheet "
+            + (f"{r['datasheet_kgm2']:.3g}" if r["datasheet_kgm2"] else "n/a")
+            + f"; gear ratio {r['gear_ratio']:g})"
+        )
+    if report["profile_terms_not_in_model"]:
+        lines.append(
+            "  the profile's terms not in this model (left out of its column): "
+            + ", ".join(report["profile_terms_not_in_model"])
+        )
+    for note in ident["notes"]:
+        lines.append(f"  note: {note}")
+    lines += [
+        "",
+        "Validation (NRMSE per joint, %): torque = filtered torque prediction (same rows, same "
+        f"filter for both); simulation = open loop restarted every "
+        f"{report['simulation_window_s']:g} s from the recorded state",
+        f"{'':26s}{'torque j1':>10s}{'j2':>8s}{'simulation j1':>15s}{'j2':>8s}",
+    ]
+    for where, vals in report["validation"].items():
+        for label, v in vals.items():
+            sim = v["simulation"]
+            simtxt = (
+                f"{100 * sim['position_nrmse'][0]:>15.2f}{100 * sim['position_nrmse'][1]:>8.2f}"
+                if sim
+                else f"{'not physical':>23s}"
+            )
+            lines.append(
+                f"{where + ': ' + label:26s}{100 * v['torque_nrmse'][0]:>10.2f}"
+                f"{100 * v['torque_nrmse'][1]:>8.2f}{simtxt}"
+            )
+    lines.append(f"\nparameters: {report['params_files'][0]}")
+    return "\n".join(lines)
+
+
+# ---- arms described by a URDF (hil.model.urdf): any number of joints -------------------------
+
+
+def _urdf_robot(args: argparse.Namespace) -> bool:
+    """The --robot profile describes its arm by a URDF only (no 2-DOF closed form)."""
+    from profiles.loader import load_toml
+
+    if not args.robot:
+        return False
+    data, _ = load_toml("robots", args.robot)
+    return "urdf" in data and "link1" not in data
+
+
+def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
+    """`hil identify --from A [--validate B] --robot R` for a URDF arm: base parameters and
+    friction by weighted batch least squares on the torque regressor (hil.identify.urdf),
+    validated on B, or on the last quarter of A's time when no B is given; beside the
+    URDF's and profile's nominal parameters on the same rows."""
+    from hil.identify.urdf import TorqueRecording, identify_torque, regression_rows, torque_nrmse
+    from hil.model.urdf import UrdfArmModel
+
+    if args.terms is not None:
+        raise ValueError("--terms: a URDF arm takes its terms from the profile's [model] terms")
+    model = UrdfArmModel.from_profile(args.robot)
+    fit = read_recording(args, args.from_recording, command="identify", min_rows=8)
+    if fit.n_joints != model.n_joints:
+        raise ValueError(
+            f"{fit.path}: {fit.n_joints} joints (q1..q{fit.n_joints}), robot {args.robot} has "
+            f"{model.n_joints}"
+        )
+    _say(
+        f"identifying {args.robot} ({model.n_joints} joints, {model.n_params} base parameters) "
+        f"from {fit.path}"
+    )
+    held_out = 0.0 if args.validate else 0.25
+    res = identify_torque(
+        model,
+        TorqueRecording(fit.t, fit.q, fit.tau, str(fit.path)),
+        held_out=held_out,
+        consistent=args.consistent,
+    )
+    nominal = model.base_theta()
+    if args.validate:
+        val = read_recording(args, args.validate, command="identify", min_rows=8)
+        rows = regression_rows(model, TorqueRecording(val.t, val.q, val.tau, str(val.path)))
+        where = str(val.path)
+    else:
+        keep = res.rows.t >= res.fit_until_s
+        rows = type(res.rows)(res.rows.t[keep], res.rows.tau[keep], res.rows.Y[keep])
+        where = f"last 25 % of {fit.path} (t >= {res.fit_until_s:.3f} s)"
+    report: dict[str, Any] = {
+        "recording": str(fit.path),
+        "robot": args.robot,
+        "model": "urdf",
+        "urdf": model.urdf,
+        "terms": list(model.terms),
+        "method": res.method,
+        "standard_parameters": None
+        if res.theta_standard is None
+        else dict(zip(model.standard_names, res.theta_standard.tolist(), strict=True)),
+        "parameters": [
+            {"name": n, "meaning": m, "unit": u, "identified": float(x), "nominal": float(y)}
+            for n, m, u, x, y in zip(
+                model.names, model.meanings, model.units, res.theta, nominal, strict=True
+            )
+        ],
+        "physical_consistency": model.physical_consistency(res.theta),
+        "validation": {
+            "on": where,
+            "torque_nrmse_identified": torque_nrmse(res.theta, rows).tolist(),
+            "torque_nrmse_nominal": torque_nrmse(nominal, rows).tolist(),
+        },
+    }
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out / "identify.json", report)
+    lines = [
+        f"Identification of {args.robot} from {fit.path} ({model.n_joints} joints, base "
+        f"parameters by pivoted QR of the torque regressor; terms: "
+        f"{', '.join(model.terms) or 'none'}; {res.method})",
+        f"{'':8s} {'identified':>12s} {'nominal':>12s}  unit     meaning",
+    ]
+    for p in report["parameters"]:
+        lines.append(
+            f"{p['name']:8s} {p['identified']:12.5g} {p['nominal']:12.5g}  {p['unit']:8s} "
+            f"{p['meaning']}"
+        )
+    pc = report["physical_consistency"]
+    lines.append(
+        "physically consistent (friction >= 0, M(q) > 0 at sampled q)"
+        if pc["consistent"]
+        else "NOT physically consistent: " + "; ".join(pc["violations"])
+    )
+    v = report["validation"]
+    lines.append(f"held-out torque NRMSE per joint on {v['on']}:")
+    lines.append("  identified " + " ".join(f"{x:6.3f}" for x in v["torque_nrmse_identified"]))
+    lines.append("  nominal    " + " ".join(f"{x:6.3f}" for x in v["torque_nrmse_nominal"]))
+    lines.append(f"report: {out / 'identify.json'}")
+    return report, "\n".join(lines)

@@ -1,0 +1,297 @@
+"""Estimators for linear regressions y(k) = Ψ(k)ᵀ θ + e(k): recursive, batch and weighted least
+squares (Reyes & Kelly 1997, Section 4.1).
+
+Shapes follow :class:`hil.model.regressors.Regression`: ``y`` (K, m), ``Psi`` (K, m, p) holding
+Ψ(k)ᵀ
+(m = 2 for the vector prediction error of the filtered dynamic model, 1 for the scalar ones).
+Pure numpy; no I/O.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+PAPER_P0 = 1000.0  # P(0) = 1000·I, θ̂(0) = 0 (Section 6)
+
+
+class RecursiveLeastSquares:
+    """Recursive least squares, eqs. (20)-(22), for vector or scalar prediction errors.
+
+    Online use: call :meth:`update` once per sample (e.g. every control cycle) with Ψ(k)ᵀ and
+    y(k); ``theta`` is θ̂(k). ``forgetting`` < 1 gives exponential forgetting (1 = the paper's).
+    """
+
+    def __init__(
+        self,
+        n_params: int,
+        *,
+        p0: float = PAPER_P0,
+        theta0: np.ndarray | None = None,
+        forgetting: float = 1.0,
+    ) -> None:
+        if not 0 < forgetting <= 1:
+            raise ValueError(f"forgetting factor must be in (0, 1], got {forgetting}")
+        if not p0 > 0:
+            raise ValueError(f"P(0) scale must be > 0, got {p0}")
+        self.P = np.eye(n_params) * p0
+        self.theta = np.zeros(n_params) if theta0 is None else np.array(theta0, dtype=float)
+        self.forgetting = forgetting
+        self.updates = 0
+
+    def update(
+        self, psi_t: np.ndarray, y: np.ndarray, weight: float | np.ndarray = 1.0
+    ) -> np.ndarray:
+        """One step: ``psi_t`` is Ψ(k)ᵀ (m, p), ``y`` is y(k) (m,); returns θ̂(k).
+
+        e(k) = y(k) − Ψ(k)ᵀ θ̂(k−1)                                      eq. (22)
+        θ̂(k) = θ̂(k−1) + P(k−1) Ψ(k) [I + Ψ(k)ᵀ P(k−1) Ψ(k)]⁻¹ e(k)       eq. (20)
+        P(k) = P(k−1) − P(k−1) Ψ(k) [I + Ψ(k)ᵀ P(k−1) Ψ(k)]⁻¹ Ψ(k)ᵀ P(k−1)  eq. (21)
+        A ``weight`` w scales the row (Ψ, y) by √w (0 skips it).
+        """
+        psi_t = np.atleast_2d(psi_t)
+        y = np.atleast_1d(y)
+        w = np.sqrt(np.broadcast_to(np.asarray(weight, dtype=float), y.shape))
+        if not w.any():
+            return self.theta
+        psi_t = psi_t * w[:, None]
+        y = y * w
+        e = y - psi_t @ self.theta  # eq. (22)
+        PPsi = self.P @ psi_t.T  # P(k−1) Ψ(k), (p, m)
+        S = self.forgetting * np.eye(len(y)) + psi_t @ PPsi
+        gain = PPsi / S[0, 0] if len(y) == 1 else np.linalg.solve(S, PPsi.T).T
+        self.theta = self.theta + gain @ e  # eq. (20)
+        self.P = (self.P - gain @ PPsi.T) / self.forgetting  # eq. (21)
+        self.P = 0.5 * (self.P + self.P.T)  # keep it symmetric against round-off
+        self.updates += 1
+        return self.theta
+
+
+def recursive_least_squares(
+    Psi: np.ndarray,
+    y: np.ndarray,
+    weights: np.ndarray | None = None,
+    *,
+    p0: float = PAPER_P0,
+    forgetting: float = 1.0,
+) -> np.ndarray:
+    """Run RLS (eqs. (20)-(22)) over a whole regression; returns θ̂(k) for every k, (K, p)."""
+    Psi = np.asarray(Psi, dtype=float)
+    y = np.asarray(y, dtype=float)
+    K, m, p = Psi.shape
+    w = np.ones((K, m)) if weights is None else np.asarray(weights, dtype=float)
+    history = np.empty((K, p))
+    if m == 1 and forgetting == 1.0:
+        history[:] = _scalar_rls(Psi[:, 0, :], y[:, 0], w[:, 0], p0)
+        return history
+    rls = RecursiveLeastSquares(p, p0=p0, forgetting=forgetting)
+    for k in range(K):
+        history[k] = rls.update(Psi[k], y[k], w[k])
+    return history
+
+
+def _scalar_rls(psi: np.ndarray, y: np.ndarray, w: np.ndarray, p0: float) -> np.ndarray:
+    """Scalar-error RLS, eqs. (20)-(22) with m = 1, as a tight loop (no m×m solve)."""
+    K, p = psi.shape
+    P = np.eye(p) * p0
+    theta = np.zeros(p)
+    out = np.empty((K, p))
+    sw = np.sqrt(w)
+    for k in range(K):
+        if sw[k] == 0:
+            out[k] = theta
+            continue
+        phi = psi[k] * sw[k]
+        Pphi = P @ phi
+        gain = Pphi / (1.0 + phi @ Pphi)
+        theta = theta + gain * (y[k] * sw[k] - phi @ theta)
+        P = P - np.outer(gain, Pphi)
+        out[k] = theta
+    return out
+
+
+def least_squares(Psi: np.ndarray, y: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Batch (weighted) least squares: argmin Σ w (y − Ψᵀθ)², the limit of eqs. (18)-(19) with
+    P(0)⁻¹ → 0. Rows with weight 0 are left out."""
+    Psi = np.asarray(Psi, dtype=float)
+    y = np.asarray(y, dtype=float)
+    K, m, p = Psi.shape
+    A = Psi.reshape(K * m, p)
+    b = y.reshape(K * m)
+    if weights is not None:
+        sw = np.sqrt(np.asarray(weights, dtype=float).reshape(K * m))
+        A, b = A * sw[:, None], b * sw
+    # Scale columns so the solve does not depend on the units of θ (θ4 ~ 40 Nm, θ2 ~ 0.08 kg m²).
+    scale = np.linalg.norm(A, axis=0)
+    scale[scale == 0] = 1.0
+    sol, *_ = np.linalg.lstsq(A / scale, b, rcond=None)
+    return sol / scale
+
+
+def weighted_least_squares(
+    Psi: np.ndarray, y: np.ndarray, weights: np.ndarray | None = None, *, window: int = 200
+) -> np.ndarray:
+    """Feasible weighted least squares: fit by least squares, estimate each row's noise variance
+    from the residuals (per output channel, as a moving mean of squared residuals over
+    ``window`` rows, so slowly changing noise levels are followed), refit with weights 1/σ².
+
+    For the filtered dynamic model this balances the two joints (joint 1's torques are ten
+    times joint 2's, so plain least squares all but ignores joint 2's equation); for the
+    scalar models it down-weights stretches where the residual is large.
+    """
+    Psi = np.asarray(Psi, dtype=float)
+    y = np.asarray(y, dtype=float)
+    base = np.ones(y.shape) if weights is None else np.asarray(weights, dtype=float)
+    theta = least_squares(Psi, y, base)
+    r2 = (y - np.einsum("kmp,p->km", Psi, theta)) ** 2
+    kernel = np.ones(window) / window
+    var = np.empty_like(r2)
+    for j in range(r2.shape[1]):
+        used = base[:, j] > 0
+        level = np.mean(r2[used, j]) if used.any() else 1.0
+        smooth = np.convolve(r2[:, j], kernel, mode="same")
+        var[:, j] = np.maximum(smooth, 1e-6 * level + 1e-300)
+    return least_squares(Psi, y, base / var)
+
+
+# ---- normal equations in blocks: bounded memory, bounded estimates, uncertainty -----------------
+
+
+class BlockNormalEquations:
+    """Σ ΨᵀΨ, Σ Ψᵀy, Σ yᵀy per output channel and per time block, accumulated chunk by chunk.
+
+    Memory is O(blocks · m · p²) whatever the number of rows, and everything the estimates and
+    their uncertainty need is here: a (weighted) least-squares solve sums the blocks; a blocked
+    bootstrap resamples them (rows within a block stay together, so residual correlation shorter
+    than a block is kept).
+    """
+
+    def __init__(self, n_params: int, n_outputs: int, block_s: float) -> None:
+        if not block_s > 0:
+            raise ValueError(f"block length must be > 0 s, got {block_s}")
+        self.p, self.m, self.block_s = n_params, n_outputs, float(block_s)
+        self._H: dict[int, np.ndarray] = {}
+        self._g: dict[int, np.ndarray] = {}
+        self._yy: dict[int, np.ndarray] = {}
+        self._n: dict[int, np.ndarray] = {}
+        self.t0: float | None = None
+
+    def add(self, t: np.ndarray, y: np.ndarray, Psi: np.ndarray, weights: np.ndarray) -> None:
+        """Add rows (t (K,), y (K, m), Psi (K, m, p), weights (K, m) in {0, 1} or ≥ 0)."""
+        if len(t) == 0:
+            return
+        if self.t0 is None:
+            self.t0 = float(t[0])
+        block = np.floor((np.asarray(t) - self.t0) / self.block_s).astype(int)
+        sw = np.sqrt(np.asarray(weights, dtype=float))
+        A = Psi * sw[..., None]
+        b = y * sw
+        for blk in np.unique(block):
+            sel = block == blk
+            Ab, bb = A[sel], b[sel]
+            H = np.einsum("kmp,kmq->mpq", Ab, Ab)
+            g = np.einsum("kmp,km->mp", Ab, bb)
+            yy = np.einsum("km,km->m", bb, bb)
+            n = np.sum(sw[sel] > 0, axis=0)
+            if blk in self._H:
+                self._H[blk] += H
+                self._g[blk] += g
+                self._yy[blk] += yy
+                self._n[blk] += n
+            else:
+                self._H[blk], self._g[blk], self._yy[blk], self._n[blk] = H, g, yy, n
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(H (B, m, p, p), g (B, m, p), yy (B, m), n (B, m)) over the non-empty blocks."""
+        keys = sorted(k for k in self._H if self._n[k].sum() > 0)
+        if not keys:
+            raise ValueError("no usable rows (every row excluded)")
+        return (
+            np.stack([self._H[k] for k in keys]),
+            np.stack([self._g[k] for k in keys]),
+            np.stack([self._yy[k] for k in keys]),
+            np.stack([self._n[k] for k in keys]),
+        )
+
+
+def solve_normal_equations(H: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """argmin θᵀHθ − 2gᵀθ with column scaling (units of θ differ by orders of magnitude)."""
+    d = np.sqrt(np.diag(H))
+    d[d == 0] = 1.0
+    Hs = H / np.outer(d, d)
+    sol, *_ = np.linalg.lstsq(Hs, g / d, rcond=None)
+    return sol / d
+
+
+def channel_weights(H, g, yy, n, theta) -> np.ndarray:
+    """1/σ_j² per output channel from the residuals of θ (feasible weighted least squares, so a
+    joint with ten times the torque does not drown the other's equation)."""
+    rss = np.einsum("bm->m", yy) - 2 * np.einsum("bmp,p->m", g, theta)
+    rss = rss + np.einsum("p,bmpq,q->m", theta, H, theta)
+    var = np.maximum(rss, 1e-300) / np.maximum(n.sum(axis=0), 1)
+    return 1.0 / var
+
+
+def combine(H, g, yy, w) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Weighted sums over channels, per block: (H (B, p, p), g (B, p), yy (B,))."""
+    return (
+        np.einsum("m,bmpq->bpq", w, H),
+        np.einsum("m,bmp->bp", w, g),
+        np.einsum("m,bm->b", w, yy),
+    )
+
+
+def bounded_quadratic_fit(
+    H: np.ndarray,
+    g: np.ndarray,
+    lower: np.ndarray,
+    constraints: list | None = None,
+    x0: np.ndarray | None = None,
+) -> tuple[np.ndarray, str]:
+    """argmin θᵀHθ − 2gᵀθ subject to θ ≥ ``lower`` (−inf for free) and optional nonlinear
+    inequality constraints c(θ) ≥ 0 (scipy form). Bounds alone: a bounded linear least-squares
+    problem on the Cholesky factor of H (scipy ``lsq_linear``); with constraints: SLSQP from
+    the bounded solution. Returns (θ, method)."""
+    from scipy.optimize import lsq_linear, minimize
+
+    p = len(g)
+    d = np.sqrt(np.diag(H))
+    d[d == 0] = 1.0
+    Hs = H / np.outer(d, d)
+    gs = g / d
+    # Hs = V diag(w) Vᵀ: ‖diag(√w) Vᵀx − diag(1/√w) Vᵀg‖² = xᵀHx − 2gᵀx + const; directions
+    # the data leave flat (w ≈ 0, a column of zeros or exact collinearity) drop out
+    w, V = np.linalg.eigh(0.5 * (Hs + Hs.T))
+    keep = w > 1e-12 * max(float(w.max()), 1e-300)
+    A = np.sqrt(w[keep])[:, None] * V[:, keep].T
+    rhs = (V[:, keep].T @ gs) / np.sqrt(w[keep])
+    lo = np.where(np.isfinite(lower), lower * d, -np.inf)
+    res = lsq_linear(A, rhs, bounds=(lo, np.full(p, np.inf)), method="bvls")
+    xs = res.x
+    if not constraints:
+        return xs / d, "bounded least squares (lsq_linear, BVLS)"
+    scaled = [{"type": "ineq", "fun": (lambda x, f=c["fun"]: f(x / d))} for c in constraints]
+    if all(c["fun"](xs) >= 0 for c in scaled):
+        return xs / d, "bounded least squares (lsq_linear, BVLS)"
+    out = minimize(
+        lambda x: float(x @ Hs @ x - 2 * gs @ x),
+        xs if x0 is None else x0 * d,
+        jac=lambda x: 2 * (Hs @ x) - 2 * gs,
+        bounds=[(lo_i, None) for lo_i in lo],
+        constraints=scaled,
+        method="SLSQP",
+        options={"maxiter": 500, "ftol": 1e-14},
+    )
+    return out.x / d, f"constrained least squares (SLSQP: {out.message})"
+
+
+def blocked_bootstrap(
+    H: np.ndarray, g: np.ndarray, *, draws: int = 200, seed: int = 0
+) -> np.ndarray:
+    """θ of ``draws`` resamples of the blocks (with replacement); shape (draws, p)."""
+    rng = np.random.default_rng(seed)
+    B = len(H)
+    out = np.empty((draws, H.shape[-1]))
+    for i in range(draws):
+        pick = np.bincount(rng.integers(0, B, B), minlength=B).astype(float)
+        out[i] = solve_normal_equations(np.einsum("b,bpq->pq", pick, H), pick @ g)
+    return out

@@ -1,0 +1,135 @@
+"""Parameter files: what `hil identify` writes and `hil control --params` / `hil diagnose --params`
+read.
+
+A parameter file is JSON (``params.json``)::
+
+    {"kind": "ddbench parameters", "robot": "cicese", "selected": "filtered_dynamic",
+     "schemes": {"filtered_dynamic": {"theta": [9 numbers], ...}, ...},
+     "names": ["theta1", ...], "units": [...], ...}
+
+A hand-written file may be as small as ``{"theta": [9 numbers]}``. :func:`load_params` returns
+the selected scheme's θ (or the one asked for) with the document, and fails with one line naming
+the file and what is wrong.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivers.recording import write_json_atomic
+from hil.model.closed_form import TERMS, ArmModel
+
+KIND = "ddbench parameters"
+
+
+class ParamsError(ValueError):
+    """A parameter file that cannot be used; the message is one line naming the file."""
+
+
+@dataclass(frozen=True)
+class ParamSet:
+    """θ1..θ9 and where they came from (a file and scheme, or a robot profile)."""
+
+    theta: np.ndarray
+    source: str
+    scheme: str | None = None
+    document: dict[str, Any] = field(default_factory=dict)
+    terms: tuple[
+        str, ...
+    ] = ()  # hil.model.closed_form.ArmModel terms θ is written in (θ1..θ9 first)
+
+
+def robot_params(robot: str = "cicese") -> ParamSet:
+    """θ from a robot profile's Table I values (θ8 = mean of the two joint-1 directions)."""
+    from profiles.robot import load_robot
+
+    profile = load_robot(robot)
+    return ParamSet(profile.theta(), source=profile.source, scheme="profile", terms=profile.terms)
+
+
+def _terms_of(doc: dict[str, Any], where: str) -> tuple[str, ...]:
+    terms = doc.get("model_terms", [])
+    if not isinstance(terms, list) or any(t not in TERMS for t in terms):
+        raise ParamsError(f"{where}: 'model_terms' must be a list of {', '.join(TERMS)}")
+    return tuple(terms)
+
+
+def _theta_of(entry: Any, where: str, terms: tuple[str, ...] = ()) -> np.ndarray:
+    if not isinstance(entry, dict) or "theta" not in entry:
+        raise ParamsError(f"{where}: no 'theta' list")
+    theta = entry["theta"]
+    names = ArmModel(terms).names
+    if isinstance(theta, dict):
+        missing = [n for n in names if n not in theta]
+        if missing:
+            raise ParamsError(f"{where}: 'theta' lacks {', '.join(missing)}")
+        theta = [theta[n] for n in names]
+    if not isinstance(theta, list) or len(theta) != len(names):
+        raise ParamsError(f"{where}: 'theta' must be a list of {len(names)} numbers")
+    if not all(isinstance(x, int | float) and not isinstance(x, bool) for x in theta):
+        raise ParamsError(f"{where}: 'theta' must hold numbers only")
+    if not all(math.isfinite(x) for x in theta):
+        raise ParamsError(f"{where}: 'theta' holds a non-finite number")
+    return np.array(theta, dtype=float)
+
+
+def load_params(path: str | Path, scheme: str | None = None) -> ParamSet:
+    """Read a parameter file; ``scheme`` picks one of its schemes (default: its selected one)."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except OSError as exc:
+        raise ParamsError(f"{path}: cannot read ({exc.strerror})") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ParamsError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(doc, dict):
+        raise ParamsError(f"{path}: not a JSON object")
+    terms = _terms_of(doc, str(path))
+    schemes = doc.get("schemes")
+    if schemes is None:
+        if scheme is not None:
+            raise ParamsError(f"{path}: has no schemes, cannot select {scheme!r}")
+        return ParamSet(_theta_of(doc, str(path), terms), str(path), doc.get("scheme"), doc, terms)
+    if not isinstance(schemes, dict) or not schemes:
+        raise ParamsError(f"{path}: 'schemes' must be a non-empty object")
+    name = scheme or doc.get("selected") or next(iter(schemes))
+    if name not in schemes:
+        raise ParamsError(f"{path}: no scheme {name!r}; it has {', '.join(sorted(schemes))}")
+    theta = _theta_of(schemes[name], f"{path}: scheme {name}", terms)
+    return ParamSet(theta, str(path), name, doc, terms)
+
+
+def save_params(
+    path: str | Path,
+    schemes: dict[str, dict[str, Any]],
+    *,
+    selected: str,
+    robot: str,
+    **meta: Any,
+) -> Path:
+    """Write a parameter file; each ``schemes[name]`` holds at least ``"theta"`` (9 numbers, or
+    those of ``ArmModel(meta["model_terms"])``)."""
+    if selected not in schemes:
+        raise ValueError(f"selected scheme {selected!r} not among {sorted(schemes)}")
+    doc = {
+        "kind": KIND,
+        "robot": robot,
+        "selected": selected,
+        "names": list(ArmModel(tuple(meta.get("model_terms", ()))).names),
+        "units": list(ArmModel(tuple(meta.get("model_terms", ()))).units),
+        **meta,
+        "schemes": {
+            name: {**entry, "theta": [float(x) for x in np.asarray(entry["theta"])]}
+            for name, entry in schemes.items()
+        },
+    }
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(path, doc)
+    return path

@@ -1,0 +1,604 @@
+"""The three regression models of Reyes & Kelly (1997), built from sampled data, two ways.
+
+Every builder takes encoder readings ``q`` (N, 2) sampled at t_k = k·h and torques ``tau`` (N, 2)
+held over [t_k, t_k + h) (the recording convention), and returns a :class:`Regression`: outputs
+``y`` (K, m) and regressors ``Psi`` (K, m, 9) with y(k) ≈ Psi(k) θ, m = 2 (vector prediction
+error) or 1 (scalar). ``discretization`` selects how continuous time is brought to samples:
+
+``paper``
+    What the paper implemented (Section 5): velocity by backward difference
+    v_k = (q_k − q_{k−1})/h; λ/(s+λ) as (1 − e^{−λh}) z⁻¹ / (1 − e^{−λh} z⁻¹) and λs/(s+λ) as
+    λ (1 − z⁻¹) / (1 − e^{−λh} z⁻¹); integrals by the trapezoid rule. The two filters do not
+    delay alike (the low-pass has a one-sample delay, the band-pass none) and the backward
+    difference lags the true velocity by h/2, so the two sides of each regression are not
+    aligned in time: this biases the estimates (docs/identification.md quantifies it).
+
+``exact``
+    A formulation that is consistent on both sides. Between samples the torque is constant, so
+    the work it does over [t_k, t_{k+1}] is exactly τ_kᵀ (q_{k+1} − q_k) and its impulse exactly
+    h τ_k. Each model is written over sample intervals — the momentum balance
+    h τ_k = [P(t_{k+1}) − P(t_k)] θ + ∫ R dt θ, the energy balance
+    τ_kᵀ Δq_k = [φ_ℰ(t_{k+1}) − φ_ℰ(t_k)]ᵀ θ + ∫ q̇ᵀ φ_F dt θ — with velocities at the samples by
+    central difference and the integrals over each interval taken on the cubic Hermite
+    interpolant of q (Gauss–Legendre for smooth terms, exact piecewise integration of sgn q̇ and
+    |q̇| between its zero crossings). Filters, where a model has them, are one discrete
+    first-order low-pass applied identically to both sides, so they cannot bias anything.
+    Intervals in which a joint sticks (zero velocity at both ends, no motion) carry static
+    friction the model has no term for; in force-based rows (filtered dynamic) they and the
+    samples their filter memory spreads them to are given zero weight (``Regression.weights``).
+
+Filter bandwidth ``lam`` is in rad/s (the paper's "λ = 50 Hz": see docs/identification.md).
+
+Real recordings (``t`` given): the ``exact`` rows are written per interval with that interval's
+own length h_k = t_{k+1} − t_k (impulse h_k τ_k, Hermite integrals over h_k, velocities at the
+samples by the three-point derivative on the unequal grid), so irregular sampling and gaps cost
+nothing but the rows' noise. The row filter stays one LTI low-pass over the row sequence with
+the coefficient of the median interval: any fixed linear filter applied alike to both sides of
+y_k = Ψ_k θ keeps the equation exact, so the filter need not follow the clock. ``paper`` assumes
+equal intervals and refuses irregular ones.
+
+Every builder takes the model object (:class:`hil.model.closed_form.ArmModel`, default the
+9-parameter
+model) whose columns it fills; p = ``model.n_params``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import lfilter
+
+from hil.model.closed_form import ArmModel
+
+NINE_PARAMETERS = ArmModel(())
+
+SCHEMES = ("filtered_dynamic", "supplied_energy", "filtered_power")
+DISCRETIZATIONS = ("paper", "exact")
+# A stuck interval contaminates a filtered row by less than this fraction once it is this far
+# back in the filter's memory (e^{-λ t} < 1e-3).
+STICK_MEMORY_DECAY = 1e-3
+
+
+@dataclass(frozen=True)
+class Regression:
+    """y(k) ≈ Psi(k) θ for k = 0..K−1; ``t`` the time each row refers to; ``weights`` (K, m) are
+    1 for rows the model can explain and 0 for rows it cannot (stick–slip, see module doc)."""
+
+    scheme: str
+    discretization: str
+    t: np.ndarray  # (K,)
+    y: np.ndarray  # (K, m)
+    Psi: np.ndarray  # (K, m, p)
+    weights: np.ndarray  # (K, m)
+    lam: float
+    period_s: float
+
+
+# --- discrete filters --------------------------------------------------------------------------
+# Every filter is linear and time-invariant, given as (b, a) coefficients in z⁻¹, so the batch
+# builders (scipy.signal.lfilter over a whole recording) and the online identifier (lfilter one
+# sample at a time with its state carried in ``zi``) compute the same numbers.
+
+
+def filter_coefficients(name: str, lam: float, h: float) -> tuple[list[float], list[float]]:
+    """(b, a) of the named filter, a = e^{−λh}:
+
+    ``paper_lowpass``     λ/(s+λ) → (1 − a) z⁻¹ / (1 − a z⁻¹)       (Reyes & Kelly 1997, Sec. 5.1)
+    ``paper_bandpass``    λs/(s+λ) → λ (1 − z⁻¹) / (1 − a z⁻¹)       (Sec. 5.1)
+    ``trapezoid``         ∫₀^{kh} by the trapezoid rule, h/2 (1 + z⁻¹) / (1 − z⁻¹)   (Sec. 5.2)
+    ``interval_lowpass``  (1 − a) / (1 − a z⁻¹): unit DC gain, no delay (``exact`` filters)
+    ``cumulative_sum``    1 / (1 − z⁻¹): Σ over intervals (``exact`` integrals)
+    ``none``              1
+    """
+    e = float(np.exp(-lam * h))
+    table = {
+        "paper_lowpass": ([0.0, 1.0 - e], [1.0, -e]),
+        "paper_bandpass": ([lam, -lam], [1.0, -e]),
+        "trapezoid": ([0.5 * h, 0.5 * h], [1.0, -1.0]),
+        "interval_lowpass": ([1.0 - e], [1.0, -e]),
+        "cumulative_sum": ([1.0], [1.0, -1.0]),
+        "none": ([1.0], [1.0]),
+    }
+    if name not in table:
+        raise ValueError(f"unknown filter {name!r}")
+    return table[name]
+
+
+# --- velocities and interval integrals ----------------------------------------------------------
+
+
+def backward_difference(q: np.ndarray, h: float) -> np.ndarray:
+    """v_k = (q_k − q_{k−1}) / h, v_0 = 0 (at rest), as in the paper (Section 5)."""
+    v = np.zeros_like(q)
+    v[1:] = np.diff(q, axis=0) / h
+    return v
+
+
+def central_difference(q: np.ndarray, h: float) -> np.ndarray:
+    """v_k = (q_{k+1} − q_{k−1}) / (2h) for k = 1..N−2; the ends are NaN (not used).
+
+    The torque steps at every sample, so q̈ jumps there and this is off by h (q̈⁺ − q̈⁻)/4,
+    about 1e-3 rad/s on the paper's excitation (0.05 % of its velocities)."""
+    v = np.full_like(q, np.nan)
+    v[1:-1] = (q[2:] - q[:-2]) / (2 * h)
+    return v
+
+
+def central_difference_unequal(q: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """v_k of the parabola through (t_{k−1}, q_{k−1}), (t_k, q_k), (t_{k+1}, q_{k+1}), the
+    three-point derivative on an unequal grid; equal intervals give (q_{k+1} − q_{k−1}) / 2h.
+    The ends are NaN (not used)."""
+    v = np.full_like(q, np.nan)
+    h0 = (t[1:-1] - t[:-2])[:, None]
+    h1 = (t[2:] - t[1:-1])[:, None]
+    v[1:-1] = (h0**2 * q[2:] - h1**2 * q[:-2] + (h1**2 - h0**2) * q[1:-1]) / (h0 * h1 * (h0 + h1))
+    return v
+
+
+def local_polynomial_velocity(q: np.ndarray, t: np.ndarray, half_window: int) -> np.ndarray:
+    """v_k = slope at t_k of the least-squares quadratic through the samples k−m..k+m (real
+    times; m = ``half_window`` ≥ 1; m = 1 is the three-point derivative). Quantized positions
+    make the three-point derivative noisy, and that noise in the regressors biases least
+    squares towards zero (errors in variables, docs/real-data.md); a window of 2m + 1 samples
+    cuts the velocity noise by about m^1.5. The first and last m samples are NaN."""
+    q = np.asarray(q, dtype=float)
+    t = np.asarray(t, dtype=float)
+    n, m = len(q), int(half_window)
+    v = np.full_like(q, np.nan)
+    if m < 1 or n < 2 * m + 1:
+        return v
+    W = np.lib.stride_tricks.sliding_window_view(np.arange(n), 2 * m + 1)
+    centre = np.arange(m, n - m)
+    d = t[W] - t[centre][:, None]  # (K, 2m+1)
+    S = np.stack([np.sum(d**p, axis=1) for p in range(5)], -1)  # Σ d^p, p = 0..4
+    G = np.stack([S[:, [0, 1, 2]], S[:, [1, 2, 3]], S[:, [2, 3, 4]]], axis=1)  # of [1, d, d²]
+    for j in range(q.shape[1]):
+        x = q[W, j] - q[centre, j][:, None]  # relative: keeps the solve well scaled
+        rhs = np.stack([np.sum(x * d**p, axis=1) for p in range(3)], -1)
+        v[centre, j] = np.linalg.solve(G, rhs[..., None])[:, 1, 0]
+    return v
+
+
+def velocity_half_window(lam: float, t: np.ndarray) -> int:
+    """Samples each side for :func:`local_polynomial_velocity`: a half-width of 1/(4λ) s (at
+    least one sample). The slope of a quadratic fitted over ±T to a sinusoid of frequency ω is
+    low by about (ωT)²/10 relative: 0.16 % at ω = λ/2 (the excitation bandwidth that
+    :func:`data_bandwidth` doubles), while the velocity noise of the encoder quantum falls
+    as m^-1.5."""
+    h = float(np.median(np.diff(t)))
+    return max(1, round(1.0 / (4.0 * lam * h)))
+
+
+_GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(4)
+_GL_NODES = 0.5 * (_GL_NODES + 1.0)  # on [0, 1]
+_GL_WEIGHTS = 0.5 * _GL_WEIGHTS
+
+
+def _hermite(
+    q0: np.ndarray, q1: np.ndarray, d0: np.ndarray, d1: np.ndarray, s: float | np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Cubic Hermite q(s), dq/ds(s) on s ∈ [0, 1] from end values and end slopes (× h)."""
+    s2, s3 = s * s, s * s * s
+    h00, h10, h01, h11 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
+    g00, g10, g01, g11 = 6 * s2 - 6 * s, 3 * s2 - 4 * s + 1, -6 * s2 + 6 * s, 3 * s2 - 2 * s
+    return h00 * q0 + h10 * d0 + h01 * q1 + h11 * d1, g00 * q0 + g10 * d0 + g01 * q1 + g11 * d1
+
+
+def _sign_and_abs_integrals(
+    q0: np.ndarray, q1: np.ndarray, d0: np.ndarray, d1: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """∫₀¹ sgn(dq/ds) ds and ∫₀¹ |dq/ds| ds of the cubic Hermite per element, exactly.
+
+    dq/ds = A s² + B s + C is a quadratic: [0, 1] is cut at its real roots inside (0, 1) and each
+    piece integrated (sgn: piece length × its sign; |q̇|: |q(end) − q(start)|)."""
+    A = 6 * (q0 - q1) + 3 * (d0 + d1)
+    B = -6 * (q0 - q1) - 4 * d0 - 2 * d1
+    C = d0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        quad = np.abs(A) > 1e-300
+        disc = np.where(quad, B * B - 4 * A * C, np.nan)
+        r = np.sqrt(np.where(disc > 0, disc, np.nan))
+        r1 = np.where(quad, (-B - r) / (2 * A), -C / B)
+        r2 = np.where(quad, (-B + r) / (2 * A), np.nan)
+    # Roots outside (0, 1) (or absent) become zero-length pieces at s = 1.
+    r1 = np.where((r1 > 0) & (r1 < 1), r1, 1.0)
+    r2 = np.where((r2 > 0) & (r2 < 1), r2, 1.0)
+    cuts = [np.zeros_like(q0), np.minimum(r1, r2), np.maximum(r1, r2), np.ones_like(q0)]
+    sgn_int = np.zeros_like(q0)
+    abs_int = np.zeros_like(q0)
+    q_at = [_hermite(q0, q1, d0, d1, c)[0] for c in cuts]
+    for i in range(3):
+        lo, hi = cuts[i], cuts[i + 1]
+        mid = 0.5 * (lo + hi)
+        sgn_int += (hi - lo) * np.sign(A * mid * mid + B * mid + C)
+        abs_int += np.abs(q_at[i + 1] - q_at[i])
+    return sgn_int, abs_int
+
+
+@dataclass(frozen=True)
+class IntervalIntegrals:
+    """Integrals over each sample interval [t_k, t_{k+1}] of the terms the models need, for
+    k = first..last (K intervals), on the cubic Hermite interpolant of q."""
+
+    k: np.ndarray  # (K,) interval index (starts at sample k)
+    R: np.ndarray  # (K, 2, p)  ∫ R(q, q̇) dt
+    friction_work: np.ndarray  # (K, 4)  ∫ [q̇1², q̇2², |q̇1|, |q̇2|] dt
+    stuck: np.ndarray  # (K, 2)  joint did not move over the interval (stick)
+
+
+def interval_integrals(
+    q: np.ndarray,
+    v: np.ndarray,
+    h: float | np.ndarray,
+    model: ArmModel = NINE_PARAMETERS,
+) -> IntervalIntegrals:
+    """∫ R dt and ∫ q̇ᵀφ_F dt over every interval whose two end velocities are known.
+
+    ``h``: the common interval (s), or every interval's own length, shape (N − 1,)."""
+    ok = np.isfinite(v).all(axis=1)
+    k = np.flatnonzero(ok[:-1] & ok[1:])
+    q0, q1 = q[k], q[k + 1]
+    if np.ndim(h) == 0:
+        hk: float | np.ndarray = h
+        d0, d1 = h * v[k], h * v[k + 1]
+    else:
+        hk = np.asarray(h, dtype=float)[k]
+        d0, d1 = hk[:, None] * v[k], hk[:, None] * v[k + 1]
+    # All Gauss–Legendre nodes at once: shape (nodes, K, 2).
+    nodes = _GL_NODES[:, None, None]
+    qs, ds = _hermite(q0[None], q1[None], d0[None], d1[None], nodes)
+    if np.ndim(hk) == 0:
+        R = np.tensordot(_GL_WEIGHTS * hk, model.static_regressor(qs, ds / hk), axes=(0, 0))
+        sq = np.tensordot(_GL_WEIGHTS * hk, (ds / hk) ** 2, axes=(0, 0))  # degree 4: exact
+    else:
+        hn = hk[None, :, None]
+        R = np.einsum("n,nkmp->kmp", _GL_WEIGHTS, model.static_regressor(qs, ds / hn))
+        R *= hk[:, None, None]
+        sq = np.einsum("n,nkj->kj", _GL_WEIGHTS, (ds / hn) ** 2) * hk[:, None]
+    sgn_int, abs_int = _sign_and_abs_integrals(q0, q1, d0, d1)
+    dq = q1 - q0
+    # Viscous (θ6, θ7) and Coulomb (θ8, θ9) columns exactly: ∫ q̇ dt = Δq, ∫ sgn q̇ dt piecewise.
+    R[:, 0, 5], R[:, 1, 6] = dq[:, 0], dq[:, 1]
+    R[:, 0, 7], R[:, 1, 8] = hk * sgn_int[:, 0], hk * sgn_int[:, 1]
+    friction_work = np.column_stack([sq, abs_int])
+    stuck = (dq == 0) & (np.abs(v[k]) < 1e-12) & (np.abs(v[k + 1]) < 1e-12)
+    return IntervalIntegrals(k, R, friction_work, stuck)
+
+
+# --- the three models -------------------------------------------------------------------------
+
+
+def _check(q: np.ndarray, tau: np.ndarray, h: float, lam: float, discretization: str) -> None:
+    if q.ndim != 2 or q.shape[1] != 2 or tau.shape != q.shape:
+        raise ValueError(f"q and tau must both have shape (N, 2); got {q.shape} and {tau.shape}")
+    if not (np.isfinite(q).all() and np.isfinite(tau).all()):
+        raise ValueError("q and tau must be finite (a NaN or inf in the recording?)")
+    if not h > 0:
+        raise ValueError(f"period must be > 0 s, got {h}")
+    if not lam > 0:
+        raise ValueError(f"filter bandwidth lambda must be > 0 rad/s, got {lam}")
+    if discretization not in DISCRETIZATIONS:
+        raise ValueError(
+            f"unknown discretization {discretization!r}; "
+            f"expected one of {', '.join(DISCRETIZATIONS)}"
+        )
+
+
+@dataclass(frozen=True)
+class RawRows:
+    """Unfiltered rows of one regression: the output ``y`` goes through filter ``y_filter``;
+    the regressor is the sum over ``parts`` of (filter name, array (K, m, p)) each filtered.
+    ``index``: the sample each row belongs to; ``stuck`` (K, m): the row's own interval had
+    that joint stuck (static friction the model has no term for)."""
+
+    index: np.ndarray
+    y: np.ndarray
+    y_filter: str
+    parts: tuple[tuple[str, np.ndarray], ...]
+    stuck: np.ndarray
+
+
+@dataclass(frozen=True)
+class Kinematics:
+    """What every scheme's rows share: sample velocities and, for ``exact``, the interval
+    integrals. Computed once per window by :func:`kinematics`. ``dt``: every interval's own
+    length when the window has real time stamps (None: all equal to h)."""
+
+    v: np.ndarray
+    intervals: IntervalIntegrals | None
+    model: ArmModel = NINE_PARAMETERS
+    dt: np.ndarray | None = None
+
+
+def kinematics(
+    discretization: str,
+    q: np.ndarray,
+    h: float,
+    *,
+    model: ArmModel = NINE_PARAMETERS,
+    t: np.ndarray | None = None,
+    half_window: int = 1,
+    keep: tuple[int, int] | None = None,
+) -> Kinematics:
+    """Velocities (backward difference for ``paper``, central for ``exact``) and, for
+    ``exact``, the integrals over every interval with both end velocities known. ``t``: the
+    samples' real times (``exact`` only), used instead of k·h; ``half_window`` > 1: velocities
+    by :func:`local_polynomial_velocity` over 2·half_window + 1 samples (real times only);
+    ``keep`` = (i, j): only intervals i..j−1 of the window (chunked building)."""
+    if discretization == "paper":
+        if t is not None:
+            raise ValueError("the paper discretization assumes equal intervals; use exact")
+        return Kinematics(backward_difference(q, h), None, model)
+    if t is None:
+        v = central_difference(q, h)
+        return Kinematics(v, interval_integrals(q, v, h, model), model)
+    t = np.asarray(t, dtype=float)
+    dt = np.diff(t)
+    if half_window <= 1:
+        v = central_difference_unequal(q, t)
+    else:
+        v = local_polynomial_velocity(q, t, half_window)
+    if keep is not None:  # intervals outside keep lose an end velocity, hence their rows
+        v[: keep[0]] = np.nan
+        v[keep[1] + 1 :] = np.nan
+    return Kinematics(v, interval_integrals(q, v, dt, model), model, dt)
+
+
+def raw_rows(
+    scheme: str,
+    discretization: str,
+    q: np.ndarray,
+    tau: np.ndarray,
+    h: float,
+    kin: Kinematics | None = None,
+    *,
+    model: ArmModel | None = None,
+    t: np.ndarray | None = None,
+) -> RawRows:
+    """The unfiltered rows of ``scheme`` for every sample (paper) or interval (exact) of the
+    window ``q``, ``tau`` whose inputs are complete (exact needs one sample either side).
+    ``kin``: :func:`kinematics` of the same window, when several schemes share it (its model
+    and time stamps are then used); else ``model`` (default 9 parameters) and ``t``."""
+    if scheme not in SCHEMES:
+        raise ValueError(f"unknown scheme {scheme!r}; expected one of {', '.join(SCHEMES)}")
+    n = len(q)
+    if kin is None:
+        kin = kinematics(discretization, q, h, model=model or NINE_PARAMETERS, t=t)
+    model = kin.model
+    p = model.n_params
+    v = kin.v
+    if discretization == "paper":
+        index = np.arange(n)
+        if scheme == "filtered_dynamic":  # eq. (24), Section 5.1
+            parts = (
+                ("paper_bandpass", model.momentum_regressor(q, v)),
+                ("paper_lowpass", model.static_regressor(q, v)),
+            )
+            return RawRows(index, tau, "paper_lowpass", parts, np.zeros((n, 2), bool))
+        power = np.sum(tau * v, axis=1)[:, None]
+        energy = model.energy_regressor(q, v)[:, None, :]  # zero on the friction columns
+        friction = model.friction_power_regressor(v)[:, None, :]  # zero elsewhere
+        if scheme == "supplied_energy":  # eq. (28), Section 5.2: ℰ(0) = 0, trapezoid integrals
+            parts = (("none", energy), ("trapezoid", friction))
+            return RawRows(index, power, "trapezoid", parts, np.zeros((n, 1), bool))
+        parts = (("paper_bandpass", energy), ("paper_lowpass", friction))  # eq. (30), Sec. 5.3
+        return RawRows(index, power, "paper_lowpass", parts, np.zeros((n, 1), bool))
+    ii = kin.intervals
+    assert ii is not None
+    k = ii.k
+    hk: float | np.ndarray = h if kin.dt is None else kin.dt[k][:, None]
+    if scheme == "filtered_dynamic":
+        # Momentum balance over [t_k, t_{k+1}]: h τ_k = [P(t_{k+1}) − P(t_k) + ∫R dt] θ, / h.
+        P0 = model.momentum_regressor(q[k], v[k])
+        P1 = model.momentum_regressor(q[k + 1], v[k + 1])
+        hr = hk if np.ndim(hk) == 0 else hk[:, :, None]
+        parts = (("interval_lowpass", (P1 - P0 + ii.R) / hr),)
+        return RawRows(k + 1, tau[k], "interval_lowpass", parts, ii.stuck)
+    # Energy balance over [t_k, t_{k+1}]: τ_kᵀΔq_k = [Δφ_ℰ, ∫q̇ᵀφ_F dt] θ   (eqs. (25), (27)).
+    work = np.sum(tau[k] * (q[k + 1] - q[k]), axis=1)[:, None]
+    d_energy = model.energy_regressor(q[k + 1], v[k + 1]) - model.energy_regressor(q[k], v[k])
+    fw = np.zeros((len(k), p))
+    fw[:, list(model.friction_columns)] = ii.friction_work
+    rows = (d_energy + fw)[:, None, :]
+    stuck = np.zeros((len(k), 1), bool)  # static friction does no work: energy rows hold
+    if scheme == "supplied_energy":  # Σ from the first interval: eq. (28)
+        return RawRows(k + 1, work, "cumulative_sum", (("cumulative_sum", rows),), stuck)
+    hr = hk if np.ndim(hk) == 0 else hk[:, :, None]
+    return RawRows(k + 1, work / hk, "interval_lowpass", (("interval_lowpass", rows / hr),), stuck)
+
+
+def stick_memory(lam: float, h: float) -> int:
+    """Samples after which a stuck interval weighs < STICK_MEMORY_DECAY in a filtered row."""
+    return int(np.ceil(-np.log(STICK_MEMORY_DECAY) / (lam * h)))
+
+
+def stick_weights(stuck: np.ndarray, memory: int) -> np.ndarray:
+    """Weight 0 for a row whose filtered equation holds a stuck interval of that joint from the
+    last ``memory`` rows, 1 otherwise."""
+    K, _m = stuck.shape
+    idx = np.arange(K)[:, None]
+    last = np.where(stuck, idx, -(10**9))
+    last = np.maximum.accumulate(last, axis=0)
+    return (idx - last > memory).astype(float)
+
+
+def build_regression(
+    scheme: str,
+    q: np.ndarray,
+    tau: np.ndarray,
+    h: float,
+    lam: float = 50.0,
+    discretization: str = "exact",
+    *,
+    model: ArmModel = NINE_PARAMETERS,
+    t: np.ndarray | None = None,
+    half_window: int = 1,
+) -> Regression:
+    """The regression y(k) ≈ Ψ(k)ᵀθ of one scheme over a whole recording.
+
+    ``filtered_dynamic``: eq. (24), vector error; ``supplied_energy``: eq. (28), scalar;
+    ``filtered_power``: eq. (30), scalar. See the module doc for the two discretizations.
+    ``model``: whose columns (default the 9-parameter model); ``t``: the samples' real times
+    (``exact`` only; ``h`` is then the nominal period that sets the row filter's coefficient).
+    """
+    q, tau = np.asarray(q, float), np.asarray(tau, float)
+    _check(q, tau, h, lam, discretization)
+    if len(q) < 8:
+        raise ValueError(f"need at least 8 samples to identify, got {len(q)}")
+    kin = kinematics(discretization, q, h, model=model, t=t, half_window=half_window)
+    raw = raw_rows(scheme, discretization, q, tau, h, kin)
+    y = lfilter(*filter_coefficients(raw.y_filter, lam, h), raw.y, axis=0)
+    Psi = sum(lfilter(*filter_coefficients(f, lam, h), x, axis=0) for f, x in raw.parts)
+    weights = stick_weights(raw.stuck, stick_memory(lam, h))
+    row_t = raw.index * h if t is None else np.asarray(t, dtype=float)[raw.index]
+    return Regression(scheme, discretization, row_t, y, Psi, weights, lam, h)
+
+
+# --- real recordings: bandwidth, stick detection under quantization, rows in chunks ----------
+
+
+def excitation_bandwidth(q: np.ndarray, t: np.ndarray, fraction: float = 0.95) -> float:
+    """ω (rad/s) below which ``fraction`` of the detrended position variance lies, the largest
+    over the joints: the excitation's bandwidth, read from the data. The paper puts λ at about
+    twice its highest excitation frequency (26 rad/s → 50 rad/s); :func:`data_bandwidth`
+    follows that rule."""
+    q = np.asarray(q, dtype=float)
+    t = np.asarray(t, dtype=float)
+    h = float(np.median(np.diff(t)))
+    # The spectrum of the samples as if equally spaced at the median interval: irregularity
+    # smears, but does not move, a band that is much lower than the sample rate.
+    q2d = q.reshape(len(q), -1)
+    coef = np.polynomial.polynomial.polyfit(t - t[0], q2d, 1)
+    x = q2d - (coef[0] + np.outer(t - t[0], coef[1]))
+    power = np.abs(np.fft.rfft(x, axis=0)) ** 2
+    power[0] = 0.0
+    freq = np.fft.rfftfreq(len(x), h)
+    cum = np.cumsum(power, axis=0)
+    total = cum[-1]
+    omegas = [
+        2 * np.pi * freq[np.searchsorted(cum[:, j], fraction * total[j])]
+        for j in range(x.shape[1])
+        if total[j] > 0
+    ]
+    return float(max(omegas)) if omegas else float("nan")
+
+
+def data_bandwidth(q: np.ndarray, t: np.ndarray) -> float:
+    """The row filter's λ (rad/s) from the data: twice :func:`excitation_bandwidth` (the
+    paper's rule, Section 6), at least 2π·0.5 Hz and at most a tenth of the sample rate in
+    rad/s (beyond that the rows hold mostly differentiation noise)."""
+    h = float(np.median(np.diff(t)))
+    lam = 2.0 * excitation_bandwidth(q, t)
+    if not np.isfinite(lam):
+        lam = 50.0
+    return float(np.clip(lam, 2 * np.pi * 0.5, 0.1 * 2 * np.pi / h))
+
+
+def quantized_stick(q: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(N − 1, 2): interval k has joint j stuck, telling a stuck joint from a reversal.
+
+    With an encoder quantum Δ, a joint reversing at acceleration a stays on one count for
+    about 2√(2Δ/a), so an interval with no encoder motion is only a stick when its run of
+    unchanged counts lasts longer than twice that (Δ: the smallest non-zero step seen; a: the
+    RMS of the joint's acceleration from second differences over the same quantum-free scale).
+    """
+    q = np.asarray(q, dtype=float)
+    t = np.asarray(t, dtype=float)
+    dq = np.diff(q, axis=0)
+    dt = np.diff(t)
+    still = dq == 0
+    out = np.zeros_like(still)
+    for j in range(q.shape[1]):
+        steps = np.abs(dq[:, j])
+        moved = steps[steps > 0]
+        if moved.size == 0:
+            out[:, j] = still[:, j]
+            continue
+        quantum = float(moved.min())
+        # acceleration on a 10-sample scale, where quantization is small against motion
+        s = 10
+        if len(q) > 2 * s + 1:
+            hs = float(np.median(dt)) * s
+            acc = (q[2 * s :, j] - 2 * q[s:-s, j] + q[: -2 * s, j]) / hs**2
+            a_rms = float(np.sqrt(np.mean(acc**2)))
+        else:
+            a_rms = 0.0
+        dwell = 4.0 * np.sqrt(2 * quantum / a_rms) if a_rms > 0 else np.inf
+        # run lengths (in seconds) of consecutive still intervals
+        col = still[:, j]
+        edges = np.flatnonzero(np.diff(np.r_[0, col.astype(np.int8), 0]))
+        for start, stop in zip(edges[::2], edges[1::2], strict=True):
+            if np.sum(dt[start:stop]) > dwell:
+                out[start:stop, j] = True
+    return out
+
+
+@dataclass(frozen=True)
+class RowChunk:
+    """Filtered rows of one chunk: ``y`` (K, m), ``Psi`` (K, m, p), ``weights`` (K, m),
+    ``t`` (K,) the time of each row."""
+
+    t: np.ndarray
+    y: np.ndarray
+    Psi: np.ndarray
+    weights: np.ndarray
+
+
+def iter_rows(
+    scheme: str,
+    q: np.ndarray,
+    tau: np.ndarray,
+    t: np.ndarray,
+    lam: float,
+    model: ArmModel = NINE_PARAMETERS,
+    *,
+    chunk: int = 20000,
+    half_window: int | None = None,
+):
+    """The ``exact`` regression of a recording with real time stamps, in chunks of ``chunk``
+    intervals with the filters' state carried across, so memory stays O(chunk · p) whatever the
+    recording's length. Velocities by :func:`local_polynomial_velocity` over
+    ±``half_window`` samples (default :func:`velocity_half_window`). The rows equal
+    :func:`build_regression`'s with ``t`` and the same ``half_window`` (up to the stick rule,
+    here :func:`quantized_stick`). Yields :class:`RowChunk`."""
+    q, tau, t = (np.asarray(a, dtype=float) for a in (q, tau, t))
+    h = float(np.median(np.diff(t)))
+    _check(q, tau, h, lam, "exact")
+    if len(q) < 8:
+        raise ValueError(f"need at least 8 samples to identify, got {len(q)}")
+    n = len(q)
+    m = velocity_half_window(lam, t) if half_window is None else max(1, int(half_window))
+    stuck_all = quantized_stick(q, t)
+    memory = stick_memory(lam, h)
+    states: dict[str, np.ndarray] = {}
+    last_stuck = None
+    for s in range(m, n - m - 1, chunk):
+        e = min(s + chunk, n - m - 1)  # intervals s..e−1: both end velocities known
+        a, b = max(0, s - m), min(n, e + m + 1)
+        kin = kinematics(
+            "exact", q[a:b], h, model=model, t=t[a:b], half_window=m, keep=(s - a, e - a)
+        )
+        raw = raw_rows(scheme, "exact", q[a:b], tau[a:b], h, kin)
+        k_global = raw.index - 1 + a  # the interval each row is about
+        n_out = raw.y.shape[1]
+        stuck = stuck_all[k_global] if n_out == 2 else np.zeros((len(k_global), 1), bool)
+        ys = []
+        for key, (name, x) in [("y", (raw.y_filter, raw.y))] + [
+            (f"part{i}", part) for i, part in enumerate(raw.parts)
+        ]:
+            bcoef, acoef = filter_coefficients(name, lam, h)
+            zi = states.get(key)
+            if zi is None:
+                zi = np.zeros((max(len(acoef), len(bcoef)) - 1, *x.shape[1:]))
+            out, states[key] = lfilter(bcoef, acoef, x, axis=0, zi=zi)
+            ys.append(out)
+        y, Psi = ys[0], sum(ys[1:])
+        # stick weights with the memory carried across chunks
+        K = len(k_global)
+        idx = np.arange(K)[:, None]
+        prev = np.full((1, n_out), -(10**9)) if last_stuck is None else last_stuck
+        last = np.maximum.accumulate(np.vstack([prev, np.where(stuck, idx, -(10**9))]), axis=0)[1:]
+        weights = (idx - last > memory).astype(float)
+        last_stuck = (last[-1:] - K) if K else prev
+        yield RowChunk(t[raw.index + a], y, Psi, weights)

@@ -1,0 +1,12 @@
+"""Realtime timing studies: jitter measurement, timing-fault sweeps, replay, bus load.
+
+What lives here: the ``hil jitter`` command (:mod:`.jitter_cli`, :mod:`.jitter_plots`), CAN bus
+load from a traffic log (:mod:`.bus_load`), sweeps of injected timing faults over control and
+identification (:mod:`.sweep`, :mod:`.sweep_plots`) and replay of a realtime run in lockstep
+with its timing imposed (:mod:`.replay`, :mod:`.replay_cli`). The scheduler the loop runs on and
+the per-cycle statistics live in :mod:`hil.bench` (the loop needs them; studies read them).
+
+Imports: :mod:`hil.bench`, :mod:`hil.model`, :mod:`hil.control` and :mod:`hil.identify` (a
+sweep tracks and identifies), :mod:`hil.cli_options`. Nothing imports this package but the
+command line.
+"""

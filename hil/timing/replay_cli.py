@@ -1,0 +1,56 @@
+"""`hil replay RUN_DIR`: re-run a recorded realtime run in lockstep with its timing trace imposed
+(hil/timing/replay.py; docs/jitter.md, "Studies")."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from hil.cli_options import add_out_options, prepare_out_dir
+from hil.timing.replay import COMPUTE_S, format_replay, replay_run
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("run_dir", help="a realtime run directory (hil run / hil control)")
+    p.add_argument(
+        "--bench", default=None, help="virtual bench to replay on (default: the recorded one)"
+    )
+    p.add_argument("--out", default=None, help="output directory (default: RUN_DIR-replay)")
+    add_out_options(p)
+    p.add_argument(
+        "--trace-source",
+        choices=("auto", "robot", "host"),
+        default="auto",
+        help="robot: the virtual robot's event log (exact); host: the host's stamps in "
+        "signals.csv; auto: robot if the run has one",
+    )
+    p.add_argument(
+        "--compute",
+        type=float,
+        default=None,
+        help="host stamps only: seconds from a cycle's feedback to its command taking effect "
+        "(default, measured here: "
+        + ", ".join(f"{k} {v * 1e3:g} ms" for k, v in COMPUTE_S.items())
+        + ")",
+    )
+    p.add_argument("--no-plot", action="store_true", help="skip replay.png")
+    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+
+
+def main(args: argparse.Namespace) -> int:
+    if args.compute is not None and not args.compute >= 0:
+        raise ValueError(f"--compute must be >= 0 s, got {args.compute}")
+    out = args.out or f"{str(args.run_dir).rstrip('/')}-replay"
+    prepare_out_dir(out, args.overwrite, inputs=(args.run_dir,))
+    print(f"hil replay: {args.run_dir} in lockstep with its timing -> {out}", file=sys.stderr)
+    doc = replay_run(
+        args.run_dir,
+        out,
+        bench=args.bench,
+        source=args.trace_source,
+        compute_s=args.compute,
+        plot=not args.no_plot,
+    )
+    print(json.dumps(doc) if args.json else format_replay(doc))
+    return 0
