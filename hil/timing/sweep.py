@@ -276,7 +276,7 @@ def _identify(spec: PointSpec, effects: str | None, out: Path) -> dict[str, Any]
     """The excitation over the bench (no online RLS: the batch result is the same), then the
     identification from its recording."""
     from hil.bench.run import run_experiment
-    from hil.identify.schemes import cli as identify_cli
+    from hil.identify import cli as identify_cli
 
     fit = out / "fit"
     run = run_experiment(
