@@ -257,3 +257,14 @@ class Arm(abc.ABC):
             self.safe_stop()
         finally:
             self.close()
+
+
+__all__ = [
+    "Arm",
+    "Fault",
+    "LinkError",
+    "LinkStats",
+    "SafetyLimits",
+    "SafetyStop",
+    "Sample",
+]

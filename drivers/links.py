@@ -122,3 +122,9 @@ def open_arm(
     port = channel.get("channel") or bench.channel
     serial_log = log_dir / "serial.log" if log_dir else None
     return SerialArm(port, drives, log_path=serial_log, baudrate=bench.baudrate, **common)
+
+
+__all__ = [
+    "limits_of",
+    "open_arm",
+]

@@ -780,3 +780,17 @@ def plot_positions(
     fig.savefig(out_png, dpi=110)
     plt.close(fig)
     return out_png
+
+
+__all__ = [
+    "BASE_COLUMNS",
+    "META",
+    "SIGNALS",
+    "Recording",
+    "RecordingError",
+    "RecordingWriter",
+    "parse_column_map",
+    "plot_positions",
+    "read_signals",
+    "write_json_atomic",
+]

@@ -205,3 +205,12 @@ def _feedback_budget(f: Fields, period_s: float) -> float:
     if budget < period_s:
         raise f.error("feedback_budget_s", f"{budget} s is shorter than one period ({period_s} s)")
     return budget
+
+
+__all__ = [
+    "MODES",
+    "PROTOCOLS",
+    "TRANSPORTS",
+    "BenchProfile",
+    "load_bench",
+]

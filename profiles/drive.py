@@ -80,3 +80,9 @@ def load_drive(name_or_path: str | Path) -> DriveProfile:
         vendor_id=f.integer("vendor_id", 0, lo=0, hi=0xFFFFFFFF),
         product_code=f.integer("product_code", 0, lo=0, hi=0xFFFFFFFF),
     )
+
+
+__all__ = [
+    "DriveProfile",
+    "load_drive",
+]

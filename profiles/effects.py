@@ -154,3 +154,15 @@ def load_effects(name_or_path: str | Path | None) -> EffectsProfile:
         return EffectsProfile()
     data, source = load_toml("effects", name_or_path)
     return parse_effects(data, source)
+
+
+__all__ = [
+    "EFFECT_NAMES",
+    "Cogging",
+    "Coulomb",
+    "EffectsProfile",
+    "Payload",
+    "Stribeck",
+    "load_effects",
+    "parse_effects",
+]

@@ -249,3 +249,13 @@ def load_experiment(name_or_path: str | Path) -> ExperimentProfile:
         initial_q_rad=initial,  # type: ignore[arg-type]
         joints=(joints[0], joints[1]),
     )
+
+
+__all__ = [
+    "ExperimentProfile",
+    "JointExcitation",
+    "Sine",
+    "TorqueRows",
+    "check_duration",
+    "load_experiment",
+]

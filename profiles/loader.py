@@ -207,3 +207,12 @@ def _as_number(
         raise f.error(key, f"must be > 0, got {value}")
     _check_range(f, key, value, lo, hi)
     return value
+
+
+__all__ = [
+    "KINDS",
+    "ProfileError",
+    "available",
+    "load_toml",
+    "resolve",
+]

@@ -371,3 +371,14 @@ def _terms(f: Fields) -> tuple[str, ...]:
     if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
         raise mt.error("terms", "must be a list of model term names")
     return tuple(value)
+
+
+__all__ = [
+    "TERMS",
+    "Link",
+    "RobotProfile",
+    "Rotor",
+    "UrdfRobotProfile",
+    "load_robot",
+    "load_urdf_robot",
+]

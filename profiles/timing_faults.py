@@ -380,3 +380,13 @@ def write_trace(path: str | Path, trace: TimingTrace, steps: str | Path | None =
             f.write("t\n")
             f.writelines(f"{float(t)!r}\n" for t in trace.steps)
     return path
+
+
+__all__ = [
+    "TimingFaults",
+    "TimingTrace",
+    "combine",
+    "parse_timing_faults",
+    "read_trace",
+    "write_trace",
+]

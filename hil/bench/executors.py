@@ -165,3 +165,11 @@ def add_executor_arguments(p: Any, default: str = "process") -> None:
 def executor_from_args(args: argparse.Namespace, default: str = "process") -> Executor:
     """The executor of ``--executor``/``--workers``."""
     return make_executor(getattr(args, "executor", default), getattr(args, "workers", None))
+
+
+__all__ = [
+    "KINDS",
+    "LocalProcessExecutor",
+    "SerialExecutor",
+    "make_executor",
+]

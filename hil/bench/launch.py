@@ -180,3 +180,9 @@ class VirtualRobotProcess:
         except queue.Empty:
             self.stop()
             raise LaunchError(f"in-process virtual robot for {bench.name} did not start") from None
+
+
+__all__ = [
+    "LaunchError",
+    "VirtualRobotProcess",
+]

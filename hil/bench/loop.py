@@ -177,3 +177,11 @@ def _check_enabled(arm: Arm, sample: Sample) -> None:
             f"drive {joint + 1} left OPERATION ENABLED at t = {sample.t:.4f} s: "
             f"{name}{detail}; torque zero"
         )
+
+
+__all__ = [
+    "TIMING_COLUMNS",
+    "DriveFaultError",
+    "LoopResult",
+    "run_loop",
+]

@@ -260,3 +260,12 @@ def run_experiment(
             )
         )
     return summary
+
+
+__all__ = [
+    "BenchRun",
+    "UsageError",
+    "check_bench",
+    "record_over_bench",
+    "run_experiment",
+]

@@ -378,3 +378,11 @@ def realtime_scheduling(
         yield got
     finally:
         release_realtime(got)
+
+
+__all__ = [
+    "POLICIES",
+    "DeadlineScheduler",
+    "Scheduling",
+    "realtime_scheduling",
+]

@@ -181,3 +181,12 @@ def loop_timing(
         period_s, deadline, release, feedback, lost_feedback=lost_feedback
     )
     return timing
+
+
+__all__ = [
+    "CycleTiming",
+    "cycle_timing",
+    "jitter_summary",
+    "percentiles_us",
+    "timing_statistics",
+]

@@ -65,3 +65,8 @@ def write_bench_variant(
     dest.parent.mkdir(parents=True, exist_ok=True)
     dest.write_text(header + "\n" + "\n".join(lines) + "\n", encoding="utf-8")
     return load_bench(dest)
+
+
+__all__ = [
+    "write_bench_variant",
+]

@@ -240,3 +240,18 @@ def make_controller(
         q_typical=q_typical,
         friction_velocity=friction_velocity,
     )
+
+
+__all__ = [
+    "SCHEMES",
+    "SCHEME_TITLES",
+    "ComputedTorque",
+    "ControlCommand",
+    "Controller",
+    "Feedforward",
+    "Gains",
+    "PDGravity",
+    "ReducedFeedforward",
+    "Reference",
+    "make_controller",
+]

@@ -631,3 +631,14 @@ def format_table(doc: dict[str, Any]) -> str:
     if doc.get("failures"):
         lines.append("failed runs: " + "; ".join(doc["failures"]))
     return "\n".join(lines).rstrip()
+
+
+__all__ = [
+    "DEFAULT_EXPERIMENT",
+    "LabelledParams",
+    "compare_schemes",
+    "format_table",
+    "improvement_over_pd",
+    "parse_params_spec",
+    "run_control",
+]

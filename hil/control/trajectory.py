@@ -124,3 +124,10 @@ def khosla_kanade_moves(
         hold_s=hold_s,
         start_hold_s=start_hold_s,
     )
+
+
+__all__ = [
+    "PointToPoint",
+    "khosla_kanade_moves",
+    "quintic",
+]

@@ -7,4 +7,20 @@ whole report (:mod:`.report`), its plots (:mod:`.plots`) and the ``hil diagnose`
 (:mod:`.cli`).
 
 Imports: :mod:`hil.model`, :mod:`hil.cli_options`; plots import the report, never the reverse.
+
+Public API (``from hil.diagnose import ...``, docs/api.md): ``diagnose(recordings,
+reference_theta)`` returns a ``DiagnosisResult`` whose ``document`` is what ``hil diagnose
+--json`` prints; ``plot_diagnosis`` draws it (matplotlib, loaded only then).
 """
+
+from hil import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "hil.diagnose.report": ["diagnose", "DiagnosisResult"],
+        "hil.diagnose.selection": ["DiagnosisError"],
+        "hil.diagnose.findings": ["Finding"],
+        "hil.diagnose.plots": ["plot_diagnosis"],
+    },
+)

@@ -236,3 +236,8 @@ def resolve_gain(
     if dev_here >= GAIN_REFERENCE_RATIO * dev_there:
         return {other: r_there}, ev
     return {j: r_here, other: r_there}, ev
+
+
+__all__ = [
+    "Finding",
+]

@@ -92,3 +92,8 @@ def plot_diagnosis(result: DiagnosisResult, out: Path) -> list[Path]:
     fig.savefig(paths[-1], dpi=90)
     plt.close(fig)
     return paths
+
+
+__all__ = [
+    "plot_diagnosis",
+]

@@ -1031,3 +1031,9 @@ def diagnose(
         "timing_s": round(time.perf_counter() - started, 2),
     }
     return DiagnosisResult(doc, {"location": where.arrays, **fit_arrays})
+
+
+__all__ = [
+    "DiagnosisResult",
+    "diagnose",
+]

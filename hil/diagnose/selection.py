@@ -678,3 +678,8 @@ def physical_gate(
         last = accepted.pop()
         rejected[last.cand.key] = "its refit is not physical: " + "; ".join(reasons)
     return accepted
+
+
+__all__ = [
+    "DiagnosisError",
+]

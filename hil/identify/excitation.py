@@ -688,3 +688,15 @@ def parse_trajectory_header(text: str) -> FourierTrajectory:
     if a.ndim != 2 or a.shape[0] != 2 or a.shape != b.shape or not omega > 0:
         raise ValueError("designed trajectory in the profile's comments has the wrong shape")
     return FourierTrajectory(omega, a, b)
+
+
+__all__ = [
+    "CRITERIA",
+    "DesignResult",
+    "ExcitationLimits",
+    "FourierTrajectory",
+    "asymmetry_bias",
+    "criteria",
+    "design_excitation",
+    "profile_toml",
+]

@@ -122,3 +122,8 @@ class OnlineIdentifier:
     def cost_per_sample_s(self) -> float:
         """Mean CPU time of one push (all schemes: rows, filters, RLS updates)."""
         return self.update_time_s / self.samples if self.samples else 0.0
+
+
+__all__ = [
+    "OnlineIdentifier",
+]

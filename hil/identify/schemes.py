@@ -471,3 +471,20 @@ def torque_prediction_error(
         cnt += w.sum(axis=0)
     spread = syy - sy**2 / np.maximum(cnt, 1)
     return [float(np.sqrt(sse[j] / spread[j])) if spread[j] > 0 else float("nan") for j in range(2)]
+
+
+__all__ = [
+    "ESTIMATORS",
+    "PAPER_TABLE_II",
+    "SCHEME_TITLES",
+    "ModelIdentification",
+    "SchemeResult",
+    "format_table_ii",
+    "identify",
+    "identify_model",
+    "initial_velocity",
+    "irregular_times",
+    "table_ii_rows",
+    "torque_prediction_error",
+    "validate",
+]

@@ -316,3 +316,13 @@ def consistent_fit(
 
     sol = nonlinear_least_squares(residual, x0, jac=jacobian, method="trf", max_nfev=500)
     return standard(sol.x)
+
+
+__all__ = [
+    "TorqueIdentification",
+    "TorqueRecording",
+    "identify_torque",
+    "read_one_per_line_log",
+    "regression_rows",
+    "torque_nrmse",
+]

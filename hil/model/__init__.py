@@ -10,4 +10,51 @@ builders of eqs. (24), (28), (30) (:mod:`.regressors`); RLS, batch and weighted 
 
 Imports: numpy, scipy, pinocchio, :mod:`drivers` (recordings) and :mod:`profiles`. Nothing
 from the other ``hil`` packages: they all build on this one.
+
+Public API (``from hil.model import ...``, docs/api.md): ``ArmModel``, ``UrdfArmModel``,
+``simulate_open_loop``, ``nrmse``, ``load_params``, ``robot_params`` and the rest of
+``__all__``; each loads on first use, so ``import hil.model`` loads neither scipy nor Pinocchio.
 """
+
+from hil import lazy_exports
+
+__getattr__, __dir__, __all__ = lazy_exports(
+    __name__,
+    {
+        "hil.model.closed_form": [
+            "ArmModel",
+            "robot_model",
+            "THETA_NAMES",
+            "THETA_UNITS",
+            "mass_matrix",
+            "coriolis_vector",
+            "gravity_vector",
+            "friction_torque",
+            "inverse_dynamics",
+            "forward_dynamics",
+            "physical_consistency",
+        ],
+        "hil.model.urdf": ["UrdfArmModel", "BaseParameters"],
+        "hil.model.regressors": ["SCHEMES", "DISCRETIZATIONS", "Regression", "build_regression"],
+        "hil.model.estimators": [
+            "RecursiveLeastSquares",
+            "recursive_least_squares",
+            "least_squares",
+            "weighted_least_squares",
+        ],
+        "hil.model.openloop": [
+            "OpenLoopResult",
+            "OpenLoopExtras",
+            "simulate_open_loop",
+            "simulate_windows",
+        ],
+        "hil.model.metrics": ["nrmse"],
+        "hil.model.params": [
+            "ParamSet",
+            "ParamsError",
+            "load_params",
+            "save_params",
+            "robot_params",
+        ],
+    },
+)

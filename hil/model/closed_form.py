@@ -532,3 +532,27 @@ class ArmModel:
 def robot_model(profile: object) -> ArmModel:
     """The model a robot profile says its arm has (``profile.terms``; none: the 9-parameter)."""
     return ArmModel(tuple(getattr(profile, "terms", ()) or ()))
+
+
+__all__ = [
+    "N_PARAMS",
+    "TERMS",
+    "THETA_MEANINGS",
+    "THETA_NAMES",
+    "THETA_UNITS",
+    "ArmModel",
+    "coriolis_vector",
+    "dynamic_regressor",
+    "energy_regressor",
+    "forward_dynamics",
+    "friction_power_regressor",
+    "friction_torque",
+    "gravity_vector",
+    "inverse_dynamics",
+    "mass_matrix",
+    "momentum_regressor",
+    "physical_consistency",
+    "robot_model",
+    "static_regressor",
+    "total_energy",
+]

@@ -295,3 +295,13 @@ def blocked_bootstrap(
         pick = np.bincount(rng.integers(0, B, B), minlength=B).astype(float)
         out[i] = solve_normal_equations(np.einsum("b,bpq->pq", pick, H), pick @ g)
     return out
+
+
+__all__ = [
+    "RecursiveLeastSquares",
+    "blocked_bootstrap",
+    "bounded_quadratic_fit",
+    "least_squares",
+    "recursive_least_squares",
+    "weighted_least_squares",
+]

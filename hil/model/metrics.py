@@ -33,3 +33,8 @@ def nrmse(reference: ArrayLike, estimate: ArrayLike) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(constant, np.nan, error / np.where(constant, 1.0, spread))
     return np.asarray(ratio)
+
+
+__all__ = [
+    "nrmse",
+]

@@ -661,3 +661,11 @@ def simulate_windows(
         "diverged": int(np.sum(~ok)),
         "window_s": float(L * h),
     }
+
+
+__all__ = [
+    "OpenLoopExtras",
+    "OpenLoopResult",
+    "simulate_open_loop",
+    "simulate_windows",
+]

@@ -133,3 +133,13 @@ def save_params(
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(path, doc)
     return path
+
+
+__all__ = [
+    "KIND",
+    "ParamSet",
+    "ParamsError",
+    "load_params",
+    "robot_params",
+    "save_params",
+]

@@ -602,3 +602,16 @@ def iter_rows(
         weights = (idx - last > memory).astype(float)
         last_stuck = (last[-1:] - K) if K else prev
         yield RowChunk(t[raw.index + a], y, Psi, weights)
+
+
+__all__ = [
+    "DISCRETIZATIONS",
+    "SCHEMES",
+    "Regression",
+    "RowChunk",
+    "build_regression",
+    "data_bandwidth",
+    "excitation_bandwidth",
+    "filter_coefficients",
+    "iter_rows",
+]

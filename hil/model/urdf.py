@@ -510,3 +510,10 @@ def _bilinear_inertia_regressor(v: np.ndarray, w: np.ndarray) -> np.ndarray:
         ],
         axis=-1,
     )
+
+
+__all__ = [
+    "TERMS",
+    "BaseParameters",
+    "UrdfArmModel",
+]

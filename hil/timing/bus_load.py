@@ -70,3 +70,9 @@ def cyclic_bus_load(
     load["cycle_load_pct"] = 100.0 * load["bits_per_cycle"] / (period_s * bitrate)
     load["source"] = str(path)
     return load
+
+
+__all__ = [
+    "cyclic_bus_load",
+    "read_candump",
+]

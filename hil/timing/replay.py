@@ -353,3 +353,10 @@ def format_replay(doc: dict[str, Any]) -> str:
 
 def dumps(doc: dict[str, Any]) -> str:
     return json.dumps(doc)
+
+
+__all__ = [
+    "format_replay",
+    "replay_run",
+    "trace_from_run",
+]
