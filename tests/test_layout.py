@@ -1,0 +1,204 @@
+"""The package layering (issue 15), checked statically: every import statement in the tree,
+including those inside functions, walked with ``ast``. The table below is what each package's
+docstring and README.md's Layout section say it may import."""
+
+from __future__ import annotations
+
+import ast
+import functools
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+TOP = ("hil", "drivers", "virtual_robot", "profiles")
+HIL_PACKAGES = ("model", "bench", "identify", "diagnose", "control", "timing")
+SHARED = "hil.<shared>"  # top-level hil modules the commands share (hil/cli_options.py)
+ENTRY = ("hil.cli", "hil.entry", "hil.__main__")
+
+BASE = {"hil", "drivers", "profiles"}
+MAY_IMPORT: dict[str, set[str]] = {
+    "profiles": set(),
+    "drivers": {"profiles"},
+    "virtual_robot": {"drivers", "profiles"},
+    "hil": set(),  # hil/__init__.py: the version and lazy_exports, standard library only
+    SHARED: BASE,
+    "hil.model": BASE,
+    "hil.bench": BASE,
+    "hil.identify": BASE | {SHARED, "hil.model", "hil.bench"},
+    "hil.diagnose": BASE | {SHARED, "hil.model"},
+    "hil.control": BASE | {SHARED, "hil.model", "hil.bench"},
+    "hil.timing": BASE | {SHARED, "hil.model", "hil.bench", "hil.identify", "hil.control"},
+    "hil.cli": BASE | {SHARED, *(f"hil.{p}" for p in HIL_PACKAGES)},
+    "hil.entry": {"hil", "drivers", "hil.cli"},
+    "hil.__main__": {"hil.entry"},
+}
+
+# Module cycles through imports inside functions that issue 15 is removing on another branch
+# (one stick–slip integrator); delete the entry when that lands. No new ones may appear.
+KNOWN_FUNCTION_LEVEL_CYCLES = [{"hil.model.openloop", "hil.model.openloop_effects"}]
+
+
+def module_files() -> dict[str, Path]:
+    mods = {}
+    for top in TOP:
+        for path in (ROOT / top).rglob("*.py"):
+            name = ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
+            mods[name] = path
+    return mods
+
+
+MODULES = module_files()
+
+
+def imports(name: str, *, top_level_only: bool, source: str | None = None) -> list[tuple[str, int]]:
+    """(imported project module, line) for every import in module ``name`` (its file, or
+    ``source``); ``from a import b`` counts as importing ``a.b`` when that is a module, else
+    ``a``."""
+    path = MODULES.get(name, ROOT / (name.replace(".", "/") + ".py"))
+    tree = ast.parse(path.read_text() if source is None else source, str(path))
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    out = []
+    for node in tree.body if top_level_only else ast.walk(tree):
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:  # relative: from the package, up level - 1
+                parent = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                base = f"{parent}.{base}" if base else parent
+            targets = [
+                f"{base}.{a.name}" if f"{base}.{a.name}" in MODULES else base for a in node.names
+            ]
+        else:
+            continue
+        for target in targets:
+            while target and target not in MODULES:  # `import a.b.c` of a package path
+                target = target.rpartition(".")[0]
+            if target and target != name:
+                out.append((target, node.lineno))
+    return out
+
+
+def unit(module: str) -> str:
+    """The layer a module belongs to: a top package, a hil package, or a hil top-level module."""
+    parts = module.split(".")
+    if parts[0] != "hil":
+        return parts[0]
+    if len(parts) == 1:
+        return "hil"
+    if parts[1] in HIL_PACKAGES:
+        return f"hil.{parts[1]}"
+    if module in ENTRY:
+        return module
+    if (ROOT / "hil" / parts[1]).is_dir():
+        raise AssertionError(
+            f"hil/{parts[1]}/ is a package the layering does not know: add it to MAY_IMPORT "
+            "here, to its docstring and to README.md's Layout section"
+        )
+    return SHARED
+
+
+@functools.cache
+def module_imports(name: str, top_level_only: bool) -> tuple[tuple[str, int], ...]:
+    return tuple(imports(name, top_level_only=top_level_only))
+
+
+def graph(*, top_level_only: bool) -> dict[str, set[str]]:
+    return {m: {t for t, _ in module_imports(m, top_level_only)} for m in MODULES}
+
+
+def cycles(g: dict[str, set[str]]) -> list[set[str]]:
+    """Strongly connected components with more than one node (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[set[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in g.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = set()
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.add(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(component)
+
+    for v in sorted(g):
+        if v not in index:
+            visit(v)
+    return found
+
+
+@pytest.mark.parametrize("layer", sorted(MAY_IMPORT))
+def test_each_package_imports_only_the_layers_below_it(layer):
+    """profiles imports nothing of the project, drivers nothing of hil or virtual_robot, hil
+    never virtual_robot, hil.model nothing of identify/diagnose/control/timing, ..."""
+    wrong = [
+        f"{MODULES[m].relative_to(ROOT)}:{line} imports {target}"
+        for m in MODULES
+        if unit(m) == layer
+        for target, line in module_imports(m, False)
+        if unit(target) != layer and unit(target) not in MAY_IMPORT[layer]
+    ]
+    assert not wrong, f"{layer} may import only {sorted(MAY_IMPORT[layer])}:\n" + "\n".join(wrong)
+
+
+def test_every_module_is_in_a_known_layer():
+    assert {unit(m) for m in MODULES} <= set(MAY_IMPORT)
+
+
+def test_the_package_graph_has_no_cycle():
+    units: dict[str, set[str]] = {}
+    for m, targets in graph(top_level_only=False).items():
+        units.setdefault(unit(m), set()).update(unit(t) for t in targets if unit(t) != unit(m))
+    assert cycles(units) == []
+    assert cycles(MAY_IMPORT) == []  # the allowed table itself is a DAG
+
+
+def test_no_module_import_cycle():
+    assert cycles(graph(top_level_only=True)) == []  # what would break an import at run time
+    extra = [c for c in cycles(graph(top_level_only=False)) if c not in KNOWN_FUNCTION_LEVEL_CYCLES]
+    assert not extra, f"new import cycles (counting imports inside functions): {extra}"
+
+
+def test_the_walk_sees_every_kind_of_import():
+    """The check is only as good as the walk: imports inside functions, relative imports and
+    ``from package import module`` all count."""
+    source = (
+        "import numpy\n"
+        "from hil.model import closed_form\n"
+        "from . import tracking\n"
+        "from ..bench.run import run_experiment\n"
+        "def f():\n"
+        "    import profiles.robot\n"
+        "    from hil.identify.schemes import identify\n"
+    )
+    found = imports("hil.control.example", top_level_only=False, source=source)
+    assert sorted(t for t, _ in found) == [
+        "hil.bench.run",
+        "hil.control.tracking",
+        "hil.identify.schemes",
+        "hil.model.closed_form",
+        "profiles.robot",
+    ]
+    top = imports("hil.control.example", top_level_only=True, source=source)
+    assert sorted(t for t, _ in top) == [
+        "hil.bench.run",
+        "hil.control.tracking",
+        "hil.model.closed_form",
+    ]
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [{"a", "b", "c"}]
