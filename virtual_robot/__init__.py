@@ -1,3 +1,15 @@
-"""The virtual robot: plant physics, effects, drive emulation (and, later, protocol servers)."""
+"""The virtual robot: plant physics, effects, drive emulation and protocol servers.
+
+What lives here: the world (:mod:`.plant`, :mod:`.dynamics`, :mod:`.effects`), the CiA 402
+drive model (:mod:`.drive`), the robot behind any transport in lockstep or realtime
+(:mod:`.robot`), the transports (:mod:`.can_server`, :mod:`.slcan_device`,
+:mod:`.socketcand_hub`, :mod:`.serial_server`, :mod:`.raw_pty`), robot-side timing faults and
+CAN bit time (:mod:`.timing_faults`, :mod:`.bus_pacing`), and the ``virtual-robot`` command
+(:mod:`.serve`, :mod:`.simulate`, :mod:`.cli`).
+
+Imports: :mod:`drivers` (the protocol codecs, units, the recording format, transports) and
+:mod:`profiles`; never ``hil``, and ``hil`` never imports it (the plant is the world; the
+in-process bench loads :mod:`.serve` by name).
+"""
 
 __version__ = "0.1.0"
