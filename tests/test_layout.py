@@ -13,7 +13,8 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 TOP = ("hil", "drivers", "virtual_robot", "profiles")
 HIL_PACKAGES = ("model", "bench", "identify", "diagnose", "control", "timing")
-SHARED = "hil.<shared>"  # top-level hil modules the commands share (hil/cli_options.py)
+SHARED = "hil.<shared>"  # top-level hil modules the commands share (hil/cli_options.py):
+# above model and bench, below the capability packages that build commands on it
 ENTRY = ("hil.cli", "hil.entry", "hil.__main__")
 
 BASE = {"hil", "drivers", "profiles"}
@@ -22,7 +23,7 @@ MAY_IMPORT: dict[str, set[str]] = {
     "drivers": {"profiles"},
     "virtual_robot": {"drivers", "profiles"},
     "hil": set(),  # hil/__init__.py: the version and lazy_exports, standard library only
-    SHARED: BASE,
+    SHARED: BASE | {"hil.model", "hil.bench"},  # their error types, for exit statuses
     "hil.model": BASE,
     "hil.bench": BASE,
     "hil.identify": BASE | {SHARED, "hil.model", "hil.bench"},
