@@ -316,7 +316,8 @@ class DriveModel:
     @property
     def torque_actual_permille(self) -> int:
         """0x6077: the clamped target while applying torque, else 0."""
-        if not self._applying:
+        # _applying, inlined: read several times per period by the stepper and the recording
+        if self._state is not State.OPERATION_ENABLED or self._controlword & CW_HALT:
             return 0
         return min(max(self._target, -self._max_torque), self._max_torque)
 
@@ -344,9 +345,10 @@ class DriveModel:
             sw |= 0x0010
         if state is not State.QUICK_STOP_ACTIVE:
             sw |= 0x0020
-        if state is State.OPERATION_ENABLED and not self.saturated:
+        saturated = self.saturated
+        if state is State.OPERATION_ENABLED and not saturated:
             sw |= 0x0400
-        if self.saturated:
+        if saturated:
             sw |= 0x0800
         return sw
 

@@ -117,15 +117,15 @@ class Stepper:
         """
         self.unapplied = False
         drives = self.drives
-        powered = tuple(d.powered for d in drives)
+        powered = tuple([d.powered for d in drives])
+        cmd = tuple([d.torque_Nm for d in drives])
         timing = self.timing
         if timing is None:
-            self.plant.command(tuple(d.torque_Nm for d in drives), issued_at=now, powered=powered)
+            self.plant.command(cmd, issued_at=now, powered=powered)
             return now if from_host else None
         if not from_host:
             self.plant.set_powered(powered)
             return None
-        cmd = tuple(d.torque_Nm for d in drives)
         if not self.lockstep:
             at = timing.realtime_delivery(now)
             self.plant.command(cmd, issued_at=now, powered=powered, deliver_at=at)
