@@ -105,10 +105,8 @@ class VirtualRobot:
         self.plant = Plant(
             PlantParams.from_profiles(robot, self.effects), q0=q0, max_step_s=min(step_s, period_s)
         )
-        # injected timing faults or an imposed timing trace (virtual_robot/timing_faults.py)
-        self.timing = timing
-        # the stepping sequence (sample, apply, advance); its time, SYNC count and pending
-        # commands are the robot's
+        # the stepping sequence (sample, apply, advance); its time, SYNC count, pending commands
+        # and timing faults are the robot's
         self.stepper = Stepper(
             self.plant, self.drives, period_s, timing=timing, lockstep=mode == LOCKSTEP
         )
@@ -133,6 +131,11 @@ class VirtualRobot:
     def syncs(self) -> int:
         """SYNCs (serial steps) so far."""
         return self.stepper.syncs
+
+    @property
+    def timing(self) -> RobotTiming | None:
+        """Injected timing faults or an imposed timing trace (virtual_robot/timing_faults.py)."""
+        return self.stepper.timing
 
     def now(self) -> float:
         if self.mode == LOCKSTEP:
