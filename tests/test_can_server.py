@@ -340,6 +340,38 @@ def test_rpdo_length_error_and_rejected_value(link: Link, monkeypatch: pytest.Mo
     assert link.server.errors == 0
 
 
+def test_an_rpdo_is_written_and_applied_under_the_core_lock(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """No realtime period tick (another thread) can fall between an RPDO's writes and their
+    application: the server holds the core's lock from the first write to apply_commands."""
+    core, server, _ = _configured_server()
+    held: list[bool] = []
+
+    def lock_held_elsewhere() -> bool:
+        free = core.lock.acquire(blocking=False)
+        if free:
+            core.lock.release()
+        return not free
+
+    def probe(name: str) -> None:
+        original = getattr(core, name)
+
+        def wrapped(*args: object, **kw: object) -> object:
+            other = threading.Thread(target=lambda: held.append(lock_held_elsewhere()))
+            other.start()
+            other.join()
+            return original(*args, **kw)
+
+        monkeypatch.setattr(core, name, wrapped)
+
+    probe("write")
+    probe("apply_commands")
+    server.handle(frame(0x201, co.pack_pdo(co.RPDO1_MAP, (co.CW_ENABLE_OPERATION, 100))))
+    assert held == [True, True, True]  # controlword, target torque, their application
+    assert core.read(0x6071, 0, node=1) == 100
+
+
 def test_watchdog_over_the_bus(link: Link) -> None:
     host = link.host
     host.start_up()

@@ -19,7 +19,8 @@ Services (CiA 301 predefined connection set, node id n):
   object); an unexpected internal error aborts with 0x08000000. A client abort (ccs 4) gets no
   answer. An expedited download without size indication takes the object's size from the 4 bytes.
 * **RPDO1** on the COB-ID configured in 0x1400:1, OPERATIONAL only, mapping 0x1600: each mapped
-  object is written with :meth:`VirtualRobot.write`.
+  object is written with :meth:`VirtualRobot.write`, and the plant is given them once, with
+  the core's lock held throughout (a realtime period tick never sees half an RPDO).
 * **SYNC** 0x080 (DLC 0, or 1 with a SYNC counter): :meth:`VirtualRobot.sync` (one period in
   lockstep), then for each OPERATIONAL node with valid COB-IDs, TPDO1 (0x1800/0x1A00) and TPDO2
   (0x1801/0x1A01), packed from :meth:`VirtualRobot.read` of each mapped object. Order: node 1
@@ -373,16 +374,20 @@ class CanDriveServer:
             register |= co.ERREG_GENERIC | co.ERREG_COMMUNICATION
             self._send(co.EMCY_BASE + node, co.emcy_payload(ERR_PDO_LENGTH, register))
             return
-        try:
-            for (index, sub), value in zip(mapping, codec.unpack(data), strict=True):
-                try:
-                    self.core.write(index, sub, value, node=node, apply=False)
-                except SdoAbortError as exc:
-                    register = self.core.read(0x1001, 0, node=node) | co.ERREG_GENERIC
-                    self._send(co.EMCY_BASE + node, co.emcy_payload(ERR_PARAMETER, register))
-                    self._log(f"RPDO1 of node {node}: {exc}")
-        finally:
-            self.core.apply_commands()  # the mapped objects arrived together: applied together
+        # The mapped objects arrived together: written and applied together, under the core's
+        # lock, so a realtime period tick cannot fall between them (it would apply the command
+        # before the event log says it took effect, and `hil replay` could not reproduce it).
+        with self.core.lock:
+            try:
+                for (index, sub), value in zip(mapping, codec.unpack(data), strict=True):
+                    try:
+                        self.core.write(index, sub, value, node=node, apply=False)
+                    except SdoAbortError as exc:
+                        register = self.core.read(0x1001, 0, node=node) | co.ERREG_GENERIC
+                        self._send(co.EMCY_BASE + node, co.emcy_payload(ERR_PARAMETER, register))
+                        self._log(f"RPDO1 of node {node}: {exc}")
+            finally:
+                self.core.apply_commands()
 
     def _sync(self, data: bytes) -> bool:
         if len(data) > 1:

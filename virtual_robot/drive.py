@@ -84,6 +84,11 @@ __all__ = [
 ]
 
 _SW_BITS = {state: value for _, value, state in SW_PATTERNS}
+# The states the per-period paths (update, torque, statusword) compare with, looked up once:
+# an Enum member lookup costs about as much as the rest of such a comparison.
+_ENABLED = State.OPERATION_ENABLED
+_QUICK_STOP = State.QUICK_STOP_ACTIVE
+_NOT_READY = State.NOT_READY_TO_SWITCH_ON
 
 
 class _Cmd(enum.Enum):
@@ -255,12 +260,10 @@ class DriveModel:
             self._velocity = min(max(v, INT32_MIN), INT32_MAX)
         self._counts, self._t_prev = counts, now
 
-        if (
-            self._state in (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE)
-            and abs(velocity_rad_s) > self.profile.max_velocity_rad_s
-        ):
+        powered = self._state is _ENABLED or self._state is _QUICK_STOP
+        if powered and abs(velocity_rad_s) > self.profile.max_velocity_rad_s:
             self._fault(ERR_OVERSPEED, ERREG_GENERIC | ERREG_DEVICE_PROFILE, now)
-        if count_period and self._state is State.OPERATION_ENABLED:
+        if count_period and self._state is _ENABLED:
             self._watchdog += 1
             if self._watchdog >= self.watchdog_periods:
                 self._fault(ERR_RPDO_TIMEOUT, ERREG_GENERIC | ERREG_COMMUNICATION, now)
@@ -271,7 +274,7 @@ class DriveModel:
         self._fault(code, ERREG_GENERIC | ERREG_COMMUNICATION, now)
 
     def _boot(self, now: float) -> None:
-        if self._state is State.NOT_READY_TO_SWITCH_ON and now >= self._boot_time_s:
+        if self._state is _NOT_READY and now >= self._boot_time_s:
             self._state = State.SWITCH_ON_DISABLED  # transition 1
 
     def _fault(self, code: int, register: int, now: float) -> None:
@@ -311,12 +314,13 @@ class DriveModel:
 
     @property
     def _applying(self) -> bool:
-        return self._state is State.OPERATION_ENABLED and not self._controlword & CW_HALT
+        return self._state is _ENABLED and not self._controlword & CW_HALT
 
     @property
     def torque_actual_permille(self) -> int:
         """0x6077: the clamped target while applying torque, else 0."""
-        if not self._applying:
+        # _applying, inlined: read several times per period by the stepper and the recording
+        if self._state is not _ENABLED or self._controlword & CW_HALT:
             return 0
         return min(max(self._target, -self._max_torque), self._max_torque)
 
@@ -328,7 +332,7 @@ class DriveModel:
     @property
     def powered(self) -> bool:
         """Power stage on: OPERATION ENABLED or QUICK STOP ACTIVE (torque may still be zero)."""
-        return self._state in (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE)
+        return self._state is _ENABLED or self._state is _QUICK_STOP
 
     @property
     def torque_Nm(self) -> float:
@@ -342,11 +346,12 @@ class DriveModel:
         sw = _SW_BITS[state] | 0x0200
         if state in _VOLTAGE_ON:
             sw |= 0x0010
-        if state is not State.QUICK_STOP_ACTIVE:
+        if state is not _QUICK_STOP:
             sw |= 0x0020
-        if state is State.OPERATION_ENABLED and not self.saturated:
+        saturated = self.saturated
+        if state is _ENABLED and not saturated:
             sw |= 0x0400
-        if self.saturated:
+        if saturated:
             sw |= 0x0800
         return sw
 

@@ -5,10 +5,11 @@ Time has two modes (DESIGN.md "Time"):
 
 * **lockstep**: robot time stands still between SYNCs. The first SYNC samples at t = 0; every
   later SYNC first advances the plant one period with the torques held since the previous one,
-  then samples. A torque written between SYNC k and SYNC k+1 is applied at t_k, so the sequence
-  is exactly the offline simulation's (sample at t_k, command, hold over [t_k, t_k + h)). As
-  nothing moves in between, the plant is given the drives' commands and power states once per
-  SYNC, just before it advances (the same command, issued at the same t_k).
+  then samples. A torque written between SYNC k and SYNC k+1 is applied at t_k. The sequence is
+  :class:`~virtual_robot.stepping.Stepper`'s, the one the offline simulation steps through too
+  (sample at t_k, command, hold over [t_k, t_k + h)). As nothing moves in between, the plant is
+  given the drives' commands and power states once per SYNC, just before it advances (the same
+  command, issued at the same t_k).
 * **realtime**: robot time is the clock passed in. Every call first integrates the plant up to
   now with the torques held so far; a late command is applied late. The drives' own period
   timer (:meth:`tick`, called every period by the server) counts the command watchdog; a SYNC
@@ -31,6 +32,7 @@ from profiles.effects import EffectsProfile
 from profiles.robot import RobotProfile
 from virtual_robot.drive import DriveError, DriveModel, Emcy
 from virtual_robot.plant import DEFAULT_STEP_S, Plant, PlantParams
+from virtual_robot.stepping import Stepper
 from virtual_robot.timing_faults import RobotTiming
 
 LOCKSTEP, REALTIME = "lockstep", "realtime"
@@ -103,25 +105,38 @@ class VirtualRobot:
         self.plant = Plant(
             PlantParams.from_profiles(robot, self.effects), q0=q0, max_step_s=min(step_s, period_s)
         )
-        self.syncs = 0
-        # injected timing faults or an imposed timing trace (virtual_robot/timing_faults.py)
-        self.timing = timing
-        self._pushed: tuple[int, tuple[float, float]] | None = None  # lockstep: last queued
+        # the stepping sequence (sample, apply, advance); its time, SYNC count, pending commands
+        # and timing faults are the robot's
+        self.stepper = Stepper(
+            self.plant, self.drives, period_s, timing=timing, lockstep=mode == LOCKSTEP
+        )
         # event_log(event, n, t): "sample" / "command" times for `hil replay` (realtime runs)
         self.event_log: Callable[[str, int, float], None] | None = None
         # bumped whenever the stored objects change (PDO map, COB-IDs, 0x1017, reset node), so a
         # server may cache what it derives from them (routing, TPDO packing, heartbeat period)
         self.config_version = 0
-        self._unapplied = False  # writes with apply=False the plant has not been given yet
         self._mapping_cache: dict[tuple[int, int], tuple[tuple[int, int], ...]] = {}
-        self.t = 0.0  # robot time of the last sample / event
         self._store: list[dict[tuple[int, int], int]] = [
             self._initial_objects(p) for p in self.profiles
         ]
-        for i, d in enumerate(self.drives):  # power on: transition 1 to SWITCH ON DISABLED
-            d.update(0.0, self.plant.measured_q[i], self.plant.dq[i], count_period=False)
+        self.stepper.sample(0.0, count_period=False)  # power on: transition 1, SWITCH ON DISABLED
 
     # ---- time ---------------------------------------------------------------------------
+    @property
+    def t(self) -> float:
+        """Robot time of the last sample / event."""
+        return self.stepper.t
+
+    @property
+    def syncs(self) -> int:
+        """SYNCs (serial steps) so far."""
+        return self.stepper.syncs
+
+    @property
+    def timing(self) -> RobotTiming | None:
+        """Injected timing faults or an imposed timing trace (virtual_robot/timing_faults.py)."""
+        return self.stepper.timing
+
     def now(self) -> float:
         if self.mode == LOCKSTEP:
             return self.t
@@ -136,58 +151,16 @@ class VirtualRobot:
                 self.plant.advance_to(now)
                 if self.event_log is not None:  # the integration grid, for `hil replay`
                     self.event_log("advance", self.syncs, now)
-            self.t = max(self.t, now)
-        return self.t
+            stepper = self.stepper
+            stepper.t = max(stepper.t, now)
+        return self.stepper.t
 
     def _apply_torques(self, now: float, from_host: bool = True) -> None:
-        """Give the plant the drives' torques and power states. ``from_host``: a command the
-        host just sent (timing faults delay it); else the robot's own re-issue of what the
-        drives hold (a period tick, a safe stop), which only switches power stages at once."""
-        self._unapplied = False
-        d1, d2 = self.drives
-        powered = (d1.powered, d2.powered)
-        timing = self.timing
-        if timing is None:
-            self.plant.command((d1.torque_Nm, d2.torque_Nm), issued_at=now, powered=powered)
-            at = now
-        elif not from_host:
-            self.plant.set_powered(powered)
-            return
-        elif self.mode == REALTIME:
-            at = timing.realtime_delivery(now)
-            self.plant.command(
-                (d1.torque_Nm, d2.torque_Nm), issued_at=now, powered=powered, deliver_at=at
-            )
-        else:
-            self._deliver_lockstep(timing, now, (d1.torque_Nm, d2.torque_Nm), powered)
-            return
-        if from_host and self.event_log is not None:  # when the command takes effect
-            self.event_log("command", self.syncs, at)
-
-    def _deliver_lockstep(
-        self,
-        timing: RobotTiming,
-        now: float,
-        cmd: tuple[float, float],
-        powered: tuple[bool, bool],
-    ) -> None:
-        """Lockstep with timing faults or a trace: queue the command of cycle k = syncs − 1 for
-        the time it takes effect (before the first sample: now). Each new command is queued
-        once; where a trace has joint 1's command arrive before joint 2's, joint 1's goes
-        first, with joint 2 still holding the previous one."""
-        k = self.syncs - 1
-        first, at = timing.deliveries(k, now) if k >= 0 else (now, now)
-        pushed = self._pushed
-        if pushed is not None and pushed[1] == cmd:
-            self.plant.set_powered(powered)  # nothing new to deliver
-            return
-        if pushed is not None and pushed[0] == k:  # a second write of the same cycle
-            first = at
-        if first < at and pushed is not None:
-            joint1_first = (cmd[0], pushed[1][1])
-            self.plant.command(joint1_first, issued_at=now, powered=powered, deliver_at=first)
-        self.plant.command(cmd, issued_at=now, powered=powered, deliver_at=at)
-        self._pushed = (k, cmd)
+        """Give the plant the drives' torques and power states (Stepper.apply); a host's
+        command taking effect goes to the event log."""
+        at = self.stepper.apply(now, from_host)
+        if at is not None and self.event_log is not None:  # when the command takes effect
+            self.event_log("command", self.stepper.syncs, at)
 
     def drop_command(self) -> bool:
         """Whether a cyclic command frame from the host is lost (robot-side timing fault): only
@@ -201,14 +174,14 @@ class VirtualRobot:
             return 0.0
         return self.timing.feedback_delay_s()
 
-    def _sample(self, now: float, count_period: bool) -> None:
-        measured, rates = self.plant.measured_q, self.plant.dq
-        for i, d in enumerate(self.drives):
-            d.update(now, measured[i], rates[i], count_period=count_period)
-        if self.mode == LOCKSTEP:  # the plant stands still until the next SYNC applies it
-            self._unapplied = True
-        else:
-            self._apply_torques(now, from_host=False)  # a fault in update() zeroes torque at once
+    def _sample_realtime(self, now: float, count_period: bool) -> None:
+        stepper = self.stepper
+        stepper.sample(now, count_period)
+        # A fault in update() zeroes torque at once. A sample that falls between a host's
+        # writes and their application (none does through the servers, which apply an RPDO
+        # under the lock) delivers them: that is when the host's command takes effect, so it
+        # is one (delayed by timing faults, in the event log for `hil replay`).
+        self._apply_torques(now, from_host=stepper.unapplied)
 
     # ---- events from a transport ----------------------------------------------------------
     def sync(self) -> list[Feedback]:
@@ -221,28 +194,13 @@ class VirtualRobot:
         """:meth:`sync` without building its feedback (a server reads the objects it maps)."""
         with self.lock:
             if self.mode == LOCKSTEP:
-                if self._unapplied:  # what the drives command since the last SYNC, issued at t
-                    self._apply_torques(self.t)
-                if self.syncs > 0:
-                    # t_k = k·h, computed exactly as the offline simulation and recordings do
-                    # (or the sample time a timing trace imposes)
-                    if self.timing is None:
-                        self.t = self.syncs * self.period_s
-                        self.plant.advance_to(self.t)
-                    else:
-                        self.t = self.timing.sample_time(self.syncs)
-                        self.timing.advance(self.plant, self.t)
-                elif self.timing is not None and self.timing.trace is not None:
-                    # a trace runs on the recorded robot's clock: the plant, at rest until
-                    # now, starts there (so the replay integrates the same time arithmetic)
-                    self.t = self.plant.t = self.timing.sample_time(0)
-                self._sample(self.t, count_period=True)
-            else:
-                now = self._catch_up()
-                self._sample(now, count_period=False)
-                if self.event_log is not None:
-                    self.event_log("sample", self.syncs, now)
-            self.syncs += 1
+                self.stepper.sync()
+                return
+            now = self._catch_up()
+            self._sample_realtime(now, count_period=False)
+            if self.event_log is not None:
+                self.event_log("sample", self.stepper.syncs, now)
+            self.stepper.syncs += 1
 
     def tick(self) -> None:
         """Realtime only: one period of the drives' own timer (command watchdog)."""
@@ -250,7 +208,7 @@ class VirtualRobot:
             if self.mode != REALTIME:
                 return
             now = self._catch_up()
-            self._sample(now, count_period=True)
+            self._sample_realtime(now, count_period=True)
 
     def start_period_timer(self, stop: threading.Event) -> threading.Thread | None:
         """Realtime: a daemon thread calling :meth:`tick` every period until ``stop`` is set.
@@ -321,14 +279,14 @@ class VirtualRobot:
             if apply:
                 self._apply_torques(now)
             else:
-                self._unapplied = True
+                self.stepper.unapplied = True
 
     def apply_commands(self) -> None:
         """Give the plant the drives' torque commands and power states of the writes made with
         ``apply=False``: now in realtime; in lockstep, where robot time stands still until the
         next SYNC, when that SYNC advances the plant (the same command, issued at the same t)."""
         with self.lock:
-            if self._unapplied and self.mode == REALTIME:
+            if self.stepper.unapplied and self.mode == REALTIME:
                 self._apply_torques(self._catch_up())
 
     def read(

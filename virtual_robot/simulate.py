@@ -2,7 +2,9 @@
 
 No transport and no wall clock: each period k the drives sample the encoders at t = k·h, the
 experiment's torque is quantized by the drive (0x6071 per-mille, clamped to 0x6072) and held over
-[t, t + h) while the plant integrates. The recording follows DESIGN.md (drivers.recording).
+[t, t + h) while the plant integrates. The stepping is the served robot's lockstep sequence
+(virtual_robot.stepping.Stepper), without its lock. The recording follows DESIGN.md
+(drivers.recording).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from profiles.robot import RobotProfile
 from virtual_robot import __version__
 from virtual_robot.drive import MODE_CST, DriveModel, State
 from virtual_robot.plant import DEFAULT_STEP_S, Plant, PlantParams
+from virtual_robot.stepping import Stepper
 
 ENABLE_SEQUENCE = (0x06, 0x07, 0x0F)  # shutdown, switch on, enable operation (CiA 402)
 
@@ -84,8 +87,9 @@ def simulate(
         max_step_s=min(step_s, h),
     )
     drives = [DriveModel(p, period_s=h) for p in drives_p]
-    for i, d in enumerate(drives):  # boot and enable exactly as a host would over the bus
-        d.update(0.0, plant.measured_q[i], plant.dq[i])
+    stepper = Stepper(plant, drives, h)
+    stepper.sample(0.0, count_period=False)  # power on: transition 1, SWITCH ON DISABLED
+    for i, d in enumerate(drives):  # enable exactly as a host would over the bus
         d.write_mode(MODE_CST)
         for cw in ENABLE_SEQUENCE:
             d.write_controlword(cw, 0.0)
@@ -130,11 +134,10 @@ def simulate(
         q = [0.0, 0.0]
         tau = [0.0, 0.0]
         for k in range(n_rows):
-            t = k * h
+            # the torques written at t_{k-1} held over [t_{k-1}, t_k), encoders sampled at t_k
+            t = stepper.sync()
             commanded = commanded_Nm[k]
-            measured, rates = plant.measured_q, plant.dq
             for i, d in enumerate(drives):
-                d.update(t, measured[i], rates[i])  # encoders sampled at t
                 counts[i] = unwrap_int32(counts[i], d.position_counts)
                 q[i] = counts_to_rad(counts[i], cpr[i])
                 d.write_target_torque(torque_to_permille(commanded[i], rated[i]), t)
@@ -154,13 +157,10 @@ def simulate(
                             file=sys.stderr,
                         )
             rec.write((t, q[0], q[1], tau[0], tau[1], drives[0].statusword, drives[1].statusword))
-            plant.command(
-                (tau[0], tau[1]), issued_at=t, powered=(drives[0].powered, drives[1].powered)
-            )
-            plant.advance_to((k + 1) * h)
             if progress is not None and time.perf_counter() - last_report > 1.0:
                 last_report = time.perf_counter()
                 progress(t + h, n_rows * h)
+        stepper.advance()  # the last row's torque held over its period too
         wall = time.perf_counter() - started
         rec.meta.update(
             wall_time_s=wall,
