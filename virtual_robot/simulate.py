@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,7 +20,7 @@ from drivers.units import counts_to_rad, torque_to_permille, unwrap_int32
 from profiles.drive import DriveProfile, load_drive
 from profiles.effects import EffectsProfile
 from profiles.experiment import ExperimentProfile
-from profiles.robot import RobotProfile
+from profiles.robot import RobotProfile, UrdfRobotProfile
 from virtual_robot import __version__
 from virtual_robot.drive import MODE_CST, DriveModel, State
 from virtual_robot.plant import DEFAULT_STEP_S, Plant, PlantParams
@@ -61,8 +61,34 @@ def drive_profiles(robot: RobotProfile) -> tuple[DriveProfile, DriveProfile]:
     return load_drive(robot.drives[0]), load_drive(robot.drives[1])
 
 
+def enable_drives(
+    profiles: Sequence[DriveProfile], period_s: float, q: Sequence[float], dq: Sequence[float]
+) -> list[DriveModel]:
+    """One drive model per joint, booted and enabled exactly as a host would over the bus."""
+    drives = [DriveModel(p, period_s=period_s) for p in profiles]
+    for i, d in enumerate(drives):
+        d.update(0.0, q[i], dq[i])
+        d.write_mode(MODE_CST)
+        for cw in ENABLE_SEQUENCE:
+            d.write_controlword(cw, 0.0)
+        if d.state is not State.OPERATION_ENABLED:
+            raise RuntimeError(f"drive {profiles[i].model} did not enable (state {d.state.name})")
+    return drives
+
+
+def collect_faults(drive: DriveModel, model: str, t: float, faults: list[dict[str, Any]]) -> None:
+    """Book a faulted drive's emergency messages (its torque is zeroed) and say so on stderr."""
+    for e in drive.pop_emcy():
+        faults.append({"t": t, "drive": model, "error_code": f"0x{e.error_code:04X}"})
+        print(
+            f"virtual-robot: drive {model} fault 0x{e.error_code:04X} "
+            f"at t = {t:.4f} s; torque zeroed",
+            file=sys.stderr,
+        )
+
+
 def simulate(
-    robot: RobotProfile,
+    robot: RobotProfile | UrdfRobotProfile,
     experiment: ExperimentProfile,
     out_dir: str | Path,
     *,
@@ -72,7 +98,26 @@ def simulate(
     plot: bool = True,
     progress: Callable[[float, float], None] | None = None,
 ) -> SimulationResult:
-    """Run ``experiment`` open loop on the virtual arm and write a recording to ``out_dir``."""
+    """Run ``experiment`` open loop on the virtual arm and write a recording to ``out_dir``.
+    An arm described by its URDF only runs on the n-joint plant (virtual_robot.urdf_plant)."""
+    if isinstance(robot, UrdfRobotProfile):
+        from virtual_robot.urdf_plant import simulate_urdf
+
+        if effects is not None and effects.enabled:
+            raise ValueError(
+                f"effects {effects.name}: the n-joint plant ({robot.name}) has no concealed "
+                "effects yet; simulate it without --effects"
+            )
+        return simulate_urdf(
+            robot,
+            experiment,
+            out_dir,
+            duration_s=duration_s,
+            step_s=step_s,
+            plot=plot,
+            progress=progress,
+        )
+    experiment.check_joints(2, robot.name)
     effects = effects or EffectsProfile()
     drives_p = drive_profiles(robot)
     h = experiment.period_s
@@ -83,14 +128,7 @@ def simulate(
         q0=experiment.initial_q_rad,
         max_step_s=min(step_s, h),
     )
-    drives = [DriveModel(p, period_s=h) for p in drives_p]
-    for i, d in enumerate(drives):  # boot and enable exactly as a host would over the bus
-        d.update(0.0, plant.measured_q[i], plant.dq[i])
-        d.write_mode(MODE_CST)
-        for cw in ENABLE_SEQUENCE:
-            d.write_controlword(cw, 0.0)
-        if d.state is not State.OPERATION_ENABLED:
-            raise RuntimeError(f"drive {drives_p[i].model} did not enable (state {d.state.name})")
+    drives = enable_drives(drives_p, h, plant.measured_q, plant.dq)
     counts = [drives[i].position_counts for i in range(2)]
     meta = {
         "kind": "simulate",
@@ -140,19 +178,7 @@ def simulate(
                 d.write_target_torque(torque_to_permille(commanded[i], rated[i]), t)
                 tau[i] = d.torque_Nm  # quantized, clamped, zero unless enabled: held over [t, t+h)
                 if d.state is not State.OPERATION_ENABLED:
-                    for e in d.pop_emcy():
-                        faults.append(
-                            {
-                                "t": t,
-                                "drive": drives_p[i].model,
-                                "error_code": f"0x{e.error_code:04X}",
-                            }
-                        )
-                        print(
-                            f"virtual-robot: drive {drives_p[i].model} fault 0x{e.error_code:04X} "
-                            f"at t = {t:.4f} s; torque zeroed",
-                            file=sys.stderr,
-                        )
+                    collect_faults(d, drives_p[i].model, t, faults)
             rec.write((t, q[0], q[1], tau[0], tau[1], drives[0].statusword, drives[1].statusword))
             plant.command(
                 (tau[0], tau[1]), issued_at=t, powered=(drives[0].powered, drives[1].powered)

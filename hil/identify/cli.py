@@ -607,12 +607,9 @@ def format_model_report(report: dict[str, Any], model: ArmModel) -> str:
 
 def _urdf_robot(args: argparse.Namespace) -> bool:
     """The --robot profile describes its arm by a URDF only (no 2-DOF closed form)."""
-    from profiles.loader import load_toml
+    from profiles.robot import describes_urdf_only
 
-    if not args.robot:
-        return False
-    data, _ = load_toml("robots", args.robot)
-    return "urdf" in data and "link1" not in data
+    return bool(args.robot) and describes_urdf_only(args.robot)
 
 
 def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
