@@ -2,7 +2,8 @@
 
 Row k of signals.csv: t = k·h; q = encoder reading sampled at t; tau = torque commanded at t and
 held over [t, t + h) (zero-order hold), after quantization. Base columns t,q1,q2,tau1,tau2 in
-s, rad, Nm (an n-joint arm: t,q1..qn,tau1..taun, :func:`base_columns`); more columns may follow. Rows are written as they happen and flushed often, so a
+s, rad, Nm (an n-joint arm: t,q1..qn,tau1..taun, :func:`base_columns`); more columns may
+follow. Rows are written as they happen and flushed often, so a
 crash leaves a readable partial recording; :func:`read_signals` reads one, dropping at most a
 torn last line.
 
@@ -37,6 +38,7 @@ def base_columns(n_joints: int = 2) -> tuple[str, ...]:
         raise ValueError(f"a recording has at least one joint, got {n_joints}")
     joints = range(1, n_joints + 1)
     return ("t", *(f"q{j}" for j in joints), *(f"tau{j}" for j in joints))
+
 
 SIGNALS = "signals.csv"
 META = "meta.json"

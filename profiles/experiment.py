@@ -144,7 +144,9 @@ MAX_DURATION_S = 24 * 3600.0  # a day: longer runs are several runs
 MAX_ROWS = 100_000_000  # rows of one recording (≈ 5 GB of CSV)
 MIN_STEP_S = 1e-6  # integrator step: below 1 µs RK4 gains nothing and a run takes hours
 MAX_PLANT_STEPS = 1_000_000_000
-MAX_JOINTS = 64  # a serial arm; more entries are a mistake in the file  # ≈ 1.5 h of RK4 at 5 µs a step
+MAX_JOINTS = (
+    64  # a serial arm; more entries are a mistake in the file  # ≈ 1.5 h of RK4 at 5 µs a step
+)
 
 
 def check_duration(duration_s: float, period_s: float, option: str = "--duration") -> int:
@@ -239,7 +241,8 @@ def load_experiment(name_or_path: str | Path) -> ExperimentProfile:
     joint_tables = f.tables("joints")
     if not 1 <= len(joint_tables) <= MAX_JOINTS:
         raise f.error(
-            "joints", f"must have 1 to {MAX_JOINTS} entries (one per joint), got {len(joint_tables)}"
+            "joints",
+            f"must have 1 to {MAX_JOINTS} entries (one per joint), got {len(joint_tables)}",
         )
     joints = []
     for jt in joint_tables:

@@ -54,7 +54,7 @@ MAX_EVENTS_PER_STEP = 8
 
 @dataclass(frozen=True)
 class UrdfPlantParams:
-    """What the n-joint plant integrates: the URDF's bodies and, per joint, friction and armature."""
+    """What the n-joint plant integrates: the URDF's bodies; per joint, friction and armature."""
 
     urdf: str
     gravity_m_s2: float
@@ -97,7 +97,9 @@ class UrdfPlant:
             raise ValueError(f"{params.urdf}: only 1-DOF revolute/prismatic joints are supported")
         n = model.nv
         if len(params.viscous_Nms) != n:
-            raise ValueError(f"{params.urdf}: {n} joints, friction given for {len(params.viscous_Nms)}")
+            raise ValueError(
+                f"{params.urdf}: {n} joints, friction given for {len(params.viscous_Nms)}"
+            )
         model.gravity.linear = np.array([0.0, 0.0, -params.gravity_m_s2])
         model.armature = np.asarray(params.armature_kgm2, dtype=float)  # gr² I_rotor per joint
         self.model, self.data = model, model.createData()
@@ -116,6 +118,7 @@ class UrdfPlant:
         self.sticky = np.maximum(self.band_pos, self.band_neg) > 0
         self.stuck = self.sticky & (self.dq == 0.0)
         self.slip_dir = np.where(self.dq >= 0, 1.0, -1.0)
+        self._mode_changed()
         self.command_Nm = np.zeros(n)
         self.work_in_J = 0.0  # ∫ τᵀ q̇ dt
         self.dissipated_J = 0.0  # ∫ fᵀ q̇ dt + stick clamping losses
@@ -148,14 +151,17 @@ class UrdfPlant:
             self._step(min(self.max_step_s, t_end - self.t))
 
     # ---- dynamics -----------------------------------------------------------------------------
-    def _levels(self) -> np.ndarray:
-        """Signed Coulomb level per sliding joint for the step (direction frozen over it)."""
-        return self.slip_dir * np.where(self.slip_dir > 0, self.band_pos, self.band_neg)
+    def _mode_changed(self) -> None:
+        """After a joint sticks or breaks away: the signed Coulomb level per joint (direction
+        frozen until the next change), and which velocities to watch for a sign change."""
+        self._level = self.slip_dir * np.where(self.slip_dir > 0, self.band_pos, self.band_neg)
+        self._watch = np.where(self.sticky & ~self.stuck, self.slip_dir, 0.0)
+        self._n_stuck = int(self.stuck.sum())
 
     def _deriv_factory(self, tau: np.ndarray) -> Callable:
         """(q, q̇) → (q̈, τᵀq̇, fᵀq̇) in the current stick mode, friction levels frozen."""
         m, d, b = self.model, self.data, self.b
-        level = self._levels()
+        level = self._level
         stuck = self.stuck.copy()
         if not stuck.any():
 
@@ -183,7 +189,7 @@ class UrdfPlant:
         stuck, free = self.stuck, ~self.stuck
         M = _mass_matrix(m, d, self.q)
         r = tau - pin.nonLinearEffects(m, d, self.q, self.dq)
-        f = np.where(free, self.b * self.dq + self._levels(), 0.0)
+        f = np.where(free, self.b * self.dq + self._level, 0.0)
         a_free = np.linalg.solve(M[np.ix_(free, free)], (r - f)[free]) if free.any() else []
         held = np.zeros(self.n_joints)
         held[stuck] = r[stuck] - M[np.ix_(stuck, free)] @ a_free if free.any() else r[stuck]
@@ -191,7 +197,7 @@ class UrdfPlant:
 
     def _release_stuck_joints(self, tau: np.ndarray) -> None:
         for _ in range(self.n_joints):
-            if not self.stuck.any():
+            if not self._n_stuck:
                 return
             held = self._holding_torques(tau)
             worst = breakaway_joint(held, self.stuck, self.band_pos, self.band_neg)
@@ -199,6 +205,7 @@ class UrdfPlant:
                 return
             self.stuck[worst] = False
             self.slip_dir[worst] = 1.0 if held[worst] > 0 else -1.0
+            self._mode_changed()
 
     def _step(self, dt: float) -> None:
         """Advance dt, cutting the step where a sliding joint's velocity reaches zero."""
@@ -207,13 +214,18 @@ class UrdfPlant:
         for _ in range(MAX_EVENTS_PER_STEP):
             if remaining <= 1e-15:
                 return
-            if self.stuck.any():
+            if self._n_stuck:
                 self._release_stuck_joints(tau)
-            deriv = self._deriv_factory(tau)
-            q, v, work, diss = _rk4(deriv, self.q, self.dq, remaining)
-            crossed = self.sticky & ~self.stuck & (v * self.slip_dir < 0.0)
+            deriv = None
+            if self._n_stuck:
+                deriv = self._deriv_factory(tau)
+                q, v, work, diss = _rk4(deriv, self.q, self.dq, remaining)
+            else:
+                q, v, work, diss = self._rk4_sliding(tau, remaining)
             used, joint = remaining, -1
-            if crossed.any():
+            if (v * self._watch < 0.0).any():  # a sliding sticky joint's velocity crossed zero
+                crossed = v * self._watch < 0.0
+                deriv = deriv or self._deriv_factory(tau)
                 used, joint, (q, v, work, diss) = self._locate_stick(deriv, remaining, crossed)
             self.q, self.dq = q, v
             self.work_in_J += work
@@ -228,8 +240,37 @@ class UrdfPlant:
             self.dq[joint] = 0.0
             self.dissipated_J += before - self.energy_J()
             self.stuck[joint] = True
+            self._mode_changed()
             self.stick_events += 1
         self.t += remaining  # degenerate chattering: keep the clock honest
+
+    def _rk4_sliding(self, tau: np.ndarray, dt: float):
+        """:func:`_rk4` with every joint sliding, unrolled: the same stages and the same four ABA
+        calls, fewer array operations. With τ and the Coulomb levels constant over the step the
+        RK4 quadratures of the powers are exact in closed form: ∫τᵀq̇ = τᵀΔq, ∫levelᵀq̇ =
+        levelᵀΔq, and the viscous part is bᵀ of the RK4 sum of the stage velocities squared.
+        tests/test_urdf_plant.py checks it against :func:`_rk4`."""
+        m, d, b, aba = self.model, self.data, self.b, pin.aba
+        level = self._level
+        c = tau - level
+        q, v = self.q, self.dq
+        h2 = 0.5 * dt
+        a1 = aba(m, d, q, v, c - b * v)
+        y = v + h2 * a1
+        a2 = aba(m, d, q + h2 * v, y, c - b * y)
+        z = v + h2 * a2
+        a3 = aba(m, d, q + h2 * y, z, c - b * z)
+        u = v + dt * a3
+        a4 = aba(m, d, q + dt * z, u, c - b * u)
+        k = dt / 6.0
+        dq = k * (v + 2.0 * (y + z) + u)
+        viscous = k * float(b @ (v * v + 2.0 * (y * y + z * z) + u * u))
+        return (
+            q + dq,
+            v + k * (a1 + 2.0 * (a2 + a3) + a4),
+            float(tau @ dq),
+            float(level @ dq) + viscous,
+        )
 
     def _locate_stick(self, deriv: Callable, dt: float, crossed: np.ndarray):
         """The first joint whose velocity reaches zero within [0, dt], the time it does and the

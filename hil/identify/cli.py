@@ -612,12 +612,25 @@ def _urdf_robot(args: argparse.Namespace) -> bool:
     return bool(args.robot) and describes_urdf_only(args.robot)
 
 
+def _held(rec: Any) -> bool:
+    """Whether a recording's torques are this bench's commands, each held over its period
+    (drivers.recording): the bench writes meta.json with the period beside them; a foreign
+    CSV's torques are taken as sampled with the positions."""
+    return rec.torque_source == "commanded" and "period_s" in rec.meta
+
+
 def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     """`hil identify --from A [--validate B] --robot R` for a URDF arm: base parameters and
     friction by weighted batch least squares on the torque regressor (hil.identify.urdf),
     validated on B, or on the last quarter of A's time when no B is given; beside the
     URDF's and profile's nominal parameters on the same rows."""
-    from hil.identify.urdf import TorqueRecording, identify_torque, regression_rows, torque_nrmse
+    from hil.identify.urdf import (
+        TorqueRecording,
+        identify_torque,
+        regression_rows,
+        smoothing_cutoff_hz,
+        torque_nrmse,
+    )
     from hil.model.urdf import UrdfArmModel
 
     if args.terms is not None:
@@ -634,16 +647,20 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         f"from {fit.path}"
     )
     held_out = 0.0 if args.validate else 0.25
+    # this bench's own recordings (meta.json) hold each commanded torque over its period
+    recording = TorqueRecording(fit.t, fit.q, fit.tau, str(fit.path), held=_held(fit))
+    cutoff = smoothing_cutoff_hz(recording)
     res = identify_torque(
-        model,
-        TorqueRecording(fit.t, fit.q, fit.tau, str(fit.path)),
-        held_out=held_out,
-        consistent=args.consistent,
+        model, recording, held_out=held_out, consistent=args.consistent, cutoff_hz=cutoff
     )
     nominal = model.base_theta()
     if args.validate:
         val = read_recording(args, args.validate, command="identify", min_rows=8)
-        rows = regression_rows(model, TorqueRecording(val.t, val.q, val.tau, str(val.path)))
+        rows = regression_rows(
+            model,
+            TorqueRecording(val.t, val.q, val.tau, str(val.path), held=_held(val)),
+            cutoff_hz=cutoff,
+        )
         where = str(val.path)
     else:
         keep = res.rows.t >= res.fit_until_s
@@ -656,6 +673,10 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         "urdf": model.urdf,
         "terms": list(model.terms),
         "method": res.method,
+        "smoothing_cutoff_hz": cutoff,
+        "torque": "held over each period (averaged onto the samples)"
+        if recording.held
+        else "sampled with the positions",
         "standard_parameters": None
         if res.theta_standard is None
         else dict(zip(model.standard_names, res.theta_standard.tolist(), strict=True)),
