@@ -19,7 +19,7 @@ With every joint sliding (the common case) the accelerations are Pinocchio's ABA
 
 The world builds its own Pinocchio model from the URDF file; it never imports the host's
 (``hil``) model. No concealed effects yet: the n-joint plant is the described arm itself.
-Imports profiles, drivers (recording, units), virtual_robot.plant/drive/simulate.
+Imports profiles, drivers (recording, units), virtual_robot.plant/drive/offline.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
@@ -41,10 +41,8 @@ from profiles.experiment import ExperimentProfile
 from profiles.robot import UrdfRobotProfile
 from virtual_robot import __version__
 from virtual_robot.drive import State
+from virtual_robot.offline import SimulationResult, collect_faults, drive_meta, enable_drives
 from virtual_robot.plant import DEFAULT_STEP_S, breakaway_joint
-
-if TYPE_CHECKING:
-    from virtual_robot.simulate import SimulationResult
 
 # Velocity below which a located crossing counts as exactly zero (as the 2-DOF plant's 1e-12).
 ZERO_VELOCITY = 1e-12
@@ -340,8 +338,6 @@ def simulate_urdf(
     """Run ``experiment`` open loop on the n-joint arm through its n drive models (quantized,
     clamped, held over each period as in :func:`virtual_robot.simulate.simulate`) and write the
     recording ``t, q1..qn, tau1..taun, status1..statusn`` to ``out_dir``."""
-    from virtual_robot.simulate import SimulationResult, collect_faults, enable_drives
-
     n = robot.n_joints
     experiment.check_joints(n, robot.name)
     if robot.drives is None:
@@ -369,15 +365,7 @@ def simulate_urdf(
         "period_s": h,
         "duration_s": n_rows * h,
         "seed": None,
-        "drives": [
-            {
-                "model": p.model,
-                "counts_per_rev": p.counts_per_rev,
-                "rated_torque_Nm": p.rated_torque_Nm,
-                "max_torque_Nm": p.max_torque_Nm,
-            }
-            for p in drives_p
-        ],
+        "drives": drive_meta(drives_p),
         "integrator": {
             "method": "RK4, fixed step, stick-slip events located; Pinocchio ABA/CRBA/RNEA",
             "step_s": plant.max_step_s,
