@@ -172,3 +172,29 @@ def test_cicese3_identified_from_its_simulation(tmp_path, capsys):
     fit = report["validation"]["torque_nrmse_identified"]
     true = report["validation"]["torque_nrmse_nominal"]
     assert all(a < b + 0.01 for a, b in zip(fit, true, strict=True)), (fit, true)
+    # without --robot the recording's own robot (meta.json) is used; the 2-DOF commands refuse
+    # an n-joint recording in one line
+    again = tmp_path / "id-again"
+    assert hil_main(["identify", "--from", str(sim), "--out", str(again)]) == 0
+    assert json.loads((again / "identify.json").read_text())["parameters"] == report["parameters"]
+    capsys.readouterr()
+    for bad in (
+        ["identify", "--from", str(sim), "--robot", "cicese", "--out", str(tmp_path / "x")],
+        ["diagnose", str(sim), "--out", str(tmp_path / "y")],
+    ):
+        assert hil_main(bad) == 2
+        err = capsys.readouterr().err.strip().splitlines()[-1]
+        assert "3 joints" in err and "takes 2" in err, err
+
+
+def test_simulate_refuses_an_arm_without_drives(tmp_path, capsys):
+    experiment = tmp_path / "seven.toml"
+    joints = "\n".join("[[joints]]\nstep_Nm = 0.0" for _ in range(7))
+    head = 'name = "seven"\nkind = "open_loop_torque"\nperiod_s = 0.0025\nduration_s = 0.1\n'
+    experiment.write_text(f"{head}{joints}\n")
+    assert load_experiment(experiment).n_joints == 7
+    out = tmp_path / "panda"
+    args = ["simulate", "--robot", "panda", "--experiment", str(experiment), "--out", str(out)]
+    assert vr_main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert "drives" in err and len(err.splitlines()) == 1, err

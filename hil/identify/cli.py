@@ -223,9 +223,9 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
 
     online = None
     if args.from_recording:
-        fit = read_recording(args, args.from_recording, command="identify", min_rows=8)
+        fit = read_recording(args, args.from_recording, command="identify", min_rows=8, joints=2)
         held_out = (
-            read_recording(args, args.validate, command="identify", min_rows=2)
+            read_recording(args, args.validate, command="identify", min_rows=2, joints=2)
             if args.validate
             else None
         )
@@ -241,7 +241,7 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         )  # fmt: skip
         fit = _record(args, bench, args.experiment, out / "fit", online)
         if args.validate:
-            held_out = read_recording(args, args.validate, command="identify", min_rows=2)
+            held_out = read_recording(args, args.validate, command="identify", min_rows=2, joints=2)
         elif args.validation_experiment != "none":
             held_out = _record(args, bench, args.validation_experiment, out / "validation", None)
         else:
@@ -452,9 +452,9 @@ def run_identify_model(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     profile = load_robot(robot)
     model = ArmModel(terms)
     out = Path(args.out)
-    fit = read_recording(args, args.from_recording, command="identify", min_rows=8)
+    fit = read_recording(args, args.from_recording, command="identify", min_rows=8, joints=2)
     held_out = (
-        read_recording(args, args.validate, command="identify", min_rows=8)
+        read_recording(args, args.validate, command="identify", min_rows=8, joints=2)
         if args.validate
         else None
     )
@@ -609,6 +609,16 @@ def _urdf_robot(args: argparse.Namespace) -> bool:
     """The --robot profile describes its arm by a URDF only (no 2-DOF closed form)."""
     from profiles.robot import describes_urdf_only
 
+    if not args.robot and args.from_recording:
+        # the recording's own robot, as the 2-DOF path takes it (meta.json of this bench)
+        meta = Path(args.from_recording) / "meta.json"
+        try:
+            recorded = json.loads(meta.read_text()) if meta.is_file() else {}
+        except (OSError, ValueError):
+            recorded = {}
+        profile = recorded.get("robot_profile")
+        if isinstance(profile, str) and Path(profile).is_file() and describes_urdf_only(profile):
+            args.robot = profile
     return bool(args.robot) and describes_urdf_only(args.robot)
 
 
