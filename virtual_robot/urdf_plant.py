@@ -292,6 +292,8 @@ class UrdfPlant:
                     lo = -1.0
             if lo < 0:
                 s = 0.0  # no motion at all: it sticks at once
+            elif velocity(dt) >= 0:
+                s = dt  # |q̇_j| at the step's end is at round-off: the crossing is the end
             else:
                 s = brentq(velocity, lo, dt, xtol=ZERO_VELOCITY * dt, rtol=4 * np.finfo(float).eps)
             if s < best[0] or best[1] < 0:
