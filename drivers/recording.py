@@ -2,7 +2,8 @@
 
 Row k of signals.csv: t = k·h; q = encoder reading sampled at t; tau = torque commanded at t and
 held over [t, t + h) (zero-order hold), after quantization. Base columns t,q1,q2,tau1,tau2 in
-s, rad, Nm; more columns may follow. Rows are written as they happen and flushed often, so a
+s, rad, Nm (an n-joint arm: t,q1..qn,tau1..taun, :func:`base_columns`); more columns may
+follow. Rows are written as they happen and flushed often, so a
 crash leaves a readable partial recording; :func:`read_signals` reads one, dropping at most a
 torn last line.
 
@@ -29,6 +30,16 @@ import numpy as np
 from profiles.recording_format import LOOP_DELAY_MAX, load_format
 
 BASE_COLUMNS = ("t", "q1", "q2", "tau1", "tau2")
+
+
+def base_columns(n_joints: int = 2) -> tuple[str, ...]:
+    """``t, q1..qn, tau1..taun``: the base columns of an n-joint recording (2: BASE_COLUMNS)."""
+    if n_joints < 1:
+        raise ValueError(f"a recording has at least one joint, got {n_joints}")
+    joints = range(1, n_joints + 1)
+    return ("t", *(f"q{j}" for j in joints), *(f"tau{j}" for j in joints))
+
+
 SIGNALS = "signals.csv"
 META = "meta.json"
 
@@ -67,10 +78,11 @@ class RecordingWriter:
         meta: dict[str, Any],
         extra_columns: Sequence[str] = (),
         flush_every: int = 50,
+        n_joints: int = 2,
     ) -> None:
         self.dir = Path(out_dir)
         self.dir.mkdir(parents=True, exist_ok=True)
-        self.columns = (*BASE_COLUMNS, *extra_columns)
+        self.columns = (*base_columns(n_joints), *extra_columns)
         self.meta = {
             **meta,
             "status": "running",
@@ -749,8 +761,9 @@ def plot_positions(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(2, 2, figsize=(11, 6), sharex=True)
-    for j in range(2):
+    n = rec.n_joints
+    fig, axes = plt.subplots(2, n, figsize=(5.5 * n, 6), sharex=True, squeeze=False)
+    for j in range(n):
         ax = axes[0, j]
         ax.plot(rec.t, rec.q[:, j], lw=1.2, label="recorded")
         if reference is not None:

@@ -91,16 +91,23 @@ def read_recording(
     extra_columns: bool = False,
     allow_gaps: bool = False,
     need_motion: bool = True,
+    joints: int | None = None,
 ) -> Recording:
     """Read ``path`` with the recording options of ``args``; print what the reader noticed
     (gaps, irregular sampling, dropped duplicates, the loop delay) on stderr. Refuse a
     recording with gaps unless ``allow_gaps`` (the command analyses ``rec.segments()``
-    separately), and one where the arm never moves if ``need_motion``."""
+    separately), one where the arm never moves if ``need_motion``, and one with another number
+    of joints than ``joints`` (when given)."""
     rec = read_signals(
         path, **recording_kwargs(args), extra_columns=extra_columns, min_rows=min_rows
     )
     for note in rec.findings_on_read:
         print(f"hil {command}: note: {rec.path}: {note}", file=sys.stderr)
+    if joints is not None and rec.n_joints != joints:
+        raise RecordingError(
+            f"{rec.path}: {rec.n_joints} joints (q1..q{rec.n_joints}); hil {command} takes "
+            f"{joints} here (an n-joint arm described by a URDF: docs/urdf.md)"
+        )
     if not allow_gaps and len(rec.segments()) > 1:
         gap = next((f for f in rec.findings_on_read if "gap(s) in t" in f), "gaps in t")
         raise RecordingError(

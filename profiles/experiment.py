@@ -80,16 +80,28 @@ class ExperimentProfile:
     kind: str
     period_s: float
     duration_s: float
-    initial_q_rad: tuple[float, float]
-    joints: tuple[JointExcitation, JointExcitation]
+    initial_q_rad: tuple[float, ...]
+    joints: tuple[JointExcitation, ...]  # one per joint: 2 for the CICESE arm, n for a URDF arm
 
-    def torque(self, t: float) -> tuple[float, float]:
+    @property
+    def n_joints(self) -> int:
+        return len(self.joints)
+
+    def torque(self, t: float) -> tuple[float, ...]:
         """Commanded torques [Nm] at time t."""
-        return (self.joints[0].torque(t), self.joints[1].torque(t))
+        return tuple(j.torque(t) for j in self.joints)
 
     def torque_table(self, t: np.ndarray) -> np.ndarray:
-        """Commanded torques at every time in ``t``, shape (len(t), 2)."""
-        return np.column_stack([self.joints[0].torque(t), self.joints[1].torque(t)])
+        """Commanded torques at every time in ``t``, shape (len(t), n_joints)."""
+        return np.column_stack([j.torque(t) for j in self.joints])
+
+    def check_joints(self, n: int, robot: str) -> None:
+        """ValueError (one line) unless the experiment drives exactly ``n`` joints."""
+        if self.n_joints != n:
+            raise ValueError(
+                f"{self.source}: experiment {self.name} drives {self.n_joints} joint(s), "
+                f"robot {robot} has {n}"
+            )
 
     def torque_rows(self, period_s: float, n: int) -> TorqueRows:
         """τ(k·h) for k = 0..n−1, computed a block at a time (memory bounded by the block)."""
@@ -131,7 +143,10 @@ MAX_TORQUE_NM = 1e4  # no direct-drive joint comes near 10 kNm; the bench clamps
 MAX_DURATION_S = 24 * 3600.0  # a day: longer runs are several runs
 MAX_ROWS = 100_000_000  # rows of one recording (≈ 5 GB of CSV)
 MIN_STEP_S = 1e-6  # integrator step: below 1 µs RK4 gains nothing and a run takes hours
-MAX_PLANT_STEPS = 1_000_000_000  # ≈ 1.5 h of RK4 at 5 µs a step
+MAX_PLANT_STEPS = 1_000_000_000
+MAX_JOINTS = (
+    64  # a serial arm; more entries are a mistake in the file  # ≈ 1.5 h of RK4 at 5 µs a step
+)
 
 
 def check_duration(duration_s: float, period_s: float, option: str = "--duration") -> int:
@@ -224,8 +239,11 @@ def load_experiment(name_or_path: str | Path) -> ExperimentProfile:
             "kind", f"unknown experiment kind {kind!r}; expected one of {', '.join(KINDS)}"
         )
     joint_tables = f.tables("joints")
-    if len(joint_tables) != 2:
-        raise f.error("joints", f"must have 2 entries (one per joint), got {len(joint_tables)}")
+    if not 1 <= len(joint_tables) <= MAX_JOINTS:
+        raise f.error(
+            "joints",
+            f"must have 1 to {MAX_JOINTS} entries (one per joint), got {len(joint_tables)}",
+        )
     joints = []
     for jt in joint_tables:
         jt.only({"step_Nm", "step_rate_per_s", "offset_Nm", "sines", "points"})
@@ -239,15 +257,16 @@ def load_experiment(name_or_path: str | Path) -> ExperimentProfile:
                 points=_points(jt) if jt.has("points") else (),
             )
         )
-    initial = f.numbers("initial_q_rad", 2, [0.0, 0.0], lo=-2 * math.pi, hi=2 * math.pi)
+    n = len(joints)
+    initial = f.numbers("initial_q_rad", n, [0.0] * n, lo=-2 * math.pi, hi=2 * math.pi)
     return ExperimentProfile(
         name=f.string("name"),
         source=source,
         kind=kind,
         period_s=f.number("period_s", positive=True, hi=1.0),
         duration_s=f.number("duration_s", positive=True, hi=MAX_DURATION_S),
-        initial_q_rad=initial,  # type: ignore[arg-type]
-        joints=(joints[0], joints[1]),
+        initial_q_rad=tuple(initial),
+        joints=tuple(joints),
     )
 
 

@@ -77,6 +77,10 @@ class RobotProfile:
     reference: str = ""
     urdf: str | None = None  # the same arm as a URDF (profiles/robots/*.urdf), for hil.model.urdf
 
+    @property
+    def n_joints(self) -> int:
+        return 2  # the closed-form model's two links
+
     def theta(self) -> np.ndarray:
         """θ of :meth:`model`: θ1..θ9 of Reyes & Kelly (1997) Section 5 (θ8, θ9 the mean of the
         two directions), then each term's parameters (hil.model.closed_form):
@@ -373,12 +377,28 @@ def _terms(f: Fields) -> tuple[str, ...]:
     return tuple(value)
 
 
+def describes_urdf_only(name_or_path: str | Path) -> bool:
+    """The robot profile describes its arm by a URDF only (no 2-DOF closed-form tables)."""
+    data, _ = load_toml("robots", name_or_path)
+    return "urdf" in data and "link1" not in data
+
+
+def load_any_robot(name_or_path: str | Path) -> RobotProfile | UrdfRobotProfile:
+    """The 2-DOF closed-form profile (:func:`load_robot`), or, for an arm described by its URDF
+    only, the n-joint profile (:func:`load_urdf_robot`)."""
+    if describes_urdf_only(name_or_path):
+        return load_urdf_robot(name_or_path)
+    return load_robot(name_or_path)
+
+
 __all__ = [
     "TERMS",
     "Link",
     "RobotProfile",
     "Rotor",
     "UrdfRobotProfile",
+    "describes_urdf_only",
+    "load_any_robot",
     "load_robot",
     "load_urdf_robot",
 ]

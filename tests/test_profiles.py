@@ -158,11 +158,13 @@ def test_robot_drives_are_shipped():
     assert len(ids) == 2
 
 
-def test_experiments_have_two_joints():
+def test_experiments_have_one_excitation_per_joint():
+    # the 2-DOF arm's experiments, and the 3-DOF example arm's (profiles/robots/cicese3.toml)
     for name in (n for n in available("experiments") if not _is_tracking(n)):
         exp = load_experiment(name)
-        assert len(exp.joints) == 2
-        assert exp.torque_table([0.0, 0.1]).shape == (2, 2)
+        n = 3 if name.startswith("cicese3") else 2
+        assert exp.n_joints == len(exp.joints) == len(exp.initial_q_rad) == n, name
+        assert exp.torque_table([0.0, 0.1]).shape == (2, n)
 
 
 # --- θ of the CICESE arm against Reyes & Kelly Table II ("measured") ----------------------------
@@ -373,12 +375,22 @@ def test_unknown_shipped_name(kind, load):
 
 
 def test_experiment_with_one_joint(tmp_path):
+    # one excitation per joint of some arm: one joint loads, and is refused (one line) when
+    # run on the 2-DOF arm; none at all is refused at load
     doc = shipped("experiments", "reyes-kelly")
     doc["joints"] = doc["joints"][:1]
+    doc["initial_q_rad"] = [0.1]
+    path = write(tmp_path, doc)
+    one = load_experiment(path)
+    assert one.n_joints == 1 and one.initial_q_rad == (0.1,)
+    with pytest.raises(ValueError, match="drives 1 joint") as exc:
+        one.check_joints(2, "cicese")
+    assert "\n" not in str(exc.value)
+    doc["joints"] = []
     path = write(tmp_path, doc)
     with pytest.raises(ProfileError) as exc:
         load_experiment(path)
-    assert "2 entries" in assert_one_line_error(exc, path, "joints")
+    assert "1 to 64 entries" in assert_one_line_error(exc, path, "joints")
 
 
 def test_experiment_unknown_kind(tmp_path):

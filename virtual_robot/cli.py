@@ -16,7 +16,7 @@ from profiles import ProfileError
 from profiles.bench import BenchProfile, load_bench
 from profiles.effects import load_effects
 from profiles.experiment import check_duration, check_step, load_experiment
-from profiles.robot import load_robot
+from profiles.robot import load_any_robot
 from virtual_robot.plant import DEFAULT_STEP_S
 
 
@@ -38,7 +38,11 @@ def _parser() -> argparse.ArgumentParser:
     s = sub.add_parser(
         "simulate", help="run an experiment offline and write a recording", parents=[common]
     )
-    s.add_argument("--robot", default="cicese", help="robot profile name or TOML file")
+    s.add_argument(
+        "--robot",
+        default="cicese",
+        help="robot profile name or TOML file (a URDF-only profile runs the n-joint plant)",
+    )
     s.add_argument("--experiment", default="reyes-kelly", help="experiment profile name or file")
     s.add_argument(
         "--effects", default=None, help="effects profile name or file (concealed physics)"
@@ -122,8 +126,9 @@ def _progress(t: float, total: float) -> None:
 def cmd_simulate(args: argparse.Namespace) -> int:
     from virtual_robot.simulate import simulate
 
-    robot = load_robot(args.robot)
+    robot = load_any_robot(args.robot)  # 2-DOF closed form, or n joints from a URDF
     experiment = load_experiment(args.experiment)
+    experiment.check_joints(robot.n_joints, robot.name)
     h = experiment.period_s
     duration = experiment.duration_s if args.duration is None else args.duration
     check_duration(duration, h)  # one-line errors before anything is allocated

@@ -21,6 +21,7 @@ q̇1 < 0, Table I).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from profiles.effects import EffectsProfile
@@ -396,15 +397,9 @@ class Plant:
             if not (self.stuck[0] or self.stuck[1]):
                 return
             held = self._holding_torques(tau)
-            worst, worst_ratio = -1, 1.0
-            for i in (0, 1):
-                if not self.stuck[i]:
-                    continue
-                f = held[i]
-                band = p.breakaway_positive_Nm[i] if f > 0 else p.breakaway_negative_Nm[i]
-                ratio = abs(f) / band if band > 0 else (math.inf if f != 0 else 0.0)
-                if ratio > worst_ratio:
-                    worst, worst_ratio = i, ratio
+            worst = breakaway_joint(
+                held, self.stuck, p.breakaway_positive_Nm, p.breakaway_negative_Nm
+            )
             if worst < 0:
                 return
             self.stuck[worst] = False
@@ -541,6 +536,27 @@ class Plant:
         # Degenerate chattering (a joint that breaks away and reverses at once, eight times in one
         # step): the joints stay stuck for the rest of the step; keep the clock honest.
         self.t += remaining
+
+
+def breakaway_joint(
+    held: Sequence[float],
+    stuck: Sequence[bool],
+    band_positive: Sequence[float],
+    band_negative: Sequence[float],
+) -> int:
+    """The stuck joint that breaks away now, or −1: Karnopp's test on each stuck joint i, whose
+    holding torque ``held[i]`` (the friction that keeps q̈_i = 0) must stay inside its static band
+    [−band_negative[i], band_positive[i]]; of those outside, the one furthest outside relative to
+    its band goes first (the others are checked again once it slides). Any number of joints."""
+    worst, worst_ratio = -1, 1.0
+    for i, f in enumerate(held):
+        if not stuck[i]:
+            continue
+        band = band_positive[i] if f > 0 else band_negative[i]
+        ratio = abs(f) / band if band > 0 else (math.inf if f != 0 else 0.0)
+        if ratio > worst_ratio:
+            worst, worst_ratio = i, ratio
+    return worst
 
 
 def _sliding_deriv(

@@ -9,11 +9,8 @@ experiment's torque is quantized by the drive (0x6071 per-mille, clamped to 0x60
 
 from __future__ import annotations
 
-import math
-import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -22,41 +19,12 @@ from drivers.units import counts_to_rad, torque_to_permille, unwrap_int32
 from profiles.drive import DriveProfile, load_drive
 from profiles.effects import EffectsProfile
 from profiles.experiment import ExperimentProfile
-from profiles.robot import RobotProfile
+from profiles.robot import RobotProfile, UrdfRobotProfile
 from virtual_robot import __version__
-from virtual_robot.drive import MODE_CST, DriveModel, State
+from virtual_robot.drive import State
+from virtual_robot.offline import SimulationResult, collect_faults, drive_meta, enable_drives
 from virtual_robot.plant import DEFAULT_STEP_S, Plant, PlantParams
 from virtual_robot.stepping import Stepper
-
-ENABLE_SEQUENCE = (0x06, 0x07, 0x0F)  # shutdown, switch on, enable operation (CiA 402)
-
-
-@dataclass
-class SimulationResult:
-    out_dir: Path
-    rows: int
-    wall_time_s: float
-    simulated_s: float
-    plant_steps: int
-    faults: list[dict[str, Any]] = field(default_factory=list)
-    plot: Path | None = None
-
-    @property
-    def realtime_factor(self) -> float:
-        return self.simulated_s / self.wall_time_s if self.wall_time_s > 0 else math.inf
-
-    def summary(self) -> dict[str, Any]:
-        return {
-            "out_dir": str(self.out_dir),
-            "signals": str(self.out_dir / "signals.csv"),
-            "plot": str(self.plot) if self.plot else None,
-            "rows": self.rows,
-            "simulated_s": self.simulated_s,
-            "wall_time_s": round(self.wall_time_s, 4),
-            "realtime_factor": round(self.realtime_factor, 1),
-            "plant_steps": self.plant_steps,
-            "faults": self.faults,
-        }
 
 
 def drive_profiles(robot: RobotProfile) -> tuple[DriveProfile, DriveProfile]:
@@ -65,7 +33,7 @@ def drive_profiles(robot: RobotProfile) -> tuple[DriveProfile, DriveProfile]:
 
 
 def simulate(
-    robot: RobotProfile,
+    robot: RobotProfile | UrdfRobotProfile,
     experiment: ExperimentProfile,
     out_dir: str | Path,
     *,
@@ -75,7 +43,26 @@ def simulate(
     plot: bool = True,
     progress: Callable[[float, float], None] | None = None,
 ) -> SimulationResult:
-    """Run ``experiment`` open loop on the virtual arm and write a recording to ``out_dir``."""
+    """Run ``experiment`` open loop on the virtual arm and write a recording to ``out_dir``.
+    An arm described by its URDF only runs on the n-joint plant (virtual_robot.urdf_plant)."""
+    if isinstance(robot, UrdfRobotProfile):
+        from virtual_robot.urdf_plant import simulate_urdf
+
+        if effects is not None and effects.enabled:
+            raise ValueError(
+                f"effects {effects.name}: the n-joint plant ({robot.name}) has no concealed "
+                "effects yet; simulate it without --effects"
+            )
+        return simulate_urdf(
+            robot,
+            experiment,
+            out_dir,
+            duration_s=duration_s,
+            step_s=step_s,
+            plot=plot,
+            progress=progress,
+        )
+    experiment.check_joints(2, robot.name)
     effects = effects or EffectsProfile()
     drives_p = drive_profiles(robot)
     h = experiment.period_s
@@ -86,15 +73,8 @@ def simulate(
         q0=experiment.initial_q_rad,
         max_step_s=min(step_s, h),
     )
-    drives = [DriveModel(p, period_s=h) for p in drives_p]
+    drives = enable_drives(drives_p, h, plant.measured_q, plant.dq)
     stepper = Stepper(plant, drives, h)
-    stepper.sample(0.0, count_period=False)  # power on: transition 1, SWITCH ON DISABLED
-    for i, d in enumerate(drives):  # enable exactly as a host would over the bus
-        d.write_mode(MODE_CST)
-        for cw in ENABLE_SEQUENCE:
-            d.write_controlword(cw, 0.0)
-        if d.state is not State.OPERATION_ENABLED:
-            raise RuntimeError(f"drive {drives_p[i].model} did not enable (state {d.state.name})")
     counts = [drives[i].position_counts for i in range(2)]
     meta = {
         "kind": "simulate",
@@ -110,15 +90,7 @@ def simulate(
         "period_s": h,
         "duration_s": n_rows * h,
         "seed": None,
-        "drives": [
-            {
-                "model": p.model,
-                "counts_per_rev": p.counts_per_rev,
-                "rated_torque_Nm": p.rated_torque_Nm,
-                "max_torque_Nm": p.max_torque_Nm,
-            }
-            for p in drives_p
-        ],
+        "drives": drive_meta(drives_p),
         "integrator": {
             "method": "RK4, fixed step, stick-slip events located",
             "step_s": plant.max_step_s,
@@ -143,19 +115,7 @@ def simulate(
                 d.write_target_torque(torque_to_permille(commanded[i], rated[i]), t)
                 tau[i] = d.torque_Nm  # quantized, clamped, zero unless enabled: held over [t, t+h)
                 if d.state is not State.OPERATION_ENABLED:
-                    for e in d.pop_emcy():
-                        faults.append(
-                            {
-                                "t": t,
-                                "drive": drives_p[i].model,
-                                "error_code": f"0x{e.error_code:04X}",
-                            }
-                        )
-                        print(
-                            f"virtual-robot: drive {drives_p[i].model} fault 0x{e.error_code:04X} "
-                            f"at t = {t:.4f} s; torque zeroed",
-                            file=sys.stderr,
-                        )
+                    collect_faults(d, drives_p[i].model, t, faults)
             rec.write((t, q[0], q[1], tau[0], tau[1], drives[0].statusword, drives[1].statusword))
             if progress is not None and time.perf_counter() - last_report > 1.0:
                 last_report = time.perf_counter()

@@ -198,6 +198,7 @@ def run_experiment(
     identification); sample k carries q_k and the quantized torque of period k − 1."""
     bench = check_bench(bench_name, confirm_real=confirm_real, effects=effects)
     experiment = load_experiment(experiment_name)
+    experiment.check_joints(2, "of the bench (2-DOF)")  # the buses carry two drives today
     mode = mode or bench.mode
     h = bench.period_s
     duration = experiment.duration_s if duration_s is None else duration_s

@@ -53,7 +53,8 @@ def main(args: argparse.Namespace) -> int:
         if args.out:
             prepare_out_dir(args.out, args.overwrite, inputs=args.recordings)
         recs = [
-            read_recording(args, path, command="diagnose", min_rows=2) for path in args.recordings
+            read_recording(args, path, command="diagnose", min_rows=2, joints=2)
+            for path in args.recordings
         ]
         reference = robot_params(args.robot).theta
         nominal = None

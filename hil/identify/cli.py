@@ -223,9 +223,9 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
 
     online = None
     if args.from_recording:
-        fit = read_recording(args, args.from_recording, command="identify", min_rows=8)
+        fit = read_recording(args, args.from_recording, command="identify", min_rows=8, joints=2)
         held_out = (
-            read_recording(args, args.validate, command="identify", min_rows=2)
+            read_recording(args, args.validate, command="identify", min_rows=2, joints=2)
             if args.validate
             else None
         )
@@ -241,7 +241,7 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         )  # fmt: skip
         fit = _record(args, bench, args.experiment, out / "fit", online)
         if args.validate:
-            held_out = read_recording(args, args.validate, command="identify", min_rows=2)
+            held_out = read_recording(args, args.validate, command="identify", min_rows=2, joints=2)
         elif args.validation_experiment != "none":
             held_out = _record(args, bench, args.validation_experiment, out / "validation", None)
         else:
@@ -452,9 +452,9 @@ def run_identify_model(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     profile = load_robot(robot)
     model = ArmModel(terms)
     out = Path(args.out)
-    fit = read_recording(args, args.from_recording, command="identify", min_rows=8)
+    fit = read_recording(args, args.from_recording, command="identify", min_rows=8, joints=2)
     held_out = (
-        read_recording(args, args.validate, command="identify", min_rows=8)
+        read_recording(args, args.validate, command="identify", min_rows=8, joints=2)
         if args.validate
         else None
     )
@@ -607,12 +607,26 @@ def format_model_report(report: dict[str, Any], model: ArmModel) -> str:
 
 def _urdf_robot(args: argparse.Namespace) -> bool:
     """The --robot profile describes its arm by a URDF only (no 2-DOF closed form)."""
-    from profiles.loader import load_toml
+    from profiles.robot import describes_urdf_only
 
-    if not args.robot:
-        return False
-    data, _ = load_toml("robots", args.robot)
-    return "urdf" in data and "link1" not in data
+    if not args.robot and args.from_recording:
+        # the recording's own robot, as the 2-DOF path takes it (meta.json of this bench)
+        meta = Path(args.from_recording) / "meta.json"
+        try:
+            recorded = json.loads(meta.read_text()) if meta.is_file() else {}
+        except (OSError, ValueError):
+            recorded = {}
+        profile = recorded.get("robot_profile")
+        if isinstance(profile, str) and Path(profile).is_file() and describes_urdf_only(profile):
+            args.robot = profile
+    return bool(args.robot) and describes_urdf_only(args.robot)
+
+
+def _held(rec: Any) -> bool:
+    """Whether a recording's torques are this bench's commands, each held over its period
+    (drivers.recording): the bench writes meta.json with the period beside them; a foreign
+    CSV's torques are taken as sampled with the positions."""
+    return rec.torque_source == "commanded" and "period_s" in rec.meta
 
 
 def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
@@ -620,7 +634,13 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     friction by weighted batch least squares on the torque regressor (hil.identify.urdf),
     validated on B, or on the last quarter of A's time when no B is given; beside the
     URDF's and profile's nominal parameters on the same rows."""
-    from hil.identify.urdf import TorqueRecording, identify_torque, regression_rows, torque_nrmse
+    from hil.identify.urdf import (
+        TorqueRecording,
+        identify_torque,
+        regression_rows,
+        smoothing_cutoff_hz,
+        torque_nrmse,
+    )
     from hil.model.urdf import UrdfArmModel
 
     if args.terms is not None:
@@ -637,16 +657,20 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         f"from {fit.path}"
     )
     held_out = 0.0 if args.validate else 0.25
+    # this bench's own recordings (meta.json) hold each commanded torque over its period
+    recording = TorqueRecording(fit.t, fit.q, fit.tau, str(fit.path), held=_held(fit))
+    cutoff = smoothing_cutoff_hz(recording)
     res = identify_torque(
-        model,
-        TorqueRecording(fit.t, fit.q, fit.tau, str(fit.path)),
-        held_out=held_out,
-        consistent=args.consistent,
+        model, recording, held_out=held_out, consistent=args.consistent, cutoff_hz=cutoff
     )
     nominal = model.base_theta()
     if args.validate:
         val = read_recording(args, args.validate, command="identify", min_rows=8)
-        rows = regression_rows(model, TorqueRecording(val.t, val.q, val.tau, str(val.path)))
+        rows = regression_rows(
+            model,
+            TorqueRecording(val.t, val.q, val.tau, str(val.path), held=_held(val)),
+            cutoff_hz=cutoff,
+        )
         where = str(val.path)
     else:
         keep = res.rows.t >= res.fit_until_s
@@ -659,6 +683,10 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         "urdf": model.urdf,
         "terms": list(model.terms),
         "method": res.method,
+        "smoothing_cutoff_hz": cutoff,
+        "torque": "held over each period (averaged onto the samples)"
+        if recording.held
+        else "sampled with the positions",
         "standard_parameters": None
         if res.theta_standard is None
         else dict(zip(model.standard_names, res.theta_standard.tolist(), strict=True)),

@@ -30,6 +30,7 @@ from scipy.signal import butter, sosfiltfilt
 
 from hil.model.estimators import weighted_least_squares
 from hil.model.metrics import nrmse
+from hil.model.regressors import excitation_bandwidth
 from hil.model.urdf import UrdfArmModel
 
 # Smoothing of positions before differentiation, and of both sides of the regression.
@@ -50,10 +51,25 @@ class TorqueRecording:
     q: np.ndarray
     tau: np.ndarray
     source: str = ""
+    # True: row k's torque is a command held over [t_k, t_{k+1}) (this bench's recordings,
+    # drivers.recording), not a sample at t_k; see :meth:`torque_at_samples`.
+    held: bool = False
 
     @property
     def n_joints(self) -> int:
         return self.q.shape[1]
+
+    def torque_at_samples(self) -> np.ndarray:
+        """The torque that goes with the motion at each t_k. A held torque steps at t_k, so the
+        acceleration there, smoothed, is that of the mean of the torques on either side,
+        (τ_{k−1} + τ_k)/2 (row 0 keeps τ_0); taking τ_k instead is a half-period lead that
+        biases the viscous coefficients (−18 % and −22 % on joints 1 and 2 of the simulated
+        cicese3 arm, docs/urdf.md)."""
+        if not self.held:
+            return self.tau
+        out = self.tau.copy()
+        out[1:] = 0.5 * (self.tau[1:] + self.tau[:-1])
+        return out
 
     def write_csv(self, path: str | Path) -> None:
         """``t,q1..qn,tau1..taun`` with a header line."""
@@ -128,7 +144,25 @@ def smoothed_motion(rec: TorqueRecording, *, cutoff_hz: float = DEFAULT_CUTOFF_H
     smooth = CubicSpline(grid, _lowpass(CubicSpline(t, rec.q)(grid), cutoff_hz, period))
     keep = (t >= t[0] + EDGE_S) & (t <= t[-1] - EDGE_S)
     tk = t[keep]
-    return Motion(tk, smooth(tk), smooth(tk, 1), smooth(tk, 2), rec.tau[keep], cutoff_hz)
+    tau = rec.torque_at_samples()[keep]
+    return Motion(tk, smooth(tk), smooth(tk, 1), smooth(tk, 2), tau, cutoff_hz)
+
+
+def smoothing_cutoff_hz(rec: TorqueRecording) -> float:
+    """A cutoff for :func:`smoothed_motion` read from the data: eight times the excitation
+    bandwidth (:func:`hil.model.regressors.excitation_bandwidth`, 95 % of the position
+    variance), at least :data:`DEFAULT_CUTOFF_HZ` and at most a tenth of the sample rate.
+    Only q is low-passed, not τ, so the cutoff must pass the accelerations' content, which
+    reaches well above the positions' band: friction steps at each reversal and a held torque's
+    steps. A 4th-order Butterworth passes |H|² = 0.93 at 0.71 of its cutoff, a 7 % error on
+    the accelerations there (on the simulated cicese3 arm, 4× the bandwidth put the viscous
+    coefficients 17 to 26 % off, 8× within 3 %; on the Panda of Gaz et al. both give the
+    4 Hz floor)."""
+    period = float(np.median(np.diff(rec.t)))
+    bandwidth_hz = excitation_bandwidth(rec.q, rec.t) / (2 * np.pi)
+    if not np.isfinite(bandwidth_hz):
+        return DEFAULT_CUTOFF_HZ
+    return float(np.clip(8.0 * bandwidth_hz, DEFAULT_CUTOFF_HZ, 0.1 / period))
 
 
 @dataclass(frozen=True)
@@ -205,7 +239,10 @@ def identify_torque(
     rows = regression_rows(model, rec, cutoff_hz=cutoff_hz, decimate=decimate)
     split = rec.t[0] + (1.0 - held_out) * (rec.t[-1] - rec.t[0])
     fit = rows.t < split if held_out > 0 else np.ones(len(rows.t), dtype=bool)
-    if fit.sum() * model.n_joints < 2 * model.n_params or (held_out > 0 and (~fit).sum() < 2):
+    held_out_rows = ~fit
+    if fit.sum() * model.n_joints < 2 * model.n_params or (
+        held_out > 0 and held_out_rows.sum() < 2
+    ):
         raise ValueError(
             f"{rec.source}: {len(rows.t)} rows after averaging, too few to fit "
             f"{model.n_params} parameters"
@@ -217,7 +254,9 @@ def identify_torque(
         theta, method = model.base_theta(theta_standard), "physically consistent least squares"
     predicted = np.einsum("knp,p->kn", rows.Y, theta)
     held = (
-        nrmse(rows.tau[~fit], predicted[~fit]) if held_out > 0 else np.full(model.n_joints, np.nan)
+        nrmse(rows.tau[held_out_rows], predicted[held_out_rows])
+        if held_out > 0
+        else np.full(model.n_joints, np.nan)
     )
     return TorqueIdentification(theta, split, rows, predicted, held, theta_standard, method)
 

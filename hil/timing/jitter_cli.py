@@ -222,7 +222,11 @@ def measure(
     run_bench = write_bench_variant(base.source, out / "bench.toml", overrides, by="hil jitter")
     h = run_bench.period_s
     n = max(2, round(duration_s / h))
-    torques = load_experiment(experiment).torque_rows(h, n) if experiment is not None else None
+    torques = None
+    if experiment is not None:
+        excitation = load_experiment(experiment)
+        excitation.check_joints(2, "of the bench (2-DOF)")  # the buses carry two drives today
+        torques = excitation.torque_rows(h, n)
     zero = [0.0, 0.0]
 
     def command(k: int, sample: Sample) -> list[float]:

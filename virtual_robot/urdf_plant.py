@@ -1,0 +1,424 @@
+"""The n-joint virtual arm of a URDF robot profile: Pinocchio's rigid-body dynamics plus, per
+joint, the stick–slip friction of the 2-DOF plant (:mod:`virtual_robot.plant`), and the offline
+simulation that writes an n-joint recording (``virtual-robot simulate --robot cicese3``).
+
+Integration is fixed-step RK4 (default 0.5 ms) on (q, q̇) augmented with the supplied work
+∫τᵀq̇ dt and the friction work ∫fᵀq̇ dt, as in the 2-DOF plant, so the energy balance
+E(t) − E(0) = W_in − W_f can be checked on this plant too.
+
+Friction per joint i is Karnopp's stick–slip, as in :mod:`virtual_robot.plant`:
+  * sliding, f_i = b_i q̇_i + F_i(dir) dir, with the direction fixed over a step (each RK4 step
+    integrates a smooth ODE); when q̇_i changes sign inside a step, the step is cut where q̇_i = 0
+    (Brent's method on the RK4 flow map, to ~1e-12 of the step) and the joint sticks;
+  * stuck, q̈_i = 0 and f_i is the constraint torque that holds it, from the constrained
+    dynamics M_FF q̈_F = (τ − C q̇ − g − f)_F, f_S = (τ − C q̇ − g)_S − M_SF q̈_F (F sliding,
+    S stuck joints); it breaks away when f_S leaves the static band
+    (:func:`virtual_robot.plant.breakaway_joint`, shared with the 2-DOF plant).
+With every joint sliding (the common case) the accelerations are Pinocchio's ABA
+(Featherstone (2008) ch. 7) of τ − f; with a joint stuck, CRBA and RNEA give M and C q̇ + g.
+
+The world builds its own Pinocchio model from the URDF file; it never imports the host's
+(``hil``) model. No concealed effects yet: the n-joint plant is the described arm itself.
+Imports profiles, drivers (recording, units), virtual_robot.plant/drive/offline.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+from scipy.optimize import brentq
+
+from drivers.recording import RecordingWriter, plot_positions, read_signals
+from drivers.units import counts_to_rad, torque_to_permille, unwrap_int32
+from profiles.drive import load_drive
+from profiles.experiment import ExperimentProfile
+from profiles.robot import UrdfRobotProfile
+from virtual_robot import __version__
+from virtual_robot.drive import State
+from virtual_robot.offline import SimulationResult, collect_faults, drive_meta, enable_drives
+from virtual_robot.plant import DEFAULT_STEP_S, breakaway_joint
+
+# Velocity below which a located crossing counts as exactly zero (as the 2-DOF plant's 1e-12).
+ZERO_VELOCITY = 1e-12
+# Stick events at most per integration step; more is chattering, and the step is closed.
+MAX_EVENTS_PER_STEP = 8
+
+
+@dataclass(frozen=True)
+class UrdfPlantParams:
+    """What the n-joint plant integrates: the URDF's bodies; per joint, friction and armature."""
+
+    urdf: str
+    gravity_m_s2: float
+    viscous_Nms: tuple[float, ...]
+    coulomb_positive_Nm: tuple[float, ...]
+    coulomb_negative_Nm: tuple[float, ...]
+    armature_kgm2: tuple[float, ...]
+
+    @classmethod
+    def from_profile(cls, robot: UrdfRobotProfile) -> UrdfPlantParams:
+        return cls(
+            urdf=robot.urdf,
+            gravity_m_s2=robot.gravity_m_s2,
+            viscous_Nms=robot.viscous_Nms,
+            coulomb_positive_Nm=robot.coulomb_positive_Nm,
+            coulomb_negative_Nm=robot.coulomb_negative_Nm,
+            armature_kgm2=robot.armature_kgm2,
+        )
+
+
+class UrdfPlant:
+    """Fixed-step simulation of an n-joint arm under a zero-order-held torque command.
+
+    ``command(τ)`` sets the joint torques, ``advance_to(t)`` integrates to time t; the state is
+    ``q``/``dq`` (numpy arrays, n), ``measured_q`` what the encoders see (no offset here).
+    """
+
+    def __init__(
+        self,
+        params: UrdfPlantParams,
+        q0: Sequence[float] | None = None,
+        dq0: Sequence[float] | None = None,
+        t0: float = 0.0,
+        max_step_s: float = DEFAULT_STEP_S,
+    ) -> None:
+        if not max_step_s > 0:
+            raise ValueError("max_step_s must be > 0")
+        model = pin.buildModelFromUrdf(params.urdf)
+        if model.nq != model.nv or any(j.nq != 1 for j in model.joints[1:]):
+            raise ValueError(f"{params.urdf}: only 1-DOF revolute/prismatic joints are supported")
+        n = model.nv
+        if len(params.viscous_Nms) != n:
+            raise ValueError(
+                f"{params.urdf}: {n} joints, friction given for {len(params.viscous_Nms)}"
+            )
+        model.gravity.linear = np.array([0.0, 0.0, -params.gravity_m_s2])
+        model.armature = np.asarray(params.armature_kgm2, dtype=float)  # gr² I_rotor per joint
+        self.model, self.data = model, model.createData()
+        self.params = params
+        self.n_joints = n
+        self.max_step_s = max_step_s
+        self.t = t0
+        self.q = np.zeros(n) if q0 is None else np.array(q0, dtype=float)
+        self.dq = np.zeros(n) if dq0 is None else np.array(dq0, dtype=float)
+        if self.q.shape != (n,) or self.dq.shape != (n,):
+            raise ValueError(f"initial state: need {n} values per joint vector")
+        self.b = np.asarray(params.viscous_Nms, dtype=float)
+        self.band_pos = np.asarray(params.coulomb_positive_Nm, dtype=float)
+        self.band_neg = np.asarray(params.coulomb_negative_Nm, dtype=float)
+        # A joint without Coulomb friction never sticks: its dynamics are smooth.
+        self.sticky = np.maximum(self.band_pos, self.band_neg) > 0
+        self.stuck = self.sticky & (self.dq == 0.0)
+        self.slip_dir = np.where(self.dq >= 0, 1.0, -1.0)
+        self._mode_changed()
+        self.command_Nm = np.zeros(n)
+        self.work_in_J = 0.0  # ∫ τᵀ q̇ dt
+        self.dissipated_J = 0.0  # ∫ fᵀ q̇ dt + stick clamping losses
+        self.steps = 0
+        self.stick_events = 0
+
+    # ---- inputs and outputs -----------------------------------------------------------------
+    def command(self, torque_Nm: Sequence[float], powered: Sequence[bool] | None = None) -> None:
+        """Joint torques from now on; an unpowered joint's amplifier gives none."""
+        tau = np.array(torque_Nm, dtype=float)
+        if tau.shape != (self.n_joints,):
+            raise ValueError(f"need {self.n_joints} torques, got {tau.shape}")
+        if powered is not None:
+            tau[~np.asarray(powered, dtype=bool)] = 0.0
+        self.command_Nm = tau
+
+    @property
+    def measured_q(self) -> np.ndarray:
+        return self.q
+
+    def energy_J(self) -> float:
+        """Kinetic plus potential energy (Pinocchio's, potential relative to the URDF's origin)."""
+        m, d = self.model, self.data
+        kinetic = pin.computeKineticEnergy(m, d, self.q, self.dq)
+        return float(kinetic + pin.computePotentialEnergy(m, d, self.q))
+
+    def advance_to(self, t_end: float) -> None:
+        """Integrate to ``t_end`` in steps of at most ``max_step_s``."""
+        while self.t < t_end - 1e-12:
+            self._step(min(self.max_step_s, t_end - self.t))
+
+    # ---- dynamics -----------------------------------------------------------------------------
+    def _mode_changed(self) -> None:
+        """After a joint sticks or breaks away: the signed Coulomb level per joint (direction
+        frozen until the next change), and which velocities to watch for a sign change."""
+        self._level = self.slip_dir * np.where(self.slip_dir > 0, self.band_pos, self.band_neg)
+        self._watch = np.where(self.sticky & ~self.stuck, self.slip_dir, 0.0)
+        self._n_stuck = int(self.stuck.sum())
+
+    def _deriv_factory(self, tau: np.ndarray) -> Callable:
+        """(q, q̇) → (q̈, τᵀq̇, fᵀq̇) in the current stick mode, friction levels frozen."""
+        m, d, b = self.model, self.data, self.b
+        level = self._level
+        stuck = self.stuck.copy()
+        if not stuck.any():
+
+            def sliding(q: np.ndarray, v: np.ndarray):
+                f = b * v + level
+                return pin.aba(m, d, q, v, tau - f), float(tau @ v), float(f @ v)
+
+            return sliding
+        free = ~stuck
+
+        def constrained(q: np.ndarray, v: np.ndarray):
+            f = np.where(free, b * v + level, 0.0)
+            a = np.zeros(self.n_joints)
+            if free.any():
+                M = _mass_matrix(m, d, q)
+                r = tau - pin.nonLinearEffects(m, d, q, v) - f
+                a[free] = np.linalg.solve(M[np.ix_(free, free)], r[free])
+            return a, float(tau @ v), float(f @ v)
+
+        return constrained
+
+    def _holding_torques(self, tau: np.ndarray) -> np.ndarray:
+        """Friction each stuck joint needs to stay stuck, now (zero for sliding joints)."""
+        m, d = self.model, self.data
+        stuck, free = self.stuck, ~self.stuck
+        M = _mass_matrix(m, d, self.q)
+        r = tau - pin.nonLinearEffects(m, d, self.q, self.dq)
+        f = np.where(free, self.b * self.dq + self._level, 0.0)
+        a_free = np.linalg.solve(M[np.ix_(free, free)], (r - f)[free]) if free.any() else []
+        held = np.zeros(self.n_joints)
+        held[stuck] = r[stuck] - M[np.ix_(stuck, free)] @ a_free if free.any() else r[stuck]
+        return held
+
+    def _release_stuck_joints(self, tau: np.ndarray) -> None:
+        for _ in range(self.n_joints):
+            if not self._n_stuck:
+                return
+            held = self._holding_torques(tau)
+            worst = breakaway_joint(held, self.stuck, self.band_pos, self.band_neg)
+            if worst < 0:
+                return
+            self.stuck[worst] = False
+            self.slip_dir[worst] = 1.0 if held[worst] > 0 else -1.0
+            self._mode_changed()
+
+    def _step(self, dt: float) -> None:
+        """Advance dt, cutting the step where a sliding joint's velocity reaches zero."""
+        tau = self.command_Nm
+        remaining = dt
+        for _ in range(MAX_EVENTS_PER_STEP):
+            if remaining <= 1e-15:
+                return
+            if self._n_stuck:
+                self._release_stuck_joints(tau)
+            deriv = None
+            if self._n_stuck:
+                deriv = self._deriv_factory(tau)
+                q, v, work, diss = _rk4(deriv, self.q, self.dq, remaining)
+            else:
+                q, v, work, diss = self._rk4_sliding(tau, remaining)
+            used, joint = remaining, -1
+            if (v * self._watch < 0.0).any():  # a sliding sticky joint's velocity crossed zero
+                crossed = v * self._watch < 0.0
+                deriv = deriv or self._deriv_factory(tau)
+                used, joint, (q, v, work, diss) = self._locate_stick(deriv, remaining, crossed)
+            self.q, self.dq = q, v
+            self.work_in_J += work
+            self.dissipated_J += diss
+            self.t += used
+            self.steps += 1
+            remaining -= used
+            if joint < 0:
+                return
+            before = self.energy_J()
+            self.dq = self.dq.copy()
+            self.dq[joint] = 0.0
+            self.dissipated_J += before - self.energy_J()
+            self.stuck[joint] = True
+            self._mode_changed()
+            self.stick_events += 1
+        self.t += remaining  # degenerate chattering: keep the clock honest
+
+    def _rk4_sliding(self, tau: np.ndarray, dt: float):
+        """:func:`_rk4` with every joint sliding, unrolled: the same stages and the same four ABA
+        calls, fewer array operations. With τ and the Coulomb levels constant over the step the
+        RK4 quadratures of the powers are exact in closed form: ∫τᵀq̇ = τᵀΔq, ∫levelᵀq̇ =
+        levelᵀΔq, and the viscous part is bᵀ of the RK4 sum of the stage velocities squared.
+        tests/test_urdf_plant.py checks it against :func:`_rk4`."""
+        m, d, b, aba = self.model, self.data, self.b, pin.aba
+        level = self._level
+        c = tau - level
+        q, v = self.q, self.dq
+        h2 = 0.5 * dt
+        a1 = aba(m, d, q, v, c - b * v)
+        y = v + h2 * a1
+        a2 = aba(m, d, q + h2 * v, y, c - b * y)
+        z = v + h2 * a2
+        a3 = aba(m, d, q + h2 * y, z, c - b * z)
+        u = v + dt * a3
+        a4 = aba(m, d, q + dt * z, u, c - b * u)
+        k = dt / 6.0
+        dq = k * (v + 2.0 * (y + z) + u)
+        viscous = k * float(b @ (v * v + 2.0 * (y * y + z * z) + u * u))
+        return (
+            q + dq,
+            v + k * (a1 + 2.0 * (a2 + a3) + a4),
+            float(tau @ dq),
+            float(level @ dq) + viscous,
+        )
+
+    def _locate_stick(self, deriv: Callable, dt: float, crossed: np.ndarray):
+        """The first joint whose velocity reaches zero within [0, dt], the time it does and the
+        state there: Brent's method on that joint's velocity along the RK4 flow map."""
+        q0, v0, d = self.q, self.dq, self.slip_dir
+        best = (dt, -1, None)
+        for j in np.flatnonzero(crossed):
+
+            def velocity(s: float, j: int = j) -> float:
+                return _rk4(deriv, q0, v0, s)[1][j] * d[j]
+
+            lo = 0.0
+            if v0[j] == 0.0:
+                # it broke away at the step start: bracket the later zero, not the one at s = 0
+                lo = dt
+                for _ in range(60):
+                    lo *= 0.5
+                    if velocity(lo) > 0:
+                        break
+                else:
+                    lo = -1.0
+            if lo < 0:
+                s = 0.0  # no motion at all: it sticks at once
+            elif velocity(dt) >= 0:
+                s = dt  # |q̇_j| at the step's end is at round-off: the crossing is the end
+            else:
+                s = brentq(velocity, lo, dt, xtol=ZERO_VELOCITY * dt, rtol=4 * np.finfo(float).eps)
+            if s < best[0] or best[1] < 0:
+                best = (s, int(j), None)
+        s, joint, _ = best
+        return s, joint, _rk4(deriv, q0, v0, s) if s > 0 else (q0, v0, 0.0, 0.0)
+
+
+def _mass_matrix(model: Any, data: Any, q: np.ndarray) -> np.ndarray:
+    """M(q) by CRBA (Pinocchio fills the upper triangle; armature on the diagonal)."""
+    M = pin.crba(model, data, q)
+    return np.triu(M) + np.triu(M, 1).T
+
+
+def _rk4(deriv: Callable, q: np.ndarray, v: np.ndarray, dt: float):
+    """Classical RK4 on (q, q̇, W_in, W_f) with ``deriv`` → (q̈, P_in, P_f)."""
+    h2 = 0.5 * dt
+    a1, p1, w1 = deriv(q, v)
+    y = v + h2 * a1
+    a2, p2, w2 = deriv(q + h2 * v, y)
+    z = v + h2 * a2
+    a3, p3, w3 = deriv(q + h2 * y, z)
+    u = v + dt * a3
+    a4, p4, w4 = deriv(q + dt * z, u)
+    k = dt / 6.0
+    return (
+        q + k * (v + 2 * y + 2 * z + u),
+        v + k * (a1 + 2 * a2 + 2 * a3 + a4),
+        k * (p1 + 2 * p2 + 2 * p3 + p4),
+        k * (w1 + 2 * w2 + 2 * w3 + w4),
+    )
+
+
+def simulate_urdf(
+    robot: UrdfRobotProfile,
+    experiment: ExperimentProfile,
+    out_dir: str | Path,
+    *,
+    duration_s: float | None = None,
+    step_s: float = DEFAULT_STEP_S,
+    plot: bool = True,
+    progress: Callable[[float, float], None] | None = None,
+) -> SimulationResult:
+    """Run ``experiment`` open loop on the n-joint arm through its n drive models (quantized,
+    clamped, held over each period as in :func:`virtual_robot.simulate.simulate`) and write the
+    recording ``t, q1..qn, tau1..taun, status1..statusn`` to ``out_dir``."""
+    n = robot.n_joints
+    experiment.check_joints(n, robot.name)
+    if robot.drives is None:
+        raise ValueError(f"{robot.source}: [joints] drives: the simulation needs one per joint")
+    drives_p = [load_drive(name) for name in robot.drives]
+    h = experiment.period_s
+    duration = experiment.duration_s if duration_s is None else duration_s
+    n_rows = max(1, round(duration / h))
+    plant = UrdfPlant(
+        UrdfPlantParams.from_profile(robot), q0=experiment.initial_q_rad, max_step_s=min(step_s, h)
+    )
+    drives = enable_drives(drives_p, h, plant.measured_q, plant.dq)
+    counts = [d.position_counts for d in drives]
+    meta = {
+        "kind": "simulate",
+        "version": __version__,
+        "robot": robot.name,
+        "robot_profile": robot.source,
+        "urdf": robot.urdf,
+        "n_joints": n,
+        "effects": None,
+        "experiment": experiment.name,
+        "experiment_profile": experiment.source,
+        "mode": "offline",
+        "period_s": h,
+        "duration_s": n_rows * h,
+        "seed": None,
+        "drives": drive_meta(drives_p),
+        "integrator": {
+            "method": "RK4, fixed step, stick-slip events located; Pinocchio ABA/CRBA/RNEA",
+            "step_s": plant.max_step_s,
+        },
+    }
+    faults: list[dict[str, Any]] = []
+    commanded_Nm = experiment.torque_rows(h, n_rows)
+    cpr = [p.counts_per_rev for p in drives_p]
+    rated = [p.rated_torque_Nm for p in drives_p]
+    status = tuple(f"status{j}" for j in range(1, n + 1))
+    q, tau = [0.0] * n, [0.0] * n
+    started = time.perf_counter()
+    cpu_started = time.process_time()
+    last_report = started
+    with RecordingWriter(out_dir, meta, extra_columns=status, n_joints=n) as rec:
+        for k in range(n_rows):
+            t = k * h
+            commanded = commanded_Nm[k]
+            measured, rates = plant.measured_q, plant.dq
+            for i, d in enumerate(drives):
+                d.update(t, float(measured[i]), float(rates[i]))  # encoders sampled at t
+                counts[i] = unwrap_int32(counts[i], d.position_counts)
+                q[i] = counts_to_rad(counts[i], cpr[i])
+                d.write_target_torque(torque_to_permille(commanded[i], rated[i]), t)
+                tau[i] = d.torque_Nm  # quantized, clamped, zero unless enabled
+                if d.state is not State.OPERATION_ENABLED:
+                    collect_faults(d, drives_p[i].model, t, faults)
+            rec.write((t, *q, *tau, *(d.statusword for d in drives)))
+            plant.command(tau, powered=[d.powered for d in drives])
+            plant.advance_to((k + 1) * h)
+            if progress is not None and time.perf_counter() - last_report > 1.0:
+                last_report = time.perf_counter()
+                progress(t + h, n_rows * h)
+        wall = time.perf_counter() - started
+        cpu = time.process_time() - cpu_started
+        rec.meta.update(
+            wall_time_s=wall,
+            cpu_time_s=cpu,
+            realtime_factor=n_rows * h / wall if wall else None,
+            plant_steps=plant.steps,
+            stick_events=plant.stick_events,
+            faults=faults,
+        )
+    result = SimulationResult(Path(out_dir), n_rows, wall, n_rows * h, plant.steps, faults)
+    if plot:
+        result.plot = plot_positions(
+            read_signals(out_dir),
+            Path(out_dir) / "positions.png",
+            title=f"virtual-robot simulate: {robot.name}, {experiment.name}",
+        )
+    return result
+
+
+__all__ = ["UrdfPlant", "UrdfPlantParams", "simulate_urdf"]
