@@ -13,8 +13,9 @@ from profiles.experiment import load_experiment
 from profiles.robot import load_robot
 from profiles.timing_faults import SideFaults, TimingFaults
 from virtual_robot.drive import MODE_CST, DriveModel
+from virtual_robot.offline import ENABLE_SEQUENCE
 from virtual_robot.robot import LOCKSTEP, REALTIME, VirtualRobot
-from virtual_robot.simulate import ENABLE_SEQUENCE, simulate
+from virtual_robot.simulate import simulate
 from virtual_robot.stepping import Stepper
 from virtual_robot.timing_faults import RobotTiming
 
