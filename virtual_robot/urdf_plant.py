@@ -43,6 +43,7 @@ from virtual_robot import __version__
 from virtual_robot.drive import State
 from virtual_robot.offline import SimulationResult, collect_faults, drive_meta, enable_drives
 from virtual_robot.plant import DEFAULT_STEP_S, breakaway_joint
+from virtual_robot.stepping import Stepper
 
 # Velocity below which a located crossing counts as exactly zero (as the 2-DOF plant's 1e-12).
 ZERO_VELOCITY = 1e-12
@@ -118,19 +119,36 @@ class UrdfPlant:
         self.slip_dir = np.where(self.dq >= 0, 1.0, -1.0)
         self._mode_changed()
         self.command_Nm = np.zeros(n)
+        self._held_Nm = np.zeros(n)  # the last command, before the power stages
         self.work_in_J = 0.0  # ∫ τᵀ q̇ dt
         self.dissipated_J = 0.0  # ∫ fᵀ q̇ dt + stick clamping losses
         self.steps = 0
         self.stick_events = 0
 
     # ---- inputs and outputs -----------------------------------------------------------------
-    def command(self, torque_Nm: Sequence[float], powered: Sequence[bool] | None = None) -> None:
-        """Joint torques from now on; an unpowered joint's amplifier gives none."""
+    def command(
+        self,
+        torque_Nm: Sequence[float],
+        issued_at: float | None = None,
+        powered: Sequence[bool] | None = None,
+        deliver_at: float | None = None,
+    ) -> None:
+        """Joint torques from now on; an unpowered joint's amplifier gives none. The signature
+        is the 2-DOF plant's (virtual_robot.stepping.SteppedPlant); this plant has no
+        amplifier-side effects, so ``issued_at`` changes nothing, and a delayed delivery
+        (timing faults) is refused."""
+        if deliver_at is not None:
+            raise ValueError("the n-joint plant does not take delayed commands (timing faults)")
         tau = np.array(torque_Nm, dtype=float)
         if tau.shape != (self.n_joints,):
             raise ValueError(f"need {self.n_joints} torques, got {tau.shape}")
-        if powered is not None:
-            tau[~np.asarray(powered, dtype=bool)] = 0.0
+        self._held_Nm = tau.copy()
+        self.set_powered(powered if powered is not None else [True] * self.n_joints)
+
+    def set_powered(self, powered: Sequence[bool]) -> None:
+        """Switch the amplifiers: an unpowered joint gets no torque, a powered one the held."""
+        tau = self._held_Nm.copy()
+        tau[~np.asarray(powered, dtype=bool)] = 0.0
         self.command_Nm = tau
 
     @property
@@ -383,12 +401,11 @@ def simulate_urdf(
     cpu_started = time.process_time()
     last_report = started
     with RecordingWriter(out_dir, meta, extra_columns=status, n_joints=n) as rec:
+        stepper = Stepper(plant, drives, h)  # the one lockstep sequence (virtual_robot.stepping)
         for k in range(n_rows):
-            t = k * h
+            t = stepper.sync()  # the row's torque held over [t_{k-1}, t_k), encoders sampled at t_k
             commanded = commanded_Nm[k]
-            measured, rates = plant.measured_q, plant.dq
             for i, d in enumerate(drives):
-                d.update(t, float(measured[i]), float(rates[i]))  # encoders sampled at t
                 counts[i] = unwrap_int32(counts[i], d.position_counts)
                 q[i] = counts_to_rad(counts[i], cpr[i])
                 d.write_target_torque(torque_to_permille(commanded[i], rated[i]), t)
@@ -396,11 +413,10 @@ def simulate_urdf(
                 if d.state is not State.OPERATION_ENABLED:
                     collect_faults(d, drives_p[i].model, t, faults)
             rec.write((t, *q, *tau, *(d.statusword for d in drives)))
-            plant.command(tau, powered=[d.powered for d in drives])
-            plant.advance_to((k + 1) * h)
             if progress is not None and time.perf_counter() - last_report > 1.0:
                 last_report = time.perf_counter()
                 progress(t + h, n_rows * h)
+        stepper.advance()  # the last row's torque held over its period too
         wall = time.perf_counter() - started
         cpu = time.process_time() - cpu_started
         rec.meta.update(
