@@ -417,16 +417,15 @@ def integrate(
         commands = (before[k], after[k])
         for dt_seg, which in segments:
             command = commands[which]
+            tau1, tau2 = command  # the identity path's torque (others: over what remains)
             substeps += 1
             remaining = dt_seg
             for _event in range(MAX_EVENTS_PER_SUBSTEP):
-                if identity:
-                    tau = path_end = command
-                else:
-                    tau, path_end = path.applied(command, remaining)
-                if (stuck[0] or stuck[1]) and release((q1, q2, v1, v2), tau):
+                if not identity:
+                    (tau1, tau2), path_end = path.applied(command, remaining)
+                if (stuck[0] or stuck[1]) and release((q1, q2, v1, v2), (tau1, tau2)):
                     step = mode_step()
-                n1, n2, w1, w2 = step(q1, q2, v1, v2, tau[0], tau[1], remaining)
+                n1, n2, w1, w2 = step(q1, q2, v1, v2, tau1, tau2, remaining)
                 # a sliding, sticky joint whose velocity changed sign crossed zero in the step
                 cross1 = sticky[0] and not stuck[0] and w1 * direction[0] < 0.0
                 cross2 = sticky[1] and not stuck[1] and w2 * direction[1] < 0.0
@@ -439,7 +438,7 @@ def integrate(
                     joint = 0 if v1 / (v1 - w1) <= v2 / (v2 - w2) else 1
                 else:
                     joint = 0 if cross1 else 1
-                flow = _flow(step, path, command, tau)
+                flow = _flow(step, path, command, (tau1, tau2))
                 here = (q1, q2, v1, v2)
                 s, state = _locate_zero(
                     flow, here, joint, remaining, (w1, w2)[joint], direction[joint]
