@@ -20,9 +20,20 @@ Karnopp-style stick–slip rather than with sgn(0) = 0:
   integrates a smooth ODE; when its velocity changes sign within a sub-step the crossing is
   located on the RK4 flow map (linear interpolation refined by Illinois regula falsi), the
   velocity is clamped to zero there, the joint sticks, and the rest of the sub-step is integrated
-  in the new mode.
+  in the new mode;
+* after 8 stick events in one sub-step (chattering: a joint that breaks away on a lagged torque's
+  mean over the sub-step and is pushed back at once) the joints stay as they are for the rest of
+  it, as the world's plant does.
 
 A joint with zero Coulomb friction in both directions never sticks (its dynamics are smooth).
+
+Where it lives: this module is the entry (input checks, the angle offset, :class:`OpenLoopExtras`
+re-exported) and :func:`simulate_windows`; the integrator is
+:func:`hil.model.openloop_core.integrate`, one scheme for the rigid model and for the diagnosis's
+effects, which :mod:`hil.model.openloop_effects` brings in as a torque path (delay, lag, gain,
+offset), a friction law (Stribeck) and a shaft torque (cogging). Imports: numpy,
+:mod:`hil.model.closed_form`, :mod:`hil.model.openloop_core`, :mod:`hil.model.openloop_effects`
+(and, inside :func:`simulate_windows`, :mod:`hil.model.metrics` and :mod:`hil.model.regressors`).
 
 Written on purpose without reference to the virtual robot's plant (the world): the host's model
 and the world are separate code, and tests/test_openloop.py checks that they agree. Scalar
