@@ -5,7 +5,8 @@ What lives here: the closed-form 2-DOF model of Reyes & Kelly (1997) (:mod:`.clo
 ``UrdfArmModel``) behind one interface (names, units, M(q), regressors); the regression
 builders of eqs. (24), (28), (30) (:mod:`.regressors`); RLS, batch and weighted least squares
 (:mod:`.estimators`); the open-loop simulator, rigid and with the diagnosis' extra physics
-(:mod:`.openloop`, :mod:`.openloop_effects`); fit metrics (:mod:`.metrics`); parameter files
+(:mod:`.openloop`; its one stick–slip integrator :mod:`.openloop_core`, the effects
+:mod:`.openloop_effects`); fit metrics (:mod:`.metrics`); parameter files
 (:mod:`.params`).
 
 Imports: numpy, scipy, pinocchio, :mod:`drivers` (recordings) and :mod:`profiles`. Nothing

@@ -1,10 +1,10 @@
-"""Open-loop simulation with the extra physics the mismatch diagnosis can accept (issue 7).
+"""The extra physics the mismatch diagnosis can accept (issue 7), for the host's simulator.
 
-:func:`hil.model.openloop.simulate_open_loop` calls :func:`integrate_with_extras` when its
-``extras`` (:class:`hil.model.openloop.OpenLoopExtras`) switch on anything that changes the
-dynamics. The
-stick–slip scheme is the one of :mod:`hil.model.openloop` (read its docstring first); what is added,
-in the order of the torque path from the recorded command to the shaft:
+What lives here: :class:`OpenLoopExtras` (the diagnosis's vocabulary of effects) and how each
+enters :func:`hil.model.openloop_core.integrate`, the one stick–slip integrator (read
+:mod:`hil.model.openloop`'s docstring for the scheme): the torque path from the recorded command
+to the shaft as an :class:`EffectsTorquePath`, Stribeck friction as a
+:class:`StribeckFriction`, cogging as a shaft torque. In the order of the torque path:
 
     τ_cmd ─▶ transport delay d ─▶ actuator lag T ─▶ (1 + r) τ + τ_0 ─▶ + cogging(q) ─▶ shaft
 
@@ -23,37 +23,133 @@ in the order of the torque path from the recorded command to the shaft:
   F_c the Coulomb level of the slip direction d; the static band of a stuck joint is
   [−F_s⁻, F_s⁺]. F is evaluated at every RK4 stage with the direction frozen over the sub-step.
 
-(The angle offset only changes what is reported; :mod:`hil.model.openloop` applies it.) These are
-the
-definitions of the virtual robot's effects (virtual_robot/effects.py and plant.py, docs/effects.md),
-written again here because the host never imports the world; tests/test_openloop.py checks that the
-two agree. Sub-steps are the plant's: ``steps_per_period`` per period, cut at arrivals of delayed
-commands, with the lag mean taken over each (cut) sub-step.
+(The angle offset only changes what is reported; :func:`hil.model.openloop.simulate_open_loop`
+applies it.) These are the definitions of the virtual robot's effects (virtual_robot/effects.py
+and plant.py, docs/effects.md), written again here because the host never imports the world;
+tests/test_openloop.py checks that the two agree. Sub-steps are the plant's: ``steps_per_period``
+per period, cut at arrivals of delayed commands, with the lag mean taken over each (cut) sub-step.
+
+Imports: numpy and :mod:`hil.model.openloop_core`; :mod:`hil.model.openloop` builds on this.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
-from hil.model.openloop import (
-    MAX_EVENTS_PER_SUBSTEP,
+from hil.model.openloop_core import (
+    Friction,
     OpenLoopResult,
+    Pair,
+    Segments,
+    ShaftTorque,
     State,
-    Step,
-    _locate_zero,
-    _rk4,
+    TorquePath,
+    integrate,
+    number,
+    pair,
 )
 
-if TYPE_CHECKING:
-    from hil.model.openloop import OpenLoopExtras
-
-Pair = tuple[float, float]
 # Sub-step boundaries closer than this (s) to an arrival instant are not cut (as in the plant).
 _TIME_TOL = 1e-12
+
+
+@dataclass(frozen=True)
+class OpenLoopExtras:
+    """Physics beyond the 9-parameter model, in the mismatch diagnosis's vocabulary (issue 7).
+
+    The virtual robot's effects (virtual_robot/effects.py, docs/effects.md), defined the same way;
+    the defaults switch everything off. Pairs are (joint 1, joint 2). Equations and the order of
+    the torque path are in this module's docstring:
+
+    * ``torque_offset_Nm``, ``torque_gain``: τ_applied = (1 + r) τ + τ_0 (after the lag);
+    * ``actuator_lag_s``: first-order lag time constants T (0 = none);
+    * ``transport_delay_s``: one pure delay d of the commands of both joints;
+    * ``cogging_*``: τ_cog = A sin(N q + φ), N periods per revolution, at the true angle;
+    * ``angle_offset_rad``: reported angle = true angle + δ (q0 and the result's q are reported
+      angles; the dynamics use the true ones);
+    * ``stribeck_*``: F(|q̇|) = F_c + (F_s − F_c) exp(−(|q̇|/v_s)^δ), F_s = ratio · F_c, and a
+      static band of F_s; on when ``stribeck_velocity_rad_s`` is given (ratio default 1).
+    Raises ValueError (one line) on a bad value.
+    """
+
+    torque_offset_Nm: tuple[float, float] = (0.0, 0.0)
+    torque_gain: tuple[float, float] = (0.0, 0.0)
+    actuator_lag_s: tuple[float, float] = (0.0, 0.0)
+    transport_delay_s: float = 0.0
+    cogging_periods_per_rev: tuple[float, float] = (0.0, 0.0)
+    cogging_amplitude_Nm: tuple[float, float] = (0.0, 0.0)
+    cogging_phase_rad: tuple[float, float] = (0.0, 0.0)
+    angle_offset_rad: tuple[float, float] = (0.0, 0.0)
+    stribeck_breakaway_ratio: tuple[float, float] | None = None
+    stribeck_velocity_rad_s: tuple[float, float] | None = None
+    stribeck_exponent: float = 2.0
+    # The command held before t = 0 (None: zero, the arm starts from rest). A simulation restarted
+    # inside a recording (the diagnosis's held-out segments) starts settled on the previous
+    # row's command: the lag state and the delay line's rows before 0 equal it.
+    initial_command_Nm: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        def put(name: str, value: object) -> None:
+            object.__setattr__(self, name, value)
+
+        if self.initial_command_Nm is not None:
+            put("initial_command_Nm", pair("initial_command_Nm", self.initial_command_Nm))
+
+        for name in (
+            "torque_offset_Nm",
+            "torque_gain",
+            "actuator_lag_s",
+            "cogging_periods_per_rev",
+            "cogging_amplitude_Nm",
+            "cogging_phase_rad",
+            "angle_offset_rad",
+        ):
+            put(name, pair(name, getattr(self, name)))
+        if min(self.torque_gain) <= -1.0:
+            raise ValueError(f"torque_gain must be > -1 (relative), got {self.torque_gain}")
+        if min(self.actuator_lag_s) < 0.0:
+            raise ValueError(f"actuator_lag_s must be >= 0, got {self.actuator_lag_s}")
+        if min(self.cogging_periods_per_rev) < 0.0:
+            raise ValueError(
+                f"cogging_periods_per_rev must be >= 0, got {self.cogging_periods_per_rev}"
+            )
+        delay = number("transport_delay_s", self.transport_delay_s)
+        if delay < 0.0:
+            raise ValueError(f"transport_delay_s must be >= 0, got {delay}")
+        put("transport_delay_s", delay)
+        velocity, ratio = self.stribeck_velocity_rad_s, self.stribeck_breakaway_ratio
+        if velocity is None:
+            if ratio is not None:
+                raise ValueError("stribeck_breakaway_ratio needs stribeck_velocity_rad_s")
+            return
+        velocity = pair("stribeck_velocity_rad_s", velocity)
+        ratio = (1.0, 1.0) if ratio is None else pair("stribeck_breakaway_ratio", ratio)
+        if min(velocity) <= 0.0:
+            raise ValueError(f"stribeck_velocity_rad_s must be > 0, got {velocity}")
+        if min(ratio) < 1.0:
+            raise ValueError(f"stribeck_breakaway_ratio must be >= 1 (F_s/F_c), got {ratio}")
+        exponent = number("stribeck_exponent", self.stribeck_exponent)
+        if not 0.0 < exponent <= 10.0:
+            raise ValueError(f"stribeck_exponent must be in (0, 10], got {exponent}")
+        put("stribeck_velocity_rad_s", velocity)
+        put("stribeck_breakaway_ratio", ratio)
+        put("stribeck_exponent", exponent)
+
+    @property
+    def changes_dynamics(self) -> bool:
+        """Anything on but the angle offset (which only changes what is reported)."""
+        return (
+            any(self.torque_offset_Nm)
+            or any(self.torque_gain)
+            or any(self.actuator_lag_s)
+            or self.transport_delay_s > 0.0
+            or any(self.cogging_amplitude_Nm)
+            or self.stribeck_velocity_rad_s is not None
+        )
 
 
 def lag_step(state: float, command: float, dt: float, time_constant_s: float) -> Pair:
@@ -65,7 +161,7 @@ def lag_step(state: float, command: float, dt: float, time_constant_s: float) ->
     return command + gap * time_constant_s / dt * (1.0 - decay), command + gap * decay
 
 
-def _period_segments(h: float, n_sub: int, arrival: float | None) -> list[tuple[float, int]]:
+def _period_segments(h: float, n_sub: int, arrival: float | None) -> Segments:
     """Sub-steps of one period as (length, which command): 0 = the one before the arrival of the
     period's delayed command at offset ``arrival`` (None: no arrival inside the period), 1 after."""
     dt_sub = h / n_sub
@@ -104,42 +200,76 @@ def _commands(
     return before, after, arrival
 
 
-def _accelerations(
-    theta: np.ndarray,
-    stuck1: bool,
-    stuck2: bool,
-    d1: float,
-    d2: float,
-    friction: Callable[[int, float, float], float],
-    cogging: Callable[[float, float], Pair] | None,
-) -> Callable[[float, float, float, float, float, float], Pair]:
-    """q̈ = M⁻¹(τ + τ_cog − C q̇ − g − f) in one stick mode; f_i = b_i q̇_i + d_i F_i(|q̇_i|)."""
-    t1, t2, t3, t4, t5, b1, b2 = (float(x) for x in theta[:7])
-    sin, cos = math.sin, math.cos
+class EffectsTorquePath(TorquePath):
+    """Transport delay, actuator lag, gain and offset between the recorded command and the shaft
+    (this module's docstring); the lag state starts settled on ``extras.initial_command_Nm``
+    (zero when None)."""
 
-    def acc(q1, q2, v1, v2, tau1, tau2):
-        if cogging is not None:
-            c1, c2_ = cogging(q1, q2)
-            tau1, tau2 = tau1 + c1, tau2 + c2_
-        k = t2 * sin(q2)
-        g12 = t5 * sin(q1 + q2)
-        if stuck1 and stuck2:
-            return 0.0, 0.0
-        if stuck1:
-            e2 = tau2 - k * v1 * v1 - g12 - b2 * v2 - friction(1, d2, abs(v2))
-            return 0.0, e2 / t3
-        e1 = tau1 + k * (2.0 * v1 * v2 + v2 * v2) - t4 * sin(q1) - g12 - b1 * v1
-        e1 -= friction(0, d1, abs(v1))
-        c2 = cos(q2)
-        if stuck2:
-            return e1 / (t1 + 2.0 * t2 * c2), 0.0
-        e2 = tau2 - k * v1 * v1 - g12 - b2 * v2 - friction(1, d2, abs(v2))
-        m11 = t1 + 2.0 * t2 * c2
-        m12 = t3 + t2 * c2
-        det = m11 * t3 - m12 * m12
-        return (t3 * e1 - m12 * e2) / det, (m11 * e2 - m12 * e1) / det
+    identity = False
 
-    return acc
+    def __init__(self, extras: OpenLoopExtras) -> None:
+        self.delay_s = extras.transport_delay_s
+        self.lag_s = extras.actuator_lag_s
+        self.lagged = self.lag_s[0] > 0.0 or self.lag_s[1] > 0.0
+        self.gain, self.offset = extras.torque_gain, extras.torque_offset_Nm
+        self.initial = extras.initial_command_Nm
+        # amplifier output before gain/offset (the lag state)
+        self.lag: Pair = (0.0, 0.0) if self.initial is None else self.initial
+
+    def schedule(self, torques: np.ndarray, h: float, n_sub: int) -> tuple[list, list, Segments]:
+        before, after, arrival = _commands(torques, self.delay_s, h, self.initial)
+        return before, after, _period_segments(h, n_sub, arrival)
+
+    def applied(self, command: Sequence[float], dt: float) -> tuple[Pair, Pair]:
+        if self.lagged:
+            m1, e1 = lag_step(self.lag[0], command[0], dt, self.lag_s[0])
+            m2, e2 = lag_step(self.lag[1], command[1], dt, self.lag_s[1])
+        else:
+            m1 = e1 = command[0]
+            m2 = e2 = command[1]
+        gain, offset = self.gain, self.offset
+        return ((1.0 + gain[0]) * m1 + offset[0], (1.0 + gain[1]) * m2 + offset[1]), (e1, e2)
+
+    def settle(self, state: Pair) -> None:
+        self.lag = state
+
+
+class StribeckFriction(Friction):
+    """Coulomb levels F_c by direction that rise to F_s = ratio · F_c towards rest (this
+    module's docstring); the static band is [−F_s⁻, F_s⁺]."""
+
+    speed_dependent = True
+
+    def __init__(
+        self, positive: Pair, negative: Pair, ratio: Pair, velocity: Pair, exponent: float
+    ) -> None:
+        super().__init__(positive, negative)
+        self.static_positive = (positive[0] * ratio[0], positive[1] * ratio[1])
+        self.static_negative = (negative[0] * ratio[0], negative[1] * ratio[1])
+        self.velocity, self.exponent = velocity, exponent
+
+    def sliding(self, joint: int, direction: float, speed: float) -> float:
+        fc = self.positive[joint] if direction > 0 else self.negative[joint]
+        fs = self.static_positive[joint] if direction > 0 else self.static_negative[joint]
+        return direction * (
+            fc + (fs - fc) * math.exp(-((speed / self.velocity[joint]) ** self.exponent))
+        )
+
+
+def _cogging(extras: OpenLoopExtras) -> ShaftTorque | None:
+    """τ_cog,i = A_i sin(N_i q_i + φ_i), or None when both amplitudes are zero."""
+    n, a, phase = (
+        extras.cogging_periods_per_rev,
+        extras.cogging_amplitude_Nm,
+        extras.cogging_phase_rad,
+    )
+    if a[0] == 0.0 and a[1] == 0.0:
+        return None
+
+    def cogging(q1: float, q2: float) -> Pair:
+        return a[0] * math.sin(n[0] * q1 + phase[0]), a[1] * math.sin(n[1] * q2 + phase[1])
+
+    return cogging
 
 
 def integrate_with_extras(
@@ -152,207 +282,15 @@ def integrate_with_extras(
     neg: Pair,
     extras: OpenLoopExtras,
 ) -> OpenLoopResult:
-    """Like hil.model.openloop's integrator, with ``extras`` (angle offset excluded). ``start`` is
-    the
-    true state; the returned q are true angles."""
-    ex = extras
-    t1, t2, t3, t4, t5, b1, b2 = (float(x) for x in theta[:7])
-    strib = ex.stribeck_velocity_rad_s is not None
-    if strib:
-        ratio = ex.stribeck_breakaway_ratio or (1.0, 1.0)
-        band_pos = (pos[0] * ratio[0], pos[1] * ratio[1])
-        band_neg = (neg[0] * ratio[0], neg[1] * ratio[1])
-        v_s = ex.stribeck_velocity_rad_s
-        expo = ex.stribeck_exponent
+    """:func:`hil.model.openloop_core.integrate` with ``extras`` (angle offset excluded) and the
+    Coulomb levels ``pos``, ``neg`` by direction. ``start`` is the true state; the returned q are
+    true angles."""
+    if extras.stribeck_velocity_rad_s is None:
+        friction = Friction(pos, neg)
     else:
-        band_pos, band_neg = pos, neg
-    sticky = (max(band_pos[0], band_neg[0]) > 0.0, max(band_pos[1], band_neg[1]) > 0.0)
-
-    def friction(i: int, direction: float, speed: float) -> float:
-        """Signed Coulomb (or Stribeck) term d·F of joint i sliding in ``direction``."""
-        fc = pos[i] if direction > 0 else neg[i]
-        if not strib:
-            return direction * fc
-        fs = band_pos[i] if direction > 0 else band_neg[i]
-        return direction * (fc + (fs - fc) * math.exp(-((speed / v_s[i]) ** expo)))
-
-    n_cog, a_cog, p_cog = ex.cogging_periods_per_rev, ex.cogging_amplitude_Nm, ex.cogging_phase_rad
-    cogging = None
-    if a_cog[0] != 0.0 or a_cog[1] != 0.0:
-
-        def cogging(q1: float, q2: float) -> Pair:
-            return (
-                a_cog[0] * math.sin(n_cog[0] * q1 + p_cog[0]),
-                a_cog[1] * math.sin(n_cog[1] * q2 + p_cog[1]),
-            )
-
-    lag_t = ex.actuator_lag_s
-    has_lag = lag_t[0] > 0.0 or lag_t[1] > 0.0
-    gain, offset = ex.torque_gain, ex.torque_offset_Nm
-    settled = ex.initial_command_Nm
-    # amplifier output before gain/offset (the lag state): settled on the command before t = 0
-    lag = [0.0, 0.0] if settled is None else [settled[0], settled[1]]
-
-    def amplifier(cmd: list, dt: float) -> tuple[Pair, Pair]:
-        """Applied torque (mean over dt, before cogging) and the lag state at dt."""
-        if has_lag:
-            m1, e1 = lag_step(lag[0], cmd[0], dt, lag_t[0])
-            m2, e2 = lag_step(lag[1], cmd[1], dt, lag_t[1])
-        else:
-            m1 = e1 = cmd[0]
-            m2 = e2 = cmd[1]
-        return ((1.0 + gain[0]) * m1 + offset[0], (1.0 + gain[1]) * m2 + offset[1]), (e1, e2)
-
-    before, after, arrival = _commands(torques, ex.transport_delay_s, h, settled)
-    segments = _period_segments(h, n_sub, arrival)
-
-    n_rows = torques.shape[0]
-    q1, q2, v1, v2 = start
-    stuck = [sticky[0] and v1 == 0.0, sticky[1] and v2 == 0.0]
-    direction = [1.0 if v1 >= 0.0 else -1.0, 1.0 if v2 >= 0.0 else -1.0]
-    stick_events = [0, 0]
-    breakaways = [0, 0]
-    substeps = 0
-    steps: dict[tuple[bool, bool, float, float], Step] = {}
-
-    def mode_step() -> Step:
-        key = (stuck[0], stuck[1], direction[0], direction[1])
-        step = steps.get(key)
-        if step is None:
-            step = steps[key] = _rk4(_accelerations(theta, *key, friction, cogging))
-        return step
-
-    def holding(state: State, tau: Pair) -> Pair:
-        """Friction each stuck joint needs to stay at rest (hil.model.openloop._holding_torques)."""
-        sq1, sq2, sv1, sv2 = state
-        tau1, tau2 = tau
-        if cogging is not None:
-            c1, c2 = cogging(sq1, sq2)
-            tau1, tau2 = tau1 + c1, tau2 + c2
-        k = t2 * math.sin(sq2)
-        g12 = t5 * math.sin(sq1 + sq2)
-        r1 = tau1 + k * (2.0 * sv1 * sv2 + sv2 * sv2) - t4 * math.sin(sq1) - g12
-        r2 = tau2 - k * sv1 * sv1 - g12
-        if stuck[0] and stuck[1]:
-            return r1, r2
-        m12 = t3 + t2 * math.cos(sq2)
-        if stuck[0]:
-            f2 = b2 * sv2 + friction(1, direction[1], abs(sv2))
-            return r1 - m12 * (r2 - f2) / t3, 0.0
-        m11 = t1 + 2.0 * t2 * math.cos(sq2)
-        f1 = b1 * sv1 + friction(0, direction[0], abs(sv1))
-        return 0.0, r2 - m12 * (r1 - f1) / m11
-
-    def release(state: State, tau: Pair) -> bool:
-        """Let stuck joints whose holding torque leaves the static band break away."""
-        changed = False
-        for _ in range(2):
-            held = holding(state, tau)
-            worst, worst_ratio = -1, 1.0
-            for i in (0, 1):
-                if not stuck[i]:
-                    continue
-                band = band_pos[i] if held[i] > 0 else band_neg[i]
-                r = abs(held[i]) / band if band > 0 else (math.inf if held[i] else 0.0)
-                if r > worst_ratio:
-                    worst, worst_ratio = i, r
-            if worst < 0:
-                break
-            stuck[worst] = False
-            direction[worst] = 1.0 if held[worst] > 0 else -1.0
-            breakaways[worst] += 1
-            changed = True
-            if not (stuck[0] or stuck[1]):
-                break
-        return changed
-
-    q_out = [(q1, q2)] * n_rows
-    dq_out = [(v1, v2)] * n_rows
-    stuck_out = [(stuck[0], stuck[1])] * n_rows
-    step = mode_step()
-    for k in range(n_rows):
-        q_out[k] = (q1, q2)
-        dq_out[k] = (v1, v2)
-        stuck_out[k] = (stuck[0], stuck[1])
-        if k == n_rows - 1:
-            break
-        commands = (before[k], after[k])
-        for dt_seg, which in segments:
-            cmd = commands[which]
-            substeps += 1
-            remaining = dt_seg
-            # After MAX_EVENTS_PER_SUBSTEP stick events in one sub-step (chattering), the rest of
-            # it is skipped with the state left as it is, as the plant does (end of Plant._step,
-            # virtual_robot/plant.py; hil.model.openloop instead finishes it in the current mode).
-            # It
-            # happens with a lag: a joint breaks away on the mean torque over the rest of the
-            # sub-step, but the lagged torque of its first instants pushes it back, 8 times.
-            for _event in range(MAX_EVENTS_PER_SUBSTEP):
-                tau, lag_end = amplifier(cmd, remaining)
-                if (stuck[0] or stuck[1]) and release((q1, q2, v1, v2), tau):
-                    step = mode_step()
-                n1, n2, w1, w2 = step(q1, q2, v1, v2, tau[0], tau[1], remaining)
-                cross1 = sticky[0] and not stuck[0] and w1 * direction[0] < 0.0
-                cross2 = sticky[1] and not stuck[1] and w2 * direction[1] < 0.0
-                if not (cross1 or cross2):
-                    q1, q2, v1, v2 = n1, n2, w1, w2
-                    lag[0], lag[1] = lag_end
-                    break
-                if cross1 and cross2:
-                    joint = 0 if v1 / (v1 - w1) <= v2 / (v2 - w2) else 1
-                else:
-                    joint = 0 if cross1 else 1
-                flow = _lagged_flow(step, amplifier, cmd)
-                here = (q1, q2, v1, v2)
-                s, state = _locate(flow, here, joint, remaining, (w1, w2)[joint], direction)
-                other = 1 - joint
-                if cross1 and cross2 and state[2 + other] * direction[other] < 0.0:
-                    joint, other = other, joint
-                    s, state = _locate(flow, here, joint, s, state[2 + joint], direction)
-                if s > 0.0:  # (a zero-length lag step would jump to the command)
-                    lag[0], lag[1] = amplifier(cmd, s)[1]
-                q1, q2, v1, v2 = state
-                if joint == 0:
-                    v1 = 0.0
-                else:
-                    v2 = 0.0
-                stuck[joint] = True
-                stick_events[joint] += 1
-                step = mode_step()
-                remaining -= s
-                if remaining <= 1e-15 * dt_seg:
-                    break
-    return OpenLoopResult(
-        t=np.arange(n_rows) * h,
-        q=np.array(q_out, dtype=float),
-        dq=np.array(dq_out, dtype=float),
-        stuck=np.array(stuck_out, dtype=bool),
-        stick_events=np.array(stick_events),
-        breakaways=np.array(breakaways),
-        substeps=substeps,
-    )
-
-
-def _locate(
-    flow: Step, start: State, joint: int, dt: float, v_end: float, direction: list[float]
-) -> tuple[float, State]:
-    """hil.model.openloop._locate_zero, except for a joint that moves against its slip direction at
-    the start of the step: it broke away with the mean torque over the whole step, but the lagged
-    torque of the step's first instants pushes it back; it sticks at once (s = 0), as the plant's
-    regula falsi does (virtual_robot/plant.py, Plant._locate_stick)."""
-    if start[2 + joint] * direction[joint] < 0.0:
-        return 0.0, start
-    return _locate_zero(flow, start, (0.0, 0.0), joint, dt, v_end)
-
-
-def _lagged_flow(
-    step: Step, amplifier: Callable[[list, float], tuple[Pair, Pair]], cmd: list
-) -> Step:
-    """The RK4 flow over s with the torque the amplifier applies over s (its lag mean), in the
-    signature hil.model.openloop._locate_zero expects (its τ arguments are ignored)."""
-
-    def flow(q1, q2, v1, v2, _tau1, _tau2, s):
-        tau = amplifier(cmd, s)[0]
-        return step(q1, q2, v1, v2, tau[0], tau[1], s)
-
-    return flow
+        ratio = extras.stribeck_breakaway_ratio or (1.0, 1.0)
+        friction = StribeckFriction(
+            pos, neg, ratio, extras.stribeck_velocity_rad_s, extras.stribeck_exponent
+        )
+    path = EffectsTorquePath(extras)
+    return integrate(theta, torques, h, n_sub, start, friction, path, _cogging(extras))

@@ -1,0 +1,473 @@
+"""The host simulator's one stick–slip integrator, used with and without the diagnosis's effects.
+
+What lives here: :func:`integrate` (RK4 sub-steps of the closed-form model of Reyes & Kelly
+(1997), Section 5, with Karnopp-style stick–slip and located stick events; the scheme is described
+in :mod:`hil.model.openloop`), the three things it is parametrised by, and the result type:
+
+* :class:`TorquePath`: recorded commands → torque at the shaft. This class is the identity (each
+  row acts unchanged over its own period); :mod:`hil.model.openloop_effects` adds a transport
+  delay, an actuator lag, gain and offset.
+* :class:`Friction`: Coulomb friction by direction; the effects module adds Stribeck friction.
+* ``shaft_torque``: a position-dependent torque added at the shaft (cogging), or None.
+
+With the identity path, plain Coulomb friction and no shaft torque this is the rigid model of
+:func:`hil.model.openloop.simulate_open_loop`; every effect enters through these three, so the
+stick–slip and event logic exists once. Also the input checks both modules share.
+
+Imports: numpy only, nothing from ``hil``: :mod:`hil.model.openloop_effects` and
+:mod:`hil.model.openloop` build on this module.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+# Stick events that may occur within one sub-step; after that many (a degenerate, chattering
+# case: it happens with an actuator lag) the joints stay as they are for the rest of the sub-step,
+# as the virtual robot's plant does (end of Plant._step, virtual_robot/plant.py).
+MAX_EVENTS_PER_SUBSTEP = 8
+# A located velocity zero is accepted when |q̇_i| is below this (rad/s).
+ZERO_VELOCITY_TOL = 1e-12
+
+Pair = tuple[float, float]
+State = tuple[float, float, float, float]  # q1, q2, q̇1, q̇2
+Step = Callable[[float, float, float, float, float, float, float], State]  # (state, τ, dt)
+Flow = Callable[[float, float, float, float, float], State]  # (state, s): τ bound
+Accelerations = Callable[[float, float, float, float, float, float], Pair]
+ShaftTorque = Callable[[float, float], Pair]  # q1, q2 → torque added at the shaft (Nm)
+# Sub-steps of a period as (length s, 0 = the command before its delayed arrival / 1 = after)
+Segments = list[tuple[float, int]]
+
+
+@dataclass(frozen=True)
+class OpenLoopResult:
+    """Simulated samples at t = k·h, k = 0..N−1, before tau[k] is applied (row 0 = q0, dq0)."""
+
+    t: np.ndarray  # (N,) s
+    q: np.ndarray  # (N, 2) rad
+    dq: np.ndarray  # (N, 2) rad/s
+    stuck: np.ndarray  # (N, 2) bool: the joint is stuck (static friction holds it) at t
+    stick_events: np.ndarray  # (2,) int: times a sliding joint came to rest
+    breakaways: np.ndarray  # (2,) int: times a stuck joint broke away
+    substeps: int  # RK4 sub-steps integrated (a sub-step cut by stick events counts once)
+
+    @property
+    def stuck_fraction(self) -> np.ndarray:
+        """Fraction of the samples at which each joint is stuck, shape (2,)."""
+        return self.stuck.mean(axis=0)
+
+
+class TorquePath:
+    """Recorded commands → the torque applied at the shaft (before any shaft torque): here the
+    identity, row k's command acting unchanged over [kh, (k+1)h).
+
+    A subclass with a delay returns other commands and cut sub-steps from :meth:`schedule`; one
+    with an actuator lag sets ``lagged`` (the torque applied over a step depends on its length
+    and on a state carried from step to step, :meth:`applied` and :meth:`settle`).
+    """
+
+    identity = True  # applied torque = command: the integrator skips the calls below
+    lagged = False
+
+    def schedule(self, torques: np.ndarray, h: float, n_sub: int) -> tuple[list, list, Segments]:
+        """Per period k, the command before and after the arrival of its delayed row, and the
+        period's sub-steps (the same for every period)."""
+        rows = torques.tolist()
+        return rows, rows, [(h / n_sub, 1)] * n_sub
+
+    def applied(self, command: Sequence[float], dt: float) -> tuple[Pair, Pair]:
+        """(mean torque applied over the next dt, the path's state at dt) under a held command."""
+        return (command[0], command[1]), (command[0], command[1])
+
+    def settle(self, state: Pair) -> None:
+        """Move the path's state to ``state`` (as returned by :meth:`applied`) after a step."""
+
+
+class Friction:
+    """Coulomb friction by direction: a joint sliding in direction d = ±1 feels b q̇ + d F^d
+    (F⁺ = ``positive``, F⁻ = ``negative``, Nm), and a stuck one stays stuck while the torque that
+    holds it lies in its static band [−F⁻, F⁺]. A subclass with ``speed_dependent`` set gives
+    the signed term by :meth:`sliding` at the joint's speed, and may widen the band."""
+
+    speed_dependent = False
+
+    def __init__(self, positive: Pair, negative: Pair) -> None:
+        self.positive, self.negative = positive, negative
+        self.static_positive, self.static_negative = positive, negative
+
+    def level(self, joint: int, direction: float) -> float:
+        """The signed Coulomb term d F^d of ``joint`` sliding in ``direction``."""
+        return self.positive[joint] if direction > 0 else -self.negative[joint]
+
+    def sliding(self, joint: int, direction: float, speed: float) -> float:
+        """The signed friction term (beyond b q̇) of ``joint`` sliding at ``speed`` (rad/s)."""
+        return self.level(joint, direction)
+
+
+# ---- input checks (simulate_open_loop's arguments and OpenLoopExtras' fields) -----------------
+
+
+def number(name: str, value: float) -> float:
+    """``value`` as a finite float, or ValueError (one line) naming ``name``."""
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {value!r}") from None
+    if not math.isfinite(x):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return x
+
+
+def pair(name: str, value: Sequence[float]) -> Pair:
+    """``value`` as two finite floats (joint 1, joint 2), or ValueError (one line)."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be 2 numbers, got {value!r}") from None
+    if arr.shape != (2,):
+        raise ValueError(f"{name} must be 2 numbers, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} holds a non-finite number: {value!r}")
+    return float(arr[0]), float(arr[1])
+
+
+# ---- dynamics -----------------------------------------------------------------------------
+
+
+def _accelerations(
+    theta: np.ndarray,
+    stuck1: bool,
+    stuck2: bool,
+    d1: float,
+    d2: float,
+    friction: Friction,
+    shaft_torque: ShaftTorque | None,
+) -> Accelerations:
+    """q̈ = M⁻¹(τ + τ_shaft − C q̇ − g − f) in one stick mode (Section 5), a stuck joint's q̈_i = 0.
+
+    f_i = b_i q̇_i + the friction term of joint i sliding in direction d_i, frozen over the
+    sub-step (a constant unless ``friction`` is speed dependent).
+    """
+    t1, t2, t3, t4, t5, b1, b2 = (float(x) for x in theta[:7])
+    sin, cos = math.sin, math.cos
+    level1, level2 = friction.level(0, d1), friction.level(1, d2)
+    sliding = friction.sliding if friction.speed_dependent else None
+
+    if not stuck1 and not stuck2:
+
+        def acc(q1, q2, v1, v2, tau1, tau2):
+            s2, c2 = sin(q2), cos(q2)
+            g12 = t5 * sin(q1 + q2)
+            k = t2 * s2
+            # e = τ − C(q, q̇) q̇ − g(q) − f(q̇)
+            e1 = tau1 + k * (2.0 * v1 * v2 + v2 * v2) - t4 * sin(q1) - g12 - b1 * v1
+            e1 -= level1 if sliding is None else sliding(0, d1, abs(v1))
+            e2 = tau2 - k * v1 * v1 - g12 - b2 * v2
+            e2 -= level2 if sliding is None else sliding(1, d2, abs(v2))
+            m11 = t1 + 2.0 * t2 * c2
+            m12 = t3 + t2 * c2
+            det = m11 * t3 - m12 * m12
+            return (t3 * e1 - m12 * e2) / det, (m11 * e2 - m12 * e1) / det
+
+    elif stuck1 and not stuck2:
+
+        def acc(q1, q2, v1, v2, tau1, tau2):
+            # q̇1 = q̈1 = 0: row 2 of M q̈ = e alone, m22 = θ3
+            e2 = tau2 - t2 * sin(q2) * v1 * v1 - t5 * sin(q1 + q2) - b2 * v2
+            e2 -= level2 if sliding is None else sliding(1, d2, abs(v2))
+            return 0.0, e2 / t3
+
+    elif stuck2 and not stuck1:
+
+        def acc(q1, q2, v1, v2, tau1, tau2):
+            # q̇2 = q̈2 = 0: row 1 of M q̈ = e alone
+            e1 = (
+                tau1
+                + t2 * sin(q2) * (2.0 * v1 * v2 + v2 * v2)
+                - t4 * sin(q1)
+                - t5 * sin(q1 + q2)
+                - b1 * v1
+            )
+            e1 -= level1 if sliding is None else sliding(0, d1, abs(v1))
+            return e1 / (t1 + 2.0 * t2 * cos(q2)), 0.0
+
+    else:
+
+        def acc(q1, q2, v1, v2, tau1, tau2):
+            return 0.0, 0.0
+
+    if shaft_torque is None:
+        return acc
+    rigid = acc
+
+    def acc_with_shaft_torque(q1, q2, v1, v2, tau1, tau2):
+        c1, c2 = shaft_torque(q1, q2)
+        return rigid(q1, q2, v1, v2, tau1 + c1, tau2 + c2)
+
+    return acc_with_shaft_torque
+
+
+def _rk4(acc: Accelerations) -> Step:
+    """Classical fourth-order Runge–Kutta on (q, q̇) with τ held, step length given per call."""
+
+    def step(q1, q2, v1, v2, tau1, tau2, dt):
+        h2 = 0.5 * dt
+        a1, a2 = acc(q1, q2, v1, v2, tau1, tau2)
+        u1, u2 = v1 + h2 * a1, v2 + h2 * a2
+        b1, b2 = acc(q1 + h2 * v1, q2 + h2 * v2, u1, u2, tau1, tau2)
+        w1, w2 = v1 + h2 * b1, v2 + h2 * b2
+        c1, c2 = acc(q1 + h2 * u1, q2 + h2 * u2, w1, w2, tau1, tau2)
+        z1, z2 = v1 + dt * c1, v2 + dt * c2
+        d1, d2 = acc(q1 + dt * w1, q2 + dt * w2, z1, z2, tau1, tau2)
+        k = dt / 6.0
+        return (
+            q1 + k * (v1 + 2.0 * (u1 + w1) + z1),
+            q2 + k * (v2 + 2.0 * (u2 + w2) + z2),
+            v1 + k * (a1 + 2.0 * (b1 + c1) + d1),
+            v2 + k * (a2 + 2.0 * (b2 + c2) + d2),
+        )
+
+    return step
+
+
+def _holding_torques(
+    theta: np.ndarray,
+    state: State,
+    tau: Pair,
+    stuck: Sequence[bool],
+    direction: Sequence[float],
+    friction: Friction,
+    shaft_torque: ShaftTorque | None,
+) -> Pair:
+    """Friction torque each stuck joint needs to stay at rest (q̈_i = 0), from M q̈ = τ − Cq̇ − g − f.
+
+    Both stuck: f = τ − g. Joint i stuck, j sliding with friction f_j (b_j q̇_j + its term):
+    f_i = r_i − m_ij (r_j − f_j) / m_jj, with r = τ + τ_shaft − C(q, q̇) q̇ − g(q).
+    """
+    t1, t2, t3, t4, t5, b1, b2 = (float(x) for x in theta[:7])
+    q1, q2, v1, v2 = state
+    tau1, tau2 = tau
+    if shaft_torque is not None:
+        c1, c2 = shaft_torque(q1, q2)
+        tau1, tau2 = tau1 + c1, tau2 + c2
+    k = t2 * math.sin(q2)
+    g12 = t5 * math.sin(q1 + q2)
+    r1 = tau1 + k * (2.0 * v1 * v2 + v2 * v2) - t4 * math.sin(q1) - g12
+    r2 = tau2 - k * v1 * v1 - g12
+    if stuck[0] and stuck[1]:
+        return r1, r2
+    m12 = t3 + t2 * math.cos(q2)
+    if stuck[0]:
+        f2 = b2 * v2 + friction.sliding(1, direction[1], abs(v2))
+        return r1 - m12 * (r2 - f2) / t3, 0.0
+    m11 = t1 + 2.0 * t2 * math.cos(q2)
+    f1 = b1 * v1 + friction.sliding(0, direction[0], abs(v1))
+    return 0.0, r2 - m12 * (r1 - f1) / m11
+
+
+def _locate_zero(
+    flow: Flow, start: State, joint: int, dt: float, v_end: float, direction: float
+) -> tuple[float, State]:
+    """Time s in [0, dt] at which ``joint``'s velocity reaches zero, and the state there.
+
+    The RK4 flow map from ``start`` over s is the function; its root is bracketed by
+    v(0) and v(dt) = ``v_end`` of opposite signs. Linear interpolation first, then Illinois
+    regula falsi to |q̇_i| < ZERO_VELOCITY_TOL. A joint that already moves against its slip
+    ``direction`` at the start (it broke away on a lagged torque's mean over the step, but the
+    torque of the step's first instants pushes it back) sticks at once, s = 0, as the plant's
+    regula falsi does (virtual_robot/plant.py, Plant._locate_stick).
+    """
+    if start[2 + joint] * direction < 0.0:
+        return 0.0, start
+    lo, f_lo = 0.0, start[2 + joint]
+    hi, f_hi = dt, v_end
+    if f_lo == 0.0:
+        # The joint broke away at the start of the step: it first moves in its break-away
+        # direction (the constrained dynamics guarantee it), then reverses. The zero at s = 0 is
+        # not the crossing; find an instant at which it still moves, to bracket the later zero.
+        s = dt
+        for _ in range(60):
+            s *= 0.5
+            state = flow(*start, s)
+            if state[2 + joint] * f_hi < 0.0:
+                lo, f_lo = s, state[2 + joint]
+                break
+        else:
+            return 0.0, start  # numerically no motion at all: it sticks at once
+    s, state = dt, start
+    last = 0
+    for _ in range(40):
+        s = lo + (hi - lo) * f_lo / (f_lo - f_hi)
+        state = flow(*start, s)
+        v = state[2 + joint]
+        if abs(v) < ZERO_VELOCITY_TOL or hi - lo < 1e-15 * dt:
+            break
+        if (v > 0) == (f_lo > 0):  # not yet at zero
+            lo, f_lo = s, v
+            if last == 1:
+                f_hi *= 0.5
+            last = 1
+        else:
+            hi, f_hi = s, v
+            if last == -1:
+                f_lo *= 0.5
+            last = -1
+    return s, state
+
+
+def _flow(step: Step, path: TorquePath, command: Sequence[float], tau: Pair) -> Flow:
+    """The RK4 flow over s from a state: under ``tau`` held, or under the lagged path's mean
+    torque over s (a lag makes the torque depend on how far the step goes)."""
+    if path.lagged:
+
+        def lagged(q1, q2, v1, v2, s):
+            tau1, tau2 = path.applied(command, s)[0]
+            return step(q1, q2, v1, v2, tau1, tau2, s)
+
+        return lagged
+    tau1, tau2 = tau
+
+    def held(q1, q2, v1, v2, s):
+        return step(q1, q2, v1, v2, tau1, tau2, s)
+
+    return held
+
+
+# ---- the integrator -----------------------------------------------------------------------
+
+
+def integrate(
+    theta: np.ndarray,
+    torques: np.ndarray,
+    h: float,
+    n_sub: int,
+    start: State,
+    friction: Friction,
+    path: TorquePath | None = None,
+    shaft_torque: ShaftTorque | None = None,
+) -> OpenLoopResult:
+    """Simulate θ (checked by the caller) from the true state ``start`` under ``torques`` (N, 2)
+    through ``path`` (None: the identity), ``n_sub`` RK4 sub-steps per period h (more where a
+    delayed command arrives inside one), with stick–slip ``friction`` and ``shaft_torque``.
+
+    The scheme (:mod:`hil.model.openloop`'s docstring): at each sub-step boundary stuck joints
+    whose holding torque leaves the static band break away; a sliding joint's direction is frozen
+    over a sub-step; a velocity sign change inside it is located on the RK4 flow map, the joint
+    sticks there and the rest of the sub-step is integrated in the new mode.
+    """
+    path = TorquePath() if path is None else path
+    identity = path.identity
+    n_rows = torques.shape[0]
+    pos, neg = friction.static_positive, friction.static_negative
+    sticky = (max(pos[0], neg[0]) > 0.0, max(pos[1], neg[1]) > 0.0)
+    q1, q2, v1, v2 = start
+    stuck = [sticky[0] and v1 == 0.0, sticky[1] and v2 == 0.0]
+    direction = [1.0 if v1 >= 0.0 else -1.0, 1.0 if v2 >= 0.0 else -1.0]
+    stick_events = [0, 0]
+    breakaways = [0, 0]
+    substeps = 0
+    steps: dict[tuple[bool, bool, float, float], Step] = {}
+
+    def mode_step() -> Step:
+        key = (stuck[0], stuck[1], direction[0], direction[1])
+        step = steps.get(key)
+        if step is None:
+            step = steps[key] = _rk4(_accelerations(theta, *key, friction, shaft_torque))
+        return step
+
+    def release(state: State, tau: Pair) -> bool:
+        """Let stuck joints whose holding torque leaves the static band break away; True if any
+        did."""
+        changed = False
+        for _ in range(2):  # releasing one joint changes the other's holding torque
+            held = _holding_torques(theta, state, tau, stuck, direction, friction, shaft_torque)
+            worst, worst_ratio = -1, 1.0
+            for i in (0, 1):
+                if not stuck[i]:
+                    continue
+                band = pos[i] if held[i] > 0 else neg[i]
+                ratio = abs(held[i]) / band if band > 0 else (math.inf if held[i] else 0.0)
+                if ratio > worst_ratio:
+                    worst, worst_ratio = i, ratio
+            if worst < 0:
+                break
+            stuck[worst] = False
+            direction[worst] = 1.0 if held[worst] > 0 else -1.0
+            breakaways[worst] += 1
+            changed = True
+            if not (stuck[0] or stuck[1]):
+                break
+        return changed
+
+    before, after, segments = path.schedule(torques, h, n_sub)
+    q_out = [(q1, q2)] * n_rows
+    dq_out = [(v1, v2)] * n_rows
+    stuck_out = [(stuck[0], stuck[1])] * n_rows
+    step = mode_step()
+    for k in range(n_rows):
+        q_out[k] = (q1, q2)
+        dq_out[k] = (v1, v2)
+        stuck_out[k] = (stuck[0], stuck[1])
+        if k == n_rows - 1:
+            break  # the last torque acts after the last sample
+        commands = (before[k], after[k])
+        for dt_seg, which in segments:
+            command = commands[which]
+            tau1, tau2 = command  # the identity path's torque (others: over what remains)
+            substeps += 1
+            remaining = dt_seg
+            for _event in range(MAX_EVENTS_PER_SUBSTEP):
+                if not identity:
+                    (tau1, tau2), path_end = path.applied(command, remaining)
+                if (stuck[0] or stuck[1]) and release((q1, q2, v1, v2), (tau1, tau2)):
+                    step = mode_step()
+                n1, n2, w1, w2 = step(q1, q2, v1, v2, tau1, tau2, remaining)
+                # a sliding, sticky joint whose velocity changed sign crossed zero in the step
+                cross1 = sticky[0] and not stuck[0] and w1 * direction[0] < 0.0
+                cross2 = sticky[1] and not stuck[1] and w2 * direction[1] < 0.0
+                if not (cross1 or cross2):
+                    q1, q2, v1, v2 = n1, n2, w1, w2
+                    if not identity:
+                        path.settle(path_end)
+                    break
+                if cross1 and cross2:  # the earlier one by linear interpolation
+                    joint = 0 if v1 / (v1 - w1) <= v2 / (v2 - w2) else 1
+                else:
+                    joint = 0 if cross1 else 1
+                flow = _flow(step, path, command, (tau1, tau2))
+                here = (q1, q2, v1, v2)
+                s, state = _locate_zero(
+                    flow, here, joint, remaining, (w1, w2)[joint], direction[joint]
+                )
+                other = 1 - joint
+                if cross1 and cross2 and state[2 + other] * direction[other] < 0.0:
+                    joint, other = other, joint  # the other joint crossed first after all
+                    s, state = _locate_zero(
+                        flow, here, joint, s, state[2 + joint], direction[joint]
+                    )
+                if s > 0.0 and not identity:  # (a zero-length lag step would jump to the command)
+                    path.settle(path.applied(command, s)[1])
+                q1, q2, v1, v2 = state
+                if joint == 0:
+                    v1 = 0.0
+                else:
+                    v2 = 0.0
+                stuck[joint] = True
+                stick_events[joint] += 1
+                step = mode_step()
+                remaining -= s
+                if remaining <= 1e-15 * dt_seg:
+                    break
+    return OpenLoopResult(
+        t=np.arange(n_rows) * h,
+        q=np.array(q_out, dtype=float),
+        dq=np.array(dq_out, dtype=float),
+        stuck=np.array(stuck_out, dtype=bool),
+        stick_events=np.array(stick_events),
+        breakaways=np.array(breakaways),
+        substeps=substeps,
+    )
