@@ -28,6 +28,7 @@ from drivers.logsetup import add_verbosity_options, configure, verbosity
 from hil import __version__
 from hil.cli_options import (
     EXIT_USAGE,
+    add_bench_option,
     add_drive_options,
     add_out_options,
     add_report_options,
@@ -74,7 +75,7 @@ def _parser() -> argparse.ArgumentParser:
     add_verbosity_options(common, subcommand=True)
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     r = sub.add_parser("run", help="record one experiment over a bench", parents=[common])
-    r.add_argument("--bench", default="virtual-slcan", help="bench profile name or TOML file")
+    add_bench_option(r)
     r.add_argument(
         "--attach",
         metavar="CHANNEL",

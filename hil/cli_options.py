@@ -127,6 +127,16 @@ def run_exit(command: str, status: str, problem: str) -> int:
 
 
 # ---- options of the commands that drive a bench, and their output -----------------------------
+def add_bench_option(
+    p: argparse.ArgumentParser | argparse._MutuallyExclusiveGroup,
+    *,
+    default: str | None = "virtual-slcan",
+    help: str = "bench profile name or TOML file",
+) -> None:
+    """``--bench`` (profiles/benches, or a TOML file)."""
+    p.add_argument("--bench", default=default, help=help)
+
+
 def add_drive_options(p: argparse.ArgumentParser, *, mode: bool = True) -> None:
     """``--mode`` (unless ``mode`` is false: a command that is realtime by nature),
     ``--effects``, ``--seed``, ``--confirm-real``."""
@@ -182,6 +192,11 @@ def print_document(
         print(json.dumps(doc, default=float))
     else:
         print(text() if callable(text) else text)
+
+
+def add_schemes_option(p: argparse.ArgumentParser, schemes: Sequence[str], help: str) -> None:
+    """``--schemes``, a comma list (default: all of ``schemes``); :func:`split_list` reads it."""
+    p.add_argument("--schemes", default=",".join(schemes), help=help)
 
 
 def split_list(text: str) -> list[str]:

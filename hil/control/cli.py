@@ -13,31 +13,19 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from hil.cli_options import (
-    add_drive_options,
-    add_out_options,
-    add_report_options,
-    drive_kwargs,
-    prepare_out_dir,
-    print_document,
-    run_exit,
-    say,
-    split_list,
-)
+from hil import cli_options as opts
 from hil.control.controllers import SCHEME_TITLES, SCHEMES
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--bench", default="virtual-slcan", help="bench profile name or TOML file")
+    opts.add_bench_option(p)
     what = p.add_mutually_exclusive_group()
     what.add_argument("--scheme", choices=SCHEMES, help="one controller: pd, ct, fed or rfed")
     what.add_argument(
         "--compare", action="store_true", help="run every scheme and print the Table 2 layout"
     )
-    p.add_argument(
-        "--schemes",
-        default=",".join(SCHEMES),
-        help="with --compare: which schemes, comma-separated (default: all)",
+    opts.add_schemes_option(
+        p, SCHEMES, "with --compare: which schemes, comma-separated (default: all)"
     )
     p.add_argument(
         "--params",
@@ -62,9 +50,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--kp", type=float, nargs=2, metavar=("KP1", "KP2"), help="position gains")
     p.add_argument("--kv", type=float, nargs=2, metavar=("KV1", "KV2"), help="velocity gains")
-    add_out_options(p, "directory (default: runs/control-SCHEME|compare)")
-    add_drive_options(p)
-    add_report_options(p)
+    opts.add_out_options(p, "directory (default: runs/control-SCHEME|compare)")
+    opts.add_drive_options(p)
+    opts.add_report_options(p)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -76,7 +64,7 @@ def main(args: argparse.Namespace) -> int:
         "duration_s": args.duration,
         "kp": args.kp,
         "kv": args.kv,
-        **drive_kwargs(args),
+        **opts.drive_kwargs(args),
     }
     if not args.compare:
         if args.scheme is None:
@@ -84,28 +72,30 @@ def main(args: argparse.Namespace) -> int:
         if len(args.params) > 1:
             raise UsageError("one --params file per run; several need --compare")
         out = args.out or f"runs/control-{args.scheme}"
-        prepare_out_dir(out, args.overwrite)
-        say("control", f"{SCHEME_TITLES[args.scheme]} over {args.bench} -> {out}")
+        opts.prepare_out_dir(out, args.overwrite)
+        opts.say("control", f"{SCHEME_TITLES[args.scheme]} over {args.bench} -> {out}")
         doc = run_control(
             args.bench, args.scheme, out, params=args.params[0] if args.params else None, **common
         )
         run = doc["run"]
-        print_document(args, doc, lambda: _format_run(doc))
-        return run_exit(
+        opts.print_document(args, doc, lambda: _format_run(doc))
+        return opts.run_exit(
             "control",
             run["status"],
             f"{run['status']}: {run.get('reason')} ({run['rows']} rows kept in {run['signals']})",
         )
 
-    schemes = split_list(args.schemes)
+    schemes = opts.split_list(args.schemes)
     out = args.out or "runs/control-compare"
-    prepare_out_dir(out, args.overwrite)
-    say("control", f"comparing {', '.join(s.upper() for s in schemes)} over {args.bench} -> {out}")
+    opts.prepare_out_dir(out, args.overwrite)
+    opts.say(
+        "control", f"comparing {', '.join(s.upper() for s in schemes)} over {args.bench} -> {out}"
+    )
 
     def report(run: dict[str, Any]) -> None:
         err = run.get("max_position_error_rad")
         detail = "" if err is None else f", max |e| = {err[0]:.4f} / {err[1]:.4f} rad"
-        say("control", f"{run['params']}/{run['scheme']}: {run['status']}{detail}")
+        opts.say("control", f"{run['params']}/{run['scheme']}: {run['status']}{detail}")
 
     doc = compare_schemes(
         args.bench,
@@ -119,8 +109,8 @@ def main(args: argparse.Namespace) -> int:
     )
     plots = [f"plots: {', '.join(doc['plots'])}"] if doc["plots"] else []
     text = [format_table(doc), *plots, f"runs and compare.json: {doc['out_dir']}"]
-    print_document(args, doc, "\n".join(text))
-    return run_exit("control", doc["status"], f"{doc['status']}: {'; '.join(doc['failures'])}")
+    opts.print_document(args, doc, "\n".join(text))
+    return opts.run_exit("control", doc["status"], f"{doc['status']}: {'; '.join(doc['failures'])}")
 
 
 def _format_run(doc: dict[str, Any]) -> str:

@@ -18,10 +18,12 @@ import numpy as np
 from drivers.arm import Sample
 from drivers.recording import Recording, read_signals, write_json_atomic
 from hil.cli_options import (
+    add_bench_option,
     add_drive_options,
     add_out_options,
     add_recording_options,
     add_report_options,
+    add_schemes_option,
     drive_kwargs,
     prepare_out_dir,
     print_document,
@@ -52,8 +54,8 @@ PAPER_LAMBDA_NOTE = (
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     src = p.add_mutually_exclusive_group()
-    src.add_argument(
-        "--bench", help="bench profile to run the excitation over (default virtual-slcan)"
+    add_bench_option(
+        src, default=None, help="bench profile to run the excitation over (default virtual-slcan)"
     )
     src.add_argument("--from", dest="from_recording", help="identify from this recording instead")
     p.add_argument("--validate", help="held-out recording for validation (not used to fit)")
@@ -65,10 +67,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--duration", type=float, default=None, help="seconds of excitation")
     add_drive_options(p)
-    p.add_argument(
-        "--schemes",
-        default=",".join(SCHEMES),
-        help="comma-separated: filtered_dynamic,supplied_energy,filtered_power",
+    add_schemes_option(
+        p, SCHEMES, "comma-separated: filtered_dynamic,supplied_energy,filtered_power"
     )
     p.add_argument(
         "--discretization",

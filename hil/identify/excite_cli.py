@@ -21,7 +21,14 @@ from typing import Any
 import numpy as np
 
 from drivers.recording import Recording, read_signals
-from hil.cli_options import add_report_options, error, print_document, say, simulate_offline
+from hil.cli_options import (
+    add_bench_option,
+    add_report_options,
+    error,
+    print_document,
+    say,
+    simulate_offline,
+)
 from hil.identify.excitation import (
     CRITERIA,
     DesignResult,
@@ -72,7 +79,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "friction causes in least squares, per regression form (default 0.02 = 2 %%; 0 "
         "ignores it)",
     )
-    p.add_argument("--bench", default="virtual-slcan", help="bench whose limits apply")
+    add_bench_option(p, help="bench whose limits apply")
     p.add_argument(
         "--params",
         default=None,

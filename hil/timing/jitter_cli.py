@@ -37,6 +37,7 @@ from hil.bench.scheduler import POLICIES
 from hil.bench.timing_stats import cycle_timing, jitter_summary
 from hil.bench.variant import write_bench_variant
 from hil.cli_options import (
+    add_bench_option,
     add_drive_options,
     add_out_options,
     add_report_options,
@@ -54,7 +55,7 @@ SWEEP_MODULE = "hil.timing.sweep"  # PART B: `--sweep` studies (add_sweep_argume
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--bench", default="virtual-slcan", help="bench profile name or TOML file")
+    add_bench_option(p)
     p.add_argument(
         "--rate", type=float, default=None, help="loop rate in Hz (default: the bench's 1/period_s)"
     )
