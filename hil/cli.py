@@ -5,6 +5,10 @@ embedded default (the virtual robot, no hardware, no root). The host never impor
 physics (DESIGN.md: the plant is the world, the host only knows its model): the virtual robot
 runs as its own process behind a real transport.
 
+The other subcommands live with their capability (``COMMANDS``); the plumbing every command
+shares (common options, ``--json``, ``--out``, progress and error lines, exit status) is
+:mod:`hil.cli_options` (docs/cli.md).
+
 Errors are one line, ``hil <command>: error: ...``. Exit status (docs/interop.md):
 
 ====  ==========================================================================================
