@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 
 from hil.cli_options import (
+    add_bench_option,
     add_out_options,
     add_report_options,
     prepare_out_dir,
@@ -17,9 +18,7 @@ from hil.timing.replay import COMPUTE_S, format_replay, replay_run
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("run_dir", help="a realtime run directory (hil run / hil control)")
-    p.add_argument(
-        "--bench", default=None, help="virtual bench to replay on (default: the recorded one)"
-    )
+    add_bench_option(p, default=None, help="virtual bench to replay on (default: the recorded one)")
     add_out_options(p, "output directory (default: RUN_DIR-replay)")
     p.add_argument(
         "--trace-source",
