@@ -5,6 +5,10 @@ embedded default (the virtual robot, no hardware, no root). The host never impor
 physics (DESIGN.md: the plant is the world, the host only knows its model): the virtual robot
 runs as its own process behind a real transport.
 
+The other subcommands live with their capability (``COMMANDS``); the plumbing every command
+shares (common options, ``--json``, ``--out``, progress and error lines, exit status) is
+:mod:`hil.cli_options` (docs/cli.md).
+
 Errors are one line, ``hil <command>: error: ...``. Exit status (docs/interop.md):
 
 ====  ==========================================================================================
@@ -20,17 +24,27 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
-import subprocess
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 from drivers.logsetup import add_verbosity_options, configure, verbosity
 from hil import __version__
-from hil.cli_options import add_out_options, prepare_out_dir
-
-EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_LINK, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+from hil.cli_options import (
+    EXIT_USAGE,
+    add_bench_option,
+    add_drive_options,
+    add_out_options,
+    add_report_options,
+    drive_kwargs,
+    error,
+    prepare_out_dir,
+    print_document,
+    run_command,
+    run_exit,
+    say,
+    simulate_offline,
+)
 
 # Subcommands that live in their own modules: name -> (module, help). Each module provides
 # ``add_arguments(parser)`` and ``main(args) -> int`` (exit status).
@@ -53,6 +67,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+JSON_SUMMARY = "print one JSON summary on stdout"
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="hil", description="Hardware-in-the-loop bench host.")
     p.add_argument("--version", action="version", version=f"hil {__version__}")
@@ -62,7 +79,7 @@ def _parser() -> argparse.ArgumentParser:
     add_verbosity_options(common, subcommand=True)
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     r = sub.add_parser("run", help="record one experiment over a bench", parents=[common])
-    r.add_argument("--bench", default="virtual-slcan", help="bench profile name or TOML file")
+    add_bench_option(r)
     r.add_argument(
         "--attach",
         metavar="CHANNEL",
@@ -72,29 +89,14 @@ def _parser() -> argparse.ArgumentParser:
     )
     r.add_argument("--experiment", default="reyes-kelly", help="experiment profile or file")
     r.add_argument("--duration", type=float, default=None, help="seconds (default: experiment's)")
-    r.add_argument("--out", required=True, help="run directory to write")
-    add_out_options(r)
-    r.add_argument(
-        "--mode",
-        choices=("lockstep", "realtime"),
-        default=None,
-        help="time mode (default: the bench's)",
-    )
-    r.add_argument("--effects", default=None, help="virtual bench: concealed effects profile")
-    r.add_argument("--seed", type=int, default=None, help="virtual bench: seed (recorded)")
-    r.add_argument(
-        "--confirm-real",
-        action="store_true",
-        help="required to drive a real arm (a bench with virtual = false)",
-    )
-    r.add_argument("--no-plot", action="store_true", help="skip positions.png")
-    r.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
+    add_out_options(r, "run directory to write", required=True)
+    add_drive_options(r)
+    add_report_options(r, plot="skip positions.png", json_help=JSON_SUMMARY)
     d = sub.add_parser(
         "demo", help="the main job end to end on the default virtual robot", parents=[common]
     )
-    d.add_argument("--out", default="runs/demo", help="directory for the demo's runs")
-    add_out_options(d)
-    d.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
+    add_out_options(d, "directory for the demo's runs", default="runs/demo")
+    add_report_options(d, plot=None, json_help=JSON_SUMMARY)
     for name, (module, help_text) in COMMANDS.items():
         importlib.import_module(module).add_arguments(
             sub.add_parser(name, help=help_text, parents=[common])
@@ -115,40 +117,17 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
     out = prepare_out_dir(args.out, args.overwrite)
     run_dir, sim_dir = out / "hil-run-virtual-slcan", out / "simulate-reyes-kelly"
-    print(
-        f"hil demo: 10 s of the Reyes & Kelly (1997) excitation, eqs. (31)-(32), over the "
+    say(
+        "demo",
+        "10 s of the Reyes & Kelly (1997) excitation, eqs. (31)-(32), over the "
         f"virtual-slcan bench (CiA 402 over slcan on a pty) -> {run_dir}",
-        file=sys.stderr,
     )
     run = run_experiment("virtual-slcan", "reyes-kelly", run_dir, duration_s=10.0, progress=False)
     if run["status"] != "complete":
-        print(f"hil demo: error: demo run {run['status']}: {run['reason']}", file=sys.stderr)
+        error("demo", f"demo run {run['status']}: {run['reason']}")
         return 1
-    print(
-        f"hil demo: the same experiment offline (virtual-robot simulate) -> {sim_dir}",
-        file=sys.stderr,
-    )
-    cmd = [
-        sys.executable,
-        "-m",
-        "virtual_robot.cli",
-        "simulate",
-        "--robot",
-        "cicese",
-        "--experiment",
-        "reyes-kelly",
-        "--duration",
-        "10",
-        "--out",
-        str(sim_dir),
-        "--json",
-    ]
-    proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
-    if proc.returncode != 0:
-        reason = proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "no message"
-        print(f"hil demo: error: virtual robot simulation failed: {reason}", file=sys.stderr)
-        return 1
-    sim = json.loads(proc.stdout)
+    say("demo", f"the same experiment offline (virtual-robot simulate) -> {sim_dir}")
+    sim = simulate_offline("cicese", "reyes-kelly", 10.0, sim_dir)  # RuntimeError: exit 1
     a, b = read_signals(run_dir), read_signals(sim_dir)
     identical = bool(np.array_equal(a.q, b.q) and np.array_equal(a.tau, b.tau))
     summary = {
@@ -163,30 +142,22 @@ def cmd_demo(args: argparse.Namespace) -> int:
     summary["control"] = control
     diagnosis, diagnosis_text = _demo_diagnose(out)
     summary["diagnose"] = diagnosis
-    if args.json:
-        print(json.dumps(summary))
-    else:
-        print(
-            f"recording: {run['signals']} ({run['rows']} rows, {run['realtime_factor']}x "
-            f"real time over slcan, bus log {run['traffic_log']})"
-        )
-        print(f"plot:      {run['plot']}")
-        print(f"offline:   {sim['signals']} ({sim['realtime_factor']}x real time)")
-        print(
-            "check:     q and tau over the HIL link are "
-            + (
-                "bit-identical to the offline simulation"
-                if identical
-                else f"NOT identical to the offline simulation "
-                f"(max |dq| = {summary['max_abs_q_difference_rad']:.3g} rad)"
-            )
-        )
-        print()
-        print(id_text)
-        print()
-        print(control_text)
-        print()
-        print(diagnosis_text)
+    check = (
+        "bit-identical to the offline simulation"
+        if identical
+        else f"NOT identical to the offline simulation "
+        f"(max |dq| = {summary['max_abs_q_difference_rad']:.3g} rad)"
+    )
+    text = [
+        f"recording: {run['signals']} ({run['rows']} rows, {run['realtime_factor']}x "
+        f"real time over slcan, bus log {run['traffic_log']})",
+        f"plot:      {run['plot']}",
+        f"offline:   {sim['signals']} ({sim['realtime_factor']}x real time)",
+        f"check:     q and tau over the HIL link are {check}",
+    ]
+    print_document(
+        args, summary, "\n\n".join(["\n".join(text), id_text, control_text, diagnosis_text])
+    )
     return 0 if identical else 1
 
 
@@ -201,10 +172,10 @@ def _demo_diagnose(out: Path) -> tuple[dict, str]:
     from hil.model.params import robot_params
 
     run_dir, diag_dir = out / "hil-run-diagnosis", out / "diagnose"
-    print(
-        f"hil demo: 20 s of the diagnosis excitation over virtual-slcan -> {run_dir}; "
+    say(
+        "demo",
+        f"20 s of the diagnosis excitation over virtual-slcan -> {run_dir}; "
         f"hil diagnose -> {diag_dir}",
-        file=sys.stderr,
     )
     run = run_experiment("virtual-slcan", "diagnosis", run_dir, progress=False)
     if run["status"] != "complete":
@@ -222,10 +193,9 @@ def _demo_control(out: Path, params: Path) -> tuple[dict, str]:
     from hil.control.tracking import compare_schemes, format_table
 
     control_dir = out / "control"
-    print(
-        f"hil demo: control comparison (PD, CT, FED, RFED; profile and identified θ) -> "
-        f"{control_dir}",
-        file=sys.stderr,
+    say(
+        "demo",
+        f"control comparison (PD, CT, FED, RFED; profile and identified θ) -> {control_dir}",
     )
     doc = compare_schemes(
         "virtual-slcan", control_dir, params=[f"identified={params}"], progress=False
@@ -237,20 +207,17 @@ def _demo_identify(out: Path, fit_dir: Path) -> tuple[dict, str]:
     """Identification step of the demo: the recording above is the fit; a held-out multisine
     runs over the same bench; exact and paper discretizations side by side."""
     from hil.bench.run import run_experiment
-    from hil.identify.cli import run_identify
+    from hil.identify.cli import parse_args, run_identify
 
     held_dir = out / "hil-run-validation-multisine"
-    print(
-        f"hil demo: held-out excitation (validation-multisine) over virtual-slcan -> {held_dir}",
-        file=sys.stderr,
-    )
+    say("demo", f"held-out excitation (validation-multisine) over virtual-slcan -> {held_dir}")
     held = run_experiment("virtual-slcan", "validation-multisine", held_dir, progress=False)
     if held["status"] != "complete":
         raise RuntimeError(f"demo validation run {held['status']}: {held['reason']}")
     id_dir = out / "identify"
-    print(f"hil demo: identification (Reyes & Kelly 1997 Table II) -> {id_dir}", file=sys.stderr)
-    args = _parser().parse_args(
-        ["identify", "--from", str(fit_dir), "--validate", str(held_dir), "--out", str(id_dir),
+    say("demo", f"identification (Reyes & Kelly 1997 Table II) -> {id_dir}")
+    args = parse_args(
+        ["--from", str(fit_dir), "--validate", str(held_dir), "--out", str(id_dir),
          "--discretization", "both", "--json"]
     )  # fmt: skip
     return run_identify(args)
@@ -281,27 +248,21 @@ def cmd_run(args: argparse.Namespace) -> int:
         args.experiment,
         args.out,
         duration_s=args.duration,
-        mode=args.mode,
-        effects=args.effects,
-        seed=args.seed,
-        confirm_real=args.confirm_real,
-        plot=not args.no_plot,
+        **drive_kwargs(args),
     )
-    if args.json:
-        print(json.dumps(summary))
-    if summary["status"] == "complete":
-        if not args.json:
-            print(
-                f"recorded {summary['rows']} rows to {summary['signals']} "
-                f"({summary['realtime_factor']}x real time, {summary['mode']})"
-            )
-        return 0
-    print(
-        f"hil run: {summary['status']}: {summary['reason']} "
+    if args.json or summary["status"] == "complete":
+        print_document(
+            args,
+            summary,
+            f"recorded {summary['rows']} rows to {summary['signals']} "
+            f"({summary['realtime_factor']}x real time, {summary['mode']})",
+        )
+    return run_exit(
+        "run",
+        summary["status"],
+        f"{summary['status']}: {summary['reason']} "
         f"({summary['rows']} rows kept in {summary['signals']})",
-        file=sys.stderr,
     )
-    return EXIT_INTERRUPTED if summary["status"] == "interrupted" else EXIT_FAILED
 
 
 def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -314,67 +275,16 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     return args
 
 
-def exit_status(exc: BaseException) -> int:
-    """The exit status of an error that ended a command (the table in the module docstring)."""
-    import can
-
-    from drivers.arm import LinkError
-    from drivers.recording import RecordingError
-    from hil.bench.launch import LaunchError
-    from hil.model.params import ParamsError
-    from profiles import ProfileError
-
-    if isinstance(exc, LinkError | LaunchError | ConnectionError | TimeoutError | can.CanError):
-        return EXIT_LINK
-    if isinstance(
-        exc,
-        ProfileError | ParamsError | RecordingError | ValueError | FileNotFoundError,
-    ):
-        return EXIT_USAGE
-    if isinstance(exc, IsADirectoryError | NotADirectoryError | PermissionError):
-        return EXIT_USAGE
-    return EXIT_FAILED
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    import can
-
-    from drivers.arm import LinkError
-    from drivers.recording import RecordingError
-    from hil.bench.launch import LaunchError
-    from hil.model.params import ParamsError
-    from profiles import ProfileError
-
     args = _parse(argv)
     configure("hil", verbosity(args))
-    try:
-        if args.command == "run":
-            return cmd_run(args)
-        if args.command == "demo":
-            return cmd_demo(args)
-        if args.command in COMMANDS:
-            return int(importlib.import_module(COMMANDS[args.command][0]).main(args))
-    except KeyboardInterrupt:  # Ctrl-C, SIGTERM or SIGHUP (drivers.process)
-        from drivers.process import interrupt_exit_code, interrupt_reason
-
-        print(
-            f"hil {args.command}: {interrupt_reason()}; drives at zero torque and disabled",
-            file=sys.stderr,
-        )
-        return interrupt_exit_code()
-    except (
-        ProfileError,
-        ParamsError,
-        RecordingError,
-        LaunchError,
-        LinkError,
-        can.CanError,
-        OSError,
-        ValueError,
-        RuntimeError,
-    ) as exc:
-        print(f"hil {args.command}: error: {exc}", file=sys.stderr)
-        return exit_status(exc)
+    if args.command == "run":
+        return run_command("run", cmd_run, args)
+    if args.command == "demo":
+        return run_command("demo", cmd_demo, args)
+    if args.command in COMMANDS:
+        module = COMMANDS[args.command][0]
+        return run_command(args.command, lambda a: importlib.import_module(module).main(a), args)
     return EXIT_USAGE
 
 

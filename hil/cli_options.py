@@ -1,23 +1,41 @@
-"""Options shared by the `hil` commands: how to read a recording, and where to write output.
+"""The plumbing every `hil` command shares: its common options, output, errors and exit status.
 
+Each subcommand module (``hil.identify.cli``, ``hil.control.cli``, ...) builds its parser and
+reports through these, so an option means and says the same everywhere:
+
+* :func:`add_drive_options` / :func:`drive_kwargs`: ``--mode``, ``--effects``, ``--seed``,
+  ``--confirm-real`` for every command that drives a bench, and the keyword arguments they (and
+  ``--no-plot``) become for :func:`hil.bench.run.run_experiment` and its kin.
+* :func:`add_report_options` / :func:`print_document`: ``--no-plot`` and ``--json``; one JSON
+  document on stdout, or the text.
+* :func:`add_out_options` / :func:`prepare_out_dir`: ``--out`` and ``--overwrite``; a command
+  refuses to write into a non-empty output directory without it, so two runs never mix their
+  files.
 * :func:`add_recording_options` / :func:`read_recording`: ``--format``, ``--columns``,
   ``--torque``, ``--loop-delay`` for every command that reads a recording (identify --from and
   --validate, diagnose, replay), turned into :func:`drivers.recording.read_signals` arguments
   (docs/recordings.md).
-* :func:`add_out_options` / :func:`prepare_out_dir`: ``--overwrite``; a command refuses to write
-  into a non-empty output directory without it, so two runs never mix their files.
+* :func:`say` / :func:`error`: progress and error lines on stderr, ``hil <command>: ...``.
+* :func:`run_command`, :func:`exit_status`, :func:`run_exit` and the ``EXIT_*`` codes: an error
+  that ends a command is one line, ``hil <command>: error: ...``, and its exit status says
+  what kind of failure it was (:mod:`hil.cli`'s docstring has the table).
+* :func:`simulate_offline`: ``virtual-robot simulate`` as its own process (the host never
+  imports the plant).
 
 Bad values raise ``ValueError`` / :class:`~drivers.recording.RecordingError` with a one-line
-message; ``hil``'s main turns them into ``hil <command>: error: ...`` and exit status 2.
-Imports drivers and profiles only.
+message; :func:`run_command` turns them into ``hil <command>: error: ...`` and exit status 2.
+Imports drivers and profiles; :mod:`hil.bench` and :mod:`hil.model` only inside
+:func:`exit_status` (their error classes), so any command module may import this one.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import shutil
+import subprocess
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +44,183 @@ import numpy as np
 from drivers.recording import Recording, RecordingError, parse_column_map, read_signals
 from profiles.recording_format import LOOP_DELAY_MAX
 
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_LINK, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+
 TORQUE_SOURCES_HELP = "commanded (default), measured, or another source the --format offers"
+
+
+# ---- progress, errors, exit status ------------------------------------------------------------
+def say(command: str, message: str) -> None:
+    """One progress or status line on stderr: ``hil <command>: <message>``."""
+    print(f"hil {command}: {message}", file=sys.stderr, flush=True)
+
+
+def error(command: str, message: str) -> None:
+    """The one-line error of a command: ``hil <command>: error: <message>``."""
+    say(command, f"error: {message}")
+
+
+def exit_status(exc: BaseException) -> int:
+    """The exit status of an error that ended a command (the table in :mod:`hil.cli`)."""
+    import can
+
+    from drivers.arm import LinkError
+    from hil.bench.jobs import ExecutorUnavailableError
+    from hil.bench.launch import LaunchError
+    from hil.model.params import ParamsError
+    from profiles import ProfileError
+
+    if isinstance(exc, LinkError | LaunchError | ConnectionError | TimeoutError | can.CanError):
+        return EXIT_LINK
+    if isinstance(
+        exc,
+        ProfileError | ParamsError | RecordingError | ValueError | FileNotFoundError,
+    ):
+        return EXIT_USAGE
+    if isinstance(exc, IsADirectoryError | NotADirectoryError | PermissionError):
+        return EXIT_USAGE
+    if isinstance(exc, ExecutorUnavailableError):  # the extra is missing, no scheduler answered
+        return EXIT_USAGE
+    return EXIT_FAILED
+
+
+def run_command(command: str, main: Callable[[argparse.Namespace], int], args: Any) -> int:
+    """``main(args)``, its errors as one line and an exit status: a bad input, a link or an
+    interruption never ends in a traceback."""
+    import can
+
+    from drivers.arm import LinkError
+    from hil.bench.launch import LaunchError
+    from hil.model.params import ParamsError
+    from profiles import ProfileError
+
+    try:
+        return int(main(args))
+    except KeyboardInterrupt:  # Ctrl-C, SIGTERM or SIGHUP (drivers.process)
+        from drivers.process import interrupt_exit_code, interrupt_reason
+
+        say(command, f"{interrupt_reason()}; drives at zero torque and disabled")
+        return interrupt_exit_code()
+    except (
+        ProfileError,
+        ParamsError,
+        RecordingError,
+        LaunchError,
+        LinkError,
+        can.CanError,
+        OSError,
+        ValueError,
+        RuntimeError,
+    ) as exc:
+        error(command, str(exc))
+        return exit_status(exc)
+
+
+def run_exit(command: str, status: str, problem: str) -> int:
+    """The exit status of a command whose run ended with ``status`` (a recording's, a
+    comparison's): 0 when complete; otherwise ``problem`` as ``hil <command>: <problem>`` and 130
+    when interrupted, 1 when it failed."""
+    if status == "complete":
+        return EXIT_OK
+    say(command, problem)
+    return EXIT_INTERRUPTED if status == "interrupted" else EXIT_FAILED
+
+
+# ---- options of the commands that drive a bench, and their output -----------------------------
+def add_bench_option(
+    p: argparse.ArgumentParser | argparse._MutuallyExclusiveGroup,
+    *,
+    default: str | None = "virtual-slcan",
+    help: str = "bench profile name or TOML file",
+) -> None:
+    """``--bench`` (profiles/benches, or a TOML file)."""
+    p.add_argument("--bench", default=default, help=help)
+
+
+def add_drive_options(p: argparse.ArgumentParser, *, mode: bool = True) -> None:
+    """``--mode`` (unless ``mode`` is false: a command that is realtime by nature),
+    ``--effects``, ``--seed``, ``--confirm-real``."""
+    if mode:
+        p.add_argument(
+            "--mode",
+            choices=("lockstep", "realtime"),
+            default=None,
+            help="time mode (default: the bench's)",
+        )
+    p.add_argument("--effects", default=None, help="virtual bench: concealed effects profile")
+    p.add_argument("--seed", type=int, default=None, help="virtual bench: seed (recorded)")
+    p.add_argument(
+        "--confirm-real",
+        action="store_true",
+        help="required to drive a real arm (a bench with virtual = false)",
+    )
+
+
+def drive_kwargs(args: argparse.Namespace) -> dict[str, Any]:
+    """The keyword arguments :func:`add_drive_options` and ``--no-plot`` ask for, as
+    :func:`hil.bench.run.run_experiment`, :func:`hil.control.tracking.run_control` and
+    :func:`hil.timing.jitter_cli.measure` take them (``mode`` only where the parser has it)."""
+    kwargs: dict[str, Any] = {"mode": args.mode} if hasattr(args, "mode") else {}
+    return {
+        **kwargs,
+        "effects": args.effects,
+        "seed": args.seed,
+        "confirm_real": args.confirm_real,
+        "plot": not args.no_plot,
+    }
+
+
+def add_report_options(
+    p: argparse.ArgumentParser,
+    *,
+    plot: str | None = "skip the plots",
+    plot_flag: str = "--no-plot",
+    json_help: str = "print one JSON document on stdout",
+) -> None:
+    """``--no-plot`` (help ``plot``; none if None) and ``--json``."""
+    if plot is not None:
+        p.add_argument(plot_flag, dest="no_plot", action="store_true", help=plot)
+    p.add_argument("--json", action="store_true", help=json_help)
+
+
+def print_document(
+    args: argparse.Namespace, doc: dict[str, Any], text: str | Callable[[], str]
+) -> None:
+    """With ``--json`` ``doc`` as one line of JSON on stdout (numpy scalars as numbers), else
+    ``text`` (or what it returns)."""
+    if getattr(args, "json", False):
+        print(json.dumps(doc, default=float))
+    else:
+        print(text() if callable(text) else text)
+
+
+def add_schemes_option(p: argparse.ArgumentParser, schemes: Sequence[str], help: str) -> None:
+    """``--schemes``, a comma list (default: all of ``schemes``); :func:`split_list` reads it."""
+    p.add_argument("--schemes", default=",".join(schemes), help=help)
+
+
+def split_list(text: str) -> list[str]:
+    """A comma-separated option's items, stripped, empty ones left out."""
+    return [item.strip() for item in text.split(",") if item.strip()]
+
+
+def simulate_offline(
+    robot: str, experiment: str, duration_s: float, out_dir: Path, *, plot: bool = True
+) -> dict[str, Any]:
+    """``virtual-robot simulate`` as its own process (DESIGN.md: the host never imports the
+    plant): the experiment's open-loop response in lockstep, recorded in ``out_dir``; its JSON
+    summary. A failed simulation raises RuntimeError with the simulator's last line."""
+    cmd = [sys.executable, "-m", "virtual_robot.cli", "simulate", "--robot", robot,
+           "--experiment", experiment, "--duration", repr(float(duration_s)),
+           "--out", str(out_dir), *([] if plot else ["--no-plot"]), "--json"]  # fmt: skip
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        lines = proc.stderr.strip().splitlines()
+        raise RuntimeError(f"virtual-robot simulate failed: {lines[-1] if lines else 'no message'}")
+    return json.loads(proc.stdout)
+
+
+# ---- reading recordings -----------------------------------------------------------------------
 
 
 def add_recording_options(p: argparse.ArgumentParser) -> None:
@@ -102,7 +296,7 @@ def read_recording(
         path, **recording_kwargs(args), extra_columns=extra_columns, min_rows=min_rows
     )
     for note in rec.findings_on_read:
-        print(f"hil {command}: note: {rec.path}: {note}", file=sys.stderr)
+        say(command, f"note: {rec.path}: {note}")
     if joints is not None and rec.n_joints != joints:
         raise RecordingError(
             f"{rec.path}: {rec.n_joints} joints (q1..q{rec.n_joints}); hil {command} takes "
@@ -121,7 +315,12 @@ def read_recording(
     return rec
 
 
-def add_out_options(p: argparse.ArgumentParser) -> None:
+# ---- output directory -------------------------------------------------------------------------
+def add_out_options(
+    p: argparse.ArgumentParser, help: str, *, default: str | None = None, required: bool = False
+) -> None:
+    """``--out`` (a directory) and ``--overwrite``."""
+    p.add_argument("--out", default=default, required=required, help=help)
     p.add_argument(
         "--overwrite",
         action="store_true",

@@ -11,25 +11,21 @@ per joint per scheme) per parameter set; ``--json`` prints the same as one JSON 
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 from typing import Any
 
-from hil.cli_options import add_out_options, prepare_out_dir
+from hil import cli_options as opts
 from hil.control.controllers import SCHEME_TITLES, SCHEMES
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--bench", default="virtual-slcan", help="bench profile name or TOML file")
+    opts.add_bench_option(p)
     what = p.add_mutually_exclusive_group()
     what.add_argument("--scheme", choices=SCHEMES, help="one controller: pd, ct, fed or rfed")
     what.add_argument(
         "--compare", action="store_true", help="run every scheme and print the Table 2 layout"
     )
-    p.add_argument(
-        "--schemes",
-        default=",".join(SCHEMES),
-        help="with --compare: which schemes, comma-separated (default: all)",
+    opts.add_schemes_option(
+        p, SCHEMES, "with --compare: which schemes, comma-separated (default: all)"
     )
     p.add_argument(
         "--params",
@@ -54,20 +50,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--kp", type=float, nargs=2, metavar=("KP1", "KP2"), help="position gains")
     p.add_argument("--kv", type=float, nargs=2, metavar=("KV1", "KV2"), help="velocity gains")
-    p.add_argument("--out", default=None, help="directory (default: runs/control-SCHEME|compare)")
-    add_out_options(p)
-    p.add_argument(
-        "--mode", choices=("lockstep", "realtime"), default=None, help="default: the bench's"
-    )
-    p.add_argument("--effects", default=None, help="virtual bench: concealed effects profile")
-    p.add_argument("--seed", type=int, default=None, help="virtual bench: seed (recorded)")
-    p.add_argument(
-        "--confirm-real",
-        action="store_true",
-        help="required to drive a real arm (a bench with virtual = false)",
-    )
-    p.add_argument("--no-plot", action="store_true", help="skip the plots")
-    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+    opts.add_out_options(p, "directory (default: runs/control-SCHEME|compare)")
+    opts.add_drive_options(p)
+    opts.add_report_options(p)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -77,13 +62,9 @@ def main(args: argparse.Namespace) -> int:
     common: dict[str, Any] = {
         "experiment": args.experiment,
         "duration_s": args.duration,
-        "mode": args.mode,
-        "effects": args.effects,
-        "seed": args.seed,
         "kp": args.kp,
         "kv": args.kv,
-        "confirm_real": args.confirm_real,
-        "plot": not args.no_plot,
+        **opts.drive_kwargs(args),
     }
     if not args.compare:
         if args.scheme is None:
@@ -91,37 +72,30 @@ def main(args: argparse.Namespace) -> int:
         if len(args.params) > 1:
             raise UsageError("one --params file per run; several need --compare")
         out = args.out or f"runs/control-{args.scheme}"
-        prepare_out_dir(out, args.overwrite)
-        print(
-            f"hil control: {SCHEME_TITLES[args.scheme]} over {args.bench} -> {out}",
-            file=sys.stderr,
-        )
+        opts.prepare_out_dir(out, args.overwrite)
+        opts.say("control", f"{SCHEME_TITLES[args.scheme]} over {args.bench} -> {out}")
         doc = run_control(
             args.bench, args.scheme, out, params=args.params[0] if args.params else None, **common
         )
         run = doc["run"]
-        if args.json:
-            print(json.dumps(doc))
-        else:
-            _print_run(doc)
-        return _status(run["status"], run.get("reason"), run["signals"], run["rows"])
+        opts.print_document(args, doc, lambda: _format_run(doc))
+        return opts.run_exit(
+            "control",
+            run["status"],
+            f"{run['status']}: {run.get('reason')} ({run['rows']} rows kept in {run['signals']})",
+        )
 
-    schemes = [s.strip() for s in args.schemes.split(",") if s.strip()]
+    schemes = opts.split_list(args.schemes)
     out = args.out or "runs/control-compare"
-    prepare_out_dir(out, args.overwrite)
-    print(
-        f"hil control: comparing {', '.join(s.upper() for s in schemes)} over {args.bench} -> "
-        f"{out}",
-        file=sys.stderr,
+    opts.prepare_out_dir(out, args.overwrite)
+    opts.say(
+        "control", f"comparing {', '.join(s.upper() for s in schemes)} over {args.bench} -> {out}"
     )
 
     def report(run: dict[str, Any]) -> None:
         err = run.get("max_position_error_rad")
         detail = "" if err is None else f", max |e| = {err[0]:.4f} / {err[1]:.4f} rad"
-        print(
-            f"hil control: {run['params']}/{run['scheme']}: {run['status']}{detail}",
-            file=sys.stderr,
-        )
+        opts.say("control", f"{run['params']}/{run['scheme']}: {run['status']}{detail}")
 
     doc = compare_schemes(
         args.bench,
@@ -133,44 +107,31 @@ def main(args: argparse.Namespace) -> int:
         on_run=report,
         **common,
     )
-    if args.json:
-        print(json.dumps(doc))
-    else:
-        print(format_table(doc))
-        if doc["plots"]:
-            print(f"plots: {', '.join(doc['plots'])}")
-        print(f"runs and compare.json: {doc['out_dir']}")
-    if doc["status"] != "complete":
-        print(f"hil control: {doc['status']}: {'; '.join(doc['failures'])}", file=sys.stderr)
-        return 130 if doc["status"] == "interrupted" else 1
-    return 0
+    plots = [f"plots: {', '.join(doc['plots'])}"] if doc["plots"] else []
+    text = [format_table(doc), *plots, f"runs and compare.json: {doc['out_dir']}"]
+    opts.print_document(args, doc, "\n".join(text))
+    return opts.run_exit("control", doc["status"], f"{doc['status']}: {'; '.join(doc['failures'])}")
 
 
-def _print_run(doc: dict[str, Any]) -> None:
+def _format_run(doc: dict[str, Any]) -> str:
     run = doc["run"]
-    print(f"{SCHEME_TITLES[run['scheme']]}, {run['params']} parameters, over {doc['bench']}")
+    lines = [f"{SCHEME_TITLES[run['scheme']]}, {run['params']} parameters, over {doc['bench']}"]
     if "max_position_error_rad" in run:
         for j in range(2):
-            print(
+            lines.append(
                 f"  joint {j + 1}: position error max {run['max_position_error_rad'][j]:.4f} "
                 f"rad, RMS {run['rms_position_error_rad'][j]:.4f} rad; velocity error max "
                 f"{run['max_velocity_error_rad_s'][j]:.3f} rad/s, RMS "
                 f"{run['rms_velocity_error_rad_s'][j]:.3f} rad/s"
             )
-    print(
+    lines.append(
         f"  clipped cycles: {run['clipped_cycles'][0]} / {run['clipped_cycles'][1]}; peak "
         f"torque {run['peak_torque_law_Nm'][0]:.1f} / {run['peak_torque_law_Nm'][1]:.2f} Nm "
         f"(limits {run['torque_limit_Nm'][0]:g} / {run['torque_limit_Nm'][1]:g} Nm)"
     )
-    print(
+    lines.append(
         f"  recording: {run['signals']} ({run['rows']} rows, {run['realtime_factor']}x real time)"
     )
     if run["plots"]:
-        print(f"  plots: {', '.join(run['plots'])}")
-
-
-def _status(status: str, reason: str | None, signals: str, rows: int) -> int:
-    if status == "complete":
-        return 0
-    print(f"hil control: {status}: {reason} ({rows} rows kept in {signals})", file=sys.stderr)
-    return 130 if status == "interrupted" else 1
+        lines.append(f"  plots: {', '.join(run['plots'])}")
+    return "\n".join(lines)

@@ -26,7 +26,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
@@ -53,6 +53,9 @@ DEFAULT_EXPERIMENT = "khosla-kanade-tracking"
 CONTROL_CSV = "control.csv"
 CONTROL_JSON = "control.json"
 PROFILE_LABEL = "profile"
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack  # typing.Unpack for **kwargs from Python 3.12
 
 
 # ---- parameter sets ---------------------------------------------------------------------------
@@ -248,9 +251,24 @@ def reference_torque_margin(
 
 
 # ---- one run ----------------------------------------------------------------------------------
+class ControlSettings(TypedDict, total=False):
+    """The settings every run of one :func:`run_control` or :func:`compare_schemes` shares
+    (:func:`prepare`'s keywords; `hil control`'s options)."""
+
+    experiment: str
+    duration_s: float | None
+    mode: str | None
+    effects: str | None
+    seed: int | None
+    kp: Sequence[float] | None
+    kv: Sequence[float] | None
+    confirm_real: bool
+
+
 @dataclass
 class ControlSetup:
-    """What every run of a comparison shares: bench, experiment, gains, duration."""
+    """What every run of a comparison shares: bench, experiment, gains, duration, and the
+    schemes and parameter sets to run."""
 
     bench: BenchProfile
     experiment: TrackingProfile
@@ -261,6 +279,8 @@ class ControlSetup:
     effects: str | None = None
     seed: int | None = None
     notes: list[str] = field(default_factory=list)
+    schemes: tuple[str, ...] = SCHEMES
+    parameter_sets: list[LabelledParams] = field(default_factory=list)
 
     @property
     def period_s(self) -> float:
@@ -301,6 +321,9 @@ class ControlSetup:
 def prepare(
     bench_name: str,
     *,
+    schemes: Sequence[str] = SCHEMES,
+    params: Sequence[str | LabelledParams | ParamSet] = (),
+    include_profile: bool = True,
     experiment: str = DEFAULT_EXPERIMENT,
     duration_s: float | None = None,
     mode: str | None = None,
@@ -310,7 +333,12 @@ def prepare(
     kv: Sequence[float] | None = None,
     confirm_real: bool = False,
 ) -> ControlSetup:
-    """Load and check everything a run needs, before anything starts moving."""
+    """Load and check everything the runs need, before anything starts moving: the schemes,
+    bench, experiment, duration and gains, then the parameter sets (the profile's θ if
+    ``include_profile``, then each of ``params``)."""
+    unknown = [s for s in schemes if s not in SCHEMES]
+    if unknown or not schemes:
+        raise UsageError(f"unknown scheme(s) {unknown}; expected some of {', '.join(SCHEMES)}")
     bench = check_bench(bench_name, confirm_real=confirm_real, effects=effects)
     exp = load_tracking(experiment)
     trajectory = khosla_kanade_moves(
@@ -344,6 +372,8 @@ def prepare(
         effects=effects,
         seed=seed,
         notes=notes,
+        schemes=tuple(schemes),
+        parameter_sets=parameter_sets(params, include_profile=include_profile, robot=bench.robot),
     )
 
 
@@ -433,36 +463,21 @@ def run_control(
     out_dir: str | Path,
     *,
     params: str | LabelledParams | ParamSet | None = None,
-    experiment: str = DEFAULT_EXPERIMENT,
-    duration_s: float | None = None,
-    mode: str | None = None,
-    effects: str | None = None,
-    seed: int | None = None,
-    kp: Sequence[float] | None = None,
-    kv: Sequence[float] | None = None,
-    confirm_real: bool = False,
     plot: bool = True,
     progress: bool = True,
+    **settings: Unpack[ControlSettings],
 ) -> dict[str, Any]:
     """`hil control --scheme S`: one run with the profile's θ or those of ``params``."""
     if scheme not in SCHEMES:
         raise UsageError(f"unknown scheme {scheme!r}; expected one of {', '.join(SCHEMES)}")
     setup = prepare(
         bench_name,
-        experiment=experiment,
-        duration_s=duration_s,
-        mode=mode,
-        effects=effects,
-        seed=seed,
-        kp=kp,
-        kv=kv,
-        confirm_real=confirm_real,
-    )
-    (chosen,) = parameter_sets(
-        [params] if params is not None else [],
+        schemes=(scheme,),
+        params=[params] if params is not None else [],
         include_profile=params is None,
-        robot=setup.bench.robot,
+        **settings,
     )
+    (chosen,) = setup.parameter_sets
     summary = run_scheme(setup, scheme, chosen, out_dir, plot=plot, progress=progress)
     return {
         "kind": "hil control",
@@ -480,20 +495,13 @@ def compare_schemes(
     bench: str,
     out_dir: str | Path,
     *,
-    duration_s: float | None = None,
     params: Sequence[str | LabelledParams | ParamSet] = (),
     include_profile: bool = True,
     schemes: Sequence[str] = SCHEMES,
-    experiment: str = DEFAULT_EXPERIMENT,
-    mode: str | None = None,
-    effects: str | None = None,
-    seed: int | None = None,
-    kp: Sequence[float] | None = None,
-    kv: Sequence[float] | None = None,
-    confirm_real: bool = False,
     plot: bool = True,
     progress: bool = True,
     on_run: Callable[[dict[str, Any]], None] | None = None,
+    **settings: Unpack[ControlSettings],
 ) -> dict[str, Any]:
     """Run every scheme with every parameter set (the profile's θ first, then each of
     ``params``: ``[LABEL=]FILE[#SCHEME]`` strings or loaded sets) and return the comparison
@@ -501,22 +509,12 @@ def compare_schemes(
     parameter set, clip counts, and each model-based scheme's gain over PD.
 
     Runs go to ``out_dir/<params label>/<scheme>/``; the document to ``out_dir/compare.json``.
+    ``settings``: :class:`ControlSettings`.
     """
-    unknown = [s for s in schemes if s not in SCHEMES]
-    if unknown or not schemes:
-        raise UsageError(f"unknown scheme(s) {unknown}; expected some of {', '.join(SCHEMES)}")
     setup = prepare(
-        bench,
-        experiment=experiment,
-        duration_s=duration_s,
-        mode=mode,
-        effects=effects,
-        seed=seed,
-        kp=kp,
-        kv=kv,
-        confirm_real=confirm_real,
+        bench, schemes=schemes, params=params, include_profile=include_profile, **settings
     )
-    sets = parameter_sets(params, include_profile=include_profile, robot=setup.bench.robot)
+    sets = setup.parameter_sets
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     results: dict[str, dict[str, Any]] = {}
@@ -527,7 +525,7 @@ def compare_schemes(
         if interrupted:
             break
         results[ps.label] = {}
-        for scheme in schemes:
+        for scheme in setup.schemes:
             run = run_scheme(
                 setup, scheme, ps, out / _safe(ps.label) / scheme, plot=plot, progress=progress
             )
@@ -544,7 +542,7 @@ def compare_schemes(
     doc: dict[str, Any] = {
         "kind": "hil control compare",
         **setup.describe(),
-        "schemes": list(schemes),
+        "schemes": list(setup.schemes),
         "parameter_sets": [ps.describe() for ps in sets],
         "reference_torque": {
             ps.label: reference_torque_margin(

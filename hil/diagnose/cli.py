@@ -9,21 +9,21 @@ document with ``--json``; writes ``diagnosis.json`` and plots to ``--out``.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
-from drivers.recording import RecordingError, write_json_atomic
+from drivers.recording import write_json_atomic
 from hil.cli_options import (
     add_out_options,
     add_recording_options,
+    add_report_options,
     prepare_out_dir,
+    print_document,
     read_recording,
+    say,
 )
 from hil.diagnose.report import diagnose, percent
-from hil.model.params import ParamsError, load_params, robot_params
+from hil.model.params import load_params, robot_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -37,11 +37,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="params.json (hil identify): the nominal model's θ for the before/after fit and the "
         "reference for telling which joint a torque gain error is on",
     )
-    p.add_argument("--out", default=None, help="write diagnosis.json and plots here")
-    add_out_options(p)
+    add_out_options(p, "write diagnosis.json and plots here")
     add_recording_options(p)
-    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
-    p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    add_report_options(p, plot="skip the PNG plots", plot_flag="--no-plots")
 
 
 def _progress(message: str) -> None:
@@ -49,46 +47,36 @@ def _progress(message: str) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    try:
-        if args.out:
-            prepare_out_dir(args.out, args.overwrite, inputs=args.recordings)
-        recs = [
-            read_recording(args, path, command="diagnose", min_rows=2, joints=2)
-            for path in args.recordings
-        ]
-        reference = robot_params(args.robot).theta
-        nominal = None
-        if args.params:
-            nominal = load_params(args.params).theta
-            reference = nominal
-    except (RecordingError, ParamsError, OSError, ValueError) as exc:
-        print(f"hil diagnose: error: {exc}", file=sys.stderr)
-        return 2
+    if args.out:
+        prepare_out_dir(args.out, args.overwrite, inputs=args.recordings)
+    recs = [
+        read_recording(args, path, command="diagnose", min_rows=2, joints=2)
+        for path in args.recordings
+    ]
+    reference = robot_params(args.robot).theta
+    nominal = None
+    if args.params:
+        nominal = load_params(args.params).theta
+        reference = nominal
     for rec in recs:
         if rec.meta.get("status") not in (None, "complete"):
-            _progress(
-                f"hil diagnose: note: {rec.path} is a {rec.meta.get('status')} recording; "
-                f"using its {len(rec)} rows"
+            say(
+                "diagnose",
+                f"note: {rec.path} is a {rec.meta.get('status')} recording; "
+                f"using its {len(rec)} rows",
             )
-    try:
-        result = diagnose(recs, reference, nominal_theta=nominal, progress=_progress)
-    except (ValueError, np.linalg.LinAlgError) as exc:
-        print(f"hil diagnose: error: {exc}", file=sys.stderr)
-        return 2
+    result = diagnose(recs, reference, nominal_theta=nominal, progress=_progress)
     doc = result.document
     if args.out:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
         write_json_atomic(out / "diagnosis.json", doc)
-        if not args.no_plots:
+        if not args.no_plot:
             from hil.diagnose.plots import plot_diagnosis
 
             doc["plots"] = [str(p) for p in plot_diagnosis(result, out)]
             write_json_atomic(out / "diagnosis.json", doc)
-    if args.json:
-        print(json.dumps(doc, default=float))
-    else:
-        print(format_report(doc))
+    print_document(args, doc, lambda: format_report(doc))
     return 0
 
 

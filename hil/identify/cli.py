@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -20,10 +19,18 @@ import numpy as np
 from drivers.arm import Sample
 from drivers.recording import Recording, read_signals, write_json_atomic
 from hil.cli_options import (
+    add_bench_option,
+    add_drive_options,
     add_out_options,
     add_recording_options,
+    add_report_options,
+    add_schemes_option,
+    drive_kwargs,
     prepare_out_dir,
+    print_document,
     read_recording,
+    say,
+    split_list,
 )
 from hil.identify.online import OnlineIdentifier
 from hil.identify.schemes import (
@@ -48,8 +55,8 @@ PAPER_LAMBDA_NOTE = (
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     src = p.add_mutually_exclusive_group()
-    src.add_argument(
-        "--bench", help="bench profile to run the excitation over (default virtual-slcan)"
+    add_bench_option(
+        src, default=None, help="bench profile to run the excitation over (default virtual-slcan)"
     )
     src.add_argument("--from", dest="from_recording", help="identify from this recording instead")
     p.add_argument("--validate", help="held-out recording for validation (not used to fit)")
@@ -60,14 +67,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="held-out excitation run over the bench ('none' to skip)",
     )
     p.add_argument("--duration", type=float, default=None, help="seconds of excitation")
-    p.add_argument("--mode", choices=("lockstep", "realtime"), default=None)
-    p.add_argument("--effects", default=None, help="virtual bench: concealed effects profile")
-    p.add_argument("--seed", type=int, default=None, help="virtual bench: seed")
-    p.add_argument("--confirm-real", action="store_true", help="required for a real arm")
-    p.add_argument(
-        "--schemes",
-        default=",".join(SCHEMES),
-        help="comma-separated: filtered_dynamic,supplied_energy,filtered_power",
+    add_drive_options(p)
+    add_schemes_option(
+        p, SCHEMES, "comma-separated: filtered_dynamic,supplied_energy,filtered_power"
     )
     p.add_argument(
         "--discretization",
@@ -109,20 +111,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="filtered_dynamic",
         help="scheme selected in params.json (hil control/diagnose read that one by default)",
     )
-    p.add_argument("--out", default="runs/identify", help="output directory")
-    add_out_options(p)
-    add_recording_options(p)
-    p.add_argument("--no-plot", action="store_true", help="skip the plots")
     p.add_argument(
         "--consistent",
         action="store_true",
         help="URDF arms (docs/urdf.md): constrain the fit to physically consistent parameters",
     )
-    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+    add_out_options(p, "output directory", default="runs/identify")
+    add_recording_options(p)
+    add_report_options(p)
 
 
-def _say(msg: str) -> None:
-    print(f"hil identify: {msg}", file=sys.stderr)
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    """`hil identify`'s options from ``argv``, for callers that run it as a function
+    (:func:`run_identify`)."""
+    parser = argparse.ArgumentParser(prog="hil identify")
+    add_arguments(parser)
+    return parser.parse_args(argv)
 
 
 def _record(
@@ -142,17 +146,13 @@ def _record(
             online.push(last["q"], sample.tau_Nm)
         last["q"] = sample.q_rad
 
-    _say(f"running {experiment} over {bench} -> {out}")
+    say("identify", f"running {experiment} over {bench} -> {out}")
     run = run_experiment(
         bench,
         experiment,
         out,
         duration_s=args.duration,
-        mode=args.mode,
-        effects=args.effects,
-        seed=args.seed,
-        confirm_real=args.confirm_real,
-        plot=not args.no_plot,
+        **drive_kwargs(args),
         progress=not args.json,
         observer=observer,
     )
@@ -190,13 +190,13 @@ def _scheme_json(res: SchemeResult, reference: np.ndarray, validation: dict) -> 
 def main(args: argparse.Namespace) -> int:
     prepare_out_dir(args.out, args.overwrite, inputs=(args.from_recording, args.validate))
     report, text = run_identify(args)
-    print(json.dumps(report) if args.json else text)
+    print_document(args, report, text)
     return 0
 
 
 def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     """Everything `hil identify` does; returns the JSON report and the text to print."""
-    schemes = [s.strip() for s in args.schemes.split(",") if s.strip()]
+    schemes = split_list(args.schemes)
     unknown = [s for s in schemes if s not in SCHEMES]
     if unknown or not schemes:
         raise ValueError(
@@ -270,13 +270,16 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     texts = []
     all_results: dict[str, dict[str, SchemeResult]] = {}
     for disc in discretizations:
-        _say(f"identifying ({disc}, λ = {args.lam:g} rad/s, {', '.join(schemes)})")
+        say("identify", f"identifying ({disc}, λ = {args.lam:g} rad/s, {', '.join(schemes)})")
         t0 = time.perf_counter()
         times = irregular_times(fit)
         if times is not None and disc == "exact":
-            _say("irregular sample intervals: exact rows use each interval's own length")
+            say("identify", "irregular sample intervals: exact rows use each interval's own length")
         elif times is not None:
-            _say("irregular sample intervals: the paper discretization assumes k·h (its method)")
+            say(
+                "identify",
+                "irregular sample intervals: the paper discretization assumes k·h (its method)",
+            )
         results = identify(
             fit.q, fit.tau, h, schemes=schemes, discretization=disc, lam=args.lam,
             estimator=args.estimator, t=times,
@@ -427,7 +430,7 @@ def _robot_terms(args: argparse.Namespace) -> tuple[str, tuple[str, ...]]:
     robot = args.robot or "cicese"
     terms = load_robot(robot).terms
     if args.terms is not None:
-        terms = tuple(t.strip() for t in args.terms.split(",") if t.strip())
+        terms = tuple(split_list(args.terms))
         ArmModel(terms)  # raises on an unknown or repeated term
     return robot, terms
 
@@ -458,7 +461,10 @@ def run_identify_model(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         if args.validate
         else None
     )
-    _say(f"identifying {robot} model (terms: {', '.join(terms) or 'none'}) from {fit.path}")
+    say(
+        "identify",
+        f"identifying {robot} model (terms: {', '.join(terms) or 'none'}) from {fit.path}",
+    )
     res = identify_model(fit.t, fit.q, fit.tau, model, lam=args.lam)
     # the profile's θ in the identified model's columns (terms it lacks are zero there; terms
     # the model lacks are dropped, which the report says)
@@ -652,9 +658,10 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             f"{fit.path}: {fit.n_joints} joints (q1..q{fit.n_joints}), robot {args.robot} has "
             f"{model.n_joints}"
         )
-    _say(
+    say(
+        "identify",
         f"identifying {args.robot} ({model.n_joints} joints, {model.n_params} base parameters) "
-        f"from {fit.path}"
+        f"from {fit.path}",
     )
     held_out = 0.0 if args.validate else 0.25
     # this bench's own recordings (meta.json) hold each commanded torque over its period

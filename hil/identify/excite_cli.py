@@ -12,10 +12,7 @@ same criteria for the paper's excitation, eqs. (31)-(32), realized the same way.
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -24,6 +21,14 @@ from typing import Any
 import numpy as np
 
 from drivers.recording import Recording, read_signals
+from hil.cli_options import (
+    add_bench_option,
+    add_report_options,
+    error,
+    print_document,
+    say,
+    simulate_offline,
+)
 from hil.identify.excitation import (
     CRITERIA,
     DesignResult,
@@ -74,7 +79,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "friction causes in least squares, per regression form (default 0.02 = 2 %%; 0 "
         "ignores it)",
     )
-    p.add_argument("--bench", default="virtual-slcan", help="bench whose limits apply")
+    add_bench_option(p, help="bench whose limits apply")
     p.add_argument(
         "--params",
         default=None,
@@ -90,13 +95,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="runs/excite/excitation.toml", help="profile to write")
     p.add_argument("--name", default=None, help="profile name (default: the file's stem)")
     p.add_argument("--plot", default=None, help="plot to write (default: --out with .png)")
-    p.add_argument("--no-plot", action="store_true", help="skip the plot")
     p.add_argument(
         "--no-simulate",
         action="store_true",
         help="skip the world check (virtual-robot simulate of the design and of eqs. 31-32)",
     )
-    p.add_argument("--json", action="store_true", help="print one JSON summary on stdout")
+    add_report_options(p, plot="skip the plot", json_help="print one JSON summary on stdout")
 
 
 def _position_limit(text: str) -> tuple[float, float]:
@@ -139,28 +143,8 @@ def _check_args(args: argparse.Namespace) -> None:
 
 
 def _simulate(robot: str, profile: str, duration_s: float, out_dir: Path) -> Recording:
-    """The world's open-loop response: ``virtual-robot simulate`` as its own process (DESIGN.md:
-    the host never imports the plant)."""
-    cmd = [
-        sys.executable,
-        "-m",
-        "virtual_robot.cli",
-        "simulate",
-        "--robot",
-        robot,
-        "--experiment",
-        profile,
-        "--duration",
-        repr(duration_s),
-        "--out",
-        str(out_dir),
-        "--no-plot",
-        "--json",
-    ]
-    proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
-    if proc.returncode != 0:
-        lines = proc.stderr.strip().splitlines()
-        raise RuntimeError(f"virtual-robot simulate failed: {lines[-1] if lines else 'no message'}")
+    """The world's open-loop response (``virtual-robot simulate`` as its own process)."""
+    simulate_offline(robot, profile, duration_s, out_dir, plot=False)
     return read_signals(out_dir)
 
 
@@ -267,10 +251,10 @@ def main(args: argparse.Namespace) -> int:
     h = bench.period_s
     out = Path(args.out)
     name = args.name or out.stem
-    print(
-        f"hil excite: {args.criterion}-optimal design, L = {args.harmonics}, "
+    say(
+        "excite",
+        f"{args.criterion}-optimal design, L = {args.harmonics}, "
         f"f = {args.fundamental_hz:g} Hz, {args.starts} starts, seed {args.seed} ...",
-        file=sys.stderr,
     )
     design = design_excitation(
         theta,
@@ -287,7 +271,7 @@ def main(args: argparse.Namespace) -> int:
     )
     bias = design_bias(design.trajectory, theta, asymmetry, args.duration)  # reported anyway
     worst_bias = {form: float(np.abs(b).max()) for form, b in bias.items()}
-    print(f"hil excite: designed in {design.elapsed_s:.1f} s", file=sys.stderr)
+    say("excite", f"designed in {design.elapsed_s:.1f} s")
     advance = h / 2  # zero-order hold: τ(t_k) acts over [t_k, t_k + h), centred on t_k + h/2
     series = fit_torque_series(
         design.trajectory, theta, args.torque_harmonics, time_advance_s=advance
@@ -355,7 +339,7 @@ def main(args: argparse.Namespace) -> int:
     realized: dict[str, Any] | None = None
     rec: Recording | None = None
     if not args.no_simulate:
-        print("hil excite: world check (virtual-robot simulate) ...", file=sys.stderr)
+        say("excite", "world check (virtual-robot simulate) ...")
         started = time.perf_counter()
         try:
             with tempfile.TemporaryDirectory(prefix="hil-excite-") as tmpdir:
@@ -363,7 +347,7 @@ def main(args: argparse.Namespace) -> int:
                 rec_paper = _simulate(bench.robot, PAPER_EXPERIMENT, 10.0, tmp_dir / "paper")
                 rec = _simulate(bench.robot, str(out.resolve()), args.duration, tmp_dir / "design")
         except RuntimeError as exc:
-            print(f"hil excite: error: {exc} (the profile {out} is written)", file=sys.stderr)
+            error("excite", f"{exc} (the profile {out} is written)")
             return 1
         paper = _realized(rec_paper, theta)
         realized = _realized(rec, theta)
@@ -416,17 +400,17 @@ def main(args: argparse.Namespace) -> int:
         "torque_fit": fit,
         "per_start": design.per_start,
     }
-    if args.json:
-        print(json.dumps(summary))
-    else:
+
+    def text() -> str:
+        lines: list[str] = []
         rows = [("paper eqs. (31)-(32), realized", paper), ("initial guess", design.initial)]
         rows += [("designed (nominal)", design.designed), ("designed, realized (world)", realized)]
-        print(f"{'excitation':34s} {'cond':>10s} {'-log det':>10s}")
+        lines.append(f"{'excitation':34s} {'cond':>10s} {'-log det':>10s}")
         for label, c in rows:
             if c is not None:
-                print(f"{label:34s} {c['cond']:10.4g} {c['dopt']:10.4g}")
+                lines.append(f"{label:34s} {c['cond']:10.4g} {c['dopt']:10.4g}")
         if realized is not None:
-            print(
+            lines.append(
                 f"realized range |q| = {_fmt(realized['max_abs_q_rad'][0])}, "
                 f"{_fmt(realized['max_abs_q_rad'][1])} rad; |q̇| = "
                 f"{_fmt(realized['max_abs_dq_rad_s'][0])}, "
@@ -434,20 +418,23 @@ def main(args: argparse.Namespace) -> int:
                 f"design {_fmt(realized['max_abs_deviation_rad'][0])}, "
                 f"{_fmt(realized['max_abs_deviation_rad'][1])} rad"
             )
-        print(
+        lines.append(
             f"torque series: {args.torque_harmonics} harmonics, fit error rms "
             f"{_fmt(fit['rms_Nm'][0])}, {_fmt(fit['rms_Nm'][1])} Nm "
             f"({100 * fit['relative_rms'][0]:.2g} %, {100 * fit['relative_rms'][1]:.2g} % of rms "
             f"torque), max {_fmt(fit['max_Nm'][0])}, {_fmt(fit['max_Nm'][1])} Nm"
         )
-        print(
+        lines.append(
             f"predicted θ bias from the Coulomb asymmetry {_pair(asymmetry)} Nm: max |bias| "
             + _percent(worst_bias)
             + f" ({_bound(args.max_bias)})"
         )
-        print(f"design time {design.elapsed_s:.1f} s ({design.starts} starts)")
-        print(f"profile: {out}" + (f"\nplot:    {plot_path}" if plot_path else ""))
+        lines.append(f"design time {design.elapsed_s:.1f} s ({design.starts} starts)")
+        lines.append(f"profile: {out}" + (f"\nplot:    {plot_path}" if plot_path else ""))
+        return "\n".join(lines)
+
+    print_document(args, summary, text)
     if realized is not None and not realized["in_bench_range"]:
-        print("hil excite: warning: the realized motion leaves the bench's range", file=sys.stderr)
+        say("excite", "warning: the realized motion leaves the bench's range")
         return 1
     return 0

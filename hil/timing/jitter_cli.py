@@ -25,7 +25,6 @@ import importlib.util
 import json
 import os
 import platform
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -37,7 +36,16 @@ from hil.bench.run import UsageError, bench_meta, check_bench, record_over_bench
 from hil.bench.scheduler import POLICIES
 from hil.bench.timing_stats import cycle_timing, jitter_summary
 from hil.bench.variant import write_bench_variant
-from hil.cli_options import add_out_options, prepare_out_dir
+from hil.cli_options import (
+    add_bench_option,
+    add_drive_options,
+    add_out_options,
+    add_report_options,
+    drive_kwargs,
+    prepare_out_dir,
+    print_document,
+    run_exit,
+)
 from profiles.bench import MAX_FEEDBACK_BUDGET_S
 from profiles.experiment import check_duration, load_experiment
 
@@ -47,7 +55,7 @@ SWEEP_MODULE = "hil.timing.sweep"  # PART B: `--sweep` studies (add_sweep_argume
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--bench", default="virtual-slcan", help="bench profile name or TOML file")
+    add_bench_option(p)
     p.add_argument(
         "--rate", type=float, default=None, help="loop rate in Hz (default: the bench's 1/period_s)"
     )
@@ -57,15 +65,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=DEFAULT_DURATION_S,
         help=f"seconds of loop (default {DEFAULT_DURATION_S:g})",
     )
-    p.add_argument("--out", default=None, help="run directory (default runs/jitter-BENCH-RATEhz)")
-    add_out_options(p)
+    add_out_options(p, "run directory (default runs/jitter-BENCH-RATEhz)")
     p.add_argument(
         "--experiment",
         default=None,
         help="torques from this experiment profile (default: hold zero torque)",
     )
-    p.add_argument("--effects", default=None, help="virtual bench: concealed effects profile")
-    p.add_argument("--seed", type=int, default=None, help="virtual bench: seed (recorded)")
+    add_drive_options(p, mode=False)  # realtime by nature
     p.add_argument(
         "--realtime-policy",
         choices=POLICIES,
@@ -94,9 +100,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--bitrate", type=int, default=None, help="CAN bitrate in bit/s (default: the bench's)"
     )
-    p.add_argument("--confirm-real", action="store_true", help="required for a real arm")
-    p.add_argument("--no-plot", action="store_true", help="skip the PNG plots")
-    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+    add_report_options(p, plot="skip the PNG plots")
     if importlib.util.find_spec(SWEEP_MODULE) is not None:  # PART B's studies, once they exist
         importlib.import_module(SWEEP_MODULE).add_sweep_arguments(p)
 
@@ -118,27 +122,19 @@ def main(args: argparse.Namespace) -> int:
         args.duration,
         out,
         experiment=args.experiment,
-        effects=args.effects,
-        seed=args.seed,
         realtime_policy=args.realtime_policy,
         feedback_timeout_periods=args.feedback_timeout_periods,
         feedback_budget_s=args.feedback_budget,
         bench_overrides=overrides,
-        confirm_real=args.confirm_real,
-        plot=not args.no_plot,
+        **drive_kwargs(args),
     )
-    if args.json:
-        print(json.dumps(summary))
-    else:
-        print(format_table(summary))
-    if summary["status"] == "complete":
-        return 0
-    print(
-        f"hil jitter: run {summary['status']}: {summary['reason']} "
+    print_document(args, summary, lambda: format_table(summary))
+    return run_exit(
+        "jitter",
+        summary["status"],
+        f"run {summary['status']}: {summary['reason']} "
         f"(figures of the {summary['rows']} rows recorded are above)",
-        file=sys.stderr,
     )
-    return 130 if summary["status"] == "interrupted" else 1
 
 
 def _default_out(bench: str, rate: float | None) -> str:

@@ -4,20 +4,22 @@
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 
-from hil.cli_options import add_out_options, prepare_out_dir
+from hil.cli_options import (
+    add_bench_option,
+    add_out_options,
+    add_report_options,
+    prepare_out_dir,
+    print_document,
+    say,
+)
 from hil.timing.replay import COMPUTE_S, format_replay, replay_run
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("run_dir", help="a realtime run directory (hil run / hil control)")
-    p.add_argument(
-        "--bench", default=None, help="virtual bench to replay on (default: the recorded one)"
-    )
-    p.add_argument("--out", default=None, help="output directory (default: RUN_DIR-replay)")
-    add_out_options(p)
+    add_bench_option(p, default=None, help="virtual bench to replay on (default: the recorded one)")
+    add_out_options(p, "output directory (default: RUN_DIR-replay)")
     p.add_argument(
         "--trace-source",
         choices=("auto", "robot", "host"),
@@ -34,8 +36,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         + ", ".join(f"{k} {v * 1e3:g} ms" for k, v in COMPUTE_S.items())
         + ")",
     )
-    p.add_argument("--no-plot", action="store_true", help="skip replay.png")
-    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+    add_report_options(p, plot="skip replay.png")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -43,7 +44,7 @@ def main(args: argparse.Namespace) -> int:
         raise ValueError(f"--compute must be >= 0 s, got {args.compute}")
     out = args.out or f"{str(args.run_dir).rstrip('/')}-replay"
     prepare_out_dir(out, args.overwrite, inputs=(args.run_dir,))
-    print(f"hil replay: {args.run_dir} in lockstep with its timing -> {out}", file=sys.stderr)
+    say("replay", f"{args.run_dir} in lockstep with its timing -> {out}")
     doc = replay_run(
         args.run_dir,
         out,
@@ -52,5 +53,5 @@ def main(args: argparse.Namespace) -> int:
         compute_s=args.compute,
         plot=not args.no_plot,
     )
-    print(json.dumps(doc) if args.json else format_replay(doc))
+    print_document(args, doc, lambda: format_replay(doc))
     return 0

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import math
 import re
 import sys
@@ -42,8 +41,8 @@ import numpy as np
 
 from drivers.recording import write_json_atomic
 from hil.bench.executors import add_executor_arguments, executor_from_args
-from hil.bench.jobs import Executor, ExecutorUnavailableError, Outcome
-from hil.cli_options import prepare_out_dir
+from hil.bench.jobs import Executor, Outcome
+from hil.cli_options import EXIT_FAILED, EXIT_OK, prepare_out_dir, print_document, say
 
 VARIABLES = {
     "latency": "s",
@@ -292,10 +291,8 @@ def _identify(spec: PointSpec, effects: str | None, out: Path) -> dict[str, Any]
     )
     if run["status"] != "complete":
         raise RuntimeError(f"excitation run {run['status']}: {run['reason']}")
-    parser = argparse.ArgumentParser()
-    identify_cli.add_arguments(parser)
     argv = ["--from", str(fit), "--out", str(out), "--no-plot", "--json"]
-    report, _ = identify_cli.run_identify(parser.parse_args(argv))
+    report, _ = identify_cli.run_identify(identify_cli.parse_args(argv))
     schemes = report["discretizations"]["exact"]["schemes"]
     return {
         s: {
@@ -448,17 +445,17 @@ def sweep(
     prepare_out_dir(out, getattr(args, "overwrite", False))
     out.mkdir(parents=True, exist_ok=True)
     if progress:
-        print(
-            f"hil jitter: sweep {variable} over {len(levels)} levels x {len(seeds)} seed(s): "
+        say(
+            "jitter",
+            f"sweep {variable} over {len(levels)} levels x {len(seeds)} seed(s): "
             f"{len(points)} points on {executor.describe()} -> {out}",
-            file=sys.stderr,
         )
         where = executor.describe()
         if not out.is_absolute() and where.get("scheduler", "LocalCluster") != "LocalCluster":
-            print(
-                f"hil jitter: --out {out} is relative: each Dask worker writes its points "
+            say(
+                "jitter",
+                f"--out {out} is relative: each Dask worker writes its points "
                 "under its own working directory (docs/scaling.md)",
-                file=sys.stderr,
             )
     started = time.perf_counter()
     outcomes: list[Outcome[PointSpec, dict[str, Any]] | None] = [None] * len(points)
@@ -541,16 +538,16 @@ def _print_progress(
     if outcome.ok:
         r = outcome.result or {}
         again = f", attempt {outcome.attempts}" if outcome.attempts > 1 else ""
-        print(
-            f"hil jitter: point {k}/{n} ({what}, seed {spec.seed}) in "
+        say(
+            "jitter",
+            f"point {k}/{n} ({what}, seed {spec.seed}) in "
             f"{r.get('wall_time_s', float('nan')):.1f} s{again}",
-            file=sys.stderr,
         )
         return
-    print(
-        f"hil jitter: point {k}/{n} ({what}, seed {spec.seed}) LOST after "
+    say(
+        "jitter",
+        f"point {k}/{n} ({what}, seed {spec.seed}) LOST after "
         f"{outcome.attempts} attempt(s): {outcome.error} [{spec.out_dir}]",
-        file=sys.stderr,
     )
     if outcome.detail and not outcome.error.startswith("KilledWorker"):  # type: ignore[union-attr]
         print(outcome.detail.rstrip(), file=sys.stderr)
@@ -616,12 +613,8 @@ def format_sweep(doc: dict[str, Any]) -> str:
 
 
 def run_sweep(args: argparse.Namespace) -> int:
-    """`hil jitter --sweep`: exit status 0 when every point completed."""
-    try:
-        executor = executor_from_args(args)
-        doc = sweep(args, executor, progress=True)
-    except ExecutorUnavailableError as exc:  # the extra is missing, or no scheduler answered
-        print(f"hil jitter: error: {exc}", file=sys.stderr)
-        return 2
-    print(json.dumps(doc) if getattr(args, "json", False) else format_sweep(doc))
-    return 0 if doc["status"] == "complete" else 1
+    """`hil jitter --sweep`: exit status 0 when every point completed. An executor that cannot
+    run here (:class:`hil.bench.jobs.ExecutorUnavailableError`) is a usage error (exit status 2)."""
+    doc = sweep(args, executor_from_args(args), progress=True)
+    print_document(args, doc, lambda: format_sweep(doc))
+    return EXIT_OK if doc["status"] == "complete" else EXIT_FAILED

@@ -1,0 +1,159 @@
+"""The plumbing every `hil` command shares (hil/cli_options.py): one wording per shared option,
+one error line, one exit status per kind of failure, --json as one document; and the one
+set-up of `hil control` (hil/control/tracking.py: prepare)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import can
+import numpy as np
+import pytest
+
+from drivers.arm import LinkError
+from drivers.recording import RecordingError
+from hil import cli_options as opts
+from hil.bench.jobs import ExecutorUnavailableError
+from hil.bench.launch import LaunchError
+from hil.bench.run import UsageError
+from hil.cli import COMMANDS, _parser
+from hil.control.tracking import PROFILE_LABEL, compare_schemes, prepare, run_control
+from hil.model.params import ParamsError
+from profiles import ProfileError
+
+DRIVE = ("--mode", "--effects", "--seed", "--confirm-real")  # commands that drive a bench
+
+
+def _subparsers() -> dict[str, argparse.ArgumentParser]:
+    parser = _parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return dict(sub.choices)
+
+
+def test_every_command_is_wired_and_a_shared_option_says_one_thing() -> None:
+    subs = _subparsers()
+    assert set(COMMANDS) | {"run", "demo"} == set(subs)
+    driving = [n for n, p in subs.items() if "--confirm-real" in p._option_string_actions]
+    assert sorted(driving) == ["control", "identify", "jitter", "run"]
+    assert "--mode" not in subs["jitter"]._option_string_actions  # realtime by nature
+    helps: dict[str, set[str | None]] = {}
+    for name, p in subs.items():
+        for flag, action in p._option_string_actions.items():
+            if flag in ("--json", "--overwrite") or (flag in DRIVE and name in driving):
+                helps.setdefault(flag, set()).add(action.help)
+    assert set(helps) == {*DRIVE, "--json", "--overwrite"}
+    assert {flag: len(texts) for flag, texts in helps.items() if len(texts) > 1} == {
+        "--json": 2  # a command's "summary" or "document"
+    }
+
+
+def test_drive_kwargs_are_what_run_experiment_takes() -> None:
+    args = _parser().parse_args(
+        ["run", "--out", "x", "--mode", "lockstep", "--effects", "payload", "--seed", "3",
+         "--confirm-real", "--no-plot"]
+    )  # fmt: skip
+    assert opts.drive_kwargs(args) == {
+        "mode": "lockstep",
+        "effects": "payload",
+        "seed": 3,
+        "confirm_real": True,
+        "plot": False,
+    }
+    jitter = _parser().parse_args(["jitter"])
+    assert opts.drive_kwargs(jitter) == {
+        "effects": None,
+        "seed": None,
+        "confirm_real": False,
+        "plot": True,
+    }
+
+
+@pytest.mark.parametrize(
+    ("exc", "status"),
+    [
+        (ProfileError("bench.toml", "period_s", "must be > 0"), opts.EXIT_USAGE),
+        (ParamsError("p"), opts.EXIT_USAGE),
+        (RecordingError("r"), opts.EXIT_USAGE),
+        (UsageError("u"), opts.EXIT_USAGE),
+        (FileNotFoundError("f"), opts.EXIT_USAGE),
+        (PermissionError("f"), opts.EXIT_USAGE),
+        (np.linalg.LinAlgError("singular"), opts.EXIT_USAGE),
+        (ExecutorUnavailableError("no dask"), opts.EXIT_USAGE),
+        (LinkError("l"), opts.EXIT_LINK),
+        (LaunchError("l"), opts.EXIT_LINK),
+        (ConnectionRefusedError("c"), opts.EXIT_LINK),
+        (can.CanError("c"), opts.EXIT_LINK),
+        (RuntimeError("r"), opts.EXIT_FAILED),
+        (OSError("o"), opts.EXIT_FAILED),
+    ],
+)
+def test_an_error_is_one_line_and_its_kind_is_the_exit_status(
+    exc: BaseException, status: int, capsys: pytest.CaptureFixture[str]
+) -> None:
+    def fails(_args: object) -> int:
+        raise exc
+
+    assert opts.run_command("diagnose", fails, None) == status
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err == f"hil diagnose: error: {exc}\n"
+
+
+def test_an_unexpected_error_is_not_swallowed() -> None:
+    def bug(_args: object) -> int:
+        raise KeyError("a bug shows its traceback")
+
+    with pytest.raises(KeyError):
+        opts.run_command("run", bug, None)
+
+
+def test_run_exit(capsys: pytest.CaptureFixture[str]) -> None:
+    assert opts.run_exit("run", "complete", "not said") == opts.EXIT_OK
+    assert capsys.readouterr().err == ""
+    assert opts.run_exit("run", "failed", "failed: why") == opts.EXIT_FAILED
+    assert opts.run_exit("jitter", "interrupted", "run interrupted") == opts.EXIT_INTERRUPTED
+    assert capsys.readouterr().err == "hil run: failed: why\nhil jitter: run interrupted\n"
+
+
+def test_print_document_is_one_json_line_or_the_text(capsys: pytest.CaptureFixture[str]) -> None:
+    doc = {"theta": np.float64(0.5), "rows": np.int64(3)}
+    opts.print_document(argparse.Namespace(json=True), doc, lambda: pytest.fail("no text"))
+    out = capsys.readouterr().out
+    assert out.count("\n") == 1 and json.loads(out) == {"theta": 0.5, "rows": 3.0}
+    opts.print_document(argparse.Namespace(json=False), doc, "the table")
+    assert capsys.readouterr().out == "the table\n"
+
+
+def test_split_list() -> None:
+    assert opts.split_list(" ct, pd,,rfed ") == ["ct", "pd", "rfed"]
+    assert opts.split_list("") == []
+
+
+def test_simulate_offline_failure_is_one_line(tmp_path) -> None:
+    with pytest.raises(RuntimeError, match=r"^virtual-robot simulate failed: .*no-such"):
+        opts.simulate_offline("cicese", "no-such", 1.0, tmp_path / "sim", plot=False)
+    assert not (tmp_path / "sim" / "signals.csv").exists()
+
+
+# ---- hil control's one set-up -----------------------------------------------------------------
+def test_prepare_checks_schemes_first_then_loads_the_parameter_sets(tmp_path) -> None:
+    with pytest.raises(UsageError, match=r"unknown scheme\(s\) \['lqr'\]"):
+        prepare("no-such-bench", schemes=("ct", "lqr"))  # before the bench is looked up
+    with pytest.raises(UsageError, match="unknown scheme"):
+        prepare("virtual-inprocess", schemes=())
+    setup = prepare("virtual-inprocess", schemes=("pd", "ct"), duration_s=0.5, seed=4)
+    assert setup.schemes == ("pd", "ct")
+    assert [p.label for p in setup.parameter_sets] == [PROFILE_LABEL]
+    assert setup.describe()["seed"] == 4 and setup.n_periods == round(0.5 / setup.period_s)
+    with pytest.raises(UsageError, match="no parameter set"):
+        prepare("virtual-inprocess", include_profile=False)
+
+
+def test_run_control_and_compare_schemes_refuse_before_running(tmp_path) -> None:
+    with pytest.raises(UsageError, match="unknown scheme 'lqr'; expected one of"):
+        run_control("virtual-inprocess", "lqr", tmp_path / "one")
+    with pytest.raises(UsageError, match=r"unknown scheme\(s\) \['lqr'\]"):
+        compare_schemes("virtual-inprocess", tmp_path / "cmp", schemes=["ct", "lqr"])
+    with pytest.raises(UsageError, match="--kp takes two finite gains"):
+        compare_schemes("virtual-inprocess", tmp_path / "cmp", kp=[1.0])
+    assert not (tmp_path / "one").exists() and not (tmp_path / "cmp").exists()
