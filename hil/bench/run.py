@@ -12,7 +12,6 @@ from typing import Any
 from drivers.arm import Arm, Sample
 from drivers.fault_injection import TimingFaultArm, with_host_faults
 from drivers.links import open_arm
-from drivers.process import process_stamp
 from drivers.recording import RecordingWriter, plot_positions, read_signals
 from hil import __version__
 from hil.bench.launch import VirtualRobotProcess
@@ -145,7 +144,7 @@ def record_over_bench(
             policy as scheduling,
             RecordingWriter(
                 out,
-                {**meta(channel), **process_stamp()},  # run_status(): a dead writer shows
+                meta(channel),
                 extra_columns=extra_columns(2, realtime),
                 flush_every=1 if realtime else 50,
             ) as writer,
