@@ -51,7 +51,9 @@ def test_advice_names_the_numbers_and_the_ways_out() -> None:
     assert text.startswith("no feedback from node 1 within 100 ms")
     assert "42 late feedbacks" in text and "37 ms" in text and "load average" in text
     assert "kernel worker" in text  # the pty's part in it
-    for way_out in ("--rate (now 400 Hz)", "--mode lockstep", "nice 19", "realtime priority"):
+    ways_out = ("--rate (now 400 Hz)", "--mode lockstep", "nice 19", "realtime priority",
+                "virtual-socketcand")  # fmt: skip
+    for way_out in ways_out:
         assert way_out in text, way_out
     granted = SimpleNamespace(realtime_refused=None)
     assert "realtime priority" not in _with_stall_advice(
@@ -59,6 +61,10 @@ def test_advice_names_the_numbers_and_the_ways_out() -> None:
     )
     gone = "the virtual robot process on /dev/pts/3 is gone"
     assert _with_stall_advice(gone, bench, _arm(), granted) == gone
+    socket = load_bench("virtual-socketcand")  # no pty: no kernel worker, no transport advice
+    text = _with_stall_advice("no feedback from node 1 within 100 ms", socket, _arm(1), granted)
+    assert "kernel worker" not in text and "virtual-socketcand" not in text
+    assert "--mode lockstep" in text
 
 
 def test_robot_stopped_past_the_budget_fails_with_advice(tmp_path: Path) -> None:

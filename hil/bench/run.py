@@ -205,10 +205,11 @@ def _with_stall_advice(reason: str | None, bench: BenchProfile, arm: Arm, schedu
         f"{arm.stats.max_feedback_wait_s * 1e3:.0f} ms; load average {load:.1f} on "
         f"{os.cpu_count()} CPUs"
     )
+    pty = bench.virtual and bench.transport in PTY_TRANSPORTS
     why = (
         "a pty's data crosses a kernel worker at normal priority, which SCHED_FIFO does not "
         "cover and CPU-bound jobs delay (docs/jitter.md, under load)"
-        if bench.virtual and bench.transport in PTY_TRANSPORTS
+        if pty
         else "the host or the link stalled"
     )
     todo = [
@@ -216,6 +217,8 @@ def _with_stall_advice(reason: str | None, bench: BenchProfile, arm: Arm, schedu
         "--mode lockstep",
         "fewer CPU-bound jobs beside it, or those at nice 19",
     ]
+    if pty:  # a socket wakes its reader directly (docs/jitter.md: pty vs socket round trips)
+        todo.append("a socket transport (--bench virtual-socketcand)")
     if getattr(scheduling, "realtime_refused", None):
         todo.append("realtime priority (docs/jitter.md, Privileges)")
     todo.append("a longer feedback_budget_s and drive watchdog_s (docs/faults.md)")
