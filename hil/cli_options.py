@@ -17,13 +17,20 @@ from __future__ import annotations
 import argparse
 import shutil
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from drivers.recording import Recording, RecordingError, parse_column_map, read_signals
+from drivers.recording import (
+    SIGNALS,
+    Recording,
+    RecordingError,
+    parse_column_map,
+    read_signals,
+)
 from profiles.recording_format import LOOP_DELAY_MAX
 
 TORQUE_SOURCES_HELP = "commanded (default), measured, or another source the --format offers"
@@ -82,6 +89,9 @@ def recording_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
+LARGE_RECORDING_BYTES = 50_000_000  # from here on, reading says what it does (~10 s per 100 MB)
+
+
 def read_recording(
     args: argparse.Namespace,
     path: str | Path,
@@ -96,9 +106,21 @@ def read_recording(
     (gaps, irregular sampling, dropped duplicates, the loop delay) on stderr. Refuse a
     recording with gaps unless ``allow_gaps`` (the command analyses ``rec.segments()``
     separately), and one where the arm never moves if ``need_motion``."""
+    csv_path = Path(path) / SIGNALS if Path(path).is_dir() else Path(path)
+    size = csv_path.stat().st_size if csv_path.is_file() else 0
+    large = size >= LARGE_RECORDING_BYTES  # say what takes the time (seconds per 100 MB)
+    if large:
+        print(f"hil {command}: reading {csv_path} ({size / 1e6:.0f} MB) ...", file=sys.stderr)
+        started = time.perf_counter()
     rec = read_signals(
         path, **recording_kwargs(args), extra_columns=extra_columns, min_rows=min_rows
     )
+    if large:
+        print(
+            f"hil {command}: read {len(rec)} rows of {csv_path.name} in "
+            f"{time.perf_counter() - started:.0f} s",
+            file=sys.stderr,
+        )
     for note in rec.findings_on_read:
         print(f"hil {command}: note: {rec.path}: {note}", file=sys.stderr)
     if not allow_gaps and len(rec.segments()) > 1:

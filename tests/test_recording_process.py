@@ -56,3 +56,25 @@ def test_killed_simulate_reads_as_died(tmp_path: Path) -> None:
     meta = _meta(out)
     assert meta["status"] == "running"  # what the file says: nobody closed it
     assert run_status(meta) == "died"
+
+
+def test_large_recording_says_what_reading_does(tmp_path: Path, monkeypatch, capsys) -> None:
+    """A large recording (here: any, with the threshold at 1 byte) says it is being read, how
+    big it is, and how many rows it took how long."""
+    import argparse
+    import math
+
+    import hil.cli_options as options
+
+    with RecordingWriter(tmp_path, {"period_s": 0.01}) as rec:
+        for k in range(50):
+            rec.write([k * 0.01, math.sin(k / 5), math.cos(k / 7), 0.1, -0.2])
+    monkeypatch.setattr(options, "LARGE_RECORDING_BYTES", 1)
+    got = options.read_recording(argparse.Namespace(), tmp_path, command="identify")
+    err = capsys.readouterr().err
+    assert len(got) == 50
+    assert f"hil identify: reading {tmp_path / 'signals.csv'} (0 MB) ..." in err
+    assert "hil identify: read 50 rows of signals.csv in " in err
+    monkeypatch.setattr(options, "LARGE_RECORDING_BYTES", 50_000_000)
+    options.read_recording(argparse.Namespace(), tmp_path, command="identify")
+    assert "reading" not in capsys.readouterr().err  # small files stay quiet
