@@ -93,7 +93,7 @@ def test_robot_stopped_past_the_budget_fails_with_advice(tmp_path: Path) -> None
         os.kill(pid, signal.SIGSTOP)
         time.sleep(0.6)
         os.kill(pid, signal.SIGCONT)
-        _, err = proc.communicate(timeout=60)
+        out, err = proc.communicate(timeout=60)
     finally:
         proc.kill()
     meta = json.loads(meta_path.read_text())
@@ -101,3 +101,8 @@ def test_robot_stopped_past_the_budget_fails_with_advice(tmp_path: Path) -> None
     assert meta["status"] == "failed"
     assert "late, not gone" in meta["reason"] and "--mode lockstep" in meta["reason"], meta
     assert "late, not gone" in err
+    # the jitter report says how close the run came to its budget (text and meta.json)
+    timing = meta["jitter"]["timing"]
+    assert timing["feedback_budget_s"] == 0.1 and timing["late_feedback"] >= 0
+    assert 0 < timing["max_feedback_wait_s"] < 0.1  # the waits it survived
+    assert "of the 100 ms feedback budget" in out

@@ -392,6 +392,12 @@ def format_table(s: dict[str, Any]) -> str:
         f"late releases (> {t['late_release_threshold_us']:.0f} µs): {t['late_releases']}; "
         f"lost feedback: {t['lost_feedback']}; link errors: {s['link']['errors']}",
     ]
+    if "late_feedback" in t:  # how close the run came to its feedback budget
+        lines.append(
+            f"late feedback (> one period): {t['late_feedback']}; longest wait "
+            f"{t['max_feedback_wait_s'] * 1e3:.1f} ms of the {t['feedback_budget_s'] * 1e3:g} ms "
+            "feedback budget"
+        )
     if sched.get("waits"):
         over = sched.get("sleep_overshoot_us", {})
         lines.append(
