@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.process import process_stamp
 from profiles.recording_format import LOOP_DELAY_MAX, load_format
 
 BASE_COLUMNS = ("t", "q1", "q2", "tau1", "tau2")
@@ -69,7 +70,10 @@ class RecordingWriter:
     """Incremental writer of a run directory. Use as a context manager; rows go out as they come.
 
     ``meta`` is written at once with ``"status": "running"`` and rewritten on close with the
-    final status, so an interrupted run is recognisable as such.
+    final status, so an interrupted run is recognisable as such. It also gets the writing
+    process's stamp (:func:`drivers.process.process_stamp`), so that a run whose writer was
+    killed (meta.json still ``running``) reads as ``died`` (:func:`drivers.process.run_status`),
+    whichever command wrote it.
     """
 
     def __init__(
@@ -85,6 +89,7 @@ class RecordingWriter:
         self.columns = (*base_columns(n_joints), *extra_columns)
         self.meta = {
             **meta,
+            **process_stamp(),
             "status": "running",
             "columns": list(self.columns),
             "started_unix": time.time(),

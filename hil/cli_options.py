@@ -35,13 +35,20 @@ import json
 import shutil
 import subprocess
 import sys
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from drivers.recording import Recording, RecordingError, parse_column_map, read_signals
+from drivers.recording import (
+    SIGNALS,
+    Recording,
+    RecordingError,
+    parse_column_map,
+    read_signals,
+)
 from profiles.recording_format import LOOP_DELAY_MAX
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_LINK, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
@@ -276,6 +283,9 @@ def recording_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
+LARGE_RECORDING_BYTES = 50_000_000  # from here on, reading says what it does (~10 s per 100 MB)
+
+
 def read_recording(
     args: argparse.Namespace,
     path: str | Path,
@@ -292,9 +302,20 @@ def read_recording(
     recording with gaps unless ``allow_gaps`` (the command analyses ``rec.segments()``
     separately), one where the arm never moves if ``need_motion``, and one with another number
     of joints than ``joints`` (when given)."""
+    csv_path = Path(path) / SIGNALS if Path(path).is_dir() else Path(path)
+    size = csv_path.stat().st_size if csv_path.is_file() else 0
+    large = size >= LARGE_RECORDING_BYTES  # say what takes the time (seconds per 100 MB)
+    if large:
+        say(command, f"reading {csv_path} ({size / 1e6:.0f} MB) ...")
+        started = time.perf_counter()
     rec = read_signals(
         path, **recording_kwargs(args), extra_columns=extra_columns, min_rows=min_rows
     )
+    if large:
+        say(
+            command,
+            f"read {len(rec)} rows of {csv_path.name} in {time.perf_counter() - started:.0f} s",
+        )
     for note in rec.findings_on_read:
         say(command, f"note: {rec.path}: {note}")
     if joints is not None and rec.n_joints != joints:

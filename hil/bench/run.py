@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -12,7 +13,7 @@ from typing import Any
 from drivers.arm import Arm, Sample
 from drivers.fault_injection import TimingFaultArm, with_host_faults
 from drivers.links import open_arm
-from drivers.process import process_stamp
+from drivers.protocol.cia402 import ERR_RPDO_TIMEOUT
 from drivers.recording import RecordingWriter, plot_positions, read_signals
 from hil import __version__
 from hil.bench.launch import VirtualRobotProcess
@@ -145,7 +146,7 @@ def record_over_bench(
             policy as scheduling,
             RecordingWriter(
                 out,
-                {**meta(channel), **process_stamp()},  # run_status(): a dead writer shows
+                meta(channel),
                 extra_columns=extra_columns(2, realtime),
                 flush_every=1 if realtime else 50,
             ) as writer,
@@ -165,6 +166,8 @@ def record_over_bench(
             factor = n_periods * h / result.wall_time_s if result.wall_time_s else None
             if bench.virtual and result.status == "failed" and not robot.alive():
                 reason = f"virtual robot (pid {robot.pid}) is gone; {reason}"
+            elif realtime and result.status == "failed":
+                reason = _with_stall_advice(reason, bench, arm, scheduling)
             writer.close(
                 result.status,
                 reason=reason,
@@ -176,6 +179,50 @@ def record_over_bench(
                 **timing_fault_meta(arm, bench, effects, seed),
             )
     return BenchRun(result, reason, factor, arm.traffic_log())
+
+
+# the pty transports: every write crosses a kernel worker (tty flip buffer) at normal priority
+PTY_TRANSPORTS = ("slcan", "serial")
+
+
+def stalled(reason: str | None, arm: Arm) -> bool:
+    """Did a realtime run end because the link was *late* (feedback budget, drive watchdog),
+    not because something is gone or refused?"""
+    if not reason:
+        return False
+    watchdog = f"0x{ERR_RPDO_TIMEOUT:04X}" in reason  # the drives' command watchdog (EMCY)
+    return watchdog or (arm.stats.timeouts > 0 and "gone" not in reason.split(":")[0])
+
+
+def _with_stall_advice(reason: str | None, bench: BenchProfile, arm: Arm, scheduling: Any) -> str:
+    """``reason`` and, for a run the link's lateness ended, what was seen and what to do."""
+    text = reason or "failed"
+    if not stalled(reason, arm):
+        return text
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    seen = (
+        f"{arm.stats.late_feedback} late feedbacks before it, the longest "
+        f"{arm.stats.max_feedback_wait_s * 1e3:.0f} ms; load average {load:.1f} on "
+        f"{os.cpu_count()} CPUs"
+    )
+    pty = bench.virtual and bench.transport in PTY_TRANSPORTS
+    why = (
+        "a pty's data crosses a kernel worker at normal priority, which SCHED_FIFO does not "
+        "cover and CPU-bound jobs delay (docs/jitter.md, under load)"
+        if pty
+        else "the host or the link stalled"
+    )
+    todo = [
+        f"a lower --rate (now {1 / bench.period_s:g} Hz)",
+        "--mode lockstep",
+        "fewer CPU-bound jobs beside it, or those at nice 19",
+    ]
+    if pty:  # a socket wakes its reader directly (docs/jitter.md: pty vs socket round trips)
+        todo.append("a socket transport (--bench virtual-socketcand)")
+    if getattr(scheduling, "realtime_refused", None):
+        todo.append("realtime priority (docs/jitter.md, Privileges)")
+    todo.append("a longer feedback_budget_s and drive watchdog_s (docs/faults.md)")
+    return f"{text} [late, not gone: {seen}; {why}. Try {', '.join(todo[:-1])} or {todo[-1]}]"
 
 
 def run_experiment(

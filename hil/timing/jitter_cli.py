@@ -264,6 +264,11 @@ def measure(
     meta_doc = json.loads((out / META).read_text())
     link = meta_doc.get("link", {})
     timing = jitter_summary(h, deadline, release, feedback, lost_feedback=link.get("timeouts", 0))
+    # the link's own count of late feedback (later than a period, within the budget) and the
+    # longest wait: how close the run came to its feedback budget
+    for key in ("late_feedback", "max_feedback_wait_s", "feedback_budget_s"):
+        if key in result.timing:
+            timing[key] = result.timing[key]
     machine = {
         **{k: v for k, v in machine_start.items() if k != "load_average"},
         "load_average_start": machine_start["load_average"],
@@ -387,6 +392,12 @@ def format_table(s: dict[str, Any]) -> str:
         f"late releases (> {t['late_release_threshold_us']:.0f} µs): {t['late_releases']}; "
         f"lost feedback: {t['lost_feedback']}; link errors: {s['link']['errors']}",
     ]
+    if "late_feedback" in t:  # how close the run came to its feedback budget
+        lines.append(
+            f"late feedback (> one period): {t['late_feedback']}; longest wait "
+            f"{t['max_feedback_wait_s'] * 1e3:.1f} ms of the {t['feedback_budget_s'] * 1e3:g} ms "
+            "feedback budget"
+        )
     if sched.get("waits"):
         over = sched.get("sleep_overshoot_us", {})
         lines.append(

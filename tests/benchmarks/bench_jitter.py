@@ -14,12 +14,20 @@ run. The machine's load is printed with each run: other jobs on it change everyt
 
     python tests/benchmarks/bench_jitter.py [--seconds 60] [--rates 400,1000]
         [--benches virtual-slcan,virtual-serial] [--policies auto,off] [--json]
+        [--hogs N] [--repeat N]
+
+``--hogs N`` runs N CPU-bound processes (``python -c 'while True: pass'``, nice 0) beside every
+run, started before it and killed after it; ``--repeat N`` runs every configuration N times and
+adds, per configuration, how many runs completed and the late-cycle figures over the runs (the
+issue-13 measurement: ``--hogs 2 --repeat 5 --policies auto``).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -76,11 +84,60 @@ def run_one(bench: str, rate: float, seconds: float, policy: str, out: Path) -> 
         "latency_max_us": t["latency"].get("max_us", float("nan")),
         "spin_us_per_cycle": sched.get("mean_spin_us"),
         "load_average": [m["load_average_start"][0], m["load_average_end"][0]],
+        "late_feedback": t.get("late_feedback"),
+        "max_feedback_wait_ms": 1e3 * t.get("max_feedback_wait_s", nan),
+        "rows": s["rows"],
     }
     if s.get("bus") and s["bus"].get("frames"):
         entry["bus_load_pct"] = s["bus"]["load_pct"]
     entry["targets"] = targets(entry)
     return entry
+
+
+@contextlib.contextmanager
+def cpu_hogs(n: int):
+    """``n`` CPU-bound processes for the duration of the block (killed and reaped after it)."""
+    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(max(0, n))]
+    try:
+        yield hogs
+    finally:
+        for hog in hogs:
+            hog.kill()
+        for hog in hogs:
+            hog.wait()
+
+
+def repeated(entries: list[dict[str, Any]]) -> dict[str, Any]:
+    """One configuration over its runs: how many completed, and the late-cycle figures."""
+    import numpy as np
+
+    def spread(key: str) -> list[float]:
+        v = [float(e[key]) for e in entries if e.get(key) is not None]
+        return [float(np.min(v)), float(np.median(v)), float(np.max(v))] if v else []
+
+    first = entries[0]
+    return {
+        "bench": first["bench"],
+        "rate_hz": first["rate_hz"],
+        "policy": first["policy"],
+        "runs": len(entries),
+        "completed": sum(e["status"] == "complete" for e in entries),
+        "ended": [e["reason"] for e in entries if e["status"] != "complete"],
+        "seconds_run": [round(e["rows"] / e["rate_hz"], 1) for e in entries],
+        # min, median, max over the runs
+        "deadline_misses_per_10k": spread("deadline_misses_per_10k"),
+        "overruns_per_10k": spread("overruns_per_10k"),
+        "late_feedback": spread("late_feedback"),
+        "max_feedback_wait_ms": spread("max_feedback_wait_ms"),
+        "latency_p99_us": spread("latency_p99_us"),
+        "latency_max_us": spread("latency_max_us"),
+        "p99_release_error_us": spread("p99_release_error_us"),
+        "load_average": spread("load_average_start"),
+    }
+
+
+def _mmm(v: list[float]) -> str:
+    return " / ".join(f"{x:.0f}" for x in v) if v else "-"
 
 
 def main() -> int:
@@ -90,19 +147,46 @@ def main() -> int:
     parser.add_argument("--benches", default="virtual-slcan,virtual-serial")
     parser.add_argument("--policies", default="auto,off")
     parser.add_argument("--json", action="store_true")
+    parser.add_argument("--hogs", type=int, default=0, help="CPU-bound processes beside each run")
+    parser.add_argument("--repeat", type=int, default=1, help="runs per configuration")
     args = parser.parse_args()
     results = []
+    summaries = []
     with tempfile.TemporaryDirectory() as tmp:
         for bench in args.benches.split(","):
             for rate in (float(r) for r in args.rates.split(",")):
                 for policy in args.policies.split(","):
-                    name = f"{bench} {rate:g} Hz {policy}"
-                    print(f"running {name} for {args.seconds:g} s ...", file=sys.stderr)
-                    out = Path(tmp) / name.replace(" ", "-")
-                    results.append(run_one(bench, rate, args.seconds, policy, out))
+                    runs = []
+                    for i in range(max(1, args.repeat)):
+                        name = f"{bench} {rate:g} Hz {policy}"
+                        print(
+                            f"running {name} for {args.seconds:g} s, run {i + 1}/{args.repeat}"
+                            f" beside {args.hogs} CPU hogs ...",
+                            file=sys.stderr,
+                        )
+                        out = Path(tmp) / f"{name.replace(' ', '-')}-{i}"
+                        with cpu_hogs(args.hogs):
+                            entry = run_one(bench, rate, args.seconds, policy, out)
+                        entry["load_average_start"] = entry["load_average"][0]
+                        entry["hogs"] = args.hogs
+                        print(
+                            f"  {entry['status']}: {entry['rows']} rows, late feedback "
+                            f"{entry['late_feedback']}, longest wait "
+                            f"{entry['max_feedback_wait_ms']:.1f} ms"
+                            + (f"; {entry['reason']}" if entry["reason"] else ""),
+                            file=sys.stderr,
+                        )
+                        runs.append(entry)
+                    results += runs
+                    summaries.append(repeated(runs))
     ok = all(e["status"] == "complete" and all(e["targets"].values()) for e in results)
     if args.json:
-        print(json.dumps({"results": results, "all_targets_met": ok}))
+        print(
+            json.dumps(
+                {"results": results, "configurations": summaries, "all_targets_met": ok},
+                indent=1,
+            )
+        )
         return 0  # report, do not stop `make bench`: the VM's stalls decide the tail
     head = (
         f"{'run':<34}{'policy':>12}{'p99 rel':>9}{'p99 per':>9}{'max rel':>9}{'ovr/10k':>9}"
@@ -121,6 +205,18 @@ def main() -> int:
             f"{e['status']}" + (f"; missed: {', '.join(missed)}" if missed else "")
         )
     print("(µs; p99 rel: release − deadline; p99 per: |period − h|; load: load average)")
+    if args.repeat > 1 or args.hogs:
+        print(f"\nper configuration, {args.hogs} CPU hogs beside each run (min / median / max):")
+        for c in summaries:
+            print(
+                f"{c['bench']} {c['rate_hz']:g} Hz {c['policy']}: {c['completed']}/{c['runs']} "
+                f"complete (s run: {c['seconds_run']}); "
+                f"misses/10k {_mmm(c['deadline_misses_per_10k'])}; "
+                f"late feedback {_mmm(c['late_feedback'])}; longest wait "
+                f"{_mmm(c['max_feedback_wait_ms'])} ms; latency p99 {_mmm(c['latency_p99_us'])} µs"
+            )
+            for reason in c["ended"]:
+                print(f"  ended: {reason}")
     print("all targets met" if ok else "SOME TARGETS MISSED")
     return 0  # report, do not stop `make bench`: the VM's stalls decide the tail
 

@@ -1,0 +1,80 @@
+"""Every recording carries its writer's process stamp, so a killed writer reads as ``died``.
+
+RecordingWriter stamps meta.json itself (drivers.process.process_stamp), so the recordings of
+``virtual-robot simulate`` have it as ``hil`` runs do (issue 13).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from drivers.process import run_status
+from drivers.recording import RecordingWriter
+
+
+def _meta(out: Path) -> dict:
+    return json.loads((out / "meta.json").read_text())
+
+
+def test_writer_stamps_its_process(tmp_path: Path) -> None:
+    with RecordingWriter(tmp_path, {"period_s": 0.0025}) as rec:
+        running = _meta(tmp_path)
+        assert running["process"]["pid"] == os.getpid()
+        assert run_status(running) == "running"
+        rec.write([0.0, 0.0, 0.0, 0.0, 0.0])
+    done = _meta(tmp_path)
+    assert done["status"] == "complete" and run_status(done) == "complete"
+    assert done["process"] == running["process"]
+
+
+def test_killed_simulate_reads_as_died(tmp_path: Path) -> None:
+    out = tmp_path / "sim"
+    # a long simulation, killed (SIGKILL: nothing runs after it) once its meta.json is written
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "virtual_robot.cli", "simulate", "--duration", "600",
+         "--out", str(out), "--no-plot", "-q"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        while not (out / "signals.csv").is_file():
+            assert proc.poll() is None, proc.communicate()[1]
+            assert time.monotonic() < deadline, "simulate wrote no recording within 60 s"
+            time.sleep(0.05)
+        meta = _meta(out)
+        assert meta["process"]["pid"] == proc.pid
+        assert run_status(meta) == "running"
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    meta = _meta(out)
+    assert meta["status"] == "running"  # what the file says: nobody closed it
+    assert run_status(meta) == "died"
+
+
+def test_large_recording_says_what_reading_does(tmp_path: Path, monkeypatch, capsys) -> None:
+    """A large recording (here: any, with the threshold at 1 byte) says it is being read, how
+    big it is, and how many rows it took how long."""
+    import argparse
+    import math
+
+    import hil.cli_options as options
+
+    with RecordingWriter(tmp_path, {"period_s": 0.01}) as rec:
+        for k in range(50):
+            rec.write([k * 0.01, math.sin(k / 5), math.cos(k / 7), 0.1, -0.2])
+    monkeypatch.setattr(options, "LARGE_RECORDING_BYTES", 1)
+    got = options.read_recording(argparse.Namespace(), tmp_path, command="identify")
+    err = capsys.readouterr().err
+    assert len(got) == 50
+    assert f"hil identify: reading {tmp_path / 'signals.csv'} (0 MB) ..." in err
+    assert "hil identify: read 50 rows of signals.csv in " in err
+    monkeypatch.setattr(options, "LARGE_RECORDING_BYTES", 50_000_000)
+    options.read_recording(argparse.Namespace(), tmp_path, command="identify")
+    assert "reading" not in capsys.readouterr().err  # small files stay quiet
