@@ -25,6 +25,7 @@ Lag and delay share their first-order column; :func:`lagged_torque_rows` and
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -304,29 +305,29 @@ def gain_column(rows: RecordingRows, joint: int) -> np.ndarray:
 
 def cogging_columns(rows: RecordingRows, joint: int, periods_per_rev: float) -> np.ndarray:
     """Cogging A sin(n q + φ) added to the shaft torque: X = −F[sin n q, cos n q] (K, 2, 2)."""
-    return cogging_columns_many(rows, joint, [periods_per_rev])[:, :, 0, :]
+    return _on_joint(next(cogging_column_chunks(rows, joint, [periods_per_rev], 1))[:, 0], joint)
 
 
-def cogging_columns_many(
-    rows: RecordingRows, joint: int, periods_per_rev: list[float] | tuple[float, ...]
-) -> np.ndarray:
-    """:func:`cogging_columns` of several periods at once, (K, 2, V, 2): e^{i n q} at the nodes
-    by one complex power and then a rotation per step of n (no sine per variant), one node
-    average and one filter pass for all."""
+def cogging_column_chunks(
+    rows: RecordingRows, joint: int, periods_per_rev: list[float] | tuple[float, ...], per: int
+) -> Iterator[np.ndarray]:
+    """The cogging columns of many periods on ``joint``'s rows, ``per`` periods at a time:
+    (K, ≤per, 2) arrays −F[sin n q, cos n q]. e^{i n q} at the nodes by one complex power and
+    then a rotation per step of n, carried from chunk to chunk (no sine per variant), one node
+    average per period and one filter pass per chunk: memory O(K·per), not O(K·V)."""
     q = rows.q_nodes[:, :, joint]  # (nodes, K)
     n = np.asarray(periods_per_rev, float)
-    mean = np.empty((q.shape[1], len(n)), complex)  # (K, V): node average of e^{i n q}
     z = np.exp(1j * n[0] * q)
     once = np.exp(1j * q)
-    for i in range(len(n)):
-        if i:
-            step = n[i] - n[i - 1]
-            z *= once if step == 1 else np.exp(1j * step * q)
-        mean[:, i] = _GL_WEIGHTS @ z
-    raw = np.stack([mean.imag, mean.real], axis=-1)  # sin, cos
-    out = np.zeros((rows.rows, 2, len(n), 2))
-    out[:, joint] = -_filtered(rows, raw)
-    return out
+    for lo in range(0, len(n), per):
+        hi = min(lo + per, len(n))
+        mean = np.empty((q.shape[1], hi - lo), complex)  # (K, chunk): node average of e^{i n q}
+        for i in range(lo, hi):
+            if i:
+                step = n[i] - n[i - 1]
+                z *= once if step == 1 else np.exp(1j * step * q)
+            mean[:, i - lo] = _GL_WEIGHTS @ z
+        yield -_filtered(rows, np.stack([mean.imag, mean.real], axis=-1))  # sin, cos
 
 
 def stribeck_shape(v: np.ndarray, velocity_rad_s: float, exponent: float = 2.0) -> np.ndarray:
