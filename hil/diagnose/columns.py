@@ -321,13 +321,14 @@ def cogging_column_chunks(
     once = np.exp(1j * q)
     for lo in range(0, len(n), per):
         hi = min(lo + per, len(n))
-        mean = np.empty((q.shape[1], hi - lo), complex)  # (K, chunk): node average of e^{i n q}
+        raw = np.empty((q.shape[1], hi - lo, 2))  # (K, chunk, sin|cos): node averages
         for i in range(lo, hi):
             if i:
                 step = n[i] - n[i - 1]
                 z *= once if step == 1 else np.exp(1j * step * q)
-            mean[:, i - lo] = _GL_WEIGHTS @ z
-        yield -_filtered(rows, np.stack([mean.imag, mean.real], axis=-1))  # sin, cos
+            mean = _GL_WEIGHTS @ z  # of e^{i n q}
+            raw[:, i - lo, 0], raw[:, i - lo, 1] = mean.imag, mean.real
+        yield -_filtered(rows, raw)
 
 
 def stribeck_shape(v: np.ndarray, velocity_rad_s: float, exponent: float = 2.0) -> np.ndarray:

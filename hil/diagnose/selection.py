@@ -34,6 +34,7 @@ from hil.diagnose.stats import (
     CrossValidation,
     Evidence,
     block_index,
+    block_selector,
     block_stats,
     cross_validate,
     evidence,
@@ -177,6 +178,8 @@ class Problem:
     blocks: np.ndarray  # (K,)
     cache: dict[tuple[str, int], np.ndarray] = field(default_factory=dict)
     grids: dict[str, GridSums] = field(default_factory=dict)
+    # (key, variant) of the one-variant candidates: summed against a grid when it is first built
+    anticipated: list[tuple[str, int]] = field(default_factory=list)
 
     @property
     def y(self) -> np.ndarray:
@@ -246,18 +249,29 @@ class Problem:
         """The raw sums of a candidate's variants against Ψ, y and the terms ``term_keys``;
         columns are built only for what is not summed yet."""
         sums = self.grids.get(cand.key)
-        missing = [k for k in term_keys if sums is None or k not in sums.terms]
-        if sums is not None and not missing:
-            return sums
         j = cand.joint
+        n_var = len(cand.variants)
+        missing = [k for k in term_keys if sums is None or k not in sums.terms]
+        if sums is not None:
+            for k in [k for k in missing if not np.any(self.cache[k][:, j])]:
+                # a term on the other joint's rows only: nothing to sum
+                sums.terms[k] = np.zeros((n_var, sums.PX.shape[1], self.cache[k].shape[-1], sums.q))
+                missing.remove(k)
+            if not missing:
+                return sums
+        else:  # the terms likely to join later too, so that their arrival costs no rebuild
+            missing += [
+                k
+                for k in self.anticipated
+                if k not in missing and k in self.cache and np.any(self.cache[k][:, j])
+            ]
         U = [self.cache[k][:, j, :] for k in missing]  # (K, width) raw, on the joint's rows
         if sums is None:
             U = [self.Psi_raw[:, j, :], *U]
-        U_all = np.concatenate(U, axis=1)
-        n_var = len(cand.variants)
+        selector = block_selector(np.concatenate(U, axis=1), self.blocks)
         parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         for X in self._grid_columns(cand):
-            ux, xx, xy = joint_block_sums(U_all, X, self.y_raw[:, j], self.w[:, j], self.blocks)
+            ux, xx, xy = joint_block_sums(selector, X, self.y_raw[:, j], self.w[:, j], self.blocks)
             n_blocks, m, _ = ux.shape
             ux = ux.reshape(n_blocks, m, X.shape[1], X.shape[2]).transpose(2, 0, 1, 3)
             parts.append((ux, xx.transpose(1, 0, 2, 3), xy.transpose(1, 0, 2)))
@@ -646,7 +660,9 @@ def select(
     accepted: list[Accepted] = []
     extra: list[np.ndarray] = []
     first_round: dict[str, Evidence] = {}
-    remaining = list(library)
+    # one-variant candidates first, so that their columns exist when a grid is first summed
+    remaining = sorted(library, key=lambda c: len(c.variants) > 1)
+    prob.anticipated = [(c.key, 0) for c in library if len(c.variants) == 1]
     for _round in range(MAX_ROUNDS):
         base = _cv(prob, extra)
         scored = []

@@ -22,6 +22,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import csc_matrix
 from scipy.stats import binom
 
 RIDGE = 1e-9  # relative: keeps a fold solvable when a column is (nearly) absent from it
@@ -102,24 +103,30 @@ def extend_stats_many(
     return extended_stats(base, cross, xx.transpose(2, 0, 1, 3, 4), rx.transpose(2, 0, 1, 3))
 
 
+def block_selector(U: np.ndarray, blocks: np.ndarray) -> csc_matrix:
+    """The sparse (B·m, K) matrix whose row b·m + i holds column i of U (K, m) on block b's rows
+    and zeros elsewhere: times a (K, n) array it gives every block's Σ Uᵀ X at once."""
+    starts = _starts(blocks)
+    K, m = U.shape
+    local = np.repeat(np.arange(len(starts)), np.diff(np.r_[starts, K]))
+    rows = (local[:, None] * m + np.arange(m)).ravel()  # row k's m entries, in order
+    return csc_matrix((U.ravel(), rows, np.arange(0, K * m + 1, m)), shape=(len(starts) * m, K))
+
+
 def joint_block_sums(
-    U: np.ndarray, X: np.ndarray, y: np.ndarray, w: np.ndarray, blocks: np.ndarray
+    U: np.ndarray | csc_matrix, X: np.ndarray, y: np.ndarray, w: np.ndarray, blocks: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per block, of one joint's rows: Σ w Uᵀ X (B, m, V·q), Σ w XᵀX per variant (B, V, q, q)
-    and Σ w Xᵀ y (B, V, q), for columns U (K, m) and variants X (K, V, q); one matrix product
-    per block for all variants."""
+    and Σ w Xᵀ y (B, V, q), for columns U (K, m) (or their :func:`block_selector`, to reuse it
+    over chunks of variants) and variants X (K, V, q): one sparse product and one sum per block
+    over the rows, so a long recording's thousand blocks cost no Python loop."""
     starts = _starts(blocks)
-    ends = np.r_[starts[1:], len(blocks)]
-    V, q = X.shape[1], X.shape[2]
-    ux = np.empty((len(starts), U.shape[1], V * q))
-    xx = np.empty((len(starts), V, q, q))
-    xy = np.empty((len(starts), V, q))
+    selector = block_selector(U, blocks) if isinstance(U, np.ndarray) else U
+    K, (V, q) = X.shape[0], X.shape[1:]
     wX = w[:, None, None] * X  # (K, V, q)
-    for b, (lo, hi) in enumerate(zip(starts, ends, strict=True)):
-        wxb = wX[lo:hi]  # (K_b, V, q)
-        ux[b] = U[lo:hi].T @ wxb.reshape(hi - lo, V * q)
-        xx[b] = np.einsum("kva,kvc->vac", X[lo:hi], wxb)
-        xy[b] = np.einsum("kva,k->va", wxb, y[lo:hi])
+    ux = np.asarray(selector @ wX.reshape(K, V * q)).reshape(len(starts), -1, V * q)
+    xx = np.add.reduceat(X[:, :, :, None] * wX[:, :, None, :], starts, axis=0)
+    xy = np.add.reduceat(wX * y[:, None, None], starts, axis=0)
     return ux, xx, xy
 
 
