@@ -448,3 +448,37 @@ def test_a_term_that_costs_another_joint_is_not_a_finding(capsys):
             if None not in (a, b):
                 assert a <= 1.02 * b, (key, before, after, doc["findings"])
     assert not any(f.get("term", "").startswith("rate") for f in doc["findings"])
+
+
+def test_cached_grid_statistics_match_the_columns_built_anew(null_recording):
+    """A cogging or Stribeck grid is scored from block sums built once per diagnosis (issue 12,
+    performance); they must give the cross-validation the columns themselves give, with terms
+    already in the model (one on the grid's joint, one that moves both joints) and after the
+    noise scale changed."""
+    from hil.diagnose.selection import Accepted, _cv_terms, _design, _rewhiten
+    from hil.diagnose.stats import extend_stats_many
+
+    rec = read_signals(null_recording)
+    prob, theta = build_problem([(rec.q, rec.tau, rec.period_s)])
+    library = {c.key: c for c in candidates(theta, np.ptp(rec.q, axis=0))}
+    prob.anticipated = [(k, 0) for k, c in library.items() if len(c.variants) == 1]
+    terms: list[Accepted] = []
+    for step, add in enumerate(("offset:1", "angle:2", None)):
+        for key in ("cogging:1", "stribeck:2"):
+            cand = library[key]
+            got = _cv_terms(prob, terms, cand)
+            base = _design(prob, [prob.chosen(a) for a in terms])
+            stats = block_stats(base, prob.y, prob.w, prob.blocks)
+            columns = np.stack([prob.column(cand, i) for i in range(len(cand.variants))], axis=2)
+            want = cross_validate(
+                extend_stats_many(stats, base, columns, prob.y, prob.w, prob.blocks)
+            )
+            assert got.variant == want.variant, (step, key)
+            np.testing.assert_array_equal(got.fold_variant, want.fold_variant)
+            np.testing.assert_allclose(got.held_out_sse, want.held_out_sse, rtol=1e-7, atol=1e-9)
+            np.testing.assert_allclose(got.beta, want.beta, rtol=1e-6, atol=1e-9)
+        if add is not None:
+            prob.column(library[add], 0)
+            terms.append(Accepted(library[add], None, evidence(got, got, [0])))
+            _rewhiten(prob, terms)  # a new noise scale: the cached sums must follow it
+    assert set(prob.grids) == {"cogging:1", "stribeck:2"}
