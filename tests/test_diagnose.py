@@ -482,3 +482,28 @@ def test_cached_grid_statistics_match_the_columns_built_anew(null_recording):
             terms.append(Accepted(library[add], None, evidence(got, got, [0])))
             _rewhiten(prob, terms)  # a new noise scale: the cached sums must follow it
     assert set(prob.grids) == {"cogging:1", "stribeck:2"}
+
+
+def test_a_long_recording_has_at_most_max_blocks_and_max_simulated_segments():
+    """Cost bounds of a long recording (issue 12, performance): blocks grow instead of
+    multiplying past MAX_BLOCKS, and the held-out simulation runs at most MAX_SEGMENTS
+    one-second segments, spread over the whole held-out part and cut at a gap."""
+    from hil.diagnose.report import MAX_SEGMENTS, SEGMENT_S, simulated_segments
+    from hil.diagnose.selection import MAX_BLOCKS
+
+    h, n = 0.0025, 100_000  # 250 s at 400 Hz: 500 blocks of 0.5 s without the bound
+    t = np.arange(n) * h
+    q = np.column_stack([np.sin(0.7 * t) + 0.3 * np.sin(3.1 * t), np.cos(1.3 * t)])
+    tau = np.random.default_rng(1).normal(size=(n, 2))
+    prob, _theta = build_problem([(q, tau, h)])
+    assert int(prob.blocks.max()) + 1 == MAX_BLOCKS
+    stamps = t.copy()
+    stamps[80_000:] += 0.1  # a stall in the held-out part
+    first, last = 75_000, n - 1
+    segments = simulated_segments(h, first, last, stamps, n)
+    assert len(segments) == MAX_SEGMENTS
+    assert segments[0][0] == first and segments[-1][1] == last + 1
+    assert all(b - a <= round(SEGMENT_S / h) for a, b in segments)
+    assert not any(a < 80_000 < b for a, b in segments)  # no segment spans the stall
+    short = simulated_segments(h, 0, 1999, None, 2000)  # 5 s: every second, as before
+    assert short == [(a, min(a + 400, 2000)) for a in range(0, 2000, 400)]

@@ -76,6 +76,10 @@ POSITIVE_ONLY = ("stribeck", "rate")
 # correlation of the filtered residual, short enough for a sign test to have power).
 BLOCKS_WANTED = 40
 BLOCK_SECONDS = (0.15, 0.5)
+# ... and at most this many: a long recording's blocks grow beyond BLOCK_SECONDS[1] instead
+# (every block is a leave-one-out fit of every variant of every candidate; 400 nearly
+# independent blocks already give the sign test far more power than FAMILY_ALPHA asks for).
+MAX_BLOCKS = 400
 COGGING_PERIODS = np.arange(3, 401)
 STRIBECK_VELOCITIES = np.geomspace(0.02, 0.6, 16)
 LAG_GRID_S = np.geomspace(5e-5, 0.03, 28)  # lag and delay search, then refined locally
@@ -389,7 +393,8 @@ def build_problem(
     theta = fit_theta(Psi, y, w)
     scale = robust_scale(y - Psi @ theta, w)
     total_s = sum(r.rows * r.h for r in rows)
-    block_s = min(max(total_s / BLOCKS_WANTED, BLOCK_SECONDS[0]), BLOCK_SECONDS[1])
+    longest = max(BLOCK_SECONDS[1], total_s / MAX_BLOCKS)
+    block_s = min(max(total_s / BLOCKS_WANTED, BLOCK_SECONDS[0]), longest)
     blocks = block_index([r.rows for r in rows], round(block_s / min(r.h for r in rows)))
     return Problem(rows, y, Psi, w, scale, blocks), theta
 
