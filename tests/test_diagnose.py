@@ -507,3 +507,23 @@ def test_a_long_recording_has_at_most_max_blocks_and_max_simulated_segments():
     assert not any(a < 80_000 < b for a, b in segments)  # no segment spans the stall
     short = simulated_segments(h, 0, 1999, None, 2000)  # 5 s: every second, as before
     assert short == [(a, min(a + 400, 2000)) for a in range(0, 2000, 400)]
+
+
+@pytest.mark.parametrize("stamped", [False, True])
+def test_interval_rows_built_in_pieces_equal_the_rows_built_at_once(stamped, monkeypatch):
+    """The rows are built ROW_CHUNK samples at a time (memory O(N·9) on long recordings); an
+    interval's row depends only on the samples around it, so the pieces join exactly."""
+    from hil.diagnose import columns
+
+    rng = np.random.default_rng(0)
+    n, h = 3000, 0.0025
+    t = np.arange(n) * h
+    q = np.column_stack([np.sin(0.7 * t), np.cos(1.3 * t)]) + rng.normal(scale=1e-4, size=(n, 2))
+    tau = rng.normal(size=(n, 2))
+    stamps, half = (t + rng.uniform(0, 1e-4, n), 3) if stamped else (None, 1)
+    monkeypatch.setattr(columns, "ROW_CHUNK", 10**9)
+    whole = columns._momentum_rows(q, tau, h, stamps, half)
+    monkeypatch.setattr(columns, "ROW_CHUNK", 700)
+    pieces = columns._momentum_rows(q, tau, h, stamps, half)
+    for a, b in zip(whole, pieces, strict=True):
+        np.testing.assert_array_equal(a, b)
