@@ -527,3 +527,21 @@ def test_interval_rows_built_in_pieces_equal_the_rows_built_at_once(stamped, mon
     pieces = columns._momentum_rows(q, tau, h, stamps, half)
     for a, b in zip(whole, pieces, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def test_block_sums_by_sparse_product_equal_the_sums_block_by_block():
+    from hil.diagnose.stats import joint_block_sums
+
+    rng = np.random.default_rng(0)
+    K = 1000
+    U, X = rng.normal(size=(K, 10)), rng.normal(size=(K, 3, 4))
+    y, w = rng.normal(size=K), rng.random(K)
+    blocks = block_index([K], 37)
+    ux, xx, xy = joint_block_sums(U, X, y, w, blocks)
+    assert ux.shape == (27, 10, 12) and xx.shape == (27, 3, 4, 4) and xy.shape == (27, 3, 4)
+    for b in range(27):
+        rows = blocks == b
+        wx = w[rows, None, None] * X[rows]
+        np.testing.assert_allclose(ux[b], U[rows].T @ wx.reshape(-1, 12), atol=1e-12)
+        np.testing.assert_allclose(xx[b], np.einsum("kva,kvc->vac", X[rows], wx), atol=1e-12)
+        np.testing.assert_allclose(xy[b], np.einsum("kva,k->va", wx, y[rows]), atol=1e-12)

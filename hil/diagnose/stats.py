@@ -125,7 +125,8 @@ def joint_block_sums(
     K, (V, q) = X.shape[0], X.shape[1:]
     wX = w[:, None, None] * X  # (K, V, q)
     ux = np.asarray(selector @ wX.reshape(K, V * q)).reshape(len(starts), -1, V * q)
-    xx = np.add.reduceat(X[:, :, :, None] * wX[:, :, None, :], starts, axis=0)
+    # one column of X at a time: the products of all q² pairs at once would be (K, V, q, q)
+    xx = np.stack([np.add.reduceat(X[:, :, [a]] * wX, starts, axis=0) for a in range(q)], axis=2)
     xy = np.add.reduceat(wX * y[:, None, None], starts, axis=0)
     return ux, xx, xy
 
