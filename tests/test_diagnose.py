@@ -448,3 +448,100 @@ def test_a_term_that_costs_another_joint_is_not_a_finding(capsys):
             if None not in (a, b):
                 assert a <= 1.02 * b, (key, before, after, doc["findings"])
     assert not any(f.get("term", "").startswith("rate") for f in doc["findings"])
+
+
+def test_cached_grid_statistics_match_the_columns_built_anew(null_recording):
+    """A cogging or Stribeck grid is scored from block sums built once per diagnosis (issue 12,
+    performance); they must give the cross-validation the columns themselves give, with terms
+    already in the model (one on the grid's joint, one that moves both joints) and after the
+    noise scale changed."""
+    from hil.diagnose.selection import Accepted, _cv_terms, _design, _rewhiten
+    from hil.diagnose.stats import extend_stats_many
+
+    rec = read_signals(null_recording)
+    prob, theta = build_problem([(rec.q, rec.tau, rec.period_s)])
+    library = {c.key: c for c in candidates(theta, np.ptp(rec.q, axis=0))}
+    prob.anticipated = [(k, 0) for k, c in library.items() if len(c.variants) == 1]
+    terms: list[Accepted] = []
+    for step, add in enumerate(("offset:1", "angle:2", None)):
+        for key in ("cogging:1", "stribeck:2"):
+            cand = library[key]
+            got = _cv_terms(prob, terms, cand)
+            base = _design(prob, [prob.chosen(a) for a in terms])
+            stats = block_stats(base, prob.y, prob.w, prob.blocks)
+            columns = np.stack([prob.column(cand, i) for i in range(len(cand.variants))], axis=2)
+            want = cross_validate(
+                extend_stats_many(stats, base, columns, prob.y, prob.w, prob.blocks)
+            )
+            assert got.variant == want.variant, (step, key)
+            np.testing.assert_array_equal(got.fold_variant, want.fold_variant)
+            np.testing.assert_allclose(got.held_out_sse, want.held_out_sse, rtol=1e-7, atol=1e-9)
+            np.testing.assert_allclose(got.beta, want.beta, rtol=1e-6, atol=1e-9)
+        if add is not None:
+            prob.column(library[add], 0)
+            terms.append(Accepted(library[add], None, evidence(got, got, [0])))
+            _rewhiten(prob, terms)  # a new noise scale: the cached sums must follow it
+    assert set(prob.grids) == {"cogging:1", "stribeck:2"}
+
+
+def test_a_long_recording_has_at_most_max_blocks_and_max_simulated_segments():
+    """Cost bounds of a long recording (issue 12, performance): blocks grow instead of
+    multiplying past MAX_BLOCKS, and the held-out simulation runs at most MAX_SEGMENTS
+    one-second segments, spread over the whole held-out part and cut at a gap."""
+    from hil.diagnose.report import MAX_SEGMENTS, SEGMENT_S, simulated_segments
+    from hil.diagnose.selection import MAX_BLOCKS
+
+    h, n = 0.0025, 100_000  # 250 s at 400 Hz: 500 blocks of 0.5 s without the bound
+    t = np.arange(n) * h
+    q = np.column_stack([np.sin(0.7 * t) + 0.3 * np.sin(3.1 * t), np.cos(1.3 * t)])
+    tau = np.random.default_rng(1).normal(size=(n, 2))
+    prob, _theta = build_problem([(q, tau, h)])
+    assert int(prob.blocks.max()) + 1 == MAX_BLOCKS
+    stamps = t.copy()
+    stamps[80_000:] += 0.1  # a stall in the held-out part
+    first, last = 75_000, n - 1
+    segments = simulated_segments(h, first, last, stamps, n)
+    assert len(segments) == MAX_SEGMENTS
+    assert segments[0][0] == first and segments[-1][1] == last + 1
+    assert all(b - a <= round(SEGMENT_S / h) for a, b in segments)
+    assert not any(a < 80_000 < b for a, b in segments)  # no segment spans the stall
+    short = simulated_segments(h, 0, 1999, None, 2000)  # 5 s: every second, as before
+    assert short == [(a, min(a + 400, 2000)) for a in range(0, 2000, 400)]
+
+
+@pytest.mark.parametrize("stamped", [False, True])
+def test_interval_rows_built_in_pieces_equal_the_rows_built_at_once(stamped, monkeypatch):
+    """The rows are built ROW_CHUNK samples at a time (memory O(N·9) on long recordings); an
+    interval's row depends only on the samples around it, so the pieces join exactly."""
+    from hil.diagnose import columns
+
+    rng = np.random.default_rng(0)
+    n, h = 3000, 0.0025
+    t = np.arange(n) * h
+    q = np.column_stack([np.sin(0.7 * t), np.cos(1.3 * t)]) + rng.normal(scale=1e-4, size=(n, 2))
+    tau = rng.normal(size=(n, 2))
+    stamps, half = (t + rng.uniform(0, 1e-4, n), 3) if stamped else (None, 1)
+    monkeypatch.setattr(columns, "ROW_CHUNK", 10**9)
+    whole = columns._momentum_rows(q, tau, h, stamps, half)
+    monkeypatch.setattr(columns, "ROW_CHUNK", 700)
+    pieces = columns._momentum_rows(q, tau, h, stamps, half)
+    for a, b in zip(whole, pieces, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_block_sums_by_sparse_product_equal_the_sums_block_by_block():
+    from hil.diagnose.stats import joint_block_sums
+
+    rng = np.random.default_rng(0)
+    K = 1000
+    U, X = rng.normal(size=(K, 10)), rng.normal(size=(K, 3, 4))
+    y, w = rng.normal(size=K), rng.random(K)
+    blocks = block_index([K], 37)
+    ux, xx, xy = joint_block_sums(U, X, y, w, blocks)
+    assert ux.shape == (27, 10, 12) and xx.shape == (27, 3, 4, 4) and xy.shape == (27, 3, 4)
+    for b in range(27):
+        rows = blocks == b
+        wx = w[rows, None, None] * X[rows]
+        np.testing.assert_allclose(ux[b], U[rows].T @ wx.reshape(-1, 12), atol=1e-12)
+        np.testing.assert_allclose(xx[b], np.einsum("kva,kvc->vac", X[rows], wx), atol=1e-12)
+        np.testing.assert_allclose(xy[b], np.einsum("kva,k->va", wx, y[rows]), atol=1e-12)

@@ -25,6 +25,7 @@ Lag and delay share their first-order column; :func:`lagged_torque_rows` and
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -195,6 +196,11 @@ def moving_average(x: np.ndarray, window: int) -> np.ndarray:
     return out / n
 
 
+# Samples per piece when the interval rows are built: the regressor at every interval's nodes
+# is (nodes, K, 2, 9) floats, 350 MB for 10 minutes at 1 kHz at once.
+ROW_CHUNK = 50_000
+
+
 def _momentum_rows(
     q: np.ndarray,
     tau: np.ndarray,
@@ -203,11 +209,26 @@ def _momentum_rows(
     half_window: int = 1,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Unfiltered interval rows: k, τ_k (K, 2), [ΔP + ∫R dt]/h_k (K, 2, 9), interval stuck
-    (K, 2), sample velocities (N, 2). ``t``: real time stamps (each interval its own h_k)."""
-    kin = kinematics("exact", q, h, t=t, half_window=half_window)
-    raw = raw_rows("filtered_dynamic", "exact", q, tau, h, kin)
-    assert kin.intervals is not None
-    return kin.intervals.k, raw.y, raw.parts[0][1], kin.intervals.stuck, kin.v
+    (K, 2), sample velocities (N, 2). ``t``: real time stamps (each interval its own h_k).
+    Built ROW_CHUNK samples at a time, each piece with enough neighbours either side for its
+    velocities (an interval's row depends only on the samples around it), so memory is O(N·9)."""
+    n = len(q)
+    margin = half_window + 2
+    parts = []
+    v_all = np.full((n, 2), np.nan)
+    for a in range(0, n, ROW_CHUNK):
+        b = min(a + ROW_CHUNK, n)
+        lo, hi = max(0, a - margin), min(n, b + margin)
+        piece_t = None if t is None else t[lo:hi]
+        kin = kinematics("exact", q[lo:hi], h, t=piece_t, half_window=half_window)
+        raw = raw_rows("filtered_dynamic", "exact", q[lo:hi], tau[lo:hi], h, kin)
+        assert kin.intervals is not None
+        k = kin.intervals.k + lo
+        keep = (k >= a) & (k < b)
+        parts.append((k[keep], raw.y[keep], raw.parts[0][1][keep], kin.intervals.stuck[keep]))
+        v_all[a:b] = kin.v[a - lo : b - lo]
+    k, y, psi, stuck = (np.concatenate([p[i] for p in parts]) for i in range(4))
+    return k, y, psi, stuck, v_all
 
 
 def recording_rows(
@@ -304,29 +325,30 @@ def gain_column(rows: RecordingRows, joint: int) -> np.ndarray:
 
 def cogging_columns(rows: RecordingRows, joint: int, periods_per_rev: float) -> np.ndarray:
     """Cogging A sin(n q + φ) added to the shaft torque: X = −F[sin n q, cos n q] (K, 2, 2)."""
-    return cogging_columns_many(rows, joint, [periods_per_rev])[:, :, 0, :]
+    return _on_joint(next(cogging_column_chunks(rows, joint, [periods_per_rev], 1))[:, 0], joint)
 
 
-def cogging_columns_many(
-    rows: RecordingRows, joint: int, periods_per_rev: list[float] | tuple[float, ...]
-) -> np.ndarray:
-    """:func:`cogging_columns` of several periods at once, (K, 2, V, 2): e^{i n q} at the nodes
-    by one complex power and then a rotation per step of n (no sine per variant), one node
-    average and one filter pass for all."""
+def cogging_column_chunks(
+    rows: RecordingRows, joint: int, periods_per_rev: list[float] | tuple[float, ...], per: int
+) -> Iterator[np.ndarray]:
+    """The cogging columns of many periods on ``joint``'s rows, ``per`` periods at a time:
+    (K, ≤per, 2) arrays −F[sin n q, cos n q]. e^{i n q} at the nodes by one complex power and
+    then a rotation per step of n, carried from chunk to chunk (no sine per variant), one node
+    average per period and one filter pass per chunk: memory O(K·per), not O(K·V)."""
     q = rows.q_nodes[:, :, joint]  # (nodes, K)
     n = np.asarray(periods_per_rev, float)
-    mean = np.empty((q.shape[1], len(n)), complex)  # (K, V): node average of e^{i n q}
     z = np.exp(1j * n[0] * q)
     once = np.exp(1j * q)
-    for i in range(len(n)):
-        if i:
-            step = n[i] - n[i - 1]
-            z *= once if step == 1 else np.exp(1j * step * q)
-        mean[:, i] = _GL_WEIGHTS @ z
-    raw = np.stack([mean.imag, mean.real], axis=-1)  # sin, cos
-    out = np.zeros((rows.rows, 2, len(n), 2))
-    out[:, joint] = -_filtered(rows, raw)
-    return out
+    for lo in range(0, len(n), per):
+        hi = min(lo + per, len(n))
+        raw = np.empty((q.shape[1], hi - lo, 2))  # (K, chunk, sin|cos): node averages
+        for i in range(lo, hi):
+            if i:
+                step = n[i] - n[i - 1]
+                z *= once if step == 1 else np.exp(1j * step * q)
+            mean = _GL_WEIGHTS @ z  # of e^{i n q}
+            raw[:, i - lo, 0], raw[:, i - lo, 1] = mean.imag, mean.real
+        yield -_filtered(rows, raw)
 
 
 def stribeck_shape(v: np.ndarray, velocity_rad_s: float, exponent: float = 2.0) -> np.ndarray:
@@ -392,7 +414,8 @@ def angle_offset_column(
     shift = np.zeros(2)
     shift[joint] = step_rad
     args = (rows.h, rows.stamps, rows.half_window)
-    plus = moving_average(_momentum_rows(rows.q + shift, rows.tau, *args)[2], rows.window)
-    minus = moving_average(_momentum_rows(rows.q - shift, rows.tau, *args)[2], rows.window)
-    d = (plus - minus) @ np.asarray(theta, float) / (2 * step_rad)
-    return -d[:, :, None]
+    th = np.asarray(theta, float)
+    # Ψθ before the filter (F is linear): (K, 2), not two (K, 2, 9) filtered copies
+    plus = _momentum_rows(rows.q + shift, rows.tau, *args)[2] @ th
+    minus = _momentum_rows(rows.q - shift, rows.tau, *args)[2] @ th
+    return -moving_average((plus - minus) / (2 * step_rad), rows.window)[:, :, None]

@@ -432,6 +432,28 @@ def _masks(prob: Problem) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, 
 
 
 SEGMENT_S = 1.0  # open-loop simulations restart from the recorded state this often
+# At most this many segments are simulated, spread evenly over the held-out part: enough for
+# the NRMSE of a long recording (a quarter of 10 minutes is 150 segments) to settle, and the
+# simulation gate reruns it for every term.
+MAX_SEGMENTS = 40
+
+
+def simulated_segments(
+    h: float, first: int, last: int, stamps: np.ndarray | None, n_samples: int
+) -> list[tuple[int, int]]:
+    """The [a, b) sample ranges the held-out simulation runs over: SEGMENT_S long, also cut at
+    every interval that is not h (a stall, a dropped sample), at most MAX_SEGMENTS of them
+    evenly spread over samples first..last."""
+    step = max(4, round(SEGMENT_S / h))
+    t = np.arange(n_samples) * h if stamps is None else stamps
+    odd = np.flatnonzero(np.abs(np.diff(t) / h - 1.0) > 0.01)  # interval i: samples i → i+1
+    cuts = sorted({*range(first, last + 1, step), *(int(i) + 1 for i in odd)})
+    cuts = [c for c in cuts if first <= c <= last] + [last + 1]
+    pairs = list(itertools.pairwise(cuts))
+    if len(pairs) > MAX_SEGMENTS:
+        pick = np.unique(np.linspace(0, len(pairs) - 1, MAX_SEGMENTS).round().astype(int))
+        pairs = [pairs[i] for i in pick]
+    return pairs
 
 
 def _segment_simulation(
@@ -440,22 +462,17 @@ def _segment_simulation(
     q: np.ndarray,
     tau: np.ndarray,
     h: float,
-    first: int,
-    last: int,
+    segments: Sequence[tuple[int, int]],
     stamps: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Open-loop simulation of samples first..last in segments of SEGMENT_S, each started from
-    the recorded position and central-difference velocity: an arm this underdamped diverges
-    from any model over many seconds, so one long run would measure chaos, not the model.
-    ``stamps``: the real sample times; a segment also ends at every interval that is not h
-    (a stall, a dropped sample), so each is integrated over its true intervals."""
-    step = max(4, round(SEGMENT_S / h))
+    """Open-loop simulation of the sample ranges ``segments`` (:func:`simulated_segments`),
+    each started from the recorded position and central-difference velocity: an arm this
+    underdamped diverges from any model over many seconds, so one long run would measure chaos,
+    not the model. ``stamps``: the real sample times (each segment lies between two of them
+    that are not h apart, so it is integrated over its true intervals)."""
     t = np.arange(len(q)) * h if stamps is None else stamps
-    odd = np.flatnonzero(np.abs(np.diff(t) / h - 1.0) > 0.01)  # interval i: samples i → i+1
-    cuts = sorted({*range(first, last + 1, step), *(int(i) + 1 for i in odd)})
-    cuts = [c for c in cuts if first <= c <= last] + [last + 1]
     out = []
-    for a, b in itertools.pairwise(cuts):
+    for a, b in segments:
         inside = 0 < a < len(q) - 1
         dq0 = (q[a + 1] - q[a - 1]) / (t[a + 1] - t[a - 1]) if inside else np.zeros(2)
         ex = extras
@@ -515,13 +532,15 @@ def before_after(
             theta1 = clipped
     for rec_i, first, last in spans[-1:]:
         r = prob.rows[rec_i]
-        q, h = r.q[first : last + 1], r.h
+        segments = simulated_segments(r.h, first, last, r.stamps, len(r.q))
+        index = np.concatenate([np.arange(a, b) for a, b in segments])
+        q, h = r.q[index], r.h
         times = np.arange(len(r.q)) * h if r.stamps is None else r.stamps
-        sims = {"t": times[first : last + 1], "q": q}
+        sims = {"t": times[index], "q": q}
         for name, theta, ex in (("before", theta0, None), ("after", theta1, extras)):
             if name in unphysical_fit or (name == "before" and not simulate_before):
                 continue
-            sims[name] = _segment_simulation(theta, ex, r.q, r.tau, h, first, last, r.stamps)
+            sims[name] = _segment_simulation(theta, ex, r.q, r.tau, h, segments, r.stamps)
             position[name] = _finite(nrmse(q, sims[name]))
     held = (
         f"recording {len(prob.rows)}, not used for fitting"

@@ -21,8 +21,8 @@ import numpy as np
 from hil.diagnose.columns import (
     RecordingRows,
     angle_offset_column,
+    cogging_column_chunks,
     cogging_columns,
-    cogging_columns_many,
     gain_column,
     offset_column,
     recording_rows,
@@ -30,13 +30,17 @@ from hil.diagnose.columns import (
     torque_rate_column,
 )
 from hil.diagnose.stats import (
+    BlockStats,
     CrossValidation,
     Evidence,
     block_index,
+    block_selector,
     block_stats,
     cross_validate,
     evidence,
     extend_stats_many,
+    extended_stats,
+    joint_block_sums,
 )
 from hil.model.closed_form import physical_consistency
 
@@ -72,6 +76,10 @@ POSITIVE_ONLY = ("stribeck", "rate")
 # correlation of the filtered residual, short enough for a sign test to have power).
 BLOCKS_WANTED = 40
 BLOCK_SECONDS = (0.15, 0.5)
+# ... and at most this many: a long recording's blocks grow beyond BLOCK_SECONDS[1] instead
+# (every block is a leave-one-out fit of every variant of every candidate; 400 nearly
+# independent blocks already give the sign test far more power than FAMILY_ALPHA asks for).
+MAX_BLOCKS = 400
 COGGING_PERIODS = np.arange(3, 401)
 STRIBECK_VELOCITIES = np.geomspace(0.02, 0.6, 16)
 LAG_GRID_S = np.geomspace(5e-5, 0.03, 28)  # lag and delay search, then refined locally
@@ -86,8 +94,9 @@ class Candidate:
     joint: int
     variants: tuple[Any, ...]
     columns: Callable[[RecordingRows, Any], np.ndarray]
-    # X of several variants at once, (K, 2, V, width), when that is cheaper than one by one
-    batch: Callable[[RecordingRows, tuple[Any, ...]], np.ndarray] | None = None
+    # X of many variants on the candidate's joint, ``per`` at a time ((K, ≤per, width) arrays),
+    # when that is cheaper than one by one
+    chunks: Callable[[RecordingRows, tuple[Any, ...], int], Iterator[np.ndarray]] | None = None
 
     @property
     def key(self) -> str:
@@ -144,7 +153,7 @@ def candidates(
                 j,
                 cogging_periods(angle_range_rad[j]),
                 lambda r, n, j=j: cogging_columns(r, j, n),
-                lambda r, ns, j=j: cogging_columns_many(r, j, ns),
+                lambda r, ns, per, j=j: cogging_column_chunks(r, j, ns, per),
             ),
             Candidate("rate", j, (None,), lambda r, _v, j=j: torque_rate_column(r, j)),
             Candidate(
@@ -172,6 +181,9 @@ class Problem:
     scale: np.ndarray  # (2,) noise scale per joint [Nm]
     blocks: np.ndarray  # (K,)
     cache: dict[tuple[str, int], np.ndarray] = field(default_factory=dict)
+    grids: dict[str, GridSums] = field(default_factory=dict)
+    # (key, variant) of the one-variant candidates: summed against a grid when it is first built
+    anticipated: list[tuple[str, int]] = field(default_factory=list)
 
     @property
     def y(self) -> np.ndarray:
@@ -206,27 +218,115 @@ class Problem:
         """X of an accepted term, at the variant it was accepted with."""
         return self.column(a.cand, a.cand.variants.index(a.variant))
 
-    def variant_chunks(self, cand: Candidate) -> Iterator[list[np.ndarray] | np.ndarray]:
-        """X of every variant, a few at a time (at most CHUNK_BYTES of columns): a 400-period
-        cogging grid over a long recording would not fit in memory at once."""
-        # bytes per variant and row: the columns (2 joints × width floats) and, for a batch,
-        # its working arrays (a complex value at each of 4 interval nodes, then their mean)
-        per_row = 8 * 2 * term_width(cand) + (96 if cand.batch is not None else 0)
+    def forget(self, key: tuple[str, int]) -> None:
+        """A term's column is rebuilt (an angle offset relinearised): drop the old one and every
+        grid's sums against it."""
+        self.cache.pop(key, None)
+        for sums in self.grids.values():
+            sums.terms.pop(key, None)
+
+    def grid_stats(
+        self, cand: Candidate, term_keys: Sequence[tuple[str, int]], base: BlockStats
+    ) -> Iterator[BlockStats]:
+        """Block statistics of [Z, X_v] for every variant v of a one-joint candidate, a chunk of
+        variants at a time, Z being Ψ and the columns of the terms ``term_keys`` (``base``: the
+        statistics of Z). Assembled from the candidate's raw sums (:class:`GridSums`, built once
+        and extended when a new term joins): rows scaled by 1/s_j scale every sum of joint j by
+        1/s_j², so a new noise scale costs nothing."""
+        j = cand.joint
+        sums = self._grid_sums(cand, term_keys)
+        n_var, n_blocks, p, q = len(cand.variants), base.G.shape[0], base.G.shape[-1], sums.q
+        per = max(1, int(CHUNK_BYTES // (8 * n_blocks * 2 * (p + q) ** 2 * 3)))
+        s2 = self.scale[j] ** 2
+        for lo in range(0, n_var, per):
+            hi = min(lo + per, n_var)
+            cross = np.zeros((hi - lo, n_blocks, 2, p, q))
+            parts = [sums.PX[lo:hi], *(sums.terms[k][lo:hi] for k in term_keys)]
+            cross[:, :, j] = np.concatenate(parts, axis=2) / s2
+            xx = np.zeros((hi - lo, n_blocks, 2, q, q))
+            xx[:, :, j] = sums.XX[lo:hi] / s2
+            rx = np.zeros((hi - lo, n_blocks, 2, q))
+            rx[:, :, j] = sums.Xy[lo:hi] / s2
+            yield extended_stats(base, cross, xx, rx)
+
+    def _grid_sums(self, cand: Candidate, term_keys: Sequence[tuple[str, int]]) -> GridSums:
+        """The raw sums of a candidate's variants against Ψ, y and the terms ``term_keys``;
+        columns are built only for what is not summed yet."""
+        sums = self.grids.get(cand.key)
+        j = cand.joint
+        n_var = len(cand.variants)
+        missing = [k for k in term_keys if sums is None or k not in sums.terms]
+        if sums is not None:
+            for k in [k for k in missing if not np.any(self.cache[k][:, j])]:
+                # a term on the other joint's rows only: nothing to sum
+                sums.terms[k] = np.zeros((n_var, sums.PX.shape[1], self.cache[k].shape[-1], sums.q))
+                missing.remove(k)
+            if not missing:
+                return sums
+        else:  # the terms likely to join later too, so that their arrival costs no rebuild
+            missing += [
+                k
+                for k in self.anticipated
+                if k not in missing and k in self.cache and np.any(self.cache[k][:, j])
+            ]
+        U = [self.cache[k][:, j, :] for k in missing]  # (K, width) raw, on the joint's rows
+        if sums is None:
+            U = [self.Psi_raw[:, j, :], *U]
+        selector = block_selector(np.concatenate(U, axis=1), self.blocks)
+        parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        for X in self._grid_columns(cand):
+            ux, xx, xy = joint_block_sums(selector, X, self.y_raw[:, j], self.w[:, j], self.blocks)
+            n_blocks, m, _ = ux.shape
+            ux = ux.reshape(n_blocks, m, X.shape[1], X.shape[2]).transpose(2, 0, 1, 3)
+            parts.append((ux, xx.transpose(1, 0, 2, 3), xy.transpose(1, 0, 2)))
+        ux = np.concatenate([u for u, _, _ in parts])  # (V, B, m, q)
+        assert ux.shape[0] == n_var
+        at = 0
+        if sums is None:
+            sums = GridSums(
+                ux[:, :, :9].copy(),
+                np.concatenate([x for _, x, _ in parts]),
+                np.concatenate([x for _, _, x in parts]),
+                ux.shape[-1],
+            )
+            self.grids[cand.key] = sums
+            at = 9
+        for k in missing:
+            width = self.cache[k].shape[-1]
+            sums.terms[k] = ux[:, :, at : at + width].copy()
+            at += width
+        return sums
+
+    def _grid_columns(self, cand: Candidate) -> Iterator[np.ndarray]:
+        """Raw X of every variant on the candidate's joint, (K, ≤per, width) chunks of at most
+        CHUNK_BYTES: a 400-period cogging grid over a long recording would not fit at once."""
+        j, width = cand.joint, term_width(cand)
+        per_row = 8 * width * 4 + (96 if cand.chunks is not None else 0)  # columns + working
         per = max(1, int(CHUNK_BYTES // (per_row * max(len(self.y_raw), 1))))
-        if len(cand.variants) == 1:
-            yield [self.column(cand, 0)]
+        if cand.chunks is not None:
+            streams = [cand.chunks(r, cand.variants, per) for r in self.rows]
+            for pieces in zip(*streams, strict=True):
+                yield np.concatenate(pieces)
             return
         for lo in range(0, len(cand.variants), per):
             hi = min(lo + per, len(cand.variants))
-            if cand.batch is not None:
-                some = cand.variants[lo:hi]
-                X = np.concatenate([cand.batch(r, some) for r in self.rows])
-                yield X / self.scale[None, :, None, None]
-            else:
-                yield [self._raw(cand, i) / self.scale[None, :, None] for i in range(lo, hi)]
+            yield np.stack([self._raw(cand, i)[:, j] for i in range(lo, hi)], axis=1)
 
 
-# Memory for the columns of one chunk of a candidate's variants (bytes).
+@dataclass
+class GridSums:
+    """Raw (unscaled) per-block sums of a one-joint candidate's variants X_v over its joint's
+    rows: Σ w Ψᵀ X_v (V, B, 9, q), Σ w X_vᵀ X_v (V, B, q, q), Σ w X_vᵀ y (V, B, q), and against
+    each term's columns E, Σ w Eᵀ X_v (V, B, width, q), by the term's (key, variant index)."""
+
+    PX: np.ndarray
+    XX: np.ndarray
+    Xy: np.ndarray
+    q: int
+    terms: dict[tuple[str, int], np.ndarray] = field(default_factory=dict)
+
+
+# Memory for one chunk of a candidate's variants: its columns, or its statistics (bytes).
 CHUNK_BYTES = 64e6
 
 
@@ -293,7 +393,8 @@ def build_problem(
     theta = fit_theta(Psi, y, w)
     scale = robust_scale(y - Psi @ theta, w)
     total_s = sum(r.rows * r.h for r in rows)
-    block_s = min(max(total_s / BLOCKS_WANTED, BLOCK_SECONDS[0]), BLOCK_SECONDS[1])
+    longest = max(BLOCK_SECONDS[1], total_s / MAX_BLOCKS)
+    block_s = min(max(total_s / BLOCKS_WANTED, BLOCK_SECONDS[0]), longest)
     blocks = block_index([r.rows for r in rows], round(block_s / min(r.h for r in rows)))
     return Problem(rows, y, Psi, w, scale, blocks), theta
 
@@ -319,10 +420,28 @@ def _cv(
     stats = block_stats(base, prob.y, prob.w, prob.blocks)
     if cand is None:
         return cross_validate(stats)
-    y, w, blocks = prob.y, prob.w, prob.blocks
+    if len(cand.variants) != 1:
+        raise ValueError(f"{cand.key} has {len(cand.variants)} variants: use _cv_terms")
     return cross_validate(
-        extend_stats_many(stats, base, chunk, y, w, blocks) for chunk in prob.variant_chunks(cand)
+        extend_stats_many(stats, base, [prob.column(cand, 0)], prob.y, prob.w, prob.blocks)
     )
+
+
+def _term_key(a: Accepted) -> tuple[str, int]:
+    return (a.cand.key, a.cand.variants.index(a.variant))
+
+
+def _cv_terms(prob: Problem, terms: Sequence[Accepted], cand: Candidate) -> CrossValidation:
+    """:func:`_cv` of nominal + the columns of ``terms`` + each variant of ``cand``. A candidate
+    with many variants on one joint (a cogging or Stribeck grid) is scored from its cached block
+    statistics (:meth:`Problem.grid_stats`), so that its columns are built once per diagnosis,
+    not once per round."""
+    extra = [prob.chosen(a) for a in terms]
+    if len(cand.variants) == 1:
+        return _cv(prob, extra, cand)
+    base = _design(prob, extra)
+    stats = block_stats(base, prob.y, prob.w, prob.blocks)
+    return cross_validate(prob.grid_stats(cand, [_term_key(a) for a in terms], stats))
 
 
 def _rewhiten(prob: Problem, accepted: Sequence[Accepted]) -> None:
@@ -519,7 +638,7 @@ def _confounding(
         for alt in library:
             if alt.key in taken or (alt.kind == "gain") != (a.cand.kind == "gain"):
                 continue
-            with_alt = _cv(prob, cols, alt)
+            with_alt = _cv_terms(prob, others, alt)
             joints = sorted(set(_joints(alt)) | set(_joints(a.cand)))
             if not _passes(evidence(without, with_alt, _joints(alt)), tests):
                 continue
@@ -546,12 +665,14 @@ def select(
     accepted: list[Accepted] = []
     extra: list[np.ndarray] = []
     first_round: dict[str, Evidence] = {}
-    remaining = list(library)
+    # one-variant candidates first, so that their columns exist when a grid is first summed
+    remaining = sorted(library, key=lambda c: len(c.variants) > 1)
+    prob.anticipated = [(c.key, 0) for c in library if len(c.variants) == 1]
     for _round in range(MAX_ROUNDS):
         base = _cv(prob, extra)
         scored = []
         for cand in remaining:
-            cv = _cv(prob, extra, cand)
+            cv = _cv_terms(prob, accepted, cand)
             ev = evidence(base, cv, _joints(cand))
             if not first_round.get(cand.key):
                 first_round[cand.key] = ev
@@ -621,7 +742,7 @@ def relinearise_angle(prob: Problem, accepted: list[Accepted]) -> list[Accepted]
             cand = Candidate(
                 "angle", j, (None,), lambda r, _v, j=j, th=theta: angle_offset_column(r, j, th)
             )
-            prob.cache.pop((cand.key, 0), None)
+            prob.forget((cand.key, 0))
             a = Accepted(cand, None, a.evidence, a.confounded_with, a.rival_variants)
             out[i] = a
     return out

@@ -22,6 +22,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import csc_matrix
 from scipy.stats import binom
 
 RIDGE = 1e-9  # relative: keeps a fold solvable when a column is (nearly) absent from it
@@ -86,26 +87,57 @@ def extend_stats_many(
     and joint, which is what keeps a 400-variant cogging search to a fraction of a second. A
     joint whose rows the variants leave at zero costs nothing. Leading axis of G and r: the
     variant."""
-    starts = _starts(blocks)
-    ends = np.r_[starts[1:], len(blocks)]
     X = variants if isinstance(variants, np.ndarray) else np.stack(variants, axis=2)
     V, q = X.shape[2], X.shape[3]
-    n_blocks, p = len(starts), Z.shape[-1]
+    n_blocks, p = len(_starts(blocks)), Z.shape[-1]
     cross = np.zeros((n_blocks, 2, p, V * q))
     xx = np.zeros((n_blocks, 2, V, q, q))
     rx = np.zeros((n_blocks, 2, V, q))
     for j in (0, 1):
         if not np.any(X[:, j]):
             continue
-        wX = w[:, j, None, None] * X[:, j]  # (K, V, q)
-        for b, (lo, hi) in enumerate(zip(starts, ends, strict=True)):
-            wxb = wX[lo:hi]  # (K_b, V, q)
-            cross[b, j] = Z[lo:hi, j, :].T @ wxb.reshape(hi - lo, V * q)
-            xx[b, j] = np.einsum("kva,kvc->vac", X[lo:hi, j], wxb)
-            rx[b, j] = np.einsum("kva,k->va", wxb, y[lo:hi, j])
+        cross[:, j], xx[:, j], rx[:, j] = joint_block_sums(
+            Z[:, j, :], X[:, j], y[:, j], w[:, j], blocks
+        )
     cross = cross.reshape(n_blocks, 2, p, V, q).transpose(3, 0, 1, 2, 4)  # (V, B, 2, p, q)
-    xx = xx.transpose(2, 0, 1, 3, 4)
-    rx = rx.transpose(2, 0, 1, 3)
+    return extended_stats(base, cross, xx.transpose(2, 0, 1, 3, 4), rx.transpose(2, 0, 1, 3))
+
+
+def block_selector(U: np.ndarray, blocks: np.ndarray) -> csc_matrix:
+    """The sparse (B·m, K) matrix whose row b·m + i holds column i of U (K, m) on block b's rows
+    and zeros elsewhere: times a (K, n) array it gives every block's Σ Uᵀ X at once."""
+    starts = _starts(blocks)
+    K, m = U.shape
+    local = np.repeat(np.arange(len(starts)), np.diff(np.r_[starts, K]))
+    rows = (local[:, None] * m + np.arange(m)).ravel()  # row k's m entries, in order
+    return csc_matrix((U.ravel(), rows, np.arange(0, K * m + 1, m)), shape=(len(starts) * m, K))
+
+
+def joint_block_sums(
+    U: np.ndarray | csc_matrix, X: np.ndarray, y: np.ndarray, w: np.ndarray, blocks: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per block, of one joint's rows: Σ w Uᵀ X (B, m, V·q), Σ w XᵀX per variant (B, V, q, q)
+    and Σ w Xᵀ y (B, V, q), for columns U (K, m) (or their :func:`block_selector`, to reuse it
+    over chunks of variants) and variants X (K, V, q): one sparse product and one sum per block
+    over the rows, so a long recording's thousand blocks cost no Python loop."""
+    starts = _starts(blocks)
+    selector = block_selector(U, blocks) if isinstance(U, np.ndarray) else U
+    K, (V, q) = X.shape[0], X.shape[1:]
+    wX = w[:, None, None] * X  # (K, V, q)
+    ux = np.asarray(selector @ wX.reshape(K, V * q)).reshape(len(starts), -1, V * q)
+    # one column of X at a time: the products of all q² pairs at once would be (K, V, q, q)
+    xx = np.stack([np.add.reduceat(X[:, :, [a]] * wX, starts, axis=0) for a in range(q)], axis=2)
+    xy = np.add.reduceat(wX * y[:, None, None], starts, axis=0)
+    return ux, xx, xy
+
+
+def extended_stats(
+    base: BlockStats, cross: np.ndarray, xx: np.ndarray, rx: np.ndarray
+) -> BlockStats:
+    """Statistics of the designs [Z, X_v] from those of Z (``base``) and the variants' own sums
+    per block and joint: ``cross`` Σ w Zᵀ X_v (V, B, 2, p, q), ``xx`` Σ w X_vᵀ X_v (V, B, 2, q, q),
+    ``rx`` Σ w X_vᵀ y (V, B, 2, q)."""
+    V = cross.shape[0]
     G_base = np.broadcast_to(base.G, (V, *base.G.shape))
     top = np.concatenate([G_base, cross], axis=-1)
     bottom = np.concatenate([np.swapaxes(cross, -1, -2), xx], axis=-1)

@@ -1,7 +1,8 @@
 """Benchmark: `hil diagnose` on a 20 s recording at 400 Hz (target: under 30 s on this machine),
 and with ``--long`` on a 10-minute recording at 1 kHz (target: under 60 s and 1 GB).
 
-    python tests/benchmarks/bench_diagnose.py [--repeat 3] [--long [--long-minutes 10]]
+    python tests/benchmarks/bench_diagnose.py [--repeat 3] [--long [--long-minutes 10]
+        [--long-recording RUN_DIR]]
 
 Records the diagnosis excitation on the default virtual robot (joint 1's direction-dependent
 Coulomb friction) and on the null robot (symmetric friction), then times the whole diagnosis
@@ -35,8 +36,9 @@ TARGET_S = 30.0
 LONG_TARGET_S, LONG_TARGET_BYTES = 60.0, 1e9
 
 
-def long_case(minutes: float) -> None:
-    """Diagnose ``minutes`` of the validation multisine at 1 kHz in a child process."""
+def long_case(minutes: float, recording: str | None = None) -> None:
+    """Diagnose ``minutes`` of the validation multisine at 1 kHz in a child process
+    (``recording``: one made before, instead of simulating it again)."""
     from profiles.experiment import load_experiment
 
     text = Path(load_experiment("validation-multisine").source).read_text()
@@ -45,7 +47,7 @@ def long_case(minutes: float) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         toml = Path(tmp) / "multisine-1khz.toml"
         toml.write_text(text)
-        path = make_recording(Path(tmp) / "long", toml, None)
+        path = recording or make_recording(Path(tmp) / "long", toml, None)
         code = (
             "import sys, time; from drivers.recording import read_signals; "
             "from hil.diagnose.report import diagnose; from hil.model.params import robot_params; "
@@ -79,9 +81,12 @@ def main() -> int:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--long", action="store_true", help="also the 10-minute 1 kHz case")
     ap.add_argument("--long-minutes", type=float, default=10.0)
+    ap.add_argument(
+        "--long-recording", default=None, help="diagnose this long recording instead of making one"
+    )
     args = ap.parse_args()
     if args.long:
-        long_case(args.long_minutes)
+        long_case(args.long_minutes, args.long_recording)
     reference = robot_params("cicese").theta
     with tempfile.TemporaryDirectory() as tmp:
         for name, effects in (("default robot", None), ("null", CASES["null"].effects)):
