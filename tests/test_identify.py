@@ -203,6 +203,16 @@ def test_weighted_least_squares_balances_channels():
     assert err_wls < 0.2 * err_ls
 
 
+def test_weighted_least_squares_on_fewer_rows_than_its_window():
+    """130 rows, window 200 (a 5 s recording's fit part): the noise window shrinks to the rows
+    (np.convolve's "same" mode would return 200 values and fail to broadcast)."""
+    rng = np.random.default_rng(3)
+    theta = np.array([1.0, -2.0])
+    Psi = rng.normal(size=(130, 2, 2))
+    y = np.einsum("kmp,p->km", Psi, theta) + rng.normal(size=(130, 2)) * 0.01
+    assert np.allclose(weighted_least_squares(Psi, y, window=200), theta, atol=0.01)
+
+
 def test_rls_rejects_bad_settings():
     with pytest.raises(ValueError, match="forgetting"):
         RecursiveLeastSquares(3, forgetting=1.5)

@@ -143,6 +143,9 @@ def weighted_least_squares(
     base = np.ones(y.shape) if weights is None else np.asarray(weights, dtype=float)
     theta = least_squares(Psi, y, base)
     r2 = (y - np.einsum("kmp,p->km", Psi, theta)) ** 2
+    # np.convolve(..., "same") returns the longer of its inputs: never let the window outgrow the
+    # rows (a short recording, or few rows left after stalls and gaps)
+    window = max(1, min(window, len(r2)))
     kernel = np.ones(window) / window
     var = np.empty_like(r2)
     for j in range(r2.shape[1]):
