@@ -292,3 +292,10 @@ def test_identify_cli_on_the_committed_dfki_file(tmp_path, capsys):
     ps = load_params(tmp_path / "out-rotor_inertia" / "params.json")
     assert ps.terms == ("rotor_inertia",) and len(ps.theta) == 10
     assert np.allclose(ps.theta, ident["theta"])
+    # the text report names the rows in words
+    code = hil_main(
+        ["identify", "--from", str(fit), "--validate", str(held), "--robot", "dfki-a0",
+         "--out", str(tmp_path / "out-text"), "--no-plot"]
+    )  # fmt: skip
+    text = capsys.readouterr().out
+    assert code == 0 and "held-out: identified" in text and "held_out" not in text

@@ -592,7 +592,8 @@ def format_model_report(report: dict[str, Any], model: ArmModel) -> str:
         f"{report['simulation_window_s']:g} s from the recorded state",
         f"{'':26s}{'torque j1':>10s}{'j2':>8s}{'simulation j1':>15s}{'j2':>8s}",
     ]
-    for where, vals in report["validation"].items():
+    for key, vals in report["validation"].items():
+        where = {"fit": "fit", "held_out": "held-out"}.get(key, key)  # words, not JSON keys
         for label, v in vals.items():
             sim = v["simulation"]
             simtxt = (
