@@ -78,13 +78,15 @@ def long_case(minutes: float, recording: str | None = None) -> None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--repeat", type=int, default=3, help="runs per case, at least 1")
     ap.add_argument("--long", action="store_true", help="also the 10-minute 1 kHz case")
     ap.add_argument("--long-minutes", type=float, default=10.0)
     ap.add_argument(
         "--long-recording", default=None, help="diagnose this long recording instead of making one"
     )
     args = ap.parse_args()
+    if args.repeat < 1:
+        ap.error(f"--repeat must be at least 1, got {args.repeat}")
     if args.long:
         long_case(args.long_minutes, args.long_recording)
     reference = robot_params("cicese").theta
