@@ -71,3 +71,13 @@ def test_validation_panels_are_titled_in_words(saved, tmp_path) -> None:
     (fig,) = saved
     assert not any("held_out" in t for t in fig["titles"] + [fig["title"]])
     assert any(t.startswith("Held-out recording: joint 1") for t in fig["titles"])
+
+
+def test_diagnosis_simulation_lines_break_at_skipped_segments():
+    """Held-out simulations of separate segments (or recordings) are not joined by lines."""
+    from hil.diagnose.plots import broken_at_gaps
+
+    t = np.r_[np.arange(0, 1, 0.01), np.arange(5, 6, 0.01), np.arange(0, 1, 0.01)]
+    b = broken_at_gaps(t)
+    assert np.isnan(b).sum() == 2 and np.isnan(b[100]) and np.isnan(b[200])
+    assert np.array_equal(b[:100], t[:100])

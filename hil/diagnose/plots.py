@@ -13,6 +13,20 @@ import numpy as np
 from hil.diagnose.report import DiagnosisResult, percent
 
 
+def broken_at_gaps(t: np.ndarray) -> np.ndarray:
+    """``t`` with NaN where the next sample is more than 3 median steps later or earlier (a
+    segment the diagnosis did not simulate, another recording), so a line plot breaks there
+    instead of drawing a line across."""
+    t = np.asarray(t, dtype=float).copy()
+    if len(t) < 3:
+        return t
+    dt = np.diff(t)
+    step = np.median(np.abs(dt))
+    jump = (dt > 3 * step) | (dt < 0)
+    t[1:][jump] = np.nan
+    return t
+
+
 def plot_diagnosis(result: DiagnosisResult, out: Path) -> list[Path]:
     """residual.png (against time, velocity and position, per joint) and fit.png (held-out
     torque and simulated position, before and after)."""
@@ -69,11 +83,12 @@ def plot_diagnosis(result: DiagnosisResult, out: Path) -> list[Path]:
         sim = result.arrays["simulation"]
         ax = axes[j, 1]
         if sim:
-            ax.plot(sim["t"], sim["q"][:, j], "k", lw=1, label="recorded")
+            t_sim = broken_at_gaps(sim["t"])
+            ax.plot(t_sim, sim["q"][:, j], "k", lw=1, label="recorded")
             for name, style in (("before", "-"), ("after", "--")):
                 if name in sim:  # a fit that is not physical is not simulated
                     ax.plot(
-                        sim["t"],
+                        t_sim,
                         sim[name][:, j],
                         style,
                         lw=0.8,
@@ -95,5 +110,6 @@ def plot_diagnosis(result: DiagnosisResult, out: Path) -> list[Path]:
 
 
 __all__ = [
+    "broken_at_gaps",
     "plot_diagnosis",
 ]
