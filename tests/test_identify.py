@@ -190,6 +190,26 @@ def test_rls_converges_to_least_squares_and_weights_drop_rows():
     assert np.allclose(recursive_least_squares(Psi[:200, :1], y[:200, :1])[-1], rls.theta)
 
 
+def test_rls_keep_returns_exactly_the_full_history_at_those_rows():
+    """Issue 13: the decimated history (``keep``) is the full one at those rows, bit for bit,
+    on both paths (vector error, scalar error) and with rows weighted out."""
+    rng = np.random.default_rng(3)
+    Psi = rng.normal(size=(300, 2, 4))
+    y = rng.normal(size=(300, 2))
+    w = np.ones(y.shape)
+    w[10:40] = 0.0
+    keep = np.array([0, 5, 11, 39, 40, 150, 299])
+    for P, Y, W in ((Psi, y, w), (Psi[:, :1], y[:, :1], w[:, :1])):
+        full = recursive_least_squares(P, Y, W)
+        kept = recursive_least_squares(P, Y, W, keep=keep)
+        assert kept.shape == (len(keep), 4)
+        assert np.array_equal(kept, full[keep])
+    with pytest.raises(ValueError, match="keep must be increasing"):
+        recursive_least_squares(Psi, y, keep=np.array([5, 3]))
+    with pytest.raises(ValueError, match="keep must be increasing"):
+        recursive_least_squares(Psi, y, keep=np.array([300]))
+
+
 def test_weighted_least_squares_balances_channels():
     """Channel 2 has 100× less noise: WLS uses it, plain LS is dominated by channel 1."""
     rng = np.random.default_rng(2)

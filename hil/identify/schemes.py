@@ -98,12 +98,13 @@ def identify(
         t1 = time.perf_counter()
         theta_ls = least_squares(reg.Psi, reg.y, reg.weights)
         t2 = time.perf_counter()
-        hist = recursive_least_squares(reg.Psi, reg.y, reg.weights)
+        # θ̂(k) only at the rows the report and plots show (a (K, 9) history is 72 B a row)
+        K = len(reg.y)
+        pick = np.unique(np.r_[np.arange(0, K, max(1, K // HISTORY_POINTS)), K - 1])
+        hist = recursive_least_squares(reg.Psi, reg.y, reg.weights, keep=pick)
         t3 = time.perf_counter()
         theta_wls = weighted_least_squares(reg.Psi, reg.y, reg.weights)
         t4 = time.perf_counter()
-        step = max(1, len(hist) // HISTORY_POINTS)
-        pick = np.unique(np.r_[np.arange(0, len(hist), step), len(hist) - 1])
         chosen = {"rls": hist[-1], "ls": theta_ls, "wls": theta_wls}[estimator]
         out[scheme] = SchemeResult(
             scheme=scheme,
@@ -115,7 +116,7 @@ def identify(
             theta_ls=theta_ls,
             theta_wls=theta_wls,
             history_t=reg.t[pick],
-            history=hist[pick],
+            history=hist,
             rows=int(reg.weights.shape[0]),
             rows_excluded=int(np.sum(reg.weights == 0)),
             consistency=physical_consistency(chosen),
@@ -126,6 +127,7 @@ def identify(
                 "weighted_least_squares": t4 - t3,
             },
         )
+        del reg  # before the next scheme's rows are built: one scheme's regression alive at once
     return out
 
 

@@ -73,39 +73,52 @@ def recursive_least_squares(
     *,
     p0: float = PAPER_P0,
     forgetting: float = 1.0,
+    keep: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Run RLS (eqs. (20)-(22)) over a whole regression; returns θ̂(k) for every k, (K, p)."""
+    """Run RLS (eqs. (20)-(22)) over a whole regression; returns θ̂(k) for every k, (K, p), or
+    only at the rows ``keep`` (increasing indices), (len(keep), p): a long recording's report
+    needs a few hundred points of the history, not K of them (issue 13: memory)."""
     Psi = np.asarray(Psi, dtype=float)
     y = np.asarray(y, dtype=float)
     K, m, p = Psi.shape
+    keep = np.arange(K) if keep is None else np.asarray(keep, dtype=int)
+    if len(keep) and (keep[0] < 0 or keep[-1] >= K or np.any(np.diff(keep) <= 0)):
+        raise ValueError(f"keep must be increasing row indices in [0, {K}), got {keep}")
     w = np.ones((K, m)) if weights is None else np.asarray(weights, dtype=float)
-    history = np.empty((K, p))
     if m == 1 and forgetting == 1.0:
-        history[:] = _scalar_rls(Psi[:, 0, :], y[:, 0], w[:, 0], p0)
-        return history
+        return _scalar_rls(Psi[:, 0, :], y[:, 0], w[:, 0], p0, keep)
+    history = np.empty((len(keep), p))
     rls = RecursiveLeastSquares(p, p0=p0, forgetting=forgetting)
+    slot = 0
     for k in range(K):
-        history[k] = rls.update(Psi[k], y[k], w[k])
+        theta = rls.update(Psi[k], y[k], w[k])
+        if slot < len(keep) and keep[slot] == k:
+            history[slot] = theta
+            slot += 1
     return history
 
 
-def _scalar_rls(psi: np.ndarray, y: np.ndarray, w: np.ndarray, p0: float) -> np.ndarray:
-    """Scalar-error RLS, eqs. (20)-(22) with m = 1, as a tight loop (no m×m solve)."""
+def _scalar_rls(
+    psi: np.ndarray, y: np.ndarray, w: np.ndarray, p0: float, keep: np.ndarray
+) -> np.ndarray:
+    """Scalar-error RLS, eqs. (20)-(22) with m = 1, as a tight loop (no m×m solve); θ̂(k) at
+    the rows ``keep``."""
     K, p = psi.shape
     P = np.eye(p) * p0
     theta = np.zeros(p)
-    out = np.empty((K, p))
+    out = np.empty((len(keep), p))
     sw = np.sqrt(w)
+    slot = 0
     for k in range(K):
-        if sw[k] == 0:
-            out[k] = theta
-            continue
-        phi = psi[k] * sw[k]
-        Pphi = P @ phi
-        gain = Pphi / (1.0 + phi @ Pphi)
-        theta = theta + gain * (y[k] * sw[k] - phi @ theta)
-        P = P - np.outer(gain, Pphi)
-        out[k] = theta
+        if sw[k] != 0:
+            phi = psi[k] * sw[k]
+            Pphi = P @ phi
+            gain = Pphi / (1.0 + phi @ Pphi)
+            theta = theta + gain * (y[k] * sw[k] - phi @ theta)
+            P = P - np.outer(gain, Pphi)
+        if slot < len(keep) and keep[slot] == k:
+            out[slot] = theta
+            slot += 1
     return out
 
 
@@ -123,7 +136,9 @@ def least_squares(Psi: np.ndarray, y: np.ndarray, weights: np.ndarray | None = N
     # Scale columns so the solve does not depend on the units of θ (θ4 ~ 40 Nm, θ2 ~ 0.08 kg m²).
     scale = np.linalg.norm(A, axis=0)
     scale[scale == 0] = 1.0
-    sol, *_ = np.linalg.lstsq(A / scale, b, rcond=None)
+    # in place when A is already a copy (weighted): one K·m×p array less on a long recording
+    A = A / scale if weights is None else np.divide(A, scale, out=A)
+    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
     return sol / scale
 
 
