@@ -227,6 +227,9 @@ class IntervalIntegrals:
     stuck: np.ndarray  # (K, 2)  joint did not move over the interval (stick)
 
 
+INTERVAL_CHUNK = 50_000  # intervals integrated at once: bounds the quadrature's temporaries
+
+
 def interval_integrals(
     q: np.ndarray,
     v: np.ndarray,
@@ -238,6 +241,27 @@ def interval_integrals(
     ``h``: the common interval (s), or every interval's own length, shape (N − 1,)."""
     ok = np.isfinite(v).all(axis=1)
     k = np.flatnonzero(ok[:-1] & ok[1:])
+    if len(k) > INTERVAL_CHUNK:
+        # Every interval's integrals are its own: in chunks, so the (nodes, K, 2, p) values at
+        # the quadrature nodes never exist for a whole long recording at once (issue 13).
+        parts = [
+            _interval_integrals(q, v, h, model, k[i : i + INTERVAL_CHUNK])
+            for i in range(0, len(k), INTERVAL_CHUNK)
+        ]
+        return IntervalIntegrals(
+            k,
+            *(
+                np.concatenate([getattr(c, f) for c in parts])
+                for f in ("R", "friction_work", "stuck")
+            ),
+        )
+    return _interval_integrals(q, v, h, model, k)
+
+
+def _interval_integrals(
+    q: np.ndarray, v: np.ndarray, h: float | np.ndarray, model: ArmModel, k: np.ndarray
+) -> IntervalIntegrals:
+    """:func:`interval_integrals` over the intervals ``k`` (both end velocities known)."""
     q0, q1 = q[k], q[k + 1]
     if np.ndim(h) == 0:
         hk: float | np.ndarray = h
