@@ -210,6 +210,26 @@ def test_rls_keep_returns_exactly_the_full_history_at_those_rows():
         recursive_least_squares(Psi, y, keep=np.array([300]))
 
 
+def test_interval_integrals_in_chunks_equal_the_whole(monkeypatch):
+    """Issue 13: integrating the intervals chunk by chunk (bounded memory) gives the same bits
+    as all at once, with a common interval and with each interval's own length."""
+    from hil.model import regressors
+
+    rng = np.random.default_rng(4)
+    t = np.cumsum(0.0025 + 1e-4 * rng.random(1001))
+    q = np.column_stack([np.sin(1.3 * t), 0.6 * np.cos(2.1 * t)])
+    q[400:420, 1] = q[400, 1]  # a stuck stretch: its flags must survive the chunking
+    v = regressors.central_difference(q, 0.0025)
+    for h, chunk in [(h, c) for h in (0.0025, np.diff(t)) for c in (64, 256)]:
+        monkeypatch.setattr(regressors, "INTERVAL_CHUNK", 10**9)
+        whole = regressors.interval_integrals(q, v, h)
+        monkeypatch.setattr(regressors, "INTERVAL_CHUNK", chunk)  # a power of two, as shipped
+        chunked = regressors.interval_integrals(q, v, h)
+        assert chunked.stuck.any()
+        for f in ("k", "R", "friction_work", "stuck"):
+            assert np.array_equal(getattr(chunked, f), getattr(whole, f)), f
+
+
 def test_weighted_least_squares_balances_channels():
     """Channel 2 has 100× less noise: WLS uses it, plain LS is dominated by channel 1."""
     rng = np.random.default_rng(2)

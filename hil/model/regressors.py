@@ -227,7 +227,10 @@ class IntervalIntegrals:
     stuck: np.ndarray  # (K, 2)  joint did not move over the interval (stick)
 
 
-INTERVAL_CHUNK = 50_000  # intervals integrated at once: bounds the quadrature's temporaries
+# Intervals integrated at once: bounds the quadrature's temporaries. A power of two: BLAS sums
+# a vector's last few elements in a scalar tail loop (rounding apart from the SIMD body by an
+# ulp), so chunks a multiple of any SIMD width give the same bits as the whole recording.
+INTERVAL_CHUNK = 1 << 16
 
 
 def interval_integrals(
