@@ -1,21 +1,27 @@
 """What every offline simulation shares, whatever the arm (virtual_robot.simulate for the 2-DOF
 closed-form plant, virtual_robot.urdf_plant for n joints): booting the drive models as a host
-would, booking their faults, describing them in meta.json, and the result.
+would, the open-loop rows (:func:`record_open_loop`: command, step, sample, record), booking the
+drives' faults, describing them in meta.json, and the result.
 
-Imports profiles.drive and virtual_robot.drive only.
+Imports drivers.recording, drivers.units, profiles.drive, virtual_robot.drive and
+virtual_robot.stepping only.
 """
 
 from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from drivers.recording import RecordingWriter
+from drivers.units import counts_to_rad, torque_to_permille, unwrap_int32
 from profiles.drive import DriveProfile
 from virtual_robot.drive import MODE_CST, DriveModel, State
+from virtual_robot.stepping import Stepper
 
 ENABLE_SEQUENCE = (0x06, 0x07, 0x0F)  # shutdown, switch on, enable operation (CiA 402)
 
@@ -85,3 +91,42 @@ def drive_meta(profiles: Sequence[DriveProfile]) -> list[dict[str, Any]]:
         }
         for p in profiles
     ]
+
+
+def record_open_loop(
+    rec: RecordingWriter,
+    stepper: Stepper,
+    drives: Sequence[DriveModel],
+    profiles: Sequence[DriveProfile],
+    commanded_Nm: Any,
+    n_rows: int,
+    progress: Callable[[float, float], None] | None = None,
+) -> list[dict[str, Any]]:
+    """Row k of ``commanded_Nm`` (torques, Nm) through the drives, open loop, one lockstep SYNC
+    a row: the torques written at t_{k-1} are held over [t_{k-1}, t_k), the encoders sampled at
+    t_k; each row ``t, q1..qn, tau1..taun, status1..statusn`` is written to ``rec``. Returns the
+    drives' faults (each also said on stderr)."""
+    n = len(drives)
+    h = stepper.period_s
+    cpr = [p.counts_per_rev for p in profiles]
+    rated = [p.rated_torque_Nm for p in profiles]
+    counts = [d.position_counts for d in drives]
+    q, tau = [0.0] * n, [0.0] * n
+    faults: list[dict[str, Any]] = []
+    last_report = time.perf_counter()
+    for k in range(n_rows):
+        t = stepper.sync()
+        commanded = commanded_Nm[k]
+        for i, d in enumerate(drives):
+            counts[i] = unwrap_int32(counts[i], d.position_counts)
+            q[i] = counts_to_rad(counts[i], cpr[i])
+            d.write_target_torque(torque_to_permille(commanded[i], rated[i]), t)
+            tau[i] = d.torque_Nm  # quantized, clamped, zero unless enabled: held over [t, t+h)
+            if d.state is not State.OPERATION_ENABLED:
+                collect_faults(d, profiles[i].model, t, faults)
+        rec.write((t, *q, *tau, *[d.statusword for d in drives]))
+        if progress is not None and time.perf_counter() - last_report > 1.0:
+            last_report = time.perf_counter()
+            progress(t + h, n_rows * h)
+    stepper.advance()  # the last row's torque held over its period too
+    return faults

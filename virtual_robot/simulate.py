@@ -12,17 +12,14 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 from drivers.recording import RecordingWriter, plot_positions, read_signals
-from drivers.units import counts_to_rad, torque_to_permille, unwrap_int32
 from profiles.drive import DriveProfile, load_drive
 from profiles.effects import EffectsProfile
 from profiles.experiment import ExperimentProfile
 from profiles.robot import RobotProfile, UrdfRobotProfile
 from virtual_robot import __version__
-from virtual_robot.drive import State
-from virtual_robot.offline import SimulationResult, collect_faults, drive_meta, enable_drives
+from virtual_robot.offline import SimulationResult, drive_meta, enable_drives, record_open_loop
 from virtual_robot.plant import DEFAULT_STEP_S, Plant, PlantParams
 from virtual_robot.stepping import Stepper
 
@@ -75,7 +72,6 @@ def simulate(
     )
     drives = enable_drives(drives_p, h, plant.measured_q, plant.dq)
     stepper = Stepper(plant, drives, h)
-    counts = [drives[i].position_counts for i in range(2)]
     meta = {
         "kind": "simulate",
         "version": __version__,
@@ -96,31 +92,10 @@ def simulate(
             "step_s": plant.max_step_s,
         },
     }
-    faults: list[dict[str, Any]] = []
     commanded_Nm = experiment.torque_rows(h, n_rows)  # a block at a time: bounded memory
     started = time.perf_counter()
-    last_report = started
     with RecordingWriter(out_dir, meta, extra_columns=("status1", "status2")) as rec:
-        cpr = [p.counts_per_rev for p in drives_p]
-        rated = [p.rated_torque_Nm for p in drives_p]
-        q = [0.0, 0.0]
-        tau = [0.0, 0.0]
-        for k in range(n_rows):
-            # the torques written at t_{k-1} held over [t_{k-1}, t_k), encoders sampled at t_k
-            t = stepper.sync()
-            commanded = commanded_Nm[k]
-            for i, d in enumerate(drives):
-                counts[i] = unwrap_int32(counts[i], d.position_counts)
-                q[i] = counts_to_rad(counts[i], cpr[i])
-                d.write_target_torque(torque_to_permille(commanded[i], rated[i]), t)
-                tau[i] = d.torque_Nm  # quantized, clamped, zero unless enabled: held over [t, t+h)
-                if d.state is not State.OPERATION_ENABLED:
-                    collect_faults(d, drives_p[i].model, t, faults)
-            rec.write((t, q[0], q[1], tau[0], tau[1], drives[0].statusword, drives[1].statusword))
-            if progress is not None and time.perf_counter() - last_report > 1.0:
-                last_report = time.perf_counter()
-                progress(t + h, n_rows * h)
-        stepper.advance()  # the last row's torque held over its period too
+        faults = record_open_loop(rec, stepper, drives, drives_p, commanded_Nm, n_rows, progress)
         wall = time.perf_counter() - started
         rec.meta.update(
             wall_time_s=wall,

@@ -35,13 +35,11 @@ import pinocchio as pin
 from scipy.optimize import brentq
 
 from drivers.recording import RecordingWriter, plot_positions, read_signals
-from drivers.units import counts_to_rad, torque_to_permille, unwrap_int32
 from profiles.drive import load_drive
 from profiles.experiment import ExperimentProfile
 from profiles.robot import UrdfRobotProfile
 from virtual_robot import __version__
-from virtual_robot.drive import State
-from virtual_robot.offline import SimulationResult, collect_faults, drive_meta, enable_drives
+from virtual_robot.offline import SimulationResult, drive_meta, enable_drives, record_open_loop
 from virtual_robot.plant import DEFAULT_STEP_S, breakaway_joint
 from virtual_robot.stepping import Stepper
 
@@ -370,7 +368,6 @@ def simulate_urdf(
         UrdfPlantParams.from_profile(robot), q0=experiment.initial_q_rad, max_step_s=min(step_s, h)
     )
     drives = enable_drives(drives_p, h, plant.measured_q, plant.dq)
-    counts = [d.position_counts for d in drives]
     meta = {
         "kind": "simulate",
         "version": __version__,
@@ -391,32 +388,13 @@ def simulate_urdf(
             "step_s": plant.max_step_s,
         },
     }
-    faults: list[dict[str, Any]] = []
     commanded_Nm = experiment.torque_rows(h, n_rows)
-    cpr = [p.counts_per_rev for p in drives_p]
-    rated = [p.rated_torque_Nm for p in drives_p]
     status = tuple(f"status{j}" for j in range(1, n + 1))
-    q, tau = [0.0] * n, [0.0] * n
     started = time.perf_counter()
     cpu_started = time.process_time()
-    last_report = started
     with RecordingWriter(out_dir, meta, extra_columns=status, n_joints=n) as rec:
         stepper = Stepper(plant, drives, h)  # the one lockstep sequence (virtual_robot.stepping)
-        for k in range(n_rows):
-            t = stepper.sync()  # the row's torque held over [t_{k-1}, t_k), encoders sampled at t_k
-            commanded = commanded_Nm[k]
-            for i, d in enumerate(drives):
-                counts[i] = unwrap_int32(counts[i], d.position_counts)
-                q[i] = counts_to_rad(counts[i], cpr[i])
-                d.write_target_torque(torque_to_permille(commanded[i], rated[i]), t)
-                tau[i] = d.torque_Nm  # quantized, clamped, zero unless enabled
-                if d.state is not State.OPERATION_ENABLED:
-                    collect_faults(d, drives_p[i].model, t, faults)
-            rec.write((t, *q, *tau, *(d.statusword for d in drives)))
-            if progress is not None and time.perf_counter() - last_report > 1.0:
-                last_report = time.perf_counter()
-                progress(t + h, n_rows * h)
-        stepper.advance()  # the last row's torque held over its period too
+        faults = record_open_loop(rec, stepper, drives, drives_p, commanded_Nm, n_rows, progress)
         wall = time.perf_counter() - started
         cpu = time.process_time() - cpu_started
         rec.meta.update(
