@@ -21,6 +21,7 @@ from pathlib import Path
 
 import can
 import pytest
+from cli_run import wait_rows
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -57,28 +58,6 @@ def _patient_bench(tmp_path: Path, base: str = "virtual-slcan") -> str:
 
 def _meta(out: Path) -> dict:
     return json.loads((out / "meta.json").read_text())
-
-
-def _wait_rows(
-    out: Path, rows: int, proc: subprocess.Popen | None = None, timeout: float = 60.0
-) -> dict:
-    """Wait until the run has its robot announced and ``rows`` rows on disk; its meta."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc is not None and proc.poll() is not None:  # ended early: say why
-            _, err = proc.communicate()
-            log = out / "virtual-robot.log"
-            robot = log.read_text()[-500:] if log.is_file() else ""
-            raise AssertionError(f"hil exited {proc.returncode} early: {err}\n{robot}")
-        try:
-            meta = _meta(out)
-            csv = out / "signals.csv"
-            if meta.get("channel") and csv.read_text().count("\n") > rows:
-                return meta
-        except (FileNotFoundError, json.JSONDecodeError):
-            pass
-        time.sleep(0.05)
-    raise AssertionError(f"fewer than {rows} rows after {timeout} s")
 
 
 def _gone(pid: int, timeout: float = 10.0) -> bool:
@@ -143,7 +122,7 @@ def test_robot_stopped_briefly_is_late_not_gone(tmp_path: Path) -> None:
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
     )  # fmt: skip
     try:
-        pid = _wait_rows(tmp_path, 100, proc)["channel"]["pid"]
+        pid = wait_rows(tmp_path, 100, proc)["channel"]["pid"]
         os.kill(pid, signal.SIGSTOP)
         time.sleep(0.06)
         os.kill(pid, signal.SIGCONT)
@@ -161,7 +140,7 @@ def test_robot_stopped_briefly_is_late_not_gone(tmp_path: Path) -> None:
 def test_robot_killed_is_gone_at_once_over_serial(tmp_path: Path) -> None:
     proc = _hil(tmp_path, "--bench", "virtual-serial", "--mode", "realtime", "--duration", "60")
     try:
-        pid = _wait_rows(tmp_path, 100, proc)["channel"]["pid"]
+        pid = wait_rows(tmp_path, 100, proc)["channel"]["pid"]
         os.kill(pid, signal.SIGKILL)
         _, err = proc.communicate(timeout=30)
     finally:
@@ -185,7 +164,7 @@ def test_sigterm_and_sighup_stop_the_host_like_ctrl_c(tmp_path: Path, sig: int) 
     proc = _hil(tmp_path / "run", "--bench", bench, "--mode", "realtime", "--duration", "60")
     tmp_path = tmp_path / "run"
     try:
-        robot = _wait_rows(tmp_path, 100, proc)["channel"]["pid"]
+        robot = wait_rows(tmp_path, 100, proc)["channel"]["pid"]
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=30)
     finally:
@@ -232,7 +211,7 @@ def test_lockstep_host_killed_robot_disables_at_once(tmp_path: Path) -> None:
     """kill -9 of the host in lockstep: the robot zeroes torque, disables and exits."""
     proc = _hil(tmp_path, "--bench", "virtual-slcan", "--duration", "600")
     try:
-        robot = _wait_rows(tmp_path, 200, proc)["channel"]["pid"]
+        robot = wait_rows(tmp_path, 200, proc)["channel"]["pid"]
         proc.kill()
         proc.wait()
     finally:
@@ -396,7 +375,7 @@ def test_hub_survives_descriptor_exhaustion(tmp_path: Path) -> None:
 def test_second_sync_source_stops_a_lockstep_run(tmp_path: Path) -> None:
     proc = _hil(tmp_path, "--bench", "virtual-socketcand", "--duration", "600")
     try:
-        channel = _wait_rows(tmp_path, 200, proc)["channel"]
+        channel = wait_rows(tmp_path, 200, proc)["channel"]
         rogue = can.Bus(
             interface="socketcand", host=channel["host"], port=channel["port"], channel="can0"
         )

@@ -15,6 +15,8 @@ import time
 from pathlib import Path
 from types import SimpleNamespace
 
+from cli_run import wait_rows
+
 from drivers.arm import LinkStats
 from hil.bench.run import _with_stall_advice, stalled
 from profiles.bench import load_bench
@@ -76,27 +78,14 @@ def test_robot_stopped_past_the_budget_fails_with_advice(tmp_path: Path) -> None
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
     )  # fmt: skip
     try:
-        meta_path = tmp_path / "meta.json"
-        deadline = time.monotonic() + 60
-        pid = None
-        while pid is None:
-            assert proc.poll() is None, proc.communicate()
-            assert time.monotonic() < deadline, "no robot announced within 60 s"
-            try:
-                meta = json.loads(meta_path.read_text())
-                rows = (tmp_path / "signals.csv").read_text().count("\n")
-            except (OSError, ValueError):
-                meta, rows = {}, 0
-            if meta.get("channel") and rows > 100:
-                pid = meta["channel"]["pid"]
-            time.sleep(0.02)
+        pid = wait_rows(tmp_path, 100, proc)["channel"]["pid"]
         os.kill(pid, signal.SIGSTOP)
         time.sleep(0.6)
         os.kill(pid, signal.SIGCONT)
         out, err = proc.communicate(timeout=60)
     finally:
         proc.kill()
-    meta = json.loads(meta_path.read_text())
+    meta = json.loads((tmp_path / "meta.json").read_text())
     assert proc.returncode == 1, err
     assert meta["status"] == "failed"
     assert "late, not gone" in meta["reason"] and "--mode lockstep" in meta["reason"], meta
