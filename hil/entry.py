@@ -10,16 +10,10 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
-from drivers.process import (
-    install_exit_signals,
-    interrupt_exit_code,
-    interrupt_reason,
-    limit_blas_threads,
-)
+from drivers.process import install_exit_signals, interrupt_exit_code, interrupt_reason
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    limit_blas_threads()  # before numpy loads
     install_exit_signals()
     try:
         from hil.cli import main as cli_main

@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import socket
 import subprocess
 import sys
+import textwrap
 from pathlib import Path
 
 import pytest
@@ -146,3 +148,29 @@ def test_hil_run_attaches_to_a_running_robot(tmp_path: Path) -> None:
     finally:
         robot.terminate()
         robot.wait(10)
+
+
+def test_one_blas_thread_where_a_command_starts_not_on_import() -> None:
+    """`import hil` changes no environment; a command (any way in: here `hil.cli.main`, which
+    `python -m hil.cli` runs) limits the loaded BLAS to one thread and sets the variable its
+    child processes inherit."""
+    code = textwrap.dedent(
+        """
+        import json, os
+        import numpy
+        import hil, hil.bench, hil.identify
+        before = os.environ.get("OPENBLAS_NUM_THREADS")
+        from hil.cli import main
+        main(["diagnose", "/nonexistent/recording.csv"])
+        from threadpoolctl import threadpool_info
+        blas = [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+        print(json.dumps([before, os.environ.get("OPENBLAS_NUM_THREADS"), blas]))
+        """
+    )
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120
+    )
+    before, after, blas = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert before is None and after == "1"
+    assert blas and all(n == 1 for n in blas)
