@@ -176,3 +176,13 @@ def run_status(meta: Mapping[str, Any]) -> str:
     if isinstance(ticks, int) and _start_ticks(pid) not in (None, ticks):
         return "died"  # the pid belongs to another process now
     return status
+
+
+def reader_gone() -> int:
+    """Exit status after stdout's reader closed the pipe: the shell's own for a writer that
+    SIGPIPE ended (128 + 13), quietly; what is left in Python's buffer goes to /dev/null so that
+    the interpreter's flush at exit raises nothing more."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+    return 128 + signal.SIGPIPE

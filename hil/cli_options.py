@@ -108,6 +108,10 @@ def run_command(command: str, main: Callable[[argparse.Namespace], int], args: A
 
         say(command, f"{interrupt_reason()}; drives at zero torque and disabled")
         return interrupt_exit_code()
+    except BrokenPipeError:  # stdout's reader left (`| head`): nothing is lost, nothing to say
+        from drivers.process import reader_gone
+
+        return reader_gone()
     except (
         ProfileError,
         ParamsError,

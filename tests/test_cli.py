@@ -174,3 +174,38 @@ def test_one_blas_thread_where_a_command_starts_not_on_import() -> None:
     before, after, blas = json.loads(proc.stdout.strip().splitlines()[-1])
     assert before is None and after == "1"
     assert blas and all(n == 1 for n in blas)
+
+
+DFKI_FILE = (
+    Path(__file__).parent / "data" / "dfki" / "design_A.0__20220815__sys_id__trajectory_00.csv"
+)
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["hil.cli", "identify", "--from", str(DFKI_FILE), "--format", "dfki", "--robot", "dfki-a0"],
+        ["virtual_robot.cli", "simulate", "--duration", "0.2"],
+    ],
+    ids=["hil", "virtual-robot"],
+)
+def test_a_reader_that_leaves_the_pipe_ends_the_command_quietly(argv, tmp_path: Path) -> None:
+    """`hil ... --json | head -c 100`: the reader closes the pipe before the document is written;
+    no "error: [Errno 32] Broken pipe", no traceback, the shell's status for SIGPIPE (141)."""
+    if argv[0] == "virtual_robot.cli":
+        argv = [*argv, "--out", str(tmp_path / "run")]
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # the reader is gone before the child writes anything
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-m", *argv, "--json"],
+            stdout=write_end,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=300,
+            check=False,
+        )
+    finally:
+        os.close(write_end)
+    assert proc.returncode == 141, proc.stderr
+    assert "Broken pipe" not in proc.stderr and "Traceback" not in proc.stderr, proc.stderr

@@ -10,7 +10,7 @@ import threading
 from collections.abc import Sequence
 
 from drivers.logsetup import add_verbosity_options, configure, verbosity
-from drivers.process import limit_blas_threads
+from drivers.process import limit_blas_threads, reader_gone
 from drivers.recording import RecordingError
 from profiles import ProfileError
 from profiles.bench import BenchProfile, load_bench
@@ -212,6 +212,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return cmd_simulate(args)
         if args.command == "serve":
             return cmd_serve(args)
+    except BrokenPipeError:  # stdout's reader left (`| head`): nothing is lost, nothing to say
+        return reader_gone()
     except (ProfileError, RecordingError, ValueError, OSError) as exc:
         print(f"virtual-robot {args.command}: error: {exc}", file=sys.stderr)
         return 2
