@@ -11,6 +11,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+from cicese3_targets import check_cicese3_identified
 from cli_run import hil
 
 from drivers.recording import base_columns, read_signals
@@ -191,3 +192,20 @@ def test_realtime_run_of_cicese3_completes(tmp_path):
     for col in ("status1", "status2", "status3"):
         assert np.all((rec.columns[col].astype(int) & 0x6F) == 0x27)  # operation enabled
     assert np.all(np.ptp(rec.q, axis=0) > 0.01)  # every joint moves
+
+
+def test_cicese3_identified_from_its_bus_recording(tmp_path):
+    """The whole excitation (20 s) over slcan in lockstep, then `hil identify --from` it: the
+    robot is read from the recording's meta.json, and the base parameters meet the targets the
+    offline simulation's identification meets (tests/test_urdf_plant.py)."""
+    run = tmp_path / "run"
+    args = ["run", "--bench", "virtual-slcan", "--robot", "cicese3", "--experiment", EXPERIMENT]
+    proc = hil(*args, "--out", str(run), "--no-plot", "--json")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["rows"] == 8000
+    out = tmp_path / "id"
+    proc = hil("identify", "--from", str(run), "--out", str(out), "--no-plot")
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads((out / "identify.json").read_text())
+    assert report["robot"] == "cicese3"  # from meta.json: no --robot given
+    check_cicese3_identified(report)
