@@ -45,6 +45,14 @@ def reference(tmp_path_factory) -> object:
     return read_signals(out)
 
 
+def run_cicese3(out: Path, bench: str, *options: str) -> dict:
+    """`hil run --bench BENCH --robot cicese3` of the excitation into ``out``; its summary."""
+    args = ["--bench", bench, "--robot", "cicese3", "--experiment", EXPERIMENT, *options]
+    proc = hil("run", *args, "--out", str(out), "--json", "--no-plot")
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout)
+
+
 def test_virtual_robot_serves_one_drive_per_joint_of_a_urdf_arm():
     """Nodes and unit addresses 1..3 (the drive profiles'), the n-joint plant, one feedback per
     drive per SYNC; the drives enable over the object dictionary as a host would."""
@@ -115,23 +123,7 @@ def test_bench_for_robot_takes_host_limits_from_the_robot_profile(tmp_path):
 def test_lockstep_run_of_cicese3_equals_offline_simulation(bench, reference, tmp_path):
     """`hil run --robot cicese3` over CAN (in-process, slcan) and the serial multi-drop line:
     three drives, q1..q3 and tau1..tau3 bit-identical to `virtual-robot simulate`."""
-    proc = hil(
-        "run",
-        "--bench",
-        bench,
-        "--robot",
-        "cicese3",
-        "--experiment",
-        EXPERIMENT,
-        "--duration",
-        str(DURATION_S),
-        "--out",
-        str(tmp_path),
-        "--json",
-        "--no-plot",
-    )
-    assert proc.returncode == 0, proc.stderr
-    summary = json.loads(proc.stdout)
+    summary = run_cicese3(tmp_path, bench, "--duration", str(DURATION_S))
     assert summary["status"] == "complete" and summary["rows"] == ROWS
     rec = read_signals(tmp_path)
     assert rec.n_joints == 3 and list(rec.columns)[:7] == list(base_columns(3))
@@ -168,25 +160,8 @@ def test_run_refuses_what_the_robot_cannot_take(tmp_path):
 def test_realtime_run_of_cicese3_completes(tmp_path):
     """A short realtime run over slcan: every row, drives enabled throughout, every joint
     moving. Loose by design (the shared machine's load): timing figures are `make bench`'s."""
-    proc = hil(
-        "run",
-        "--bench",
-        "virtual-slcan",
-        "--robot",
-        "cicese3",
-        "--experiment",
-        EXPERIMENT,
-        "--mode",
-        "realtime",
-        "--duration",
-        "1",
-        "--out",
-        str(tmp_path),
-        "--json",
-        "--no-plot",
-    )
-    assert proc.returncode == 0, proc.stderr
-    assert json.loads(proc.stdout)["status"] == "complete"
+    summary = run_cicese3(tmp_path, "virtual-slcan", "--mode", "realtime", "--duration", "1")
+    assert summary["status"] == "complete"
     rec = read_signals(tmp_path)
     assert len(rec) == ROWS and rec.n_joints == 3
     for col in ("status1", "status2", "status3"):
@@ -199,10 +174,7 @@ def test_cicese3_identified_from_its_bus_recording(tmp_path):
     robot is read from the recording's meta.json, and the base parameters meet the targets the
     offline simulation's identification meets (tests/test_urdf_plant.py)."""
     run = tmp_path / "run"
-    args = ["run", "--bench", "virtual-slcan", "--robot", "cicese3", "--experiment", EXPERIMENT]
-    proc = hil(*args, "--out", str(run), "--no-plot", "--json")
-    assert proc.returncode == 0, proc.stderr
-    assert json.loads(proc.stdout)["rows"] == 8000
+    assert run_cicese3(run, "virtual-slcan")["rows"] == 8000
     out = tmp_path / "id"
     proc = hil("identify", "--from", str(run), "--out", str(out), "--no-plot")
     assert proc.returncode == 0, proc.stderr
