@@ -98,7 +98,7 @@ def open_arm(
     """An unopened Arm for the bench (use it as a context manager): one drive per joint of the
     bench's robot (a 2-DOF or a URDF robot profile; see profiles.bench.bench_for_robot)."""
     robot = load_any_robot(bench.robot)
-    if robot.drives is None:
+    if not robot.drives:  # a profile for identification only names none
         raise ValueError(f"{robot.source}: [joints] drives: a bench needs one drive per joint")
     drives = [load_drive(name) for name in robot.drives]
     mode = mode or bench.mode

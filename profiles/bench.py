@@ -160,6 +160,8 @@ def bench_for_robot(bench: BenchProfile, robot: str | None = None) -> BenchProfi
     name = bench.robot if robot is None else robot
     arm = load_any_robot(name)
     n = arm.n_joints
+    if not arm.drives:  # a profile for identification only (e.g. dfki-a0, panda) names none
+        raise ProfileError(arm.source, "joints.drives", "names no drives: it cannot run on a bench")
     own = getattr(arm, "limits", None)  # only a URDF arm's profile may hold [limits]
     if own is not None and name != bench.robot:
         return replace(

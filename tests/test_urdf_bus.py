@@ -101,8 +101,16 @@ def test_bench_for_robot_takes_host_limits_from_the_robot_profile(tmp_path):
     assert three.torque_limit_Nm == own.torque_Nm == (200.0, 15.0, 4.0)
     assert three.velocity_limit_rad_s == (12.0, 25.0, 25.0)
     assert three.position_limit_rad == ((-3.2, 3.2),) * 3
-    with pytest.raises(ProfileError, match="panda has 7") as err:  # no [limits] in panda.toml
+    with pytest.raises(ProfileError, match="names no drives") as err:  # panda.toml: none
         bench_for_robot(bench, "panda")
+    assert "\n" not in str(err.value)
+    panda = tmp_path / "panda.toml"  # with drives but without [limits]: 2 joints' limits, 7 joints
+    text = Path(load_urdf_robot("panda").source).read_text()
+    text = text.replace('urdf = "panda.urdf"', f'urdf = "{load_urdf_robot("panda").urdf}"')
+    drives = ", ".join(['"dm1200a"'] * 7)
+    panda.write_text(text.replace("[joints]\n", f"[joints]\ndrives = [{drives}]\n"))
+    with pytest.raises(ProfileError, match="panda has 7") as err:
+        bench_for_robot(bench, str(panda))
     assert "\n" not in str(err.value)
     # a bench whose [limits] are a 3-joint arm's: its own robot uses them
     text = Path(bench.source).read_text().replace('robot = "cicese"', 'robot = "cicese3"')

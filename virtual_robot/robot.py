@@ -102,7 +102,7 @@ class VirtualRobot:
         self._clock = clock
         self._t0 = clock() if clock is not None else 0.0
         self.lock = threading.RLock()
-        if robot.drives is None:
+        if not robot.drives:  # a profile for identification only names none
             raise ValueError(
                 f"{robot.source}: [joints] drives: the virtual robot needs one per joint"
             )
