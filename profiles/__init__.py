@@ -8,7 +8,8 @@ What lives here: the lookup and checked reading (:mod:`.loader`); one module per
 typed view and loader: robots (:mod:`.robot`, ``load_robot``, ``load_urdf_robot``), drives
 (:mod:`.drive`), benches (:mod:`.bench`), effects (:mod:`.effects`), experiments
 (:mod:`.experiment`), recording formats (:mod:`.recording_format`), tracking
-(:mod:`.tracking`), timing faults and traces (:mod:`.timing_faults`).
+(:mod:`.tracking`), timing faults and traces (:mod:`.timing_faults`); the host limits per joint
+that a bench's or a URDF robot's ``[limits]`` holds (:mod:`.limits`).
 
 Public API (``from profiles import load_robot``, docs/api.md): the loaders and profile types
 below. They are imported eagerly: every module here is small and needs only numpy.

@@ -108,7 +108,8 @@ class VirtualRobotProcess:
 
     # ---- helpers ------------------------------------------------------------------------------
     def _args(self) -> list[str]:
-        args = ["--bench", self.bench.source, "--exit-with-parent"]
+        # the bench's robot, which `hil run --robot` may have replaced (bench_for_robot)
+        args = ["--bench", self.bench.source, "--robot", self.bench.robot, "--exit-with-parent"]
         if self.mode:
             args += ["--mode", self.mode]
         if self.effects:
@@ -162,24 +163,40 @@ class VirtualRobotProcess:
 
             bench = replace(bench, channel=channel)
 
+        ready = threading.Event()
+
+        def announce(info: dict[str, Any]) -> None:
+            ready.set()
+            announced.put(info)
+
         def run() -> None:
-            serve(
-                bench,
-                effects=self.effects,
-                mode=self.mode,
-                seed=self.seed,
-                announce=announced.put,
-                stop=self._stop,
-                event_log=self.event_log,
-            )
+            try:
+                serve(
+                    bench,
+                    effects=self.effects,
+                    mode=self.mode,
+                    seed=self.seed,
+                    announce=announce,
+                    stop=self._stop,
+                    event_log=self.event_log,
+                )
+            except Exception as exc:  # refused before serving (e.g. effects the robot lacks)
+                if ready.is_set():
+                    raise
+                announced.put({"event": "failed", "reason": str(exc)})
 
         self._thread = threading.Thread(target=run, name="virtual-robot", daemon=True)
         self._thread.start()
         try:
-            self.channel = announced.get(timeout=READY_TIMEOUT_S)
+            info = announced.get(timeout=READY_TIMEOUT_S)
         except queue.Empty:
+            info = {"event": "failed", "reason": "no announcement"}
+        if info.get("event") == "failed":
             self.stop()
-            raise LaunchError(f"in-process virtual robot for {bench.name} did not start") from None
+            raise LaunchError(
+                f"in-process virtual robot for {bench.name} did not start: {info['reason']}"
+            )
+        self.channel = info
 
 
 __all__ = [

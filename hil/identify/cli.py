@@ -623,10 +623,24 @@ def _urdf_robot(args: argparse.Namespace) -> bool:
             recorded = json.loads(meta.read_text()) if meta.is_file() else {}
         except (OSError, ValueError):
             recorded = {}
-        profile = recorded.get("robot_profile")
-        if isinstance(profile, str) and Path(profile).is_file() and describes_urdf_only(profile):
-            args.robot = profile
+        # simulate writes the profile's path, `hil run` the robot's name (or --robot's file)
+        for profile in (recorded.get("robot_profile"), recorded.get("robot")):
+            if isinstance(profile, str) and _is_urdf_only(profile):
+                args.robot = profile
+                break
     return bool(args.robot) and describes_urdf_only(args.robot)
+
+
+def _is_urdf_only(profile: str) -> bool:
+    """A robot profile (name or file) that describes its arm by a URDF only; False for one that
+    cannot be found here (a recording made elsewhere)."""
+    from profiles import ProfileError
+    from profiles.robot import describes_urdf_only
+
+    try:
+        return describes_urdf_only(profile)
+    except (ProfileError, OSError):
+        return False
 
 
 def _held(rec: Any) -> bool:
