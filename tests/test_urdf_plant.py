@@ -5,8 +5,10 @@ the 3-DOF example arm end to end: `virtual-robot simulate --robot cicese3`, then
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
 from drivers.recording import BASE_COLUMNS, RecordingWriter, base_columns, read_signals
@@ -198,3 +200,71 @@ def test_simulate_refuses_an_arm_without_drives(tmp_path, capsys):
     assert vr_main(args) == 2
     err = capsys.readouterr().err.strip()
     assert "drives" in err and len(err.splitlines()) == 1, err
+
+
+# ---- the plant's trajectory, frozen (issue 14 speed work must not change the physics) ---------
+REFERENCE = Path(__file__).parent / "data" / "urdf_plant_reference.npz"
+
+
+def reference_run(robot_name: str) -> dict[str, np.ndarray]:
+    """2 s of the n-joint plant at h = 2.5 ms, 0.5 ms RK4 steps, in every regime: all joints
+    sliding, some stuck while others move, sticks and breakaways. cicese3: its excitation for
+    1.2 s, then 0.8 s of a small torque inside the bands (the joints stop and stick one by one).
+    panda: gravity compensation at the row's start (the plant's own RNEA) plus sines of 0.2 to
+    1.5 Nm around a mid configuration: its joints sweep through zero velocity many times.
+    Returns the state after every row and the energy bookkeeping at the end."""
+    robot = load_urdf_robot(robot_name)
+    h, rows = 0.0025, 800
+    if robot_name == "panda":
+        q0 = [0.0, 0.2, 0.0, -1.6, 0.0, 1.8, 0.4]
+        plant = UrdfPlant(UrdfPlantParams.from_profile(robot), q0=q0)
+        amp = np.linspace(1.5, 0.2, 7)
+        w = np.linspace(3.0, 11.0, 7)
+
+        def torque(k: int) -> np.ndarray:
+            g = pin.computeGeneralizedGravity(plant.model, plant.data, plant.q)
+            return g + amp * np.sin(w * k * h + np.arange(7))
+    else:
+        plant = UrdfPlant(UrdfPlantParams.from_profile(robot))
+        experiment = load_experiment(robot.name + "-excitation")
+
+        def torque(k: int) -> np.ndarray:
+            tau = np.asarray(experiment.torque(k * h), dtype=float)
+            return tau if k < 480 else 0.02 * tau
+
+    q, dq = np.zeros((rows, plant.n_joints)), np.zeros((rows, plant.n_joints))
+    for k in range(rows):
+        plant.command(torque(k))
+        plant.advance_to((k + 1) * h)
+        q[k], dq[k] = plant.q, plant.dq
+    counts = np.array([plant.steps, plant.stick_events])
+    return {
+        "q": q,
+        "dq": dq,
+        "energy": np.array([plant.work_in_J, plant.dissipated_J]),
+        "counts": counts,
+    }
+
+
+def write_reference() -> None:
+    """Regenerate tests/data/urdf_plant_reference.npz (only when the physics change on purpose):
+    python -c "import sys; sys.path.insert(0, 'tests'); import test_urdf_plant as t;
+    t.write_reference()" """
+    runs = {name: reference_run(name) for name in ("cicese3", "panda")}
+    np.savez_compressed(
+        REFERENCE, **{f"{name}_{k}": v for name, run in runs.items() for k, v in run.items()}
+    )
+
+
+@pytest.mark.parametrize("robot_name", ["cicese3", "panda"])
+def test_plant_trajectory_unchanged(robot_name):
+    """The plant of today against its trajectory frozen before the speed work of issue 14
+    (generated at commit 88ab6f1 by :func:`write_reference`): same steps, same stick events,
+    the state after each of 800 rows equal to round-off."""
+    expected = np.load(REFERENCE)
+    run = reference_run(robot_name)
+    assert run["counts"].tolist() == expected[f"{robot_name}_counts"].tolist()
+    assert run["counts"][1] > 10  # the scenario does exercise sticking
+    assert np.allclose(run["q"], expected[f"{robot_name}_q"], rtol=0, atol=1e-11)
+    assert np.allclose(run["dq"], expected[f"{robot_name}_dq"], rtol=0, atol=1e-9)
+    assert np.allclose(run["energy"], expected[f"{robot_name}_energy"], rtol=1e-11, atol=1e-11)
