@@ -28,10 +28,10 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pinocchio as pin
+from scipy.linalg.lapack import dgesv
 from scipy.optimize import brentq
 
 from drivers.recording import RecordingWriter, plot_positions, read_signals
@@ -109,17 +109,25 @@ class UrdfPlant:
         if self.q.shape != (n,) or self.dq.shape != (n,):
             raise ValueError(f"initial state: need {n} values per joint vector")
         self.b = np.asarray(params.viscous_Nms, dtype=float)
+        self._viscous = bool(self.b.any())  # without viscous friction its terms are skipped
         self.band_pos = np.asarray(params.coulomb_positive_Nm, dtype=float)
         self.band_neg = np.asarray(params.coulomb_negative_Nm, dtype=float)
         # A joint without Coulomb friction never sticks: its dynamics are smooth.
         self.sticky = np.maximum(self.band_pos, self.band_neg) > 0
         self.stuck = self.sticky & (self.dq == 0.0)
         self.slip_dir = np.where(self.dq >= 0, 1.0, -1.0)
-        self._mode_changed()
         self.command_Nm = np.zeros(n)
         self._held_Nm = np.zeros(n)  # the last command, before the power stages
-        self.work_in_J = 0.0  # ∫ τᵀ q̇ dt
-        self.dissipated_J = 0.0  # ∫ fᵀ q̇ dt + stick clamping losses
+        # Energy bookkeeping (work_in_J, dissipated_J): with τ held over a command and the
+        # Coulomb levels fixed over a stick mode, ∫τᵀq̇ dt = τᵀΔq and ∫levelᵀq̇ dt = levelᵀΔq
+        # exactly, so both are booked when τ or the mode changes, from the q of the last booking;
+        # the viscous part ∫bᵀq̇² dt (RK4 quadrature) and stick clamping losses per step.
+        self._level = np.zeros(n)
+        self._upper = np.triu(np.ones((n, n), dtype=bool))
+        self._booked_q = self.q
+        self._work_booked = 0.0
+        self._dissipated_booked = 0.0
+        self._mode_changed()
         self.steps = 0
         self.stick_events = 0
 
@@ -147,11 +155,30 @@ class UrdfPlant:
         """Switch the amplifiers: an unpowered joint gets no torque, a powered one the held."""
         tau = self._held_Nm.copy()
         tau[~np.asarray(powered, dtype=bool)] = 0.0
+        self._book_work()
         self.command_Nm = tau
+        self._tau_minus_level = tau - self._level
 
     @property
     def measured_q(self) -> np.ndarray:
         return self.q
+
+    @property
+    def work_in_J(self) -> float:
+        """∫ τᵀ q̇ dt so far."""
+        return self._work_booked + float(self.command_Nm @ (self.q - self._booked_q))
+
+    @property
+    def dissipated_J(self) -> float:
+        """∫ fᵀ q̇ dt so far, plus the kinetic energy lost where a joint is clamped to rest."""
+        return self._dissipated_booked + float(self._level @ (self.q - self._booked_q))
+
+    def _book_work(self) -> None:
+        """Book τᵀΔq and levelᵀΔq since the last booking, before τ or the levels change."""
+        moved = self.q - self._booked_q
+        self._work_booked += float(self.command_Nm @ moved)
+        self._dissipated_booked += float(self._level @ moved)
+        self._booked_q = self.q
 
     def energy_J(self) -> float:
         """Kinetic plus potential energy (Pinocchio's, potential relative to the URDF's origin)."""
@@ -167,46 +194,57 @@ class UrdfPlant:
     # ---- dynamics -----------------------------------------------------------------------------
     def _mode_changed(self) -> None:
         """After a joint sticks or breaks away: the signed Coulomb level per joint (direction
-        frozen until the next change), and which velocities to watch for a sign change."""
+        frozen until the next change), which velocities to watch for a sign change, and the
+        index sets of the constrained dynamics (sliding F, stuck S)."""
+        self._book_work()
         self._level = self.slip_dir * np.where(self.slip_dir > 0, self.band_pos, self.band_neg)
+        self._tau_minus_level = self.command_Nm - self._level
         self._watch = np.where(self.sticky & ~self.stuck, self.slip_dir, 0.0)
         self._n_stuck = int(self.stuck.sum())
+        free = np.flatnonzero(~self.stuck)
+        self._free, self._stuck_idx = free, np.flatnonzero(self.stuck)
+        self._ix_ff, self._ix_sf = np.ix_(free, free), np.ix_(self._stuck_idx, free)
+        # with F in ascending order, the upper triangle of M_FF is M's own upper triangle
+        self._upper_ff = np.triu(np.ones((free.size, free.size), dtype=bool))
 
-    def _deriv_factory(self, tau: np.ndarray) -> Callable:
-        """(q, q̇) → (q̈, τᵀq̇, fᵀq̇) in the current stick mode, friction levels frozen."""
+    def _deriv_factory(self, tau: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+        """(q, q̇) → q̈ in the current stick mode, friction levels frozen."""
         m, d, b = self.model, self.data, self.b
         level = self._level
-        stuck = self.stuck.copy()
-        if not stuck.any():
+        if not self._n_stuck:
 
-            def sliding(q: np.ndarray, v: np.ndarray):
-                f = b * v + level
-                return pin.aba(m, d, q, v, tau - f), float(tau @ v), float(f @ v)
+            def sliding(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+                return pin.aba(m, d, q, v, tau - (b * v + level))
 
             return sliding
-        free = ~stuck
+        n, free, ix_ff, upper_ff = self.n_joints, self._free, self._ix_ff, self._upper_ff
 
-        def constrained(q: np.ndarray, v: np.ndarray):
-            f = np.where(free, b * v + level, 0.0)
-            a = np.zeros(self.n_joints)
-            if free.any():
-                M = _mass_matrix(m, d, q)
-                r = tau - pin.nonLinearEffects(m, d, q, v) - f
-                a[free] = np.linalg.solve(M[np.ix_(free, free)], r[free])
-            return a, float(tau @ v), float(f @ v)
+        def constrained(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+            # M_FF q̈_F = (τ − C q̇ − g − f)_F, q̈_S = 0 (module docstring)
+            a = np.zeros(n)
+            if free.size:
+                r = tau - pin.nonLinearEffects(m, d, q, v) - (b * v + level)
+                m_ff = pin.crba(m, d, q)[ix_ff]
+                a[free] = _solve(np.where(upper_ff, m_ff, m_ff.T), r[free])
+            return a
 
         return constrained
 
     def _holding_torques(self, tau: np.ndarray) -> np.ndarray:
-        """Friction each stuck joint needs to stay stuck, now (zero for sliding joints)."""
-        m, d = self.model, self.data
-        stuck, free = self.stuck, ~self.stuck
-        M = _mass_matrix(m, d, self.q)
-        r = tau - pin.nonLinearEffects(m, d, self.q, self.dq)
-        f = np.where(free, self.b * self.dq + self._level, 0.0)
-        a_free = np.linalg.solve(M[np.ix_(free, free)], (r - f)[free]) if free.any() else []
+        """Friction each stuck joint needs to stay stuck, now (zero for sliding joints):
+        f_S = (τ − C q̇ − g)_S − M_SF q̈_F."""
+        m, d, q = self.model, self.data, self.q
+        free, stuck = self._free, self._stuck_idx
+        r = tau - pin.nonLinearEffects(m, d, q, self.dq)
         held = np.zeros(self.n_joints)
-        held[stuck] = r[stuck] - M[np.ix_(stuck, free)] @ a_free if free.any() else r[stuck]
+        if not free.size:
+            held[stuck] = r[stuck]
+            return held
+        M = pin.crba(m, d, q)
+        M = np.where(self._upper, M, M.T)  # symmetric whichever triangle Pinocchio fills
+        f = self.b * self.dq + self._level
+        a_free = _solve(M[self._ix_ff], (r - f)[free])
+        held[stuck] = r[stuck] - M[self._ix_sf] @ a_free
         return held
 
     def _release_stuck_joints(self, tau: np.ndarray) -> None:
@@ -214,6 +252,11 @@ class UrdfPlant:
             if not self._n_stuck:
                 return
             held = self._holding_torques(tau)
+            # |f| ≤ band for every stuck joint: none can break away (Karnopp's test, exactly
+            # as breakaway_joint makes it, which is then skipped)
+            band = np.where(held > 0, self.band_pos, self.band_neg)
+            if not (self.stuck & (np.abs(held) > band)).any():
+                return
             worst = breakaway_joint(held, self.stuck, self.band_pos, self.band_neg)
             if worst < 0:
                 return
@@ -223,7 +266,20 @@ class UrdfPlant:
 
     def _step(self, dt: float) -> None:
         """Advance dt, cutting the step where a sliding joint's velocity reaches zero."""
+        if not self._n_stuck:  # the common case: every joint sliding, and no velocity crosses 0
+            q, v, viscous = self._rk4_sliding(dt)
+            if (v * self._watch).min() >= 0.0:
+                self.q, self.dq = q, v
+                self._dissipated_booked += viscous
+                self.t += dt
+                self.steps += 1
+                return
+        self._step_with_events(dt)
+
+    def _step_with_events(self, dt: float) -> None:
+        """:meth:`_step` where a joint is stuck or a sliding joint's velocity crosses zero."""
         tau = self.command_Nm
+        b = self.b if self._viscous else None
         remaining = dt
         for _ in range(MAX_EVENTS_PER_STEP):
             if remaining <= 1e-15:
@@ -233,17 +289,16 @@ class UrdfPlant:
             deriv = None
             if self._n_stuck:
                 deriv = self._deriv_factory(tau)
-                q, v, work, diss = _rk4(deriv, self.q, self.dq, remaining)
+                q, v, viscous = _rk4(deriv, self.q, self.dq, remaining, b)
             else:
-                q, v, work, diss = self._rk4_sliding(tau, remaining)
+                q, v, viscous = self._rk4_sliding(remaining)
             used, joint = remaining, -1
             if (v * self._watch < 0.0).any():  # a sliding sticky joint's velocity crossed zero
                 crossed = v * self._watch < 0.0
                 deriv = deriv or self._deriv_factory(tau)
-                used, joint, (q, v, work, diss) = self._locate_stick(deriv, remaining, crossed)
+                used, joint, (q, v, viscous) = self._locate_stick(deriv, remaining, crossed, b)
             self.q, self.dq = q, v
-            self.work_in_J += work
-            self.dissipated_J += diss
+            self._dissipated_booked += viscous
             self.t += used
             self.steps += 1
             remaining -= used
@@ -252,41 +307,51 @@ class UrdfPlant:
             before = self.energy_J()
             self.dq = self.dq.copy()
             self.dq[joint] = 0.0
-            self.dissipated_J += before - self.energy_J()
+            self._dissipated_booked += before - self.energy_J()
             self.stuck[joint] = True
             self._mode_changed()
             self.stick_events += 1
         self.t += remaining  # degenerate chattering: keep the clock honest
 
-    def _rk4_sliding(self, tau: np.ndarray, dt: float):
-        """:func:`_rk4` with every joint sliding, unrolled: the same stages and the same four ABA
-        calls, fewer array operations. With τ and the Coulomb levels constant over the step the
-        RK4 quadratures of the powers are exact in closed form: ∫τᵀq̇ = τᵀΔq, ∫levelᵀq̇ =
-        levelᵀΔq, and the viscous part is bᵀ of the RK4 sum of the stage velocities squared.
-        tests/test_urdf_plant.py checks it against :func:`_rk4`."""
-        m, d, b, aba = self.model, self.data, self.b, pin.aba
-        level = self._level
-        c = tau - level
+    def _rk4_sliding(self, dt: float) -> tuple[np.ndarray, np.ndarray, float]:
+        """:func:`_rk4` with every joint sliding under the held command, unrolled: the same
+        stages and the same four ABA calls (Featherstone (2008) ch. 7), fewer array operations:
+        τ − level is formed once per command or mode, and without viscous friction its terms
+        are skipped. Returns (q, q̇, ∫bᵀq̇² dt). tests/test_urdf_plant.py checks it against
+        :func:`_rk4`."""
+        m, d, aba = self.model, self.data, pin.aba
+        c = self._tau_minus_level
         q, v = self.q, self.dq
         h2 = 0.5 * dt
-        a1 = aba(m, d, q, v, c - b * v)
-        y = v + h2 * a1
-        a2 = aba(m, d, q + h2 * v, y, c - b * y)
-        z = v + h2 * a2
-        a3 = aba(m, d, q + h2 * y, z, c - b * z)
-        u = v + dt * a3
-        a4 = aba(m, d, q + dt * z, u, c - b * u)
         k = dt / 6.0
-        dq = k * (v + 2.0 * (y + z) + u)
-        viscous = k * float(b @ (v * v + 2.0 * (y * y + z * z) + u * u))
+        if self._viscous:
+            b = self.b
+            a1 = aba(m, d, q, v, c - b * v)
+            y = v + h2 * a1
+            a2 = aba(m, d, q + h2 * v, y, c - b * y)
+            z = v + h2 * a2
+            a3 = aba(m, d, q + h2 * y, z, c - b * z)
+            u = v + dt * a3
+            a4 = aba(m, d, q + dt * z, u, c - b * u)
+            viscous = k * float(b @ (v * v + 2.0 * (y * y + z * z) + u * u))
+        else:
+            a1 = aba(m, d, q, v, c)
+            y = v + h2 * a1
+            a2 = aba(m, d, q + h2 * v, y, c)
+            z = v + h2 * a2
+            a3 = aba(m, d, q + h2 * y, z, c)
+            u = v + dt * a3
+            a4 = aba(m, d, q + dt * z, u, c)
+            viscous = 0.0
         return (
-            q + dq,
+            q + k * (v + 2.0 * (y + z) + u),
             v + k * (a1 + 2.0 * (a2 + a3) + a4),
-            float(tau @ dq),
-            float(level @ dq) + viscous,
+            viscous,
         )
 
-    def _locate_stick(self, deriv: Callable, dt: float, crossed: np.ndarray):
+    def _locate_stick(
+        self, deriv: Callable, dt: float, crossed: np.ndarray, b: np.ndarray | None
+    ) -> tuple[float, int, tuple[np.ndarray, np.ndarray, float]]:
         """The first joint whose velocity reaches zero within [0, dt], the time it does and the
         state there: Brent's method on that joint's velocity along the RK4 flow map."""
         q0, v0, d = self.q, self.dq, self.slip_dir
@@ -315,31 +380,40 @@ class UrdfPlant:
             if s < best[0] or best[1] < 0:
                 best = (s, int(j), None)
         s, joint, _ = best
-        return s, joint, _rk4(deriv, q0, v0, s) if s > 0 else (q0, v0, 0.0, 0.0)
+        return s, joint, _rk4(deriv, q0, v0, s, b) if s > 0 else (q0, v0, 0.0)
 
 
-def _mass_matrix(model: Any, data: Any, q: np.ndarray) -> np.ndarray:
-    """M(q) by CRBA (Pinocchio fills the upper triangle; armature on the diagonal)."""
-    M = pin.crba(model, data, q)
-    return np.triu(M) + np.triu(M, 1).T
+def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """x of a x = b by LAPACK's dgesv (LU), as numpy.linalg.solve, without its per-call cost."""
+    _, _, x, info = dgesv(a, b)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"singular mass matrix block (dgesv info {info})")
+    return x
 
 
-def _rk4(deriv: Callable, q: np.ndarray, v: np.ndarray, dt: float):
-    """Classical RK4 on (q, q̇, W_in, W_f) with ``deriv`` → (q̈, P_in, P_f)."""
+def _rk4(
+    deriv: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    q: np.ndarray,
+    v: np.ndarray,
+    dt: float,
+    b: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Classical RK4 on (q, q̇) with ``deriv`` → q̈; also the RK4 quadrature of the viscous
+    dissipation ∫bᵀq̇² dt (0 without ``b``)."""
     h2 = 0.5 * dt
-    a1, p1, w1 = deriv(q, v)
+    a1 = deriv(q, v)
     y = v + h2 * a1
-    a2, p2, w2 = deriv(q + h2 * v, y)
+    a2 = deriv(q + h2 * v, y)
     z = v + h2 * a2
-    a3, p3, w3 = deriv(q + h2 * y, z)
+    a3 = deriv(q + h2 * y, z)
     u = v + dt * a3
-    a4, p4, w4 = deriv(q + dt * z, u)
+    a4 = deriv(q + dt * z, u)
     k = dt / 6.0
+    viscous = 0.0 if b is None else k * float(b @ (v * v + 2.0 * (y * y + z * z) + u * u))
     return (
         q + k * (v + 2 * y + 2 * z + u),
         v + k * (a1 + 2 * a2 + 2 * a3 + a4),
-        k * (p1 + 2 * p2 + 2 * p3 + p4),
-        k * (w1 + 2 * w2 + 2 * w3 + w4),
+        viscous,
     )
 
 
