@@ -31,7 +31,6 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
-from scipy.linalg.lapack import dgesv
 from scipy.optimize import brentq
 
 from drivers.recording import RecordingWriter, plot_positions, read_signals
@@ -90,7 +89,9 @@ class UrdfPlant:
         if not max_step_s > 0:
             raise ValueError("max_step_s must be > 0")
         model = pin.buildModelFromUrdf(params.urdf)
-        if model.nq != model.nv or any(j.nq != 1 for j in model.joints[1:]):
+        if model.nq != model.nv or [j.idx_v for j in model.joints[1:] if j.nq == 1] != list(
+            range(model.nv)
+        ):
             raise ValueError(f"{params.urdf}: only 1-DOF revolute/prismatic joints are supported")
         n = model.nv
         if len(params.viscous_Nms) != n:
@@ -123,7 +124,6 @@ class UrdfPlant:
         # exactly, so both are booked when τ or the mode changes, from the q of the last booking;
         # the viscous part ∫bᵀq̇² dt (RK4 quadrature) and stick clamping losses per step.
         self._level = np.zeros(n)
-        self._upper = np.triu(np.ones((n, n), dtype=bool))
         self._booked_q = self.q
         self._work_booked = 0.0
         self._dissipated_booked = 0.0
@@ -201,11 +201,16 @@ class UrdfPlant:
         self._tau_minus_level = self.command_Nm - self._level
         self._watch = np.where(self.sticky & ~self.stuck, self.slip_dir, 0.0)
         self._n_stuck = int(self.stuck.sum())
-        free = np.flatnonzero(~self.stuck)
-        self._free, self._stuck_idx = free, np.flatnonzero(self.stuck)
-        self._ix_ff, self._ix_sf = np.ix_(free, free), np.ix_(self._stuck_idx, free)
-        # with F in ascending order, the upper triangle of M_FF is M's own upper triangle
-        self._upper_ff = np.triu(np.ones((free.size, free.size), dtype=bool))
+        self._free, self._stuck_idx = np.flatnonzero(~self.stuck), np.flatnonzero(self.stuck)
+        self._reduced = None
+        if self._n_stuck and self._free.size:
+            # the sliding joints' dynamics with the stuck ones locked where they stand: the
+            # arm with those joints rigid (Pinocchio's reduced model), whose ABA is M_FF⁻¹ r_F
+            reduced = pin.buildReducedModel(
+                self.model, [int(j) + 1 for j in self._stuck_idx], self.q
+            )
+            reduced.armature = self.model.armature[self._free]
+            self._reduced = reduced, reduced.createData()
 
     def _deriv_factory(self, tau: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
         """(q, q̇) → q̈ in the current stick mode, friction levels frozen."""
@@ -217,34 +222,26 @@ class UrdfPlant:
                 return pin.aba(m, d, q, v, tau - (b * v + level))
 
             return sliding
-        n, free, ix_ff, upper_ff = self.n_joints, self._free, self._ix_ff, self._upper_ff
+        n, free, reduced = self.n_joints, self._free, self._reduced
 
         def constrained(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-            # M_FF q̈_F = (τ − C q̇ − g − f)_F, q̈_S = 0 (module docstring)
+            # M_FF q̈_F = (τ − C q̇ − g − f)_F, q̈_S = 0 (module docstring), by the ABA of the arm
+            # with the stuck joints locked (q_S and q̇_S = 0 do not change while they stick)
             a = np.zeros(n)
-            if free.size:
-                r = tau - pin.nonLinearEffects(m, d, q, v) - (b * v + level)
-                m_ff = pin.crba(m, d, q)[ix_ff]
-                a[free] = _solve(np.where(upper_ff, m_ff, m_ff.T), r[free])
+            if reduced is not None:
+                a[free] = pin.aba(*reduced, q[free], v[free], (tau - (b * v + level))[free])
             return a
 
         return constrained
 
     def _holding_torques(self, tau: np.ndarray) -> np.ndarray:
         """Friction each stuck joint needs to stay stuck, now (zero for sliding joints):
-        f_S = (τ − C q̇ − g)_S − M_SF q̈_F."""
-        m, d, q = self.model, self.data, self.q
-        free, stuck = self._free, self._stuck_idx
-        r = tau - pin.nonLinearEffects(m, d, q, self.dq)
+        f_S = (τ − C q̇ − g)_S − M_SF q̈_F = (τ − RNEA(q, q̇, q̈))_S with q̈_S = 0."""
+        q, dq = self.q, self.dq
+        a = self._deriv_factory(tau)(q, dq)
         held = np.zeros(self.n_joints)
-        if not free.size:
-            held[stuck] = r[stuck]
-            return held
-        M = pin.crba(m, d, q)
-        M = np.where(self._upper, M, M.T)  # symmetric whichever triangle Pinocchio fills
-        f = self.b * self.dq + self._level
-        a_free = _solve(M[self._ix_ff], (r - f)[free])
-        held[stuck] = r[stuck] - M[self._ix_sf] @ a_free
+        stuck = self._stuck_idx
+        held[stuck] = (tau - pin.rnea(self.model, self.data, q, dq, a))[stuck]
         return held
 
     def _release_stuck_joints(self, tau: np.ndarray) -> None:
@@ -381,14 +378,6 @@ class UrdfPlant:
                 best = (s, int(j), None)
         s, joint, _ = best
         return s, joint, _rk4(deriv, q0, v0, s, b) if s > 0 else (q0, v0, 0.0)
-
-
-def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """x of a x = b by LAPACK's dgesv (LU), as numpy.linalg.solve, without its per-call cost."""
-    _, _, x, info = dgesv(a, b)
-    if info != 0:
-        raise np.linalg.LinAlgError(f"singular mass matrix block (dgesv info {info})")
-    return x
 
 
 def _rk4(
