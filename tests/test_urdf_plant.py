@@ -77,15 +77,30 @@ def test_urdf_plant_matches_the_closed_form_plant():
     assert worst < 1e-10, worst  # 5e-12 rad measured
 
 
-def test_sliding_fast_path_equals_the_general_rk4():
+def test_mode_steps_equal_the_general_rk4():
+    """The unrolled RK4 of the plant's steps (the arm's ABA, or the ABA of the arm with its stuck
+    joints locked) against the general RK4 on the stick mode's q̈, every joint sliding and with
+    joint 2 stuck; stuck, q̈_2 = 0 and the others from M_FF q̈_F = (τ − C q̇ − g − f)_F."""
     robot = load_urdf_robot("cicese3")
-    plant = UrdfPlant(UrdfPlantParams.from_profile(robot), q0=[0.3, -0.4, 0.5], dq0=[1, -2, 3])
-    tau = np.array([20.0, -3.0, 0.7])
-    plant.command(tau)
-    fast = plant._rk4_sliding(5e-4)
-    general = _rk4(plant._deriv_factory(tau), plant.q, plant.dq, 5e-4, plant.b)
-    for a, b in zip(fast, general, strict=True):
-        assert np.allclose(a, b, rtol=1e-12, atol=1e-13)
+    host = UrdfArmModel.from_profile(robot)
+    for dq0 in ([1.0, -2.0, 3.0], [1.0, 0.0, 3.0]):
+        plant = UrdfPlant(UrdfPlantParams.from_profile(robot), q0=[0.3, -0.4, 0.5], dq0=dq0)
+        stuck = dq0[1] == 0.0
+        assert plant.stuck.tolist() == [False, stuck, False]
+        tau = np.array([20.0, 0.3, 0.7])
+        plant.command(tau)
+        fast = plant._rk4_mode(5e-4)
+        general = _rk4(plant._deriv_factory(tau), plant.q, plant.dq, 5e-4, plant.b)
+        for a, b in zip(fast, general, strict=True):
+            assert np.allclose(a, b, rtol=1e-12, atol=1e-13)
+        if stuck:
+            a = plant._deriv_factory(tau)(plant.q, plant.dq)
+            assert a[1] == 0.0 and fast[1][1] == 0.0 and fast[0][1] == plant.q[1]
+            free = [0, 2]
+            q, dq = plant.q[None], plant.dq[None]
+            M = host.mass_matrix(host.base_theta(), q)[0]
+            rigid = host.torque(host.base_theta(), q, dq, np.zeros((1, 3)))[0]  # C q̇ + g + f
+            assert np.allclose(M[np.ix_(free, free)] @ a[free], (tau - rigid)[free], atol=1e-9)
 
 
 def test_plant_dynamics_are_the_host_models_and_energy_balances():

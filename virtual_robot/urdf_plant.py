@@ -28,6 +28,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
@@ -263,36 +264,38 @@ class UrdfPlant:
 
     def _step(self, dt: float) -> None:
         """Advance dt, cutting the step where a sliding joint's velocity reaches zero."""
-        if not self._n_stuck:  # the common case: every joint sliding, and no velocity crosses 0
-            q, v, viscous = self._rk4_sliding(dt)
-            if (v * self._watch).min() >= 0.0:
-                self.q, self.dq = q, v
-                self._dissipated_booked += viscous
-                self.t += dt
-                self.steps += 1
-                return
-        self._step_with_events(dt)
+        if self._n_stuck:
+            self._release_stuck_joints(self.command_Nm)
+        q, v, viscous = self._rk4_mode(dt)
+        if (v * self._watch).min() >= 0.0:  # the common case: no sliding velocity crossed 0
+            self.q, self.dq = q, v
+            self._dissipated_booked += viscous
+            self.t += dt
+            self.steps += 1
+            return
+        self._step_with_events(dt, (q, v, viscous))
 
-    def _step_with_events(self, dt: float) -> None:
-        """:meth:`_step` where a joint is stuck or a sliding joint's velocity crosses zero."""
+    def _step_with_events(
+        self, dt: float, first: tuple[np.ndarray, np.ndarray, float] | None = None
+    ) -> None:
+        """:meth:`_step` where a sliding joint's velocity crosses zero; ``first``: the step's
+        RK4 in the current mode, already taken (stuck joints already checked for breakaway)."""
         tau = self.command_Nm
         b = self.b if self._viscous else None
         remaining = dt
         for _ in range(MAX_EVENTS_PER_STEP):
             if remaining <= 1e-15:
                 return
-            if self._n_stuck:
-                self._release_stuck_joints(tau)
-            deriv = None
-            if self._n_stuck:
-                deriv = self._deriv_factory(tau)
-                q, v, viscous = _rk4(deriv, self.q, self.dq, remaining, b)
+            if first is None:
+                if self._n_stuck:
+                    self._release_stuck_joints(tau)
+                q, v, viscous = self._rk4_mode(remaining)
             else:
-                q, v, viscous = self._rk4_sliding(remaining)
+                (q, v, viscous), first = first, None
             used, joint = remaining, -1
             if (v * self._watch < 0.0).any():  # a sliding sticky joint's velocity crossed zero
                 crossed = v * self._watch < 0.0
-                deriv = deriv or self._deriv_factory(tau)
+                deriv = self._deriv_factory(tau)
                 used, joint, (q, v, viscous) = self._locate_stick(deriv, remaining, crossed, b)
             self.q, self.dq = q, v
             self._dissipated_booked += viscous
@@ -310,41 +313,28 @@ class UrdfPlant:
             self.stick_events += 1
         self.t += remaining  # degenerate chattering: keep the clock honest
 
-    def _rk4_sliding(self, dt: float) -> tuple[np.ndarray, np.ndarray, float]:
-        """:func:`_rk4` with every joint sliding under the held command, unrolled: the same
-        stages and the same four ABA calls (Featherstone (2008) ch. 7), fewer array operations:
-        τ − level is formed once per command or mode, and without viscous friction its terms
-        are skipped. Returns (q, q̇, ∫bᵀq̇² dt). tests/test_urdf_plant.py checks it against
-        :func:`_rk4`."""
-        m, d, aba = self.model, self.data, pin.aba
-        c = self._tau_minus_level
-        q, v = self.q, self.dq
-        h2 = 0.5 * dt
-        k = dt / 6.0
-        if self._viscous:
-            b = self.b
-            a1 = aba(m, d, q, v, c - b * v)
-            y = v + h2 * a1
-            a2 = aba(m, d, q + h2 * v, y, c - b * y)
-            z = v + h2 * a2
-            a3 = aba(m, d, q + h2 * y, z, c - b * z)
-            u = v + dt * a3
-            a4 = aba(m, d, q + dt * z, u, c - b * u)
-            viscous = k * float(b @ (v * v + 2.0 * (y * y + z * z) + u * u))
-        else:
-            a1 = aba(m, d, q, v, c)
-            y = v + h2 * a1
-            a2 = aba(m, d, q + h2 * v, y, c)
-            z = v + h2 * a2
-            a3 = aba(m, d, q + h2 * y, z, c)
-            u = v + dt * a3
-            a4 = aba(m, d, q + dt * z, u, c)
-            viscous = 0.0
-        return (
-            q + k * (v + 2.0 * (y + z) + u),
-            v + k * (a1 + 2.0 * (a2 + a3) + a4),
-            viscous,
+    def _rk4_mode(self, dt: float) -> tuple[np.ndarray, np.ndarray, float]:
+        """One RK4 step of dt in the current stick mode under the held command, by
+        :func:`_rk4_aba`: every joint sliding, the arm's ABA; some stuck, the ABA of the arm
+        with those locked (q_S and q̇_S = 0 stay as they are); all stuck, no motion.
+        Returns (q, q̇, ∫bᵀq̇² dt). tests/test_urdf_plant.py checks it against :func:`_rk4`."""
+        b = self.b if self._viscous else None
+        if not self._n_stuck:
+            return _rk4_aba(self.model, self.data, self.q, self.dq, self._tau_minus_level, b, dt)
+        if self._reduced is None:
+            return self.q, self.dq, 0.0
+        free = self._free
+        q_f, v_f, viscous = _rk4_aba(
+            *self._reduced,
+            self.q[free],
+            self.dq[free],
+            self._tau_minus_level[free],
+            None if b is None else b[free],
+            dt,
         )
+        q, v = self.q.copy(), self.dq.copy()
+        q[free], v[free] = q_f, v_f
+        return q, v, viscous
 
     def _locate_stick(
         self, deriv: Callable, dt: float, crossed: np.ndarray, b: np.ndarray | None
@@ -378,6 +368,47 @@ class UrdfPlant:
                 best = (s, int(j), None)
         s, joint, _ = best
         return s, joint, _rk4(deriv, q0, v0, s, b) if s > 0 else (q0, v0, 0.0)
+
+
+def _rk4_aba(
+    model: Any,
+    data: Any,
+    q: np.ndarray,
+    v: np.ndarray,
+    tau_minus_level: np.ndarray,
+    b: np.ndarray | None,
+    dt: float,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """:func:`_rk4` with every joint of ``model`` sliding, unrolled: the same stages, the four
+    ABA calls (Featherstone (2008) ch. 7) of τ − level − b q̇, and as few array operations as
+    that takes (each costs about a tenth of an ABA call); without viscous friction (``b``
+    None) its terms are skipped. Returns (q, q̇, ∫bᵀq̇² dt)."""
+    aba, c = pin.aba, tau_minus_level
+    h2 = 0.5 * dt
+    k = dt / 6.0
+    if b is not None:
+        a1 = aba(model, data, q, v, c - b * v)
+        y = v + h2 * a1
+        a2 = aba(model, data, q + h2 * v, y, c - b * y)
+        z = v + h2 * a2
+        a3 = aba(model, data, q + h2 * y, z, c - b * z)
+        u = v + dt * a3
+        a4 = aba(model, data, q + dt * z, u, c - b * u)
+        viscous = k * float(b @ (v * v + 2.0 * (y * y + z * z) + u * u))
+    else:
+        a1 = aba(model, data, q, v, c)
+        y = v + h2 * a1
+        a2 = aba(model, data, q + h2 * v, y, c)
+        z = v + h2 * a2
+        a3 = aba(model, data, q + h2 * y, z, c)
+        u = v + dt * a3
+        a4 = aba(model, data, q + dt * z, u, c)
+        viscous = 0.0
+    return (
+        q + k * (v + 2.0 * (y + z) + u),
+        v + k * (a1 + 2.0 * (a2 + a3) + a4),
+        viscous,
+    )
 
 
 def _rk4(
