@@ -47,6 +47,8 @@ from virtual_robot.stepping import Stepper
 ZERO_VELOCITY = 1e-12
 # Stick events at most per integration step; more is chattering, and the step is closed.
 MAX_EVENTS_PER_STEP = 8
+# Locked-joint models (UrdfPlant._locked_arm) kept for reuse.
+LOCKED_ARMS_KEPT = 16
 
 
 @dataclass(frozen=True)
@@ -125,6 +127,7 @@ class UrdfPlant:
         # exactly, so both are booked when τ or the mode changes, from the q of the last booking;
         # the viscous part ∫bᵀq̇² dt (RK4 quadrature) and stick clamping losses per step.
         self._level = np.zeros(n)
+        self._locked_arms: dict[tuple[bytes, bytes], tuple[Any, Any]] = {}
         self._booked_q = self.q
         self._work_booked = 0.0
         self._dissipated_booked = 0.0
@@ -203,15 +206,24 @@ class UrdfPlant:
         self._watch = np.where(self.sticky & ~self.stuck, self.slip_dir, 0.0)
         self._n_stuck = int(self.stuck.sum())
         self._free, self._stuck_idx = np.flatnonzero(~self.stuck), np.flatnonzero(self.stuck)
-        self._reduced = None
-        if self._n_stuck and self._free.size:
-            # the sliding joints' dynamics with the stuck ones locked where they stand: the
-            # arm with those joints rigid (Pinocchio's reduced model), whose ABA is M_FF⁻¹ r_F
-            reduced = pin.buildReducedModel(
-                self.model, [int(j) + 1 for j in self._stuck_idx], self.q
-            )
-            reduced.armature = self.model.armature[self._free]
-            self._reduced = reduced, reduced.createData()
+        self._reduced = None  # built when first needed (:meth:`_locked_arm`)
+
+    def _locked_arm(self) -> tuple[Any, Any] | None:
+        """The arm with the stuck joints locked where they stand (Pinocchio's reduced model and
+        its data; None when every joint is stuck): its ABA gives the sliding joints'
+        accelerations M_FF⁻¹ r_F. Kept for the last few stuck sets and positions, since one joint
+        often stays stuck while another sticks and breaks away."""
+        if self._reduced is None and self._free.size:
+            stuck = self._stuck_idx
+            key = (stuck.tobytes(), self.q[stuck].tobytes())
+            self._reduced = self._locked_arms.get(key)
+            if self._reduced is None:
+                reduced = pin.buildReducedModel(self.model, [int(j) + 1 for j in stuck], self.q)
+                reduced.armature = self.model.armature[self._free]
+                if len(self._locked_arms) >= LOCKED_ARMS_KEPT:
+                    self._locked_arms.pop(next(iter(self._locked_arms)))
+                self._reduced = self._locked_arms[key] = reduced, reduced.createData()
+        return self._reduced
 
     def _deriv_factory(self, tau: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
         """(q, q̇) → q̈ in the current stick mode, friction levels frozen."""
@@ -223,7 +235,7 @@ class UrdfPlant:
                 return pin.aba(m, d, q, v, tau - (b * v + level))
 
             return sliding
-        n, free, reduced = self.n_joints, self._free, self._reduced
+        n, free, reduced = self.n_joints, self._free, self._locked_arm()
 
         def constrained(q: np.ndarray, v: np.ndarray) -> np.ndarray:
             # M_FF q̈_F = (τ − C q̇ − g − f)_F, q̈_S = 0 (module docstring), by the ABA of the arm
@@ -321,11 +333,12 @@ class UrdfPlant:
         b = self.b if self._viscous else None
         if not self._n_stuck:
             return _rk4_aba(self.model, self.data, self.q, self.dq, self._tau_minus_level, b, dt)
-        if self._reduced is None:
+        locked = self._locked_arm()
+        if locked is None:
             return self.q, self.dq, 0.0
         free = self._free
         q_f, v_f, viscous = _rk4_aba(
-            *self._reduced,
+            *locked,
             self.q[free],
             self.dq[free],
             self._tau_minus_level[free],
