@@ -156,7 +156,33 @@ def simulate_speed(tmp: Path) -> dict[str, dict[str, float]]:
             "realtime_factor_wall": SIMULATE_S / wall,
             "plant_steps": result.plant_steps,
         }
+        if name.startswith("urdf"):
+            # the floor: four ABA calls per RK4 step and nothing else, at this moment's cost
+            aba_us = aba_call_us(robot)
+            out[name].update(
+                aba_call_us=aba_us,
+                aba_share_of_cpu=4 * aba_us * 1e-6 * result.plant_steps / cpu,
+                realtime_factor_aba_only=SIMULATE_S / (4 * aba_us * 1e-6 * result.plant_steps),
+            )
     return out
+
+
+def aba_call_us(robot, calls: int = 20000) -> float:
+    """CPU µs of one Pinocchio ABA call from Python on the arm's plant model (median of 5)."""
+    import pinocchio as pin
+
+    from virtual_robot.urdf_plant import UrdfPlant, UrdfPlantParams
+
+    plant = UrdfPlant(UrdfPlantParams.from_profile(robot))
+    m, d, n = plant.model, plant.data, plant.n_joints
+    q, v, tau = np.random.default_rng(0).uniform(-1, 1, (3, n))
+    runs = []
+    for _ in range(5):
+        start = time.process_time()
+        for _ in range(calls):
+            pin.aba(m, d, q, v, tau)
+        runs.append((time.process_time() - start) / calls * 1e6)
+    return statistics.median(runs)
 
 
 def main() -> int:
@@ -243,6 +269,12 @@ def _speed_lines(speed: dict[str, dict[str, float]]) -> str:
             f"  {name:24s} {x['realtime_factor_cpu']:6.1f}x real time per CPU second "
             f"({x['realtime_factor_wall']:.1f}x wall), {x['plant_steps']} plant steps"
         )
+        if "aba_call_us" in x:
+            lines.append(
+                f"  {'':24s} one ABA call {x['aba_call_us']:.2f} µs CPU: the 4 per step are "
+                f"{x['aba_share_of_cpu']:.0%} of it; ABA alone would run "
+                f"{x['realtime_factor_aba_only']:.0f}x"
+            )
     lines.append(f"  (issue 14 target for a 6-DOF arm: >= {TARGET_SIMULATE_6DOF:g}x)")
     return "\n".join(lines)
 
