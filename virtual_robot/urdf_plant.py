@@ -225,48 +225,36 @@ class UrdfPlant:
                 self._reduced = self._locked_arms[key] = reduced, reduced.createData()
         return self._reduced
 
-    def _deriv_factory(self, tau: np.ndarray) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
-        """(q, q̇) → q̈ in the current stick mode, friction levels frozen."""
-        m, d, b = self.model, self.data, self.b
-        level = self._level
+    def _accelerations(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """q̈ at (q, q̇) in the current stick mode under the held command, friction levels frozen:
+        the arm's ABA of τ − f with every joint sliding; with some stuck, q̈_S = 0 and q̈_F from
+        M_FF q̈_F = (τ − C q̇ − g − f)_F, the ABA of the arm with those joints locked (q_S and
+        q̇_S = 0 do not change while they stick); the derivative :func:`_rk4_aba` integrates."""
+        c = self._tau_minus_level - self.b * v if self._viscous else self._tau_minus_level
         if not self._n_stuck:
+            return pin.aba(self.model, self.data, q, v, c)
+        a = np.zeros(self.n_joints)
+        locked = self._locked_arm()
+        if locked is not None:
+            free = self._free
+            a[free] = pin.aba(*locked, q[free], v[free], c[free])
+        return a
 
-            def sliding(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-                return pin.aba(m, d, q, v, tau - (b * v + level))
-
-            return sliding
-        n, free, reduced = self.n_joints, self._free, self._locked_arm()
-
-        def constrained(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-            # M_FF q̈_F = (τ − C q̇ − g − f)_F, q̈_S = 0 (module docstring), by the ABA of the arm
-            # with the stuck joints locked (q_S and q̇_S = 0 do not change while they stick)
-            a = np.zeros(n)
-            if reduced is not None:
-                a[free] = pin.aba(*reduced, q[free], v[free], (tau - (b * v + level))[free])
-            return a
-
-        return constrained
-
-    def _holding_torques(self, tau: np.ndarray) -> np.ndarray:
-        """Friction each stuck joint needs to stay stuck, now (zero for sliding joints):
-        f_S = (τ − C q̇ − g)_S − M_SF q̈_F = (τ − RNEA(q, q̇, q̈))_S with q̈_S = 0."""
-        q, dq = self.q, self.dq
-        a = self._deriv_factory(tau)(q, dq)
-        held = np.zeros(self.n_joints)
-        stuck = self._stuck_idx
-        held[stuck] = (tau - pin.rnea(self.model, self.data, q, dq, a))[stuck]
-        return held
-
-    def _release_stuck_joints(self, tau: np.ndarray) -> None:
+    def _release_stuck_joints(self) -> None:
+        """Karnopp's breakaway test on the stuck joints (:func:`breakaway_joint`), one joint at a
+        time: the friction f_S = (τ − C q̇ − g)_S − M_SF q̈_F = (τ − RNEA(q, q̇, q̈))_S that keeps
+        them stuck (q̈_S = 0), against their static bands."""
         for _ in range(self.n_joints):
             if not self._n_stuck:
                 return
-            held = self._holding_torques(tau)
-            # |f| ≤ band for every stuck joint: none can break away (Karnopp's test, exactly
-            # as breakaway_joint makes it, which is then skipped)
-            band = np.where(held > 0, self.band_pos, self.band_neg)
-            if not (self.stuck & (np.abs(held) > band)).any():
+            q, dq, tau, stuck = self.q, self.dq, self.command_Nm, self._stuck_idx
+            a = self._accelerations(q, dq)
+            held_s = tau[stuck] - pin.rnea(self.model, self.data, q, dq, a)[stuck]
+            # |f| ≤ its band for every stuck joint: none breaks away (breakaway_joint's test)
+            if not ((held_s > self.band_pos[stuck]) | (held_s < -self.band_neg[stuck])).any():
                 return
+            held = np.zeros(self.n_joints)
+            held[stuck] = held_s
             worst = breakaway_joint(held, self.stuck, self.band_pos, self.band_neg)
             if worst < 0:
                 return
@@ -277,7 +265,7 @@ class UrdfPlant:
     def _step(self, dt: float) -> None:
         """Advance dt, cutting the step where a sliding joint's velocity reaches zero."""
         if self._n_stuck:
-            self._release_stuck_joints(self.command_Nm)
+            self._release_stuck_joints()
         q, v, viscous = self._rk4_mode(dt)
         if (v * self._watch).min() >= 0.0:  # the common case: no sliding velocity crossed 0
             self.q, self.dq = q, v
@@ -292,23 +280,20 @@ class UrdfPlant:
     ) -> None:
         """:meth:`_step` where a sliding joint's velocity crosses zero; ``first``: the step's
         RK4 in the current mode, already taken (stuck joints already checked for breakaway)."""
-        tau = self.command_Nm
-        b = self.b if self._viscous else None
         remaining = dt
         for _ in range(MAX_EVENTS_PER_STEP):
             if remaining <= 1e-15:
                 return
             if first is None:
                 if self._n_stuck:
-                    self._release_stuck_joints(tau)
+                    self._release_stuck_joints()
                 q, v, viscous = self._rk4_mode(remaining)
             else:
                 (q, v, viscous), first = first, None
             used, joint = remaining, -1
             if (v * self._watch < 0.0).any():  # a sliding sticky joint's velocity crossed zero
                 crossed = v * self._watch < 0.0
-                deriv = self._deriv_factory(tau)
-                used, joint, (q, v, viscous) = self._locate_stick(deriv, remaining, crossed, b)
+                used, joint, (q, v, viscous) = self._locate_stick(remaining, crossed)
             self.q, self.dq = q, v
             self._dissipated_booked += viscous
             self.t += used
@@ -329,7 +314,8 @@ class UrdfPlant:
         """One RK4 step of dt in the current stick mode under the held command, by
         :func:`_rk4_aba`: every joint sliding, the arm's ABA; some stuck, the ABA of the arm
         with those locked (q_S and q̇_S = 0 stay as they are); all stuck, no motion.
-        Returns (q, q̇, ∫bᵀq̇² dt). tests/test_urdf_plant.py checks it against :func:`_rk4`."""
+        Returns (q, q̇, ∫bᵀq̇² dt). tests/test_urdf_plant.py checks it against a textbook RK4
+        on the constrained dynamics by CRBA and RNEA."""
         b = self.b if self._viscous else None
         if not self._n_stuck:
             return _rk4_aba(self.model, self.data, self.q, self.dq, self._tau_minus_level, b, dt)
@@ -350,16 +336,17 @@ class UrdfPlant:
         return q, v, viscous
 
     def _locate_stick(
-        self, deriv: Callable, dt: float, crossed: np.ndarray, b: np.ndarray | None
+        self, dt: float, crossed: np.ndarray
     ) -> tuple[float, int, tuple[np.ndarray, np.ndarray, float]]:
         """The first joint whose velocity reaches zero within [0, dt], the time it does and the
-        state there: Brent's method on that joint's velocity along the RK4 flow map."""
+        state there: Brent's method on that joint's velocity along the RK4 flow map of the
+        current mode (:meth:`_rk4_mode` over s)."""
         q0, v0, d = self.q, self.dq, self.slip_dir
         best = (dt, -1, None)
         for j in np.flatnonzero(crossed):
 
             def velocity(s: float, j: int = j) -> float:
-                return _rk4(deriv, q0, v0, s)[1][j] * d[j]
+                return self._rk4_mode(s)[1][j] * d[j]
 
             lo = 0.0
             if v0[j] == 0.0:
@@ -380,7 +367,7 @@ class UrdfPlant:
             if s < best[0] or best[1] < 0:
                 best = (s, int(j), None)
         s, joint, _ = best
-        return s, joint, _rk4(deriv, q0, v0, s, b) if s > 0 else (q0, v0, 0.0)
+        return s, joint, self._rk4_mode(s) if s > 0 else (q0, v0, 0.0)
 
 
 def _rk4_aba(
@@ -392,10 +379,11 @@ def _rk4_aba(
     b: np.ndarray | None,
     dt: float,
 ) -> tuple[np.ndarray, np.ndarray, float]:
-    """:func:`_rk4` with every joint of ``model`` sliding, unrolled: the same stages, the four
-    ABA calls (Featherstone (2008) ch. 7) of τ − level − b q̇, and as few array operations as
+    """One classical RK4 step of dt on (q, q̇) of ``model`` with every joint sliding: the four
+    ABA calls (Featherstone (2008) ch. 7) of τ − level − b q̇ and as few array operations as
     that takes (each costs about a tenth of an ABA call); without viscous friction (``b``
-    None) its terms are skipped. Returns (q, q̇, ∫bᵀq̇² dt)."""
+    None) its terms are skipped. Also the RK4 quadrature of the viscous dissipation ∫bᵀq̇² dt.
+    Returns (q, q̇, ∫bᵀq̇² dt)."""
     aba, c = pin.aba, tau_minus_level
     h2 = 0.5 * dt
     k = dt / 6.0
@@ -420,32 +408,6 @@ def _rk4_aba(
     return (
         q + k * (v + 2.0 * (y + z) + u),
         v + k * (a1 + 2.0 * (a2 + a3) + a4),
-        viscous,
-    )
-
-
-def _rk4(
-    deriv: Callable[[np.ndarray, np.ndarray], np.ndarray],
-    q: np.ndarray,
-    v: np.ndarray,
-    dt: float,
-    b: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, float]:
-    """Classical RK4 on (q, q̇) with ``deriv`` → q̈; also the RK4 quadrature of the viscous
-    dissipation ∫bᵀq̇² dt (0 without ``b``)."""
-    h2 = 0.5 * dt
-    a1 = deriv(q, v)
-    y = v + h2 * a1
-    a2 = deriv(q + h2 * v, y)
-    z = v + h2 * a2
-    a3 = deriv(q + h2 * y, z)
-    u = v + dt * a3
-    a4 = deriv(q + dt * z, u)
-    k = dt / 6.0
-    viscous = 0.0 if b is None else k * float(b @ (v * v + 2.0 * (y * y + z * z) + u * u))
-    return (
-        q + k * (v + 2 * y + 2 * z + u),
-        v + k * (a1 + 2 * a2 + 2 * a3 + a4),
         viscous,
     )
 
