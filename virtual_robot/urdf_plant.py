@@ -2,9 +2,11 @@
 joint, the stick–slip friction of the 2-DOF plant (:mod:`virtual_robot.plant`), and the offline
 simulation that writes an n-joint recording (``virtual-robot simulate --robot cicese3``).
 
-Integration is fixed-step RK4 (default 0.5 ms) on (q, q̇) augmented with the supplied work
-∫τᵀq̇ dt and the friction work ∫fᵀq̇ dt, as in the 2-DOF plant, so the energy balance
-E(t) − E(0) = W_in − W_f can be checked on this plant too.
+Integration is fixed-step RK4 (default 0.5 ms) on (q, q̇), with the supplied work ∫τᵀq̇ dt and
+the friction work ∫fᵀq̇ dt kept as in the 2-DOF plant, so the energy balance
+E(t) − E(0) = W_in − W_f can be checked on this plant too (τ and the Coulomb levels are constant
+between bookings, so their work is τᵀΔq and levelᵀΔq exactly; the viscous part is the RK4
+quadrature of bᵀq̇²).
 
 Friction per joint i is Karnopp's stick–slip, as in :mod:`virtual_robot.plant`:
   * sliding, f_i = b_i q̇_i + F_i(dir) dir, with the direction fixed over a step (each RK4 step
@@ -15,7 +17,14 @@ Friction per joint i is Karnopp's stick–slip, as in :mod:`virtual_robot.plant`
     S stuck joints); it breaks away when f_S leaves the static band
     (:func:`virtual_robot.plant.breakaway_joint`, shared with the 2-DOF plant).
 With every joint sliding (the common case) the accelerations are Pinocchio's ABA
-(Featherstone (2008) ch. 7) of τ − f; with a joint stuck, CRBA and RNEA give M and C q̇ + g.
+(Featherstone (2008) ch. 7) of τ − f; with joints stuck, the ABA of the arm with those joints
+locked where they stand (Pinocchio's reduced model: q̈_F = M_FF⁻¹ r_F exactly, since q_S and
+q̇_S = 0 do not change while they stick), and the holding torques f_S from one RNEA.
+
+Speed (issue 14; ``python tests/benchmarks/bench_urdf.py --only-simulate``): a step is the
+four ABA calls of RK4 and about twenty numpy operations on n-vectors (:func:`_rk4_aba`), and one
+product to watch for a velocity crossing zero; everything else (breakaway tests, locating a
+stick, the locked-joint models) runs only while a joint is stuck or at a crossing.
 
 The world builds its own Pinocchio model from the URDF file; it never imports the host's
 (``hil``) model. No concealed effects yet: the n-joint plant is the described arm itself.
@@ -92,7 +101,9 @@ class UrdfPlant:
         if not max_step_s > 0:
             raise ValueError("max_step_s must be > 0")
         model = pin.buildModelFromUrdf(params.urdf)
-        if model.nq != model.nv or [j.idx_v for j in model.joints[1:] if j.nq == 1] != list(
+        joints = model.joints[1:]
+        # joint i + 1 moves coordinate i (the locked-joint models name joints by that index)
+        if any(j.nq != 1 or j.nv != 1 for j in joints) or [j.idx_v for j in joints] != list(
             range(model.nv)
         ):
             raise ValueError(f"{params.urdf}: only 1-DOF revolute/prismatic joints are supported")
@@ -206,6 +217,8 @@ class UrdfPlant:
         self._watch = np.where(self.sticky & ~self.stuck, self.slip_dir, 0.0)
         self._n_stuck = int(self.stuck.sum())
         self._free, self._stuck_idx = np.flatnonzero(~self.stuck), np.flatnonzero(self.stuck)
+        # the stuck joints' static bands [−band_neg, band_pos] (Karnopp's test)
+        self._band_s = self.band_pos[self._stuck_idx], -self.band_neg[self._stuck_idx]
         self._reduced = None  # built when first needed (:meth:`_locked_arm`)
 
     def _locked_arm(self) -> tuple[Any, Any] | None:
@@ -251,7 +264,8 @@ class UrdfPlant:
             a = self._accelerations(q, dq)
             held_s = tau[stuck] - pin.rnea(self.model, self.data, q, dq, a)[stuck]
             # |f| ≤ its band for every stuck joint: none breaks away (breakaway_joint's test)
-            if not ((held_s > self.band_pos[stuck]) | (held_s < -self.band_neg[stuck])).any():
+            upper, lower = self._band_s
+            if not ((held_s > upper) | (held_s < lower)).any():
                 return
             held = np.zeros(self.n_joints)
             held[stuck] = held_s
