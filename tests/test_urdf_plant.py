@@ -5,8 +5,10 @@ the 3-DOF example arm end to end: `virtual-robot simulate --robot cicese3`, then
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 import pytest
 from cicese3_targets import check_cicese3_identified
 
@@ -17,7 +19,7 @@ from profiles.experiment import load_experiment
 from profiles.robot import load_any_robot, load_robot, load_urdf_robot
 from virtual_robot.cli import main as vr_main
 from virtual_robot.plant import Plant, PlantParams
-from virtual_robot.urdf_plant import UrdfPlant, UrdfPlantParams, _rk4
+from virtual_robot.urdf_plant import UrdfPlant, UrdfPlantParams
 
 
 def test_recording_writer_n_joints_and_2dof_unchanged(tmp_path):
@@ -76,14 +78,49 @@ def test_urdf_plant_matches_the_closed_form_plant():
     assert worst < 1e-10, worst  # 5e-12 rad measured
 
 
-def test_sliding_fast_path_equals_the_general_rk4():
+def textbook_rk4(plant: UrdfPlant, dt: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """The oracle for the plant's step: classical RK4 on (q, q̇) with q̈ of the current stick
+    mode from CRBA and RNEA, M_FF q̈_F = (τ − C q̇ − g − f)_F, q̈_S = 0, solved by numpy; and the
+    RK4 quadrature of the viscous power bᵀq̇²."""
+    m, d, n = plant.model, plant.data, plant.n_joints
+    free = ~plant.stuck
+    tau, b, level = plant.command_Nm, plant.b, plant._level
+
+    def accel(q, v):
+        M = pin.crba(m, d, q)
+        M = np.triu(M) + np.triu(M, 1).T
+        r = tau - pin.nonLinearEffects(m, d, q, v) - (b * v + level)
+        a = np.zeros(n)
+        a[free] = np.linalg.solve(M[np.ix_(free, free)], r[free])
+        return a
+
+    q, v, h = plant.q, plant.dq, 0.5 * dt
+    a1 = accel(q, v)
+    y = v + h * a1
+    a2 = accel(q + h * v, y)
+    z = v + h * a2
+    a3 = accel(q + h * y, z)
+    u = v + dt * a3
+    a4 = accel(q + dt * z, u)
+    k = dt / 6
+    viscous = k * b @ (v * v + 2 * y * y + 2 * z * z + u * u)
+    return q + k * (v + 2 * y + 2 * z + u), v + k * (a1 + 2 * a2 + 2 * a3 + a4), viscous
+
+
+def test_mode_steps_equal_the_textbook_rk4():
+    """The plant's step (:func:`_rk4_aba`: the arm's ABA, or the ABA of the arm with its stuck
+    joints locked) against :func:`textbook_rk4`, every joint sliding and with joint 2 stuck."""
     robot = load_urdf_robot("cicese3")
-    plant = UrdfPlant(UrdfPlantParams.from_profile(robot), q0=[0.3, -0.4, 0.5], dq0=[1, -2, 3])
-    tau = np.array([20.0, -3.0, 0.7])
-    fast = plant._rk4_sliding(tau, 5e-4)
-    general = _rk4(plant._deriv_factory(tau), plant.q, plant.dq, 5e-4)
-    for a, b in zip(fast, general, strict=True):
-        assert np.allclose(a, b, rtol=1e-12, atol=1e-13)
+    for dq0 in ([1.0, -2.0, 3.0], [1.0, 0.0, 3.0]):
+        plant = UrdfPlant(UrdfPlantParams.from_profile(robot), q0=[0.3, -0.4, 0.5], dq0=dq0)
+        stuck = dq0[1] == 0.0
+        assert plant.stuck.tolist() == [False, stuck, False]
+        plant.command([20.0, 0.3, 0.7])
+        fast = plant._rk4_mode(5e-4)
+        for a, b in zip(fast, textbook_rk4(plant, 5e-4), strict=True):
+            assert np.allclose(a, b, rtol=1e-12, atol=1e-13)
+        if stuck:
+            assert fast[1][1] == 0.0 and fast[0][1] == plant.q[1]
 
 
 def test_plant_dynamics_are_the_host_models_and_energy_balances():
@@ -93,7 +130,8 @@ def test_plant_dynamics_are_the_host_models_and_energy_balances():
     host = UrdfArmModel.from_profile(robot)
     plant = UrdfPlant(UrdfPlantParams.from_profile(robot), q0=[0.2, -0.3, 0.4], dq0=[0.5, 1, -2])
     tau = np.array([10.0, 1.0, -0.2])
-    a, _, _ = plant._deriv_factory(tau)(plant.q, plant.dq)
+    plant.command(tau)
+    a = plant._accelerations(plant.q, plant.dq)
     model_tau = host.torque(host.base_theta(), plant.q[None], plant.dq[None], a[None])[0]
     # the plant's Coulomb level per direction is the host's mean level sgn q̇ plus its offset
     assert np.allclose(model_tau, tau, rtol=0, atol=1e-9)
@@ -185,3 +223,71 @@ def test_simulate_refuses_an_arm_without_drives(tmp_path, capsys):
     assert vr_main(args) == 2
     err = capsys.readouterr().err.strip()
     assert "drives" in err and len(err.splitlines()) == 1, err
+
+
+# ---- the plant's trajectory, frozen (issue 14 speed work must not change the physics) ---------
+REFERENCE = Path(__file__).parent / "data" / "urdf_plant_reference.npz"
+
+
+def reference_run(robot_name: str) -> dict[str, np.ndarray]:
+    """2 s of the n-joint plant at h = 2.5 ms, 0.5 ms RK4 steps, in every regime: all joints
+    sliding, some stuck while others move, sticks and breakaways. cicese3: its excitation for
+    1.2 s, then 0.8 s of a small torque inside the bands (the joints stop and stick one by one).
+    panda: gravity compensation at the row's start (the plant's own RNEA) plus sines of 0.2 to
+    1.5 Nm around a mid configuration: its joints sweep through zero velocity many times.
+    Returns the state after every row and the energy bookkeeping at the end."""
+    robot = load_urdf_robot(robot_name)
+    h, rows = 0.0025, 800
+    if robot_name == "panda":
+        q0 = [0.0, 0.2, 0.0, -1.6, 0.0, 1.8, 0.4]
+        plant = UrdfPlant(UrdfPlantParams.from_profile(robot), q0=q0)
+        amp = np.linspace(1.5, 0.2, 7)
+        w = np.linspace(3.0, 11.0, 7)
+
+        def torque(k: int) -> np.ndarray:
+            g = pin.computeGeneralizedGravity(plant.model, plant.data, plant.q)
+            return g + amp * np.sin(w * k * h + np.arange(7))
+    else:
+        plant = UrdfPlant(UrdfPlantParams.from_profile(robot))
+        experiment = load_experiment(robot.name + "-excitation")
+
+        def torque(k: int) -> np.ndarray:
+            tau = np.asarray(experiment.torque(k * h), dtype=float)
+            return tau if k < 480 else 0.02 * tau
+
+    q, dq = np.zeros((rows, plant.n_joints)), np.zeros((rows, plant.n_joints))
+    for k in range(rows):
+        plant.command(torque(k))
+        plant.advance_to((k + 1) * h)
+        q[k], dq[k] = plant.q, plant.dq
+    counts = np.array([plant.steps, plant.stick_events])
+    return {
+        "q": q,
+        "dq": dq,
+        "energy": np.array([plant.work_in_J, plant.dissipated_J]),
+        "counts": counts,
+    }
+
+
+def write_reference() -> None:
+    """Regenerate tests/data/urdf_plant_reference.npz (only when the physics change on purpose):
+    python -c "import sys; sys.path.insert(0, 'tests'); import test_urdf_plant as t;
+    t.write_reference()" """
+    runs = {name: reference_run(name) for name in ("cicese3", "panda")}
+    np.savez_compressed(
+        REFERENCE, **{f"{name}_{k}": v for name, run in runs.items() for k, v in run.items()}
+    )
+
+
+@pytest.mark.parametrize("robot_name", ["cicese3", "panda"])
+def test_plant_trajectory_unchanged(robot_name):
+    """The plant of today against its trajectory frozen before the speed work of issue 14
+    (generated at commit 88ab6f1 by :func:`write_reference`): same steps, same stick events,
+    the state after each of 800 rows equal to round-off."""
+    expected = np.load(REFERENCE)
+    run = reference_run(robot_name)
+    assert run["counts"].tolist() == expected[f"{robot_name}_counts"].tolist()
+    assert run["counts"][1] > 10  # the scenario does exercise sticking
+    assert np.allclose(run["q"], expected[f"{robot_name}_q"], rtol=0, atol=1e-11)
+    assert np.allclose(run["dq"], expected[f"{robot_name}_dq"], rtol=0, atol=1e-9)
+    assert np.allclose(run["energy"], expected[f"{robot_name}_energy"], rtol=1e-11, atol=1e-11)
