@@ -173,6 +173,7 @@ def measure(
     effects: str | None = None,
     seed: int | None = None,
     realtime_policy: str = "auto",
+    spin: str = "auto",
     feedback_timeout_periods: int | None = None,
     feedback_budget_s: float | None = None,
     bench_overrides: dict[str, Any] | None = None,
@@ -254,6 +255,7 @@ def measure(
         seed=seed,
         progress=progress,
         realtime_policy=realtime_policy,
+        spin=spin,
     )
     machine_end = machine_state()
     result = run.result
