@@ -402,9 +402,15 @@ def format_table(s: dict[str, Any]) -> str:
         )
     if sched.get("waits"):
         over = sched.get("sleep_overshoot_us", {})
+        spun = (
+            f"spun {sched['mean_spin_us']:.0f} µs (margin {sched['spin_margin_us']:.0f} µs)"
+            if sched.get("spin_margin_us")
+            else "no spin (SCHED_FIFO)"
+            if sched.get("policy") == "SCHED_FIFO"
+            else "no spin"
+        )
         lines.append(
-            f"scheduler: per cycle slept {sched['mean_sleep_us']:.0f} µs, spun "
-            f"{sched['mean_spin_us']:.0f} µs (margin {sched['spin_margin_us']:.0f} µs); sleep "
+            f"scheduler: per cycle slept {sched['mean_sleep_us']:.0f} µs, {spun}; sleep "
             f"overshoot median {over.get('median', float('nan')):.0f}, p99 "
             f"{over.get('p99', float('nan')):.0f} µs"
         )
