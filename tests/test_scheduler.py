@@ -13,10 +13,8 @@ from hil.bench import scheduler as sched_mod
 from hil.bench.scheduler import (
     MIN_SPIN_S,
     DeadlineScheduler,
-    Scheduling,
     acquire_realtime,
     release_realtime,
-    spin_for,
 )
 
 
@@ -116,15 +114,6 @@ def test_without_spin_it_sleeps_to_the_deadline_and_never_reads_the_clock_in_a_l
     assert r["mean_spin_us"] == 0 and r["spin_margin_us"] == 0 and r["late_wakeups"] == 0
     assert r["method"] == "sleep to the deadline (no spin)"
     assert r["sleep_overshoot_us"]["median"] == pytest.approx(32.5, abs=5)
-
-
-def test_spin_only_without_sched_fifo():
-    fifo, other = Scheduling("auto", policy="SCHED_FIFO"), Scheduling("auto")
-    assert not spin_for("auto", fifo)  # a FIFO spin would starve the pty's kernel worker
-    assert spin_for("auto", other) and spin_for("auto", None)
-    assert spin_for("on", fifo) and not spin_for("off", other)
-    with pytest.raises(ValueError, match="auto, on, off"):
-        spin_for("sometimes", fifo)
 
 
 def test_a_deadline_already_past_returns_at_once():

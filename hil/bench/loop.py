@@ -25,7 +25,7 @@ from drivers.arm import Arm, LinkError, SafetyStop, Sample
 from drivers.process import interrupt_reason
 from drivers.protocol.cia402 import State, state_from_statusword
 from drivers.recording import RecordingWriter
-from hil.bench.scheduler import DeadlineScheduler, Scheduling, spin_for
+from hil.bench.scheduler import DeadlineScheduler, Scheduling
 
 # LATE_FRACTION, timing_statistics: moved there, importable here
 from hil.bench.timing_stats import (
@@ -62,7 +62,7 @@ def run_loop(
     progress: Callable[[int, int], None] | None = None,
     scheduling: Scheduling | None = None,
     scheduler: DeadlineScheduler | None = None,
-    spin: str = "auto",
+    spin: bool = True,
 ) -> LoopResult:
     """Run ``n_periods`` cycles, writing one row per period as it completes.
 
@@ -70,8 +70,7 @@ def run_loop(
     and the result says why it ended. The caller's ``with arm:`` block makes the drives safe.
     Realtime: ``scheduler`` (default a :class:`DeadlineScheduler` on ``arm.now``) waits for the
     deadlines; ``scheduling`` (what the caller got from the OS) goes into the timing report.
-    ``spin`` (auto | on | off) is the default scheduler's: auto spins only without SCHED_FIFO
-    (:func:`hil.bench.scheduler.spin_for`).
+    ``spin``: whether the default scheduler spins before a deadline (False: sleeps to it).
     """
     # The cyclic garbage collector can pause for milliseconds at any allocation; in realtime it
     # runs between runs, not between deadlines (reference counting still frees as usual). No
@@ -81,7 +80,7 @@ def run_loop(
         return _run(arm, command, n_periods, writer, realtime=False, progress=progress)
     gc.disable()
     if scheduler is None:
-        scheduler = DeadlineScheduler(arm.period_s, clock=arm.now, spin=spin_for(spin, scheduling))
+        scheduler = DeadlineScheduler(arm.period_s, clock=arm.now, spin=spin)
     arm.deadline_waiter = scheduler.wait_until
     try:
         result = _run(

@@ -106,7 +106,7 @@ def record_over_bench(
     seed: int | None = None,
     progress: bool = True,
     realtime_policy: str = "auto",
-    spin: str = "auto",
+    spin: bool = True,
 ) -> BenchRun:
     """Start the bench's virtual robot (if virtual), open the arm, run ``command`` for
     ``n_periods`` through the loop runner and record it in ``out``.
@@ -114,7 +114,7 @@ def record_over_bench(
     ``meta(channel)`` gives meta.json's fields once the link's channel is known. The drives end
     at zero torque and disabled on every path; meta.json says how the run ended. Realtime:
     ``realtime_policy`` "auto" tries SCHED_FIFO and a memory lock (hil.bench.scheduler) before the
-    link opens, "off" does not; ``spin`` is the deadline wait's (hil.bench.scheduler.spin_for).
+    link opens, "off" does not; ``spin=False``: the deadline wait sleeps, never spins.
     """
     realtime = mode == "realtime"
     h = bench.period_s

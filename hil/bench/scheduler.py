@@ -3,22 +3,22 @@
 Deadlines are absolute, t_k = t_0 + k·h, computed from k (never by adding h to the previous
 deadline), so rounding and late wake-ups do not accumulate: the loop does not drift.
 
-Waiting for a deadline (:meth:`DeadlineScheduler.wait_until`) at normal priority:
-``time.sleep`` until ``spin_margin`` before it, then read the clock in a loop until it has
-passed. A normal task's sleep wakes 5–60 µs late on this VM (p99; the kernel's default timer
-slack is 50 µs; rare wake-ups 150 µs late and more under load) and a spinning loop is released
-within a clock read (< 1 µs) of the deadline, at the price of a core for the margin. The margin
-adapts: every ``ADAPT_EVERY`` waits it becomes the p99 of the recent sleep overshoots plus
-``MARGIN_HEADROOM_S``, within [``MIN_SPIN_S``, min(``MAX_SPIN_S``, h/4)].
+Waiting for a deadline (:meth:`DeadlineScheduler.wait_until`): ``time.sleep`` until
+``spin_margin`` before it, then read the clock in a loop until it has passed. A sleep wakes
+5–60 µs late on this VM (p99; rare wake-ups 150 µs late and more under load) and a spinning
+loop is released within a clock read (< 1 µs) of the deadline, at the price of a core for the
+margin. The margin adapts: every ``ADAPT_EVERY`` waits it becomes the p99 of the recent sleep
+overshoots plus ``MARGIN_HEADROOM_S``, within [``MIN_SPIN_S``, min(``MAX_SPIN_S``, h/4)].
 
-Under ``SCHED_FIFO`` it only sleeps, to the deadline itself (``spin=False``; what
-:func:`spin_for` chooses by default). A realtime task's sleep has no timer slack and preempts
-every normal task when it ends, so it wakes within tens of µs anyway; and a FIFO thread that
-spins holds its CPU against every normal-priority task, among them the kernel worker that
-carries a pty's data between the host and the virtual robot (docs/jitter.md, "Beside CPU-bound
-jobs"). ``sched_yield`` while spinning would not help that worker: a FIFO thread yields only
-to realtime threads of its own priority. The split (time slept, time spun, how late sleeps
-woke) is kept for the report.
+``spin=False`` only sleeps, to the deadline itself: the variant measured for issue 13, where a
+FIFO thread that spins holds its CPU against every normal task, the kernel worker that carries
+a pty's data among them (docs/jitter.md, "Beside CPU-bound jobs"). Measured beside two CPU
+hogs it did not change how many 60 s runs over the ptys completed, and it releases later (a
+SCHED_FIFO sleep has no timer slack but still woke ~35 µs late, median, under load;
+``tests/benchmarks/bench_deadline_wait.py``), so the spin stays the default. ``sched_yield``
+while spinning would not help that worker either: a FIFO thread yields only to realtime
+threads of its own priority. The split (time slept, time spun, how late sleeps woke) is kept
+for the report.
 
 What the OS gives (:func:`acquire_realtime`, before the link opens, so that the threads it
 starts inherit it): ``SCHED_FIFO`` at priority ``RT_PRIORITY`` (below the kernel's threaded
@@ -50,7 +50,6 @@ from typing import Any
 import numpy as np
 
 POLICIES = ("auto", "off")  # auto: try SCHED_FIFO and mlockall, fall back; off: do not try
-SPIN_CHOICES = ("auto", "on", "off")  # auto: spin only without SCHED_FIFO (see spin_for)
 RT_PRIORITY = 10
 MCL_CURRENT, MCL_FUTURE = 1, 2
 DEFAULT_SPIN_S = 200e-6  # margin before the first adaptation (the drivers' old fixed value)
@@ -70,16 +69,6 @@ def _warn_once(message: str, stream: Any = None) -> bool:
     _warned = True
     print(message, file=stream or sys.stderr, flush=True)
     return True
-
-
-def spin_for(choice: str, scheduling: Scheduling | None) -> bool:
-    """Whether the wait spins before a deadline: ``on``/``off`` as said; ``auto`` spins only
-    when the loop did not get SCHED_FIFO (a FIFO spin starves the pty's kernel worker)."""
-    if choice not in SPIN_CHOICES:
-        raise ValueError(f"spin must be one of {', '.join(SPIN_CHOICES)}, got {choice!r}")
-    if choice != "auto":
-        return choice == "on"
-    return scheduling is None or scheduling.policy != "SCHED_FIFO"
 
 
 class DeadlineScheduler:
@@ -411,9 +400,7 @@ def realtime_scheduling(
 
 __all__ = [
     "POLICIES",
-    "SPIN_CHOICES",
     "DeadlineScheduler",
     "Scheduling",
     "realtime_scheduling",
-    "spin_for",
 ]

@@ -173,7 +173,7 @@ def measure(
     effects: str | None = None,
     seed: int | None = None,
     realtime_policy: str = "auto",
-    spin: str = "auto",
+    spin: bool = True,
     feedback_timeout_periods: int | None = None,
     feedback_budget_s: float | None = None,
     bench_overrides: dict[str, Any] | None = None,
@@ -405,8 +405,6 @@ def format_table(s: dict[str, Any]) -> str:
         spun = (
             f"spun {sched['mean_spin_us']:.0f} µs (margin {sched['spin_margin_us']:.0f} µs)"
             if sched.get("spin_margin_us")
-            else "no spin (SCHED_FIFO)"
-            if sched.get("policy") == "SCHED_FIFO"
             else "no spin"
         )
         lines.append(

@@ -14,7 +14,7 @@ run. The machine's load is printed with each run: other jobs on it change everyt
 
     python tests/benchmarks/bench_jitter.py [--seconds 60] [--rates 400,1000]
         [--benches virtual-slcan,virtual-serial] [--policies auto,off] [--json]
-        [--hogs N] [--repeat N] [--spin auto,on,off]
+        [--hogs N] [--repeat N] [--spin on,off]
 
 ``--hogs N`` runs N CPU-bound processes (``python -c 'while True: pass'``, nice 0) beside every
 run, started before it and killed after it; ``--repeat N`` runs every configuration N times and
@@ -54,7 +54,7 @@ def targets(entry: dict[str, Any]) -> dict[str, bool]:
 
 
 def run_one(
-    bench: str, rate: float, seconds: float, policy: str, out: Path, spin: str = "auto"
+    bench: str, rate: float, seconds: float, policy: str, out: Path, spin: str = "on"
 ) -> dict[str, Any]:
     s = measure(
         bench,
@@ -62,7 +62,7 @@ def run_one(
         seconds,
         out,
         realtime_policy=policy,
-        spin=spin,
+        spin=spin == "on",
         plot=False,
         progress=False,
     )
@@ -155,9 +155,9 @@ def main() -> int:
     parser.add_argument("--policies", default="auto,off")
     parser.add_argument(
         "--spin",
-        default="auto",
-        help="the deadline wait's spin, one or more of auto,on,off (auto: spin only without "
-        "SCHED_FIFO; hil.bench.scheduler.spin_for)",
+        default="on",
+        help="the deadline wait: on (sleep, then spin; the default) and/or off (sleep to the "
+        "deadline), e.g. on,off for an A/B",
     )
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--hogs", type=int, default=0, help="CPU-bound processes beside each run")
