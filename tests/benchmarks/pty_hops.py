@@ -12,7 +12,9 @@ switch for ``--seconds``, while ``COMMAND`` runs (or whatever else is running: s
   nice 0, 89 is SCHED_FIFO 10, the priority ``hil`` gives its loop and the virtual robot);
 * every realtime thread (kernel priority < 100) that ran longer than 5 ms without a break,
   with its process's command line: such a thread holds its CPU against every normal task,
-  the pty's worker among them.
+  the pty's worker among them;
+* the steal time of each CPU meanwhile (/proc/stat): time the hypervisor did not run the
+  vCPU, which the trace shows as the current task running.
 
     python tests/benchmarks/pty_hops.py [--seconds 15] [--top 5] [--json] [-- COMMAND ...]
 
@@ -63,6 +65,17 @@ def _command_lines(stop: threading.Event, into: dict[int, str]) -> None:
                 into[int(entry.name)] = raw.replace(b"\0", b" ").decode(errors="replace")[:160]
         if stop.wait(0.5):
             return
+
+
+def steal_s() -> dict[str, float]:
+    """Seconds each CPU's vCPU was not run by the hypervisor (/proc/stat "steal") since boot."""
+    hz = os.sysconf("SC_CLK_TCK")
+    out = {}
+    for line in Path("/proc/stat").read_text().splitlines():
+        f = line.split()
+        if f[0].startswith("cpu") and f[0] != "cpu" and len(f) > 8:
+            out[f[0]] = int(f[8]) / hz
+    return out
 
 
 def record(seconds: float, data: Path, command: list[str]) -> dict[int, str]:
@@ -221,8 +234,12 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         data = Path(tmp) / "perf.data"
         started = time.strftime("%H:%M:%S")
-        report = analyse(data, record(args.seconds, data, command), args.top)
+        stolen = steal_s()
+        cmdlines = record(args.seconds, data, command)
+        stolen = {cpu: round(s - stolen.get(cpu, 0.0), 3) for cpu, s in steal_s().items()}
+        report = analyse(data, cmdlines, args.top)
     report["recorded_from"] = started
+    report["steal_s"] = stolen  # time the hypervisor did not run each vCPU meanwhile
     if args.json:
         print(json.dumps(report, indent=1))
         return 0
@@ -234,7 +251,8 @@ def main() -> int:
         f"{report['hops']} pty hops in {args.seconds:g} s from {started} (load "
         f"{report['load_average']:.1f}): queued → run median {h['median'] * 1e3:.0f} µs, p99 "
         f"{h['p99']:.2f} ms, p99.9 {h['p999']:.2f} ms, max {h['max']:.1f} ms; "
-        f"{h['over_5ms']} over 5 ms, {h['over_20ms']} over 20 ms"
+        f"{h['over_5ms']} over 5 ms, {h['over_20ms']} over 20 ms; steal (vCPU not run) "
+        + ", ".join(f"{cpu} {s * 1e3:.0f} ms" for cpu, s in report["steal_s"].items())
     )
     for w in report["longest_hops"]:
         print(f"\nhop of {w['ms']:.1f} ms, written by pid {w['writer_pid']} ({w['writer'][:80]})")
