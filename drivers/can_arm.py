@@ -1136,7 +1136,8 @@ class CanArm(Arm):
 
 
 def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
+    # python-can's socketcand puts the traceback into its error's text: keep the error
+    text = " ".join(str(exc).split("Traceback (most recent call last)", 1)[0].split())
     return text or type(exc).__name__
 
 

@@ -4,7 +4,9 @@ Without a handler, Python prints every WARNING of every library on stderr (loggi
 resort"): with a socketcand port dead, python-can's connect loop logged "Failed to connect to
 server" about 700,000 times in its 10 s before ``hil`` printed its one-line error. Here:
 
-* one stderr handler, lines ``PROG: LOGGER: LEVEL: message``;
+* one stderr handler, lines ``PROG: LOGGER: LEVEL: message``, one line each (a message's
+  further lines and a traceback in it, like an exception's, only with the root logger at
+  DEBUG);
 * the project's loggers (``hil``, ``drivers``, ``virtual_robot``, ``profiles``) at WARNING, the
   third-party ones (``can``, ``canopen``, everything else) at ERROR; ``-v`` lowers both by one
   step (INFO / WARNING), ``-vv`` to DEBUG, ``-q`` raises them to ERROR / CRITICAL;
@@ -28,6 +30,7 @@ BURST = 3  # identical messages that pass before the limit applies
 WINDOW_S = 10.0  # then at most one per this many seconds
 
 _LEVELS = [logging.DEBUG, logging.INFO, logging.WARNING, logging.ERROR, logging.CRITICAL]
+_TRACEBACK = "Traceback (most recent call last)"
 
 
 class RateLimit(logging.Filter):
@@ -69,8 +72,16 @@ class _Format(logging.Formatter):
         self.prog = prog
 
     def format(self, record: logging.LogRecord) -> str:
-        text = f"{self.prog}: {record.name}: {record.levelname.lower()}: {record.getMessage()}"
-        if record.exc_info and logging.getLogger().isEnabledFor(logging.DEBUG):
+        message = record.getMessage()
+        debug = logging.getLogger().isEnabledFor(logging.DEBUG)
+        if not debug:
+            # one line: python-can formats a traceback into some messages (socketcand's
+            # "Failed to receive: [Errno 104] Connection reset by peer  Traceback ..."); the
+            # whole text, like an exception's, only when debugging
+            first = message.split("\n", 1)[0].split(_TRACEBACK, 1)[0].rstrip()
+            message = first or message.strip().split("\n", 1)[0]
+        text = f"{self.prog}: {record.name}: {record.levelname.lower()}: {message}"
+        if record.exc_info and debug:
             text += "\n" + self.formatException(record.exc_info)
         return text
 

@@ -93,6 +93,29 @@ def test_rate_limit_passes_a_burst_then_one_per_window() -> None:
     assert limit.filter(late) and "9997 similar messages suppressed" in late.getMessage()
 
 
+def test_a_log_message_is_one_line_unless_debugging() -> None:
+    """python-can's socketcand formats the traceback into its "Failed to receive" error: the
+    line keeps the error and drops the traceback (all of it at -vv)."""
+    handler = configure("hil", 0)
+    try:
+        text = "Failed to receive: [Errno 104] Connection reset by peer  Traceback (most recent "
+        text += 'call last):\n  File "socketcand.py", line 1, in _recv_internal\nOSError: reset'
+        record = logging.LogRecord(
+            "can.interfaces.socketcand", logging.ERROR, "", 1, text, (), None
+        )
+        assert handler.format(record) == (
+            "hil: can.interfaces.socketcand: error: Failed to receive: [Errno 104] Connection "
+            "reset by peer"
+        )
+        logging.getLogger().setLevel(logging.DEBUG)  # debugging: the whole message
+        assert "OSError: reset" in handler.format(record) and "Traceback" in handler.format(record)
+    finally:
+        for h in list(logging.getLogger().handlers):
+            if getattr(h, "ddbench", False):
+                logging.getLogger().removeHandler(h)
+        logging.getLogger().setLevel(logging.WARNING)
+
+
 def test_third_party_loggers_are_quiet_by_default() -> None:
     handler = configure("test", 0)
     try:

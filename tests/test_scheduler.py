@@ -93,6 +93,29 @@ def test_sleep_then_spin_split_and_adaptive_margin():
     assert 0 < r["mean_spin_us"] < 200
 
 
+def test_without_spin_it_sleeps_to_the_deadline_and_never_reads_the_clock_in_a_loop():
+    sim = SimClock(seed=5)
+    reads = 0
+    clock = sim.clock
+
+    def counting_clock() -> float:
+        nonlocal reads
+        reads += 1
+        return clock()
+
+    s = DeadlineScheduler(0.001, clock=counting_clock, sleep=sim.sleep, spin=False)
+    t0 = s.start()
+    for k in range(1, 2001):
+        release = s.wait_for(k)
+        # never early; late by the sleep's own overshoot only (the simulated 5-60 µs, or 400)
+        assert 0 <= release - (t0 + k * 0.001) <= 401e-6
+    r = s.report()
+    assert reads == 1 + 2 * 2000  # start, then one read before and one after each sleep
+    assert r["mean_spin_us"] == 0 and r["spin_margin_us"] == 0 and r["late_wakeups"] == 0
+    assert r["method"] == "sleep to the deadline (no spin)"
+    assert r["sleep_overshoot_us"]["median"] == pytest.approx(32.5, abs=5)
+
+
 def test_a_deadline_already_past_returns_at_once():
     sim = SimClock()
     s = DeadlineScheduler(0.001, clock=sim.clock, sleep=sim.sleep)
@@ -143,6 +166,19 @@ def test_granted_policy_is_reported_and_undone(monkeypatch):
     release_realtime(got, munlockall=lambda: unlocked.append(True))
     assert unlocked == [True] and len(restored) >= 1
     assert restored[-1][0] == 0  # the calling thread's previous policy is put back last
+
+
+def test_memory_is_locked_before_the_realtime_policy_is_taken():
+    """mlockall faults in every page (tens to hundreds of ms): at normal priority, not at
+    SCHED_FIFO, where it would hold a CPU against every normal task meanwhile."""
+    order: list[str] = []
+    got = acquire_realtime(
+        set_fifo=lambda tid, prio: order.append("fifo"),
+        mlockall=lambda: order.append("mlockall"),
+        warn=lambda m: pytest.fail(f"warned: {m}"),
+    )
+    release_realtime(got, munlockall=lambda: None)
+    assert order[0] == "mlockall" and "fifo" in order
 
 
 def test_off_does_not_try():

@@ -62,6 +62,7 @@ def run_loop(
     progress: Callable[[int, int], None] | None = None,
     scheduling: Scheduling | None = None,
     scheduler: DeadlineScheduler | None = None,
+    spin: bool = True,
 ) -> LoopResult:
     """Run ``n_periods`` cycles, writing one row per period as it completes.
 
@@ -69,6 +70,7 @@ def run_loop(
     and the result says why it ended. The caller's ``with arm:`` block makes the drives safe.
     Realtime: ``scheduler`` (default a :class:`DeadlineScheduler` on ``arm.now``) waits for the
     deadlines; ``scheduling`` (what the caller got from the OS) goes into the timing report.
+    ``spin``: whether the default scheduler spins before a deadline (False: sleeps to it).
     """
     # The cyclic garbage collector can pause for milliseconds at any allocation; in realtime it
     # runs between runs, not between deadlines (reference counting still frees as usual). No
@@ -78,7 +80,7 @@ def run_loop(
         return _run(arm, command, n_periods, writer, realtime=False, progress=progress)
     gc.disable()
     if scheduler is None:
-        scheduler = DeadlineScheduler(arm.period_s, clock=arm.now)
+        scheduler = DeadlineScheduler(arm.period_s, clock=arm.now, spin=spin)
     arm.deadline_waiter = scheduler.wait_until
     try:
         result = _run(

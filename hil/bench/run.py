@@ -110,6 +110,7 @@ def record_over_bench(
     seed: int | None = None,
     progress: bool = True,
     realtime_policy: str = "auto",
+    spin: bool = True,
 ) -> BenchRun:
     """Start the bench's virtual robot (if virtual), open the arm, run ``command`` for
     ``n_periods`` through the loop runner and record it in ``out``.
@@ -117,7 +118,7 @@ def record_over_bench(
     ``meta(channel)`` gives meta.json's fields once the link's channel is known. The drives end
     at zero torque and disabled on every path; meta.json says how the run ended. Realtime:
     ``realtime_policy`` "auto" tries SCHED_FIFO and a memory lock (hil.bench.scheduler) before the
-    link opens, "off" does not.
+    link opens, "off" does not; ``spin=False``: the deadline wait sleeps, never spins.
     """
     realtime = mode == "realtime"
     h = bench.period_s
@@ -166,6 +167,7 @@ def record_over_bench(
                     realtime=realtime,
                     progress=_progress if progress else None,
                     scheduling=scheduling,
+                    spin=spin,
                 )
             reason = result.reason
             factor = n_periods * h / result.wall_time_s if result.wall_time_s else None

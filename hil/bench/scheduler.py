@@ -1,15 +1,24 @@
-"""The realtime loop's scheduler: absolute deadlines, sleep then spin, and the OS's help.
+"""The realtime loop's scheduler: absolute deadlines, sleep (then spin), and the OS's help.
 
 Deadlines are absolute, t_k = t_0 + k·h, computed from k (never by adding h to the previous
 deadline), so rounding and late wake-ups do not accumulate: the loop does not drift.
 
 Waiting for a deadline (:meth:`DeadlineScheduler.wait_until`): ``time.sleep`` until
-``spin_margin`` before it, then read the clock in a loop until it has passed. A sleep on Linux
-wakes 5–60 µs late on this VM (p99; rare wake-ups 150 µs late and more under load) and a
-spinning loop is released within a clock read (< 1 µs) of the deadline, at the price of a core
-for the margin. The margin adapts: every ``ADAPT_EVERY`` waits it becomes the p99 of the recent
-sleep overshoots plus ``MARGIN_HEADROOM_S``, within [``MIN_SPIN_S``, min(``MAX_SPIN_S``, h/4)].
-The split (time slept, time spun, how late sleeps woke) is kept for the report.
+``spin_margin`` before it, then read the clock in a loop until it has passed. A sleep wakes
+5–60 µs late on this VM (p99; rare wake-ups 150 µs late and more under load) and a spinning
+loop is released within a clock read (< 1 µs) of the deadline, at the price of a core for the
+margin. The margin adapts: every ``ADAPT_EVERY`` waits it becomes the p99 of the recent sleep
+overshoots plus ``MARGIN_HEADROOM_S``, within [``MIN_SPIN_S``, min(``MAX_SPIN_S``, h/4)].
+
+``spin=False`` only sleeps, to the deadline itself: the variant measured for issue 13, where a
+FIFO thread that spins holds its CPU against every normal task, the kernel worker that carries
+a pty's data among them (docs/jitter.md, "Beside CPU-bound jobs"). Measured beside two CPU
+hogs it did not change how many 60 s runs over the ptys completed, and it releases later (a
+SCHED_FIFO sleep has no timer slack but still woke ~35 µs late, median, under load;
+``tests/benchmarks/bench_deadline_wait.py``), so the spin stays the default. ``sched_yield``
+while spinning would not help that worker either: a FIFO thread yields only to realtime
+threads of its own priority. The split (time slept, time spun, how late sleeps woke) is kept
+for the report.
 
 What the OS gives (:func:`acquire_realtime`, before the link opens, so that the threads it
 starts inherit it): ``SCHED_FIFO`` at priority ``RT_PRIORITY`` (below the kernel's threaded
@@ -63,7 +72,8 @@ def _warn_once(message: str, stream: Any = None) -> bool:
 
 
 class DeadlineScheduler:
-    """Absolute deadlines t_0 + k·h and a wait that sleeps, then spins.
+    """Absolute deadlines t_0 + k·h and a wait that sleeps, then spins (``spin=False``: only
+    sleeps, to the deadline).
 
     ``clock`` and ``sleep`` are injectable (a test runs it on a simulated clock); ``clock`` is
     the clock of the deadlines (e.g. :meth:`drivers.arm.Arm.now`).
@@ -77,15 +87,17 @@ class DeadlineScheduler:
         sleep: Callable[[float], None] = time.sleep,
         spin_s: float = DEFAULT_SPIN_S,
         adaptive: bool = True,
+        spin: bool = True,
     ) -> None:
         if not period_s > 0:
             raise ValueError(f"period_s must be > 0, got {period_s}")
         self.period_s = float(period_s)
         self.clock = clock
         self.sleep = sleep
-        self.max_spin_s = min(MAX_SPIN_S, self.period_s / 4)
+        self.spin = spin
+        self.max_spin_s = min(MAX_SPIN_S, self.period_s / 4) if spin else 0.0
         self.spin_margin_s = min(spin_s, self.max_spin_s)
-        self.adaptive = adaptive
+        self.adaptive = adaptive and spin
         self.t0 = 0.0
         self.waits = 0
         self.already_late = 0  # called at or after the deadline: nothing to wait for
@@ -111,7 +123,8 @@ class DeadlineScheduler:
         return self.wait_until(self.deadline(k))
 
     def wait_until(self, target: float) -> float:
-        """Sleep until ``spin_margin_s`` before ``target``, then spin until it has passed.
+        """Sleep until ``spin_margin_s`` before ``target``, then spin until it has passed
+        (without spin: sleep until ``target``; a sleep never returns early).
 
         Returns the release time. If ``target`` has already passed, returns at once."""
         self.waits += 1
@@ -132,7 +145,8 @@ class DeadlineScheduler:
             oversleep = woke - wake
             now = woke
             if now >= target:
-                self.late_wakeups += 1
+                if self.spin_margin_s > 0:  # woke past the deadline despite the margin
+                    self.late_wakeups += 1
                 self._record_oversleep(oversleep)
                 return now
         spun_from = now
@@ -168,8 +182,9 @@ class DeadlineScheduler:
         """The sleep/spin split and the sleeps' overshoot, for meta.json."""
         over = np.asarray(self._oversleep) * 1e6
         n = max(1, self.waits)
+        method = "sleep, then spin" + (" (adaptive margin)" if self.adaptive else "")
         out: dict[str, Any] = {
-            "method": "sleep, then spin" + (" (adaptive margin)" if self.adaptive else ""),
+            "method": method if self.spin else "sleep to the deadline (no spin)",
             "waits": self.waits,
             "spin_margin_us": self.spin_margin_s * 1e6,
             "mean_sleep_us": self.slept_s / n * 1e6,
@@ -305,6 +320,16 @@ def acquire_realtime(
     if requested == "off":
         got.realtime_refused = got.memory_lock_refused = "not requested (--realtime-policy off)"
         return got
+    # The memory lock first, at normal priority: mlockall faults in every mapped page (≈ 200 MB
+    # here, tens to hundreds of ms, partly from disk), which at SCHED_FIFO would hold a CPU
+    # against every normal task that long.
+    try:
+        mlockall()
+    except (OSError, AttributeError) as exc:
+        reason = _refusal(exc, "mlockall") if isinstance(exc, OSError) else f"mlockall: {exc}"
+        got.memory_lock_refused = reason
+    else:
+        got.memory_locked = True
     if not hasattr(os, "sched_setscheduler"):
         got.realtime_refused = "os.sched_setscheduler is not available on this OS"
     else:
@@ -327,13 +352,6 @@ def acquire_realtime(
                 "threads": n,
                 "refused": peer_refused if not n else None,
             }
-    try:
-        mlockall()
-    except (OSError, AttributeError) as exc:
-        reason = _refusal(exc, "mlockall") if isinstance(exc, OSError) else f"mlockall: {exc}"
-        got.memory_lock_refused = reason
-    else:
-        got.memory_locked = True
     if got.fell_back:
         missing = [
             what

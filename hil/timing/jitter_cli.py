@@ -173,6 +173,7 @@ def measure(
     effects: str | None = None,
     seed: int | None = None,
     realtime_policy: str = "auto",
+    spin: bool = True,
     feedback_timeout_periods: int | None = None,
     feedback_budget_s: float | None = None,
     bench_overrides: dict[str, Any] | None = None,
@@ -254,6 +255,7 @@ def measure(
         seed=seed,
         progress=progress,
         realtime_policy=realtime_policy,
+        spin=spin,
     )
     machine_end = machine_state()
     result = run.result
@@ -400,9 +402,13 @@ def format_table(s: dict[str, Any]) -> str:
         )
     if sched.get("waits"):
         over = sched.get("sleep_overshoot_us", {})
+        spun = (
+            f"spun {sched['mean_spin_us']:.0f} µs (margin {sched['spin_margin_us']:.0f} µs)"
+            if sched.get("spin_margin_us")
+            else "no spin"
+        )
         lines.append(
-            f"scheduler: per cycle slept {sched['mean_sleep_us']:.0f} µs, spun "
-            f"{sched['mean_spin_us']:.0f} µs (margin {sched['spin_margin_us']:.0f} µs); sleep "
+            f"scheduler: per cycle slept {sched['mean_sleep_us']:.0f} µs, {spun}; sleep "
             f"overshoot median {over.get('median', float('nan')):.0f}, p99 "
             f"{over.get('p99', float('nan')):.0f} µs"
         )

@@ -14,12 +14,13 @@ run. The machine's load is printed with each run: other jobs on it change everyt
 
     python tests/benchmarks/bench_jitter.py [--seconds 60] [--rates 400,1000]
         [--benches virtual-slcan,virtual-serial] [--policies auto,off] [--json]
-        [--hogs N] [--repeat N]
+        [--hogs N] [--repeat N] [--spin on,off]
 
 ``--hogs N`` runs N CPU-bound processes (``python -c 'while True: pass'``, nice 0) beside every
 run, started before it and killed after it; ``--repeat N`` runs every configuration N times and
 adds, per configuration, how many runs completed and the late-cycle figures over the runs (the
-issue-13 measurement: ``--hogs 2 --repeat 5 --policies auto``).
+issue-13 measurement: ``--hogs 2 --repeat 5 --policies auto``); the repeats go round-robin over
+the configurations, so that the machine's changing load falls on all of them alike.
 """
 
 from __future__ import annotations
@@ -52,13 +53,16 @@ def targets(entry: dict[str, Any]) -> dict[str, bool]:
     return met
 
 
-def run_one(bench: str, rate: float, seconds: float, policy: str, out: Path) -> dict[str, Any]:
+def run_one(
+    bench: str, rate: float, seconds: float, policy: str, out: Path, spin: str = "on"
+) -> dict[str, Any]:
     s = measure(
         bench,
         rate,
         seconds,
         out,
         realtime_policy=policy,
+        spin=spin == "on",
         plot=False,
         progress=False,
     )
@@ -67,6 +71,8 @@ def run_one(bench: str, rate: float, seconds: float, policy: str, out: Path) -> 
         "bench": bench,
         "rate_hz": rate,
         "requested": policy,
+        "spin": spin,
+        "wait": sched.get("method"),
         "policy": sched.get("policy"),
         "memory_locked": sched.get("memory_locked"),
         "status": s["status"],
@@ -120,6 +126,7 @@ def repeated(entries: list[dict[str, Any]]) -> dict[str, Any]:
         "bench": first["bench"],
         "rate_hz": first["rate_hz"],
         "policy": first["policy"],
+        "spin": first["spin"],
         "runs": len(entries),
         "completed": sum(e["status"] == "complete" for e in entries),
         "ended": [e["reason"] for e in entries if e["status"] != "complete"],
@@ -146,39 +153,52 @@ def main() -> int:
     parser.add_argument("--rates", default="400,1000")
     parser.add_argument("--benches", default="virtual-slcan,virtual-serial")
     parser.add_argument("--policies", default="auto,off")
+    parser.add_argument(
+        "--spin",
+        default="on",
+        help="the deadline wait: on (sleep, then spin; the default) and/or off (sleep to the "
+        "deadline), e.g. on,off for an A/B",
+    )
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--hogs", type=int, default=0, help="CPU-bound processes beside each run")
     parser.add_argument("--repeat", type=int, default=1, help="runs per configuration")
     args = parser.parse_args()
-    results = []
-    summaries = []
+    configs = [
+        (bench, rate, policy, spin)
+        for bench in args.benches.split(",")
+        for rate in (float(r) for r in args.rates.split(","))
+        for policy in args.policies.split(",")
+        for spin in args.spin.split(",")
+    ]
+    runs: dict[tuple[str, float, str, str], list[dict[str, Any]]] = {c: [] for c in configs}
+    repeat = max(1, args.repeat)
     with tempfile.TemporaryDirectory() as tmp:
-        for bench in args.benches.split(","):
-            for rate in (float(r) for r in args.rates.split(",")):
-                for policy in args.policies.split(","):
-                    runs = []
-                    for i in range(max(1, args.repeat)):
-                        name = f"{bench} {rate:g} Hz {policy}"
-                        print(
-                            f"running {name} for {args.seconds:g} s, run {i + 1}/{args.repeat}"
-                            f" beside {args.hogs} CPU hogs ...",
-                            file=sys.stderr,
-                        )
-                        out = Path(tmp) / f"{name.replace(' ', '-')}-{i}"
-                        with cpu_hogs(args.hogs):
-                            entry = run_one(bench, rate, args.seconds, policy, out)
-                        entry["load_average_start"] = entry["load_average"][0]
-                        entry["hogs"] = args.hogs
-                        print(
-                            f"  {entry['status']}: {entry['rows']} rows, late feedback "
-                            f"{entry['late_feedback']}, longest wait "
-                            f"{entry['max_feedback_wait_ms']:.1f} ms"
-                            + (f"; {entry['reason']}" if entry["reason"] else ""),
-                            file=sys.stderr,
-                        )
-                        runs.append(entry)
-                    results += runs
-                    summaries.append(repeated(runs))
+        # round-robin over the configurations, so that a change in the machine's load (other
+        # jobs) falls on all of them alike, not on the ones that happened to run then
+        for i in range(repeat):
+            for config in configs:
+                bench, rate, policy, spin = config
+                name = f"{bench} {rate:g} Hz {policy} spin {spin}"
+                print(
+                    f"running {name} for {args.seconds:g} s, run {i + 1}/{repeat}"
+                    f" beside {args.hogs} CPU hogs ...",
+                    file=sys.stderr,
+                )
+                out = Path(tmp) / f"{name.replace(' ', '-')}-{i}"
+                with cpu_hogs(args.hogs):
+                    entry = run_one(bench, rate, args.seconds, policy, out, spin)
+                entry["load_average_start"] = entry["load_average"][0]
+                entry["hogs"] = args.hogs
+                print(
+                    f"  {entry['status']}: {entry['rows']} rows, late feedback "
+                    f"{entry['late_feedback']}, longest wait "
+                    f"{entry['max_feedback_wait_ms']:.1f} ms"
+                    + (f"; {entry['reason']}" if entry["reason"] else ""),
+                    file=sys.stderr,
+                )
+                runs[config].append(entry)
+    results = [e for c in configs for e in runs[c]]
+    summaries = [repeated(runs[c]) for c in configs]
     ok = all(e["status"] == "complete" and all(e["targets"].values()) for e in results)
     if args.json:
         print(
@@ -209,7 +229,8 @@ def main() -> int:
         print(f"\nper configuration, {args.hogs} CPU hogs beside each run (min / median / max):")
         for c in summaries:
             print(
-                f"{c['bench']} {c['rate_hz']:g} Hz {c['policy']}: {c['completed']}/{c['runs']} "
+                f"{c['bench']} {c['rate_hz']:g} Hz {c['policy']} (spin {c['spin']}): "
+                f"{c['completed']}/{c['runs']} "
                 f"complete (s run: {c['seconds_run']}); "
                 f"misses/10k {_mmm(c['deadline_misses_per_10k'])}; "
                 f"late feedback {_mmm(c['late_feedback'])}; longest wait "
