@@ -37,16 +37,18 @@ from hil.control.controllers import (
     SCHEMES,
     BackwardDifference,
     Controller,
+    DynamicsModel,
     Gains,
     Reference,
     make_controller,
 )
 from hil.control.signals import central_velocity, sample_times
 from hil.control.trajectory import PointToPoint, khosla_kanade_moves
-from hil.model.closed_form import inverse_dynamics, physical_consistency
+from hil.model.closed_form import ArmModel
 from hil.model.params import ParamSet, load_params, robot_params
 from profiles.bench import BenchProfile
 from profiles.experiment import check_duration
+from profiles.robot import describes_urdf_only
 from profiles.tracking import TrackingProfile, load_tracking
 
 DEFAULT_EXPERIMENT = "khosla-kanade-tracking"
@@ -96,13 +98,47 @@ def parse_params_spec(spec: str) -> LabelledParams:
     return LabelledParams(label, params)
 
 
+def host_model(robot: str, params: ParamSet | None = None) -> DynamicsModel:
+    """The controllers' model of ``robot``: an arm its profile describes by a URDF only is a
+    :class:`hil.model.urdf.UrdfArmModel` (base parameters, Pinocchio); the 2-DOF CICESE-type arm
+    keeps its closed form, with the terms ``params`` is written in (the fast path)."""
+    if describes_urdf_only(robot):
+        from hil.model.urdf import UrdfArmModel
+
+        return UrdfArmModel.from_profile(robot)
+    return ArmModel(params.terms if params is not None else ())
+
+
+def profile_params(robot: str, model: DynamicsModel | None = None) -> ParamSet:
+    """θ̃ of the robot profile: θ1..θ9 (and its terms') of the closed form, or a URDF arm's base
+    parameters from its URDF and profile friction (``model.base_theta()``)."""
+    if describes_urdf_only(robot):
+        from hil.model.urdf import UrdfArmModel
+        from profiles.robot import load_urdf_robot
+
+        profile = load_urdf_robot(robot)
+        urdf = model if isinstance(model, UrdfArmModel) else UrdfArmModel.from_profile(profile)
+        return ParamSet(urdf.base_theta(), source=profile.source, scheme="profile")
+    return robot_params(robot)
+
+
 def parameter_sets(
-    specs: Sequence[str | LabelledParams | ParamSet], *, include_profile: bool, robot: str
+    specs: Sequence[str | LabelledParams | ParamSet],
+    *,
+    include_profile: bool,
+    robot: str,
+    model: DynamicsModel | None = None,
 ) -> list[LabelledParams]:
-    """The profile's θ (if asked) followed by each spec, with unique labels."""
+    """The profile's θ (if asked) followed by each spec, with unique labels. ``model``: the URDF
+    arm's model when ``robot`` is one (built once by the caller)."""
     out: list[LabelledParams] = []
     if include_profile:
-        out.append(LabelledParams(PROFILE_LABEL, robot_params(robot)))
+        out.append(LabelledParams(PROFILE_LABEL, profile_params(robot, model)))
+    if specs and describes_urdf_only(robot):
+        raise UsageError(
+            f"--params: parameter files hold the 2-DOF closed form's θ; robot {robot} is a URDF "
+            "arm, controlled with its profile's base parameters only"
+        )
     for spec in specs:
         if isinstance(spec, LabelledParams):
             item = spec
@@ -125,9 +161,11 @@ def _check_physical(item: LabelledParams) -> None:
     failed fit): the CT, FED and RFED laws would command nonsense, and PD's parameters are the
     same file's. Negative friction coefficients only weaken the compensation and are let
     through."""
-    inertia = [
-        v for v in physical_consistency(item.params.theta)["violations"] if v.startswith("M(q)")
-    ]
+    try:
+        violations = ArmModel(item.params.terms).physical_consistency(item.params.theta)
+    except ValueError as exc:  # θ of the wrong length for its terms
+        raise UsageError(f"--params {item.label} ({item.params.source}): {exc}") from None
+    inertia = [v for v in violations["violations"] if v.startswith("M(q)")]
     if inertia:
         raise UsageError(
             f"--params {item.label} ({item.params.source}): not a physical arm: {inertia[0]}"
@@ -138,23 +176,17 @@ def _check_physical(item: LabelledParams) -> None:
 class ControlLog:
     """``control.csv``, written row by row (flushed every ``flush_every`` rows, and on close)."""
 
-    def __init__(self, path: Path, part_names: Sequence[str], flush_every: int = 50) -> None:
+    def __init__(
+        self, path: Path, part_names: Sequence[str], flush_every: int = 50, n_joints: int = 2
+    ) -> None:
         self.part_names = tuple(part_names)
+        joints = range(1, n_joints + 1)
         self.columns = (
             "t",
-            "qd1",
-            "qd2",
-            "dqd1",
-            "dqd2",
-            "ddqd1",
-            "ddqd2",
-            "dq1_est",
-            "dq2_est",
-            "tau_law1",
-            "tau_law2",
-            "clipped1",
-            "clipped2",
-            *(f"{name}{j}" for name in self.part_names for j in (1, 2)),
+            *(f"{name}{j}" for name in ("qd", "dqd", "ddqd") for j in joints),
+            *(f"dq{j}_est" for j in joints),
+            *(f"{name}{j}" for name in ("tau_law", "clipped") for j in joints),
+            *(f"{name}{j}" for name in self.part_names for j in joints),
         )
         self.flush_every = max(1, flush_every)
         self.rows = 0
@@ -194,10 +226,11 @@ class TrackingCommand:
         self.period_s = period_s
         # the reference at t_k = k·h for every period, computed once (a pure function of t)
         self.reference = trajectory.at(np.arange(n_periods) * period_s)
-        self.velocity = BackwardDifference(period_s)
+        self.n_joints = n = controller.model.n_joints
+        self.velocity = BackwardDifference(period_s, n)
         self.log = log
-        self.clipped_cycles = [0, 0]
-        self.peak_tau_law = [0.0, 0.0]
+        self.clipped_cycles = [0] * n
+        self.peak_tau_law = [0.0] * n
 
     def __call__(self, k: int, sample: Sample) -> tuple[float, ...]:
         t = k * self.period_s
@@ -205,7 +238,7 @@ class TrackingCommand:
         dq = self.velocity(q)
         qd, dqd, ddqd = (r[k] for r in self.reference)
         cmd = self.controller(t, q, dq, Reference(qd, dqd, ddqd))
-        for j in range(2):
+        for j in range(self.n_joints):
             if cmd.clipped[j]:
                 self.clipped_cycles[j] += 1
             self.peak_tau_law[j] = max(self.peak_tau_law[j], abs(float(cmd.tau_law[j])))
@@ -214,7 +247,7 @@ class TrackingCommand:
             for name in self.log.part_names:
                 row.extend(cmd.parts[name])
             self.log.write(row)
-        return (float(cmd.tau[0]), float(cmd.tau[1]))
+        return tuple([float(x) for x in cmd.tau])
 
 
 # ---- metrics ----------------------------------------------------------------------------------
@@ -235,13 +268,19 @@ def tracking_errors(
 
 
 def reference_torque_margin(
-    theta: np.ndarray, trajectory: PointToPoint, limits: Sequence[float], h: float
+    theta: np.ndarray,
+    trajectory: PointToPoint,
+    limits: Sequence[float],
+    h: float,
+    model: DynamicsModel | None = None,
 ) -> dict[str, list[float]]:
-    """Peak |τ_d| of the inverse dynamics along the reference (θ̃, friction included) and the
-    fraction of each drive limit left: what the trajectory costs before any feedback."""
+    """Peak |τ_d| of the inverse dynamics along the reference (θ̃ of ``model``, default the 2-DOF
+    closed form; friction included) and the fraction of each drive limit left: what the
+    trajectory costs before any feedback."""
+    model = ArmModel() if model is None else model
     t = np.arange(0.0, trajectory.duration_s + h / 2, h)
     qd, dqd, ddqd = trajectory.at(t)
-    peak = np.max(np.abs(inverse_dynamics(theta, qd, dqd, ddqd)), axis=0)
+    peak = np.max(np.abs(model.torque(theta, qd, dqd, ddqd)), axis=0)
     lim = np.asarray(limits, dtype=float)
     return {
         "peak_reference_torque_Nm": peak.tolist(),
@@ -276,6 +315,8 @@ class ControlSetup:
     gains: Gains
     mode: str
     n_periods: int
+    robot: str = "cicese"
+    urdf_model: DynamicsModel | None = None  # a URDF arm's model (one for every parameter set)
     effects: str | None = None
     seed: int | None = None
     notes: list[str] = field(default_factory=list)
@@ -285,6 +326,17 @@ class ControlSetup:
     @property
     def period_s(self) -> float:
         return self.bench.period_s
+
+    @property
+    def torque_limit_Nm(self) -> tuple[float, ...]:
+        return tuple(self.bench.torque_limit_Nm)
+
+    def model_for(self, params: LabelledParams) -> DynamicsModel:
+        """The model θ̃ of ``params`` is written for: the URDF arm's, or the closed form with
+        the parameter set's terms."""
+        if self.urdf_model is not None:
+            return self.urdf_model
+        return ArmModel(params.params.terms)
 
     def describe(self) -> dict[str, Any]:
         e = self.experiment
@@ -324,7 +376,7 @@ def prepare(
     schemes: Sequence[str] = SCHEMES,
     params: Sequence[str | LabelledParams | ParamSet] = (),
     include_profile: bool = True,
-    experiment: str = DEFAULT_EXPERIMENT,
+    experiment: str | None = None,
     duration_s: float | None = None,
     mode: str | None = None,
     effects: str | None = None,
@@ -340,7 +392,19 @@ def prepare(
     if unknown or not schemes:
         raise UsageError(f"unknown scheme(s) {unknown}; expected some of {', '.join(SCHEMES)}")
     bench = check_bench(bench_name, confirm_real=confirm_real, effects=effects)
-    exp = load_tracking(experiment)
+    robot = bench.robot
+    urdf_model = host_model(robot) if describes_urdf_only(robot) else None
+    n = 2 if urdf_model is None else urdf_model.n_joints
+    exp = load_tracking(experiment or default_experiment(robot))
+    if exp.n_joints != n:
+        raise UsageError(
+            f"experiment {exp.name} moves {exp.n_joints} joints, robot {robot} has {n}"
+        )
+    if len(bench.torque_limit_Nm) != n:
+        raise UsageError(
+            f"bench {bench.name}: {len(bench.torque_limit_Nm)} torque limits, robot {robot} has "
+            f"{n} joints"
+        )
     trajectory = khosla_kanade_moves(
         exp.amplitude_rad,
         exp.pattern,
@@ -355,9 +419,9 @@ def prepare(
         raise UsageError(str(exc)) from None
     for name, values in (("--kp", kp), ("--kv", kv)):
         if values is not None and (
-            len(values) != 2 or not all(math.isfinite(v) and v >= 0 for v in values)
+            len(values) != n or not all(math.isfinite(v) and v >= 0 for v in values)
         ):
-            raise UsageError(f"{name} takes two finite gains >= 0 (joint 1, joint 2)")
+            raise UsageError(f"{name} takes {n} finite gains >= 0 (one per joint)")
     gains = Gains(tuple(kp or exp.kp), tuple(kv or exp.kv))
     notes = []
     if abs(exp.period_s - bench.period_s) > 1e-12:
@@ -369,20 +433,38 @@ def prepare(
         gains=gains,
         mode=mode or bench.mode,
         n_periods=max(2, round(duration / bench.period_s)),
+        robot=robot,
+        urdf_model=urdf_model,
         effects=effects,
         seed=seed,
         notes=notes,
         schemes=tuple(schemes),
-        parameter_sets=parameter_sets(params, include_profile=include_profile, robot=bench.robot),
+        parameter_sets=parameter_sets(
+            params, include_profile=include_profile, robot=robot, model=urdf_model
+        ),
     )
 
 
-def _controller(setup: ControlSetup, scheme: str, theta: np.ndarray) -> Controller:
+def default_experiment(robot: str) -> str:
+    """The tracking experiment of ``robot``: ``khosla-kanade-tracking-<robot>`` where one is
+    shipped, else the 2-DOF arm's :data:`DEFAULT_EXPERIMENT`."""
+    from profiles.loader import ProfileError, load_toml
+
+    name = f"{DEFAULT_EXPERIMENT}-{Path(robot).stem}"
+    try:
+        load_toml("experiments", name)
+    except ProfileError:
+        return DEFAULT_EXPERIMENT
+    return name
+
+
+def _controller(setup: ControlSetup, scheme: str, params: LabelledParams) -> Controller:
     return make_controller(
         scheme,
-        theta,
+        params.params.theta,
         setup.gains,
-        setup.bench.torque_limit_Nm,
+        setup.torque_limit_Nm,
+        model=setup.model_for(params),
         q_typical=setup.experiment.typical_q_rad,
         friction_velocity=setup.experiment.ct_friction_velocity,
     )
@@ -398,7 +480,7 @@ def run_scheme(
     progress: bool = True,
 ) -> dict[str, Any]:
     """Run one scheme over the bench and record it; returns the run's summary (control.json)."""
-    controller = _controller(setup, scheme, params.params.theta)
+    controller = _controller(setup, scheme, params)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     h = setup.period_s
@@ -415,7 +497,8 @@ def run_scheme(
             "robot": setup.bench.robot,
         }
 
-    with ControlLog(out / CONTROL_CSV, controller.part_names, 1 if realtime else 50) as log:
+    n = controller.model.n_joints
+    with ControlLog(out / CONTROL_CSV, controller.part_names, 1 if realtime else 50, n) as log:
         command = TrackingCommand(controller, setup.trajectory, h, setup.n_periods, log)
         run = record_over_bench(
             setup.bench,
@@ -484,7 +567,11 @@ def run_control(
         **setup.describe(),
         "params": chosen.describe(),
         "reference_torque": reference_torque_margin(
-            chosen.params.theta, setup.trajectory, setup.bench.torque_limit_Nm, setup.period_s
+            chosen.params.theta,
+            setup.trajectory,
+            setup.torque_limit_Nm,
+            setup.period_s,
+            setup.model_for(chosen),
         ),
         "run": summary,
     }
@@ -546,7 +633,11 @@ def compare_schemes(
         "parameter_sets": [ps.describe() for ps in sets],
         "reference_torque": {
             ps.label: reference_torque_margin(
-                ps.params.theta, setup.trajectory, setup.bench.torque_limit_Nm, setup.period_s
+                ps.params.theta,
+                setup.trajectory,
+                setup.torque_limit_Nm,
+                setup.period_s,
+                setup.model_for(ps),
             )
             for ps in sets
         },
@@ -603,7 +694,7 @@ def format_table(doc: dict[str, Any]) -> str:
         for stat, title in (("max", "maximum"), ("rms", "RMS")):
             lines.append(f"  {title} tracking errors, position [rad] / velocity [rad/s]")
             lines.append("  joint " + "".join(f"{s.upper():>{width}}" for s in schemes))
-            for j in range(2):
+            for j in range(len(doc["gains"]["kp"])):
                 cells = []
                 for s in schemes:
                     run = runs.get(s, {})  # absent if the comparison was interrupted
@@ -612,19 +703,22 @@ def format_table(doc: dict[str, Any]) -> str:
                     cell = "-" if pos is None else f"{pos[j]:.4f} / {vel[j]:.3f}"
                     cells.append(f"{cell:>{width}}")
                 lines.append(f"  {j + 1:>5} " + "".join(cells))
+        joints = "/".join(str(j + 1) for j in range(len(doc["gains"]["kp"])))
         clips = ", ".join(
-            f"{s.upper()} {runs[s]['clipped_cycles'][0]}/{runs[s]['clipped_cycles'][1]}"
+            f"{s.upper()} {'/'.join(str(c) for c in runs[s]['clipped_cycles'])}"
             for s in schemes
             if s in runs
         )
-        lines.append(f"  clipped cycles (joint 1/2): {clips}")
+        lines.append(f"  clipped cycles (joint {joints}): {clips}")
         ratio = doc["max_position_error_reduction_vs_pd"].get(ps["label"], {})
         if ratio:
             parts = [
                 f"{s.upper()} " + "/".join("-" if r is None else f"{r:.1f}x" for r in v)
                 for s, v in ratio.items()
             ]
-            lines.append("  max position error of PD / scheme (joint 1/2): " + ", ".join(parts))
+            lines.append(
+                f"  max position error of PD / scheme (joint {joints}): " + ", ".join(parts)
+            )
         lines.append("")
     if doc.get("failures"):
         lines.append("failed runs: " + "; ".join(doc["failures"]))
