@@ -12,7 +12,7 @@ from typing import Any
 from drivers.arm import Arm, SafetyLimits
 from profiles.bench import BenchProfile
 from profiles.drive import load_drive
-from profiles.robot import load_robot
+from profiles.robot import load_any_robot
 
 
 def limits_of(bench: BenchProfile) -> SafetyLimits:
@@ -95,8 +95,11 @@ def open_arm(
     mode: str | None = None,
     log_dir: str | Path | None = None,
 ) -> Arm:
-    """An unopened Arm for the bench (use it as a context manager)."""
-    robot = load_robot(bench.robot)
+    """An unopened Arm for the bench (use it as a context manager): one drive per joint of the
+    bench's robot (a 2-DOF or a URDF robot profile; see profiles.bench.bench_for_robot)."""
+    robot = load_any_robot(bench.robot)
+    if robot.drives is None:
+        raise ValueError(f"{robot.source}: [joints] drives: a bench needs one drive per joint")
     drives = [load_drive(name) for name in robot.drives]
     mode = mode or bench.mode
     log_dir = Path(log_dir) if log_dir is not None else None

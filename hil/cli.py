@@ -88,6 +88,12 @@ def _parser() -> argparse.ArgumentParser:
         help="use the virtual robot already serving on CHANNEL (what `virtual-robot serve` "
         "announced: a pty, or HOST:PORT for socketcand) instead of starting one",
     )
+    r.add_argument(
+        "--robot",
+        default=None,
+        help="robot profile or file in place of the bench's, e.g. cicese3 (its drives on the "
+        "bus; host limits from its [limits] unless it is the bench's own robot; docs/urdf.md)",
+    )
     r.add_argument("--experiment", default="reyes-kelly", help="experiment profile or file")
     r.add_argument("--duration", type=float, default=None, help="seconds (default: experiment's)")
     add_out_options(r, "run directory to write", required=True)
@@ -249,6 +255,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         args.experiment,
         args.out,
         duration_s=args.duration,
+        robot=args.robot,
         **drive_kwargs(args),
     )
     if args.json or summary["status"] == "complete":

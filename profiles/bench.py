@@ -12,7 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from profiles.loader import Fields, load_toml
+from profiles.limits import parse_limits
+from profiles.loader import Fields, ProfileError, load_toml
 from profiles.timing_faults import TimingFaults, parse_timing_faults
 
 PROTOCOLS = ("can", "serial")
@@ -42,9 +43,10 @@ class BenchProfile:
     # Feedback later than one period but within this budget is a timing event (counted, the
     # run goes on); a closed link or a dead robot process is detected at once, not after it.
     feedback_budget_s: float
-    torque_limit_Nm: tuple[float, float]
-    velocity_limit_rad_s: tuple[float, float]
-    position_limit_rad: tuple[tuple[float, float], tuple[float, float]]
+    # host limits, one entry per joint of the arm ([limits]; bench_for_robot for another arm)
+    torque_limit_Nm: tuple[float, ...]
+    velocity_limit_rad_s: tuple[float, ...]
+    position_limit_rad: tuple[tuple[float, float], ...]
     in_process: bool = False  # python-can `virtual`: the robot runs in a thread of the host
     timing_faults: TimingFaults | None = None  # [timing_faults] (profiles/timing_faults.py)
     pace_bus: bool = False  # virtual CAN: frames take their bit time at `bitrate` (can_bits)
@@ -108,22 +110,7 @@ def load_bench(name_or_path: str | Path) -> BenchProfile:
             "paces the virtual robot's CAN bus at its bitrate: needs protocol = 'can' and "
             f"virtual = true (this bench: protocol {protocol!r}, virtual = {str(virtual).lower()})",
         )
-    limits = f.table("limits")
-    limits.only({"torque_Nm", "velocity_rad_s", "position_rad"})
-    raw_pos = limits.data.get("position_rad")
-    if (
-        not isinstance(raw_pos, list)
-        or len(raw_pos) != 2
-        or not all(isinstance(p, list) and len(p) == 2 for p in raw_pos)
-    ):
-        raise limits.error("position_rad", "must be [[lo1, hi1], [lo2, hi2]] in rad")
-    position = []
-    for j, pair in enumerate(raw_pos):
-        sub = Fields({"lo": pair[0], "hi": pair[1]}, source, f"limits.position_rad[{j}].")
-        lo, hi = sub.number("lo"), sub.number("hi")
-        if lo >= hi:
-            raise limits.error(f"position_rad[{j}]", f"lower bound {lo} must be below {hi}")
-        position.append((lo, hi))
+    limits = parse_limits(f.table("limits"))  # one entry per joint of the bench's arm
     period_s = f.number("period_s", 0.0025, positive=True, hi=1.0)
     if period_s < MIN_PERIOD_S:
         raise f.error(
@@ -146,9 +133,9 @@ def load_bench(name_or_path: str | Path) -> BenchProfile:
         effects=f.string("effects") if f.has("effects") else None,
         timeout_s=f.number("timeout_s", 0.5, positive=True, hi=60.0),
         feedback_budget_s=_feedback_budget(f, period_s),
-        torque_limit_Nm=limits.numbers("torque_Nm", 2, positive=True),  # type: ignore[arg-type]
-        velocity_limit_rad_s=limits.numbers("velocity_rad_s", 2, positive=True),  # type: ignore[arg-type]
-        position_limit_rad=(position[0], position[1]),
+        torque_limit_Nm=limits.torque_Nm,
+        velocity_limit_rad_s=limits.velocity_rad_s,
+        position_limit_rad=limits.position_rad,
         in_process=transport == "virtual",
         pace_bus=pace_bus,
         attach=attach,
@@ -158,6 +145,38 @@ def load_bench(name_or_path: str | Path) -> BenchProfile:
             else None
         ),
     )
+
+
+def bench_for_robot(bench: BenchProfile, robot: str | None = None) -> BenchProfile:
+    """``bench`` carrying ``robot`` (a robot profile name or file; None: the bench's own), with
+    host limits for that arm's joints. The bench's ``[limits]`` are its own robot's; another
+    robot brings the ``[limits]`` of its profile (a URDF arm's, e.g. cicese3.toml) and, without
+    them, keeps the bench's only if they have one entry per joint. A one-line ProfileError when
+    nothing fits."""
+    from dataclasses import replace
+
+    from profiles.robot import load_any_robot
+
+    name = bench.robot if robot is None else robot
+    arm = load_any_robot(name)
+    n = arm.n_joints
+    own = getattr(arm, "limits", None)  # only a URDF arm's profile may hold [limits]
+    if own is not None and name != bench.robot:
+        return replace(
+            bench,
+            robot=name,
+            torque_limit_Nm=own.torque_Nm,
+            velocity_limit_rad_s=own.velocity_rad_s,
+            position_limit_rad=own.position_rad,
+        )
+    if len(bench.torque_limit_Nm) != n:
+        raise ProfileError(
+            bench.source,
+            "limits",
+            f"gives {len(bench.torque_limit_Nm)} joints' limits and robot {arm.name} has {n}; "
+            f"its profile ({arm.source}) has no [limits] of its own: add one",
+        )
+    return replace(bench, robot=name)
 
 
 def attached_bench_text(bench: BenchProfile, channel: str) -> str:
@@ -212,5 +231,6 @@ __all__ = [
     "PROTOCOLS",
     "TRANSPORTS",
     "BenchProfile",
+    "bench_for_robot",
     "load_bench",
 ]

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from profiles.limits import JointLimits, parse_limits
 from profiles.loader import Fields, ProfileError, load_toml
 
 # The closed-form model's optional terms a profile may name under ``[model] terms``
@@ -300,6 +301,8 @@ class UrdfRobotProfile:
     gear_ratio: tuple[float, ...]
     drives: tuple[str, ...] | None
     terms: tuple[str, ...] = ()  # model terms beyond rigid bodies + friction (hil.model.urdf)
+    # host limits of this arm on a bench whose own [limits] are another robot's (bench_for_robot)
+    limits: JointLimits | None = None
 
     @property
     def coulomb_Nm(self) -> tuple[float, ...]:
@@ -326,7 +329,8 @@ def load_urdf_robot(name_or_path: str | Path) -> UrdfRobotProfile:
     Fields: ``urdf`` (path, relative to the profile), ``gravity_m_s2``, ``[joints] count``,
     ``[friction] viscous_Nms / coulomb_positive_Nm / coulomb_negative_Nm`` (one number per joint),
     optional ``[joints] armature_kgm2`` (default 0), ``gear_ratio`` (default 1) and ``drives``,
-    and ``[model] terms`` (:data:`hil.model.urdf.TERMS`).
+    ``[model] terms`` (:data:`hil.model.urdf.TERMS`) and ``[limits]`` (host limits per joint,
+    :mod:`profiles.limits`).
     The 2-DOF closed-form tables (``link1``, ``link2``) may sit beside them (cicese.toml) and are
     not read here.
     """
@@ -336,7 +340,7 @@ def load_urdf_robot(name_or_path: str | Path) -> UrdfRobotProfile:
     if not planar:  # the 2-DOF tables of a planar profile are checked by load_robot
         f.only(
             {"name", "description", "reference", "gravity_m_s2", "friction", "joints"}
-            | {"urdf", "model"}
+            | {"urdf", "model", "limits"}
         )
     if not f.has("urdf"):
         raise f.error("urdf", "missing: this robot profile names no URDF")
@@ -359,6 +363,7 @@ def load_urdf_robot(name_or_path: str | Path) -> UrdfRobotProfile:
         gear_ratio=joints.numbers("gear_ratio", n, [1.0] * n, positive=True),
         drives=joints.strings("drives", n) if joints.has("drives") else None,
         terms=_terms(f),
+        limits=parse_limits(f.table("limits"), n) if f.has("limits") and not planar else None,
     )
 
 

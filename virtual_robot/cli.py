@@ -62,6 +62,12 @@ def _parser() -> argparse.ArgumentParser:
 
     v = sub.add_parser("serve", help="serve the drives over a bench's transport", parents=[common])
     v.add_argument("--bench", default="virtual-slcan", help="bench profile name or TOML file")
+    v.add_argument(
+        "--robot",
+        default=None,
+        help="robot profile name or TOML file (default: the bench's; a URDF-only profile "
+        "serves its n drives on the n-joint plant)",
+    )
     v.add_argument("--effects", default=None, help="effects profile name or file")
     v.add_argument("--seed", type=int, default=None, help="seed for any randomness (recorded)")
     v.add_argument(
@@ -165,6 +171,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
     from virtual_robot.serve import serve
 
     bench = load_bench(args.bench)
+    if args.robot is not None:
+        from dataclasses import replace
+
+        load_any_robot(args.robot)  # fail fast, with the one-line error, before announcing
+        bench = replace(bench, robot=args.robot)
     real = real_channel(bench)
     if real is not None and not args.confirm_real:
         raise ValueError(

@@ -1,4 +1,11 @@
-"""The virtual robot behind any transport: plant + two drive models + the object dictionary.
+"""The virtual robot behind any transport: plant + one drive model per joint + the object
+dictionary.
+
+The plant is the 2-DOF closed-form :class:`~virtual_robot.plant.Plant` for a 2-DOF robot profile
+(with the concealed effects of an effects profile), or the n-joint
+:class:`~virtual_robot.urdf_plant.UrdfPlant` for an arm described by its URDF (nodes and unit
+addresses are its drive profiles', 1..N for the shipped arms). The n-joint plant has no concealed
+effects and no timing faults yet: the core refuses them in one line rather than ignore them.
 
 Protocol servers (CAN, serial) decode what arrives and call this core; it never does I/O.
 Time has two modes (DESIGN.md "Time"):
@@ -22,17 +29,17 @@ from __future__ import annotations
 
 import functools
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from drivers.protocol import cia402 as co
 from drivers.protocol.cia402 import SdoAbortError
 from profiles.drive import DriveProfile, load_drive
 from profiles.effects import EffectsProfile
-from profiles.robot import RobotProfile
+from profiles.robot import RobotProfile, UrdfRobotProfile
 from virtual_robot.drive import DriveError, DriveModel, Emcy
 from virtual_robot.plant import DEFAULT_STEP_S, Plant, PlantParams
-from virtual_robot.stepping import Stepper
+from virtual_robot.stepping import SteppedPlant, Stepper
 from virtual_robot.timing_faults import RobotTiming
 
 LOCKSTEP, REALTIME = "lockstep", "realtime"
@@ -74,14 +81,14 @@ class VirtualRobot:
 
     def __init__(
         self,
-        robot: RobotProfile,
+        robot: RobotProfile | UrdfRobotProfile,
         effects: EffectsProfile | None = None,
         *,
         mode: str = LOCKSTEP,
         period_s: float = 0.0025,
         clock: Callable[[], float] | None = None,
         step_s: float = DEFAULT_STEP_S,
-        q0: tuple[float, float] = (0.0, 0.0),
+        q0: Sequence[float] | None = None,
         timing: RobotTiming | None = None,
     ) -> None:
         if mode not in (LOCKSTEP, REALTIME):
@@ -95,6 +102,10 @@ class VirtualRobot:
         self._clock = clock
         self._t0 = clock() if clock is not None else 0.0
         self.lock = threading.RLock()
+        if robot.drives is None:
+            raise ValueError(
+                f"{robot.source}: [joints] drives: the virtual robot needs one per joint"
+            )
         self.profiles: tuple[DriveProfile, ...] = tuple(load_drive(n) for n in robot.drives)
         self.drives = [DriveModel(p, period_s=period_s) for p in self.profiles]
         self.by_node = {p.node_id: i for i, p in enumerate(self.profiles)}
@@ -102,9 +113,13 @@ class VirtualRobot:
             (p.node_id, d) for p, d in zip(self.profiles, self.drives, strict=True)
         )
         self.by_unit = {p.unit_address: i for i, p in enumerate(self.profiles)}
-        self.plant = Plant(
-            PlantParams.from_profiles(robot, self.effects), q0=q0, max_step_s=min(step_s, period_s)
-        )
+        if len(self.by_node) != len(self.profiles) or len(self.by_unit) != len(self.profiles):
+            raise ValueError(
+                f"{robot.source}: two drives share a CAN node id or a serial unit address "
+                f"(nodes {[p.node_id for p in self.profiles]}, "
+                f"units {[p.unit_address for p in self.profiles]})"
+            )
+        self.plant: SteppedPlant = self._plant(robot, q0, min(step_s, period_s), timing)
         # the stepping sequence (sample, apply, advance); its time, SYNC count, pending commands
         # and timing faults are the robot's
         self.stepper = Stepper(
@@ -120,6 +135,37 @@ class VirtualRobot:
             self._initial_objects(p) for p in self.profiles
         ]
         self.stepper.sample(0.0, count_period=False)  # power on: transition 1, SWITCH ON DISABLED
+
+    def _plant(
+        self,
+        robot: RobotProfile | UrdfRobotProfile,
+        q0: Sequence[float] | None,
+        max_step_s: float,
+        timing: RobotTiming | None,
+    ) -> SteppedPlant:
+        """The 2-DOF closed-form plant with the effects, or the n-joint plant of a URDF arm,
+        which takes neither concealed effects nor timing faults yet (refused, not ignored)."""
+        if not isinstance(robot, UrdfRobotProfile):
+            q = (0.0, 0.0) if q0 is None else (float(q0[0]), float(q0[1]))
+            return Plant(
+                PlantParams.from_profiles(robot, self.effects), q0=q, max_step_s=max_step_s
+            )
+        effects = self.effects
+        if effects.enabled or effects.timing_faults is not None:
+            what = ", ".join(effects.enabled) or "timing_faults"
+            raise ValueError(
+                f"effects {effects.name} ({what}): the n-joint plant ({robot.name}) has no "
+                "concealed effects yet; serve it without effects"
+            )
+        if timing is not None:
+            raise ValueError(
+                f"timing faults: the n-joint plant ({robot.name}) does not take delayed or "
+                "dropped commands yet; use a bench without [timing_faults]"
+            )
+        # Pinocchio is loaded only for an n-joint arm: the 2-DOF robot starts without it
+        from virtual_robot.urdf_plant import UrdfPlant, UrdfPlantParams
+
+        return UrdfPlant(UrdfPlantParams.from_profile(robot), q0=q0, max_step_s=max_step_s)
 
     # ---- time ---------------------------------------------------------------------------
     @property

@@ -43,7 +43,7 @@ import can
 from drivers.protocol import cia402 as co
 from profiles.bench import BenchProfile
 from profiles.effects import load_effects
-from profiles.robot import load_robot
+from profiles.robot import load_any_robot
 from profiles.timing_faults import combine
 from virtual_robot.bus_pacing import BusPacer
 from virtual_robot.can_server import CanDriveServer
@@ -75,7 +75,7 @@ def build_core(
                 faults, lockstep=mode == LOCKSTEP, period_s=bench.period_s, seed=seed
             )
     return VirtualRobot(
-        load_robot(bench.robot),
+        load_any_robot(bench.robot),
         effects_profile,
         mode=mode,
         period_s=bench.period_s,

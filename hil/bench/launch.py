@@ -108,7 +108,8 @@ class VirtualRobotProcess:
 
     # ---- helpers ------------------------------------------------------------------------------
     def _args(self) -> list[str]:
-        args = ["--bench", self.bench.source, "--exit-with-parent"]
+        # the bench's robot, which `hil run --robot` may have replaced (bench_for_robot)
+        args = ["--bench", self.bench.source, "--robot", self.bench.robot, "--exit-with-parent"]
         if self.mode:
             args += ["--mode", self.mode]
         if self.effects:

@@ -19,7 +19,7 @@ from hil import __version__
 from hil.bench.launch import VirtualRobotProcess
 from hil.bench.loop import Command, LoopResult, extra_columns, run_loop
 from hil.bench.scheduler import realtime_scheduling
-from profiles.bench import BenchProfile, load_bench
+from profiles.bench import BenchProfile, bench_for_robot, load_bench
 from profiles.experiment import check_duration, load_experiment
 
 ROBOT_EVENTS = "robot-events.csv"  # realtime: the virtual robot's own sample and command times
@@ -63,9 +63,13 @@ class BenchRun:
     traffic_log: str | None
 
 
-def check_bench(bench_name: str, *, confirm_real: bool, effects: str | None) -> BenchProfile:
-    """Load a bench profile and refuse what it must not do (a real arm without confirmation)."""
-    bench: BenchProfile = load_bench(bench_name)
+def check_bench(
+    bench_name: str, *, confirm_real: bool, effects: str | None, robot: str | None = None
+) -> BenchProfile:
+    """Load a bench profile, with ``robot`` in place of its own if given (and host limits for
+    that arm, :func:`profiles.bench.bench_for_robot`), and refuse what it must not do (a real
+    arm without confirmation)."""
+    bench: BenchProfile = bench_for_robot(load_bench(bench_name), robot)
     if not bench.virtual and not confirm_real:
         raise UsageError(
             f"bench {bench.name} drives a real arm on {bench.channel}: pass "
@@ -147,8 +151,9 @@ def record_over_bench(
             RecordingWriter(
                 out,
                 meta(channel),
-                extra_columns=extra_columns(2, realtime),
+                extra_columns=extra_columns(arm.n_joints, realtime),
                 flush_every=1 if realtime else 50,
+                n_joints=arm.n_joints,
             ) as writer,
         ):
             with arm:
@@ -225,6 +230,11 @@ def _with_stall_advice(reason: str | None, bench: BenchProfile, arm: Arm, schedu
     return f"{text} [late, not gone: {seen}; {why}. Try {', '.join(todo[:-1])} or {todo[-1]}]"
 
 
+def _joints_of(bench: BenchProfile) -> int:
+    """Joints of the bench's robot: one host limit per joint (bench_for_robot checked it)."""
+    return len(bench.torque_limit_Nm)
+
+
 def run_experiment(
     bench_name: str,
     experiment_name: str,
@@ -238,14 +248,17 @@ def run_experiment(
     plot: bool = True,
     progress: bool = True,
     observer: Callable[[int, Sample], None] | None = None,
+    robot: str | None = None,
 ) -> dict[str, Any]:
     """Run an open-loop experiment over a bench; returns the summary that `--json` prints.
 
-    ``observer(k, sample)``, if given, sees every period's feedback as it arrives (e.g. online
-    identification); sample k carries q_k and the quantized torque of period k − 1."""
-    bench = check_bench(bench_name, confirm_real=confirm_real, effects=effects)
+    ``robot``: a robot profile in place of the bench's (its drives on the bus, the virtual
+    robot launched with it). ``observer(k, sample)``, if given, sees every period's feedback as
+    it arrives (e.g. online identification); sample k carries q_k and the quantized torque of
+    period k − 1."""
+    bench = check_bench(bench_name, confirm_real=confirm_real, effects=effects, robot=robot)
     experiment = load_experiment(experiment_name)
-    experiment.check_joints(2, "of the bench (2-DOF)")  # the buses carry two drives today
+    experiment.check_joints(_joints_of(bench), bench.robot)
     mode = mode or bench.mode
     h = bench.period_s
     duration = experiment.duration_s if duration_s is None else duration_s
