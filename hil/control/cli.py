@@ -41,6 +41,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="with --compare: leave out the robot profile's parameters",
     )
     p.add_argument(
+        "--robot",
+        default=None,
+        help="robot profile or file in place of the bench's, e.g. cicese3 (its drives on the "
+        "bus, its model in the controllers: the closed form or its URDF's; docs/control.md)",
+    )
+    p.add_argument(
         "--experiment",
         default=None,
         help="tracking experiment profile or file (trajectory, gains, J, velocity estimate; "
@@ -69,6 +75,7 @@ def main(args: argparse.Namespace) -> int:
         "duration_s": args.duration,
         "kp": args.kp,
         "kv": args.kv,
+        "robot": args.robot,
         **opts.drive_kwargs(args),
     }
     if not args.compare:

@@ -302,6 +302,7 @@ class ControlSettings(TypedDict, total=False):
     kp: Sequence[float] | None
     kv: Sequence[float] | None
     confirm_real: bool
+    robot: str | None
 
 
 @dataclass
@@ -384,14 +385,17 @@ def prepare(
     kp: Sequence[float] | None = None,
     kv: Sequence[float] | None = None,
     confirm_real: bool = False,
+    robot: str | None = None,
 ) -> ControlSetup:
     """Load and check everything the runs need, before anything starts moving: the schemes,
     bench, experiment, duration and gains, then the parameter sets (the profile's θ if
-    ``include_profile``, then each of ``params``)."""
+    ``include_profile``, then each of ``params``). ``robot``: a robot profile in place of the
+    bench's (e.g. cicese3: its drives on the bus, its model in the controllers, its tracking
+    experiment by default)."""
     unknown = [s for s in schemes if s not in SCHEMES]
     if unknown or not schemes:
         raise UsageError(f"unknown scheme(s) {unknown}; expected some of {', '.join(SCHEMES)}")
-    bench = check_bench(bench_name, confirm_real=confirm_real, effects=effects)
+    bench = check_bench(bench_name, confirm_real=confirm_real, effects=effects, robot=robot)
     robot = bench.robot
     urdf_model = host_model(robot) if describes_urdf_only(robot) else None
     n = 2 if urdf_model is None else urdf_model.n_joints
