@@ -15,6 +15,7 @@ tested without the bus: each law on the 3-DOF cicese3 arm (profiles/robots/cices
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -223,3 +224,68 @@ def test_ct_with_the_true_model_tracks_to_a_few_mrad(on_the_plant):
     """With f̃ at the reference velocity (no wait for breakaway) the host's model is the plant's
     but for stiction at rest: the error stays at a few encoder-and-torque steps (1.5 mrad)."""
     assert np.all(on_the_plant["ct-reference"]["max"] < 0.004)
+
+
+# ---- end to end: `hil control --robot cicese3` over a virtual bench -----------------------------
+
+
+def test_cli_compare_over_the_bus_for_three_joints(tmp_path, capsys):
+    """The first second of the cicese3 experiment, PD and FED, in-process; then FED over slcan
+    gives the same recording bit for bit (lockstep)."""
+    from hil.cli import main as cli_main
+
+    common = ("--robot", ROBOT, "--duration", "1.0", "--no-plot", "--json")
+    status = cli_main(
+        [
+            *("control", "--compare", "--bench", "virtual-inprocess", "--schemes", "pd,fed"),
+            *common,
+            *("--out", str(tmp_path / "inprocess")),
+        ]
+    )
+    out = capsys.readouterr()
+    assert status == 0, out.err
+    doc = json.loads(out.out)
+    assert doc["experiment"] == "khosla-kanade-tracking-cicese3"
+    assert len(doc["gains"]["kp"]) == 3
+    pd = doc["results"]["profile"]["pd"]
+    assert len(pd["max_position_error_rad"]) == 3 and pd["torque_limit_Nm"] == [200, 15, 4]
+    assert all(r > 20 for r in doc["max_position_error_reduction_vs_pd"]["profile"]["fed"])
+    header = (tmp_path / "inprocess" / "profile" / "fed" / "signals.csv").open().readline()
+    assert header.startswith("t,q1,q2,q3,tau1,tau2,tau3")
+    log = (tmp_path / "inprocess" / "profile" / "fed" / "control.csv").open().readline()
+    assert "feedback3" in log and "tau_law3" in log
+
+    status = cli_main(
+        [
+            *("control", "--scheme", "fed", "--bench", "virtual-slcan"),
+            *common,
+            *("--out", str(tmp_path / "slcan")),
+        ]
+    )
+    out = capsys.readouterr()
+    assert status == 0, out.err
+    a = (tmp_path / "inprocess" / "profile" / "fed" / "signals.csv").read_bytes()
+    assert (tmp_path / "slcan" / "signals.csv").read_bytes() == a
+
+
+@pytest.mark.parametrize(
+    "args,needle",
+    [
+        (("--experiment", "khosla-kanade-tracking"), "moves 2 joints, robot cicese3 has 3"),
+        (("--kp", "40", "58"), "--kp takes 3 finite gains"),
+        (("--params", "p.json"), "URDF arm"),
+    ],
+)
+def test_cli_errors_for_a_urdf_arm_are_one_line(args, needle, tmp_path, monkeypatch, capsys):
+    from hil.cli import main as cli_main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "p.json").write_text('{"theta": [1, 1, 1, 1, 1, 1, 1, 1, 1]}')
+    status = cli_main(
+        ["control", "--scheme", "ct", "--bench", "virtual-inprocess", "--robot", ROBOT, *args]
+    )
+    err = capsys.readouterr()
+    assert status == 2, (err.out, err.err)
+    last = err.err.strip().splitlines()[-1]
+    assert last.startswith("hil control: error:") and needle in last, err.err
+    assert not (tmp_path / "runs").exists()
