@@ -45,7 +45,7 @@ from hil.control.controllers import (
 from hil.control.signals import central_velocity, sample_times
 from hil.control.trajectory import PointToPoint, khosla_kanade_moves
 from hil.model.closed_form import ArmModel
-from hil.model.params import ParamSet, load_params, robot_params
+from hil.model.params import ParamSet, load_base_params, load_params, robot_params
 from profiles.bench import BenchProfile
 from profiles.experiment import check_duration
 from profiles.robot import describes_urdf_only
@@ -77,11 +77,13 @@ class LabelledParams:
         }
 
 
-def parse_params_spec(spec: str) -> LabelledParams:
+def parse_params_spec(spec: str, urdf_model: DynamicsModel | None = None) -> LabelledParams:
     """``[LABEL=]FILE[#SCHEME]`` -> θ̃ of FILE (its selected scheme, or SCHEME), named LABEL.
 
-    Without a label: the file's stem, or ``DIR/params`` for a ``params.json`` (as written by
-    `hil identify`), with ``#SCHEME`` appended when one is picked.
+    Without a label: the file's stem, or ``DIR/params`` for a ``params.json`` (``DIR/identify``
+    for an ``identify.json``, as written by `hil identify`), with ``#SCHEME`` appended when one
+    is picked. With ``urdf_model`` (a URDF arm's), FILE holds its base parameters
+    (:func:`hil.model.params.load_base_params`) and has no schemes.
     """
     label, sep, rest = spec.partition("=")
     if not sep:
@@ -89,10 +91,19 @@ def parse_params_spec(spec: str) -> LabelledParams:
     path_text, _, scheme = rest.partition("#")
     if not path_text:
         raise UsageError(f"--params {spec!r}: no file (expected [LABEL=]FILE[#SCHEME])")
-    params = load_params(path_text, scheme or None)
+    if urdf_model is None:
+        params = load_params(path_text, scheme or None)
+    elif scheme:
+        raise UsageError(f"--params {spec!r}: a URDF arm's parameter file has no schemes")
+    else:
+        params = load_base_params(path_text, urdf_model)
     if not label:
         path = Path(path_text)
-        label = path.stem if path.stem != "params" else f"{path.parent.name or '.'}/params"
+        label = (
+            f"{path.parent.name or '.'}/{path.stem}"
+            if path.stem in ("params", "identify")
+            else path.stem
+        )
         if scheme:
             label += f"#{scheme}"
     return LabelledParams(label, params)
@@ -134,19 +145,17 @@ def parameter_sets(
     out: list[LabelledParams] = []
     if include_profile:
         out.append(LabelledParams(PROFILE_LABEL, profile_params(robot, model)))
-    if specs and describes_urdf_only(robot):
-        raise UsageError(
-            f"--params: parameter files hold the 2-DOF closed form's θ; robot {robot} is a URDF "
-            "arm, controlled with its profile's base parameters only"
-        )
+    urdf_model = model if describes_urdf_only(robot) else None
+    if urdf_model is None and describes_urdf_only(robot):
+        urdf_model = host_model(robot)
     for spec in specs:
         if isinstance(spec, LabelledParams):
             item = spec
         elif isinstance(spec, ParamSet):
             item = LabelledParams(Path(spec.source).stem or "params", spec)
         else:
-            item = parse_params_spec(spec)
-        _check_physical(item)
+            item = parse_params_spec(spec, urdf_model)
+        _check_physical(item, urdf_model)
         label, n = item.label, 2
         while any(p.label == label for p in out):
             label, n = f"{item.label}-{n}", n + 1
@@ -156,13 +165,15 @@ def parameter_sets(
     return out
 
 
-def _check_physical(item: LabelledParams) -> None:
+def _check_physical(item: LabelledParams, urdf_model: DynamicsModel | None = None) -> None:
     """Refuse θ̃ whose inertia matrix M(q) is not positive definite for every q (θ all zero, a
     failed fit): the CT, FED and RFED laws would command nonsense, and PD's parameters are the
     same file's. Negative friction coefficients only weaken the compensation and are let
-    through."""
+    through. A URDF arm's base parameters: M(q) ≻ 0 at sampled configurations
+    (``UrdfArmModel.physical_consistency``)."""
+    model = ArmModel(item.params.terms) if urdf_model is None else urdf_model
     try:
-        violations = ArmModel(item.params.terms).physical_consistency(item.params.theta)
+        violations = model.physical_consistency(item.params.theta)  # type: ignore[attr-defined]
     except ValueError as exc:  # θ of the wrong length for its terms
         raise UsageError(f"--params {item.label} ({item.params.source}): {exc}") from None
     inertia = [v for v in violations["violations"] if v.startswith("M(q)")]
