@@ -268,7 +268,8 @@ def test_cli_compare_over_the_bus_for_three_joints(tmp_path, capsys):
     [
         (("--experiment", "khosla-kanade-tracking"), "moves 2 joints, robot cicese3 has 3"),
         (("--kp", "40", "58"), "--kp takes 3 finite gains"),
-        (("--params", "p.json"), "URDF arm"),
+        (("--params", "p.json"), "'theta' must be a list of 18 numbers"),
+        (("--params", "p.json#exact"), "has no schemes"),
     ],
 )
 def test_cli_errors_for_a_urdf_arm_are_one_line(args, needle, tmp_path, monkeypatch, capsys):
@@ -284,3 +285,75 @@ def test_cli_errors_for_a_urdf_arm_are_one_line(args, needle, tmp_path, monkeypa
     last = err.err.strip().splitlines()[-1]
     assert last.startswith("hil control: error:") and needle in last, err.err
     assert not (tmp_path / "runs").exists()
+
+
+def identify_json(model: UrdfArmModel, theta: np.ndarray, **changes) -> dict:
+    """What `hil identify --robot cicese3` writes, with ``theta`` as the identified values."""
+    doc = {
+        "robot": ROBOT,
+        "model": "urdf",
+        "terms": list(model.terms),
+        "method": "weighted least squares",
+        "parameters": [
+            {"name": n, "meaning": m, "unit": u, "identified": float(x), "nominal": float(y)}
+            for n, m, u, x, y in zip(
+                model.names, model.meanings, model.units, theta, model.base_theta(), strict=True
+            )
+        ],
+    }
+    return {**doc, **changes}
+
+
+def test_base_parameters_from_identify_json(cicese3, tmp_path):
+    from hil.model.params import ParamsError, load_base_params
+
+    model = cicese3[0]
+    theta = model.base_theta() * 1.03
+    path = tmp_path / "identify.json"
+    path.write_text(json.dumps(identify_json(model, theta)))
+    params = load_base_params(path, model)
+    np.testing.assert_array_equal(params.theta, theta)
+    assert params.scheme == "weighted least squares"
+    bad = identify_json(model, theta)
+    bad["parameters"][2]["meaning"] = "Iyy1"
+    for doc, needle in [
+        (identify_json(model, theta, robot="panda"), "not cicese3"),
+        (identify_json(model, theta, terms=[]), "model terms"),
+        (bad, "beta3 is 'Iyy1' there"),
+        ({"theta": [1.0] * 9}, "18 numbers"),
+    ]:
+        path.write_text(json.dumps(doc))
+        with pytest.raises(ParamsError, match=needle) as exc:
+            load_base_params(path, model)
+        assert "\n" not in str(exc.value)
+
+
+def test_cli_runs_a_urdf_arm_with_identified_base_parameters(cicese3, tmp_path, capsys):
+    """`hil control --robot cicese3 --params identify.json`: the file's base parameters drive
+    the laws (here the profile's with every rigid-body parameter 30 % high: CT is worse)."""
+    from hil.cli import main as cli_main
+
+    model = cicese3[0]
+    theta = model.base_theta()
+    rigid = np.ones(model.n_params, dtype=bool)
+    rigid[model.term_columns("friction")] = False
+    theta[rigid] *= 1.3
+    (tmp_path / "id").mkdir()
+    (tmp_path / "id" / "identify.json").write_text(json.dumps(identify_json(model, theta)))
+    status = cli_main(
+        [
+            *("control", "--compare", "--schemes", "ct", "--bench", "virtual-inprocess"),
+            *("--robot", ROBOT, "--duration", "1.0", "--no-plot", "--json"),
+            *("--params", str(tmp_path / "id" / "identify.json"), "--out", str(tmp_path / "o")),
+        ]
+    )
+    out = capsys.readouterr()
+    assert status == 0, out.err
+    doc = json.loads(out.out)
+    assert [p["label"] for p in doc["parameter_sets"]] == ["profile", "id/identify"]
+    np.testing.assert_allclose(doc["parameter_sets"][1]["theta"], theta)
+    exact, off = (
+        doc["results"][k]["ct"]["max_position_error_rad"] for k in ("profile", "id/identify")
+    )
+    # joint 1's gravity 30 % high (the first moments are rigid-body parameters too): 6x the error
+    assert off[0] > 3 * exact[0]
