@@ -109,28 +109,26 @@ def parse_params_spec(spec: str, urdf_model: DynamicsModel | None = None) -> Lab
     return LabelledParams(label, params)
 
 
-def host_model(robot: str, params: ParamSet | None = None) -> DynamicsModel:
-    """The controllers' model of ``robot``: an arm its profile describes by a URDF only is a
-    :class:`hil.model.urdf.UrdfArmModel` (base parameters, Pinocchio); the 2-DOF CICESE-type arm
-    keeps its closed form, with the terms ``params`` is written in (the fast path)."""
-    if describes_urdf_only(robot):
-        from hil.model.urdf import UrdfArmModel
+def urdf_model_of(robot: str) -> DynamicsModel | None:
+    """The controllers' model of ``robot`` when its profile describes the arm by a URDF only: a
+    :class:`hil.model.urdf.UrdfArmModel` (base parameters, Pinocchio). None for the 2-DOF
+    CICESE-type arm, which keeps its closed form (the fast path, :meth:`ControlSetup.model_for`)."""
+    if not describes_urdf_only(robot):
+        return None
+    from hil.model.urdf import UrdfArmModel
 
-        return UrdfArmModel.from_profile(robot)
-    return ArmModel(params.terms if params is not None else ())
+    return UrdfArmModel.from_profile(robot)
 
 
-def profile_params(robot: str, model: DynamicsModel | None = None) -> ParamSet:
-    """θ̃ of the robot profile: θ1..θ9 (and its terms') of the closed form, or a URDF arm's base
-    parameters from its URDF and profile friction (``model.base_theta()``)."""
-    if describes_urdf_only(robot):
-        from hil.model.urdf import UrdfArmModel
-        from profiles.robot import load_urdf_robot
+def profile_params(robot: str, urdf_model: DynamicsModel | None = None) -> ParamSet:
+    """θ̃ of the robot profile: θ1..θ9 (and its terms') of the closed form, or, with the URDF
+    arm's model, its base parameters from the URDF and the profile's friction."""
+    if urdf_model is None:
+        return robot_params(robot)
+    from profiles.robot import load_urdf_robot
 
-        profile = load_urdf_robot(robot)
-        urdf = model if isinstance(model, UrdfArmModel) else UrdfArmModel.from_profile(profile)
-        return ParamSet(urdf.base_theta(), source=profile.source, scheme="profile")
-    return robot_params(robot)
+    theta = urdf_model.base_theta()  # type: ignore[attr-defined]
+    return ParamSet(theta, source=load_urdf_robot(robot).source, scheme="profile")
 
 
 def parameter_sets(
@@ -141,13 +139,11 @@ def parameter_sets(
     model: DynamicsModel | None = None,
 ) -> list[LabelledParams]:
     """The profile's θ (if asked) followed by each spec, with unique labels. ``model``: the URDF
-    arm's model when ``robot`` is one (built once by the caller)."""
+    arm's model when ``robot`` is one (default: built here, :func:`urdf_model_of`)."""
+    urdf_model = model if model is not None else urdf_model_of(robot)
     out: list[LabelledParams] = []
     if include_profile:
-        out.append(LabelledParams(PROFILE_LABEL, profile_params(robot, model)))
-    urdf_model = model if describes_urdf_only(robot) else None
-    if urdf_model is None and describes_urdf_only(robot):
-        urdf_model = host_model(robot)
+        out.append(LabelledParams(PROFILE_LABEL, profile_params(robot, urdf_model)))
     for spec in specs:
         if isinstance(spec, LabelledParams):
             item = spec
@@ -408,7 +404,7 @@ def prepare(
         raise UsageError(f"unknown scheme(s) {unknown}; expected some of {', '.join(SCHEMES)}")
     bench = check_bench(bench_name, confirm_real=confirm_real, effects=effects, robot=robot)
     robot = bench.robot
-    urdf_model = host_model(robot) if describes_urdf_only(robot) else None
+    urdf_model = urdf_model_of(robot)
     n = 2 if urdf_model is None else urdf_model.n_joints
     exp = load_tracking(experiment or default_experiment(robot))
     if exp.n_joints != n:
