@@ -36,6 +36,7 @@ bench: $(STAMP)
 	$(BIN)/python tests/benchmarks/bench_sweep.py
 	$(BIN)/python tests/benchmarks/bench_slcan_sdo.py
 	$(BIN)/python tests/benchmarks/bench_urdf.py
+	$(BIN)/python tests/benchmarks/bench_control.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check hil drivers virtual_robot profiles tests

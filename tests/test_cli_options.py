@@ -154,6 +154,6 @@ def test_run_control_and_compare_schemes_refuse_before_running(tmp_path) -> None
         run_control("virtual-inprocess", "lqr", tmp_path / "one")
     with pytest.raises(UsageError, match=r"unknown scheme\(s\) \['lqr'\]"):
         compare_schemes("virtual-inprocess", tmp_path / "cmp", schemes=["ct", "lqr"])
-    with pytest.raises(UsageError, match="--kp takes two finite gains"):
+    with pytest.raises(UsageError, match=r"--kp takes 2 finite gains >= 0 \(one per joint\)"):
         compare_schemes("virtual-inprocess", tmp_path / "cmp", kp=[1.0])
     assert not (tmp_path / "one").exists() and not (tmp_path / "cmp").exists()

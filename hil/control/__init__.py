@@ -1,7 +1,9 @@
 """Tracking control over a bench: PD, computed torque, feedforward, reduced feedforward
 (Khosla & Kanade 1987).
 
-What lives here: the controllers (:mod:`.controllers`), reference trajectories
+What lives here: the controllers (:mod:`.controllers`, each law written once over a model
+object: the 2-DOF closed form or an n-joint URDF arm's, so any number of joints), reference
+trajectories
 (:mod:`.trajectory`), one run and the comparison of schemes (:mod:`.tracking`), their plots
 (:mod:`.plots`) and the ``hil control`` command (:mod:`.cli`).
 

@@ -41,15 +41,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="with --compare: leave out the robot profile's parameters",
     )
     p.add_argument(
+        "--robot",
+        default=None,
+        help="robot profile or file in place of the bench's, e.g. cicese3 (its drives on the "
+        "bus, its model in the controllers: the closed form or its URDF's; docs/control.md)",
+    )
+    p.add_argument(
         "--experiment",
-        default="khosla-kanade-tracking",
-        help="tracking experiment profile or file (trajectory, gains, J, velocity estimate)",
+        default=None,
+        help="tracking experiment profile or file (trajectory, gains, J, velocity estimate; "
+        "default: khosla-kanade-tracking-ROBOT where shipped, else khosla-kanade-tracking)",
     )
     p.add_argument(
         "--duration", type=float, default=None, help="seconds (default: the whole trajectory)"
     )
-    p.add_argument("--kp", type=float, nargs=2, metavar=("KP1", "KP2"), help="position gains")
-    p.add_argument("--kv", type=float, nargs=2, metavar=("KV1", "KV2"), help="velocity gains")
+    p.add_argument(
+        "--kp", type=float, nargs="+", metavar="KP", help="position gains, one per joint"
+    )
+    p.add_argument(
+        "--kv", type=float, nargs="+", metavar="KV", help="velocity gains, one per joint"
+    )
     opts.add_out_options(p, "directory (default: runs/control-SCHEME|compare)")
     opts.add_drive_options(p)
     opts.add_report_options(p)
@@ -64,6 +75,7 @@ def main(args: argparse.Namespace) -> int:
         "duration_s": args.duration,
         "kp": args.kp,
         "kv": args.kv,
+        "robot": args.robot,
         **opts.drive_kwargs(args),
     }
     if not args.compare:
@@ -94,7 +106,7 @@ def main(args: argparse.Namespace) -> int:
 
     def report(run: dict[str, Any]) -> None:
         err = run.get("max_position_error_rad")
-        detail = "" if err is None else f", max |e| = {err[0]:.4f} / {err[1]:.4f} rad"
+        detail = "" if err is None else f", max |e| = {' / '.join(f'{e:.4f}' for e in err)} rad"
         opts.say("control", f"{run['params']}/{run['scheme']}: {run['status']}{detail}")
 
     doc = compare_schemes(
@@ -117,17 +129,20 @@ def _format_run(doc: dict[str, Any]) -> str:
     run = doc["run"]
     lines = [f"{SCHEME_TITLES[run['scheme']]}, {run['params']} parameters, over {doc['bench']}"]
     if "max_position_error_rad" in run:
-        for j in range(2):
+        for j in range(len(run["max_position_error_rad"])):
             lines.append(
                 f"  joint {j + 1}: position error max {run['max_position_error_rad'][j]:.4f} "
                 f"rad, RMS {run['rms_position_error_rad'][j]:.4f} rad; velocity error max "
                 f"{run['max_velocity_error_rad_s'][j]:.3f} rad/s, RMS "
                 f"{run['rms_velocity_error_rad_s'][j]:.3f} rad/s"
             )
+    peaks = [
+        f"{x:.1f}" if lim >= 100 else f"{x:.2f}"
+        for x, lim in zip(run["peak_torque_law_Nm"], run["torque_limit_Nm"], strict=True)
+    ]
     lines.append(
-        f"  clipped cycles: {run['clipped_cycles'][0]} / {run['clipped_cycles'][1]}; peak "
-        f"torque {run['peak_torque_law_Nm'][0]:.1f} / {run['peak_torque_law_Nm'][1]:.2f} Nm "
-        f"(limits {run['torque_limit_Nm'][0]:g} / {run['torque_limit_Nm'][1]:g} Nm)"
+        f"  clipped cycles: {' / '.join(str(c) for c in run['clipped_cycles'])}; peak torque "
+        f"{' / '.join(peaks)} Nm (limits {' / '.join(f'{x:g}' for x in run['torque_limit_Nm'])} Nm)"
     )
     lines.append(
         f"  recording: {run['signals']} ({run['rows']} rows, {run['realtime_factor']}x real time)"

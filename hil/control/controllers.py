@@ -1,5 +1,6 @@
-"""Tracking controllers of Khosla & Kanade (1987) on the host's parametric model
-(hil/model/closed_form.py).
+"""Tracking controllers of Khosla & Kanade (1987) on a model object of the host: the 2-DOF closed
+form (:class:`hil.model.closed_form.ArmModel`, the fast path and the default) or an n-joint arm
+from a URDF (:class:`hil.model.urdf.UrdfArmModel`, Pinocchio).
 
 Each controller is a small object called once per control period with the time, the measured
 state (q, q̇) and the reference (q_d, q̇_d, q̈_d); it returns a :class:`ControlCommand`: the torque
@@ -19,17 +20,28 @@ same J so that, with the same K_p, K_v, every scheme aims at the closed loop s²
 eq. (7) (Khosla & Kanade's equivalence between the computed-torque gains and independent joint
 gains). The paper's h̃ is the Coriolis/centrifugal vector; this arm also has large viscous and
 Coulomb friction, so the model-based schemes compensate f̃ with the same arguments as h̃.
+
+Each law is written once, over the model's ``mass_matrix(θ, q)``, ``coriolis_vector(θ, q, q̇)``,
+``gravity_vector(θ, q)`` and ``friction_torque(θ, q̇)``; ``len(gains.kp)`` joints. For the
+2-DOF closed form these are the equations of Reyes & Kelly (1997) Section 5; for a URDF arm
+Pinocchio's recursive Newton–Euler in regressor form (``computeJointTorqueRegressor``: C̃q̇ and
+g̃ are RNEA at q̈ = 0 without and with gravity, column i of M̃ is RNEA at q̇ = 0, q̈ = e_i
+without gravity, as CRBA's M) times the base parameters θ̃, so an identified base-parameter
+vector drives the controller directly. Khosla & Kanade needed a custom Newton–Euler to do this
+in 1.2 ms; here CT costs about 0.1 ms of CPU per period for 3 or 7 joints
+(tests/benchmarks/bench_control.py, docs/control.md).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from hil.model.closed_form import coriolis_vector, friction_torque, gravity_vector, mass_matrix
+from hil.model.closed_form import ArmModel
 
 SCHEMES = ("pd", "ct", "fed", "rfed")
 SCHEME_TITLES = {
@@ -39,6 +51,23 @@ SCHEME_TITLES = {
     "rfed": "reduced feedforward compensation, eq. (4)",
 }
 FRICTION_VELOCITIES = ("measured", "reference")
+CLOSED_FORM = ArmModel()  # the 9-parameter 2-DOF model: the default and fast path
+
+
+class DynamicsModel(Protocol):
+    """What a controller needs of a model (ArmModel and UrdfArmModel have it): the terms of
+    τ = M̃(q) q̈ + C̃(q, q̇) q̇ + g̃(q) + f̃(q̇) for a parameter vector θ̃."""
+
+    @property
+    def n_joints(self) -> int: ...
+
+    def mass_matrix(self, theta: ArrayLike, q: ArrayLike) -> np.ndarray: ...
+
+    def coriolis_vector(self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike) -> np.ndarray: ...
+
+    def gravity_vector(self, theta: ArrayLike, q: ArrayLike) -> np.ndarray: ...
+
+    def friction_torque(self, theta: ArrayLike, dq: ArrayLike) -> np.ndarray: ...
 
 
 @dataclass(frozen=True)
@@ -80,9 +109,11 @@ class ControlCommand:
     parts: dict[str, np.ndarray] = field(default_factory=dict)
 
 
-def typical_inertia(theta: ArrayLike, q_typical: ArrayLike) -> np.ndarray:
-    """diag(M̃(q_typical)): the constant diagonal inertia J of eqs. (3)-(4), shape (2,)."""
-    return np.diagonal(mass_matrix(theta, q_typical)).copy()
+def typical_inertia(
+    theta: ArrayLike, q_typical: ArrayLike, model: DynamicsModel = CLOSED_FORM
+) -> np.ndarray:
+    """diag(M̃(q_typical)): the constant diagonal inertia J of eqs. (3)-(4), shape (n,)."""
+    return np.diagonal(model.mass_matrix(theta, q_typical)).copy()
 
 
 class BackwardDifference:
@@ -108,7 +139,8 @@ class BackwardDifference:
 
 
 class Controller:
-    """Base: gains, model parameters θ̃, typical inertia J, drive torque limits."""
+    """Base: model and its parameters θ̃, gains, typical inertia J, drive torque limits; the
+    number of joints is the model's, and gains, limits and q_typical give one value per joint."""
 
     scheme: str = ""
     part_names: tuple[str, ...] = ()
@@ -119,14 +151,25 @@ class Controller:
         gains: Gains,
         torque_limit_Nm: Sequence[float],
         *,
-        q_typical: ArrayLike = (0.0, 0.0),
+        model: DynamicsModel = CLOSED_FORM,
+        q_typical: ArrayLike | None = None,
         friction_velocity: str = "measured",
     ) -> None:
+        self.model = model
+        n = model.n_joints
         self.theta = np.asarray(theta, dtype=float)
         self.gains = gains
         self.kp = np.asarray(gains.kp, dtype=float)
         self.kv = np.asarray(gains.kv, dtype=float)
         self.limit = np.asarray(torque_limit_Nm, dtype=float)
+        self.q_typical = np.zeros(n) if q_typical is None else np.asarray(q_typical, dtype=float)
+        for what, values in (
+            ("gains", self.kp),
+            ("torque limits", self.limit),
+            ("typical position", self.q_typical),
+        ):
+            if values.shape != (n,):
+                raise ValueError(f"{what}: need {n} values (one per joint), got {values.size}")
         if not np.all(self.limit > 0):
             raise ValueError(f"torque limits must be > 0, got {list(self.limit)}")
         if friction_velocity not in FRICTION_VELOCITIES:
@@ -135,8 +178,7 @@ class Controller:
                 f"got {friction_velocity!r}"
             )
         self.friction_velocity = friction_velocity
-        self.q_typical = np.asarray(q_typical, dtype=float)
-        self.J = typical_inertia(self.theta, self.q_typical)
+        self.J = typical_inertia(self.theta, self.q_typical, model)
 
     def law(self, t: float, q: np.ndarray, dq: np.ndarray, ref: Reference) -> dict[str, np.ndarray]:
         """The control law's parts (their sum is the torque)."""
@@ -163,7 +205,7 @@ class PDGravity(Controller):
     def law(self, t: float, q: np.ndarray, dq: np.ndarray, ref: Reference) -> dict[str, np.ndarray]:
         return {
             "feedback": self.J * self._servo(q, dq, ref),
-            "gravity": gravity_vector(self.theta, q),
+            "gravity": self.model.gravity_vector(self.theta, q),
         }
 
 
@@ -176,11 +218,12 @@ class ComputedTorque(Controller):
     def law(self, t: float, q: np.ndarray, dq: np.ndarray, ref: Reference) -> dict[str, np.ndarray]:
         u = self._servo(q, dq, ref) + ref.ddq  # eq. (6)
         friction_dq = dq if self.friction_velocity == "measured" else ref.dq
+        m, theta = self.model, self.theta
         return {
-            "inertial": mass_matrix(self.theta, q) @ u,  # D̃(θ) u, eq. (2)
-            "coriolis": coriolis_vector(self.theta, q, dq),  # h̃(θ, θ̇)
-            "gravity": gravity_vector(self.theta, q),  # g̃(θ)
-            "friction": friction_torque(self.theta, friction_dq),
+            "inertial": m.mass_matrix(theta, q) @ u,  # D̃(θ) u, eq. (2)
+            "coriolis": m.coriolis_vector(theta, q, dq),  # h̃(θ, θ̇)
+            "gravity": m.gravity_vector(theta, q),  # g̃(θ)
+            "friction": m.friction_torque(theta, friction_dq),
         }
 
 
@@ -191,11 +234,12 @@ class Feedforward(Controller):
     part_names = ("inertial", "coriolis", "gravity", "friction", "feedback")
 
     def law(self, t: float, q: np.ndarray, dq: np.ndarray, ref: Reference) -> dict[str, np.ndarray]:
+        m, theta = self.model, self.theta
         return {
-            "inertial": mass_matrix(self.theta, ref.q) @ ref.ddq,  # D̃(θ_d) θ̈_d
-            "coriolis": coriolis_vector(self.theta, ref.q, ref.dq),  # h̃(θ_d, θ̇_d)
-            "gravity": gravity_vector(self.theta, ref.q),  # g̃(θ_d)
-            "friction": friction_torque(self.theta, ref.dq),
+            "inertial": m.mass_matrix(theta, ref.q) @ ref.ddq,  # D̃(θ_d) θ̈_d
+            "coriolis": m.coriolis_vector(theta, ref.q, ref.dq),  # h̃(θ_d, θ̇_d)
+            "gravity": m.gravity_vector(theta, ref.q),  # g̃(θ_d)
+            "friction": m.friction_torque(theta, ref.dq),
             "feedback": self.J * self._servo(q, dq, ref),  # J [K_p e + K_v ė]
         }
 
@@ -207,11 +251,12 @@ class ReducedFeedforward(Controller):
     part_names = ("inertial", "coriolis", "gravity", "friction", "feedback")
 
     def law(self, t: float, q: np.ndarray, dq: np.ndarray, ref: Reference) -> dict[str, np.ndarray]:
+        m, theta = self.model, self.theta
         return {
             "inertial": self.J * ref.ddq,  # J θ̈_d: no off-diagonal (coupling) inertia
-            "coriolis": coriolis_vector(self.theta, ref.q, ref.dq),
-            "gravity": gravity_vector(self.theta, ref.q),
-            "friction": friction_torque(self.theta, ref.dq),
+            "coriolis": m.coriolis_vector(theta, ref.q, ref.dq),
+            "gravity": m.gravity_vector(theta, ref.q),
+            "friction": m.friction_torque(theta, ref.dq),
             "feedback": self.J * self._servo(q, dq, ref),
         }
 
@@ -227,16 +272,19 @@ def make_controller(
     gains: Gains,
     torque_limit_Nm: Sequence[float],
     *,
-    q_typical: ArrayLike = (0.0, 0.0),
+    model: DynamicsModel = CLOSED_FORM,
+    q_typical: ArrayLike | None = None,
     friction_velocity: str = "measured",
 ) -> Controller:
-    """The controller of ``scheme`` (pd, ct, fed, rfed)."""
+    """The controller of ``scheme`` (pd, ct, fed, rfed) on ``model`` (default: the 2-DOF closed
+    form) with parameters ``theta`` (that model's: θ1..θ9, or a URDF arm's base parameters)."""
     if scheme not in CONTROLLERS:
         raise ValueError(f"unknown scheme {scheme!r}; expected one of {', '.join(SCHEMES)}")
     return CONTROLLERS[scheme](
         theta,
         gains,
         torque_limit_Nm,
+        model=model,
         q_typical=q_typical,
         friction_velocity=friction_velocity,
     )
@@ -248,6 +296,7 @@ __all__ = [
     "ComputedTorque",
     "ControlCommand",
     "Controller",
+    "DynamicsModel",
     "Feedforward",
     "Gains",
     "PDGravity",

@@ -62,12 +62,14 @@ def plot_run(run_dir: str | Path, trajectory: PointToPoint, scheme: str, label: 
     run_dir = Path(run_dir)
     rec = read_signals(run_dir)
     q = rec.q
+    nj = q.shape[1]
+    width = 5.5 * nj
     t, qd, dqd, dq, e, ev = _errors(rec, trajectory)
     name = f"{scheme.upper()} ({label} parameters)"
     paths = []
 
-    fig, axes = plt.subplots(2, 2, figsize=(11, 6), sharex=True)
-    for j in range(2):
+    fig, axes = plt.subplots(2, nj, figsize=(width, 6), sharex=True, squeeze=False)
+    for j in range(nj):
         axes[0, j].plot(t, qd[:, j], "k--", lw=1.0, label="reference")
         axes[0, j].plot(t, q[:, j], lw=1.2, label="measured")
         axes[0, j].set_ylabel(f"q{j + 1} [rad]")
@@ -81,8 +83,8 @@ def plot_run(run_dir: str | Path, trajectory: PointToPoint, scheme: str, label: 
     fig.suptitle(f"Position and velocity tracking, {name}")
     paths.append(_save(fig, run_dir / "tracking.png", plt))
 
-    fig, axes = plt.subplots(2, 2, figsize=(11, 6), sharex=True)
-    for j in range(2):
+    fig, axes = plt.subplots(2, nj, figsize=(width, 6), sharex=True, squeeze=False)
+    for j in range(nj):
         axes[0, j].plot(t, e[:, j], lw=1.0, color="tab:red")
         axes[0, j].set_ylabel(f"e{j + 1} = q{j + 1}d − q{j + 1} [rad]")
         axes[1, j].plot(t, ev[:, j], lw=0.8, color="tab:red")
@@ -96,13 +98,13 @@ def plot_run(run_dir: str | Path, trajectory: PointToPoint, scheme: str, label: 
     control_csv = run_dir / "control.csv"
     if control_csv.is_file():
         log = read_control_log(control_csv)
-        parts = sorted({c[:-1] for c in log if c[-1] in "12" and c[:-1] in PART_COLORS})
+        parts = [p for p in PART_COLORS if f"{p}1" in log]
         tl = log["t"]
-        fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharex=True)
-        for j in range(2):
-            ax = axes[j]
+        fig, axes = plt.subplots(1, nj, figsize=(width, 4), sharex=True, squeeze=False)
+        for j in range(nj):
+            ax = axes[0, j]
             ax.plot(t, rec.tau[:, j], color="k", lw=1.2, label="sent (quantized)")
-            for part in sorted(parts, key=list(PART_COLORS).index):
+            for part in parts:
                 ax.plot(tl, log[f"{part}{j + 1}"], lw=0.9, color=PART_COLORS[part], label=part)
             ax.set_ylabel(f"τ{j + 1} [Nm]")
             ax.set_xlabel("t [s]")
@@ -131,16 +133,21 @@ def plot_comparison(
         return []
     paths = []
     n = len(loaded)
-    fig, axes = plt.subplots(n, 4, figsize=(15, 2.2 * n + 0.8), sharex=True, squeeze=False)
+    nj = next(iter(loaded.values())).q.shape[1]
+    fig, axes = plt.subplots(
+        n, 2 * nj, figsize=(3.75 * 2 * nj, 2.2 * n + 0.8), sharex=True, squeeze=False
+    )
     for i, (scheme, rec) in enumerate(loaded.items()):
         t, _, _, _, e, ev = _errors(rec, trajectory)
-        for j in range(2):
+        for j in range(nj):
             axes[i, j].plot(t, e[:, j], lw=0.9, color="tab:red")
             axes[i, j].set_title(f"{scheme.upper()}: position error, joint {j + 1}", fontsize=8)
             axes[i, j].set_ylabel("rad", fontsize=8)
-            axes[i, 2 + j].plot(t, ev[:, j], lw=0.7, color="tab:blue")
-            axes[i, 2 + j].set_title(f"{scheme.upper()}: velocity error, joint {j + 1}", fontsize=8)
-            axes[i, 2 + j].set_ylabel("rad/s", fontsize=8)
+            axes[i, nj + j].plot(t, ev[:, j], lw=0.7, color="tab:blue")
+            axes[i, nj + j].set_title(
+                f"{scheme.upper()}: velocity error, joint {j + 1}", fontsize=8
+            )
+            axes[i, nj + j].set_ylabel("rad/s", fontsize=8)
     for ax in axes.flat:
         ax.grid(True, alpha=0.3)
         ax.tick_params(labelsize=7)
@@ -149,15 +156,15 @@ def plot_comparison(
     fig.suptitle(f"Tracking errors per scheme ({label} parameters); each panel on its own scale")
     paths.append(_save(fig, out_dir / f"errors_{file_label}.png", plt))
 
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4), sharex=True)
+    fig, axes = plt.subplots(1, nj, figsize=(6 * nj, 4), sharex=True, squeeze=False)
     for scheme, rec in loaded.items():
-        for j in range(2):
-            axes[j].plot(rec.t, rec.tau[:, j], lw=0.9, label=scheme.upper())
-    for j in range(2):
-        axes[j].set_ylabel(f"τ{j + 1} [Nm]")
-        axes[j].set_xlabel("t [s]")
-        axes[j].grid(True, alpha=0.3)
-        axes[j].legend(loc="best", fontsize=8)
+        for j in range(nj):
+            axes[0, j].plot(rec.t, rec.tau[:, j], lw=0.9, label=scheme.upper())
+    for j in range(nj):
+        axes[0, j].set_ylabel(f"τ{j + 1} [Nm]")
+        axes[0, j].set_xlabel("t [s]")
+        axes[0, j].grid(True, alpha=0.3)
+        axes[0, j].legend(loc="best", fontsize=8)
     fig.suptitle(f"Applied torques ({label} parameters)")
     paths.append(_save(fig, out_dir / f"torques_{file_label}.png", plt))
     return paths

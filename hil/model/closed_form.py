@@ -309,6 +309,7 @@ class ArmModel:
     """
 
     terms: tuple[str, ...] = ()
+    n_joints = 2  # a class constant (no annotation: not a field), as UrdfArmModel.n_joints
 
     def __post_init__(self) -> None:
         terms = tuple(self.terms)

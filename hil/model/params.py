@@ -135,10 +135,61 @@ def save_params(
     return path
 
 
+def load_base_params(path: str | Path, model: Any) -> ParamSet:
+    """A URDF arm's base parameters (:class:`hil.model.urdf.UrdfArmModel` ``model``) from the
+    ``identify.json`` that `hil identify --robot R` writes for such an arm (its ``parameters``,
+    each with ``name`` and ``identified``), or from ``{"theta": [p numbers]}``.
+
+    The base parameters are combinations that depend on the URDF and the model terms, so an
+    ``identify.json`` must be of the same robot and terms, with the same combination per name
+    (``meaning``); one-line :class:`ParamsError` otherwise."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except OSError as exc:
+        raise ParamsError(f"{path}: cannot read ({exc.strerror})") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ParamsError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(doc, dict):
+        raise ParamsError(f"{path}: not a JSON object")
+    names, where = tuple(model.names), str(path)
+    if "parameters" in doc:
+        robot, terms = doc.get("robot"), doc.get("terms", [])
+        if model.name and isinstance(robot, str) and Path(robot).stem != model.name:
+            raise ParamsError(f"{where}: identified for robot {robot}, not {model.name}")
+        if list(terms) != list(model.terms):
+            raise ParamsError(
+                f"{where}: model terms {terms}, robot {model.name} has {list(model.terms)}"
+            )
+        entries = doc["parameters"]
+        if not isinstance(entries, list) or [
+            e.get("name") if isinstance(e, dict) else None for e in entries
+        ] != list(names):
+            raise ParamsError(f"{where}: 'parameters' must name {', '.join(names)} in order")
+        for e, meaning in zip(entries, model.meanings, strict=True):
+            if "meaning" in e and e["meaning"] != meaning:
+                raise ParamsError(
+                    f"{where}: {e['name']} is {e['meaning']!r} there, {meaning!r} for this arm"
+                )
+        theta = [e.get("identified") for e in entries]
+        doc = {**doc, "theta": theta}
+    wanted = len(names)
+    theta = doc.get("theta")
+    if not isinstance(theta, list) or len(theta) != wanted:
+        raise ParamsError(f"{where}: 'theta' must be a list of {wanted} numbers ({names[0]}..)")
+    if not all(isinstance(x, int | float) and not isinstance(x, bool) for x in theta):
+        raise ParamsError(f"{where}: 'theta' must hold numbers only")
+    if not all(math.isfinite(x) for x in theta):
+        raise ParamsError(f"{where}: 'theta' holds a non-finite number")
+    scheme = doc.get("method") if "parameters" in doc else doc.get("scheme")
+    return ParamSet(np.array(theta, dtype=float), str(path), scheme, doc)
+
+
 __all__ = [
     "KIND",
     "ParamSet",
     "ParamsError",
+    "load_base_params",
     "load_params",
     "robot_params",
     "save_params",

@@ -367,14 +367,16 @@ class UrdfArmModel:
         return out.reshape(*lead, -1)
 
     def mass_matrix(self, theta: ArrayLike, q: ArrayLike) -> np.ndarray:
-        """M(q), shape (..., n, n): column i is the regressor at rest with q̈ = e_i, times θ."""
+        """M(q), shape (..., n, n): column i is the regressor at rest with q̈ = e_i, times θ
+        (all n columns of all samples in one pass: the controllers call it every period)."""
         (q,), lead = self._samples(q)
         t, n = np.asarray(theta, dtype=float), self.n_joints
-        M = np.empty((len(q), n, n))
-        for i in range(n):
-            e = np.zeros_like(q)
-            e[:, i] = 1.0
-            M[:, :, i] = self._to_base(self._standard_momentum(q, e)) @ t
+        N = len(q)
+        # row k·n + i: sample k with q̈ = e_i
+        cols = self._to_base(
+            self._standard_momentum(np.repeat(q, n, axis=0), np.tile(np.eye(n), (N, 1)))
+        )
+        M = (cols @ t).reshape(N, n, n).transpose(0, 2, 1)  # [k, i, j] -> M[k, j, i]
         return M.reshape(*lead, n, n)
 
     def gravity_vector(self, theta: ArrayLike, q: ArrayLike) -> np.ndarray:
