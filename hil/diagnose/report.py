@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from drivers.recording import Recording
-from hil.diagnose.columns import moving_average
+from hil.diagnose.columns import GAP_FACTOR, moving_average
 from hil.diagnose.findings import (
     THETA_FC,
     Finding,
@@ -442,12 +442,13 @@ def simulated_segments(
     h: float, first: int, last: int, stamps: np.ndarray | None, n_samples: int
 ) -> list[tuple[int, int]]:
     """The [a, b) sample ranges the held-out simulation runs over: SEGMENT_S long, also cut at
-    every interval that is not h (a stall, a dropped sample), at most MAX_SEGMENTS of them
-    evenly spread over samples first..last."""
+    every gap (an interval over GAP_FACTOR × h: a stall, dropped samples), at most MAX_SEGMENTS
+    of them evenly spread over samples first..last. Inside a segment the simulation runs on the
+    real intervals (:func:`_segment_simulation`)."""
     step = max(4, round(SEGMENT_S / h))
-    t = np.arange(n_samples) * h if stamps is None else stamps
-    odd = np.flatnonzero(np.abs(np.diff(t) / h - 1.0) > 0.01)  # interval i: samples i → i+1
-    cuts = sorted({*range(first, last + 1, step), *(int(i) + 1 for i in odd)})
+    # interval i (samples i → i+1) is a gap
+    gaps = np.zeros(0, int) if stamps is None else np.flatnonzero(np.diff(stamps) > GAP_FACTOR * h)
+    cuts = sorted({*range(first, last + 1, step), *(int(i) + 1 for i in gaps)})
     cuts = [c for c in cuts if first <= c <= last] + [last + 1]
     pairs = list(itertools.pairwise(cuts))
     if len(pairs) > MAX_SEGMENTS:
@@ -468,8 +469,8 @@ def _segment_simulation(
     """Open-loop simulation of the sample ranges ``segments`` (:func:`simulated_segments`),
     each started from the recorded position and central-difference velocity: an arm this
     underdamped diverges from any model over many seconds, so one long run would measure chaos,
-    not the model. ``stamps``: the real sample times (each segment lies between two of them
-    that are not h apart, so it is integrated over its true intervals)."""
+    not the model. ``stamps``: the real sample times; each segment is integrated over its
+    true intervals (a realtime run's 0.3 ms catch-up steps after a stall, a real arm's jitter)."""
     t = np.arange(len(q)) * h if stamps is None else stamps
     out = []
     for a, b in segments:
@@ -478,7 +479,12 @@ def _segment_simulation(
         ex = extras
         if extras is not None and a > 0:  # the lag and delay line start settled, not at rest
             ex = replace(extras, initial_command_Nm=(float(tau[a - 1, 0]), float(tau[a - 1, 1])))
-        out.append(simulate_open_loop(theta, tau[a:b], h, q0=q[a], dq0=dq0, extras=ex).q)
+        intervals = None if stamps is None else np.diff(stamps[a:b])
+        out.append(
+            simulate_open_loop(
+                theta, tau[a:b], h, q0=q[a], dq0=dq0, extras=ex, intervals_s=intervals
+            ).q
+        )
     return np.concatenate(out)
 
 
