@@ -55,10 +55,13 @@ def robot_event_trace(path: Path, rows: int) -> TimingTrace:
         reader = csv.reader(f)
         if next(reader, None) != ["event", "n", "t"]:
             raise RecordingError(f"{path}: not a robot event log (header event,n,t)")
-        for row in reader:
+        for line, row in enumerate(reader, start=2):
             if len(row) != 3:
                 continue  # a torn last line
-            event, n, t = row[0], int(row[1]), float(row[2])
+            try:
+                event, n, t = row[0], int(row[1]), float(row[2])
+            except ValueError:
+                raise RecordingError(f"{path}:{line}: not an event,n,t row: {row}") from None
             if event == "advance":
                 steps.append(t)
             elif event == "sample":
