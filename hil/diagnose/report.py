@@ -159,8 +159,14 @@ def interpret(
             continue
         if a.cand.kind == "gain":
             gains, gev = resolve_gain(prob, accepted, fit, reference)
+            at_reference = gev.pop("relative_at_reference_theta", {})
             new = [
-                Finding("torque_gain", j + 1, {"relative": _r(r)}, {**ev, **gev})
+                Finding(
+                    "torque_gain",
+                    j + 1,
+                    {"relative": _r(r), "relative_at_reference_theta": at_reference[str(j + 1)]},
+                    {**ev, **gev},
+                )
                 for j, r in gains.items()
             ]
             if len(new) == 2:
