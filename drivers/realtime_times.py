@@ -145,3 +145,15 @@ def on_real_times(rec: Recording, trace: TimingTrace, source: str) -> Recording:
         f"{np.median(lag) * 1e3:.3g} ms after its sample, median; max {np.max(lag) * 1e3:.3g} ms)"
     )
     return reassemble(rec, columns, note)
+
+
+__all__ = [
+    "COMPUTE_S",
+    "DEFAULT_COMPUTE_S",
+    "ROBOT_EVENTS",
+    "host_stamp_trace",
+    "interval_torque",
+    "on_real_times",
+    "robot_event_trace",
+    "run_trace",
+]

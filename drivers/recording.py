@@ -834,5 +834,6 @@ __all__ = [
     "parse_column_map",
     "plot_positions",
     "read_signals",
+    "reassemble",
     "write_json_atomic",
 ]
