@@ -185,3 +185,16 @@ def test_realtime_run_with_stalls_diagnoses_like_its_lockstep_twin(tmp_path: Pat
     assert asym["positive_Nm"] == pytest.approx(7.17, rel=0.03)
     assert asym["negative_Nm"] == pytest.approx(8.049, rel=0.03)
     assert {t["kind"] for t in doc["timing"]} >= {"gaps", "irregular_sampling"}
+
+
+def test_a_confounded_group_always_says_what_would_separate_it() -> None:
+    """A realtime run with stalls reported joint 1's asymmetry confounded with an encoder offset;
+    the summary said "The data cannot tell these apart: ." with nothing after the colon."""
+    from hil.diagnose.report import SEPARATE, _separate
+
+    group = frozenset({"angle_offset", "coulomb_asymmetry", "torque_offset"})
+    why = _separate(group)
+    assert "sweep of the joint's angle" in why and "torque sensor" in why
+    pair = frozenset({"actuator_lag", "transport_delay"})
+    assert _separate(pair) == SEPARATE[pair]
+    assert _separate(frozenset({"cogging", "stribeck"}))

@@ -631,11 +631,25 @@ SEPARATE = {
         "a torque step or a chirp with content above 1/(2π T) (tens of Hz) would separate them: "
         "a lag rounds a step, a delay shifts it"
     ),
+    frozenset(("angle_offset", "torque_offset")): (
+        "a wider sweep of the joint's angle (0.5 rad or more) would separate them: an encoder "
+        "offset moves the gravity torque with the angle, a torque offset does not"
+    ),
     frozenset(("torque_gain",)): (  # a gain on joint 1 or the inverse one on joint 2
         "the data fix only the ratio of the two joints' gains; a known load (a calibrated mass) "
         "on one joint would fix the scale"
     ),
 }
+
+
+def _separate(effects: frozenset[str]) -> str:
+    """What would separate a confounded group: its own entry, else those of the pairs in it
+    (an asymmetry stands for its torque offset: the same column); never empty."""
+    if effects in SEPARATE:
+        return SEPARATE[effects]
+    named = effects | ({"torque_offset"} if "coulomb_asymmetry" in effects else set())
+    parts = [why for key, why in SEPARATE.items() if len(key) > 1 and key <= named]
+    return "; ".join(parts) or "an experiment that excites them differently would"
 
 
 def _linked(f: Finding, g: Finding) -> bool:
@@ -711,7 +725,7 @@ def summary_words(findings: Sequence[Finding], fit: dict[str, Any], notes: Seque
                 _phrase(g) if g.joint == f.joint else f"{_who(g).lower()}: {_phrase(g)}"
                 for g in others
             )
-            why = SEPARATE.get(frozenset(g.effect for g in group), "")
+            why = _separate(frozenset(g.effect for g in group))
             lines.append(
                 f"{said} — or, equally well, {alt}. The data cannot tell these apart: {why}."
             )
