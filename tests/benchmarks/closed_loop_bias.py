@@ -7,7 +7,9 @@ pd`, the shipped tracking experiment, 6 s at 400 Hz, lockstep, in-process bench)
 `hil diagnose` of it: the truth next to what was found (or why it was not). Then the torque-gain
 regression on its own, y ≈ Ψθ + r·(−F[τ_j]), over the whole run: with θ free (what the
 selection fits) and with θ1..θ5 held at the reference (the robot profile's Table I; friction
-and r free). A few minutes on a loaded machine.
+and r free). For the gain cases also the diagnosis with its simulation gate switched off, to show
+the selection's own estimate (`relative`) next to `relative_at_reference_theta`. A few minutes on
+a loaded machine; ``--only gain_j1,gain_j2`` runs some of the cases.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from drivers.recording import read_signals
+from hil.diagnose import report
 from hil.diagnose.columns import gain_column, recording_rows
 from hil.diagnose.report import diagnose
 from hil.model.params import robot_params
@@ -61,14 +64,30 @@ def gain_fits(run: Path, reference: np.ndarray) -> list[tuple[float, float]]:
     return out
 
 
+def ungated_gains(run: Path, reference: np.ndarray) -> list[dict]:
+    """The torque_gain findings with the simulation gate switched off (every accepted term
+    kept): what the selection estimated before the gate judged it."""
+    keep_all = lambda prob, accepted, findings, *rest: (accepted, findings, {}, rest[-1])  # noqa: E731
+    gate = report.simulation_gate
+    report.simulation_gate = keep_all
+    try:
+        doc = diagnose([read_signals(run)], reference).document
+    finally:
+        report.simulation_gate = gate
+    return [f["estimate"] for f in doc["findings"] if f["effect"] == "torque_gain"]
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=None, help="keep the runs here (default: a temporary dir)")
+    ap.add_argument("--only", default=None, help="comma-separated case names")
     args = ap.parse_args()
+    names = args.only.split(",") if args.only else list(CASES)
     base = Path(args.out or tempfile.mkdtemp(prefix="closed-loop-bias-"))
     base.mkdir(parents=True, exist_ok=True)
     reference = robot_params("cicese").theta
-    for name, (body, truth) in CASES.items():
+    for name in names:
+        body, truth = CASES[name]
         cmd = [sys.executable, "-m", "hil.cli", "control", "--scheme", "pd", "--bench",
                "virtual-inprocess", "--out", str(base / name), "--overwrite", "--no-plot",
                "-q"]  # fmt: skip
@@ -87,6 +106,8 @@ def main() -> int:
         print(f"{'':10s} found: {found or 'nothing'}")
         for key, why in doc["not_findings"].items():
             print(f"{'':10s} not a finding: {key}: {why}")
+        if name.startswith("gain"):
+            print(f"{'':10s} without the simulation gate: {ungated_gains(base / name, reference)}")
         fits = gain_fits(base / name, reference)
         print(
             f"{'':10s} gain regression r (θ free / θ1..θ5 at the reference): "
