@@ -668,6 +668,30 @@ def _assemble(
     )
 
 
+def reassemble(rec: Recording, columns: dict[str, np.ndarray], note: str) -> Recording:
+    """``rec`` with new ``columns`` (same rows, same names; e.g. a realtime run moved onto its
+    real sample times, drivers/realtime_times.py), checked as on read: t increasing, gaps and
+    irregular intervals noted afresh. ``note`` comes first in ``findings_on_read``; the reader's
+    other notes that were not about the old time stamps are kept."""
+    names = ["t", *(f"{p}{j + 1}" for p in ("q", "tau") for j in range(rec.n_joints))]
+    keep = list(columns)
+    plan = _Plan(
+        sources={name: name for name in names},
+        n_joints=rec.n_joints,
+        torque_source=rec.torque_source,
+        loop_delay=0,
+        own_grid=False,
+        identity=True,
+    )
+    data = np.column_stack([np.asarray(columns[name], float) for name in keep])
+    csv_path = rec.path / SIGNALS if rec.path.is_dir() else rec.path
+    out = _assemble(rec.path, csv_path, data, keep, plan, rec.meta, False)
+    timing = ("gap(s) in t", "irregular sampling")
+    old = [f for f in rec.findings_on_read if not any(w in f for w in timing)]
+    out.findings_on_read = [note, *old, *out.findings_on_read]
+    return out
+
+
 def _check_times(
     csv_path: Path,
     t: np.ndarray,
@@ -810,5 +834,6 @@ __all__ = [
     "parse_column_map",
     "plot_positions",
     "read_signals",
+    "reassemble",
     "write_json_atomic",
 ]

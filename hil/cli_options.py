@@ -42,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.realtime_times import ROBOT_EVENTS, on_real_times, run_trace
 from drivers.recording import (
     SIGNALS,
     Recording,
@@ -320,6 +321,7 @@ def read_recording(
             command,
             f"read {len(rec)} rows of {csv_path.name} in {time.perf_counter() - started:.0f} s",
         )
+    rec = _on_real_times(args, path, rec, min_rows)
     for note in rec.findings_on_read:
         say(command, f"note: {rec.path}: {note}")
     if joints is not None and rec.n_joints != joints:
@@ -338,6 +340,28 @@ def read_recording(
             f"{rec.path}: the arm does not move (every q is constant): nothing to {command}"
         )
     return rec
+
+
+def _on_real_times(
+    args: argparse.Namespace, path: str | Path, rec: Recording, min_rows: int
+) -> Recording:
+    """A realtime run of this bench on its real sample and command times
+    (drivers/realtime_times.py): its ``t`` is only the deadline grid. Not when the reader was
+    told where t or tau come from (``--format``, ``--columns``, ``--loop-delay``): ``--columns
+    t=t`` reads the grid as it is."""
+    told = any(recording_kwargs(args)[k] is not None for k in ("fmt", "columns", "loop_delay"))
+    if told or rec.meta.get("mode") != "realtime":
+        return rec
+    full = rec
+    if not (Path(path) / ROBOT_EVENTS).is_file():  # the host's stamps: read them too
+        full = read_signals(path, **recording_kwargs(args), min_rows=min_rows)
+    found = run_trace(full)
+    if found is None:
+        return rec
+    moved = on_real_times(full, *found)
+    keep = {"t", *(f"{p}{j + 1}" for p in ("q", "tau") for j in range(rec.n_joints))}
+    moved.columns = {k: v for k, v in moved.columns.items() if k in keep or k in rec.columns}
+    return moved
 
 
 # ---- output directory -------------------------------------------------------------------------

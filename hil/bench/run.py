@@ -14,6 +14,7 @@ from drivers.arm import Arm, Sample
 from drivers.fault_injection import TimingFaultArm, with_host_faults
 from drivers.links import open_arm
 from drivers.protocol.cia402 import ERR_RPDO_TIMEOUT
+from drivers.realtime_times import ROBOT_EVENTS
 from drivers.recording import RecordingWriter, plot_positions, read_signals
 from hil import __version__
 from hil.bench.launch import VirtualRobotProcess
@@ -21,8 +22,6 @@ from hil.bench.loop import Command, LoopResult, extra_columns, run_loop
 from hil.bench.scheduler import realtime_scheduling
 from profiles.bench import BenchProfile, bench_for_robot, load_bench
 from profiles.experiment import check_duration, load_experiment
-
-ROBOT_EVENTS = "robot-events.csv"  # realtime: the virtual robot's own sample and command times
 
 
 def timing_fault_meta(

@@ -50,7 +50,7 @@ def main(args: argparse.Namespace) -> int:
     if args.out:
         prepare_out_dir(args.out, args.overwrite, inputs=args.recordings)
     recs = [
-        read_recording(args, path, command="diagnose", min_rows=2, joints=2)
+        read_recording(args, path, command="diagnose", min_rows=2, joints=2, allow_gaps=True)
         for path in args.recordings
     ]
     reference = robot_params(args.robot).theta

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from drivers.recording import Recording
-from hil.diagnose.columns import moving_average
+from hil.diagnose.columns import GAP_FACTOR, moving_average
 from hil.diagnose.findings import (
     THETA_FC,
     Finding,
@@ -159,8 +159,14 @@ def interpret(
             continue
         if a.cand.kind == "gain":
             gains, gev = resolve_gain(prob, accepted, fit, reference)
+            at_reference = gev.pop("relative_at_reference_theta", {})
             new = [
-                Finding("torque_gain", j + 1, {"relative": _r(r)}, {**ev, **gev})
+                Finding(
+                    "torque_gain",
+                    j + 1,
+                    {"relative": _r(r), "relative_at_reference_theta": at_reference[str(j + 1)]},
+                    {**ev, **gev},
+                )
                 for j, r in gains.items()
             ]
             if len(new) == 2:
@@ -442,12 +448,13 @@ def simulated_segments(
     h: float, first: int, last: int, stamps: np.ndarray | None, n_samples: int
 ) -> list[tuple[int, int]]:
     """The [a, b) sample ranges the held-out simulation runs over: SEGMENT_S long, also cut at
-    every interval that is not h (a stall, a dropped sample), at most MAX_SEGMENTS of them
-    evenly spread over samples first..last."""
+    every gap (an interval over GAP_FACTOR × h: a stall, dropped samples), at most MAX_SEGMENTS
+    of them evenly spread over samples first..last. Inside a segment the simulation runs on the
+    real intervals (:func:`_segment_simulation`)."""
     step = max(4, round(SEGMENT_S / h))
-    t = np.arange(n_samples) * h if stamps is None else stamps
-    odd = np.flatnonzero(np.abs(np.diff(t) / h - 1.0) > 0.01)  # interval i: samples i → i+1
-    cuts = sorted({*range(first, last + 1, step), *(int(i) + 1 for i in odd)})
+    # interval i (samples i → i+1) is a gap
+    gaps = np.zeros(0, int) if stamps is None else np.flatnonzero(np.diff(stamps) > GAP_FACTOR * h)
+    cuts = sorted({*range(first, last + 1, step), *(int(i) + 1 for i in gaps)})
     cuts = [c for c in cuts if first <= c <= last] + [last + 1]
     pairs = list(itertools.pairwise(cuts))
     if len(pairs) > MAX_SEGMENTS:
@@ -468,8 +475,8 @@ def _segment_simulation(
     """Open-loop simulation of the sample ranges ``segments`` (:func:`simulated_segments`),
     each started from the recorded position and central-difference velocity: an arm this
     underdamped diverges from any model over many seconds, so one long run would measure chaos,
-    not the model. ``stamps``: the real sample times (each segment lies between two of them
-    that are not h apart, so it is integrated over its true intervals)."""
+    not the model. ``stamps``: the real sample times; each segment is integrated over its
+    true intervals (a realtime run's 0.3 ms catch-up steps after a stall, a real arm's jitter)."""
     t = np.arange(len(q)) * h if stamps is None else stamps
     out = []
     for a, b in segments:
@@ -478,7 +485,12 @@ def _segment_simulation(
         ex = extras
         if extras is not None and a > 0:  # the lag and delay line start settled, not at rest
             ex = replace(extras, initial_command_Nm=(float(tau[a - 1, 0]), float(tau[a - 1, 1])))
-        out.append(simulate_open_loop(theta, tau[a:b], h, q0=q[a], dq0=dq0, extras=ex).q)
+        intervals = None if stamps is None else np.diff(stamps[a:b])
+        out.append(
+            simulate_open_loop(
+                theta, tau[a:b], h, q0=q[a], dq0=dq0, extras=ex, intervals_s=intervals
+            ).q
+        )
     return np.concatenate(out)
 
 
@@ -619,11 +631,25 @@ SEPARATE = {
         "a torque step or a chirp with content above 1/(2π T) (tens of Hz) would separate them: "
         "a lag rounds a step, a delay shifts it"
     ),
+    frozenset(("angle_offset", "torque_offset")): (
+        "a wider sweep of the joint's angle (0.5 rad or more) would separate them: an encoder "
+        "offset moves the gravity torque with the angle, a torque offset does not"
+    ),
     frozenset(("torque_gain",)): (  # a gain on joint 1 or the inverse one on joint 2
         "the data fix only the ratio of the two joints' gains; a known load (a calibrated mass) "
         "on one joint would fix the scale"
     ),
 }
+
+
+def _separate(effects: frozenset[str]) -> str:
+    """What would separate a confounded group: its own entry, else those of the pairs in it
+    (an asymmetry stands for its torque offset: the same column); never empty."""
+    if effects in SEPARATE:
+        return SEPARATE[effects]
+    named = effects | ({"torque_offset"} if "coulomb_asymmetry" in effects else set())
+    parts = [why for key, why in SEPARATE.items() if len(key) > 1 and key <= named]
+    return "; ".join(parts) or "an experiment that excites them differently would"
 
 
 def _linked(f: Finding, g: Finding) -> bool:
@@ -699,7 +725,7 @@ def summary_words(findings: Sequence[Finding], fit: dict[str, Any], notes: Seque
                 _phrase(g) if g.joint == f.joint else f"{_who(g).lower()}: {_phrase(g)}"
                 for g in others
             )
-            why = SEPARATE.get(frozenset(g.effect for g in group), "")
+            why = _separate(frozenset(g.effect for g in group))
             lines.append(
                 f"{said} — or, equally well, {alt}. The data cannot tell these apart: {why}."
             )

@@ -69,6 +69,7 @@ def simulate_open_loop(
     coulomb_positive: Sequence[float] | None = None,
     coulomb_negative: Sequence[float] | None = None,
     extras: OpenLoopExtras | None = None,
+    intervals_s: ArrayLike | None = None,
 ) -> OpenLoopResult:
     """Simulate the model θ under torques ``tau`` (N, 2), each held over one period of h seconds.
 
@@ -81,7 +82,9 @@ def simulate_open_loop(
     every q2; negative viscous coefficients are simulated as given. ``extras``
     (:class:`OpenLoopExtras`) adds the diagnosis's physics (torque offset and gain, actuator lag,
     transport delay, cogging, angle offset, Stribeck friction); with an angle offset, ``q0`` and
-    the result's ``q`` are reported angles (true + offset). Raises ValueError on bad input.
+    the result's ``q`` are reported angles (true + offset). ``intervals_s`` (N − 1 durations):
+    period k lasts intervals_s[k], not h (a recording's real sample times; h is then only the
+    nominal period the sub-steps are laid out on). Raises ValueError on bad input.
     """
     th = _theta(theta)
     torques = _torques(tau)
@@ -94,16 +97,28 @@ def simulate_open_loop(
     for name, levels in (("theta8, theta9 (Coulomb)", fc), ("coulomb_positive", pos)):
         _non_negative(name, levels)
     _non_negative("coulomb_negative", neg)
+    intervals = None
+    if intervals_s is not None:
+        intervals = np.asarray(intervals_s, float)
+        if intervals.shape != (max(len(torques) - 1, 0),) or not np.all(intervals > 0):
+            raise ValueError(
+                f"intervals_s must hold {len(torques) - 1} positive durations (one per period "
+                f"between the torque rows), got shape {intervals.shape}"
+            )
     if extras is None:
-        return integrate(th, torques, h, n_sub, start, Friction(pos, neg))
+        return integrate(th, torques, h, n_sub, start, Friction(pos, neg), intervals=intervals)
     if not isinstance(extras, OpenLoopExtras):
         raise ValueError(f"extras must be an OpenLoopExtras, got {type(extras).__name__}")
     offset = extras.angle_offset_rad
     true_start = (start[0] - offset[0], start[1] - offset[1], start[2], start[3])
     if extras.changes_dynamics:
-        result = integrate_with_extras(th, torques, h, n_sub, true_start, pos, neg, extras)
+        result = integrate_with_extras(
+            th, torques, h, n_sub, true_start, pos, neg, extras, intervals
+        )
     else:
-        result = integrate(th, torques, h, n_sub, true_start, Friction(pos, neg))
+        result = integrate(
+            th, torques, h, n_sub, true_start, Friction(pos, neg), intervals=intervals
+        )
     if offset == (0.0, 0.0):
         return result
     return dataclasses.replace(result, q=result.q + np.asarray(offset))  # reported angles

@@ -349,6 +349,7 @@ def integrate(
     friction: Friction,
     path: TorquePath | None = None,
     shaft_torque: ShaftTorque | None = None,
+    intervals: np.ndarray | None = None,
 ) -> OpenLoopResult:
     """Simulate θ (checked by the caller) from the true state ``start`` under ``torques`` (N, 2)
     through ``path`` (None: the identity), ``n_sub`` RK4 sub-steps per period h (more where a
@@ -358,8 +359,13 @@ def integrate(
     whose holding torque leaves the static band break away; a sliding joint's direction is frozen
     over a sub-step; a velocity sign change inside it is located on the RK4 flow map, the joint
     sticks there and the rest of the sub-step is integrated in the new mode.
+
+    ``intervals`` (N − 1 durations, s): period k lasts intervals[k] instead of h (a recording's
+    real sample times); its sub-steps are stretched by intervals[k]/h, so a delay's arrival
+    keeps its place as a fraction of the period (exact for the identity path and the lag).
     """
     path = TorquePath() if path is None else path
+    stretch = None if intervals is None else np.asarray(intervals, float) / h
     identity = path.identity
     n_rows = torques.shape[0]
     pos, neg = friction.static_positive, friction.static_negative
@@ -419,7 +425,7 @@ def integrate(
             command = commands[which]
             tau1, tau2 = command  # the identity path's torque (others: over what remains)
             substeps += 1
-            remaining = dt_seg
+            remaining = dt_seg if stretch is None else dt_seg * float(stretch[k])
             for _event in range(MAX_EVENTS_PER_SUBSTEP):
                 if not identity:
                     (tau1, tau2), path_end = path.applied(command, remaining)
@@ -463,7 +469,9 @@ def integrate(
                 if remaining <= 1e-15 * dt_seg:
                     break
     return OpenLoopResult(
-        t=np.arange(n_rows) * h,
+        t=np.arange(n_rows) * h
+        if intervals is None
+        else np.concatenate([[0.0], np.cumsum(np.asarray(intervals, float))]),
         q=np.array(q_out, dtype=float),
         dq=np.array(dq_out, dtype=float),
         stuck=np.array(stuck_out, dtype=bool),

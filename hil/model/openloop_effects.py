@@ -281,6 +281,7 @@ def integrate_with_extras(
     pos: Pair,
     neg: Pair,
     extras: OpenLoopExtras,
+    intervals: np.ndarray | None = None,
 ) -> OpenLoopResult:
     """:func:`hil.model.openloop_core.integrate` with ``extras`` (angle offset excluded) and the
     Coulomb levels ``pos``, ``neg`` by direction. ``start`` is the true state; the returned q are
@@ -293,4 +294,4 @@ def integrate_with_extras(
             pos, neg, ratio, extras.stribeck_velocity_rad_s, extras.stribeck_exponent
         )
     path = EffectsTorquePath(extras)
-    return integrate(theta, torques, h, n_sub, start, friction, path, _cogging(extras))
+    return integrate(theta, torques, h, n_sub, start, friction, path, _cogging(extras), intervals)

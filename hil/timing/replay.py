@@ -22,16 +22,23 @@ Where the times come from (:func:`trace_from_run`):
 
 from __future__ import annotations
 
-import csv
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from drivers.recording import Recording, read_signals, write_json_atomic
-from hil.bench.run import ROBOT_EVENTS, UsageError
+from drivers.realtime_times import (
+    COMPUTE_S,
+    DEFAULT_COMPUTE_S,
+    ROBOT_EVENTS,
+    host_stamp_trace,
+    robot_event_trace,
+)
+from drivers.recording import Recording, RecordingError, read_signals, write_json_atomic
+from hil.bench.run import UsageError
 from profiles.bench import load_bench
 from profiles.drive import load_drive
 from profiles.loader import load_toml
@@ -41,12 +48,6 @@ from profiles.timing_faults import TimingTrace, to_toml, write_trace
 TRACE_FILE = "timing-trace.csv"
 STEPS_FILE = "timing-steps.csv"
 REPLAY_JSON = "replay.json"
-# Host time from a cycle's feedback to its command taking effect on the robot, used when only
-# the host's stamps are known: the median of (robot sample→command) − (host SYNC→feedback),
-# measured from robot-events.csv over virtual-slcan on the 2-core machine, per kind of run
-# (`hil control` also computes the control law and writes control.csv before it sends).
-COMPUTE_S = {"hil run": 2.1e-4, "hil control": 4.4e-4}
-DEFAULT_COMPUTE_S = 2.1e-4
 
 
 @dataclass
@@ -57,54 +58,11 @@ class TraceSource:
     notes: list[str]
 
 
-def _robot_events(path: Path, rows: int) -> TimingTrace:
-    """The trace of a run from the robot's event log (virtual_robot EventLog), on the robot's
-    clock: sample times, the first and the last command write of each cycle, and every other
-    time it integrated its plant to (period ticks, frames)."""
-    samples: dict[int, float] = {}
-    first: dict[int, float] = {}
-    last: dict[int, float] = {}
-    steps: list[float] = []
-    with open(path, newline="") as f:
-        reader = csv.reader(f)
-        if next(reader, None) != ["event", "n", "t"]:
-            raise UsageError(f"{path}: not a robot event log (header event,n,t)")
-        for row in reader:
-            if len(row) != 3:
-                continue  # a torn last line
-            event, n, t = row[0], int(row[1]), float(row[2])
-            if event == "advance":
-                steps.append(t)
-            elif event == "sample":
-                samples.setdefault(n, t)
-            elif event == "command" and n > 0:
-                # the command of cycle k arrives after sample k (n = k + 1 SYNCs so far): joint
-                # 1's write first, then joint 2's, when every drive has its new torque
-                first.setdefault(n - 1, t)
-                last[n - 1] = t
-    missing = [k for k in range(rows) if k not in samples]
-    if missing:
-        raise UsageError(f"{path}: no sample event for row {missing[0]} (of {rows})")
-    sample = np.array([samples[k] for k in range(rows)])
-    command = np.array([last.get(k, samples[k]) for k in range(rows)])
-    first_command = np.array([first.get(k, samples[k]) for k in range(rows)])
-    grid = np.array(sorted(t for t in steps if t > sample[0]))
-    return TimingTrace(sample, np.maximum.accumulate(command), first_command, grid)
-
-
-def _host_stamps(rec: Recording, compute_s: float) -> TimingTrace:
-    cols = rec.columns
-    for name in ("sync_sent_s", "feedback_s"):
-        if name not in cols:
-            raise UsageError(
-                f"{rec.path}: no {name} column: not a realtime recording (nothing to replay)"
-            )
-    sent, received = cols["sync_sent_s"], cols["feedback_s"]
-    if not (np.all(np.isfinite(sent)) and np.all(np.isfinite(received))):
-        raise UsageError(f"{rec.path}: a sync_sent_s or feedback_s value is missing")
-    sample = sent - sent[0]
-    command = np.maximum(received - sent[0] + compute_s, sample)
-    return TimingTrace(sample, np.maximum.accumulate(command))
+def _usage(read: Callable[..., TimingTrace], *args: Any) -> TimingTrace:
+    try:
+        return read(*args)
+    except RecordingError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def trace_from_run(
@@ -123,11 +81,11 @@ def trace_from_run(
             raise UsageError(f"{events}: no robot event log (a realtime run over a CAN bench)")
         if rec.meta.get("protocol") == "serial":
             raise UsageError(f"{events}: serial runs sample per request; use --trace-source host")
-        trace = _robot_events(events, len(rec))
+        trace = _usage(robot_event_trace, events, len(rec))
         return rec, TraceSource(trace, "robot events", str(events), notes)
     if compute_s is None:
         compute_s = COMPUTE_S.get(rec.meta.get("kind", ""), DEFAULT_COMPUTE_S)
-    trace = _host_stamps(rec, compute_s)
+    trace = _usage(host_stamp_trace, rec, compute_s)
     notes.append(
         f"times from the host's stamps; command = feedback + {compute_s * 1e6:.0f} µs (assumed)"
     )

@@ -1,0 +1,159 @@
+"""When a realtime run's samples were taken and its commands took effect, and the run on them.
+
+A realtime run's ``t`` column is the deadline grid k·h, not when anything happened: the plant
+moves in wall-clock time, sample k is taken when the SYNC reaches the robot (s_k) and the command
+computed from it acts from when it arrives (a_k), so an interval is anything from 0.3 ms (the
+catch-up burst after a stall) to the stall itself, and the torque of row k acts over
+[a_k, a_{k+1}), not [t_k, t_{k+1}). Read on k·h, a 400 Hz run with stalls diagnosed as a
+−38 % torque gain, a 30 ms lag and cogging (issue 12). Where the times come from:
+
+* ``robot-events.csv`` (every realtime run of the virtual robot over a CAN bench): the robot's
+  own clock, when it sampled and when each drive's command took effect
+  (:func:`robot_event_trace`);
+* otherwise the host's stamps in ``signals.csv`` (``sync_sent_s``, ``feedback_s``):
+  s_k = sync_sent_k and a_k = feedback_k + the host's compute time (:func:`host_stamp_trace`).
+  On the virtual bench these miss the robot's wake-up by 0.14 ms (90th percentile) to 0.6 ms
+  (99th), too much for a diagnosis; on drives that sample on SYNC reception they are close.
+
+:func:`on_real_times` rewrites a recording onto those times: t_k = s_k − s_0, and each
+interval's torque is the mean of what acted in it, τ̄_k = (1/(s_{k+1} − s_k))∫_{s_k}^{s_{k+1}} τ_a,
+with τ_a the command of row i from a_i on (per drive: joint 1's write lands first). The momentum
+balance over an interval needs only that integral (docs/diagnosis.md, eq. (24) over intervals),
+so the rows are exact for any loop order, and the ±1-row loop delay question does not arise.
+
+Pure computation plus reading the event log; imports profiles and drivers.recording only.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from drivers.recording import Recording, RecordingError, reassemble
+from profiles.timing_faults import TimingTrace
+
+ROBOT_EVENTS = "robot-events.csv"  # realtime: the virtual robot's own sample and command times
+# Host time from a cycle's feedback to its command taking effect on the robot, used when only
+# the host's stamps are known: the median of (robot sample→command) − (host SYNC→feedback),
+# measured from robot-events.csv over virtual-slcan on the 2-core machine, per kind of run
+# (`hil control` also computes the control law and writes control.csv before it sends).
+COMPUTE_S = {"hil run": 2.1e-4, "hil control": 4.4e-4}
+DEFAULT_COMPUTE_S = 2.1e-4
+
+
+def robot_event_trace(path: Path, rows: int) -> TimingTrace:
+    """The trace of a run from the robot's event log (virtual_robot EventLog), on the robot's
+    clock: sample times, the first and the last command write of each cycle, and every other
+    time it integrated its plant to (period ticks, frames)."""
+    samples: dict[int, float] = {}
+    first: dict[int, float] = {}
+    last: dict[int, float] = {}
+    steps: list[float] = []
+    with open(path, newline="") as f:
+        reader = csv.reader(f)
+        if next(reader, None) != ["event", "n", "t"]:
+            raise RecordingError(f"{path}: not a robot event log (header event,n,t)")
+        for line, row in enumerate(reader, start=2):
+            if len(row) != 3:
+                continue  # a torn last line
+            try:
+                event, n, t = row[0], int(row[1]), float(row[2])
+            except ValueError:
+                raise RecordingError(f"{path}:{line}: not an event,n,t row: {row}") from None
+            if event == "advance":
+                steps.append(t)
+            elif event == "sample":
+                samples.setdefault(n, t)
+            elif event == "command" and n > 0:
+                # the command of cycle k arrives after sample k (n = k + 1 SYNCs so far): joint
+                # 1's write first, then joint 2's, when every drive has its new torque
+                first.setdefault(n - 1, t)
+                last[n - 1] = t
+    missing = [k for k in range(rows) if k not in samples]
+    if missing:
+        raise RecordingError(f"{path}: no sample event for row {missing[0]} (of {rows})")
+    sample = np.array([samples[k] for k in range(rows)])
+    command = np.array([last.get(k, samples[k]) for k in range(rows)])
+    first_command = np.array([first.get(k, samples[k]) for k in range(rows)])
+    grid = np.array(sorted(t for t in steps if t > sample[0]))
+    return TimingTrace(sample, np.maximum.accumulate(command), first_command, grid)
+
+
+def host_stamp_trace(rec: Recording, compute_s: float) -> TimingTrace:
+    """The trace from the host's stamps of every cycle (module docstring)."""
+    cols = rec.columns
+    for name in ("sync_sent_s", "feedback_s"):
+        if name not in cols:
+            raise RecordingError(f"{rec.path}: no {name} column: not a realtime recording")
+    sent, received = cols["sync_sent_s"], cols["feedback_s"]
+    if not (np.all(np.isfinite(sent)) and np.all(np.isfinite(received))):
+        raise RecordingError(f"{rec.path}: a sync_sent_s or feedback_s value is missing")
+    sample = sent - sent[0]
+    command = np.maximum(received - sent[0] + compute_s, sample)
+    return TimingTrace(sample, np.maximum.accumulate(command))
+
+
+def run_trace(rec: Recording) -> tuple[TimingTrace, str] | None:
+    """The trace of a realtime run directory (robot events if there, else the host's stamps)
+    and where it came from; None for a recording that is not a realtime run of this bench."""
+    if rec.meta.get("mode") != "realtime" or rec.loop_delay != 0:
+        return None
+    events = Path(rec.path) / ROBOT_EVENTS
+    if events.is_file() and rec.meta.get("protocol") != "serial":
+        return robot_event_trace(events, len(rec)), f"the robot's clock ({ROBOT_EVENTS})"
+    if {"sync_sent_s", "feedback_s"} <= set(rec.columns):
+        compute = COMPUTE_S.get(str(rec.meta.get("kind", "")), DEFAULT_COMPUTE_S)
+        return host_stamp_trace(rec, compute), "the host's stamps (sync_sent_s, feedback_s)"
+    return None
+
+
+def interval_torque(tau: np.ndarray, sample_s: np.ndarray, command_s: np.ndarray) -> np.ndarray:
+    """Mean applied torque over each [s_k, s_{k+1}) when row i's command acts from a_i on
+    (one joint): τ̄_k = (F(s_{k+1}) − F(s_k)) / (s_{k+1} − s_k), F the integral of the
+    piecewise-constant applied torque (linear between the a_i). Before a_0 the first command is
+    taken as already acting; the last row keeps its own command (no interval follows it)."""
+    a = np.maximum.accumulate(np.asarray(command_s, float))
+    s = np.asarray(sample_s, float)
+    tau = np.asarray(tau, float)
+    knots = np.concatenate([[min(a[0], s[0]) - 1.0], a, [max(a[-1], s[-1]) + 1.0]])
+    held = np.concatenate([[tau[0]], tau])  # the torque acting from each knot to the next
+    F = np.concatenate([[0.0], np.cumsum(held * np.diff(knots))])
+    at = np.interp(s, knots, F)
+    out = tau.copy()
+    out[:-1] = np.diff(at) / np.diff(s)
+    return out
+
+
+def on_real_times(rec: Recording, trace: TimingTrace, source: str) -> Recording:
+    """``rec`` on the real sample times of ``trace``, each interval's torque the mean of the
+    commands that acted in it (module docstring); the reader's checks (gaps, irregular
+    intervals) redone on the new stamps, and a note saying what was done."""
+    s = np.asarray(trace.sample_s, float)
+    first = trace.first_command_s if trace.first_command_s is not None else trace.command_s
+    switch = [np.asarray(first, float)] + [np.asarray(trace.command_s, float)] * (rec.n_joints - 1)
+    columns = dict(rec.columns)
+    columns["t"] = s - s[0]
+    for j in range(rec.n_joints):
+        columns[f"tau{j + 1}"] = interval_torque(rec.columns[f"tau{j + 1}"], s, switch[j])
+    lag = np.asarray(trace.command_s, float) - s
+    note = (
+        f"realtime run read on {source}: sample intervals "
+        f"{np.min(np.diff(s)) * 1e3:.3g} to {np.max(np.diff(s)) * 1e3:.3g} ms; each "
+        f"interval's torque is the mean of the commands acting in it (a command took effect "
+        f"{np.median(lag) * 1e3:.3g} ms after its sample, median; max {np.max(lag) * 1e3:.3g} ms)"
+    )
+    return reassemble(rec, columns, note)
+
+
+__all__ = [
+    "COMPUTE_S",
+    "DEFAULT_COMPUTE_S",
+    "ROBOT_EVENTS",
+    "host_stamp_trace",
+    "interval_torque",
+    "on_real_times",
+    "robot_event_trace",
+    "run_trace",
+]

@@ -1,0 +1,120 @@
+"""What closed loop does to each diagnosis estimate, measured (docs/diagnosis.md, "Closed loop").
+
+    python tests/benchmarks/closed_loop_bias.py [--out DIR]
+
+For each concealed effect below, a PD tracking run of the default robot (`hil control --scheme
+pd`, the shipped tracking experiment, 6 s at 400 Hz, lockstep, in-process bench) and
+`hil diagnose` of it: the truth next to what was found (or why it was not). Then the torque-gain
+regression on its own, y ≈ Ψθ + r·(−F[τ_j]), over the whole run: with θ free (what the
+selection fits) and with θ1..θ5 held at the reference (the robot profile's Table I; friction
+and r free). For the gain cases also the diagnosis with its simulation gate switched off, to show
+the selection's own estimate (`relative`) next to `relative_at_reference_theta`. A few minutes on
+a loaded machine; ``--only gain_j1,gain_j2`` runs some of the cases.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+from drivers.recording import read_signals
+from hil.diagnose import report
+from hil.diagnose.columns import gain_column, recording_rows
+from hil.diagnose.report import diagnose
+from hil.model.params import robot_params
+
+CASES = {
+    "null": ("", "nothing beyond joint 1's asymmetry"),
+    "gain_j1": ("[torque_gain_error]\nrelative = [0.05, 0.0]\n", "torque_gain j1 +5 %"),
+    "gain_j2": ("[torque_gain_error]\nrelative = [0.0, 0.05]\n", "torque_gain j2 +5 %"),
+    "offset_j2": ("[torque_offset]\noffset_Nm = [0.0, 0.3]\n", "torque_offset j2 0.3 Nm"),
+    "cogging": (
+        "[cogging]\nperiods_per_rev = [120, 96]\namplitude_Nm = [1.5, 0.12]\n"
+        "phase_rad = [0.0, 0.5]\n",
+        "cogging 1.5 Nm x 120 / 0.12 Nm x 96",
+    ),
+    "lag_j1": ("[amplifier_lag]\ntime_constant_s = [0.002, 0.0]\n", "actuator_lag j1 2 ms"),
+    "angle_j1": ("[encoder_offset]\noffset_rad = [0.01, 0.0]\n", "angle_offset j1 0.01 rad"),
+}
+
+
+def gain_fits(run: Path, reference: np.ndarray) -> list[tuple[float, float]]:
+    """Per joint: r with θ free, and r with θ1..θ5 at ``reference``."""
+    rec = read_signals(run)
+    rows = recording_rows(rec.q, rec.tau, rec.period_s)
+    sw = np.sqrt(rows.weights)
+    out = []
+    for j in (0, 1):
+        Z = np.concatenate([rows.Psi, gain_column(rows, j)], axis=2)
+        free = np.linalg.lstsq(
+            (Z * sw[:, :, None]).reshape(-1, 10), (rows.y * sw).reshape(-1), rcond=None
+        )[0]
+        target = rows.y - rows.Psi[:, :, :5] @ reference[:5]
+        fixed = np.linalg.lstsq(
+            (Z[:, :, 5:] * sw[:, :, None]).reshape(-1, 5), (target * sw).reshape(-1), rcond=None
+        )[0]
+        out.append((float(free[-1]), float(fixed[-1])))
+    return out
+
+
+def ungated_gains(run: Path, reference: np.ndarray) -> list[dict]:
+    """The torque_gain findings with the simulation gate switched off (every accepted term
+    kept): what the selection estimated before the gate judged it."""
+    keep_all = lambda prob, accepted, findings, *rest: (accepted, findings, {}, rest[-1])  # noqa: E731
+    gate = report.simulation_gate
+    report.simulation_gate = keep_all
+    try:
+        doc = diagnose([read_signals(run)], reference).document
+    finally:
+        report.simulation_gate = gate
+    return [f["estimate"] for f in doc["findings"] if f["effect"] == "torque_gain"]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default=None, help="keep the runs here (default: a temporary dir)")
+    ap.add_argument("--only", default=None, help="comma-separated case names")
+    args = ap.parse_args()
+    names = args.only.split(",") if args.only else list(CASES)
+    base = Path(args.out or tempfile.mkdtemp(prefix="closed-loop-bias-"))
+    base.mkdir(parents=True, exist_ok=True)
+    reference = robot_params("cicese").theta
+    for name in names:
+        body, truth = CASES[name]
+        cmd = [sys.executable, "-m", "hil.cli", "control", "--scheme", "pd", "--bench",
+               "virtual-inprocess", "--out", str(base / name), "--overwrite", "--no-plot",
+               "-q"]  # fmt: skip
+        if body:
+            (base / f"{name}.toml").write_text(f'name = "{name}"\n{body}')
+            cmd += ["--effects", str(base / f"{name}.toml")]
+        subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+        doc = diagnose([read_signals(base / name)], reference).document
+        found = "; ".join(
+            f"{f['effect']} j{f['joint']} "
+            + ", ".join(f"{k} {v}" for k, v in f["estimate"].items() if k != "symmetric_model_Nm")
+            for f in doc["findings"]
+            if f["effect"] not in ("torque_offset",) or f["joint"] != 1
+        )
+        print(f"{name:10s} truth: {truth}")
+        print(f"{'':10s} found: {found or 'nothing'}")
+        for key, why in doc["not_findings"].items():
+            print(f"{'':10s} not a finding: {key}: {why}")
+        if name.startswith("gain"):
+            print(f"{'':10s} without the simulation gate: {ungated_gains(base / name, reference)}")
+        fits = gain_fits(base / name, reference)
+        print(
+            f"{'':10s} gain regression r (θ free / θ1..θ5 at the reference): "
+            + "; ".join(f"j{j + 1} {a:+.4f} / {b:+.4f}" for j, (a, b) in enumerate(fits))
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
