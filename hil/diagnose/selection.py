@@ -188,7 +188,7 @@ def candidates(
                 "angle", j, (None,), lambda r, _v, j=j, th=theta: angle_offset_column(r, j, th)
             ),
         ]
-    return out
+    return out + model_term_candidates(ArmModel(()) if model is None else model)
 
 
 def term_width(cand: Candidate) -> int:
