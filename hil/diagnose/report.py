@@ -542,7 +542,7 @@ def before_after(
     extras = _extras(_training_findings(accepted, beta, findings))
     # the model the refit describes: the nominal one with the accepted model terms in θ
     # (friction_se: the nominal fit's standard errors, for θ's first columns)
-    model1, index1 = model_columns(prob, [a.cand for a in accepted])
+    model1, index1 = model_columns(prob.model, [a.cand for a in accepted])
     clipped1, reasons1 = physical_theta(beta[index1], friction_se, model1)
     theta1 = beta[index1] if reasons1 else clipped1
     model0 = prob.model

@@ -561,11 +561,11 @@ def physical_theta(
     return th, list(model.physical_consistency(th)["violations"])
 
 
-def model_columns(prob: Problem, cands: Sequence[Candidate]) -> tuple[ArmModel, np.ndarray]:
-    """The model a fit with the terms ``cands`` (in design order, after Ψ) describes: the
-    nominal model with the accepted model terms appended, and which coefficients of the fit's
-    β are its θ."""
-    p = prob.n_params
+def model_columns(model: ArmModel, cands: Sequence[Candidate]) -> tuple[ArmModel, np.ndarray]:
+    """The model a fit of the nominal ``model`` with the terms ``cands`` (in design order,
+    after Ψ) describes: ``model`` with the model terms among ``cands`` appended, and which
+    coefficients of the fit's β are its θ."""
+    p = model.n_params
     index, terms, at = list(range(p)), [], p
     for c in cands:
         width = term_width(c)
@@ -573,30 +573,23 @@ def model_columns(prob: Problem, cands: Sequence[Candidate]) -> tuple[ArmModel, 
             terms.append(c.kind)
             index += range(at, at + width)
         at += width
-    return prob.model.with_terms(tuple(terms)), np.array(index)
-
-
-def fit_model_theta(
-    prob: Problem, cands: Sequence[Candidate], beta: np.ndarray, se: np.ndarray | None = None
-) -> tuple[ArmModel, np.ndarray, list[str]]:
-    """:func:`model_columns`' model, its θ out of ``beta`` made physical within ``se``
-    (:func:`physical_theta`) and what is still not physical about it."""
-    model, index = model_columns(prob, cands)
-    theta, reasons = physical_theta(
-        np.asarray(beta)[index], None if se is None else np.asarray(se)[index], model
-    )
-    return model, theta, reasons
+    return model.with_terms(tuple(terms)), np.array(index)
 
 
 def unphysical(
-    prob: Problem, terms: Sequence[Candidate], cand: Candidate | None, cv: CrossValidation
+    cand: Candidate | None,
+    cv: CrossValidation,
+    model: ArmModel | None = None,
+    terms: Sequence[Candidate] = (),
 ) -> list[str]:
-    """Why a fit of the nominal model + ``terms`` (+ ``cand``) is not physical (empty when it
-    is): M(q) not positive definite or negative friction in θ beyond its uncertainty
-    (:func:`physical_theta`, with the model terms among them), or a gain that removes most of
-    the torque."""
+    """Why a fit of the nominal ``model`` (default the 9-parameter one) + the columns of
+    ``terms`` (+ ``cand``) is not physical (empty when it is): M(q) not positive definite or
+    negative friction in θ beyond its uncertainty (:func:`physical_theta`, with the model terms
+    among ``terms`` and ``cand`` in θ), or a gain that removes most of the torque."""
     cands = [*terms, cand] if cand is not None else list(terms)
-    reasons = fit_model_theta(prob, cands, cv.beta, jackknife_se(cv.fold_beta))[2]
+    full, index = model_columns(ArmModel(()) if model is None else model, cands)
+    se = jackknife_se(cv.fold_beta)
+    reasons = physical_theta(cv.beta[index], se[index], full)[1]
     if cand is not None and cand.kind == "gain":
         r = float(cv.beta[-1])
         if r <= MIN_GAIN:
@@ -790,7 +783,7 @@ def select(
         ]
         # never the basis of a finding: a refit that is not physical (said in the report)
         for s in list(passing):
-            reasons = unphysical(prob, [a.cand for a in accepted], s[0], s[1])
+            reasons = unphysical(s[0], s[1], prob.model, [a.cand for a in accepted])
             if reasons:
                 passing.remove(s)
                 if rejected is not None and s[0].key not in rejected:
@@ -882,8 +875,7 @@ def physical_gate(
     accepted = list(accepted)
     while accepted:
         fit = final_fit(prob, accepted)
-        cands = [a.cand for a in accepted]
-        reasons = unphysical(prob, cands, None, fit.cv)
+        reasons = unphysical(None, fit.cv, prob.model, [a.cand for a in accepted])
         for a, coef in zip(accepted, fit.coefficients, strict=True):
             if a.cand.kind == "gain" and float(coef[0]) <= MIN_GAIN:
                 reasons.append(
