@@ -1,9 +1,9 @@
-"""Regression columns of the physics a 9-parameter model leaves out (the diagnosis vocabulary).
+"""Regression columns of the physics a nominal model leaves out (the diagnosis vocabulary).
 
-The nominal model is the momentum balance of Reyes & Kelly (1997) eq. (24) written over sample
-intervals as the ``exact`` regressions of :mod:`hil.model.regressors` do: y(k) = F[τ](k) ≈ Ψ(k) θ,
-one
-row per joint, F a moving average over a short window (:func:`recording_rows`). Every candidate
+The nominal model (an :class:`hil.model.closed_form.ArmModel`, default the 9-parameter one) is
+the momentum balance of Reyes & Kelly (1997) eq. (24) written over sample intervals as the
+``exact`` regressions of :mod:`hil.model.regressors` do: y(k) = F[τ](k) ≈ Ψ(k) θ, one row per
+joint, F a moving average over a short window (:func:`recording_rows`). Every candidate
 below adds columns X so that y ≈ Ψ θ + X β with β its physical parameters, built over the same
 intervals and through the same filter as Ψ, so the extended regression is as consistent as the
 nominal one. Equations (τ the
@@ -18,6 +18,9 @@ commanded torque, τ_a the torque applied to the shaft, q the encoder reading, q
 ``actuator_lag``       T τ̇_a + τ_a = τ (first-order lag)   X ≈ F[τ̇], F[τ̈] (two probe lags)
 ``transport_delay``    τ_a(t) = τ(t − d)                    the same columns (decided later)
 ``angle_offset``       q = q_true + δ                       X = −∂(Ψθ)/∂q_j,        β = δ [rad]
+``rotor_inertia``      M22 = θ3 + θ_rotor                   X = the column ArmModel appends
+``com_offset``         centres of mass off the link axes    X = the 3 columns ArmModel appends
+                       (model terms, hil.model.closed_form: :func:`model_term_columns`)
 
 Lag and delay share their first-order column; :func:`lagged_torque_rows` and
 :func:`delayed_torque_rows` give the exact shaft torques that tell them apart. Pure functions.

@@ -1,13 +1,15 @@
-"""Mismatch diagnosis: find the physics the 9-parameter model of Reyes & Kelly (1997) left out.
+"""Mismatch diagnosis: find the physics the nominal model (the 9-parameter model of Reyes & Kelly
+(1997), or ``ArmModel(profile.terms)``) left out.
 
 The nominal model is the ``exact`` filtered dynamic regression (eq. (24) over sample intervals,
-:mod:`hil.model.regressors`). Every candidate of the vocabulary (:mod:`hil.diagnose.columns`) adds
-columns to it; a candidate is accepted when it lowers the held-out error of its joint block after
-block (:mod:`hil.diagnose.stats`), greedily, strongest first, each later candidate tested on top
-of those already accepted. Two candidates that each explain the same residual and neither adds
-anything on top of the other are *confounded*: both are reported, with the experiment that
-would separate them. Pure computation over arrays; reading files, plots and the CLI live in
-:mod:`hil.diagnose.cli`.
+:mod:`hil.model.regressors`) of an :class:`hil.model.closed_form.ArmModel`; the model terms it
+lacks (rotor inertia, centre-of-mass offset) are candidates like the effects. Every candidate
+of the vocabulary (:mod:`hil.diagnose.columns`) adds columns to it; a candidate is accepted when
+it lowers the held-out error of its joint block after block (:mod:`hil.diagnose.stats`),
+greedily, strongest first, each later candidate tested on top of those already accepted. Two
+candidates that each explain the same residual and neither adds anything on top of the other are
+*confounded*: both are reported, with the experiment that would separate them. Pure computation
+over arrays; reading files, plots and the CLI live in :mod:`hil.diagnose.cli`.
 """
 
 from __future__ import annotations
