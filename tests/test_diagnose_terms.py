@@ -146,3 +146,22 @@ def test_shipped_dfki_profile_diagnoses_with_its_rotor_term(capsys):
     assert "rotor_inertia" not in doc["candidates_tested"]
     assert not any(f["effect"] == "rotor_inertia" for f in doc["findings"])
     assert "10-parameter (rotor_inertia)" in doc["summary"] or doc["findings"]
+
+
+def test_params_with_model_terms_set_the_nominal_model(torque_source, tmp_path, capsys):
+    """`hil diagnose --params FILE` with `model_terms` (as `hil identify` writes them): the
+    nominal model is the file's, so the rotor term it has is no finding."""
+    path = _with_term(torque_source, "rotor_inertia", tmp_path)
+    params = tmp_path / "params.json"
+    theta = np.r_[THETA, TERMS_TRUTH["rotor_inertia"]].tolist()
+    params.write_text(json.dumps({"model_terms": ["rotor_inertia"], "theta": theta}))
+    argv = ["diagnose", str(path), "--params", str(params), "--json", "--no-plots"]
+    assert hil_main(argv) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["nominal_model"]["terms"] == ["rotor_inertia"]
+    assert doc["findings"] == [], doc["summary"]
+    assert "rotor_inertia" not in doc["candidates_tested"]
+    # a θ that does not fit the model is a one-line error
+    params.write_text(json.dumps({"model_terms": ["rotor_inertia"], "theta": theta[:9]}))
+    assert hil_main(argv) != 0
+    assert "theta" in capsys.readouterr().err
