@@ -23,14 +23,11 @@ import sys
 import tempfile
 from pathlib import Path
 
-RECORDS = Path("/work/shared/realdata/dfki-double-pendulum/records")
+from diagnose_real_data import RECORDS, _pct  # this directory: run as a script
+
 RIGID = Path(__file__).resolve().parents[1] / "data" / "dfki"
 DESIGNS = {"A.0": ("design_A.0__20220815__sys_id__trajectory_0", "a0"),
            "C.0": ("design_C.0__20220914__sys_id__trajectory_0", "c0")}  # fmt: skip
-
-
-def _pct(x: float | None) -> str:
-    return "–" if x is None else f"{100 * x:.1f}"
 
 
 def _evidence(doc: dict, key: str) -> str:
