@@ -348,6 +348,8 @@ def _extras(findings: Sequence[Finding]) -> OpenLoopExtras:
     str_r, str_v = [1.0, 1.0], [1.0, 1.0]
     delay, has_stribeck = 0.0, False
     for f in findings:
+        if f.term in TERMS and f.effect != f.term:
+            continue  # the rival of an accepted model term: the term is in θ already
         j, e = (f.joint or 1) - 1, f.estimate
         if f.effect == "torque_offset":
             off[j] = e["offset_Nm"]
@@ -657,6 +659,15 @@ SEPARATE = {
     frozenset(("actuator_lag", "transport_delay")): (
         "a torque step or a chirp with content above 1/(2π T) (tens of Hz) would separate them: "
         "a lag rounds a step, a delay shifts it"
+    ),
+    frozenset(("angle_offset", "com_offset")): (
+        "an encoder zero offset moves the gravity torque as a centre of mass across the link "
+        "does (θ4 sin(q1 + δ) = θ4 cos δ sin q1 + θ4 sin δ cos q1); a known zero (the arm "
+        "hanging at rest, each link levelled) separates them"
+    ),
+    frozenset(("torque_offset", "com_offset")): (
+        "on a joint that stays near one angle a centre of mass across the link gives a nearly "
+        "constant torque, as an offset does; a wider sweep of that joint separates them"
     ),
     frozenset(("torque_gain",)): (  # a gain on joint 1 or the inverse one on joint 2
         "the data fix only the ratio of the two joints' gains; a known load (a calibrated mass) "

@@ -794,7 +794,7 @@ def select(
             passing = _passing_pair(prob, extra, base, scored, len(library))
             if not passing:
                 break
-        cand, cv, ev = max(passing, key=lambda s: s[2].drop)
+        cand, cv, ev = _prefer_effect(max(passing, key=lambda s: s[2].drop), passing, len(library))
         chosen_cols = prob.column(cand, cv.variant)
         acc = Accepted(cand, cand.variants[cv.variant], ev)
         accepted.append(acc)
@@ -806,9 +806,37 @@ def select(
         extra = [prob.chosen(a) for a in accepted]
         if log:
             log(f"accepted {cand.key} variant {acc.variant} confounded {acc.confounded_with}")
+    # Terms are judged redundant only against a physical model: a gain accepted while its refit
+    # was physical can drift to removing most of the torque once a lag joins, and would then
+    # "explain" the terms accepted before it (on DFKI A.0 trajectories 03 → 04 it eliminated
+    # the rotor inertia and was itself dropped as not physical afterwards).
+    accepted = physical_gate(prob, accepted, {} if rejected is None else rejected)
     accepted = _eliminate(prob, accepted, len(library), log)
     _confounding(prob, accepted, [c for c in library if c.key in first_round], len(library), log)
     return accepted, first_round
+
+
+def _prefer_effect(
+    best: tuple[Candidate, CrossValidation, Evidence],
+    passing: Sequence[tuple[Candidate, CrossValidation, Evidence]],
+    tests: int,
+) -> tuple[Candidate, CrossValidation, Evidence]:
+    """A model term (several parameters, hil.model.closed_form) is taken before a passing
+    effect of the vocabulary only when it explains the data clearly better (the test, the term
+    against the effect): an encoder zero offset on joint 1 is exactly a centre-of-mass offset
+    with θ2⊥ = 0, and the narrower explanation goes in first (the other is then reported as
+    confounded with it, :func:`_confounding`)."""
+    if best[0].kind not in TERMS:
+        return best
+    rivals = [
+        s
+        for s in passing
+        if s[0].kind not in TERMS
+        and not _passes(
+            evidence(s[1], best[1], sorted(set(_joints(s[0])) | set(_joints(best[0])))), tests
+        )
+    ]
+    return max(rivals, key=lambda s: s[2].drop) if rivals else best
 
 
 # An angle offset's column is −∂(Ψθ)/∂q_j at a θ; relinearised this many times about the refit.
