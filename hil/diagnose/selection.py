@@ -741,6 +741,12 @@ def _confounding(
                 log(f"{a.cand.key} confounded with {alt.key}")
 
 
+# Forward selections at most: a term the physical gate removes after the forward pass (a gain
+# that drifted to removing most of the torque) may have kept others out on its way in, so the
+# selection is redone without it.
+RESELECT = 3
+
+
 def select(
     prob: Problem,
     library: Sequence[Candidate],
@@ -751,12 +757,50 @@ def select(
     """Greedy forward selection with blocked cross-validation (module doc). ``reference``: θ
     that a torque gain error must be supported by (:data:`GAIN_SUPPORT_RATIO`). ``rejected``
     collects candidates that passed the test but whose refit is not physical, with the reason."""
+    first_round: dict[str, Evidence] = {}
+    rejected = {} if rejected is None else rejected
+    # one-variant candidates first, so that their columns exist when a grid is first summed
+    prob.anticipated = [(c.key, 0) for c in library if len(c.variants) == 1]
+    excluded: set[str] = set()
+    for _attempt in range(RESELECT):
+        if excluded:
+            _rewhiten(prob, [])  # the noise scale of the nominal model, as at the start
+            if log:
+                log(f"reselecting without {sorted(excluded)} (not physical)")
+        pool = [c for c in library if c.key not in excluded]
+        accepted = _forward(prob, pool, library, log, reference, rejected, first_round)
+        # Terms are judged redundant only against a physical model: a gain accepted while its
+        # refit was physical can drift to removing most of the torque once a lag joins, and
+        # would then "explain" the terms accepted before it (on DFKI A.0 trajectories 03 → 04
+        # it eliminated the rotor inertia and was itself dropped as not physical afterwards).
+        kept = physical_gate(prob, accepted, rejected)
+        gone = {a.cand.key for a in accepted} - {a.cand.key for a in kept}
+        accepted = kept
+        if not gone:
+            break
+        excluded |= gone
+    accepted = _eliminate(prob, accepted, len(library), log)
+    for a in accepted:  # refused on top of a term that is gone, accepted without it
+        rejected.pop(a.cand.key, None)
+    _confounding(prob, accepted, [c for c in library if c.key in first_round], len(library), log)
+    return accepted, first_round
+
+
+def _forward(
+    prob: Problem,
+    pool: Sequence[Candidate],
+    library: Sequence[Candidate],
+    log: Callable[[str], None] | None,
+    reference: np.ndarray | None,
+    rejected: dict[str, str],
+    first_round: dict[str, Evidence],
+) -> list[Accepted]:
+    """The forward rounds of :func:`select` over the candidates ``pool`` (the family of tests
+    is the whole ``library``); fills ``first_round`` with each candidate's first evidence."""
     accepted: list[Accepted] = []
     extra: list[np.ndarray] = []
-    first_round: dict[str, Evidence] = {}
-    # one-variant candidates first, so that their columns exist when a grid is first summed
-    remaining = sorted(library, key=lambda c: len(c.variants) > 1)
-    prob.anticipated = [(c.key, 0) for c in library if len(c.variants) == 1]
+    tests = len(library)
+    remaining = sorted(pool, key=lambda c: len(c.variants) > 1)
     for _round in range(MAX_ROUNDS):
         base = _cv(prob, extra)
         scored = []
@@ -775,7 +819,7 @@ def select(
         passing = [
             s
             for s in scored
-            if _passes(s[2], len(library))
+            if _passes(s[2], tests)
             and _large_enough(s[0], s[1])
             and not _harms_other_joint(base, s[1], s[0])
             and (
@@ -788,13 +832,13 @@ def select(
             reasons = unphysical(s[0], s[1], prob.model, [a.cand for a in accepted])
             if reasons:
                 passing.remove(s)
-                if rejected is not None and s[0].key not in rejected:
+                if s[0].key not in rejected:
                     rejected[s[0].key] = "its refit is not physical: " + "; ".join(reasons)
         if not passing:
-            passing = _passing_pair(prob, extra, base, scored, len(library))
+            passing = _passing_pair(prob, extra, base, scored, tests)
             if not passing:
                 break
-        cand, cv, ev = _prefer_effect(max(passing, key=lambda s: s[2].drop), passing, len(library))
+        cand, cv, ev = _prefer_effect(max(passing, key=lambda s: s[2].drop), passing, tests)
         chosen_cols = prob.column(cand, cv.variant)
         acc = Accepted(cand, cand.variants[cv.variant], ev)
         accepted.append(acc)
@@ -806,14 +850,7 @@ def select(
         extra = [prob.chosen(a) for a in accepted]
         if log:
             log(f"accepted {cand.key} variant {acc.variant} confounded {acc.confounded_with}")
-    # Terms are judged redundant only against a physical model: a gain accepted while its refit
-    # was physical can drift to removing most of the torque once a lag joins, and would then
-    # "explain" the terms accepted before it (on DFKI A.0 trajectories 03 → 04 it eliminated
-    # the rotor inertia and was itself dropped as not physical afterwards).
-    accepted = physical_gate(prob, accepted, {} if rejected is None else rejected)
-    accepted = _eliminate(prob, accepted, len(library), log)
-    _confounding(prob, accepted, [c for c in library if c.key in first_round], len(library), log)
-    return accepted, first_round
+    return accepted
 
 
 def _prefer_effect(
