@@ -779,6 +779,8 @@ def select(
         if not gone:
             break
         excluded |= gone
+    if excluded:  # the noise scale of the model kept, not of one with the terms gone
+        _rewhiten(prob, accepted)
     accepted = _eliminate(prob, accepted, len(library), log)
     for a in accepted:  # refused on top of a term that is gone, accepted without it
         rejected.pop(a.cand.key, None)
