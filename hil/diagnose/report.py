@@ -121,6 +121,8 @@ def _estimate(cand: Candidate, variant: Any, coef: np.ndarray, theta: np.ndarray
         return [Finding("angle_offset", j + 1, {"offset_rad": _r(float(coef[0]))}, {})]
     if cand.kind == "gain":
         return [Finding("torque_gain", j + 1, {"relative": _r(float(coef[0]))}, {})]
+    if cand.kind == "rate":  # only as a rival here: its first order, lag and delay undecided
+        return [Finding("actuator_lag", j + 1, {"time_constant_s": _r(float(np.sum(coef)))}, {})]
     if cand.kind == "rotor_inertia":
         # hil.model.closed_form: M22 − M12's constant part beyond θ3 (gr² Ir ∓ gr Ir)
         rot = float(coef[0])
@@ -669,6 +671,11 @@ SEPARATE = {
         "on a joint that stays near one angle a centre of mass across the link gives a nearly "
         "constant torque, as an offset does; a wider sweep of that joint separates them"
     ),
+    frozenset(("rotor_inertia", "actuator_lag")): (
+        "a lag of the torque and a rotor inertia both add a torque that follows the motion's "
+        "rate of change, and in closed loop the commanded torque's rate follows the "
+        "acceleration; an open-loop torque step or chirp separates them"
+    ),
     frozenset(("torque_gain",)): (  # a gain on joint 1 or the inverse one on joint 2
         "the data fix only the ratio of the two joints' gains; a known load (a calibrated mass) "
         "on one joint would fix the scale"
@@ -678,10 +685,12 @@ SEPARATE = {
 
 def _linked(f: Finding, g: Finding) -> bool:
     """g is an alternative to f: confounded, on the same joint, or across joints when one of
-    them is on both (a delay) or both are torque gains (only their ratio is known)."""
+    them is on both (a delay), both are torque gains (only their ratio is known) or one is a
+    model term (a term of the whole arm's model, whatever joint its finding names)."""
     if g is f or g.effect not in f.confounded_with:
         return False
     across = f.joint is None or g.joint is None or f.effect == g.effect == "torque_gain"
+    across = across or f.effect in TERMS or g.effect in TERMS
     return f.joint == g.joint or across
 
 

@@ -733,6 +733,9 @@ def _confounding(
                 continue
             if not _large_enough(alt, with_alt):
                 continue
+            if unphysical(alt, with_alt, prob.model, [b.cand for b in others]):
+                continue  # no finding stands on a refit that is not physical
+                continue
             if _passes(evidence(with_alt, with_own, joints), tests):
                 continue  # the accepted term is clearly better
             a.confounded_with.append(alt.key)
