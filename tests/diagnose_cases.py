@@ -43,6 +43,7 @@ import numpy as np
 
 from drivers.recording import META, write_json_atomic
 from hil.diagnose.selection import VOCABULARY as DIAGNOSIS_VOCABULARY
+from hil.model.closed_form import TERMS as MODEL_TERMS
 from profiles.effects import load_effects
 from profiles.experiment import ExperimentProfile, load_experiment
 from profiles.robot import load_robot
@@ -54,7 +55,10 @@ DEFAULT_NEGATIVE_NM = [8.049, 1.734]
 # meta.json keys that would give the concealed effects away
 CONCEALED_META_KEYS = ("effects", "effects_profile", "effects_enabled")
 
-VOCABULARY = DIAGNOSIS_VOCABULARY  # the effect names `hil diagnose` reports
+# The effect names `hil diagnose` reports that the virtual robot can conceal. The model terms
+# (rotor_inertia, com_offset: hil.model.closed_form.TERMS) are the arm's structure, not effects
+# of the world's 2-DOF plant; tests/test_diagnose_terms.py records them with the host simulator.
+VOCABULARY = tuple(e for e in DIAGNOSIS_VOCABULARY if e not in MODEL_TERMS)
 # The size that tests/benchmarks scale (0.5x-2x): the other keys are kept.
 SIZE_KEY = {
     "coulomb_asymmetry": "half_difference_Nm",  # derived: scale (negative - positive) / 2

@@ -23,13 +23,16 @@ from hil.cli_options import (
     say,
 )
 from hil.diagnose.report import diagnose, percent
+from hil.model.closed_form import ArmModel
 from hil.model.params import load_params, robot_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("recordings", nargs="+", help="run directories or CSV files (t,q1,q2,tau1,tau2)")
     p.add_argument(
-        "--robot", default="cicese", help="robot profile: the reference θ (default cicese)"
+        "--robot",
+        default="cicese",
+        help="robot profile: the reference θ and the nominal model's terms (default cicese)",
     )
     p.add_argument(
         "--params",
@@ -53,11 +56,12 @@ def main(args: argparse.Namespace) -> int:
         read_recording(args, path, command="diagnose", min_rows=2, joints=2, allow_gaps=True)
         for path in args.recordings
     ]
-    reference = robot_params(args.robot).theta
+    profile = robot_params(args.robot)
+    reference, model = profile.theta, ArmModel(profile.terms)
     nominal = None
-    if args.params:
-        nominal = load_params(args.params).theta
-        reference = nominal
+    if args.params:  # the nominal model is the one the parameters were identified in
+        params = load_params(args.params)
+        nominal, reference, model = params.theta, params.theta, ArmModel(params.terms)
     for rec in recs:
         if rec.meta.get("status") not in (None, "complete"):
             say(
@@ -65,7 +69,7 @@ def main(args: argparse.Namespace) -> int:
                 f"note: {rec.path} is a {rec.meta.get('status')} recording; "
                 f"using its {len(rec)} rows",
             )
-    result = diagnose(recs, reference, nominal_theta=nominal, progress=_progress)
+    result = diagnose(recs, reference, nominal_theta=nominal, progress=_progress, model=model)
     doc = result.document
     if args.out:
         out = Path(args.out)

@@ -1,9 +1,9 @@
-"""Regression columns of the physics a 9-parameter model leaves out (the diagnosis vocabulary).
+"""Regression columns of the physics a nominal model leaves out (the diagnosis vocabulary).
 
-The nominal model is the momentum balance of Reyes & Kelly (1997) eq. (24) written over sample
-intervals as the ``exact`` regressions of :mod:`hil.model.regressors` do: y(k) = F[τ](k) ≈ Ψ(k) θ,
-one
-row per joint, F a moving average over a short window (:func:`recording_rows`). Every candidate
+The nominal model (an :class:`hil.model.closed_form.ArmModel`, default the 9-parameter one) is
+the momentum balance of Reyes & Kelly (1997) eq. (24) written over sample intervals as the
+``exact`` regressions of :mod:`hil.model.regressors` do: y(k) = F[τ](k) ≈ Ψ(k) θ, one row per
+joint, F a moving average over a short window (:func:`recording_rows`). Every candidate
 below adds columns X so that y ≈ Ψ θ + X β with β its physical parameters, built over the same
 intervals and through the same filter as Ψ, so the extended regression is as consistent as the
 nominal one. Equations (τ the
@@ -18,6 +18,9 @@ commanded torque, τ_a the torque applied to the shaft, q the encoder reading, q
 ``actuator_lag``       T τ̇_a + τ_a = τ (first-order lag)   X ≈ F[τ̇], F[τ̈] (two probe lags)
 ``transport_delay``    τ_a(t) = τ(t − d)                    the same columns (decided later)
 ``angle_offset``       q = q_true + δ                       X = −∂(Ψθ)/∂q_j,        β = δ [rad]
+``rotor_inertia``      M22 = θ3 + θ_rotor                   X = the column ArmModel appends
+``com_offset``         centres of mass off the link axes    X = the 3 columns ArmModel appends
+                       (model terms, hil.model.closed_form: :func:`model_term_columns`)
 
 Lag and delay share their first-order column; :func:`lagged_torque_rows` and
 :func:`delayed_torque_rows` give the exact shaft torques that tell them apart. Pure functions.
@@ -31,9 +34,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
+from hil.model.closed_form import ArmModel
 from hil.model.regressors import (
     _GL_NODES,
     _GL_WEIGHTS,
+    NINE_PARAMETERS,
     _hermite,
     central_difference,
     kinematics,
@@ -184,6 +189,7 @@ class RecordingRows:
     stamps: np.ndarray | None = None  # real sample times when the rows use them (else k·h)
     half_window: int = 1  # samples either side of each velocity estimate
     noise: NoiseModel | None = None
+    model: ArmModel = NINE_PARAMETERS  # whose columns Ψ holds
 
     @property
     def rows(self) -> int:
@@ -225,11 +231,13 @@ def _momentum_rows(
     h: float,
     t: np.ndarray | None = None,
     half_window: int = 1,
+    model: ArmModel = NINE_PARAMETERS,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Unfiltered interval rows: k, τ_k (K, 2), [ΔP + ∫R dt]/h_k (K, 2, 9), interval stuck
-    (K, 2), sample velocities (N, 2). ``t``: real time stamps (each interval its own h_k).
-    Built ROW_CHUNK samples at a time, each piece with enough neighbours either side for its
-    velocities (an interval's row depends only on the samples around it), so memory is O(N·9)."""
+    """Unfiltered interval rows: k, τ_k (K, 2), [ΔP + ∫R dt]/h_k (K, 2, p) of ``model``'s p
+    parameters, interval stuck (K, 2), sample velocities (N, 2). ``t``: real time stamps (each
+    interval its own h_k). Built ROW_CHUNK samples at a time, each piece with enough neighbours
+    either side for its velocities (an interval's row depends only on the samples around it),
+    so memory is O(N·p)."""
     n = len(q)
     margin = half_window + 2
     parts = []
@@ -238,7 +246,7 @@ def _momentum_rows(
         b = min(a + ROW_CHUNK, n)
         lo, hi = max(0, a - margin), min(n, b + margin)
         piece_t = None if t is None else t[lo:hi]
-        kin = kinematics("exact", q[lo:hi], h, t=piece_t, half_window=half_window)
+        kin = kinematics("exact", q[lo:hi], h, model=model, t=piece_t, half_window=half_window)
         raw = raw_rows("filtered_dynamic", "exact", q[lo:hi], tau[lo:hi], h, kin)
         assert kin.intervals is not None
         k = kin.intervals.k + lo
@@ -255,10 +263,12 @@ def recording_rows(
     h: float,
     window: int | None = None,
     t: np.ndarray | None = None,
+    model: ArmModel = NINE_PARAMETERS,
 ) -> RecordingRows:
     """The nominal regression of one recording and its interval nodes (``window``: intervals
     of F, default from the data's noise, :func:`noise_model`). ``t``: the real sample times;
-    when they are regular and the encoder fine, the rows are those of equal intervals h."""
+    when they are regular and the encoder fine, the rows are those of equal intervals h.
+    ``model``: the nominal model whose columns Ψ holds (default the 9-parameter model)."""
     q, tau = np.asarray(q, float), np.asarray(tau, float)
     times = np.arange(len(q)) * h if t is None else np.asarray(t, float)
     noise = noise_model(q, times) if len(q) > 2 else None
@@ -268,7 +278,7 @@ def recording_rows(
         raise ValueError(f"need at least {4 * window} samples to diagnose, got {len(q)}")
     regular = noise is None or (noise.irregular_intervals == 0 and noise.half_window == 1)
     if regular:
-        k, y_raw, psi_raw, _stuck, _v = _momentum_rows(q, tau, h)
+        k, y_raw, psi_raw, _stuck, _v = _momentum_rows(q, tau, h, model=model)
         v = central_difference(q, h)
         # No encoder motion over the interval, or the velocity reverses in it: the joint may
         # stick for part of it.
@@ -278,7 +288,7 @@ def recording_rows(
     else:
         assert noise is not None
         half = noise.half_window
-        k, y_raw, psi_raw, _stuck, v = _momentum_rows(q, tau, h, times, half)
+        k, y_raw, psi_raw, _stuck, v = _momentum_rows(q, tau, h, times, half, model)
         # A coarse encoder stays on one count through a reversal: a stick only when the run
         # of unchanged counts outlasts that (hil.model.regressors.quantized_stick). A gap (a stall,
         # dropped samples) is left out like a stick: nothing is known inside it.
@@ -309,6 +319,7 @@ def recording_rows(
         stamps,
         half,
         noise,
+        model,
     )
 
 
@@ -431,9 +442,19 @@ def angle_offset_column(
     A constant shift leaves every velocity unchanged, so the rows are rebuilt exactly."""
     shift = np.zeros(2)
     shift[joint] = step_rad
-    args = (rows.h, rows.stamps, rows.half_window)
-    th = np.asarray(theta, float)
+    args = (rows.h, rows.stamps, rows.half_window, rows.model)
+    th = np.asarray(theta, float)[: rows.model.n_params]
     # Ψθ before the filter (F is linear): (K, 2), not two (K, 2, 9) filtered copies
     plus = _momentum_rows(rows.q + shift, rows.tau, *args)[2] @ th
     minus = _momentum_rows(rows.q - shift, rows.tau, *args)[2] @ th
     return -moving_average((plus - minus) / (2 * step_rad), rows.window)[:, :, None]
+
+
+def model_term_columns(rows: RecordingRows, term: str) -> np.ndarray:
+    """A model term the nominal model lacks (``rotor_inertia``, ``com_offset``,
+    :mod:`hil.model.closed_form`): its columns of Ψ, i.e. the regressor columns
+    ``ArmModel(rows.model.terms + (term,))`` appends, over the same intervals and through the
+    same filter F (the terms are linear in their parameters), (K, 2, width)."""
+    extended = rows.model.with_terms((term,))
+    psi = _momentum_rows(rows.q, rows.tau, rows.h, rows.stamps, rows.half_window, extended)[2]
+    return moving_average(psi[:, :, extended.term_columns(term)], rows.window)

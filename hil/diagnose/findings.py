@@ -230,7 +230,7 @@ def resolve_gain(
         },
     }
     # The accepted gain term is the last column of ``here`` only if it was accepted last.
-    r_here = float(here.beta[9 + sum(term_width(a.cand) for a in accepted[:i])])
+    r_here = float(here.beta[prob.n_params + sum(term_width(a.cand) for a in accepted[:i])])
     r_there = float(there.beta[-1])
     if dev_there >= GAIN_REFERENCE_RATIO * dev_here:
         gains = {j: r_here}

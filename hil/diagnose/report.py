@@ -44,6 +44,7 @@ from hil.diagnose.selection import (
     final_fit,
     fit_theta,
     jackknife_se,
+    model_columns,
     physical_gate,
     physical_theta,
     relinearise_angle,
@@ -52,6 +53,7 @@ from hil.diagnose.selection import (
     usable_speeds,
 )
 from hil.diagnose.stats import block_stats, cross_validate, evidence, extend_stats_many
+from hil.model.closed_form import TERMS, ArmModel
 from hil.model.metrics import nrmse
 from hil.model.openloop import OpenLoopExtras, simulate_open_loop
 
@@ -119,6 +121,20 @@ def _estimate(cand: Candidate, variant: Any, coef: np.ndarray, theta: np.ndarray
         return [Finding("angle_offset", j + 1, {"offset_rad": _r(float(coef[0]))}, {})]
     if cand.kind == "gain":
         return [Finding("torque_gain", j + 1, {"relative": _r(float(coef[0]))}, {})]
+    if cand.kind == "rate":  # only as a rival here: its first order, lag and delay undecided
+        return [Finding("actuator_lag", j + 1, {"time_constant_s": _r(float(np.sum(coef)))}, {})]
+    if cand.kind == "rotor_inertia":
+        # hil.model.closed_form: M22 − M12's constant part beyond θ3 (gr² Ir ∓ gr Ir)
+        rot = float(coef[0])
+        est = {"theta_rotor_kgm2": _r(rot), "share_of_M22": _r(rot / (float(theta[2]) + rot))}
+        return [Finding("rotor_inertia", 2, est, {})]
+    if cand.kind == "com_offset":
+        est = {
+            "theta2_perp_kgm2": _r(float(coef[0])),
+            "theta4_perp_Nm": _r(float(coef[1])),
+            "theta5_perp_Nm": _r(float(coef[2])),
+        }
+        return [Finding("com_offset", None, est, {})]
     raise ValueError(cand.kind)
 
 
@@ -195,7 +211,10 @@ def interpret(
                 new[0].confounded_with = [*new[0].confounded_with, f.effect]
                 findings.append(f)
             confounded.append(
-                [new[0].effect, _estimate(rival, variant, np.zeros(2), fit.theta)[0].effect]
+                [
+                    new[0].effect,
+                    _estimate(rival, variant, np.zeros(term_width(rival)), fit.theta)[0].effect,
+                ]
             )
         findings += new
     rate, shaft = classify_rate(prob, accepted, fit)
@@ -337,6 +356,8 @@ def _extras(findings: Sequence[Finding]) -> OpenLoopExtras:
     str_r, str_v = [1.0, 1.0], [1.0, 1.0]
     delay, has_stribeck = 0.0, False
     for f in findings:
+        if f.term in TERMS and f.effect != f.term:
+            continue  # the rival of an accepted model term: the term is in θ already
         j, e = (f.joint or 1) - 1, f.estimate
         if f.effect == "torque_offset":
             off[j] = e["offset_Nm"]
@@ -401,14 +422,15 @@ def _training_findings(
     held-out data enters the held-out comparison. Lag, delay and the joint of a gain error keep
     their whole-data values (a grid search and a choice, not a fit)."""
     out = list(findings)
-    at = 9
+    p = len(beta) - sum(term_width(a.cand) for a in accepted)  # the nominal model's θ
+    at = p
     for a in accepted:
         width = term_width(a.cand)
         coef = beta[at : at + width]
         at += width
-        if a.cand.kind in ("rate", "gain"):
+        if a.cand.kind in ("rate", "gain", *TERMS):  # a model term is simulated in θ itself
             continue
-        fresh = {f.effect: f for f in _estimate(a.cand, a.variant, coef, beta[:9])}
+        fresh = {f.effect: f for f in _estimate(a.cand, a.variant, coef, beta[:p])}
         out = [
             replace(f, estimate=fresh[f.effect].estimate)
             if f.effect in fresh and f.joint == a.cand.joint + 1
@@ -471,12 +493,14 @@ def _segment_simulation(
     h: float,
     segments: Sequence[tuple[int, int]],
     stamps: np.ndarray | None = None,
+    model: ArmModel | None = None,
 ) -> np.ndarray:
     """Open-loop simulation of the sample ranges ``segments`` (:func:`simulated_segments`),
     each started from the recorded position and central-difference velocity: an arm this
     underdamped diverges from any model over many seconds, so one long run would measure chaos,
     not the model. ``stamps``: the real sample times; each segment is integrated over its
-    true intervals (a realtime run's 0.3 ms catch-up steps after a stall, a real arm's jitter)."""
+    true intervals (a realtime run's 0.3 ms catch-up steps after a stall, a real arm's jitter).
+    ``model``: the :class:`ArmModel` θ is written in (default the 9-parameter one)."""
     t = np.arange(len(q)) * h if stamps is None else stamps
     out = []
     for a, b in segments:
@@ -488,7 +512,14 @@ def _segment_simulation(
         intervals = None if stamps is None else np.diff(stamps[a:b])
         out.append(
             simulate_open_loop(
-                theta, tau[a:b], h, q0=q[a], dq0=dq0, extras=ex, intervals_s=intervals
+                theta,
+                tau[a:b],
+                h,
+                q0=q[a],
+                dq0=dq0,
+                extras=ex,
+                intervals_s=intervals,
+                model=model,
             ).q
         )
     return np.concatenate(out)
@@ -530,18 +561,21 @@ def before_after(
     for name, pred in (("before", pred0), ("after", pred1)):
         torque[name] = [_nrmse_or_none(y, pred, test & (prob.w[:, j] > 0), j) for j in (0, 1)]
     extras = _extras(_training_findings(accepted, beta, findings))
-    theta1 = beta[:9]
+    # the model the refit describes: the nominal one with the accepted model terms in θ
+    # (friction_se: the nominal fit's standard errors, for θ's first columns)
+    model1, index1 = model_columns(prob.model, [a.cand for a in accepted])
+    clipped1, reasons1 = physical_theta(beta[index1], friction_se, model1)
+    theta1 = beta[index1] if reasons1 else clipped1
+    model0 = prob.model
     position: dict[str, list[float | None]] = {"before": [], "after": []}
     sims: dict[str, Any] = {}
     unphysical_fit: dict[str, list[str]] = {}
-    for name, theta in (("before", theta0), ("after", theta1)):
-        clipped, reasons = physical_theta(theta, friction_se)
+    clipped0, reasons0 = physical_theta(theta0, friction_se, model0)
+    for name, reasons in (("before", reasons0), ("after", reasons1)):
         if reasons:  # it cannot be simulated, and is never the basis of a finding
             unphysical_fit[name] = reasons
-        elif name == "before":
-            theta0 = clipped  # friction within its uncertainty of zero simulated as zero
-        else:
-            theta1 = clipped
+    if not reasons0:
+        theta0 = clipped0  # friction within its uncertainty of zero simulated as zero
     for rec_i, first, last in spans[-1:]:
         r = prob.rows[rec_i]
         segments = simulated_segments(r.h, first, last, r.stamps, len(r.q))
@@ -549,10 +583,13 @@ def before_after(
         q, h = r.q[index], r.h
         times = np.arange(len(r.q)) * h if r.stamps is None else r.stamps
         sims = {"t": times[index], "q": q}
-        for name, theta, ex in (("before", theta0, None), ("after", theta1, extras)):
+        for name, theta, ex, model in (
+            ("before", theta0, None, model0),
+            ("after", theta1, extras, model1),
+        ):
             if name in unphysical_fit or (name == "before" and not simulate_before):
                 continue
-            sims[name] = _segment_simulation(theta, ex, r.q, r.tau, h, segments, r.stamps)
+            sims[name] = _segment_simulation(theta, ex, r.q, r.tau, h, segments, r.stamps, model)
             position[name] = _finite(nrmse(q, sims[name]))
     held = (
         f"recording {len(prob.rows)}, not used for fitting"
@@ -603,6 +640,15 @@ _WORDS = {
     "angle_offset": "the encoder zero is off by {offset_rad:+.4g} rad ({deg} deg)",
     "torque_gain": "the torque gain is off by {pct} %",
     "unexplained": "a structured residual no candidate explains, carried by the {carried_by}",
+    "rotor_inertia": (
+        "a reflected rotor inertia the model lacks: M22 exceeds M12's constant part by "
+        "{theta_rotor_kgm2:.3g} kg m² beyond θ3 ({share} % of M22)"
+    ),
+    "com_offset": (
+        "the centres of mass lie off the link axes (or an encoder zero is off): "
+        "θ2⊥ = {theta2_perp_kgm2:.3g} kg m², θ4⊥ = {theta4_perp_Nm:.3g} Nm, "
+        "θ5⊥ = {theta5_perp_Nm:.3g} Nm"
+    ),
 }
 
 
@@ -618,6 +664,8 @@ def _phrase(f: Finding) -> str:
         e["deg"] = f"{math.degrees(e['offset_rad']):+.3g}"
     if "relative" in e:
         e["pct"] = f"{100 * e['relative']:+.3g}"
+    if "share_of_M22" in e:
+        e["share"] = f"{100 * e['share_of_M22']:.3g}"
     return _WORDS[f.effect].format(**e)
 
 
@@ -634,6 +682,20 @@ SEPARATE = {
     frozenset(("angle_offset", "torque_offset")): (
         "a wider sweep of the joint's angle (0.5 rad or more) would separate them: an encoder "
         "offset moves the gravity torque with the angle, a torque offset does not"
+    ),
+    frozenset(("angle_offset", "com_offset")): (
+        "an encoder zero offset moves the gravity torque as a centre of mass across the link "
+        "does (θ4 sin(q1 + δ) = θ4 cos δ sin q1 + θ4 sin δ cos q1); a known zero (the arm "
+        "hanging at rest, each link levelled) separates them"
+    ),
+    frozenset(("torque_offset", "com_offset")): (
+        "on a joint that stays near one angle a centre of mass across the link gives a nearly "
+        "constant torque, as an offset does; a wider sweep of that joint separates them"
+    ),
+    frozenset(("rotor_inertia", "actuator_lag")): (
+        "a lag of the torque and a rotor inertia both add a torque that follows the motion's "
+        "rate of change, and in closed loop the commanded torque's rate follows the "
+        "acceleration; an open-loop torque step or chirp separates them"
     ),
     frozenset(("torque_gain",)): (  # a gain on joint 1 or the inverse one on joint 2
         "the data fix only the ratio of the two joints' gains; a known load (a calibrated mass) "
@@ -654,10 +716,12 @@ def _separate(effects: frozenset[str]) -> str:
 
 def _linked(f: Finding, g: Finding) -> bool:
     """g is an alternative to f: confounded, on the same joint, or across joints when one of
-    them is on both (a delay) or both are torque gains (only their ratio is known)."""
+    them is on both (a delay), both are torque gains (only their ratio is known) or one is a
+    model term (a term of the whole arm's model, whatever joint its finding names)."""
     if g is f or g.effect not in f.confounded_with:
         return False
     across = f.joint is None or g.joint is None or f.effect == g.effect == "torque_gain"
+    across = across or f.effect in TERMS or g.effect in TERMS
     return f.joint == g.joint or across
 
 
@@ -682,7 +746,19 @@ def _who(f: Finding) -> str:
 MODEL_EXPLAINS = 0.05
 
 
-def summary_words(findings: Sequence[Finding], fit: dict[str, Any], notes: Sequence[str]) -> str:
+def model_name(model: ArmModel) -> str:
+    """How the words name the nominal model: "9-parameter", or with its terms."""
+    if not model.terms:
+        return "9-parameter"
+    return f"{model.n_params}-parameter ({' and '.join(model.terms)})"
+
+
+def summary_words(
+    findings: Sequence[Finding],
+    fit: dict[str, Any],
+    notes: Sequence[str],
+    nominal: str = "9-parameter",
+) -> str:
     if not findings and any(n.startswith("I cannot tell") for n in notes):
         lines = []  # the note says why, and that is all there is to say
     elif not findings and (
@@ -698,7 +774,7 @@ def summary_words(findings: Sequence[Finding], fit: dict[str, Any], notes: Seque
         ]
     elif not findings:
         lines = [
-            "No missing physics found: the 9-parameter model explains the recordings to within "
+            f"No missing physics found: the {nominal} model explains the recordings to within "
             "their noise."
         ]
     else:
@@ -941,6 +1017,7 @@ def _rejection_notes(rejected: dict[str, str]) -> list[str]:
         "stribeck": "stribeck",
         "rate": "actuator_lag / transport_delay",
         "angle": "angle_offset",
+        **{term: term for term in TERMS},
     }
     out = []
     for key, why in rejected.items():
@@ -974,20 +1051,34 @@ def timing_findings(recordings: Sequence[Recording]) -> list[dict[str, str]]:
     return out
 
 
+def _model_document(model: ArmModel) -> dict[str, Any]:
+    return {"terms": list(model.terms), "names": list(model.names), "units": list(model.units)}
+
+
 def diagnose(
     recordings: Sequence[Recording],
     reference_theta: np.ndarray,
     *,
     nominal_theta: np.ndarray | None = None,
     progress: Callable[[str], None] | None = None,
+    model: ArmModel | None = None,
 ) -> DiagnosisResult:
-    """Diagnose ``recordings`` against the 9-parameter model (module doc)."""
+    """Diagnose ``recordings`` against ``model`` (module doc; default the 9-parameter model,
+    else e.g. ``ArmModel(profile.terms)``: the nominal fit, its physical checks and the
+    held-out simulation are that model's, and the model terms it lacks are candidates).
+    ``nominal_theta``, when given, is in ``model``'s parameters."""
+    model = ArmModel(()) if model is None else model
+    if nominal_theta is not None and len(nominal_theta) != model.n_params:
+        raise DiagnosisError(
+            f"the nominal theta holds {len(nominal_theta)} numbers; the model "
+            f"({', '.join(model.terms) or 'no extra terms'}) has {model.n_params}"
+        )
     started = time.perf_counter()
     say = progress or (lambda _m: None)
     say(f"diagnose: {len(recordings)} recording(s), fitting the nominal model")
     for r in recordings:
         check_recording(str(r.path), r.t, r.q, r.tau)
-    prob, theta_fit = build_problem([(r.q, r.tau, r.period_s, r.t) for r in recordings])
+    prob, theta_fit = build_problem([(r.q, r.tau, r.period_s, r.t) for r in recordings], model)
     usable = (prob.w > 0).sum(axis=0)
     live = [j for j in (0, 1) if usable[j] >= MIN_USABLE_ROWS]
     if not live:
@@ -1005,14 +1096,14 @@ def diagnose(
     ranges = np.ptp(np.concatenate([r.q for r in recordings]), axis=0)
     library = [
         c
-        for c in candidates(theta_fit, ranges, usable_speeds(prob))
+        for c in candidates(theta_fit, ranges, usable_speeds(prob), model)
         # a gain error shows only as the ratio of the joints' gains (docs/diagnosis.md, 4)
         if all(j in live for j in _joints(c)) and (c.kind != "gain" or len(live) == 2)
     ]
     nominal_se = jackknife_se(
         cross_validate(block_stats(prob.Psi, prob.y, prob.w, prob.blocks)).fold_beta
     )
-    nominal_unphysical = physical_theta(theta_fit, nominal_se)[1]
+    nominal_unphysical = physical_theta(theta_fit, nominal_se, model)[1]
     rejected: dict[str, str] = {}
     if nominal_unphysical:
         # nothing built on an unphysical fit is a finding: say so and stop there
@@ -1020,7 +1111,8 @@ def diagnose(
         accepted, first, findings, confounded = [], {}, [], []
         shaft = None
         cannot = [
-            "I cannot tell what the model leaves out: the nominal 9-parameter fit of these "
+            "I cannot tell what the model leaves out: the nominal "
+            f"{model_name(model)} fit of these "
             "recordings is not physical (" + "; ".join(nominal_unphysical) + "), so no finding "
             "could stand on it. Record more varied motion of both joints, or check the torque "
             "and angle columns."
@@ -1052,7 +1144,7 @@ def diagnose(
         + burst_notes(where.document)
     )
     timing = timing_findings(recordings)
-    summary = summary_words(findings, fit, notes)
+    summary = summary_words(findings, fit, notes, model_name(model))
     if timing:
         kinds = sorted({t["kind"].replace("_", " ") for t in timing})
         summary += f" Timing, from the time stamps: {', '.join(kinds)} (see timing)."
@@ -1064,6 +1156,7 @@ def diagnose(
         "summary": summary,
         "location": where.document,
         "nominal_theta": theta_fit.tolist(),
+        **({"nominal_model": _model_document(model)} if model.terms else {}),
         "noise": [r.noise.as_dict(r.h) if r.noise else None for r in prob.rows],
         "candidates_tested": {k: ev.as_dict() for k, ev in first.items()},
         "not_findings": rejected,

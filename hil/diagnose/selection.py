@@ -1,13 +1,15 @@
-"""Mismatch diagnosis: find the physics the 9-parameter model of Reyes & Kelly (1997) left out.
+"""Mismatch diagnosis: find the physics the nominal model (the 9-parameter model of Reyes & Kelly
+(1997), or ``ArmModel(profile.terms)``) left out.
 
 The nominal model is the ``exact`` filtered dynamic regression (eq. (24) over sample intervals,
-:mod:`hil.model.regressors`). Every candidate of the vocabulary (:mod:`hil.diagnose.columns`) adds
-columns to it; a candidate is accepted when it lowers the held-out error of its joint block after
-block (:mod:`hil.diagnose.stats`), greedily, strongest first, each later candidate tested on top
-of those already accepted. Two candidates that each explain the same residual and neither adds
-anything on top of the other are *confounded*: both are reported, with the experiment that
-would separate them. Pure computation over arrays; reading files, plots and the CLI live in
-:mod:`hil.diagnose.cli`.
+:mod:`hil.model.regressors`) of an :class:`hil.model.closed_form.ArmModel`; the model terms it
+lacks (rotor inertia, centre-of-mass offset) are candidates like the effects. Every candidate
+of the vocabulary (:mod:`hil.diagnose.columns`) adds columns to it; a candidate is accepted when
+it lowers the held-out error of its joint block after block (:mod:`hil.diagnose.stats`),
+greedily, strongest first, each later candidate tested on top of those already accepted. Two
+candidates that each explain the same residual and neither adds anything on top of the other are
+*confounded*: both are reported, with the experiment that would separate them. Pure computation
+over arrays; reading files, plots and the CLI live in :mod:`hil.diagnose.cli`.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from hil.diagnose.columns import (
     cogging_column_chunks,
     cogging_columns,
     gain_column,
+    model_term_columns,
     offset_column,
     recording_rows,
     stribeck_column,
@@ -42,7 +45,7 @@ from hil.diagnose.stats import (
     extended_stats,
     joint_block_sums,
 )
-from hil.model.closed_form import physical_consistency
+from hil.model.closed_form import TERMS, ArmModel
 
 VOCABULARY = (
     "coulomb_asymmetry",
@@ -53,6 +56,7 @@ VOCABULARY = (
     "transport_delay",
     "angle_offset",
     "torque_gain",
+    *TERMS,  # rotor_inertia, com_offset: model terms the nominal model lacks (closed_form)
 )
 # Decision thresholds (docs/diagnosis.md, "Deciding"): a candidate must lower the held-out error
 # of its joint by at least MIN_REDUCTION (relative) and in more blocks than chance allows (sign
@@ -71,7 +75,12 @@ PRACTICAL_FLOOR = {
     "rate": 1e-4,  # s, > 0
     "angle": 3e-4,  # rad
 }
-POSITIVE_ONLY = ("stribeck", "rate")
+POSITIVE_ONLY = ("stribeck", "rate", "rotor_inertia")
+# The model terms (hil.model.closed_form.TERMS) are floored relative to the rigid-body
+# parameters they join, since arms differ in size by orders of magnitude: the rotor term against
+# θ3 (M22's rigid part), the centre-of-mass offset's θ2⊥ against θ2 and its gravity pair
+# (θ4⊥, θ5⊥) against (θ4, θ5) (its largest ratio counts).
+RELATIVE_FLOOR = 0.01
 # Blocks: about BLOCKS_WANTED per diagnosis, each between these lengths (long against the 20 ms
 # correlation of the filtered residual, short enough for a sign test to have power).
 BLOCKS_WANTED = 40
@@ -90,7 +99,7 @@ class Candidate:
     """One term of the vocabulary on one joint (0 or 1): ``variants`` are the values of its
     nonlinear parameter (one None when it has none); ``columns(rows, variant)`` its X."""
 
-    kind: str  # offset | gain | cogging | stribeck | rate | angle
+    kind: str  # offset | gain | cogging | stribeck | rate | angle | rotor_inertia | com_offset
     joint: int
     variants: tuple[Any, ...]
     columns: Callable[[RecordingRows, Any], np.ndarray]
@@ -100,7 +109,8 @@ class Candidate:
 
     @property
     def key(self) -> str:
-        return f"{self.kind}:{self.joint + 1}"
+        # a model term is one term of the arm's model, not one joint's (it may act on both)
+        return self.kind if self.kind in TERMS else f"{self.kind}:{self.joint + 1}"
 
 
 def cogging_periods(angle_range_rad: float) -> tuple[int, ...]:
@@ -131,13 +141,33 @@ def usable_speeds(prob: Problem) -> list[np.ndarray]:
     return [v[prob.w[:, j] > 0, j] for j in (0, 1)]
 
 
+# The joint whose rows a model term's columns reach first (its key names no joint): the rotor
+# term is M22's (joint 2 row only); the centre-of-mass offset acts on both (see _joints).
+MODEL_TERM_JOINT = {"rotor_inertia": 1, "com_offset": 0}
+
+
+def model_term_candidates(model: ArmModel) -> list[Candidate]:
+    """The model terms ``model`` lacks, as candidates: their columns are the regressor columns
+    the model with the term appends (:func:`hil.diagnose.columns.model_term_columns`)."""
+    return [
+        Candidate(
+            term, MODEL_TERM_JOINT[term], (None,), lambda r, _v, t=term: model_term_columns(r, t)
+        )
+        for term in TERMS
+        if term not in model.terms
+    ]
+
+
 def candidates(
     theta: np.ndarray,
     angle_range_rad: Sequence[float] = (np.pi, np.pi),
     speeds: Sequence[np.ndarray] | None = None,
+    model: ArmModel | None = None,
 ) -> list[Candidate]:
     """The candidate library, both joints. ``speeds``: per joint, |q̇| of the usable rows
-    (limits the Stribeck velocities tried; without it all are)."""
+    (limits the Stribeck velocities tried; without it all are). ``model``: the nominal model
+    (default the 9-parameter one); the model terms it lacks are candidates too, after the
+    others."""
     out: list[Candidate] = []
     for j in (0, 1):
         stribeck = stribeck_velocities(None if speeds is None else speeds[j])
@@ -160,11 +190,13 @@ def candidates(
                 "angle", j, (None,), lambda r, _v, j=j, th=theta: angle_offset_column(r, j, th)
             ),
         ]
-    return out
+    return out + model_term_candidates(ArmModel(()) if model is None else model)
 
 
 def term_width(cand: Candidate) -> int:
     """Number of coefficients a candidate adds."""
+    if cand.kind in TERMS:
+        return ArmModel((cand.kind,)).n_params - ArmModel(()).n_params
     return 2 if cand.kind in ("cogging", "rate") else 1
 
 
@@ -176,7 +208,7 @@ class Problem:
 
     rows: list[RecordingRows]
     y_raw: np.ndarray  # (K, 2) Nm
-    Psi_raw: np.ndarray  # (K, 2, 9)
+    Psi_raw: np.ndarray  # (K, 2, p): p = model.n_params
     w: np.ndarray  # (K, 2)
     scale: np.ndarray  # (2,) noise scale per joint [Nm]
     blocks: np.ndarray  # (K,)
@@ -184,6 +216,15 @@ class Problem:
     grids: dict[str, GridSums] = field(default_factory=dict)
     # (key, variant) of the one-variant candidates: summed against a grid when it is first built
     anticipated: list[tuple[str, int]] = field(default_factory=list)
+
+    @property
+    def model(self) -> ArmModel:
+        """The nominal model whose columns Ψ holds (every recording's rows use the same)."""
+        return self.rows[0].model
+
+    @property
+    def n_params(self) -> int:
+        return self.Psi_raw.shape[-1]
 
     @property
     def y(self) -> np.ndarray:
@@ -283,14 +324,15 @@ class Problem:
         assert ux.shape[0] == n_var
         at = 0
         if sums is None:
+            p = self.n_params
             sums = GridSums(
-                ux[:, :, :9].copy(),
+                ux[:, :, :p].copy(),
                 np.concatenate([x for _, x, _ in parts]),
                 np.concatenate([x for _, _, x in parts]),
                 ux.shape[-1],
             )
             self.grids[cand.key] = sums
-            at = 9
+            at = p
         for k in missing:
             width = self.cache[k].shape[-1]
             sums.terms[k] = ux[:, :, at : at + width].copy()
@@ -385,10 +427,15 @@ def check_recording(name: str, t: np.ndarray, q: np.ndarray, tau: np.ndarray) ->
 
 def build_problem(
     recordings: Sequence[tuple[np.ndarray, ...]],
+    model: ArmModel | None = None,
 ) -> tuple[Problem, np.ndarray]:
     """Nominal regression of (q, τ, h) or (q, τ, h, t) recordings (t: the real sample times)
-    and its 9-parameter fit θ̂."""
-    rows = [recording_rows(r[0], r[1], r[2], t=r[3] if len(r) > 3 else None) for r in recordings]
+    and its fit θ̂, in ``model``'s parameters (default the 9 of the 2-DOF model)."""
+    model = ArmModel(()) if model is None else model
+    rows = [
+        recording_rows(r[0], r[1], r[2], t=r[3] if len(r) > 3 else None, model=model)
+        for r in recordings
+    ]
     y, Psi, w = _stack(rows)
     theta = fit_theta(Psi, y, w)
     scale = robust_scale(y - Psi @ theta, w)
@@ -459,13 +506,25 @@ def _harms_other_joint(base: CrossValidation, cv: CrossValidation, cand: Candida
 
 
 def _large_enough(cand: Candidate, cv: CrossValidation) -> bool:
-    """The full-data estimate is above the practical floor and has the physical sign."""
-    coef = cv.beta[9:][-term_width(cand) :]
+    """The full-data estimate is above the practical floor and has the physical sign (the
+    candidate's coefficients are the last of ``cv.beta``, θ its first ones)."""
+    coef = cv.beta[-term_width(cand) :]
+    if cand.kind in TERMS:
+        return _relative_size(cand.kind, coef, cv.beta) >= RELATIVE_FLOOR
     # cogging: the amplitude; rate: β₁ + β₂ ≈ T; the others have one coefficient
     size = float(np.hypot(*coef)) if cand.kind == "cogging" else float(np.sum(coef))
     if cand.kind in POSITIVE_ONLY and size <= 0:
         return False
     return abs(size) >= PRACTICAL_FLOOR[cand.kind]
+
+
+def _relative_size(term: str, coef: np.ndarray, theta: np.ndarray) -> float:
+    """A model term's size against the rigid-body parameters it joins (RELATIVE_FLOOR); a
+    rotor inertia that is not positive has size 0 (no physical arm has it)."""
+    t = np.abs(np.asarray(theta, float)[:5]) + 1e-12
+    if term == "rotor_inertia":
+        return float(coef[0]) / t[2]
+    return max(abs(float(coef[0])) / t[1], float(np.hypot(coef[1], coef[2]) / np.hypot(t[3], t[4])))
 
 
 # A torque gain error below this (the shaft gets less than half the command) is not a gain
@@ -477,7 +536,6 @@ MIN_GAIN = -0.5
 # of its own (blocked jackknife) standard errors: a viscous term the recording cannot determine
 # scatters around zero, and -0.002 ± 0.004 Nm s is not a verdict on the arm.
 SE_TOLERANCE = 2.0
-FRICTION = slice(5, 9)  # θ6..θ9
 
 
 def jackknife_se(fold_beta: np.ndarray) -> np.ndarray:
@@ -486,26 +544,56 @@ def jackknife_se(fold_beta: np.ndarray) -> np.ndarray:
     return np.sqrt((n - 1) / n * np.sum((fold_beta - fold_beta.mean(0)) ** 2, axis=0))
 
 
-def physical_theta(theta: np.ndarray, se: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
-    """θ1..θ9 with friction coefficients that are negative within SE_TOLERANCE of their
-    standard errors ``se`` set to zero, and what is still not physical about it
-    (hil.model.closed_form.physical_consistency: M(q) positive definite for every q, friction ≥
-    0)."""
-    th = np.array(theta[:9], float)
+def physical_theta(
+    theta: np.ndarray, se: np.ndarray | None = None, model: ArmModel | None = None
+) -> tuple[np.ndarray, list[str]]:
+    """θ of ``model`` (default the 9-parameter one; its first parameters of ``theta``) with
+    coefficients that must be ≥ 0 (friction, a rotor inertia) but are negative within
+    SE_TOLERANCE of their standard errors ``se`` set to zero, and what is still not physical
+    about it (``model.physical_consistency``: M(q) positive definite for every q, friction and
+    rotor inertia ≥ 0)."""
+    model = ArmModel(()) if model is None else model
+    th = np.array(theta[: model.n_params], float)
     if se is not None:
-        fr = th[FRICTION]
-        fr[(fr < 0) & (fr >= -SE_TOLERANCE * np.asarray(se, float)[FRICTION])] = 0.0
-        th[FRICTION] = fr
-    return th, list(physical_consistency(th)["violations"])
+        cols = [i for i in model.nonnegative_columns if i < len(se)]
+        bound = -SE_TOLERANCE * np.asarray(se, float)[cols]
+        fr = th[cols]
+        fr[(fr < 0) & (fr >= bound)] = 0.0
+        th[cols] = fr
+    return th, list(model.physical_consistency(th)["violations"])
 
 
-def unphysical(cand: Candidate | None, cv: CrossValidation) -> list[str]:
-    """Why a fit is not physical (empty when it is): M(q) not positive definite or negative
-    friction in θ beyond its uncertainty (:func:`physical_theta`), or a gain that removes most of
-    the torque."""
-    reasons = physical_theta(cv.beta, jackknife_se(cv.fold_beta)[:9])[1]
+def model_columns(model: ArmModel, cands: Sequence[Candidate]) -> tuple[ArmModel, np.ndarray]:
+    """The model a fit of the nominal ``model`` with the terms ``cands`` (in design order,
+    after Ψ) describes: ``model`` with the model terms among ``cands`` appended, and which
+    coefficients of the fit's β are its θ."""
+    p = model.n_params
+    index, terms, at = list(range(p)), [], p
+    for c in cands:
+        width = term_width(c)
+        if c.kind in TERMS:
+            terms.append(c.kind)
+            index += range(at, at + width)
+        at += width
+    return model.with_terms(tuple(terms)), np.array(index)
+
+
+def unphysical(
+    cand: Candidate | None,
+    cv: CrossValidation,
+    model: ArmModel | None = None,
+    terms: Sequence[Candidate] = (),
+) -> list[str]:
+    """Why a fit of the nominal ``model`` (default the 9-parameter one) + the columns of
+    ``terms`` (+ ``cand``) is not physical (empty when it is): M(q) not positive definite or
+    negative friction in θ beyond its uncertainty (:func:`physical_theta`, with the model terms
+    among ``terms`` and ``cand`` in θ), or a gain that removes most of the torque."""
+    cands = [*terms, cand] if cand is not None else list(terms)
+    full, index = model_columns(ArmModel(()) if model is None else model, cands)
+    se = jackknife_se(cv.fold_beta)
+    reasons = physical_theta(cv.beta[index], se[index], full)[1]
     if cand is not None and cand.kind == "gain":
-        r = float(cv.beta[9:][-1])
+        r = float(cv.beta[-1])
         if r <= MIN_GAIN:
             reasons.append(f"a torque gain of {100 * r:+.0f} % removes most of the torque")
     return reasons
@@ -516,8 +604,9 @@ def _passes(ev: Evidence, tests: int) -> bool:
 
 
 def _joints(cand: Candidate) -> list[int]:
-    """The rows a candidate's columns act on: an angle offset moves gravity on both joints."""
-    return [0, 1] if cand.kind == "angle" else [cand.joint]
+    """The rows a candidate's columns act on: an angle offset moves gravity on both joints, a
+    centre-of-mass offset the inertia and gravity of both."""
+    return [0, 1] if cand.kind in ("angle", "com_offset") else [cand.joint]
 
 
 def rigid_body_deviation(theta: np.ndarray, reference: np.ndarray) -> float:
@@ -644,12 +733,21 @@ def _confounding(
                 continue
             if not _large_enough(alt, with_alt):
                 continue
+            if unphysical(alt, with_alt, prob.model, [b.cand for b in others]):
+                continue  # no finding stands on a refit that is not physical
+                continue
             if _passes(evidence(with_alt, with_own, joints), tests):
                 continue  # the accepted term is clearly better
             a.confounded_with.append(alt.key)
             a.rival_variants[alt.key] = alt.variants[with_alt.variant]
             if log:
                 log(f"{a.cand.key} confounded with {alt.key}")
+
+
+# Forward selections at most: a term the physical gate removes after the forward pass (a gain
+# that drifted to removing most of the torque) may have kept others out on its way in, so the
+# selection is redone without it.
+RESELECT = 3
 
 
 def select(
@@ -662,12 +760,52 @@ def select(
     """Greedy forward selection with blocked cross-validation (module doc). ``reference``: θ
     that a torque gain error must be supported by (:data:`GAIN_SUPPORT_RATIO`). ``rejected``
     collects candidates that passed the test but whose refit is not physical, with the reason."""
+    first_round: dict[str, Evidence] = {}
+    rejected = {} if rejected is None else rejected
+    # one-variant candidates first, so that their columns exist when a grid is first summed
+    prob.anticipated = [(c.key, 0) for c in library if len(c.variants) == 1]
+    excluded: set[str] = set()
+    for _attempt in range(RESELECT):
+        if excluded:
+            _rewhiten(prob, [])  # the noise scale of the nominal model, as at the start
+            if log:
+                log(f"reselecting without {sorted(excluded)} (not physical)")
+        pool = [c for c in library if c.key not in excluded]
+        accepted = _forward(prob, pool, library, log, reference, rejected, first_round)
+        # Terms are judged redundant only against a physical model: a gain accepted while its
+        # refit was physical can drift to removing most of the torque once a lag joins, and
+        # would then "explain" the terms accepted before it (on DFKI A.0 trajectories 03 → 04
+        # it eliminated the rotor inertia and was itself dropped as not physical afterwards).
+        kept = physical_gate(prob, accepted, rejected)
+        gone = {a.cand.key for a in accepted} - {a.cand.key for a in kept}
+        accepted = kept
+        if not gone:
+            break
+        excluded |= gone
+    if excluded:  # the noise scale of the model kept, not of one with the terms gone
+        _rewhiten(prob, accepted)
+    accepted = _eliminate(prob, accepted, len(library), log)
+    for a in accepted:  # refused on top of a term that is gone, accepted without it
+        rejected.pop(a.cand.key, None)
+    _confounding(prob, accepted, [c for c in library if c.key in first_round], len(library), log)
+    return accepted, first_round
+
+
+def _forward(
+    prob: Problem,
+    pool: Sequence[Candidate],
+    library: Sequence[Candidate],
+    log: Callable[[str], None] | None,
+    reference: np.ndarray | None,
+    rejected: dict[str, str],
+    first_round: dict[str, Evidence],
+) -> list[Accepted]:
+    """The forward rounds of :func:`select` over the candidates ``pool`` (the family of tests
+    is the whole ``library``); fills ``first_round`` with each candidate's first evidence."""
     accepted: list[Accepted] = []
     extra: list[np.ndarray] = []
-    first_round: dict[str, Evidence] = {}
-    # one-variant candidates first, so that their columns exist when a grid is first summed
-    remaining = sorted(library, key=lambda c: len(c.variants) > 1)
-    prob.anticipated = [(c.key, 0) for c in library if len(c.variants) == 1]
+    tests = len(library)
+    remaining = sorted(pool, key=lambda c: len(c.variants) > 1)
     for _round in range(MAX_ROUNDS):
         base = _cv(prob, extra)
         scored = []
@@ -686,7 +824,7 @@ def select(
         passing = [
             s
             for s in scored
-            if _passes(s[2], len(library))
+            if _passes(s[2], tests)
             and _large_enough(s[0], s[1])
             and not _harms_other_joint(base, s[1], s[0])
             and (
@@ -696,16 +834,16 @@ def select(
         ]
         # never the basis of a finding: a refit that is not physical (said in the report)
         for s in list(passing):
-            reasons = unphysical(s[0], s[1])
+            reasons = unphysical(s[0], s[1], prob.model, [a.cand for a in accepted])
             if reasons:
                 passing.remove(s)
-                if rejected is not None and s[0].key not in rejected:
+                if s[0].key not in rejected:
                     rejected[s[0].key] = "its refit is not physical: " + "; ".join(reasons)
         if not passing:
-            passing = _passing_pair(prob, extra, base, scored, len(library))
+            passing = _passing_pair(prob, extra, base, scored, tests)
             if not passing:
                 break
-        cand, cv, ev = max(passing, key=lambda s: s[2].drop)
+        cand, cv, ev = _prefer_effect(max(passing, key=lambda s: s[2].drop), passing, tests)
         chosen_cols = prob.column(cand, cv.variant)
         acc = Accepted(cand, cand.variants[cv.variant], ev)
         accepted.append(acc)
@@ -717,9 +855,30 @@ def select(
         extra = [prob.chosen(a) for a in accepted]
         if log:
             log(f"accepted {cand.key} variant {acc.variant} confounded {acc.confounded_with}")
-    accepted = _eliminate(prob, accepted, len(library), log)
-    _confounding(prob, accepted, [c for c in library if c.key in first_round], len(library), log)
-    return accepted, first_round
+    return accepted
+
+
+def _prefer_effect(
+    best: tuple[Candidate, CrossValidation, Evidence],
+    passing: Sequence[tuple[Candidate, CrossValidation, Evidence]],
+    tests: int,
+) -> tuple[Candidate, CrossValidation, Evidence]:
+    """A model term (several parameters, hil.model.closed_form) is taken before a passing
+    effect of the vocabulary only when it explains the data clearly better (the test, the term
+    against the effect): an encoder zero offset on joint 1 is exactly a centre-of-mass offset
+    with θ2⊥ = 0, and the narrower explanation goes in first (the other is then reported as
+    confounded with it, :func:`_confounding`)."""
+    if best[0].kind not in TERMS:
+        return best
+    rivals = [
+        s
+        for s in passing
+        if s[0].kind not in TERMS
+        and not _passes(
+            evidence(s[1], best[1], sorted(set(_joints(s[0])) | set(_joints(best[0])))), tests
+        )
+    ]
+    return max(rivals, key=lambda s: s[2].drop) if rivals else best
 
 
 # An angle offset's column is −∂(Ψθ)/∂q_j at a θ; relinearised this many times about the refit.
@@ -769,13 +928,13 @@ def final_fit(prob: Problem, accepted: Sequence[Accepted]) -> FinalFit:
     jack = np.sqrt(
         (n_blocks - 1) / n_blocks * np.sum((cv.fold_beta - cv.fold_beta.mean(0)) ** 2, 0)
     )
-    coefs, ses, at = [], [], 9
+    coefs, ses, at = [], [], prob.n_params
     for c in cols:
         p = c.shape[-1]
         coefs.append(cv.beta[at : at + p])
         ses.append(jack[at : at + p])
         at += p
-    return FinalFit(cv.beta[:9], coefs, ses, cv)
+    return FinalFit(cv.beta[: prob.n_params], coefs, ses, cv)
 
 
 def physical_gate(
@@ -788,7 +947,7 @@ def physical_gate(
     accepted = list(accepted)
     while accepted:
         fit = final_fit(prob, accepted)
-        reasons = physical_theta(fit.theta, jackknife_se(fit.cv.fold_beta)[:9])[1]
+        reasons = unphysical(None, fit.cv, prob.model, [a.cand for a in accepted])
         for a, coef in zip(accepted, fit.coefficients, strict=True):
             if a.cand.kind == "gain" and float(coef[0]) <= MIN_GAIN:
                 reasons.append(

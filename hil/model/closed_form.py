@@ -501,6 +501,34 @@ class ArmModel:
         t = self._theta(theta)
         if not self.terms:
             return physical_consistency(t)
+        violations = self.mass_matrix_violations(t)
+        for i in self.nonnegative_columns:
+            if not t[i] >= 0:
+                violations.append(f"negative {self.names[i]} = {t[i]:.4g} (must be >= 0)")
+        return {"consistent": not violations, "violations": violations}
+
+    def with_terms(self, terms: tuple[str, ...]) -> ArmModel:
+        """This model with ``terms`` appended (their parameters after this model's)."""
+        return ArmModel(self.terms + tuple(terms))
+
+    def expand(self, theta: ArrayLike) -> np.ndarray:
+        """θ in the parametrisation of ``ArmModel(TERMS)`` (every term, in :data:`TERMS`
+        order), zero for the terms this model lacks: the form the host's open-loop simulator
+        (:mod:`hil.model.openloop_core`) takes."""
+        t = self._theta(theta)
+        full = ArmModel(TERMS)
+        out = np.zeros(full.n_params)
+        out[:N_PARAMS] = t[:N_PARAMS]
+        for term in self.terms:
+            out[full.term_columns(term)] = t[self.term_columns(term)]
+        return out
+
+    def mass_matrix_violations(self, theta: ArrayLike) -> list[str]:
+        """Why M(q) is not positive definite for every q2 (empty when it is), in closed form
+        (:meth:`physical_consistency`'s first part)."""
+        t = self._theta(theta)
+        if not self.terms:
+            return [v for v in physical_consistency(t)["violations"] if v.startswith("M(q)")]
         rot = t[self.term_columns("rotor_inertia")][0] if "rotor_inertia" in self.terms else 0.0
         perp = "com_offset" in self.terms
         perp_value = t[self.term_columns("com_offset")][0] if perp else 0.0
@@ -518,10 +546,7 @@ class ArmModel:
                 violations.append(
                     f"M(q) not positive definite where {where} = {x:.4g}: det = {det:.4g} <= 0"
                 )
-        for i in self.nonnegative_columns:
-            if not t[i] >= 0:
-                violations.append(f"negative {self.names[i]} = {t[i]:.4g} (must be >= 0)")
-        return {"consistent": not violations, "violations": violations}
+        return violations
 
     def min_mass_eigenvalue(self, theta: ArrayLike, n_grid: int = 73) -> float:
         """The smallest eigenvalue of M(q) over q2 ∈ [−π, π] (on a grid), kg m²."""

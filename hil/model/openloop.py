@@ -51,7 +51,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from hil.model.closed_form import N_PARAMS
+from hil.model.closed_form import N_PARAMS, ArmModel
 from hil.model.openloop_core import Friction, OpenLoopResult, integrate, pair
 from hil.model.openloop_effects import OpenLoopExtras, integrate_with_extras
 
@@ -70,6 +70,7 @@ def simulate_open_loop(
     coulomb_negative: Sequence[float] | None = None,
     extras: OpenLoopExtras | None = None,
     intervals_s: ArrayLike | None = None,
+    model: ArmModel | None = None,
 ) -> OpenLoopResult:
     """Simulate the model θ under torques ``tau`` (N, 2), each held over one period of h seconds.
 
@@ -84,9 +85,12 @@ def simulate_open_loop(
     transport delay, cogging, angle offset, Stribeck friction); with an angle offset, ``q0`` and
     the result's ``q`` are reported angles (true + offset). ``intervals_s`` (N − 1 durations):
     period k lasts intervals_s[k], not h (a recording's real sample times; h is then only the
-    nominal period the sub-steps are laid out on). Raises ValueError on bad input.
+    nominal period the sub-steps are laid out on). ``model``: the
+    :class:`hil.model.closed_form.ArmModel` θ is written in (default the 9-parameter model);
+    its terms (rotor inertia, centre-of-mass offset) enter M(q), C q̇ and g(q) as
+    :mod:`hil.model.closed_form` writes them. Raises ValueError on bad input.
     """
-    th = _theta(theta)
+    th = _theta(theta, model)
     torques = _torques(tau)
     h = _positive("period_s", period_s)
     n_sub = _steps(steps_per_period)
@@ -127,8 +131,19 @@ def simulate_open_loop(
 # ---- validation ---------------------------------------------------------------------------
 
 
-def _theta(theta: ArrayLike) -> np.ndarray:
+def _theta(theta: ArrayLike, model: ArmModel | None = None) -> np.ndarray:
+    """θ checked (finite, M(q) positive definite for every q2), in the simulator's form: the
+    9 numbers, or with model terms ``model.expand(θ)`` (hil.model.openloop_core._rigid)."""
     th = np.asarray(theta, dtype=float)
+    if model is not None and model.terms:
+        if th.shape != (model.n_params,):
+            raise ValueError(f"theta must hold {model.n_params} numbers, got shape {th.shape}")
+        if not np.all(np.isfinite(th)):
+            raise ValueError("theta holds a non-finite number")
+        bad = model.mass_matrix_violations(th)
+        if bad:
+            raise ValueError(f"theta gives a {bad[0]}; cannot simulate")
+        return model.expand(th)
     if th.shape != (N_PARAMS,):
         raise ValueError(f"theta must hold {N_PARAMS} numbers, got shape {th.shape}")
     if not np.all(np.isfinite(th)):

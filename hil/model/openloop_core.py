@@ -138,6 +138,13 @@ def pair(name: str, value: Sequence[float]) -> Pair:
 # ---- dynamics -----------------------------------------------------------------------------
 
 
+def _rigid(theta: np.ndarray) -> tuple[float, ...]:
+    """θ1..θ5, b1, b2 and the model terms' (θ_rotor, θ2⊥, θ4⊥, θ5⊥) of a 9-parameter θ or of
+    one in the parametrisation of ``ArmModel(TERMS)`` (hil.model.closed_form; zero when absent)."""
+    extra = (float(x) for x in theta[9:13]) if len(theta) > 9 else (0.0, 0.0, 0.0, 0.0)
+    return (*(float(x) for x in theta[:7]), *extra)
+
+
 def _accelerations(
     theta: np.ndarray,
     stuck1: bool,
@@ -150,9 +157,15 @@ def _accelerations(
     """q̈ = M⁻¹(τ + τ_shaft − C q̇ − g − f) in one stick mode (Section 5), a stuck joint's q̈_i = 0.
 
     f_i = b_i q̇_i + the friction term of joint i sliding in direction d_i, frozen over the
-    sub-step (a constant unless ``friction`` is speed dependent).
+    sub-step (a constant unless ``friction`` is speed dependent). With the model terms
+    (hil.model.closed_form, "the model object"): M22 = θ3 + θ_rotor; the centre-of-mass offset
+    adds −θ2⊥ sin q2 (2, 1) to M11, M12, θ2⊥ cos q2 to the Coriolis factor θ2 sin q2, and
+    θ4⊥ cos q1 + θ5⊥ cos(q1 + q2), θ5⊥ cos(q1 + q2) to g (zero terms change nothing, bit for
+    bit).
     """
-    t1, t2, t3, t4, t5, b1, b2 = (float(x) for x in theta[:7])
+    t1, t2, t3, t4, t5, b1, b2, rot, p2, p4, p5 = _rigid(theta)
+    m22 = t3 + rot
+    perp = p2 != 0.0 or p4 != 0.0 or p5 != 0.0
     sin, cos = math.sin, math.cos
     level1, level2 = friction.level(0, d1), friction.level(1, d2)
     sliding = friction.sliding if friction.speed_dependent else None
@@ -161,39 +174,45 @@ def _accelerations(
 
         def acc(q1, q2, v1, v2, tau1, tau2):
             s2, c2 = sin(q2), cos(q2)
-            g12 = t5 * sin(q1 + q2)
+            g1, g12 = t4 * sin(q1), t5 * sin(q1 + q2)
             k = t2 * s2
+            m11 = t1 + 2.0 * t2 * c2
+            m12 = t3 + t2 * c2
+            if perp:
+                c12 = cos(q1 + q2)
+                g1, g12, k = g1 + p4 * cos(q1), g12 + p5 * c12, k + p2 * c2
+                m11, m12 = m11 - 2.0 * p2 * s2, m12 - p2 * s2
             # e = τ − C(q, q̇) q̇ − g(q) − f(q̇)
-            e1 = tau1 + k * (2.0 * v1 * v2 + v2 * v2) - t4 * sin(q1) - g12 - b1 * v1
+            e1 = tau1 + k * (2.0 * v1 * v2 + v2 * v2) - g1 - g12 - b1 * v1
             e1 -= level1 if sliding is None else sliding(0, d1, abs(v1))
             e2 = tau2 - k * v1 * v1 - g12 - b2 * v2
             e2 -= level2 if sliding is None else sliding(1, d2, abs(v2))
-            m11 = t1 + 2.0 * t2 * c2
-            m12 = t3 + t2 * c2
-            det = m11 * t3 - m12 * m12
-            return (t3 * e1 - m12 * e2) / det, (m11 * e2 - m12 * e1) / det
+            det = m11 * m22 - m12 * m12
+            return (m22 * e1 - m12 * e2) / det, (m11 * e2 - m12 * e1) / det
 
     elif stuck1 and not stuck2:
 
         def acc(q1, q2, v1, v2, tau1, tau2):
-            # q̇1 = q̈1 = 0: row 2 of M q̈ = e alone, m22 = θ3
-            e2 = tau2 - t2 * sin(q2) * v1 * v1 - t5 * sin(q1 + q2) - b2 * v2
+            # q̇1 = q̈1 = 0: row 2 of M q̈ = e alone
+            k, g12 = t2 * sin(q2), t5 * sin(q1 + q2)
+            if perp:
+                k, g12 = k + p2 * cos(q2), g12 + p5 * cos(q1 + q2)
+            e2 = tau2 - k * v1 * v1 - g12 - b2 * v2
             e2 -= level2 if sliding is None else sliding(1, d2, abs(v2))
-            return 0.0, e2 / t3
+            return 0.0, e2 / m22
 
     elif stuck2 and not stuck1:
 
         def acc(q1, q2, v1, v2, tau1, tau2):
             # q̇2 = q̈2 = 0: row 1 of M q̈ = e alone
-            e1 = (
-                tau1
-                + t2 * sin(q2) * (2.0 * v1 * v2 + v2 * v2)
-                - t4 * sin(q1)
-                - t5 * sin(q1 + q2)
-                - b1 * v1
-            )
+            s2, c2 = sin(q2), cos(q2)
+            k, g1, g12, m11 = t2 * s2, t4 * sin(q1), t5 * sin(q1 + q2), t1 + 2.0 * t2 * c2
+            if perp:
+                k, g1 = k + p2 * c2, g1 + p4 * cos(q1)
+                g12, m11 = g12 + p5 * cos(q1 + q2), m11 - 2.0 * p2 * s2
+            e1 = tau1 + k * (2.0 * v1 * v2 + v2 * v2) - g1 - g12 - b1 * v1
             e1 -= level1 if sliding is None else sliding(0, d1, abs(v1))
-            return e1 / (t1 + 2.0 * t2 * cos(q2)), 0.0
+            return e1 / m11, 0.0
 
     else:
 
@@ -246,25 +265,29 @@ def _holding_torques(
     """Friction torque each stuck joint needs to stay at rest (q̈_i = 0), from M q̈ = τ − Cq̇ − g − f.
 
     Both stuck: f = τ − g. Joint i stuck, j sliding with friction f_j (b_j q̇_j + its term):
-    f_i = r_i − m_ij (r_j − f_j) / m_jj, with r = τ + τ_shaft − C(q, q̇) q̇ − g(q).
+    f_i = r_i − m_ij (r_j − f_j) / m_jj, with r = τ + τ_shaft − C(q, q̇) q̇ − g(q) (M, C, g with
+    the model terms as in :func:`_accelerations`).
     """
-    t1, t2, t3, t4, t5, b1, b2 = (float(x) for x in theta[:7])
+    t1, t2, t3, t4, t5, b1, b2, rot, p2, p4, p5 = _rigid(theta)
     q1, q2, v1, v2 = state
     tau1, tau2 = tau
     if shaft_torque is not None:
         c1, c2 = shaft_torque(q1, q2)
         tau1, tau2 = tau1 + c1, tau2 + c2
-    k = t2 * math.sin(q2)
-    g12 = t5 * math.sin(q1 + q2)
-    r1 = tau1 + k * (2.0 * v1 * v2 + v2 * v2) - t4 * math.sin(q1) - g12
+    s2, c2 = math.sin(q2), math.cos(q2)
+    k = t2 * s2
+    g1, g12 = t4 * math.sin(q1), t5 * math.sin(q1 + q2)
+    m11, m12 = t1 + 2.0 * t2 * c2, t3 + t2 * c2
+    if p2 != 0.0 or p4 != 0.0 or p5 != 0.0:
+        k, g1, g12 = k + p2 * c2, g1 + p4 * math.cos(q1), g12 + p5 * math.cos(q1 + q2)
+        m11, m12 = m11 - 2.0 * p2 * s2, m12 - p2 * s2
+    r1 = tau1 + k * (2.0 * v1 * v2 + v2 * v2) - g1 - g12
     r2 = tau2 - k * v1 * v1 - g12
     if stuck[0] and stuck[1]:
         return r1, r2
-    m12 = t3 + t2 * math.cos(q2)
     if stuck[0]:
         f2 = b2 * v2 + friction.sliding(1, direction[1], abs(v2))
-        return r1 - m12 * (r2 - f2) / t3, 0.0
-    m11 = t1 + 2.0 * t2 * math.cos(q2)
+        return r1 - m12 * (r2 - f2) / (t3 + rot), 0.0
     f1 = b1 * v1 + friction.sliding(0, direction[0], abs(v1))
     return 0.0, r2 - m12 * (r1 - f1) / m11
 
