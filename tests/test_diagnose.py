@@ -529,7 +529,7 @@ def test_interval_rows_built_in_pieces_equal_the_rows_built_at_once(stamped, mon
         np.testing.assert_array_equal(a, b)
 
 
-def test_block_sums_by_sparse_product_equal_the_sums_block_by_block():
+def test_block_sums_equal_the_sums_block_by_block():
     from hil.diagnose.stats import joint_block_sums
 
     rng = np.random.default_rng(0)

@@ -34,7 +34,6 @@ from hil.diagnose.stats import (
     CrossValidation,
     Evidence,
     block_index,
-    block_selector,
     block_stats,
     cross_validate,
     evidence,
@@ -272,10 +271,10 @@ class Problem:
         U = [self.cache[k][:, j, :] for k in missing]  # (K, width) raw, on the joint's rows
         if sums is None:
             U = [self.Psi_raw[:, j, :], *U]
-        selector = block_selector(np.concatenate(U, axis=1), self.blocks)
+        U_all = np.concatenate(U, axis=1)
         parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         for X in self._grid_columns(cand):
-            ux, xx, xy = joint_block_sums(selector, X, self.y_raw[:, j], self.w[:, j], self.blocks)
+            ux, xx, xy = joint_block_sums(U_all, X, self.y_raw[:, j], self.w[:, j], self.blocks)
             n_blocks, m, _ = ux.shape
             ux = ux.reshape(n_blocks, m, X.shape[1], X.shape[2]).transpose(2, 0, 1, 3)
             parts.append((ux, xx.transpose(1, 0, 2, 3), xy.transpose(1, 0, 2)))

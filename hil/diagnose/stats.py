@@ -22,7 +22,6 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import csc_matrix
 from scipy.stats import binom
 
 RIDGE = 1e-9  # relative: keeps a fold solvable when a column is (nearly) absent from it
@@ -59,10 +58,11 @@ def block_stats(Z: np.ndarray, y: np.ndarray, w: np.ndarray, blocks: np.ndarray)
     n_blocks, p = len(starts), Z.shape[-1]
     G = np.empty((n_blocks, 2, p, p))
     r = np.empty((n_blocks, 2, p))
-    for b, (lo, hi) in enumerate(zip(starts, ends, strict=True)):
-        wz = w[lo:hi, :, None] * Z[lo:hi]
-        G[b] = np.einsum("kja,kjc->jac", wz, Z[lo:hi])
-        r[b] = np.einsum("kja,kj->ja", wz, y[lo:hi])
+    for b, (lo, hi) in enumerate(zip(starts.tolist(), ends.tolist(), strict=True)):
+        # per joint (leading axis) a (p, k) @ (k, p) product: BLAS, not an einsum loop
+        wz = (w[lo:hi, :, None] * Z[lo:hi]).transpose(1, 2, 0)  # (2, p, k)
+        np.matmul(wz, Z[lo:hi].transpose(1, 0, 2), out=G[b])
+        np.matmul(wz, y[lo:hi].T[:, :, None], out=r[b][:, :, None])
     s = np.add.reduceat(w * y * y, starts, axis=0)
     return BlockStats(G, r, s)
 
@@ -103,28 +103,26 @@ def extend_stats_many(
     return extended_stats(base, cross, xx.transpose(2, 0, 1, 3, 4), rx.transpose(2, 0, 1, 3))
 
 
-def block_selector(U: np.ndarray, blocks: np.ndarray) -> csc_matrix:
-    """The sparse (B·m, K) matrix whose row b·m + i holds column i of U (K, m) on block b's rows
-    and zeros elsewhere: times a (K, n) array it gives every block's Σ Uᵀ X at once."""
+def block_spans(blocks: np.ndarray) -> list[tuple[int, int]]:
+    """[first, end) row range of every block (rows ordered by block)."""
     starts = _starts(blocks)
-    K, m = U.shape
-    local = np.repeat(np.arange(len(starts)), np.diff(np.r_[starts, K]))
-    rows = (local[:, None] * m + np.arange(m)).ravel()  # row k's m entries, in order
-    return csc_matrix((U.ravel(), rows, np.arange(0, K * m + 1, m)), shape=(len(starts) * m, K))
+    return list(zip(starts.tolist(), np.r_[starts[1:], len(blocks)].tolist(), strict=True))
 
 
 def joint_block_sums(
-    U: np.ndarray | csc_matrix, X: np.ndarray, y: np.ndarray, w: np.ndarray, blocks: np.ndarray
+    U: np.ndarray, X: np.ndarray, y: np.ndarray, w: np.ndarray, blocks: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per block, of one joint's rows: Σ w Uᵀ X (B, m, V·q), Σ w XᵀX per variant (B, V, q, q)
-    and Σ w Xᵀ y (B, V, q), for columns U (K, m) (or their :func:`block_selector`, to reuse it
-    over chunks of variants) and variants X (K, V, q): one sparse product and one sum per block
-    over the rows, so a long recording's thousand blocks cost no Python loop."""
+    and Σ w Xᵀ y (B, V, q), for columns U (K, m) and variants X (K, V, q). Σ w Uᵀ X is one dense
+    matrix product per block (BLAS; a sparse block-selector product over all rows at once was
+    several times slower on a long recording's hundreds of blocks)."""
     starts = _starts(blocks)
-    selector = block_selector(U, blocks) if isinstance(U, np.ndarray) else U
     K, (V, q) = X.shape[0], X.shape[1:]
     wX = w[:, None, None] * X  # (K, V, q)
-    ux = np.asarray(selector @ wX.reshape(K, V * q)).reshape(len(starts), -1, V * q)
+    flat = wX.reshape(K, V * q)
+    ux = np.empty((len(starts), U.shape[1], V * q))
+    for b, (lo, hi) in enumerate(block_spans(blocks)):
+        np.matmul(U[lo:hi].T, flat[lo:hi], out=ux[b])
     # one column of X at a time: the products of all q² pairs at once would be (K, V, q, q)
     xx = np.stack([np.add.reduceat(X[:, :, [a]] * wX, starts, axis=0) for a in range(q)], axis=2)
     xy = np.add.reduceat(wX * y[:, None, None], starts, axis=0)
