@@ -183,14 +183,49 @@ class Problem:
     grids: dict[str, GridSums] = field(default_factory=dict)
     # (key, variant) of the one-variant candidates: summed against a grid when it is first built
     anticipated: list[tuple[str, int]] = field(default_factory=list)
+    # Ψ and the term columns scaled at ``_scaled_at`` (the scale's bytes), read-only, and the
+    # block statistics of designs made of them (by the columns' ids): every candidate of a round
+    # is tested on top of the same design, whose statistics are then summed once, not once per
+    # candidate, and a long recording's (K, 2, p) copies are not made again and again.
+    _scaled: dict[Any, np.ndarray] = field(default_factory=dict, repr=False)
+    _scaled_at: bytes = b""
+    _design_stats: dict[tuple[int, ...], BlockStats] = field(default_factory=dict, repr=False)
+
+    def _current(self) -> dict[Any, np.ndarray]:
+        """The scaled arrays at the current scale (all dropped when the scale changed)."""
+        at = self.scale.tobytes()
+        if at != self._scaled_at:
+            self._scaled, self._design_stats, self._scaled_at = {}, {}, at
+        return self._scaled
+
+    def _serve(self, key: Any, raw: np.ndarray) -> np.ndarray:
+        current = self._current()
+        if key not in current:
+            scaled = raw / self.scale[None, :, None]
+            scaled.flags.writeable = False
+            current[key] = scaled
+        return current[key]
 
     @property
     def y(self) -> np.ndarray:
-        return self.y_raw / self.scale
+        return self._serve("y", self.y_raw[:, :, None])[:, :, 0]
 
     @property
     def Psi(self) -> np.ndarray:
-        return self.Psi_raw / self.scale[None, :, None]
+        return self._serve("Psi", self.Psi_raw)
+
+    def design_stats(self, extra: Sequence[np.ndarray]) -> BlockStats:
+        """:func:`block_stats` of Ψ + ``extra`` (scaled rows), kept while the scale stands when
+        every column in ``extra`` is one this problem served (:meth:`column`)."""
+        current = self._current()
+        served = [id(x) for x in current.values()]
+        key = tuple(id(x) for x in extra) if all(id(x) in served for x in extra) else None
+        if key is not None and key in self._design_stats:
+            return self._design_stats[key]
+        stats = block_stats([self.Psi, *extra], self.y, self.w, self.blocks)
+        if key is not None:
+            self._design_stats[key] = stats
+        return stats
 
     @property
     def v_mean(self) -> np.ndarray:
@@ -211,7 +246,7 @@ class Problem:
         key = (cand.key, index)
         if key not in self.cache:
             self.cache[key] = self._raw(cand, index)
-        return self.cache[key] / self.scale[None, :, None]
+        return self._serve(key, self.cache[key])
 
     def chosen(self, a: Accepted) -> np.ndarray:
         """X of an accepted term, at the variant it was accepted with."""
@@ -221,6 +256,8 @@ class Problem:
         """A term's column is rebuilt (an angle offset relinearised): drop the old one and every
         grid's sums against it."""
         self.cache.pop(key, None)
+        self._scaled.pop(key, None)
+        self._design_stats.clear()
         for sums in self.grids.values():
             sums.terms.pop(key, None)
 
@@ -415,12 +452,12 @@ def _cv(
     prob: Problem, extra: Sequence[np.ndarray], cand: Candidate | None = None
 ) -> CrossValidation:
     """Cross-validation of nominal + ``extra`` (+ each variant of ``cand`` as alternatives)."""
-    base = _design(prob, extra)
-    stats = block_stats(base, prob.y, prob.w, prob.blocks)
+    stats = prob.design_stats(extra)
     if cand is None:
         return cross_validate(stats)
     if len(cand.variants) != 1:
         raise ValueError(f"{cand.key} has {len(cand.variants)} variants: use _cv_terms")
+    base = [prob.Psi, *extra]
     return cross_validate(
         extend_stats_many(stats, base, [prob.column(cand, 0)], prob.y, prob.w, prob.blocks)
     )
@@ -438,8 +475,7 @@ def _cv_terms(prob: Problem, terms: Sequence[Accepted], cand: Candidate) -> Cros
     extra = [prob.chosen(a) for a in terms]
     if len(cand.variants) == 1:
         return _cv(prob, extra, cand)
-    base = _design(prob, extra)
-    stats = block_stats(base, prob.y, prob.w, prob.blocks)
+    stats = prob.design_stats(extra)
     return cross_validate(prob.grid_stats(cand, [_term_key(a) for a in terms], stats))
 
 

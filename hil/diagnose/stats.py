@@ -18,7 +18,7 @@ per joint.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,19 +49,36 @@ class BlockStats:
     s: np.ndarray
 
 
-def block_stats(Z: np.ndarray, y: np.ndarray, w: np.ndarray, blocks: np.ndarray) -> BlockStats:
-    """Sufficient statistics of y ≈ Z β per block and joint (Z (K, 2, p), y and w (K, 2)); the
-    rows of a block are contiguous (``blocks`` non-decreasing). One block at a time, so memory
-    stays O(K p), not O(K p²)."""
+Design = np.ndarray | Sequence[np.ndarray]  # (K, 2, p), or its column groups (K, 2, p_i)
+
+
+def design_width(Z: Design) -> int:
+    """Number of columns p of a design."""
+    return Z.shape[-1] if isinstance(Z, np.ndarray) else sum(P.shape[-1] for P in Z)
+
+
+def design_rows(Z: Design, lo: int, hi: int) -> np.ndarray:
+    """Rows lo..hi of a design (K, 2, p): a design given as column groups is never joined
+    whole (on a long recording each copy is a hundred megabytes)."""
+    if isinstance(Z, np.ndarray):
+        return Z[lo:hi]
+    return np.concatenate([P[lo:hi] for P in Z], axis=2)
+
+
+def block_stats(Z: Design, y: np.ndarray, w: np.ndarray, blocks: np.ndarray) -> BlockStats:
+    """Sufficient statistics of y ≈ Z β per block and joint (Z (K, 2, p) or its column groups,
+    y and w (K, 2)); the rows of a block are contiguous (``blocks`` non-decreasing). One block
+    at a time, so memory stays O(K p), not O(K p²)."""
     starts = _starts(blocks)
     ends = np.r_[starts[1:], len(blocks)]
-    n_blocks, p = len(starts), Z.shape[-1]
+    n_blocks, p = len(starts), design_width(Z)
     G = np.empty((n_blocks, 2, p, p))
     r = np.empty((n_blocks, 2, p))
     for b, (lo, hi) in enumerate(zip(starts.tolist(), ends.tolist(), strict=True)):
+        Zb = design_rows(Z, lo, hi)
         # per joint (leading axis) a (p, k) @ (k, p) product: BLAS, not an einsum loop
-        wz = (w[lo:hi, :, None] * Z[lo:hi]).transpose(1, 2, 0)  # (2, p, k)
-        np.matmul(wz, Z[lo:hi].transpose(1, 0, 2), out=G[b])
+        wz = (w[lo:hi, :, None] * Zb).transpose(1, 2, 0)  # (2, p, k)
+        np.matmul(wz, Zb.transpose(1, 0, 2), out=G[b])
         np.matmul(wz, y[lo:hi].T[:, :, None], out=r[b][:, :, None])
     s = np.add.reduceat(w * y * y, starts, axis=0)
     return BlockStats(G, r, s)
@@ -75,7 +92,7 @@ def _starts(blocks: np.ndarray) -> np.ndarray:
 
 def extend_stats_many(
     base: BlockStats,
-    Z: np.ndarray,
+    Z: Design,
     variants: list[np.ndarray] | np.ndarray,
     y: np.ndarray,
     w: np.ndarray,
@@ -89,16 +106,15 @@ def extend_stats_many(
     variant."""
     X = variants if isinstance(variants, np.ndarray) else np.stack(variants, axis=2)
     V, q = X.shape[2], X.shape[3]
-    n_blocks, p = len(_starts(blocks)), Z.shape[-1]
+    n_blocks, p = len(_starts(blocks)), design_width(Z)
     cross = np.zeros((n_blocks, 2, p, V * q))
     xx = np.zeros((n_blocks, 2, V, q, q))
     rx = np.zeros((n_blocks, 2, V, q))
     for j in (0, 1):
         if not np.any(X[:, j]):
             continue
-        cross[:, j], xx[:, j], rx[:, j] = joint_block_sums(
-            Z[:, j, :], X[:, j], y[:, j], w[:, j], blocks
-        )
+        U = Z[:, j, :] if isinstance(Z, np.ndarray) else np.hstack([P[:, j, :] for P in Z])
+        cross[:, j], xx[:, j], rx[:, j] = joint_block_sums(U, X[:, j], y[:, j], w[:, j], blocks)
     cross = cross.reshape(n_blocks, 2, p, V, q).transpose(3, 0, 1, 2, 4)  # (V, B, 2, p, q)
     return extended_stats(base, cross, xx.transpose(2, 0, 1, 3, 4), rx.transpose(2, 0, 1, 3))
 
