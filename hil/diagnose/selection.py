@@ -367,6 +367,8 @@ CHUNK_BYTES = 64e6
 
 
 def _stack(rows: Sequence[RecordingRows]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    if len(rows) == 1:  # one recording: its arrays, not a second copy of them
+        return rows[0].y, rows[0].Psi, rows[0].weights
     y = np.concatenate([r.y for r in rows])
     Psi = np.concatenate([r.Psi for r in rows])
     w = np.concatenate([r.weights for r in rows])
