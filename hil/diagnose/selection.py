@@ -12,6 +12,7 @@ would separate them. Pure computation over arrays; reading files, plots and the 
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -183,45 +184,36 @@ class Problem:
     grids: dict[str, GridSums] = field(default_factory=dict)
     # (key, variant) of the one-variant candidates: summed against a grid when it is first built
     anticipated: list[tuple[str, int]] = field(default_factory=list)
-    # Ψ and the term columns scaled at ``_scaled_at`` (the scale's bytes), read-only, and the
-    # block statistics of designs made of them (by the columns' ids): every candidate of a round
-    # is tested on top of the same design, whose statistics are then summed once, not once per
-    # candidate, and a long recording's (K, 2, p) copies are not made again and again.
-    _scaled: dict[Any, np.ndarray] = field(default_factory=dict, repr=False)
-    _scaled_at: bytes = b""
-    _design_stats: dict[tuple[int, ...], BlockStats] = field(default_factory=dict, repr=False)
-
-    def _current(self) -> dict[Any, np.ndarray]:
-        """The scaled arrays at the current scale (all dropped when the scale changed)."""
-        at = self.scale.tobytes()
-        if at != self._scaled_at:
-            self._scaled, self._design_stats, self._scaled_at = {}, {}, at
-        return self._scaled
-
-    def _serve(self, key: Any, raw: np.ndarray) -> np.ndarray:
-        current = self._current()
-        if key not in current:
-            scaled = raw / self.scale[None, :, None]
-            scaled.flags.writeable = False
-            current[key] = scaled
-        return current[key]
+    # Block statistics of designs Ψ + term columns, by the scale and the terms' keys: every
+    # candidate of a round is tested on top of the same design, whose statistics are then summed
+    # once, not once per candidate. ``_served`` tells which served column an array is (by id,
+    # checked through a weak reference: a column may be dropped by its user and its id reused).
+    _design_stats: dict[tuple[Any, ...], BlockStats] = field(default_factory=dict, repr=False)
+    _served: dict[int, tuple[weakref.ref, tuple[str, int]]] = field(
+        default_factory=dict, repr=False
+    )
 
     @property
     def y(self) -> np.ndarray:
-        return self._serve("y", self.y_raw[:, :, None])[:, :, 0]
+        return self.y_raw / self.scale
 
     @property
     def Psi(self) -> np.ndarray:
-        return self._serve("Psi", self.Psi_raw)
+        return self.Psi_raw / self.scale[None, :, None]
+
+    def _served_key(self, x: np.ndarray) -> tuple[str, int] | None:
+        entry = self._served.get(id(x))
+        return entry[1] if entry is not None and entry[0]() is x else None
 
     def design_stats(self, extra: Sequence[np.ndarray]) -> BlockStats:
-        """:func:`block_stats` of Ψ + ``extra`` (scaled rows), kept while the scale stands when
-        every column in ``extra`` is one this problem served (:meth:`column`)."""
-        current = self._current()
-        served = [id(x) for x in current.values()]
-        key = tuple(id(x) for x in extra) if all(id(x) in served for x in extra) else None
+        """:func:`block_stats` of Ψ + ``extra`` (scaled rows), kept for the scale when every
+        column in ``extra`` is one this problem served (:meth:`column`)."""
+        keys = [self._served_key(x) for x in extra]
+        key = (self.scale.tobytes(), *keys) if None not in keys else None
         if key is not None and key in self._design_stats:
             return self._design_stats[key]
+        if key is not None and any(k[0] != key[0] for k in self._design_stats):
+            self._design_stats = {}  # the scale changed: those designs are not asked for again
         stats = block_stats([self.Psi, *extra], self.y, self.w, self.blocks)
         if key is not None:
             self._design_stats[key] = stats
@@ -246,7 +238,12 @@ class Problem:
         key = (cand.key, index)
         if key not in self.cache:
             self.cache[key] = self._raw(cand, index)
-        return self._serve(key, self.cache[key])
+        scaled = self.cache[key] / self.scale[None, :, None]
+        scaled.flags.writeable = False  # its block statistics may be kept (design_stats)
+        if len(self._served) > 256:  # forget the columns no one holds any more
+            self._served = {i: e for i, e in self._served.items() if e[0]() is not None}
+        self._served[id(scaled)] = (weakref.ref(scaled), key)
+        return scaled
 
     def chosen(self, a: Accepted) -> np.ndarray:
         """X of an accepted term, at the variant it was accepted with."""
@@ -256,8 +253,7 @@ class Problem:
         """A term's column is rebuilt (an angle offset relinearised): drop the old one and every
         grid's sums against it."""
         self.cache.pop(key, None)
-        self._scaled.pop(key, None)
-        self._design_stats.clear()
+        self._design_stats = {k: v for k, v in self._design_stats.items() if key not in k}
         for sums in self.grids.values():
             sums.terms.pop(key, None)
 
