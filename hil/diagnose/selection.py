@@ -249,6 +249,14 @@ class Problem:
         """X of an accepted term, at the variant it was accepted with."""
         return self.column(a.cand, a.cand.variants.index(a.variant))
 
+    def keep_only(self, keys: Sequence[tuple[str, int]]) -> None:
+        """The selection is over: drop the grids' sums and every column but those of ``keys``
+        (the accepted terms); a column asked for again is rebuilt, identical. On a long
+        recording they are hundreds of megabytes the refit and the simulations need room for."""
+        self.grids.clear()
+        self.cache = {k: v for k, v in self.cache.items() if k in keys}
+        self._design_stats.clear()
+
     def forget(self, key: tuple[str, int]) -> None:
         """A term's column is rebuilt (an angle offset relinearised): drop the old one and every
         grid's sums against it."""
@@ -752,6 +760,7 @@ def select(
             log(f"accepted {cand.key} variant {acc.variant} confounded {acc.confounded_with}")
     accepted = _eliminate(prob, accepted, len(library), log)
     _confounding(prob, accepted, [c for c in library if c.key in first_round], len(library), log)
+    prob.keep_only([_term_key(a) for a in accepted])
     return accepted, first_round
 
 

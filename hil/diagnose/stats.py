@@ -132,17 +132,18 @@ def joint_block_sums(
     and Σ w Xᵀ y (B, V, q), for columns U (K, m) and variants X (K, V, q). Σ w Uᵀ X is one dense
     matrix product per block (BLAS; a sparse block-selector product over all rows at once was
     several times slower on a long recording's hundreds of blocks)."""
-    starts = _starts(blocks)
     K, (V, q) = X.shape[0], X.shape[1:]
+    n_blocks, m = len(_starts(blocks)), U.shape[1]
     wX = w[:, None, None] * X  # (K, V, q)
     flat = wX.reshape(K, V * q)
-    ux = np.empty((len(starts), U.shape[1], V * q))
+    Uy = np.concatenate([U, y[:, None]], axis=1)  # y rides along: Σ w yᵀX from the same product
+    uyx = np.empty((n_blocks, m + 1, V * q))
+    xx = np.empty((n_blocks, V, q, q))
     for b, (lo, hi) in enumerate(block_spans(blocks)):
-        np.matmul(U[lo:hi].T, flat[lo:hi], out=ux[b])
-    # one column of X at a time: the products of all q² pairs at once would be (K, V, q, q)
-    xx = np.stack([np.add.reduceat(X[:, :, [a]] * wX, starts, axis=0) for a in range(q)], axis=2)
-    xy = np.add.reduceat(wX * y[:, None, None], starts, axis=0)
-    return ux, xx, xy
+        np.matmul(Uy[lo:hi].T, flat[lo:hi], out=uyx[b])
+        # per variant a (q, k) @ (k, q) product
+        np.matmul(X[lo:hi].transpose(1, 2, 0), wX[lo:hi].transpose(1, 0, 2), out=xx[b])
+    return uyx[:, :m], xx, uyx[:, m].reshape(n_blocks, V, q)
 
 
 def extended_stats(
