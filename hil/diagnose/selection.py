@@ -339,10 +339,15 @@ class Problem:
 
     def _grid_columns(self, cand: Candidate) -> Iterator[np.ndarray]:
         """Raw X of every variant on the candidate's joint, (K, ≤per, width) chunks of at most
-        CHUNK_BYTES: a 400-period cogging grid over a long recording would not fit at once."""
+        COLUMN_CHUNK_BYTES: a 400-period cogging grid over a long recording would not fit at
+        once. A chunk is about four (K, per, width) arrays (columns, filtered, weighted) beside
+        the cogging rotation's complex working at the nodes (per row, whatever ``per``); every
+        chunk reads the other columns once (the block products), so fewer, wider chunks."""
         j, width = cand.joint, term_width(cand)
-        per_row = 8 * width * 4 + (96 if cand.chunks is not None else 0)  # columns + working
-        per = max(1, int(CHUNK_BYTES // (per_row * max(len(self.y_raw), 1))))
+        K = max(len(self.y_raw), 1)
+        working = 128 * K if cand.chunks is not None else 0
+        fit = (COLUMN_CHUNK_BYTES - working) // (8 * width * 4 * K)
+        per = int(min(MAX_CHUNK_VARIANTS, max(1, fit)))
         if cand.chunks is not None:
             streams = [cand.chunks(r, cand.variants, per) for r in self.rows]
             for pieces in zip(*streams, strict=True):
@@ -366,8 +371,11 @@ class GridSums:
     terms: dict[tuple[str, int], np.ndarray] = field(default_factory=dict)
 
 
-# Memory for one chunk of a candidate's variants: its columns, or its statistics (bytes).
+# Memory for one chunk of a candidate's variants: its statistics (bytes); its columns, at most
+# MAX_CHUNK_VARIANTS of them (a short recording's chunk is small anyway).
 CHUNK_BYTES = 64e6
+COLUMN_CHUNK_BYTES = 256e6
+MAX_CHUNK_VARIANTS = 64
 
 
 def _stack(rows: Sequence[RecordingRows]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -379,10 +387,13 @@ def _stack(rows: Sequence[RecordingRows]) -> tuple[np.ndarray, np.ndarray, np.nd
     return y, Psi, w
 
 
-def fit_theta(Psi: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Weighted least squares over both joints' rows."""
+def fit_theta(
+    Psi: np.ndarray, y: np.ndarray, w: np.ndarray, overwrite_design: bool = False
+) -> np.ndarray:
+    """Weighted least squares over both joints' rows. ``overwrite_design``: weight ``Psi`` in
+    place (the caller's throw-away design; on a long recording one copy fewer of it)."""
     sw = np.sqrt(w)[..., None]
-    A = (Psi * sw).reshape(-1, Psi.shape[-1])
+    A = (np.multiply(Psi, sw, out=Psi) if overwrite_design else Psi * sw).reshape(-1, Psi.shape[-1])
     b = (y * sw[..., 0]).reshape(-1)
     return np.linalg.lstsq(A, b, rcond=None)[0]
 
