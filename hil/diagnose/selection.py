@@ -339,15 +339,10 @@ class Problem:
 
     def _grid_columns(self, cand: Candidate) -> Iterator[np.ndarray]:
         """Raw X of every variant on the candidate's joint, (K, ≤per, width) chunks of at most
-        COLUMN_CHUNK_BYTES: a 400-period cogging grid over a long recording would not fit at
-        once. A chunk is about four (K, per, width) arrays (columns, filtered, weighted) beside
-        the cogging rotation's complex working at the nodes (per row, whatever ``per``); every
-        chunk reads the other columns once (the block products), so fewer, wider chunks."""
+        CHUNK_BYTES: a 400-period cogging grid over a long recording would not fit at once."""
         j, width = cand.joint, term_width(cand)
-        K = max(len(self.y_raw), 1)
-        working = 128 * K if cand.chunks is not None else 0
-        fit = (COLUMN_CHUNK_BYTES - working) // (8 * width * 4 * K)
-        per = int(min(MAX_CHUNK_VARIANTS, max(1, fit)))
+        per_row = 8 * width * 4 + (96 if cand.chunks is not None else 0)  # columns + working
+        per = max(1, int(CHUNK_BYTES // (per_row * max(len(self.y_raw), 1))))
         if cand.chunks is not None:
             streams = [cand.chunks(r, cand.variants, per) for r in self.rows]
             for pieces in zip(*streams, strict=True):
@@ -371,11 +366,8 @@ class GridSums:
     terms: dict[tuple[str, int], np.ndarray] = field(default_factory=dict)
 
 
-# Memory for one chunk of a candidate's variants: its statistics (bytes); its columns, at most
-# MAX_CHUNK_VARIANTS of them (a short recording's chunk is small anyway).
+# Memory for one chunk of a candidate's variants: its columns, or its statistics (bytes).
 CHUNK_BYTES = 64e6
-COLUMN_CHUNK_BYTES = 256e6
-MAX_CHUNK_VARIANTS = 64
 
 
 def _stack(rows: Sequence[RecordingRows]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
