@@ -205,6 +205,15 @@ class Problem:
         entry = self._served.get(id(x))
         return entry[1] if entry is not None and entry[0]() is x else None
 
+    def joint_columns(self, extra: Sequence[np.ndarray]) -> Callable[[int], np.ndarray]:
+        """Joint j's columns of the design Ψ + ``extra`` (scaled), (K, p), built when asked:
+        not the whole (K, 2, 9) scaled Ψ for one joint's rows."""
+
+        def columns(j: int) -> np.ndarray:
+            return np.hstack([self.Psi_raw[:, j, :] / self.scale[j], *(x[:, j, :] for x in extra)])
+
+        return columns
+
     def design_stats(self, extra: Sequence[np.ndarray]) -> BlockStats:
         """:func:`block_stats` of Ψ + ``extra`` (scaled rows), kept for the scale when every
         column in ``extra`` is one this problem served (:meth:`column`)."""
@@ -466,9 +475,10 @@ def _cv(
         return cross_validate(stats)
     if len(cand.variants) != 1:
         raise ValueError(f"{cand.key} has {len(cand.variants)} variants: use _cv_terms")
-    base = [prob.Psi, *extra]
     return cross_validate(
-        extend_stats_many(stats, base, [prob.column(cand, 0)], prob.y, prob.w, prob.blocks)
+        extend_stats_many(
+            stats, prob.joint_columns(extra), [prob.column(cand, 0)], prob.y, prob.w, prob.blocks
+        )
     )
 
 

@@ -18,7 +18,7 @@ per joint.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -92,13 +92,14 @@ def _starts(blocks: np.ndarray) -> np.ndarray:
 
 def extend_stats_many(
     base: BlockStats,
-    Z: Design,
+    Z: Design | Callable[[int], np.ndarray],
     variants: list[np.ndarray] | np.ndarray,
     y: np.ndarray,
     w: np.ndarray,
     blocks: np.ndarray,
 ) -> BlockStats:
-    """Statistics of the designs [Z, X_v] for alternative X_v of the same width (a candidate's
+    """Statistics of the designs [Z, X_v] for alternative X_v of the same width (Z, or a function
+    giving joint j's columns of it (K, p); a candidate's
     variants, a list of (K, 2, q) or one array (K, 2, V, q)), from those of Z (``base``): only
     the new cross terms are computed, those of every variant from one matrix product per block
     and joint, which is what keeps a 400-variant cogging search to a fraction of a second. A
@@ -106,14 +107,17 @@ def extend_stats_many(
     variant."""
     X = variants if isinstance(variants, np.ndarray) else np.stack(variants, axis=2)
     V, q = X.shape[2], X.shape[3]
-    n_blocks, p = len(_starts(blocks)), design_width(Z)
+    n_blocks, p = len(_starts(blocks)), base.G.shape[-1]
     cross = np.zeros((n_blocks, 2, p, V * q))
     xx = np.zeros((n_blocks, 2, V, q, q))
     rx = np.zeros((n_blocks, 2, V, q))
     for j in (0, 1):
         if not np.any(X[:, j]):
             continue
-        U = Z[:, j, :] if isinstance(Z, np.ndarray) else np.hstack([P[:, j, :] for P in Z])
+        if callable(Z):  # joint j's columns (K, p), built on demand
+            U = Z(j)
+        else:
+            U = Z[:, j, :] if isinstance(Z, np.ndarray) else np.hstack([P[:, j, :] for P in Z])
         cross[:, j], xx[:, j], rx[:, j] = joint_block_sums(U, X[:, j], y[:, j], w[:, j], blocks)
     cross = cross.reshape(n_blocks, 2, p, V, q).transpose(3, 0, 1, 2, 4)  # (V, B, 2, p, q)
     return extended_stats(base, cross, xx.transpose(2, 0, 1, 3, 4), rx.transpose(2, 0, 1, 3))
