@@ -34,6 +34,7 @@ from hil.diagnose.stats import (
     BlockStats,
     CrossValidation,
     Evidence,
+    ScaledRows,
     block_index,
     block_stats,
     cross_validate,
@@ -223,7 +224,9 @@ class Problem:
             return self._design_stats[key]
         if key is not None and any(k[0] != key[0] for k in self._design_stats):
             self._design_stats = {}  # the scale changed: those designs are not asked for again
-        stats = block_stats([self.Psi, *extra], self.y, self.w, self.blocks)
+        stats = block_stats(
+            [ScaledRows(self.Psi_raw, self.scale), *extra], self.y, self.w, self.blocks
+        )
         if key is not None:
             self._design_stats[key] = stats
         return stats

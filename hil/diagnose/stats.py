@@ -49,7 +49,20 @@ class BlockStats:
     s: np.ndarray
 
 
-Design = np.ndarray | Sequence[np.ndarray]  # (K, 2, p), or its column groups (K, 2, p_i)
+class ScaledRows:
+    """raw (K, 2, p) divided by a per-joint scale (2,), row ranges computed when asked: a
+    design's column group that is never scaled whole (a long recording's Ψ is 86 MB)."""
+
+    def __init__(self, raw: np.ndarray, scale: np.ndarray) -> None:
+        self.raw, self.scale = raw, scale
+        self.shape = raw.shape
+
+    def __getitem__(self, rows: slice) -> np.ndarray:
+        return self.raw[rows] / self.scale[None, :, None]
+
+
+# (K, 2, p), or its column groups (K, 2, p_i), each an array or ScaledRows
+Design = np.ndarray | Sequence[np.ndarray | ScaledRows]
 
 
 def design_width(Z: Design) -> int:
