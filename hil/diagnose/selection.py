@@ -466,7 +466,17 @@ class Accepted:
 
 
 def _design(prob: Problem, extra: Sequence[np.ndarray]) -> np.ndarray:
-    return np.concatenate([prob.Psi, *extra], axis=2) if extra else prob.Psi
+    """Ψ + ``extra``, scaled, (K, 2, p): Ψ scaled straight into it (no scaled copy to join)."""
+    if not extra:
+        return prob.Psi
+    p0 = prob.Psi_raw.shape[-1]
+    out = np.empty((*prob.Psi_raw.shape[:2], p0 + sum(x.shape[-1] for x in extra)))
+    np.divide(prob.Psi_raw, prob.scale[None, :, None], out=out[:, :, :p0])
+    at = p0
+    for x in extra:
+        out[:, :, at : at + x.shape[-1]] = x
+        at += x.shape[-1]
+    return out
 
 
 def _cv(
