@@ -146,9 +146,9 @@ def joint_block_sums(
     U: np.ndarray, X: np.ndarray, y: np.ndarray, w: np.ndarray, blocks: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per block, of one joint's rows: Σ w Uᵀ X (B, m, V·q), Σ w XᵀX per variant (B, V, q, q)
-    and Σ w Xᵀ y (B, V, q), for columns U (K, m) and variants X (K, V, q). Σ w Uᵀ X is one dense
-    matrix product per block (BLAS; a sparse block-selector product over all rows at once was
-    several times slower on a long recording's hundreds of blocks)."""
+    and Σ w Xᵀ y (B, V, q), for columns U (K, m) and variants X (K, V, q). Per block one dense
+    product [U y]ᵀ (w X) and one batched Xᵀ (w X) (BLAS; the sparse block-selector product used
+    before did the same multiply-adds without it)."""
     K, (V, q) = X.shape[0], X.shape[1:]
     n_blocks, m = len(_starts(blocks)), U.shape[1]
     wX = w[:, None, None] * X  # (K, V, q)
