@@ -532,7 +532,7 @@ def test_interval_rows_built_in_pieces_equal_the_rows_built_at_once(stamped, mon
         np.testing.assert_array_equal(a, b)
 
 
-def test_block_sums_by_sparse_product_equal_the_sums_block_by_block():
+def test_block_sums_equal_the_sums_block_by_block():
     from hil.diagnose.stats import joint_block_sums
 
     rng = np.random.default_rng(0)
@@ -548,3 +548,39 @@ def test_block_sums_by_sparse_product_equal_the_sums_block_by_block():
         np.testing.assert_allclose(ux[b], U[rows].T @ wx.reshape(-1, 12), atol=1e-12)
         np.testing.assert_allclose(xx[b], np.einsum("kva,kvc->vac", X[rows], wx), atol=1e-12)
         np.testing.assert_allclose(xy[b], np.einsum("kva,k->va", wx, y[rows]), atol=1e-12)
+
+
+def test_design_statistics_are_kept_per_scale_and_terms_and_released_after_selection(
+    null_recording,
+):
+    """The block statistics of a design Ψ + served term columns are summed once per noise scale
+    (issue 12, performance: every candidate of a round is tested on top of the same design),
+    equal to summing them anew; an array the problem did not serve, or a new scale, is summed
+    anew; after the selection only the accepted terms' columns stay, and a dropped column asked
+    for again is rebuilt identical."""
+    from hil.diagnose.selection import _design
+
+    rec = read_signals(null_recording)
+    prob, theta = build_problem([(rec.q, rec.tau, rec.period_s)])
+    library = {c.key: c for c in candidates(theta, np.ptp(rec.q, axis=0))}
+    offset, gain = library["offset:1"], library["gain:2"]
+    col = prob.column(offset, 0)
+    with pytest.raises(ValueError):
+        col[0, 0, 0] = 1.0  # served columns are read-only: their statistics may be kept
+    first = prob.design_stats([col])
+    assert prob.design_stats([col]) is first
+    want = block_stats(_design(prob, [col]), prob.y, prob.w, prob.blocks)
+    for got, exp in ((first.G, want.G), (first.r, want.r), (first.s, want.s)):
+        np.testing.assert_array_equal(got, exp)
+    copy = col.copy()  # not served: not kept, same numbers
+    assert prob.design_stats([copy]) is not first
+    np.testing.assert_array_equal(prob.design_stats([copy]).G, first.G)
+    prob.scale = prob.scale * np.array([1.5, 0.5])
+    rescaled = prob.design_stats([prob.column(offset, 0)])
+    want = block_stats(_design(prob, [prob.column(offset, 0)]), prob.y, prob.w, prob.blocks)
+    np.testing.assert_array_equal(rescaled.G, want.G)
+    assert not np.allclose(rescaled.G, first.G)
+    before = np.array(prob.column(gain, 0))
+    prob.keep_only([(offset.key, 0)])
+    assert set(prob.cache) == {(offset.key, 0)} and not prob.grids
+    np.testing.assert_array_equal(prob.column(gain, 0), before)

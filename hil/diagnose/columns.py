@@ -213,11 +213,12 @@ class RecordingRows:
 
 def moving_average(x: np.ndarray, window: int) -> np.ndarray:
     """F: the mean of the last ``window`` rows (fewer at the start), along the first axis."""
-    c = np.cumsum(x, axis=0)
-    out = c.copy()
-    out[window:] = c[window:] - c[:-window]
+    # in place: one array of x's size, not four (numpy buffers the overlapping subtraction)
+    out = np.cumsum(x, axis=0, dtype=float)
+    out[window:] -= out[:-window]
     n = np.minimum(np.arange(1, len(x) + 1), window).reshape((-1,) + (1,) * (x.ndim - 1))
-    return out / n
+    out /= n
+    return out
 
 
 # Samples per piece when the interval rows are built: the regressor at every interval's nodes

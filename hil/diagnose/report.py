@@ -546,13 +546,15 @@ def before_after(
     cols = [prob.chosen(a) for a in accepted]
     w_train = prob.w * train[:, None]
     theta0 = (
-        fit_theta(prob.Psi, prob.y, w_train)
+        fit_theta(prob.Psi, prob.y, w_train, overwrite_design=True)
         if nominal_theta is None
         else np.asarray(nominal_theta, float)
     )
-    Z = _design(prob, cols)
     target = prob.y if shaft is None else shaft / prob.scale
-    beta = fit_theta(Z, target, w_train)
+    # the design is weighted in place by the fit and built again for the prediction: on a long
+    # recording a (K, 2, p) copy fewer at the memory peak
+    beta = fit_theta(_design(prob, cols), target, w_train, overwrite_design=True)
+    Z = _design(prob, cols)
     y = prob.y_raw
     pred0 = prob.Psi_raw @ theta0
     # the model's torque prediction: what it leaves of the measured side, on the recorded rows

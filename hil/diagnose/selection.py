@@ -14,6 +14,7 @@ over arrays; reading files, plots and the CLI live in :mod:`hil.diagnose.cli`.
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -36,8 +37,8 @@ from hil.diagnose.stats import (
     BlockStats,
     CrossValidation,
     Evidence,
+    ScaledRows,
     block_index,
-    block_selector,
     block_stats,
     cross_validate,
     evidence,
@@ -216,6 +217,14 @@ class Problem:
     grids: dict[str, GridSums] = field(default_factory=dict)
     # (key, variant) of the one-variant candidates: summed against a grid when it is first built
     anticipated: list[tuple[str, int]] = field(default_factory=list)
+    # Block statistics of designs Ψ + term columns, by the scale and the terms' keys: every
+    # candidate of a round is tested on top of the same design, whose statistics are then summed
+    # once, not once per candidate. ``_served`` tells which served column an array is (by id,
+    # checked through a weak reference: a column may be dropped by its user and its id reused).
+    _design_stats: dict[tuple[Any, ...], BlockStats] = field(default_factory=dict, repr=False)
+    _served: dict[int, tuple[weakref.ref, tuple[str, int]]] = field(
+        default_factory=dict, repr=False
+    )
 
     @property
     def model(self) -> ArmModel:
@@ -233,6 +242,35 @@ class Problem:
     @property
     def Psi(self) -> np.ndarray:
         return self.Psi_raw / self.scale[None, :, None]
+
+    def _served_key(self, x: np.ndarray) -> tuple[str, int] | None:
+        entry = self._served.get(id(x))
+        return entry[1] if entry is not None and entry[0]() is x else None
+
+    def joint_columns(self, extra: Sequence[np.ndarray]) -> Callable[[int], np.ndarray]:
+        """Joint j's columns of the design Ψ + ``extra`` (scaled), (K, p), built when asked:
+        not the whole (K, 2, 9) scaled Ψ for one joint's rows."""
+
+        def columns(j: int) -> np.ndarray:
+            return np.hstack([self.Psi_raw[:, j, :] / self.scale[j], *(x[:, j, :] for x in extra)])
+
+        return columns
+
+    def design_stats(self, extra: Sequence[np.ndarray]) -> BlockStats:
+        """:func:`block_stats` of Ψ + ``extra`` (scaled rows), kept for the scale when every
+        column in ``extra`` is one this problem served (:meth:`column`)."""
+        keys = [self._served_key(x) for x in extra]
+        key = (self.scale.tobytes(), *keys) if None not in keys else None
+        if key is not None and key in self._design_stats:
+            return self._design_stats[key]
+        if key is not None and any(k[0] != key[0] for k in self._design_stats):
+            self._design_stats = {}  # the scale changed: those designs are not asked for again
+        stats = block_stats(
+            [ScaledRows(self.Psi_raw, self.scale), *extra], self.y, self.w, self.blocks
+        )
+        if key is not None:
+            self._design_stats[key] = stats
+        return stats
 
     @property
     def v_mean(self) -> np.ndarray:
@@ -253,16 +291,30 @@ class Problem:
         key = (cand.key, index)
         if key not in self.cache:
             self.cache[key] = self._raw(cand, index)
-        return self.cache[key] / self.scale[None, :, None]
+        scaled = self.cache[key] / self.scale[None, :, None]
+        scaled.flags.writeable = False  # its block statistics may be kept (design_stats)
+        if len(self._served) > 256:  # forget the columns no one holds any more
+            self._served = {i: e for i, e in self._served.items() if e[0]() is not None}
+        self._served[id(scaled)] = (weakref.ref(scaled), key)
+        return scaled
 
     def chosen(self, a: Accepted) -> np.ndarray:
         """X of an accepted term, at the variant it was accepted with."""
         return self.column(a.cand, a.cand.variants.index(a.variant))
 
+    def keep_only(self, keys: Sequence[tuple[str, int]]) -> None:
+        """The selection is over: drop the grids' sums and every column but those of ``keys``
+        (the accepted terms); a column asked for again is rebuilt, identical. On a long
+        recording they are hundreds of megabytes the refit and the simulations need room for."""
+        self.grids.clear()
+        self.cache = {k: v for k, v in self.cache.items() if k in keys}
+        self._design_stats.clear()
+
     def forget(self, key: tuple[str, int]) -> None:
         """A term's column is rebuilt (an angle offset relinearised): drop the old one and every
         grid's sums against it."""
         self.cache.pop(key, None)
+        self._design_stats = {k: v for k, v in self._design_stats.items() if key not in k}
         for sums in self.grids.values():
             sums.terms.pop(key, None)
 
@@ -313,10 +365,10 @@ class Problem:
         U = [self.cache[k][:, j, :] for k in missing]  # (K, width) raw, on the joint's rows
         if sums is None:
             U = [self.Psi_raw[:, j, :], *U]
-        selector = block_selector(np.concatenate(U, axis=1), self.blocks)
+        U_all = np.concatenate(U, axis=1)
         parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         for X in self._grid_columns(cand):
-            ux, xx, xy = joint_block_sums(selector, X, self.y_raw[:, j], self.w[:, j], self.blocks)
+            ux, xx, xy = joint_block_sums(U_all, X, self.y_raw[:, j], self.w[:, j], self.blocks)
             n_blocks, m, _ = ux.shape
             ux = ux.reshape(n_blocks, m, X.shape[1], X.shape[2]).transpose(2, 0, 1, 3)
             parts.append((ux, xx.transpose(1, 0, 2, 3), xy.transpose(1, 0, 2)))
@@ -373,16 +425,21 @@ CHUNK_BYTES = 64e6
 
 
 def _stack(rows: Sequence[RecordingRows]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    if len(rows) == 1:  # one recording: its arrays, not a second copy of them
+        return rows[0].y, rows[0].Psi, rows[0].weights
     y = np.concatenate([r.y for r in rows])
     Psi = np.concatenate([r.Psi for r in rows])
     w = np.concatenate([r.weights for r in rows])
     return y, Psi, w
 
 
-def fit_theta(Psi: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Weighted least squares over both joints' rows."""
+def fit_theta(
+    Psi: np.ndarray, y: np.ndarray, w: np.ndarray, overwrite_design: bool = False
+) -> np.ndarray:
+    """Weighted least squares over both joints' rows. ``overwrite_design``: weight ``Psi`` in
+    place (the caller's throw-away design; on a long recording one copy fewer of it)."""
     sw = np.sqrt(w)[..., None]
-    A = (Psi * sw).reshape(-1, Psi.shape[-1])
+    A = (np.multiply(Psi, sw, out=Psi) if overwrite_design else Psi * sw).reshape(-1, Psi.shape[-1])
     b = (y * sw[..., 0]).reshape(-1)
     return np.linalg.lstsq(A, b, rcond=None)[0]
 
@@ -456,21 +513,32 @@ class Accepted:
 
 
 def _design(prob: Problem, extra: Sequence[np.ndarray]) -> np.ndarray:
-    return np.concatenate([prob.Psi, *extra], axis=2) if extra else prob.Psi
+    """Ψ + ``extra``, scaled, (K, 2, p): Ψ scaled straight into it (no scaled copy to join)."""
+    if not extra:
+        return prob.Psi
+    p0 = prob.Psi_raw.shape[-1]
+    out = np.empty((*prob.Psi_raw.shape[:2], p0 + sum(x.shape[-1] for x in extra)))
+    np.divide(prob.Psi_raw, prob.scale[None, :, None], out=out[:, :, :p0])
+    at = p0
+    for x in extra:
+        out[:, :, at : at + x.shape[-1]] = x
+        at += x.shape[-1]
+    return out
 
 
 def _cv(
     prob: Problem, extra: Sequence[np.ndarray], cand: Candidate | None = None
 ) -> CrossValidation:
     """Cross-validation of nominal + ``extra`` (+ each variant of ``cand`` as alternatives)."""
-    base = _design(prob, extra)
-    stats = block_stats(base, prob.y, prob.w, prob.blocks)
+    stats = prob.design_stats(extra)
     if cand is None:
         return cross_validate(stats)
     if len(cand.variants) != 1:
         raise ValueError(f"{cand.key} has {len(cand.variants)} variants: use _cv_terms")
     return cross_validate(
-        extend_stats_many(stats, base, [prob.column(cand, 0)], prob.y, prob.w, prob.blocks)
+        extend_stats_many(
+            stats, prob.joint_columns(extra), [prob.column(cand, 0)], prob.y, prob.w, prob.blocks
+        )
     )
 
 
@@ -486,8 +554,7 @@ def _cv_terms(prob: Problem, terms: Sequence[Accepted], cand: Candidate) -> Cros
     extra = [prob.chosen(a) for a in terms]
     if len(cand.variants) == 1:
         return _cv(prob, extra, cand)
-    base = _design(prob, extra)
-    stats = block_stats(base, prob.y, prob.w, prob.blocks)
+    stats = prob.design_stats(extra)
     return cross_validate(prob.grid_stats(cand, [_term_key(a) for a in terms], stats))
 
 
@@ -735,7 +802,6 @@ def _confounding(
                 continue
             if unphysical(alt, with_alt, prob.model, [b.cand for b in others]):
                 continue  # no finding stands on a refit that is not physical
-                continue
             if _passes(evidence(with_alt, with_own, joints), tests):
                 continue  # the accepted term is clearly better
             a.confounded_with.append(alt.key)
@@ -788,6 +854,7 @@ def select(
     for a in accepted:  # refused on top of a term that is gone, accepted without it
         rejected.pop(a.cand.key, None)
     _confounding(prob, accepted, [c for c in library if c.key in first_round], len(library), log)
+    prob.keep_only([_term_key(a) for a in accepted])
     return accepted, first_round
 
 

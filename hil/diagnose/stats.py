@@ -18,11 +18,10 @@ per joint.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import csc_matrix
 from scipy.stats import binom
 
 RIDGE = 1e-9  # relative: keeps a fold solvable when a column is (nearly) absent from it
@@ -50,19 +49,50 @@ class BlockStats:
     s: np.ndarray
 
 
-def block_stats(Z: np.ndarray, y: np.ndarray, w: np.ndarray, blocks: np.ndarray) -> BlockStats:
-    """Sufficient statistics of y ≈ Z β per block and joint (Z (K, 2, p), y and w (K, 2)); the
-    rows of a block are contiguous (``blocks`` non-decreasing). One block at a time, so memory
-    stays O(K p), not O(K p²)."""
+class ScaledRows:
+    """raw (K, 2, p) divided by a per-joint scale (2,), row ranges computed when asked: a
+    design's column group that is never scaled whole (a long recording's Ψ is 86 MB)."""
+
+    def __init__(self, raw: np.ndarray, scale: np.ndarray) -> None:
+        self.raw, self.scale = raw, scale
+        self.shape = raw.shape
+
+    def __getitem__(self, rows: slice) -> np.ndarray:
+        return self.raw[rows] / self.scale[None, :, None]
+
+
+# (K, 2, p), or its column groups (K, 2, p_i), each an array or ScaledRows
+Design = np.ndarray | Sequence[np.ndarray | ScaledRows]
+
+
+def design_width(Z: Design) -> int:
+    """Number of columns p of a design."""
+    return Z.shape[-1] if isinstance(Z, np.ndarray) else sum(P.shape[-1] for P in Z)
+
+
+def design_rows(Z: Design, lo: int, hi: int) -> np.ndarray:
+    """Rows lo..hi of a design (K, 2, p): a design given as column groups is never joined
+    whole (on a long recording each copy is a hundred megabytes)."""
+    if isinstance(Z, np.ndarray):
+        return Z[lo:hi]
+    return np.concatenate([P[lo:hi] for P in Z], axis=2)
+
+
+def block_stats(Z: Design, y: np.ndarray, w: np.ndarray, blocks: np.ndarray) -> BlockStats:
+    """Sufficient statistics of y ≈ Z β per block and joint (Z (K, 2, p) or its column groups,
+    y and w (K, 2)); the rows of a block are contiguous (``blocks`` non-decreasing). One block
+    at a time, so memory stays O(K p), not O(K p²)."""
     starts = _starts(blocks)
     ends = np.r_[starts[1:], len(blocks)]
-    n_blocks, p = len(starts), Z.shape[-1]
+    n_blocks, p = len(starts), design_width(Z)
     G = np.empty((n_blocks, 2, p, p))
     r = np.empty((n_blocks, 2, p))
-    for b, (lo, hi) in enumerate(zip(starts, ends, strict=True)):
-        wz = w[lo:hi, :, None] * Z[lo:hi]
-        G[b] = np.einsum("kja,kjc->jac", wz, Z[lo:hi])
-        r[b] = np.einsum("kja,kj->ja", wz, y[lo:hi])
+    for b, (lo, hi) in enumerate(zip(starts.tolist(), ends.tolist(), strict=True)):
+        Zb = design_rows(Z, lo, hi)
+        # per joint (leading axis) a (p, k) @ (k, p) product: BLAS, not an einsum loop
+        wz = (w[lo:hi, :, None] * Zb).transpose(1, 2, 0)  # (2, p, k)
+        np.matmul(wz, Zb.transpose(1, 0, 2), out=G[b])
+        np.matmul(wz, y[lo:hi].T[:, :, None], out=r[b][:, :, None])
     s = np.add.reduceat(w * y * y, starts, axis=0)
     return BlockStats(G, r, s)
 
@@ -75,13 +105,14 @@ def _starts(blocks: np.ndarray) -> np.ndarray:
 
 def extend_stats_many(
     base: BlockStats,
-    Z: np.ndarray,
+    Z: Design | Callable[[int], np.ndarray],
     variants: list[np.ndarray] | np.ndarray,
     y: np.ndarray,
     w: np.ndarray,
     blocks: np.ndarray,
 ) -> BlockStats:
-    """Statistics of the designs [Z, X_v] for alternative X_v of the same width (a candidate's
+    """Statistics of the designs [Z, X_v] for alternative X_v of the same width (Z, or a function
+    giving joint j's columns of it (K, p); a candidate's
     variants, a list of (K, 2, q) or one array (K, 2, V, q)), from those of Z (``base``): only
     the new cross terms are computed, those of every variant from one matrix product per block
     and joint, which is what keeps a 400-variant cogging search to a fraction of a second. A
@@ -89,46 +120,47 @@ def extend_stats_many(
     variant."""
     X = variants if isinstance(variants, np.ndarray) else np.stack(variants, axis=2)
     V, q = X.shape[2], X.shape[3]
-    n_blocks, p = len(_starts(blocks)), Z.shape[-1]
+    n_blocks, p = len(_starts(blocks)), base.G.shape[-1]
     cross = np.zeros((n_blocks, 2, p, V * q))
     xx = np.zeros((n_blocks, 2, V, q, q))
     rx = np.zeros((n_blocks, 2, V, q))
     for j in (0, 1):
         if not np.any(X[:, j]):
             continue
-        cross[:, j], xx[:, j], rx[:, j] = joint_block_sums(
-            Z[:, j, :], X[:, j], y[:, j], w[:, j], blocks
-        )
+        if callable(Z):  # joint j's columns (K, p), built on demand
+            U = Z(j)
+        else:
+            U = Z[:, j, :] if isinstance(Z, np.ndarray) else np.hstack([P[:, j, :] for P in Z])
+        cross[:, j], xx[:, j], rx[:, j] = joint_block_sums(U, X[:, j], y[:, j], w[:, j], blocks)
     cross = cross.reshape(n_blocks, 2, p, V, q).transpose(3, 0, 1, 2, 4)  # (V, B, 2, p, q)
     return extended_stats(base, cross, xx.transpose(2, 0, 1, 3, 4), rx.transpose(2, 0, 1, 3))
 
 
-def block_selector(U: np.ndarray, blocks: np.ndarray) -> csc_matrix:
-    """The sparse (B·m, K) matrix whose row b·m + i holds column i of U (K, m) on block b's rows
-    and zeros elsewhere: times a (K, n) array it gives every block's Σ Uᵀ X at once."""
+def block_spans(blocks: np.ndarray) -> list[tuple[int, int]]:
+    """[first, end) row range of every block (rows ordered by block)."""
     starts = _starts(blocks)
-    K, m = U.shape
-    local = np.repeat(np.arange(len(starts)), np.diff(np.r_[starts, K]))
-    rows = (local[:, None] * m + np.arange(m)).ravel()  # row k's m entries, in order
-    return csc_matrix((U.ravel(), rows, np.arange(0, K * m + 1, m)), shape=(len(starts) * m, K))
+    return list(zip(starts.tolist(), np.r_[starts[1:], len(blocks)].tolist(), strict=True))
 
 
 def joint_block_sums(
-    U: np.ndarray | csc_matrix, X: np.ndarray, y: np.ndarray, w: np.ndarray, blocks: np.ndarray
+    U: np.ndarray, X: np.ndarray, y: np.ndarray, w: np.ndarray, blocks: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per block, of one joint's rows: Σ w Uᵀ X (B, m, V·q), Σ w XᵀX per variant (B, V, q, q)
-    and Σ w Xᵀ y (B, V, q), for columns U (K, m) (or their :func:`block_selector`, to reuse it
-    over chunks of variants) and variants X (K, V, q): one sparse product and one sum per block
-    over the rows, so a long recording's thousand blocks cost no Python loop."""
-    starts = _starts(blocks)
-    selector = block_selector(U, blocks) if isinstance(U, np.ndarray) else U
+    and Σ w Xᵀ y (B, V, q), for columns U (K, m) and variants X (K, V, q). Per block one dense
+    product [U y]ᵀ (w X) and one batched Xᵀ (w X) (BLAS; the sparse block-selector product used
+    before did the same multiply-adds without it)."""
     K, (V, q) = X.shape[0], X.shape[1:]
+    n_blocks, m = len(_starts(blocks)), U.shape[1]
     wX = w[:, None, None] * X  # (K, V, q)
-    ux = np.asarray(selector @ wX.reshape(K, V * q)).reshape(len(starts), -1, V * q)
-    # one column of X at a time: the products of all q² pairs at once would be (K, V, q, q)
-    xx = np.stack([np.add.reduceat(X[:, :, [a]] * wX, starts, axis=0) for a in range(q)], axis=2)
-    xy = np.add.reduceat(wX * y[:, None, None], starts, axis=0)
-    return ux, xx, xy
+    flat = wX.reshape(K, V * q)
+    Uy = np.concatenate([U, y[:, None]], axis=1)  # y rides along: Σ w yᵀX from the same product
+    uyx = np.empty((n_blocks, m + 1, V * q))
+    xx = np.empty((n_blocks, V, q, q))
+    for b, (lo, hi) in enumerate(block_spans(blocks)):
+        np.matmul(Uy[lo:hi].T, flat[lo:hi], out=uyx[b])
+        # per variant a (q, k) @ (k, q) product
+        np.matmul(X[lo:hi].transpose(1, 2, 0), wX[lo:hi].transpose(1, 0, 2), out=xx[b])
+    return uyx[:, :m], xx, uyx[:, m].reshape(n_blocks, V, q)
 
 
 def extended_stats(

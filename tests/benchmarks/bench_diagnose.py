@@ -15,6 +15,7 @@ memory (ru_maxrss) is reported with its wall and CPU time.
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import statistics
 import subprocess
@@ -38,7 +39,9 @@ LONG_TARGET_S, LONG_TARGET_BYTES = 60.0, 1e9
 
 def long_case(minutes: float, recording: str | None = None) -> None:
     """Diagnose ``minutes`` of the validation multisine at 1 kHz in a child process
-    (``recording``: one made before, instead of simulating it again)."""
+    (``recording``: a run directory, made there and kept when it holds no recording yet, so that
+    reruns diagnose the same one instead of simulating it again). The child runs with one BLAS
+    thread, as every ``hil`` command does (drivers.process.limit_blas_threads)."""
     from profiles.experiment import load_experiment
 
     text = Path(load_experiment("validation-multisine").source).read_text()
@@ -47,8 +50,14 @@ def long_case(minutes: float, recording: str | None = None) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         toml = Path(tmp) / "multisine-1khz.toml"
         toml.write_text(text)
-        path = recording or make_recording(Path(tmp) / "long", toml, None)
+        if recording is None:
+            path = make_recording(Path(tmp) / "long", toml, None)
+        elif not (Path(recording) / "signals.csv").exists():
+            path = make_recording(Path(recording), toml, None)
+        else:
+            path = Path(recording)
         code = (
+            "from drivers.process import limit_blas_threads; limit_blas_threads(); "
             "import sys, time; from drivers.recording import read_signals; "
             "from hil.diagnose.report import diagnose; from hil.model.params import robot_params; "
             "rec = read_signals(sys.argv[1]); t = time.perf_counter(); "
@@ -57,6 +66,7 @@ def long_case(minutes: float, recording: str | None = None) -> None:
             "','.join(f\"{f['effect']}:{f['joint']}\" for f in doc['findings']) or 'none')"
         )
         root = Path(__file__).resolve().parents[2]
+        load_before = os.getloadavg()[0]
         out = subprocess.run(
             [sys.executable, "-c", code, str(path)],
             cwd=root,
@@ -72,7 +82,8 @@ def long_case(minutes: float, recording: str | None = None) -> None:
             f"{usage.ru_utime + usage.ru_stime:.1f} s CPU, peak RSS {peak / 1e6:.0f} MB; "
             f"targets < {LONG_TARGET_S:.0f} s "
             f"{'met' if wall < LONG_TARGET_S else 'MISSED'}, < 1 GB "
-            f"{'met' if peak < LONG_TARGET_BYTES else 'MISSED'}; findings: {found}"
+            f"{'met' if peak < LONG_TARGET_BYTES else 'MISSED'}; findings: {found}; "
+            f"load average {load_before:.1f} → {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs"
         )
 
 
@@ -82,7 +93,9 @@ def main() -> int:
     ap.add_argument("--long", action="store_true", help="also the 10-minute 1 kHz case")
     ap.add_argument("--long-minutes", type=float, default=10.0)
     ap.add_argument(
-        "--long-recording", default=None, help="diagnose this long recording instead of making one"
+        "--long-recording",
+        default=None,
+        help="run directory of the long recording: made there once and kept, then reused",
     )
     args = ap.parse_args()
     if args.repeat < 1:
