@@ -28,12 +28,11 @@ from hil.model.estimators import (
     combine,
     solve_normal_equations,
 )
-from hil.model.metrics import nrmse
-from hil.model.openloop import simulate_open_loop
+from hil.model.metrics import NrmseAccumulator
+from hil.model.openloop import simulate_open_loop_chunks
 from hil.model.regressors import (
     ROW_CHUNK,
     SCHEMES,
-    build_regression,
     data_bandwidth,
     iter_regression,
     iter_rows,
@@ -190,7 +189,14 @@ def initial_velocity(rec: Recording) -> tuple[float, float]:
     return (float(dq[0]), float(dq[1]))
 
 
-def validate(theta: np.ndarray, rec: Recording, *, lam: float = 50.0) -> dict[str, Any]:
+# Simulated positions kept for the validation plot: every row up to this many, else every
+# n-th (a plot of 5 million points shows nothing more and costs 80 MB a recording).
+PLOT_POINTS = 20000
+
+
+def validate(
+    theta: np.ndarray, rec: Recording, *, lam: float = 50.0, chunk: int = ROW_CHUNK
+) -> dict[str, Any]:
     """How well θ explains a recording, both ways (per joint, NRMSE as a fraction):
 
     * ``position_nrmse``: the model simulated open loop from the recording's first sample,
@@ -200,20 +206,39 @@ def validate(theta: np.ndarray, rec: Recording, *, lam: float = 50.0) -> dict[st
       ``exact`` filtered dynamic regression (rows with a stuck joint left out), i.e. the torque
       the model says was needed for the recorded motion, filtered at λ to keep differentiation
       noise out.
+
+    Both streamed in chunks of ``chunk`` rows (simulation and regression), so memory does not
+    grow with the recording (issue 13). ``simulated_q`` (for plots) holds the simulated
+    positions at the rows ``simulated_rows``: all of them up to PLOT_POINTS, else every n-th.
     """
-    sim = simulate_open_loop(theta, rec.tau, rec.period_s, q0=rec.q[0], dq0=initial_velocity(rec))
-    reg = build_regression("filtered_dynamic", rec.q, rec.tau, rec.period_s, lam, "exact")
-    predicted = np.einsum("kmp,p->km", reg.Psi, theta)
-    torque = [
-        float(nrmse(reg.y[reg.weights[:, j] > 0, j], predicted[reg.weights[:, j] > 0, j]))
-        for j in range(2)
-    ]
+    n = len(rec)
+    every = max(1, -(-n // PLOT_POINTS))
+    position = NrmseAccumulator()
+    worst = np.zeros(2)
+    shown = []
+    for c in simulate_open_loop_chunks(
+        theta, rec.tau, rec.period_s, q0=rec.q[0], dq0=initial_velocity(rec), chunk=chunk
+    ):
+        first = round(c.t[0] / rec.period_s)
+        recorded = rec.q[first : first + len(c.q)]
+        position.add(recorded, c.q)
+        worst = np.maximum(worst, np.max(np.abs(recorded - c.q), axis=0))
+        shown.append(c.q[(-first) % every :: every])
+    torque = [NrmseAccumulator(), NrmseAccumulator()]
+    for c in iter_regression(
+        "filtered_dynamic", rec.q, rec.tau, rec.period_s, lam, "exact", chunk=chunk
+    ):
+        predicted = np.einsum("kmp,p->km", c.Psi, theta)
+        for j in range(2):
+            used = c.weights[:, j] > 0
+            torque[j].add(c.y[used, j], predicted[used, j])
     return {
         "recording": str(rec.path),
-        "position_nrmse": [float(x) for x in nrmse(rec.q, sim.q)],
-        "position_max_error_rad": [float(x) for x in np.max(np.abs(rec.q - sim.q), axis=0)],
-        "torque_nrmse": torque,
-        "simulated_q": sim.q,  # for plots; dropped from JSON
+        "position_nrmse": [float(x) for x in position.result()],
+        "position_max_error_rad": [float(x) for x in worst],
+        "torque_nrmse": [float(acc.result()) for acc in torque],
+        "simulated_q": np.concatenate(shown),  # for plots; dropped from JSON
+        "simulated_rows": np.arange(0, n, every),
     }
 
 
