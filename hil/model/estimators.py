@@ -305,7 +305,7 @@ class WeightedRefit:
             smooth = np.convolve(context[:, j], kernel, mode="valid")
             var[:, j] = np.maximum(smooth, self.floor[j])
         self.ne.add(Psi, y, base / var)
-        self.before = np.vstack([self.before, r2])[len(self.before) + len(r2) - self.left :]
+        self.before = np.vstack([self.before, r2])[max(0, len(self.before) + len(r2) - self.left) :]
 
     def solve(self) -> np.ndarray:
         while self.pending:

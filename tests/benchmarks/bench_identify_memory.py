@@ -6,6 +6,12 @@ a physical recording: identification and open-loop validation run end to end), t
 the bytes per recording row, and the wall time.
 
     python tests/benchmarks/bench_identify_memory.py --seconds 850   # 340 000 rows, ~1.5 min
+    python tests/benchmarks/bench_identify_memory.py --seconds 120 --tile-mb 700 --dir /tmp/x
+
+``--tile-mb MB`` makes a long file quickly: the ``--seconds`` simulated run repeated until its
+signals.csv holds MB megabytes, t rewritten as k·h (continuous; q and the torques jump where one
+copy ends and the next begins, once per copy: a few rows among millions, finite like any
+recording). Simulating 700 MB (10 M rows) outright would take the better part of an hour.
 
 The recording is kept in ``--dir`` (default: a temporary directory, removed at the end).
 """
@@ -24,6 +30,10 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seconds", type=float, default=850.0, help="simulated duration")
     p.add_argument("--dir", default=None, help="where to write (default: a temporary dir)")
+    p.add_argument("--tile-mb", type=float, default=None, help="repeat the run to this size")
+    p.add_argument(
+        "--command", default="identify", choices=("identify", "diagnose"), help="what to measure"
+    )
     args = p.parse_args()
     if not args.seconds > 0:
         p.error(f"--seconds must be > 0, got {args.seconds}")
@@ -34,13 +44,14 @@ def main() -> int:
              str(args.seconds), "--out", str(run), "--no-plot", "-q"],
             check=True, capture_output=True,
         )  # fmt: skip
+        if args.tile_mb is not None:
+            tile(run / "signals.csv", args.tile_mb * 1e6)
         with open(run / "signals.csv") as f:
             rows = sum(1 for _ in f) - 1
         t0 = time.perf_counter()
         proc = subprocess.run(
-            ["/usr/bin/time", "-f", "%M", sys.executable, "-m", "hil.cli", "identify", "--from",
-             str(run), "--out", str(Path(args.dir or tmp) / "identify"), "--overwrite",
-             "--no-plot", "--json"],
+            ["/usr/bin/time", "-f", "%M", sys.executable, "-m", "hil.cli",
+             *command(args, run, tmp)],
             capture_output=True, text=True, check=False,
         )  # fmt: skip
         seconds = time.perf_counter() - t0
@@ -48,11 +59,38 @@ def main() -> int:
             print(proc.stderr.strip(), file=sys.stderr)
             return 1
         peak = int(proc.stderr.strip().splitlines()[-1]) * 1024
+        size = (run / "signals.csv").stat().st_size
         print(
-            f"hil identify --from ({rows} rows, {args.seconds:g} s at 400 Hz): {seconds:.0f} s, "
+            f"hil {args.command} ({rows} rows, {size / 1e6:.0f} MB CSV): {seconds:.0f} s, "
             f"peak RSS {peak / 1e6:.0f} MB ({peak / rows:.0f} B a row)"
         )
     return 0
+
+
+def command(args: argparse.Namespace, run: Path, tmp: str) -> list[str]:
+    out = str(Path(args.dir or tmp) / args.command)
+    if args.command == "diagnose":
+        return ["diagnose", str(run), "--out", out, "--overwrite", "--no-plots", "--json"]
+    return ["identify", "--from", str(run), "--out", out, "--overwrite", "--no-plot", "--json"]
+
+
+def tile(csv_path: Path, size_bytes: float) -> None:
+    """Repeat the CSV's rows until the file holds ``size_bytes``, t rewritten as k·h."""
+    lines = csv_path.read_text().splitlines()
+    head, body = lines[0], [line.split(",", 1)[1] for line in lines[1:]]
+    t = [float(line.split(",", 1)[0]) for line in lines[1:3]]
+    h = t[1] - t[0]
+    tmp = csv_path.with_suffix(".tiled")
+    written = 0
+    k = 0
+    with open(tmp, "w") as f:
+        f.write(head + "\n")
+        while written < size_bytes:
+            block = "".join(f"{round((k + i) * h, 9)!r},{row}\n" for i, row in enumerate(body))
+            f.write(block)
+            written += len(block)
+            k += len(body)
+    tmp.replace(csv_path)
 
 
 if __name__ == "__main__":
