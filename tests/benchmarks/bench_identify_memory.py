@@ -8,10 +8,14 @@ the bytes per recording row, and the wall time.
     python tests/benchmarks/bench_identify_memory.py --seconds 850   # 340 000 rows, ~1.5 min
     python tests/benchmarks/bench_identify_memory.py --seconds 120 --tile-mb 700 --dir /tmp/x
 
-``--tile-mb MB`` makes a long file quickly: the ``--seconds`` simulated run repeated until its
-signals.csv holds MB megabytes, t rewritten as k·h (continuous; q and the torques jump where one
-copy ends and the next begins, once per copy: a few rows among millions, finite like any
-recording). Simulating 700 MB (10 M rows) outright would take the better part of an hour.
+``--tile-mb MB`` makes a long file quickly (simulating 700 MB, 10 M rows, outright takes the
+better part of an hour): one settled stretch of the simulated run repeated until signals.csv
+holds MB megabytes, t rewritten as k·h. The stretch joins onto itself: the excitation of eqs.
+(31)-(32) has frequencies 12, 16, 20, 26 rad/s, all multiples of 2 rad/s, so it repeats every
+π s, and 11π s is 13 823.0 samples of 2.5 ms; from t = 25 s on (the steps' e^{-0.8 t} gone) the
+arm follows that period, its state at t and t + 11π s a few encoder counts apart (≲ 2e-4 rad).
+So copies of [25 s, 25 s + 11π s) meet with jumps of that size, and the file identifies like
+a long physical run (``--seconds`` must then be ≥ 60).
 
 The recording is kept in ``--dir`` (default: a temporary directory, removed at the end).
 """
@@ -19,6 +23,7 @@ The recording is kept in ``--dir`` (default: a temporary directory, removed at t
 from __future__ import annotations
 
 import argparse
+import json
 import subprocess
 import sys
 import tempfile
@@ -45,7 +50,7 @@ def main() -> int:
             check=True, capture_output=True,
         )  # fmt: skip
         if args.tile_mb is not None:
-            tile(run / "signals.csv", args.tile_mb * 1e6)
+            tile(run, args.tile_mb * 1e6)
         with open(run / "signals.csv") as f:
             rows = sum(1 for _ in f) - 1
         t0 = time.perf_counter()
@@ -74,23 +79,36 @@ def command(args: argparse.Namespace, run: Path, tmp: str) -> list[str]:
     return ["identify", "--from", str(run), "--out", out, "--overwrite", "--no-plot", "--json"]
 
 
-def tile(csv_path: Path, size_bytes: float) -> None:
-    """Repeat the CSV's rows until the file holds ``size_bytes``, t rewritten as k·h."""
+# A stretch of whole excitation periods (11π s) once the arm has settled (from 25 s): see the
+# module docstring.
+TILE_FIRST_ROW = 10_000
+TILE_ROWS = 13_823
+
+
+def tile(run: Path, size_bytes: float) -> None:
+    """Repeat rows TILE_FIRST_ROW.. of TILE_ROWS of run/signals.csv until the file holds
+    ``size_bytes``, t rewritten as k·h; meta.json's rows and duration follow."""
+    csv_path = run / "signals.csv"
     lines = csv_path.read_text().splitlines()
-    head, body = lines[0], [line.split(",", 1)[1] for line in lines[1:]]
-    t = [float(line.split(",", 1)[0]) for line in lines[1:3]]
-    h = t[1] - t[0]
+    if len(lines) < 1 + TILE_FIRST_ROW + TILE_ROWS:
+        raise SystemExit("--tile-mb needs a run of at least 60 s (--seconds 60)")
+    meta = json.loads((run / "meta.json").read_text())
+    h = float(meta["period_s"])
+    block_rows = lines[1 + TILE_FIRST_ROW : 1 + TILE_FIRST_ROW + TILE_ROWS]
+    body = [line.split(",", 1)[1] for line in block_rows]
     tmp = csv_path.with_suffix(".tiled")
     written = 0
     k = 0
     with open(tmp, "w") as f:
-        f.write(head + "\n")
+        f.write(lines[0] + "\n")
         while written < size_bytes:
             block = "".join(f"{round((k + i) * h, 9)!r},{row}\n" for i, row in enumerate(body))
             f.write(block)
             written += len(block)
             k += len(body)
     tmp.replace(csv_path)
+    meta["rows"], meta["duration_s"] = k, k * h
+    (run / "meta.json").write_text(json.dumps(meta, indent=2))
 
 
 if __name__ == "__main__":
