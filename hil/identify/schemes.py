@@ -185,7 +185,8 @@ def initial_velocity(rec: Recording) -> tuple[float, float]:
     """q̇(0) from the first two samples (zero for a recording that starts at rest)."""
     if len(rec) < 2:
         return (0.0, 0.0)
-    dq = (rec.q[1] - rec.q[0]) / rec.period_s
+    q = rec.segment(slice(0, 2)).q  # rec.q would stack every row to read two
+    dq = (q[1] - q[0]) / rec.period_s
     return (float(dq[0]), float(dq[1]))
 
 
@@ -212,22 +213,21 @@ def validate(
     positions at the rows ``simulated_rows``: all of them up to PLOT_POINTS, else every n-th.
     """
     n = len(rec)
+    q, tau = rec.q, rec.tau  # each access stacks the columns anew: once
     every = max(1, -(-n // PLOT_POINTS))
     position = NrmseAccumulator()
     worst = np.zeros(2)
     shown = []
     for c in simulate_open_loop_chunks(
-        theta, rec.tau, rec.period_s, q0=rec.q[0], dq0=initial_velocity(rec), chunk=chunk
+        theta, tau, rec.period_s, q0=q[0], dq0=initial_velocity(rec), chunk=chunk
     ):
         first = round(c.t[0] / rec.period_s)
-        recorded = rec.q[first : first + len(c.q)]
+        recorded = q[first : first + len(c.q)]
         position.add(recorded, c.q)
         worst = np.maximum(worst, np.max(np.abs(recorded - c.q), axis=0))
         shown.append(c.q[(-first) % every :: every])
     torque = [NrmseAccumulator(), NrmseAccumulator()]
-    for c in iter_regression(
-        "filtered_dynamic", rec.q, rec.tau, rec.period_s, lam, "exact", chunk=chunk
-    ):
+    for c in iter_regression("filtered_dynamic", q, tau, rec.period_s, lam, "exact", chunk=chunk):
         predicted = np.einsum("kmp,p->km", c.Psi, theta)
         for j in range(2):
             used = c.weights[:, j] > 0
