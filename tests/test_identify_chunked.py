@@ -186,3 +186,40 @@ def test_nrmse_accumulated_over_chunks() -> None:
     for s in chunks_of(10, 3):
         const.add(np.ones(10)[s], np.zeros(10)[s])
     assert np.isnan(const.result())
+
+
+def test_identify_memory_does_not_grow_with_the_rows(rec) -> None:
+    """Beyond the recording itself, identification and validation hold O(chunk) memory: four
+    times the rows cost less than 200 B a row more at their peak (tracemalloc; the whole
+    regression was about 1 KB a row before issue 13). Not a speed or size target (those are
+    in tests/benchmarks/bench_identify_memory.py): a structural check that no pass keeps all
+    rows."""
+    import dataclasses
+    import tracemalloc
+
+    def peak(copies: int) -> int:
+        q = np.concatenate([rec.q] * copies)  # joins jump: harmless for a memory count
+        tau = np.concatenate([rec.tau] * copies)
+        longer = dataclasses.replace(
+            rec,
+            columns={
+                "t": np.arange(len(q)) * rec.period_s,
+                "q1": q[:, 0].copy(),
+                "q2": q[:, 1].copy(),
+                "tau1": tau[:, 0].copy(),
+                "tau2": tau[:, 1].copy(),
+            },
+        )
+        tracemalloc.start()
+        tracemalloc.reset_peak()
+        base = tracemalloc.get_traced_memory()[0]
+        res = identify(q, tau, rec.period_s, schemes=["filtered_dynamic"], chunk=256)
+        assert res["filtered_dynamic"].rows == len(q) - 3
+        validate(robot_params("cicese").theta, longer, chunk=256)
+        top = tracemalloc.get_traced_memory()[1] - base
+        tracemalloc.stop()
+        return top
+
+    short, long = peak(1), peak(4)
+    added_rows = 3 * len(rec)
+    assert (long - short) / added_rows < 200, (short, long)
