@@ -66,7 +66,7 @@ def test_validation_panels_are_titled_in_words(saved, tmp_path) -> None:
     from hil.identify.plots import plot_validation
 
     rec = _recording({})
-    panels = [(name, rec, rec.q, [0.1, 0.2]) for name in ("fit", "held_out")]
+    panels = [(name, rec, np.arange(len(rec)), rec.q, [0.1, 0.2]) for name in ("fit", "held_out")]
     plot_validation("reyes-kelly", "exact", panels, tmp_path / "v.png")
     (fig,) = saved
     assert not any("held_out" in t for t in fig["titles"] + [fig["title"]])

@@ -167,6 +167,9 @@ def _record(
     return rec
 
 
+PLOT_ONLY = ("simulated_q", "simulated_rows")  # validate()'s arrays for plots, not for JSON
+
+
 def _scheme_json(res: SchemeResult, reference: np.ndarray, validation: dict) -> dict[str, Any]:
     return {
         "theta": res.theta.tolist(),
@@ -179,7 +182,7 @@ def _scheme_json(res: SchemeResult, reference: np.ndarray, validation: dict) -> 
         "rows_excluded_stick": res.rows_excluded,
         "physical_consistency": res.consistency,
         "validation": {
-            name: {k: v for k, v in val.items() if k != "simulated_q"}
+            name: {k: v for k, v in val.items() if k not in PLOT_ONLY}
             for name, val in validation.items()
         },
         "timing_s": res.timing_s,
@@ -291,12 +294,9 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             "schemes": {},
             "timing_s": {
                 "total": elapsed,
-                "batch_least_squares": sum(
-                    r.timing_s["regression"] + r.timing_s["least_squares"] for r in results.values()
-                ),
+                "batch_least_squares": sum(r.timing_s["least_squares"] for r in results.values()),
                 "recursive_least_squares": sum(
-                    r.timing_s["regression"] + r.timing_s["recursive_least_squares"]
-                    for r in results.values()
+                    r.timing_s["recursive_least_squares"] for r in results.values()
                 ),
             },
         }
@@ -310,8 +310,8 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
 
                 p1 = plot_estimates(res, reference.theta, out / f"theta-{disc}-{scheme}.png")
                 panels = [
-                    (name, rec, validation[name]["simulated_q"],
-                     validation[name]["position_nrmse"])
+                    (name, rec, validation[name]["simulated_rows"],
+                     validation[name]["simulated_q"], validation[name]["position_nrmse"])
                     for name, rec in (("fit", fit), ("held_out", held_out))
                     if rec is not None
                 ]  # fmt: skip
@@ -331,7 +331,7 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     if held_out is not None:
         profile_validation["held_out"] = validate(reference.theta, held_out, lam=args.lam)
     report["profile_validation"] = {
-        name: {k: v for k, v in val.items() if k != "simulated_q"}
+        name: {k: v for k, v in val.items() if k not in PLOT_ONLY}
         for name, val in profile_validation.items()
     }
 

@@ -54,19 +54,21 @@ _PANEL_TITLES = {"fit": "Fit recording", "held_out": "Held-out recording"}
 def plot_validation(
     scheme: str,
     discretization: str,
-    panels: list[tuple[str, Recording, np.ndarray, list[float]]],
+    panels: list[tuple[str, Recording, np.ndarray, np.ndarray, list[float]]],
     path: Path,
 ) -> Path:
     """Recorded against simulated positions per joint, one column per recording
-    (title, recording, simulated q, position NRMSE per joint)."""
+    (title, recording, the rows simulated q is given at, simulated q, position NRMSE per
+    joint)."""
     plt = _pyplot()
     fig, axes = plt.subplots(2, len(panels), figsize=(5.5 * len(panels), 6), squeeze=False)
-    for c, (name, rec, q_sim, err) in enumerate(panels):
+    for c, (name, rec, rows, q_sim, err) in enumerate(panels):
         title = _PANEL_TITLES.get(name, name)
+        t = rec.t[rows]
         for j in range(2):
             ax = axes[j, c]
-            ax.plot(rec.t, rec.q[:, j], lw=1.1, label="recorded")
-            ax.plot(rec.t, q_sim[:, j], lw=1.0, ls="--", label="simulated, identified θ")
+            ax.plot(t, rec.q[rows, j], lw=1.1, label="recorded")
+            ax.plot(t, q_sim[:, j], lw=1.0, ls="--", label="simulated, identified θ")
             ax.set_ylabel(f"q{j + 1} [rad]")
             ax.set_title(f"{title}: joint {j + 1}, NRMSE {100 * err[j]:.1f} %", fontsize=9)
             ax.tick_params(labelsize=8)

@@ -18,18 +18,25 @@ from drivers.recording import Recording
 from hil.model.closed_form import THETA_NAMES, ArmModel, physical_consistency
 from hil.model.estimators import (
     BlockNormalEquations,
+    LeastSquaresRows,
+    RecursiveLeastSquaresRows,
+    ResidualLevel,
+    WeightedRefit,
     blocked_bootstrap,
     bounded_quadratic_fit,
     channel_weights,
     combine,
-    least_squares,
-    recursive_least_squares,
     solve_normal_equations,
-    weighted_least_squares,
 )
-from hil.model.metrics import nrmse
-from hil.model.openloop import simulate_open_loop
-from hil.model.regressors import SCHEMES, build_regression, data_bandwidth, iter_rows
+from hil.model.metrics import NrmseAccumulator
+from hil.model.openloop import simulate_open_loop_chunks
+from hil.model.regressors import (
+    ROW_CHUNK,
+    SCHEMES,
+    data_bandwidth,
+    iter_regression,
+    iter_rows,
+)
 
 ESTIMATORS = ("rls", "ls", "wls")
 SCHEME_TITLES = {
@@ -81,30 +88,63 @@ def identify(
     lam: float = 50.0,
     estimator: str = "rls",
     t: np.ndarray | None = None,
+    chunk: int = ROW_CHUNK,
 ) -> dict[str, SchemeResult]:
     """Identify θ with each scheme: regression (eqs. (24), (28), (30)), then recursive least
     squares (eqs. (20)-(22), P(0) = 1000·I, θ̂(0) = 0), batch and weighted least squares.
     ``t``: the samples' real times when they are not k·h (:func:`irregular_times`); the
-    ``exact`` rows then use each interval's own length; ``paper`` keeps the paper's k·h."""
+    ``exact`` rows then use each interval's own length; ``paper`` keeps the paper's k·h.
+
+    Memory is O(``chunk`` rows) beyond ``q``, ``tau``: every estimator runs over the rows of
+    :func:`iter_regression` chunk after chunk, in three passes that rebuild them (least
+    squares; RLS and the residual level; the weighted refit), never the whole regression
+    (issue 13)."""
     if estimator not in ESTIMATORS:
         raise ValueError(
             f"unknown estimator {estimator!r}; expected one of {', '.join(ESTIMATORS)}"
         )
     out = {}
     for scheme in schemes:
-        t0 = time.perf_counter()
         times = t if discretization == "exact" else None
-        reg = build_regression(scheme, q, tau, period_s, lam, discretization, t=times)
+
+        def rows(scheme: str = scheme, times: np.ndarray | None = times):
+            # the regression in chunks, built afresh for each pass: memory O(chunk), not O(rows)
+            return iter_regression(
+                scheme, q, tau, period_s, lam, discretization, t=times, chunk=chunk
+            )
+
+        # pass 1: batch least squares and the number of rows
+        t0 = time.perf_counter()
+        ne = None
+        for c in rows():
+            ne = ne or LeastSquaresRows(c.Psi.shape[-1])
+            ne.add(c.Psi, c.y, c.weights)
+        assert ne is not None
+        theta_ls = ne.solve()
+        K, m = ne.rows, c.y.shape[1]
+        excluded = K * m - ne.used
         t1 = time.perf_counter()
-        theta_ls = least_squares(reg.Psi, reg.y, reg.weights)
-        t2 = time.perf_counter()
-        # θ̂(k) only at the rows the report and plots show (a (K, 9) history is 72 B a row)
-        K = len(reg.y)
+        # pass 2: RLS, θ̂(k) only at the rows the report and plots show (a (K, 9) history is
+        # 72 B a row), and feasible WLS's residual level
         pick = np.unique(np.r_[np.arange(0, K, max(1, K // HISTORY_POINTS)), K - 1])
-        hist = recursive_least_squares(reg.Psi, reg.y, reg.weights, keep=pick)
+        rls = RecursiveLeastSquaresRows(len(theta_ls), m, K, keep=pick)
+        level = ResidualLevel(theta_ls, m)
+        history_t = np.empty(len(pick))
+        row = 0
+        for c in rows():
+            rls.add(c.Psi, c.y, c.weights)
+            level.add(c.Psi, c.y, c.weights)
+            here = (pick >= row) & (pick < row + len(c.t))
+            history_t[here] = c.t[pick[here] - row]
+            row += len(c.t)
+        hist = rls.history
+        t2 = time.perf_counter()
+        # pass 3: feasible weighted least squares (weighted_least_squares, in chunks)
+        refit = WeightedRefit(theta_ls, level.level(), K)
+        for c in rows():
+            refit.add(c.Psi, c.y, c.weights)
+        theta_wls = refit.solve()
         t3 = time.perf_counter()
-        theta_wls = weighted_least_squares(reg.Psi, reg.y, reg.weights)
-        t4 = time.perf_counter()
         chosen = {"rls": hist[-1], "ls": theta_ls, "wls": theta_wls}[estimator]
         out[scheme] = SchemeResult(
             scheme=scheme,
@@ -115,19 +155,17 @@ def identify(
             theta_rls=hist[-1],
             theta_ls=theta_ls,
             theta_wls=theta_wls,
-            history_t=reg.t[pick],
+            history_t=history_t,
             history=hist,
-            rows=int(reg.weights.shape[0]),
-            rows_excluded=int(np.sum(reg.weights == 0)),
+            rows=int(K),
+            rows_excluded=int(excluded),
             consistency=physical_consistency(chosen),
             timing_s={
-                "regression": t1 - t0,
-                "least_squares": t2 - t1,
-                "recursive_least_squares": t3 - t2,
-                "weighted_least_squares": t4 - t3,
+                "least_squares": t1 - t0,  # each pass builds the rows anew
+                "recursive_least_squares": t2 - t1,
+                "weighted_least_squares": t3 - t2,
             },
         )
-        del reg  # before the next scheme's rows are built: one scheme's regression alive at once
     return out
 
 
@@ -147,11 +185,19 @@ def initial_velocity(rec: Recording) -> tuple[float, float]:
     """q̇(0) from the first two samples (zero for a recording that starts at rest)."""
     if len(rec) < 2:
         return (0.0, 0.0)
-    dq = (rec.q[1] - rec.q[0]) / rec.period_s
+    q = rec.segment(slice(0, 2)).q  # rec.q would stack every row to read two
+    dq = (q[1] - q[0]) / rec.period_s
     return (float(dq[0]), float(dq[1]))
 
 
-def validate(theta: np.ndarray, rec: Recording, *, lam: float = 50.0) -> dict[str, Any]:
+# Simulated positions kept for the validation plot: every row up to this many, else every
+# n-th (a plot of 5 million points shows nothing more and costs 80 MB a recording).
+PLOT_POINTS = 20000
+
+
+def validate(
+    theta: np.ndarray, rec: Recording, *, lam: float = 50.0, chunk: int = ROW_CHUNK
+) -> dict[str, Any]:
     """How well θ explains a recording, both ways (per joint, NRMSE as a fraction):
 
     * ``position_nrmse``: the model simulated open loop from the recording's first sample,
@@ -161,20 +207,38 @@ def validate(theta: np.ndarray, rec: Recording, *, lam: float = 50.0) -> dict[st
       ``exact`` filtered dynamic regression (rows with a stuck joint left out), i.e. the torque
       the model says was needed for the recorded motion, filtered at λ to keep differentiation
       noise out.
+
+    Both streamed in chunks of ``chunk`` rows (simulation and regression), so memory does not
+    grow with the recording (issue 13). ``simulated_q`` (for plots) holds the simulated
+    positions at the rows ``simulated_rows``: all of them up to PLOT_POINTS, else every n-th.
     """
-    sim = simulate_open_loop(theta, rec.tau, rec.period_s, q0=rec.q[0], dq0=initial_velocity(rec))
-    reg = build_regression("filtered_dynamic", rec.q, rec.tau, rec.period_s, lam, "exact")
-    predicted = np.einsum("kmp,p->km", reg.Psi, theta)
-    torque = [
-        float(nrmse(reg.y[reg.weights[:, j] > 0, j], predicted[reg.weights[:, j] > 0, j]))
-        for j in range(2)
-    ]
+    n = len(rec)
+    q, tau = rec.q, rec.tau  # each access stacks the columns anew: once
+    every = max(1, -(-n // PLOT_POINTS))
+    position = NrmseAccumulator()
+    worst = np.zeros(2)
+    shown = []
+    for c in simulate_open_loop_chunks(
+        theta, tau, rec.period_s, q0=q[0], dq0=initial_velocity(rec), chunk=chunk
+    ):
+        first = round(c.t[0] / rec.period_s)
+        recorded = q[first : first + len(c.q)]
+        position.add(recorded, c.q)
+        worst = np.maximum(worst, np.max(np.abs(recorded - c.q), axis=0))
+        shown.append(c.q[(-first) % every :: every])
+    torque = [NrmseAccumulator(), NrmseAccumulator()]
+    for c in iter_regression("filtered_dynamic", q, tau, rec.period_s, lam, "exact", chunk=chunk):
+        predicted = np.einsum("kmp,p->km", c.Psi, theta)
+        for j in range(2):
+            used = c.weights[:, j] > 0
+            torque[j].add(c.y[used, j], predicted[used, j])
     return {
         "recording": str(rec.path),
-        "position_nrmse": [float(x) for x in nrmse(rec.q, sim.q)],
-        "position_max_error_rad": [float(x) for x in np.max(np.abs(rec.q - sim.q), axis=0)],
-        "torque_nrmse": torque,
-        "simulated_q": sim.q,  # for plots; dropped from JSON
+        "position_nrmse": [float(x) for x in position.result()],
+        "position_max_error_rad": [float(x) for x in worst],
+        "torque_nrmse": [float(acc.result()) for acc in torque],
+        "simulated_q": np.concatenate(shown),  # for plots; dropped from JSON
+        "simulated_rows": np.arange(0, n, every),
     }
 
 

@@ -79,34 +79,74 @@ def recursive_least_squares(
     only at the rows ``keep`` (increasing indices), (len(keep), p): a long recording's report
     needs a few hundred points of the history, not K of them (issue 13: memory)."""
     Psi = np.asarray(Psi, dtype=float)
-    y = np.asarray(y, dtype=float)
     K, m, p = Psi.shape
-    keep = np.arange(K) if keep is None else np.asarray(keep, dtype=int)
-    if len(keep) and (keep[0] < 0 or keep[-1] >= K or np.any(np.diff(keep) <= 0)):
-        raise ValueError(f"keep must be increasing row indices in [0, {K}), got {keep}")
-    w = np.ones((K, m)) if weights is None else np.asarray(weights, dtype=float)
-    if m == 1 and forgetting == 1.0:
-        return _scalar_rls(Psi[:, 0, :], y[:, 0], w[:, 0], p0, keep)
-    history = np.empty((len(keep), p))
-    rls = RecursiveLeastSquares(p, p0=p0, forgetting=forgetting)
-    slot = 0
-    for k in range(K):
-        theta = rls.update(Psi[k], y[k], w[k])
-        if slot < len(keep) and keep[slot] == k:
-            history[slot] = theta
-            slot += 1
-    return history
+    rls = RecursiveLeastSquaresRows(p, m, K, keep=keep, p0=p0, forgetting=forgetting)
+    rls.add(Psi, y, weights)
+    return rls.history
+
+
+class RecursiveLeastSquaresRows:
+    """RLS (eqs. (20)-(22)) over the rows of a regression given chunk after chunk (P, θ̂ carried),
+    keeping θ̂(k) only at the rows ``keep`` (increasing indices in [0, ``rows``); None: all):
+    memory O(p² + len(keep)·p) whatever the number of rows (issue 13)."""
+
+    def __init__(
+        self,
+        n_params: int,
+        n_outputs: int,
+        rows: int,
+        *,
+        keep: np.ndarray | None = None,
+        p0: float = PAPER_P0,
+        forgetting: float = 1.0,
+    ) -> None:
+        keep = np.arange(rows) if keep is None else np.asarray(keep, dtype=int)
+        if len(keep) and (keep[0] < 0 or keep[-1] >= rows or np.any(np.diff(keep) <= 0)):
+            raise ValueError(f"keep must be increasing row indices in [0, {rows}), got {keep}")
+        self.keep = keep
+        self.history = np.empty((len(keep), n_params))
+        self.scalar = n_outputs == 1 and forgetting == 1.0
+        self.rls = RecursiveLeastSquares(n_params, p0=p0, forgetting=forgetting)
+        self.row = 0  # rows seen
+        self.slot = 0  # history entries filled
+
+    def add(self, Psi: np.ndarray, y: np.ndarray, weights: np.ndarray | None = None) -> None:
+        """The next rows: Psi (K, m, p), y (K, m), weights (K, m) (None: 1)."""
+        Psi = np.asarray(Psi, dtype=float)
+        y = np.asarray(y, dtype=float)
+        K, m, _p = Psi.shape
+        w = np.ones((K, m)) if weights is None else np.asarray(weights, dtype=float)
+        end = self.row + K
+        stop = int(np.searchsorted(self.keep, end))
+        local = self.keep[self.slot : stop] - self.row
+        if self.scalar:
+            rls = self.rls
+            rls.theta, rls.P = _scalar_rls(
+                Psi[:, 0, :], y[:, 0], w[:, 0], rls.theta, rls.P, local,
+                self.history[self.slot : stop],
+            )  # fmt: skip
+        else:
+            slot = 0
+            for k in range(K):
+                theta = self.rls.update(Psi[k], y[k], w[k])
+                if slot < len(local) and local[slot] == k:
+                    self.history[self.slot + slot] = theta
+                    slot += 1
+        self.row, self.slot = end, stop
 
 
 def _scalar_rls(
-    psi: np.ndarray, y: np.ndarray, w: np.ndarray, p0: float, keep: np.ndarray
-) -> np.ndarray:
-    """Scalar-error RLS, eqs. (20)-(22) with m = 1, as a tight loop (no m×m solve); θ̂(k) at
-    the rows ``keep``."""
-    K, p = psi.shape
-    P = np.eye(p) * p0
-    theta = np.zeros(p)
-    out = np.empty((len(keep), p))
+    psi: np.ndarray,
+    y: np.ndarray,
+    w: np.ndarray,
+    theta: np.ndarray,
+    P: np.ndarray,
+    keep: np.ndarray,
+    out: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Scalar-error RLS, eqs. (20)-(22) with m = 1, as a tight loop (no m×m solve) from θ̂ and
+    P; θ̂(k) at the rows ``keep`` into ``out``. Returns the final (θ̂, P)."""
+    K = len(psi)
     sw = np.sqrt(w)
     slot = 0
     for k in range(K):
@@ -119,31 +159,62 @@ def _scalar_rls(
         if slot < len(keep) and keep[slot] == k:
             out[slot] = theta
             slot += 1
-    return out
+    return theta, P
+
+
+class LeastSquaresRows:
+    """Least squares over the rows of a regression given chunk after chunk, in O(p²) memory
+    whatever the number of rows (issue 13): the triangular factor R of the weighted rows
+    [A | b] is updated by a QR factorization of [R; next chunk] (a tall-skinny QR), so the
+    solve is as well conditioned as a QR of all rows at once (the normal equations would square
+    the condition number: 1e-10 relative on the supplied-energy model). ``rows`` counts the
+    rows seen (K), ``used`` the (row, channel) pairs of weight > 0."""
+
+    def __init__(self, n_params: int) -> None:
+        self.p = n_params
+        self.R = np.zeros((0, n_params + 1))
+        self.rows = 0
+        self.used = 0
+
+    def add(self, Psi: np.ndarray, y: np.ndarray, weights: np.ndarray | None = None) -> None:
+        """Rows Psi (K, m, p), y (K, m), weights (K, m) ≥ 0 (None: 1; 0 leaves a row out)."""
+        Psi = np.asarray(Psi, dtype=float)
+        K, m, p = Psi.shape
+        rows = np.empty((K * m, p + 1))
+        rows[:, :p] = Psi.reshape(K * m, p)
+        rows[:, p] = np.asarray(y, dtype=float).reshape(K * m)
+        if weights is not None:
+            sw = np.sqrt(np.asarray(weights, dtype=float).reshape(K * m))
+            rows *= sw[:, None]
+            self.used += int(np.count_nonzero(sw))
+        else:
+            self.used += K * m
+        self.R = np.linalg.qr(np.vstack([self.R, rows]), mode="r")
+        self.rows += K
+
+    def solve(self) -> np.ndarray:
+        """argmin Σ w (y − Ψᵀθ)² (minimum norm if rank deficient), columns scaled so the solve
+        does not depend on the units of θ (θ4 ~ 40 Nm, θ2 ~ 0.08 kg m²)."""
+        R, z = self.R[:, : self.p], self.R[:, self.p]
+        scale = np.linalg.norm(R, axis=0)  # = the columns' norms over all rows
+        scale[scale == 0] = 1.0
+        sol, *_ = np.linalg.lstsq(R / scale, z, rcond=None)
+        return sol / scale
 
 
 def least_squares(Psi: np.ndarray, y: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
     """Batch (weighted) least squares: argmin Σ w (y − Ψᵀθ)², the limit of eqs. (18)-(19) with
-    P(0)⁻¹ → 0. Rows with weight 0 are left out."""
-    Psi = np.asarray(Psi, dtype=float)
-    y = np.asarray(y, dtype=float)
-    K, m, p = Psi.shape
-    A = Psi.reshape(K * m, p)
-    b = y.reshape(K * m)
-    if weights is not None:
-        sw = np.sqrt(np.asarray(weights, dtype=float).reshape(K * m))
-        A, b = A * sw[:, None], b * sw
-    # Scale columns so the solve does not depend on the units of θ (θ4 ~ 40 Nm, θ2 ~ 0.08 kg m²).
-    scale = np.linalg.norm(A, axis=0)
-    scale[scale == 0] = 1.0
-    # in place when A is already a copy (weighted): one K·m×p array less on a long recording
-    A = A / scale if weights is None else np.divide(A, scale, out=A)
-    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
-    return sol / scale
+    P(0)⁻¹ → 0 (:class:`LeastSquaresRows`). Rows with weight 0 are left out."""
+    ne = LeastSquaresRows(np.shape(Psi)[-1])
+    ne.add(Psi, y, weights)
+    return ne.solve()
+
+
+WLS_WINDOW = 200  # rows of the moving mean of squared residuals (feasible WLS)
 
 
 def weighted_least_squares(
-    Psi: np.ndarray, y: np.ndarray, weights: np.ndarray | None = None, *, window: int = 200
+    Psi: np.ndarray, y: np.ndarray, weights: np.ndarray | None = None, *, window: int = WLS_WINDOW
 ) -> np.ndarray:
     """Feasible weighted least squares: fit by least squares, estimate each row's noise variance
     from the residuals (per output channel, as a moving mean of squared residuals over
@@ -151,24 +222,95 @@ def weighted_least_squares(
 
     For the filtered dynamic model this balances the two joints (joint 1's torques are ten
     times joint 2's, so plain least squares all but ignores joint 2's equation); for the
-    scalar models it down-weights stretches where the residual is large.
+    scalar models it down-weights stretches where the residual is large. The same three steps
+    over rows in chunks: :class:`ResidualLevel`, :class:`WeightedRefit`.
     """
     Psi = np.asarray(Psi, dtype=float)
     y = np.asarray(y, dtype=float)
-    base = np.ones(y.shape) if weights is None else np.asarray(weights, dtype=float)
-    theta = least_squares(Psi, y, base)
-    r2 = (y - np.einsum("kmp,p->km", Psi, theta)) ** 2
-    # np.convolve(..., "same") returns the longer of its inputs: never let the window outgrow the
-    # rows (a short recording, or few rows left after stalls and gaps)
-    window = max(1, min(window, len(r2)))
-    kernel = np.ones(window) / window
-    var = np.empty_like(r2)
-    for j in range(r2.shape[1]):
-        used = base[:, j] > 0
-        level = np.mean(r2[used, j]) if used.any() else 1.0
-        smooth = np.convolve(r2[:, j], kernel, mode="same")
-        var[:, j] = np.maximum(smooth, 1e-6 * level + 1e-300)
-    return least_squares(Psi, y, base / var)
+    theta = least_squares(Psi, y, weights)
+    level = ResidualLevel(theta, y.shape[1])
+    level.add(Psi, y, weights)
+    refit = WeightedRefit(theta, level.level(), len(y), window=window)
+    refit.add(Psi, y, weights)
+    return refit.solve()
+
+
+class ResidualLevel:
+    """Feasible WLS, step 2: the mean squared residual of θ per output channel over the rows of
+    weight > 0 (1 where a channel has none), the floor of the variance estimate."""
+
+    def __init__(self, theta: np.ndarray, n_outputs: int) -> None:
+        self.theta = np.asarray(theta, dtype=float)
+        self.sum = np.zeros(n_outputs)
+        self.count = np.zeros(n_outputs, dtype=int)
+
+    def add(self, Psi: np.ndarray, y: np.ndarray, weights: np.ndarray | None = None) -> None:
+        r2 = (np.asarray(y, dtype=float) - np.einsum("kmp,p->km", Psi, self.theta)) ** 2
+        base = np.ones(r2.shape) if weights is None else np.asarray(weights, dtype=float)
+        for j in range(r2.shape[1]):
+            used = base[:, j] > 0
+            self.sum[j] += np.sum(r2[used, j])
+            self.count[j] += int(used.sum())
+
+    def level(self) -> np.ndarray:
+        return np.where(self.count > 0, self.sum / np.maximum(self.count, 1), 1.0)
+
+
+class WeightedRefit:
+    """Feasible WLS, step 3: each row's noise variance per channel, the moving mean of θ's
+    squared residuals over ``window`` rows centred as ``np.convolve(..., "same")`` (floored at
+    1e-6 of ``level``), and the least squares refit with weights base/σ². Rows come chunk after
+    chunk; a chunk's variances wait for the next ``window``/2 rows, so memory is a few chunks
+    whatever the number of rows. ``rows``: the regression's total (a window longer than the
+    rows is cut to them, as a whole-array convolution would)."""
+
+    def __init__(
+        self, theta: np.ndarray, level: np.ndarray, rows: int, *, window: int = WLS_WINDOW
+    ) -> None:
+        self.theta = np.asarray(theta, dtype=float)
+        self.floor = 1e-6 * np.asarray(level, dtype=float) + 1e-300
+        self.window = max(1, min(int(window), int(rows)))
+        self.right = (self.window - 1) // 2  # rows after a row in its mean
+        self.left = self.window - 1 - self.right  # rows before it
+        self.before: np.ndarray | None = None  # squared residuals of the last `left` rows
+        self.pending: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self.ne = LeastSquaresRows(len(self.theta))
+
+    def add(self, Psi: np.ndarray, y: np.ndarray, weights: np.ndarray | None = None) -> None:
+        Psi = np.asarray(Psi, dtype=float)
+        y = np.asarray(y, dtype=float)
+        base = np.ones(y.shape) if weights is None else np.asarray(weights, dtype=float)
+        r2 = (y - np.einsum("kmp,p->km", Psi, self.theta)) ** 2
+        if self.before is None:
+            self.before = np.zeros((0, y.shape[1]))
+        self.pending.append((Psi, y, base, r2))
+        while len(self.pending) > 1 and sum(len(c[3]) for c in self.pending[1:]) >= self.right:
+            self._refit_first(end=False)
+
+    def _refit_first(self, *, end: bool) -> None:
+        Psi, y, base, r2 = self.pending.pop(0)
+        after = [c[3] for c in self.pending]
+        m = r2.shape[1]
+        ahead = np.concatenate([*after, np.zeros((0, m))])[: self.right]
+        if len(ahead) < self.right:  # past the last row: zeros, as the convolution's edge
+            assert end or not self.pending
+            ahead = np.vstack([ahead, np.zeros((self.right - len(ahead), m))])
+        behind = self.before
+        if len(behind) < self.left:  # before the first row: zeros
+            behind = np.vstack([np.zeros((self.left - len(behind), m)), behind])
+        context = np.vstack([behind, r2, ahead])
+        kernel = np.ones(self.window) / self.window
+        var = np.empty_like(r2)
+        for j in range(m):
+            smooth = np.convolve(context[:, j], kernel, mode="valid")
+            var[:, j] = np.maximum(smooth, self.floor[j])
+        self.ne.add(Psi, y, base / var)
+        self.before = np.vstack([self.before, r2])[max(0, len(self.before) + len(r2) - self.left) :]
+
+    def solve(self) -> np.ndarray:
+        while self.pending:
+            self._refit_first(end=True)
+        return self.ne.solve()
 
 
 # ---- normal equations in blocks: bounded memory, bounded estimates, uncertainty -----------------
@@ -316,7 +458,11 @@ def blocked_bootstrap(
 
 
 __all__ = [
+    "LeastSquaresRows",
     "RecursiveLeastSquares",
+    "RecursiveLeastSquaresRows",
+    "ResidualLevel",
+    "WeightedRefit",
     "blocked_bootstrap",
     "bounded_quadratic_fit",
     "least_squares",

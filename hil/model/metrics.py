@@ -15,26 +15,72 @@ def nrmse(reference: ArrayLike, estimate: ArrayLike) -> np.ndarray:
     whose reference is constant (no spread beyond rounding) has no scale: its NRMSE is nan.
     Non-finite samples propagate as nan.
     """
-    y = np.asarray(reference, dtype=float)
-    y_hat = np.asarray(estimate, dtype=float)
-    if y.shape != y_hat.shape:
-        raise ValueError(f"nrmse: reference shape {y.shape} != estimate shape {y_hat.shape}")
-    if y.ndim not in (1, 2):
-        raise ValueError(f"nrmse: expected shape (N,) or (N, k), got {y.shape}")
-    if y.shape[0] == 0:
-        raise ValueError("nrmse: no samples")
-    error = np.linalg.norm(y - y_hat, axis=0)
-    spread = np.linalg.norm(y - y.mean(axis=0), axis=0)
-    # constant: no spread beyond the rounding of the mean (a passive joint's torque of 1e-17 Nm
-    # scatter gave NRMSEs of 1e17 %)
-    constant = (np.ptp(y, axis=0) == 0) | (
-        spread <= 1e-9 * np.linalg.norm(y, axis=0) + np.finfo(float).tiny
-    )
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.where(constant, np.nan, error / np.where(constant, 1.0, spread))
-    return np.asarray(ratio)
+    acc = NrmseAccumulator()
+    acc.add(reference, estimate)
+    return acc.result()
+
+
+class NrmseAccumulator:
+    """:func:`nrmse` over samples given chunk after chunk: Σ(y − ŷ)², and the spread of y
+    combined across chunks (Chan, Golub & LeVeque's pairwise update of mean and Σ(y − ȳ)²), so
+    a long recording's error needs no whole copy of either; one chunk gives :func:`nrmse`'s
+    numbers bit for bit."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.sse: np.ndarray | float = 0.0  # Σ (y − ŷ)²
+        self.mean: np.ndarray | float = 0.0
+        self.m2: np.ndarray | float = 0.0  # Σ (y − ȳ)²
+        self.yy: np.ndarray | float = 0.0  # Σ y²
+        self.lo: np.ndarray | float = np.inf
+        self.hi: np.ndarray | float = -np.inf
+
+    def add(self, reference: ArrayLike, estimate: ArrayLike) -> None:
+        y = np.asarray(reference, dtype=float)
+        y_hat = np.asarray(estimate, dtype=float)
+        if y.shape != y_hat.shape:
+            raise ValueError(f"nrmse: reference shape {y.shape} != estimate shape {y_hat.shape}")
+        if y.ndim not in (1, 2):
+            raise ValueError(f"nrmse: expected shape (N,) or (N, k), got {y.shape}")
+        k = y.shape[0]
+        if k == 0:
+            return
+        d = y - y_hat
+        sse = np.add.reduce(d * d, axis=0)
+        mean = y.mean(axis=0)
+        c = y - mean
+        m2 = np.add.reduce(c * c, axis=0)
+        if self.n == 0:
+            self.sse, self.mean, self.m2 = sse, mean, m2
+            self.yy = np.add.reduce(y * y, axis=0)
+        else:
+            n = self.n + k
+            delta = mean - self.mean
+            self.mean = self.mean + delta * (k / n)
+            self.m2 = self.m2 + m2 + delta * delta * (self.n * k / n)
+            self.sse = self.sse + sse
+            self.yy = self.yy + np.add.reduce(y * y, axis=0)
+        self.lo = np.minimum(self.lo, y.min(axis=0))
+        self.hi = np.maximum(self.hi, y.max(axis=0))
+        self.n += k
+
+    def result(self) -> np.ndarray:
+        """NRMSE per column (see :func:`nrmse`)."""
+        if self.n == 0:
+            raise ValueError("nrmse: no samples")
+        error = np.sqrt(self.sse)
+        spread = np.sqrt(self.m2)
+        # constant: no spread beyond the rounding of the mean (a passive joint's torque of 1e-17 Nm
+        # scatter gave NRMSEs of 1e17 %)
+        constant = (np.asarray(self.hi - self.lo) == 0) | (
+            spread <= 1e-9 * np.sqrt(self.yy) + np.finfo(float).tiny
+        )
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(constant, np.nan, error / np.where(constant, 1.0, spread))
+        return np.asarray(ratio)
 
 
 __all__ = [
+    "NrmseAccumulator",
     "nrmse",
 ]

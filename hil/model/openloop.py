@@ -46,16 +46,29 @@ from __future__ import annotations
 import dataclasses
 import math
 import operator
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from hil.model.closed_form import N_PARAMS, ArmModel
-from hil.model.openloop_core import Friction, OpenLoopResult, integrate, pair
+from hil.model.openloop_core import (
+    SIMULATION_CHUNK,
+    Friction,
+    OpenLoopResult,
+    integrate,
+    integrate_chunks,
+    pair,
+)
 from hil.model.openloop_effects import OpenLoopExtras, integrate_with_extras
 
-__all__ = ["OpenLoopExtras", "OpenLoopResult", "simulate_open_loop", "simulate_windows"]
+__all__ = [
+    "OpenLoopExtras",
+    "OpenLoopResult",
+    "simulate_open_loop",
+    "simulate_open_loop_chunks",
+    "simulate_windows",
+]
 
 
 def simulate_open_loop(
@@ -90,17 +103,9 @@ def simulate_open_loop(
     its terms (rotor inertia, centre-of-mass offset) enter M(q), C q̇ and g(q) as
     :mod:`hil.model.closed_form` writes them. Raises ValueError on bad input.
     """
-    th = _theta(theta, model)
-    torques = _torques(tau)
-    h = _positive("period_s", period_s)
-    n_sub = _steps(steps_per_period)
-    start = (*pair("q0", q0), *pair("dq0", dq0))
-    fc = (float(th[7]), float(th[8]))
-    pos = fc if coulomb_positive is None else pair("coulomb_positive", coulomb_positive)
-    neg = fc if coulomb_negative is None else pair("coulomb_negative", coulomb_negative)
-    for name, levels in (("theta8, theta9 (Coulomb)", fc), ("coulomb_positive", pos)):
-        _non_negative(name, levels)
-    _non_negative("coulomb_negative", neg)
+    th, torques, h, n_sub, start, pos, neg = _inputs(
+        theta, tau, period_s, q0, dq0, steps_per_period, coulomb_positive, coulomb_negative, model
+    )
     intervals = None
     if intervals_s is not None:
         intervals = np.asarray(intervals_s, float)
@@ -126,6 +131,45 @@ def simulate_open_loop(
     if offset == (0.0, 0.0):
         return result
     return dataclasses.replace(result, q=result.q + np.asarray(offset))  # reported angles
+
+
+def simulate_open_loop_chunks(
+    theta: ArrayLike,
+    tau: ArrayLike,
+    period_s: float,
+    *,
+    q0: Sequence[float] = (0.0, 0.0),
+    dq0: Sequence[float] = (0.0, 0.0),
+    steps_per_period: int = 5,
+    chunk: int = SIMULATION_CHUNK,
+) -> Iterator[OpenLoopResult]:
+    """:func:`simulate_open_loop` of the rigid model (no ``extras``), its rows ``chunk`` at a
+    time (:func:`hil.model.openloop_core.integrate_chunks`): the same numbers, in memory for
+    one chunk whatever the recording's length (issue 13). Checks its input before the first
+    chunk."""
+    th, torques, h, n_sub, start, pos, neg = _inputs(
+        theta, tau, period_s, q0, dq0, steps_per_period, None, None
+    )
+    return integrate_chunks(th, torques, h, n_sub, start, Friction(pos, neg), chunk=chunk)
+
+
+def _inputs(
+    theta, tau, period_s, q0, dq0, steps_per_period, coulomb_positive, coulomb_negative, model=None
+):
+    """:func:`simulate_open_loop`'s arguments checked: (θ, torques, h, sub-steps, start state,
+    Coulomb levels +, −)."""
+    th = _theta(theta, model)
+    torques = _torques(tau)
+    h = _positive("period_s", period_s)
+    n_sub = _steps(steps_per_period)
+    start = (*pair("q0", q0), *pair("dq0", dq0))
+    fc = (float(th[7]), float(th[8]))
+    pos = fc if coulomb_positive is None else pair("coulomb_positive", coulomb_positive)
+    neg = fc if coulomb_negative is None else pair("coulomb_negative", coulomb_negative)
+    for name, levels in (("theta8, theta9 (Coulomb)", fc), ("coulomb_positive", pos)):
+        _non_negative(name, levels)
+    _non_negative("coulomb_negative", neg)
+    return th, torques, h, n_sub, start, pos, neg
 
 
 # ---- validation ---------------------------------------------------------------------------
@@ -284,5 +328,6 @@ __all__ = [
     "OpenLoopExtras",
     "OpenLoopResult",
     "simulate_open_loop",
+    "simulate_open_loop_chunks",
     "simulate_windows",
 ]

@@ -72,6 +72,7 @@ class TorquePath:
 
     identity = True  # applied torque = command: the integrator skips the calls below
     lagged = False
+    row_local = True  # schedule(torques[a:b]) is rows a..b of schedule(torques): no look-back
 
     def schedule(self, torques: np.ndarray, h: float, n_sub: int) -> tuple[list, list, Segments]:
         """Per period k, the command before and after the arrival of its delayed row, and the
@@ -363,6 +364,11 @@ def _flow(step: Step, path: TorquePath, command: Sequence[float], tau: Pair) -> 
 # ---- the integrator -----------------------------------------------------------------------
 
 
+# Rows simulated between two yields of :func:`integrate_chunks`: bounds the per-row Python
+# objects (the rows' commands, the states) a long recording would otherwise hold (issue 13).
+SIMULATION_CHUNK = 1 << 16
+
+
 def integrate(
     theta: np.ndarray,
     torques: np.ndarray,
@@ -376,7 +382,39 @@ def integrate(
 ) -> OpenLoopResult:
     """Simulate θ (checked by the caller) from the true state ``start`` under ``torques`` (N, 2)
     through ``path`` (None: the identity), ``n_sub`` RK4 sub-steps per period h (more where a
-    delayed command arrives inside one), with stick–slip ``friction`` and ``shaft_torque``.
+    delayed command arrives inside one), with stick–slip ``friction`` and ``shaft_torque``:
+    the pieces of :func:`integrate_chunks`, joined.
+    """
+    parts = list(
+        integrate_chunks(
+            theta, torques, h, n_sub, start, friction, path, shaft_torque, intervals=intervals
+        )
+    )
+    last = parts[-1]
+    return OpenLoopResult(
+        *(np.concatenate([getattr(c, f) for c in parts]) for f in ("t", "q", "dq", "stuck")),
+        stick_events=last.stick_events,
+        breakaways=last.breakaways,
+        substeps=last.substeps,
+    )
+
+
+def integrate_chunks(
+    theta: np.ndarray,
+    torques: np.ndarray,
+    h: float,
+    n_sub: int,
+    start: State,
+    friction: Friction,
+    path: TorquePath | None = None,
+    shaft_torque: ShaftTorque | None = None,
+    *,
+    intervals: np.ndarray | None = None,
+    chunk: int = SIMULATION_CHUNK,
+):
+    """:func:`integrate`, yielding its rows ``chunk`` at a time as :class:`OpenLoopResult`
+    pieces (``t``, ``q``, ``dq``, ``stuck`` of those rows; the counters so far), so a long
+    recording's simulation needs memory for one chunk, not for every row (issue 13).
 
     The scheme (:mod:`hil.model.openloop`'s docstring): at each sub-step boundary stuck joints
     whose holding torque leaves the static band break away; a sliding joint's direction is frozen
@@ -389,6 +427,8 @@ def integrate(
     """
     path = TorquePath() if path is None else path
     stretch = None if intervals is None else np.asarray(intervals, float) / h
+    # the rows' times: k·h, or the real sample times the intervals add up to
+    times = None if intervals is None else np.concatenate([[0.0], np.cumsum(stretch * h)])
     identity = path.identity
     n_rows = torques.shape[0]
     pos, neg = friction.static_positive, friction.static_negative
@@ -432,73 +472,80 @@ def integrate(
                 break
         return changed
 
-    before, after, segments = path.schedule(torques, h, n_sub)
-    q_out = [(q1, q2)] * n_rows
-    dq_out = [(v1, v2)] * n_rows
-    stuck_out = [(stuck[0], stuck[1])] * n_rows
+    # a row-local path's commands are each period's own row: scheduled chunk by chunk
+    whole = None if path.row_local else path.schedule(torques, h, n_sub)
     step = mode_step()
-    for k in range(n_rows):
-        q_out[k] = (q1, q2)
-        dq_out[k] = (v1, v2)
-        stuck_out[k] = (stuck[0], stuck[1])
-        if k == n_rows - 1:
-            break  # the last torque acts after the last sample
-        commands = (before[k], after[k])
-        for dt_seg, which in segments:
-            command = commands[which]
-            tau1, tau2 = command  # the identity path's torque (others: over what remains)
-            substeps += 1
-            remaining = dt_seg if stretch is None else dt_seg * float(stretch[k])
-            for _event in range(MAX_EVENTS_PER_SUBSTEP):
-                if not identity:
-                    (tau1, tau2), path_end = path.applied(command, remaining)
-                if (stuck[0] or stuck[1]) and release((q1, q2, v1, v2), (tau1, tau2)):
-                    step = mode_step()
-                n1, n2, w1, w2 = step(q1, q2, v1, v2, tau1, tau2, remaining)
-                # a sliding, sticky joint whose velocity changed sign crossed zero in the step
-                cross1 = sticky[0] and not stuck[0] and w1 * direction[0] < 0.0
-                cross2 = sticky[1] and not stuck[1] and w2 * direction[1] < 0.0
-                if not (cross1 or cross2):
-                    q1, q2, v1, v2 = n1, n2, w1, w2
+    for first in range(0, n_rows, chunk):
+        rows = min(chunk, n_rows - first)
+        if whole is None:
+            before, after, segments = path.schedule(torques[first : first + rows], h, n_sub)
+        else:
+            before, after = whole[0][first : first + rows], whole[1][first : first + rows]
+            segments = whole[2]
+        q_out = [(q1, q2)] * rows
+        dq_out = [(v1, v2)] * rows
+        stuck_out = [(stuck[0], stuck[1])] * rows
+        for k in range(rows):
+            q_out[k] = (q1, q2)
+            dq_out[k] = (v1, v2)
+            stuck_out[k] = (stuck[0], stuck[1])
+            if first + k == n_rows - 1:
+                break  # the last torque acts after the last sample
+            commands = (before[k], after[k])
+            for dt_seg, which in segments:
+                command = commands[which]
+                tau1, tau2 = command  # the identity path's torque (others: over what remains)
+                substeps += 1
+                remaining = dt_seg if stretch is None else dt_seg * float(stretch[first + k])
+                for _event in range(MAX_EVENTS_PER_SUBSTEP):
                     if not identity:
-                        path.settle(path_end)
-                    break
-                if cross1 and cross2:  # the earlier one by linear interpolation
-                    joint = 0 if v1 / (v1 - w1) <= v2 / (v2 - w2) else 1
-                else:
-                    joint = 0 if cross1 else 1
-                flow = _flow(step, path, command, (tau1, tau2))
-                here = (q1, q2, v1, v2)
-                s, state = _locate_zero(
-                    flow, here, joint, remaining, (w1, w2)[joint], direction[joint]
-                )
-                other = 1 - joint
-                if cross1 and cross2 and state[2 + other] * direction[other] < 0.0:
-                    joint, other = other, joint  # the other joint crossed first after all
+                        (tau1, tau2), path_end = path.applied(command, remaining)
+                    if (stuck[0] or stuck[1]) and release((q1, q2, v1, v2), (tau1, tau2)):
+                        step = mode_step()
+                    n1, n2, w1, w2 = step(q1, q2, v1, v2, tau1, tau2, remaining)
+                    # a sliding, sticky joint whose velocity changed sign crossed zero in the step
+                    cross1 = sticky[0] and not stuck[0] and w1 * direction[0] < 0.0
+                    cross2 = sticky[1] and not stuck[1] and w2 * direction[1] < 0.0
+                    if not (cross1 or cross2):
+                        q1, q2, v1, v2 = n1, n2, w1, w2
+                        if not identity:
+                            path.settle(path_end)
+                        break
+                    if cross1 and cross2:  # the earlier one by linear interpolation
+                        joint = 0 if v1 / (v1 - w1) <= v2 / (v2 - w2) else 1
+                    else:
+                        joint = 0 if cross1 else 1
+                    flow = _flow(step, path, command, (tau1, tau2))
+                    here = (q1, q2, v1, v2)
                     s, state = _locate_zero(
-                        flow, here, joint, s, state[2 + joint], direction[joint]
+                        flow, here, joint, remaining, (w1, w2)[joint], direction[joint]
                     )
-                if s > 0.0 and not identity:  # (a zero-length lag step would jump to the command)
-                    path.settle(path.applied(command, s)[1])
-                q1, q2, v1, v2 = state
-                if joint == 0:
-                    v1 = 0.0
-                else:
-                    v2 = 0.0
-                stuck[joint] = True
-                stick_events[joint] += 1
-                step = mode_step()
-                remaining -= s
-                if remaining <= 1e-15 * dt_seg:
-                    break
-    return OpenLoopResult(
-        t=np.arange(n_rows) * h
-        if intervals is None
-        else np.concatenate([[0.0], np.cumsum(np.asarray(intervals, float))]),
-        q=np.array(q_out, dtype=float),
-        dq=np.array(dq_out, dtype=float),
-        stuck=np.array(stuck_out, dtype=bool),
-        stick_events=np.array(stick_events),
-        breakaways=np.array(breakaways),
-        substeps=substeps,
-    )
+                    other = 1 - joint
+                    if cross1 and cross2 and state[2 + other] * direction[other] < 0.0:
+                        joint, other = other, joint  # the other joint crossed first after all
+                        s, state = _locate_zero(
+                            flow, here, joint, s, state[2 + joint], direction[joint]
+                        )
+                    # (a zero-length lag step would jump to the command)
+                    if s > 0.0 and not identity:
+                        path.settle(path.applied(command, s)[1])
+                    q1, q2, v1, v2 = state
+                    if joint == 0:
+                        v1 = 0.0
+                    else:
+                        v2 = 0.0
+                    stuck[joint] = True
+                    stick_events[joint] += 1
+                    step = mode_step()
+                    remaining -= s
+                    if remaining <= 1e-15 * dt_seg:
+                        break
+        yield OpenLoopResult(
+            t=np.arange(first, first + rows) * h if times is None else times[first : first + rows],
+            q=np.array(q_out, dtype=float),
+            dq=np.array(dq_out, dtype=float),
+            stuck=np.array(stuck_out, dtype=bool),
+            stick_events=np.array(stick_events),
+            breakaways=np.array(breakaways),
+            substeps=substeps,
+        )

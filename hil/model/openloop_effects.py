@@ -206,6 +206,7 @@ class EffectsTorquePath(TorquePath):
     (zero when None)."""
 
     identity = False
+    row_local = False  # a delayed command arrives in a later period
 
     def __init__(self, extras: OpenLoopExtras) -> None:
         self.delay_s = extras.transport_delay_s

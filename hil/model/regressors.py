@@ -440,14 +440,57 @@ def stick_memory(lam: float, h: float) -> int:
     return int(np.ceil(-np.log(STICK_MEMORY_DECAY) / (lam * h)))
 
 
+NEVER_STUCK = -(10**9)  # "the last stuck row" before any was seen
+
+
 def stick_weights(stuck: np.ndarray, memory: int) -> np.ndarray:
     """Weight 0 for a row whose filtered equation holds a stuck interval of that joint from the
     last ``memory`` rows, 1 otherwise."""
-    K, _m = stuck.shape
-    idx = np.arange(K)[:, None]
-    last = np.where(stuck, idx, -(10**9))
-    last = np.maximum.accumulate(last, axis=0)
-    return (idx - last > memory).astype(float)
+    return StickMemory(memory).weights(stuck)
+
+
+class StickMemory:
+    """:func:`stick_weights` over consecutive chunks of rows, the last stuck row carried across
+    chunk borders, so chunked weights equal the whole recording's."""
+
+    def __init__(self, memory: int) -> None:
+        self.memory = memory
+        self.last: np.ndarray | None = None  # (1, m): last stuck row, relative to the next chunk
+
+    def weights(self, stuck: np.ndarray) -> np.ndarray:
+        K, m = stuck.shape
+        idx = np.arange(K)[:, None]
+        prev = np.full((1, m), NEVER_STUCK) if self.last is None else self.last
+        last = np.maximum.accumulate(np.vstack([prev, np.where(stuck, idx, NEVER_STUCK)]), axis=0)
+        self.last = np.maximum(last[-1:] - K, NEVER_STUCK)
+        return (idx - last[1:] > self.memory).astype(float)
+
+
+class RowFilters:
+    """The filters of a regression's rows (:func:`filter_coefficients`), applied chunk after
+    chunk with each filter's state carried, so chunked rows equal the whole recording's."""
+
+    def __init__(self, lam: float, h: float) -> None:
+        self.lam, self.h = lam, h
+        self.states: dict[int, np.ndarray] = {}
+
+    def apply(self, raw: RawRows) -> tuple[np.ndarray, np.ndarray]:
+        """(y, Psi) of ``raw``'s rows, filtered."""
+        out = []
+        for i, (name, x) in enumerate(((raw.y_filter, raw.y), *raw.parts)):
+            b, a = filter_coefficients(name, self.lam, self.h)
+            zi = self.states.get(i)
+            if zi is None:
+                zi = np.zeros((max(len(a), len(b)) - 1, *x.shape[1:]))
+            y, self.states[i] = lfilter(b, a, x, axis=0, zi=zi)
+            out.append(y)
+        return out[0], sum(out[1:])
+
+
+# Rows built at once by :func:`iter_regression`: bounds every temporary of the row building
+# (about 0.3 KB a row for the filtered dynamic model). A multiple of INTERVAL_CHUNK, so the
+# interval integrals are computed over the same groups of intervals as over a whole recording.
+ROW_CHUNK = INTERVAL_CHUNK
 
 
 def build_regression(
@@ -462,24 +505,98 @@ def build_regression(
     t: np.ndarray | None = None,
     half_window: int = 1,
 ) -> Regression:
-    """The regression y(k) ≈ Ψ(k)ᵀθ of one scheme over a whole recording.
+    """The regression y(k) ≈ Ψ(k)ᵀθ of one scheme over a whole recording: the rows of
+    :func:`iter_regression`, all of them in memory (tests, plots, short recordings; long ones
+    are streamed, :mod:`hil.identify.schemes`).
 
     ``filtered_dynamic``: eq. (24), vector error; ``supplied_energy``: eq. (28), scalar;
     ``filtered_power``: eq. (30), scalar. See the module doc for the two discretizations.
     ``model``: whose columns (default the 9-parameter model); ``t``: the samples' real times
     (``exact`` only; ``h`` is then the nominal period that sets the row filter's coefficient).
     """
+    chunks = list(
+        iter_regression(
+            scheme, q, tau, h, lam, discretization, model=model, t=t, half_window=half_window
+        )
+    )
+    return Regression(
+        scheme,
+        discretization,
+        *(np.concatenate([getattr(c, f) for c in chunks]) for f in ("t", "y", "Psi", "weights")),
+        lam,
+        h,
+    )
+
+
+def _rows_from(raw: RawRows, first: int) -> RawRows:
+    """``raw`` without its first ``first`` rows."""
+    if first == 0:
+        return raw
+    parts = tuple((name, x[first:]) for name, x in raw.parts)
+    return RawRows(raw.index[first:], raw.y[first:], raw.y_filter, parts, raw.stuck[first:])
+
+
+def iter_regression(
+    scheme: str,
+    q: np.ndarray,
+    tau: np.ndarray,
+    h: float,
+    lam: float = 50.0,
+    discretization: str = "exact",
+    *,
+    model: ArmModel = NINE_PARAMETERS,
+    t: np.ndarray | None = None,
+    half_window: int = 1,
+    stuck: np.ndarray | None = None,
+    chunk: int = ROW_CHUNK,
+):
+    """The rows of :func:`build_regression` in chunks of ``chunk`` rows (:class:`RowChunk`),
+    each built from its window of samples plus the few either side its velocities need, with
+    the filters' states (:class:`RowFilters`) and the stick memory (:class:`StickMemory`)
+    carried across chunk borders: the chunks, concatenated, are the whole recording's rows,
+    and memory is O(chunk · p) beyond ``q`` and ``tau`` (issue 13). ``stuck`` (N − 1, 2):
+    which intervals hold a stuck joint, when not the interval integrals' exact rule (real
+    recordings, :func:`quantized_stick`); it applies to the filtered dynamic rows only."""
     q, tau = np.asarray(q, float), np.asarray(tau, float)
     _check(q, tau, h, lam, discretization)
     if len(q) < 8:
         raise ValueError(f"need at least 8 samples to identify, got {len(q)}")
-    kin = kinematics(discretization, q, h, model=model, t=t, half_window=half_window)
-    raw = raw_rows(scheme, discretization, q, tau, h, kin)
-    y = lfilter(*filter_coefficients(raw.y_filter, lam, h), raw.y, axis=0)
-    Psi = sum(lfilter(*filter_coefficients(f, lam, h), x, axis=0) for f, x in raw.parts)
-    weights = stick_weights(raw.stuck, stick_memory(lam, h))
-    row_t = raw.index * h if t is None else np.asarray(t, dtype=float)[raw.index]
-    return Regression(scheme, discretization, row_t, y, Psi, weights, lam, h)
+    if not chunk >= 1:
+        raise ValueError(f"chunk must be >= 1 row, got {chunk}")
+    if t is not None:
+        t = np.asarray(t, dtype=float)
+    n = len(q)
+    filters = RowFilters(lam, h)
+    memory = StickMemory(stick_memory(lam, h))
+    if discretization == "paper":
+        # one row per sample; the backward difference looks one sample back
+        spans = [
+            (s, min(s + chunk, n), max(0, s - 1), min(s + chunk, n)) for s in range(0, n, chunk)
+        ]
+    else:
+        # intervals m..n−m−2 have both end velocities (central difference: m = 1)
+        m = max(1, int(half_window)) if t is not None else 1
+        last = n - m - 1
+        spans = [
+            (s, min(s + chunk, last), max(0, s - m), min(n, min(s + chunk, last) + m + 1))
+            for s in range(m, last, chunk)
+        ]
+    for s, e, a, b in spans:
+        tw = None if t is None else t[a:b]
+        keep = None if t is None or discretization == "paper" else (s - a, e - a)
+        kin = kinematics(
+            discretization, q[a:b], h, model=model, t=tw, half_window=half_window, keep=keep
+        )
+        raw = raw_rows(scheme, discretization, q[a:b], tau[a:b], h, kin)
+        if discretization == "paper":
+            raw = _rows_from(raw, s - a)
+        row_stuck = raw.stuck
+        if stuck is not None and row_stuck.shape[1] == 2:
+            row_stuck = stuck[raw.index - 1 + a]  # row k+1 is about interval k
+        y, Psi = filters.apply(raw)
+        weights = memory.weights(row_stuck)
+        index = raw.index + a
+        yield RowChunk(index * h if t is None else t[index], y, Psi, weights)
 
 
 # --- real recordings: bandwidth, stick detection under quantization, rows in chunks ----------
@@ -592,43 +709,11 @@ def iter_rows(
     q, tau, t = (np.asarray(a, dtype=float) for a in (q, tau, t))
     h = float(np.median(np.diff(t)))
     _check(q, tau, h, lam, "exact")
-    if len(q) < 8:
-        raise ValueError(f"need at least 8 samples to identify, got {len(q)}")
-    n = len(q)
     m = velocity_half_window(lam, t) if half_window is None else max(1, int(half_window))
-    stuck_all = quantized_stick(q, t)
-    memory = stick_memory(lam, h)
-    states: dict[str, np.ndarray] = {}
-    last_stuck = None
-    for s in range(m, n - m - 1, chunk):
-        e = min(s + chunk, n - m - 1)  # intervals s..e−1: both end velocities known
-        a, b = max(0, s - m), min(n, e + m + 1)
-        kin = kinematics(
-            "exact", q[a:b], h, model=model, t=t[a:b], half_window=m, keep=(s - a, e - a)
-        )
-        raw = raw_rows(scheme, "exact", q[a:b], tau[a:b], h, kin)
-        k_global = raw.index - 1 + a  # the interval each row is about
-        n_out = raw.y.shape[1]
-        stuck = stuck_all[k_global] if n_out == 2 else np.zeros((len(k_global), 1), bool)
-        ys = []
-        for key, (name, x) in [("y", (raw.y_filter, raw.y))] + [
-            (f"part{i}", part) for i, part in enumerate(raw.parts)
-        ]:
-            bcoef, acoef = filter_coefficients(name, lam, h)
-            zi = states.get(key)
-            if zi is None:
-                zi = np.zeros((max(len(acoef), len(bcoef)) - 1, *x.shape[1:]))
-            out, states[key] = lfilter(bcoef, acoef, x, axis=0, zi=zi)
-            ys.append(out)
-        y, Psi = ys[0], sum(ys[1:])
-        # stick weights with the memory carried across chunks
-        K = len(k_global)
-        idx = np.arange(K)[:, None]
-        prev = np.full((1, n_out), -(10**9)) if last_stuck is None else last_stuck
-        last = np.maximum.accumulate(np.vstack([prev, np.where(stuck, idx, -(10**9))]), axis=0)[1:]
-        weights = (idx - last > memory).astype(float)
-        last_stuck = (last[-1:] - K) if K else prev
-        yield RowChunk(t[raw.index + a], y, Psi, weights)
+    yield from iter_regression(
+        scheme, q, tau, h, lam, "exact", model=model, t=t, half_window=m,
+        stuck=quantized_stick(q, t), chunk=chunk,
+    )  # fmt: skip
 
 
 __all__ = [
@@ -640,5 +725,6 @@ __all__ = [
     "data_bandwidth",
     "excitation_bandwidth",
     "filter_coefficients",
+    "iter_regression",
     "iter_rows",
 ]
