@@ -79,9 +79,8 @@ def _theta_of(entry: Any, where: str, terms: tuple[str, ...] = ()) -> np.ndarray
     return np.array(theta, dtype=float)
 
 
-def load_params(path: str | Path, scheme: str | None = None) -> ParamSet:
-    """Read a parameter file; ``scheme`` picks one of its schemes (default: its selected one)."""
-    path = Path(path)
+def _read_object(path: Path) -> dict:
+    """The JSON object in ``path``; one-line :class:`ParamsError` if unreadable or not one."""
     try:
         doc = json.loads(path.read_text())
     except OSError as exc:
@@ -90,6 +89,13 @@ def load_params(path: str | Path, scheme: str | None = None) -> ParamSet:
         raise ParamsError(f"{path}: not valid JSON ({exc})") from None
     if not isinstance(doc, dict):
         raise ParamsError(f"{path}: not a JSON object")
+    return doc
+
+
+def load_params(path: str | Path, scheme: str | None = None) -> ParamSet:
+    """Read a parameter file; ``scheme`` picks one of its schemes (default: its selected one)."""
+    path = Path(path)
+    doc = _read_object(path)
     terms = _terms_of(doc, str(path))
     schemes = doc.get("schemes")
     if schemes is None:
@@ -144,14 +150,7 @@ def load_base_params(path: str | Path, model: Any) -> ParamSet:
     ``identify.json`` must be of the same robot and terms, with the same combination per name
     (``meaning``); one-line :class:`ParamsError` otherwise."""
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except OSError as exc:
-        raise ParamsError(f"{path}: cannot read ({exc.strerror})") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ParamsError(f"{path}: not valid JSON ({exc})") from None
-    if not isinstance(doc, dict):
-        raise ParamsError(f"{path}: not a JSON object")
+    doc = _read_object(path)
     names, where = tuple(model.names), str(path)
     if "parameters" in doc:
         robot, terms = doc.get("robot"), doc.get("terms", [])
