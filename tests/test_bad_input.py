@@ -82,7 +82,9 @@ def assert_one_line_error(code: int, err: str) -> None:
 REFUSED = ["zero", "constant", "one-row", "header-only", "shuffled", "cut", "nan"]
 
 
-@pytest.mark.parametrize("kind", REFUSED)
+# rows cut out are a gap, which the 2-DOF identification takes segment by segment
+# (tests/test_identify.py: ..._with_a_gap_fits_each_segment_never_across)
+@pytest.mark.parametrize("kind", [k for k in REFUSED if k != "cut"])
 def test_identify_refuses_degenerate_recordings(tmp_path, capsys, kind):
     run = write_run(tmp_path / "rec", degenerate(kind, 300))
     code, err = run_hil(

@@ -226,9 +226,13 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
 
     online = None
     if args.from_recording:
-        fit = read_recording(args, args.from_recording, command="identify", min_rows=8, joints=2)
+        fit = read_recording(
+            args, args.from_recording, command="identify", min_rows=8, joints=2, allow_gaps=True
+        )
         held_out = (
-            read_recording(args, args.validate, command="identify", min_rows=2, joints=2)
+            read_recording(
+                args, args.validate, command="identify", min_rows=2, joints=2, allow_gaps=True
+            )
             if args.validate
             else None
         )
@@ -244,7 +248,9 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         )  # fmt: skip
         fit = _record(args, bench, args.experiment, out / "fit", online)
         if args.validate:
-            held_out = read_recording(args, args.validate, command="identify", min_rows=2, joints=2)
+            held_out = read_recording(
+                args, args.validate, command="identify", min_rows=2, joints=2, allow_gaps=True
+            )
         elif args.validation_experiment != "none":
             held_out = _record(args, bench, args.validation_experiment, out / "validation", None)
         else:
@@ -283,9 +289,16 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
                 "identify",
                 "irregular sample intervals: the paper discretization assumes k·h (its method)",
             )
+        segments = fit.segments()
+        if len(segments) > 1 and disc == discretizations[0]:
+            say(
+                "identify",
+                f"{len(segments)} segments between gaps: each gives its own rows, one fit over "
+                "all of them, no interval across a gap",
+            )
         results = identify(
             fit.q, fit.tau, h, schemes=schemes, discretization=disc, lam=args.lam,
-            estimator=args.estimator, t=times,
+            estimator=args.estimator, t=times, segments=segments,
         )  # fmt: skip
         elapsed = time.perf_counter() - t0
         all_results[disc] = results

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -78,6 +78,10 @@ class SchemeResult:
         return (self.theta - reference) / reference
 
 
+# The fewest samples a segment must have to give regression rows (hil.model.regressors).
+MIN_SEGMENT_ROWS = 8
+
+
 def identify(
     q: np.ndarray,
     tau: np.ndarray,
@@ -88,12 +92,16 @@ def identify(
     lam: float = 50.0,
     estimator: str = "rls",
     t: np.ndarray | None = None,
+    segments: Sequence[slice] | None = None,
     chunk: int = ROW_CHUNK,
 ) -> dict[str, SchemeResult]:
     """Identify θ with each scheme: regression (eqs. (24), (28), (30)), then recursive least
     squares (eqs. (20)-(22), P(0) = 1000·I, θ̂(0) = 0), batch and weighted least squares.
     ``t``: the samples' real times when they are not k·h (:func:`irregular_times`); the
     ``exact`` rows then use each interval's own length; ``paper`` keeps the paper's k·h.
+    ``segments``: row ranges between gaps (:meth:`drivers.recording.Recording.segments`); the
+    rows of each are built on its own (filters started afresh, never an interval across a gap)
+    and all of them enter one fit; a segment too short for a row (< 8 samples) is left out.
 
     Memory is O(``chunk`` rows) beyond ``q``, ``tau``: every estimator runs over the rows of
     :func:`iter_regression` chunk after chunk, in three passes that rebuild them (least
@@ -103,15 +111,29 @@ def identify(
         raise ValueError(
             f"unknown estimator {estimator!r}; expected one of {', '.join(ESTIMATORS)}"
         )
+    parts = [slice(0, len(q))] if segments is None else list(segments)
+    parts = [p for p in parts if len(range(*p.indices(len(q)))) >= MIN_SEGMENT_ROWS]
+    if not parts:
+        raise ValueError(
+            f"no segment between gaps has the {MIN_SEGMENT_ROWS} samples a regression row needs"
+        )
     out = {}
     for scheme in schemes:
         times = t if discretization == "exact" else None
 
         def rows(scheme: str = scheme, times: np.ndarray | None = times):
-            # the regression in chunks, built afresh for each pass: memory O(chunk), not O(rows)
-            return iter_regression(
-                scheme, q, tau, period_s, lam, discretization, t=times, chunk=chunk
-            )
+            # the regression in chunks, built afresh for each pass: memory O(chunk), not O(rows);
+            # segment after segment, each with its own filters (a gap is never bridged)
+            for part in parts:
+                chunks = iter_regression(
+                    scheme, q[part], tau[part], period_s, lam, discretization,
+                    t=None if times is None else times[part], chunk=chunk,
+                )  # fmt: skip
+                start = part.indices(len(q))[0]
+                if times is not None or start == 0:
+                    yield from chunks
+                else:  # rows at k·h from the segment's start: on the recording's k·h
+                    yield from (replace(c, t=c.t + start * period_s) for c in chunks)
 
         # pass 1: batch least squares and the number of rows
         t0 = time.perf_counter()
@@ -208,7 +230,9 @@ def validate(
       the model says was needed for the recorded motion, filtered at λ to keep differentiation
       noise out.
 
-    Both streamed in chunks of ``chunk`` rows (simulation and regression), so memory does not
+    A recording with gaps is validated segment by segment (each simulated from its own first
+    sample), the errors pooled. Both streamed in chunks of ``chunk`` rows (simulation and
+    regression), so memory does not
     grow with the recording (issue 13). ``simulated_q`` (for plots) holds the simulated
     positions at the rows ``simulated_rows``: all of them up to PLOT_POINTS, else every n-th.
     """
@@ -218,20 +242,27 @@ def validate(
     position = NrmseAccumulator()
     worst = np.zeros(2)
     shown = []
-    for c in simulate_open_loop_chunks(
-        theta, tau, rec.period_s, q0=q[0], dq0=initial_velocity(rec), chunk=chunk
-    ):
-        first = round(c.t[0] / rec.period_s)
-        recorded = q[first : first + len(c.q)]
-        position.add(recorded, c.q)
-        worst = np.maximum(worst, np.max(np.abs(recorded - c.q), axis=0))
-        shown.append(c.q[(-first) % every :: every])
     torque = [NrmseAccumulator(), NrmseAccumulator()]
-    for c in iter_regression("filtered_dynamic", q, tau, rec.period_s, lam, "exact", chunk=chunk):
-        predicted = np.einsum("kmp,p->km", c.Psi, theta)
-        for j in range(2):
-            used = c.weights[:, j] > 0
-            torque[j].add(c.y[used, j], predicted[used, j])
+    for part in rec.segments():  # a gap is never bridged: each segment from its own start
+        a, b = part.indices(n)[:2]
+        dq0 = initial_velocity(rec.segment(slice(a, min(a + 2, b))))
+        for c in simulate_open_loop_chunks(
+            theta, tau[a:b], rec.period_s, q0=q[a], dq0=dq0, chunk=chunk
+        ):
+            first = a + round(c.t[0] / rec.period_s)
+            recorded = q[first : first + len(c.q)]
+            position.add(recorded, c.q)
+            worst = np.maximum(worst, np.max(np.abs(recorded - c.q), axis=0))
+            shown.append(c.q[(-first) % every :: every])
+        if b - a < MIN_SEGMENT_ROWS:
+            continue  # too short for a filtered row
+        for c in iter_regression(
+            "filtered_dynamic", q[a:b], tau[a:b], rec.period_s, lam, "exact", chunk=chunk
+        ):
+            predicted = np.einsum("kmp,p->km", c.Psi, theta)
+            for j in range(2):
+                used = c.weights[:, j] > 0
+                torque[j].add(c.y[used, j], predicted[used, j])
     return {
         "recording": str(rec.path),
         "position_nrmse": [float(x) for x in position.result()],
