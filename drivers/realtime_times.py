@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from drivers.recording import Recording, RecordingError, reassemble
-from profiles.timing_faults import TimingTrace
+from profiles.timing_faults import TimingTrace, check_trace
 
 ROBOT_EVENTS = "robot-events.csv"  # realtime: the virtual robot's own sample and command times
 # Host time from a cycle's feedback to its command taking effect on the robot, used when only
@@ -51,34 +51,48 @@ def robot_event_trace(path: Path, rows: int) -> TimingTrace:
     first: dict[int, float] = {}
     last: dict[int, float] = {}
     steps: list[float] = []
-    with open(path, newline="") as f:
+    with open(path, newline="", errors="replace") as f:  # a stray byte: a row not parsed
         reader = csv.reader(f)
-        if next(reader, None) != ["event", "n", "t"]:
-            raise RecordingError(f"{path}: not a robot event log (header event,n,t)")
-        for line, row in enumerate(reader, start=2):
-            if len(row) != 3:
-                continue  # a torn last line
-            try:
-                event, n, t = row[0], int(row[1]), float(row[2])
-            except ValueError:
-                raise RecordingError(f"{path}:{line}: not an event,n,t row: {row}") from None
-            if event == "advance":
-                steps.append(t)
-            elif event == "sample":
-                samples.setdefault(n, t)
-            elif event == "command" and n > 0:
-                # the command of cycle k arrives after sample k (n = k + 1 SYNCs so far): joint
-                # 1's write first, then joint 2's, when every drive has its new torque
-                first.setdefault(n - 1, t)
-                last[n - 1] = t
+        try:
+            if next(reader, None) != ["event", "n", "t"]:
+                raise RecordingError(f"{path}: not a robot event log (header event,n,t)")
+            for line, row in enumerate(reader, start=2):
+                if len(row) != 3:
+                    continue  # a torn last line
+                try:
+                    event, n, t = row[0], int(row[1]), float(row[2])
+                except ValueError:
+                    raise RecordingError(f"{path}:{line}: not an event,n,t row: {row}") from None
+                if event == "advance":
+                    steps.append(t)
+                elif event == "sample":
+                    samples.setdefault(n, t)
+                elif event == "command" and n > 0:
+                    # the command of cycle k arrives after sample k (n = k + 1 SYNCs so far):
+                    # joint 1's write first, then joint 2's, when every drive has its new torque
+                    first.setdefault(n - 1, t)
+                    last[n - 1] = t
+        except csv.Error as exc:
+            raise RecordingError(f"{path}: not a robot event log ({exc})") from None
     missing = [k for k in range(rows) if k not in samples]
     if missing:
         raise RecordingError(f"{path}: no sample event for row {missing[0]} (of {rows})")
     sample = np.array([samples[k] for k in range(rows)])
     command = np.array([last.get(k, samples[k]) for k in range(rows)])
     first_command = np.array([first.get(k, samples[k]) for k in range(rows)])
+    _checked(sample, first_command, command, str(path))
     grid = np.array(sorted(t for t in steps if t > sample[0]))
-    return TimingTrace(sample, np.maximum.accumulate(command), first_command, grid)
+    return TimingTrace(
+        sample, np.maximum.accumulate(command), first_command, grid if len(grid) else None
+    )
+
+
+def _checked(sample: np.ndarray, first: np.ndarray, command: np.ndarray, where: str) -> None:
+    """:func:`profiles.timing_faults.check_trace` as a :class:`RecordingError` (a run's file)."""
+    try:
+        check_trace(sample, first, command, where)
+    except ValueError as exc:
+        raise RecordingError(str(exc)) from None
 
 
 def host_stamp_trace(rec: Recording, compute_s: float) -> TimingTrace:
@@ -92,6 +106,7 @@ def host_stamp_trace(rec: Recording, compute_s: float) -> TimingTrace:
         raise RecordingError(f"{rec.path}: a sync_sent_s or feedback_s value is missing")
     sample = sent - sent[0]
     command = np.maximum(received - sent[0] + compute_s, sample)
+    _checked(sample, command, command, f"{rec.path}: sync_sent_s, feedback_s")
     return TimingTrace(sample, np.maximum.accumulate(command))
 
 

@@ -14,14 +14,13 @@ from pathlib import Path
 
 from profiles.limits import parse_limits
 from profiles.loader import Fields, ProfileError, load_toml
-from profiles.timing_faults import TimingFaults, parse_timing_faults
+from profiles.timing_faults import MAX_FEEDBACK_BUDGET_S, TimingFaults, parse_timing_faults
 
 PROTOCOLS = ("can", "serial")
 TRANSPORTS = {"can": ("slcan", "socketcan", "socketcand", "virtual"), "serial": ("serial",)}
 MODES = ("lockstep", "realtime")
 MIN_PERIOD_S = 1e-4  # 10 kHz: below this no Python loop over any link holds its period
 DEFAULT_FEEDBACK_BUDGET_S = 0.1  # survives the stalls of an ordinary desktop (docs/jitter.md)
-MAX_FEEDBACK_BUDGET_S = 10.0
 
 
 @dataclass(frozen=True)

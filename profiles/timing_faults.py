@@ -42,6 +42,10 @@ from profiles.loader import Fields
 
 DISTRIBUTIONS = ("normal", "uniform", "exponential")
 MAX_DELAY_S = 1.0
+# The longest a bench may wait for feedback (profiles/bench.py): a realtime run whose link was
+# silent longer has ended, so a trace interval (sample to sample, sample to its command) beyond
+# it is a corrupt trace, and a replay would integrate the plant over it.
+MAX_FEEDBACK_BUDGET_S = 10.0
 HOST_KEYS = {
     "latency_s",
     "jitter",
@@ -356,15 +360,37 @@ def read_trace(path: str | Path, steps: str | Path | None = None) -> TimingTrace
     path = Path(path)
     data = _read_columns(path, TRACE_COLUMNS, "timing trace")
     sample, first, command = data[:, 1], data[:, 2], data[:, 3]
-    if np.any(np.diff(sample) <= 0):
-        raise ValueError(f"{path}: sample_s must increase")
-    if np.any(first < sample) or np.any(command < first):
-        k = int(np.argmax((first < sample) | (command < first)))
-        raise ValueError(f"{path}: row {k}: needs sample_s <= first_command_s <= command_s")
+    check_trace(sample, first, command, str(path))
     grid = None
     if steps is not None:
         grid = np.sort(_read_columns(Path(steps), ("t",), "timing steps")[:, 0])
     return TimingTrace(sample, np.maximum.accumulate(command), first, grid)
+
+
+def check_trace(sample: np.ndarray, first: np.ndarray, command: np.ndarray, where: str) -> None:
+    """ValueError, one line naming ``where``, unless the times are a realtime run's: finite,
+    samples increasing, sample_s <= first_command_s <= command_s, and no sample interval nor
+    sample-to-command delay beyond :data:`MAX_FEEDBACK_BUDGET_S`. Every reader of a trace
+    (a trace file, a robot's event log, a run's host stamps) checks it here."""
+    if len(sample) == 0:
+        raise ValueError(f"{where}: no sample times")
+    if not (np.all(np.isfinite(sample)) and np.all(np.isfinite(first))
+            and np.all(np.isfinite(command))):  # fmt: skip
+        raise ValueError(f"{where}: a sample or command time is not a finite number")
+    steps = np.diff(sample)
+    if np.any(steps <= 0):
+        k = int(np.argmax(steps <= 0)) + 1
+        raise ValueError(f"{where}: sample_s must increase (row {k} is not after row {k - 1})")
+    if np.any(first < sample) or np.any(command < first):
+        k = int(np.argmax((first < sample) | (command < first)))
+        raise ValueError(f"{where}: row {k}: needs sample_s <= first_command_s <= command_s")
+    longest = max(float(np.max(steps, initial=0.0)), float(np.max(command - sample)))
+    if longest > MAX_FEEDBACK_BUDGET_S:
+        raise ValueError(
+            f"{where}: an interval of {longest:.4g} s between samples or from a sample to its "
+            f"command, beyond the longest feedback budget ({MAX_FEEDBACK_BUDGET_S:g} s): no "
+            "realtime run has one"
+        )
 
 
 def write_trace(path: str | Path, trace: TimingTrace, steps: str | Path | None = None) -> Path:
@@ -385,6 +411,7 @@ def write_trace(path: str | Path, trace: TimingTrace, steps: str | Path | None =
 __all__ = [
     "TimingFaults",
     "TimingTrace",
+    "check_trace",
     "combine",
     "parse_timing_faults",
     "read_trace",

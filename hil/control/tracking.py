@@ -45,7 +45,14 @@ from hil.control.controllers import (
 from hil.control.signals import central_velocity, sample_times
 from hil.control.trajectory import PointToPoint, khosla_kanade_moves
 from hil.model.closed_form import ArmModel
-from hil.model.params import ParamSet, load_base_params, load_params, robot_params
+from hil.model.params import (
+    ParamsError,
+    ParamSet,
+    check_inertia,
+    load_base_params,
+    load_params,
+    robot_params,
+)
 from profiles.bench import BenchProfile
 from profiles.experiment import check_duration
 from profiles.robot import describes_urdf_only
@@ -162,21 +169,14 @@ def parameter_sets(
 
 
 def _check_physical(item: LabelledParams, urdf_model: DynamicsModel | None = None) -> None:
-    """Refuse θ̃ whose inertia matrix M(q) is not positive definite for every q (θ all zero, a
-    failed fit): the CT, FED and RFED laws would command nonsense, and PD's parameters are the
-    same file's. Negative friction coefficients only weaken the compensation and are let
-    through. A URDF arm's base parameters: M(q) ≻ 0 at sampled configurations
-    (``UrdfArmModel.physical_consistency``)."""
-    model = ArmModel(item.params.terms) if urdf_model is None else urdf_model
+    """Refuse θ̃ whose inertia matrix M(q) is not positive definite for every q
+    (:func:`hil.model.params.check_inertia`): the CT, FED and RFED laws would command nonsense,
+    and PD's parameters are the same file's. A URDF arm's base parameters: M(q) ≻ 0 at sampled
+    configurations (``UrdfArmModel.physical_consistency``)."""
     try:
-        violations = model.physical_consistency(item.params.theta)  # type: ignore[attr-defined]
-    except ValueError as exc:  # θ of the wrong length for its terms
-        raise UsageError(f"--params {item.label} ({item.params.source}): {exc}") from None
-    inertia = [v for v in violations["violations"] if v.startswith("M(q)")]
-    if inertia:
-        raise UsageError(
-            f"--params {item.label} ({item.params.source}): not a physical arm: {inertia[0]}"
-        )
+        check_inertia(item.params, urdf_model)
+    except ParamsError as exc:
+        raise UsageError(f"--params {item.label}: {exc}") from None
 
 
 # ---- the per-period command -------------------------------------------------------------------

@@ -24,7 +24,7 @@ from hil.cli_options import (
 )
 from hil.diagnose.report import diagnose, percent
 from hil.model.closed_form import ArmModel
-from hil.model.params import load_params, robot_params
+from hil.model.params import check_inertia, load_params, robot_params
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -61,6 +61,7 @@ def main(args: argparse.Namespace) -> int:
     nominal = None
     if args.params:  # the nominal model is the one the parameters were identified in
         params = load_params(args.params)
+        check_inertia(params)  # a non-physical nominal model cannot be simulated
         nominal, reference, model = params.theta, params.theta, ArmModel(params.terms)
     for rec in recs:
         if rec.meta.get("status") not in (None, "complete"):

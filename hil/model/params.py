@@ -111,6 +111,25 @@ def load_params(path: str | Path, scheme: str | None = None) -> ParamSet:
     return ParamSet(theta, str(path), name, doc, terms)
 
 
+def check_inertia(params: ParamSet, model: Any = None) -> None:
+    """One-line :class:`ParamsError` naming the file and the field unless θ describes an arm
+    whose M(q) is positive definite for every q (``model.physical_consistency``; default the
+    :class:`ArmModel` of ``params.terms``): θ all zero, a negative mass term or a failed fit
+    would make every model-based law and simulation command or integrate nonsense. Negative
+    friction coefficients are let through (they only weaken a compensation)."""
+    model = ArmModel(params.terms) if model is None else model
+    where = f"{params.source}: 'theta'"
+    if isinstance(params.document.get("schemes"), dict) and params.scheme is not None:
+        where = f"{params.source}: scheme {params.scheme}: 'theta'"
+    try:
+        violations = model.physical_consistency(params.theta)["violations"]
+    except ValueError as exc:  # θ of the wrong length for the model's terms
+        raise ParamsError(f"{where}: {exc}") from None
+    inertia = [v for v in violations if v.startswith("M(q)")]
+    if inertia:
+        raise ParamsError(f"{where}: not a physical arm: {inertia[0]}")
+
+
 def save_params(
     path: str | Path,
     schemes: dict[str, dict[str, Any]],
@@ -188,6 +207,7 @@ __all__ = [
     "KIND",
     "ParamSet",
     "ParamsError",
+    "check_inertia",
     "load_base_params",
     "load_params",
     "robot_params",
