@@ -17,6 +17,7 @@ from drivers.recording import RecordingWriter
 from hil.cli import main as hil_main
 from hil.model.closed_form import ArmModel
 from hil.model.params import robot_params
+from profiles.timing_faults import TRACE_COLUMNS, check_trace, read_trace
 
 H = 0.0025
 FIXTURES = [HealthCheck.function_scoped_fixture, HealthCheck.too_slow]
@@ -129,6 +130,36 @@ def test_replay_of_any_robot_event_log(
     out = base / "replay"
     code, err = run_hil(["replay", str(run), "--out", str(out), "--no-plot"], capsys)
     assert_replayed_or_refused(code, err, run, out)
+
+
+CELLS = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True).map(repr),
+    st.sampled_from(["", "x", "1e999", "-0", " 1", "nan"]),
+)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    header=st.sampled_from([",".join(TRACE_COLUMNS), "k,sample_s,command_s", "", "t"]),
+    rows=st.lists(st.lists(CELLS, min_size=0, max_size=5), max_size=6),
+)
+@example(
+    header=",".join(TRACE_COLUMNS),
+    rows=[["0", "0", "1e-3", "2e-3"], ["1", "2.5e-3", "3e-3", "3e-3"]],
+)
+@example(header=",".join(TRACE_COLUMNS), rows=[["0", "0", "0", "0"], ["1", "11", "11", "11"]])
+def test_timing_trace_file_of_any_rows(tmp_path_factory, header, rows) -> None:
+    """A `[timing_faults.trace]` file (what `hil replay` writes and its robot reads): a trace
+    that passes every check, or one ValueError line naming the file."""
+    path = tmp_path_factory.mktemp("trace") / "trace.csv"
+    path.write_text("\n".join([header, *(",".join(r) for r in rows)]) + "\n")
+    try:
+        trace = read_trace(path)
+    except ValueError as exc:
+        assert "\n" not in str(exc) and str(path) in str(exc)
+        return
+    check_trace(trace.sample_s, trace.first_command_s, trace.command_s, "again")
+    assert len(trace) >= 1
 
 
 # ---- θ files ----------------------------------------------------------------------------------
