@@ -3,10 +3,15 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def hil(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
@@ -42,3 +47,36 @@ def wait_rows(
             pass
         time.sleep(0.05)
     raise AssertionError(f"fewer than {rows} rows after {timeout} s")
+
+
+def start_hil(*args: str) -> subprocess.Popen:
+    """``hil ARGS`` started through the console entry point (hil.entry: the exit signals
+    installed as for a user), output captured as text; the caller waits for it or kills it."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "hil.entry", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )
+
+
+def run_with_robot_paused(
+    args: Sequence[str], out: Path, pause_s: float, *, after_rows: int = 100, timeout: float = 60
+) -> subprocess.CompletedProcess:
+    """``hil ARGS --out OUT`` (a realtime run); once it has ``after_rows`` rows its virtual robot
+    is stopped (SIGSTOP) for ``pause_s`` and continued: a scheduling stall of the robot as an
+    ordinary desktop makes one. The finished run's status and output (it is killed if it
+    outlives ``timeout``, and the robot is always continued)."""
+    proc = start_hil(*args, "--out", str(out))
+    try:
+        pid = wait_rows(out, after_rows, proc)["channel"]["pid"]
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            time.sleep(pause_s)
+        finally:
+            os.kill(pid, signal.SIGCONT)
+        stdout, stderr = proc.communicate(timeout=timeout)
+    finally:
+        proc.kill()
+    return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import can
 import pytest
-from cli_run import wait_rows
+from cli_run import ROOT, run_with_robot_paused, start_hil, wait_rows
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -31,19 +31,11 @@ from profiles.bench import MIN_PERIOD_S, load_bench
 from profiles.experiment import MAX_DURATION_S, MAX_ROWS, check_duration, check_step
 from virtual_robot.socketcand_hub import SocketcandHub
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 # ---- helpers ----------------------------------------------------------------------------
 def _hil(out: Path, *args: str) -> subprocess.Popen:
     """``hil run`` through the console entry point (exit signals installed as for a user)."""
-    return subprocess.Popen(
-        [sys.executable, "-m", "hil.entry", "run", "--out", str(out), "--no-plot", *args],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=ROOT,
-    )
+    return start_hil("run", "--out", str(out), "--no-plot", *args)
 
 
 def _patient_bench(tmp_path: Path, base: str = "virtual-slcan") -> str:
@@ -116,19 +108,9 @@ def test_robot_stopped_briefly_is_late_not_gone(tmp_path: Path) -> None:
     """SIGSTOP the robot for 60 ms (an ordinary desktop stall): the run completes and counts
     the late feedback instead of calling the robot gone. Zero torque (`hil jitter`): an
     open-loop excitation held through a stall may swing a joint into the bench's limits."""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "hil.entry", "jitter", "--bench", "virtual-serial", "--rate", "400",
-         "--duration", "3", "--no-plot", "--out", str(tmp_path)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
-    )  # fmt: skip
-    try:
-        pid = wait_rows(tmp_path, 100, proc)["channel"]["pid"]
-        os.kill(pid, signal.SIGSTOP)
-        time.sleep(0.06)
-        os.kill(pid, signal.SIGCONT)
-        _, err = proc.communicate(timeout=60)
-    finally:
-        proc.kill()
+    args = ["jitter", "--bench", "virtual-serial", "--rate", "400", "--duration", "3", "--no-plot"]
+    proc = run_with_robot_paused(args, tmp_path, 0.06)
+    err = proc.stderr
     meta = _meta(tmp_path)
     assert proc.returncode == 0, err
     assert meta["status"] == "complete", meta.get("reason")

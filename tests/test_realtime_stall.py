@@ -7,21 +7,14 @@ robot process or the link closed): only the first gets the advice (hil/bench/run
 from __future__ import annotations
 
 import json
-import os
-import signal
-import subprocess
-import sys
-import time
 from pathlib import Path
 from types import SimpleNamespace
 
-from cli_run import wait_rows
+from cli_run import run_with_robot_paused
 
 from drivers.arm import LinkStats
 from hil.bench.run import _with_stall_advice, stalled
 from profiles.bench import load_bench
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def _arm(timeouts: int = 0, late: int = 0, longest: float = 0.0) -> SimpleNamespace:
@@ -72,19 +65,9 @@ def test_advice_names_the_numbers_and_the_ways_out() -> None:
 def test_robot_stopped_past_the_budget_fails_with_advice(tmp_path: Path) -> None:
     """SIGSTOP the robot for 0.6 s, past the 0.1 s feedback budget: the run stops safely and
     its reason says the link was late, not gone, and what to do."""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "hil.entry", "jitter", "--bench", "virtual-slcan", "--rate", "400",
-         "--duration", "20", "--no-plot", "--out", str(tmp_path)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
-    )  # fmt: skip
-    try:
-        pid = wait_rows(tmp_path, 100, proc)["channel"]["pid"]
-        os.kill(pid, signal.SIGSTOP)
-        time.sleep(0.6)
-        os.kill(pid, signal.SIGCONT)
-        out, err = proc.communicate(timeout=60)
-    finally:
-        proc.kill()
+    args = ["jitter", "--bench", "virtual-slcan", "--rate", "400", "--duration", "20", "--no-plot"]
+    proc = run_with_robot_paused(args, tmp_path, 0.6)
+    out, err = proc.stdout, proc.stderr
     meta = json.loads((tmp_path / "meta.json").read_text())
     assert proc.returncode == 1, err
     assert meta["status"] == "failed"
