@@ -204,11 +204,13 @@ def irregular_times(rec: Recording, tolerance: float = 1e-6) -> np.ndarray | Non
 
 
 def initial_velocity(rec: Recording) -> tuple[float, float]:
-    """q̇(0) from the first two samples (zero for a recording that starts at rest)."""
+    """q̇(0) from the first two samples (zero for a recording that starts at rest), over their
+    real interval when it is not the nominal period (:func:`irregular_times`)."""
     if len(rec) < 2:
         return (0.0, 0.0)
-    q = rec.segment(slice(0, 2)).q  # rec.q would stack every row to read two
-    dq = (q[1] - q[0]) / rec.period_s
+    first = rec.segment(slice(0, 2))  # rec.q would stack every row to read two
+    q, times = first.q, irregular_times(first)
+    dq = (q[1] - q[0]) / (rec.period_s if times is None else times[1] - times[0])
     return (float(dq[0]), float(dq[1]))
 
 
@@ -231,13 +233,16 @@ def validate(
       noise out.
 
     A recording with gaps is validated segment by segment (each simulated from its own first
-    sample), the errors pooled. Both streamed in chunks of ``chunk`` rows (simulation and
-    regression), so memory does not
-    grow with the recording (issue 13). ``simulated_q`` (for plots) holds the simulated
+    sample), the errors pooled. Irregular sample times (:func:`irregular_times`: a realtime
+    run read on its real times) are simulated on their real intervals and give the torque
+    rows their own interval lengths, as the fit's rows have them. Both streamed in chunks of
+    ``chunk`` rows (simulation and regression), so memory does not grow with the recording
+    (issue 13). ``simulated_q`` (for plots) holds the simulated
     positions at the rows ``simulated_rows``: all of them up to PLOT_POINTS, else every n-th.
     """
     n = len(rec)
     q, tau = rec.q, rec.tau  # each access stacks the columns anew: once
+    times = irregular_times(rec)
     every = max(1, -(-n // PLOT_POINTS))
     position = NrmseAccumulator()
     worst = np.zeros(2)
@@ -246,19 +251,22 @@ def validate(
     for part in rec.segments():  # a gap is never bridged: each segment from its own start
         a, b = part.indices(n)[:2]
         dq0 = initial_velocity(rec.segment(slice(a, min(a + 2, b))))
+        intervals = None if times is None else np.diff(times[a:b])
+        first = a
         for c in simulate_open_loop_chunks(
-            theta, tau[a:b], rec.period_s, q0=q[a], dq0=dq0, chunk=chunk
+            theta, tau[a:b], rec.period_s, q0=q[a], dq0=dq0, chunk=chunk, intervals_s=intervals
         ):
-            first = a + round(c.t[0] / rec.period_s)
             recorded = q[first : first + len(c.q)]
             position.add(recorded, c.q)
             worst = np.maximum(worst, np.max(np.abs(recorded - c.q), axis=0))
             shown.append(c.q[(-first) % every :: every])
+            first += len(c.q)
         if b - a < MIN_SEGMENT_ROWS:
             continue  # too short for a filtered row
         for c in iter_regression(
-            "filtered_dynamic", q[a:b], tau[a:b], rec.period_s, lam, "exact", chunk=chunk
-        ):
+            "filtered_dynamic", q[a:b], tau[a:b], rec.period_s, lam, "exact",
+            t=None if times is None else times[a:b], chunk=chunk,
+        ):  # fmt: skip
             predicted = np.einsum("kmp,p->km", c.Psi, theta)
             for j in range(2):
                 used = c.weights[:, j] > 0

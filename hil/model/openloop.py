@@ -106,14 +106,7 @@ def simulate_open_loop(
     th, torques, h, n_sub, start, pos, neg = _inputs(
         theta, tau, period_s, q0, dq0, steps_per_period, coulomb_positive, coulomb_negative, model
     )
-    intervals = None
-    if intervals_s is not None:
-        intervals = np.asarray(intervals_s, float)
-        if intervals.shape != (max(len(torques) - 1, 0),) or not np.all(intervals > 0):
-            raise ValueError(
-                f"intervals_s must hold {len(torques) - 1} positive durations (one per period "
-                f"between the torque rows), got shape {intervals.shape}"
-            )
+    intervals = _intervals(intervals_s, len(torques))
     if extras is None:
         return integrate(th, torques, h, n_sub, start, Friction(pos, neg), intervals=intervals)
     if not isinstance(extras, OpenLoopExtras):
@@ -142,15 +135,33 @@ def simulate_open_loop_chunks(
     dq0: Sequence[float] = (0.0, 0.0),
     steps_per_period: int = 5,
     chunk: int = SIMULATION_CHUNK,
+    intervals_s: ArrayLike | None = None,
 ) -> Iterator[OpenLoopResult]:
     """:func:`simulate_open_loop` of the rigid model (no ``extras``), its rows ``chunk`` at a
     time (:func:`hil.model.openloop_core.integrate_chunks`): the same numbers, in memory for
-    one chunk whatever the recording's length (issue 13). Checks its input before the first
-    chunk."""
+    one chunk whatever the recording's length (issue 13). ``intervals_s``: as for
+    :func:`simulate_open_loop` (period k lasts intervals_s[k]: a realtime run's real sample
+    times). Checks its input before the first chunk."""
     th, torques, h, n_sub, start, pos, neg = _inputs(
         theta, tau, period_s, q0, dq0, steps_per_period, None, None
     )
-    return integrate_chunks(th, torques, h, n_sub, start, Friction(pos, neg), chunk=chunk)
+    intervals = _intervals(intervals_s, len(torques))
+    return integrate_chunks(
+        th, torques, h, n_sub, start, Friction(pos, neg), intervals=intervals, chunk=chunk
+    )
+
+
+def _intervals(intervals_s: ArrayLike | None, rows: int) -> np.ndarray | None:
+    """``intervals_s`` checked: None, or N − 1 positive durations for N torque rows."""
+    if intervals_s is None:
+        return None
+    intervals = np.asarray(intervals_s, float)
+    if intervals.shape != (max(rows - 1, 0),) or not np.all(intervals > 0):
+        raise ValueError(
+            f"intervals_s must hold {rows - 1} positive durations (one per period between the "
+            f"torque rows), got shape {intervals.shape}"
+        )
+    return intervals
 
 
 def _inputs(
