@@ -14,6 +14,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 from test_diagnose_realtime import realtime_like_trace, write_events
 
 from drivers.realtime_times import ROBOT_EVENTS
@@ -22,11 +23,30 @@ from hil.bench.run import run_experiment
 from hil.cli import main as hil_main
 from hil.cli_options import read_recording
 from hil.identify.schemes import validate
+from hil.model.openloop import simulate_open_loop, simulate_open_loop_chunks
 from hil.model.params import robot_params
 from profiles.timing_faults import write_trace
 
 H = 0.0025
 READER = argparse.Namespace(columns=None, loop_delay=None, torque=None, recording_format=None)
+
+
+def test_chunked_simulation_on_real_intervals_is_the_whole_one() -> None:
+    """The validation's chunked simulation takes the intervals the diagnosis's whole one does:
+    the same rows, bit for bit, whatever the chunk; bad intervals refused before any chunk."""
+    theta = robot_params("cicese").theta
+    rng = np.random.default_rng(3)
+    tau = rng.normal(0.0, 5.0, (500, 2))
+    intervals = rng.choice([0.0004, H, 0.004, 0.03], 499, p=[0.2, 0.7, 0.08, 0.02])
+    whole = simulate_open_loop(theta, tau, H, q0=(0.1, -0.2), intervals_s=intervals)
+    pieces = list(
+        simulate_open_loop_chunks(theta, tau, H, q0=(0.1, -0.2), intervals_s=intervals, chunk=97)
+    )
+    assert np.array_equal(np.concatenate([c.q for c in pieces]), whole.q)
+    assert np.array_equal(np.concatenate([c.t for c in pieces]), whole.t)
+    for bad in (np.full(10, H), np.r_[intervals[:-1], -H]):
+        with pytest.raises(ValueError, match="intervals_s"):
+            simulate_open_loop_chunks(theta, tau, H, intervals_s=bad)
 
 
 def test_realtime_run_validates_like_its_lockstep_twin_with_the_true_theta(tmp_path: Path) -> None:
