@@ -15,6 +15,7 @@ from drivers.recording import read_signals
 from hil.identify.schemes import identify, validate
 from hil.model.estimators import (
     LeastSquaresRows,
+    RecursiveLeastSquares,
     RecursiveLeastSquaresRows,
     ResidualLevel,
     WeightedRefit,
@@ -223,3 +224,26 @@ def test_identify_memory_does_not_grow_with_the_rows(rec) -> None:
     short, long = peak(1), peak(4)
     added_rows = 3 * len(rec)
     assert (long - short) / added_rows < 200, (short, long)
+
+
+def test_vector_rls_over_chunks_is_the_online_update_bit_for_bit() -> None:
+    """The chunk loop of RecursiveLeastSquaresRows for vector errors (issue 13: its per-row cost
+    was most of a long recording's identification) does the floating-point operations of
+    RecursiveLeastSquares.update, the online identifier's step, in the same order: θ̂(k) and P
+    equal to the last bit, with rows of weight 0, partial weights and chunks of odd lengths."""
+    m = 2
+    rng = np.random.default_rng(m)
+    K, p = 1500, 9
+    Psi = rng.normal(size=(K, m, p)) * np.array([1, 0.1, 0.1, 40, 2, 2, 0.2, 7, 1])
+    y = rng.normal(size=(K, m)) * 10
+    w = (rng.random((K, m)) > 0.1).astype(float)
+    w[::7] = 0.0
+    w[5::11, 0] = 0.3
+    online = RecursiveLeastSquares(p)
+    expected = np.array([online.update(Psi[k], y[k], w[k]).copy() for k in range(K)])
+    rows = RecursiveLeastSquaresRows(p, m, K)
+    for a in range(0, K, 97):
+        rows.add(Psi[a : a + 97], y[a : a + 97], w[a : a + 97])
+    np.testing.assert_array_equal(rows.history, expected)
+    np.testing.assert_array_equal(rows.rls.P, online.P)
+    assert rows.rls.updates == online.updates
