@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: demo test test-slow test-vcan bench lint format clean eds
+.PHONY: demo test test-slow test-vcan bench bench-big lint format clean eds
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -37,6 +37,11 @@ bench: $(STAMP)
 	$(BIN)/python tests/benchmarks/bench_slcan_sdo.py
 	$(BIN)/python tests/benchmarks/bench_urdf.py
 	$(BIN)/python tests/benchmarks/bench_control.py
+	$(BIN)/python tests/benchmarks/bench_identify_memory.py --seconds 60 --tile-mb 7 --stages
+
+# issue 13's target, opt-in: a 700 MB CSV (10 M rows) through `hil identify --from`, < 4 GB
+bench-big: $(STAMP)
+	$(BIN)/python tests/benchmarks/bench_identify_memory.py --seconds 60 --tile-mb 700
 
 lint: $(STAMP)
 	$(BIN)/ruff check hil drivers virtual_robot profiles tests

@@ -63,6 +63,41 @@ def say(command: str, message: str) -> None:
     print(f"hil {command}: {message}", file=sys.stderr, flush=True)
 
 
+# Seconds between two progress lines of a long stage (a short run prints none).
+PROGRESS_EVERY_S = 5.0
+
+
+class StageProgress:
+    """Progress of a long command's stages on stderr, throttled: ``hil <command>: <stage>:
+    <done> of <total> rows (<pct> %)`` at most once every ``every_s`` seconds (the first after
+    ``every_s``: a command that is done sooner prints none), never on stdout (``--json`` stays
+    one document). Call it with (stage, done, total) as often as convenient (every chunk);
+    ``enabled`` false (``--quiet``) silences it."""
+
+    def __init__(
+        self,
+        command: str,
+        *,
+        every_s: float = PROGRESS_EVERY_S,
+        enabled: bool = True,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if not every_s >= 0:
+            raise ValueError(f"progress interval must be >= 0 s, got {every_s}")
+        self.command, self.every_s, self.enabled, self.clock = command, every_s, enabled, clock
+        self.last = clock()
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if not self.enabled:
+            return
+        now = self.clock()
+        if now - self.last < self.every_s:
+            return
+        self.last = now
+        pct = 100.0 * done / total if total > 0 else 100.0
+        say(self.command, f"{stage}: {done:,} of {total:,} rows ({pct:.0f} %)")
+
+
 def error(command: str, message: str) -> None:
     """The one-line error of a command: ``hil <command>: error: <message>``."""
     say(command, f"error: {message}")

@@ -124,6 +124,27 @@ def test_print_document_is_one_json_line_or_the_text(capsys: pytest.CaptureFixtu
     assert capsys.readouterr().out == "the table\n"
 
 
+def test_stage_progress_is_throttled_on_stderr(capsys: pytest.CaptureFixture[str]) -> None:
+    """At most one line per interval, the first only after one interval (a short run prints
+    none), on stderr; disabled (-q) prints nothing; a negative interval is refused."""
+    now = [0.0]
+    progress = opts.StageProgress("identify", every_s=5.0, clock=lambda: now[0])
+    for t, done in ((1.0, 10), (4.9, 20), (5.0, 30), (6.0, 40), (10.5, 50)):
+        now[0] = t
+        progress("filtered_dynamic: least squares", done, 200)
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert err.splitlines() == [
+        "hil identify: filtered_dynamic: least squares: 30 of 200 rows (15 %)",
+        "hil identify: filtered_dynamic: least squares: 50 of 200 rows (25 %)",
+    ]
+    silent = opts.StageProgress("identify", every_s=0.0, enabled=False)
+    silent("x", 1, 2)
+    assert capsys.readouterr() == ("", "")
+    with pytest.raises(ValueError, match=">= 0 s"):
+        opts.StageProgress("identify", every_s=-1.0)
+
+
 def test_split_list() -> None:
     assert opts.split_list(" ct, pd,,rfed ") == ["ct", "pd", "rfed"]
     assert opts.split_list("") == []

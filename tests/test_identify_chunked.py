@@ -8,6 +8,8 @@ moving window (200 rows), so its look-ahead spans several chunks.
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -15,6 +17,7 @@ from drivers.recording import read_signals
 from hil.identify.schemes import identify, validate
 from hil.model.estimators import (
     LeastSquaresRows,
+    RecursiveLeastSquares,
     RecursiveLeastSquaresRows,
     ResidualLevel,
     WeightedRefit,
@@ -223,3 +226,71 @@ def test_identify_memory_does_not_grow_with_the_rows(rec) -> None:
     short, long = peak(1), peak(4)
     added_rows = 3 * len(rec)
     assert (long - short) / added_rows < 200, (short, long)
+
+
+def test_vector_rls_over_chunks_is_the_online_update_bit_for_bit() -> None:
+    """The chunk loop of RecursiveLeastSquaresRows for vector errors (issue 13: its per-row cost
+    was most of a long recording's identification) does the floating-point operations of
+    RecursiveLeastSquares.update, the online identifier's step, in the same order: θ̂(k) and P
+    equal to the last bit, with rows of weight 0, partial weights and chunks of odd lengths."""
+    m = 2
+    rng = np.random.default_rng(m)
+    K, p = 1500, 9
+    Psi = rng.normal(size=(K, m, p)) * np.array([1, 0.1, 0.1, 40, 2, 2, 0.2, 7, 1])
+    y = rng.normal(size=(K, m)) * 10
+    w = (rng.random((K, m)) > 0.1).astype(float)
+    w[::7] = 0.0
+    w[5::11, 0] = 0.3
+    online = RecursiveLeastSquares(p)
+    expected = np.array([online.update(Psi[k], y[k], w[k]).copy() for k in range(K)])
+    rows = RecursiveLeastSquaresRows(p, m, K)
+    for a in range(0, K, 97):
+        rows.add(Psi[a : a + 97], y[a : a + 97], w[a : a + 97])
+    np.testing.assert_array_equal(rows.history, expected)
+    np.testing.assert_array_equal(rows.rls.P, online.P)
+    assert rows.rls.updates == online.updates
+
+
+def test_progress_is_told_every_pass_to_its_end(rec) -> None:
+    """identify() and validate() tell how far each pass is after every chunk of rows: per
+    scheme least squares, RLS, the weighted refit, then validation's simulation and torque
+    rows, each counting up to its total (what `hil identify` prints on a long recording)."""
+    calls: list[tuple[str, int, int]] = []
+    identify(rec.q, rec.tau, rec.period_s, schemes=["filtered_dynamic", "supplied_energy"],
+             chunk=256, progress=lambda *a: calls.append(a))  # fmt: skip
+    validate(robot_params("cicese").theta, rec, chunk=256, progress=lambda *a: calls.append(a))
+    stages = list(dict.fromkeys(stage for stage, _, _ in calls))
+    assert stages == [
+        "filtered_dynamic: least squares",
+        "filtered_dynamic: recursive least squares",
+        "filtered_dynamic: weighted least squares",
+        "supplied_energy: least squares",
+        "supplied_energy: recursive least squares",
+        "supplied_energy: weighted least squares",
+        "validation: open-loop simulation",
+        "validation: torque prediction",
+    ]
+    for stage in stages:
+        done = [d for s, d, _ in calls if s == stage]
+        total = {t for s, _, t in calls if s == stage}
+        assert len(done) > 2 and done == sorted(done) and len(total) == 1, stage
+        # each pass ends at its total (least squares: rows against samples, 3 fewer)
+        assert 0 <= total.pop() - done[-1] <= 3, stage
+
+
+def test_hil_identify_progress_on_stderr_only(rec, tmp_path) -> None:
+    """A long recording's stages say how far they are on stderr (here every chunk:
+    --progress-every 0), stdout stays one JSON document; -q silences them."""
+    from cli_run import hil
+
+    argv = ["identify", "--from", str(rec.path), "--no-plot", "--json", "--overwrite"]
+    loud = hil(*argv, "--out", str(tmp_path / "a"), "--progress-every", "0")
+    assert loud.returncode == 0, loud.stderr
+    json.loads(loud.stdout)
+    lines = [x for x in loud.stderr.splitlines() if " rows (" in x]
+    assert any("filtered_power: recursive least squares:" in x for x in lines), loud.stderr
+    assert any(x.endswith("rows (100 %)") and "open-loop simulation" in x for x in lines)
+    quiet = hil(*argv, "--out", str(tmp_path / "b"), "--progress-every", "0", "-q")
+    assert quiet.returncode == 0, quiet.stderr
+    assert " rows (" not in quiet.stderr
+    assert json.loads(quiet.stdout)["rows"] == json.loads(loud.stdout)["rows"]

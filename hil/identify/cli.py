@@ -21,6 +21,8 @@ import numpy as np
 from drivers.arm import Sample
 from drivers.recording import Recording, write_json_atomic
 from hil.cli_options import (
+    PROGRESS_EVERY_S,
+    StageProgress,
     add_bench_option,
     add_drive_options,
     add_out_options,
@@ -121,6 +123,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_out_options(p, "output directory", default="runs/identify")
     add_recording_options(p)
     add_report_options(p)
+    p.add_argument(
+        "--progress-every",
+        type=float,
+        default=PROGRESS_EVERY_S,
+        metavar="SECONDS",
+        help="seconds between the progress lines of a long recording's stages on stderr "
+        f"(default {PROGRESS_EVERY_S:g}; -q: none)",
+    )
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -226,6 +236,11 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         args.lam = 50.0
     discretizations = ["exact", "paper"] if args.discretization == "both" else [args.discretization]
     out = Path(args.out)
+    progress = StageProgress(
+        "identify",
+        every_s=getattr(args, "progress_every", PROGRESS_EVERY_S),
+        enabled=not getattr(args, "quiet", False),  # -q, errors only
+    )
 
     online = None
     if args.from_recording:
@@ -301,7 +316,7 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             )
         results = identify(
             fit.q, fit.tau, h, schemes=schemes, discretization=disc, lam=args.lam,
-            estimator=args.estimator, t=times, segments=segments,
+            estimator=args.estimator, t=times, segments=segments, progress=progress,
         )  # fmt: skip
         elapsed = time.perf_counter() - t0
         all_results[disc] = results
@@ -317,9 +332,17 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             },
         }
         for scheme, res in results.items():
-            validation = {"fit": validate(res.theta, fit, lam=args.lam)}
-            if held_out is not None:
-                validation["held_out"] = validate(res.theta, held_out, lam=args.lam)
+            validation = {
+                name: validate(
+                    res.theta,
+                    rec,
+                    lam=args.lam,
+                    progress=progress,
+                    stage=f"{scheme}: validation on {name.replace('_', '-')}",
+                )
+                for name, rec in (("fit", fit), ("held_out", held_out))
+                if rec is not None
+            }
             entry["schemes"][scheme] = _scheme_json(res, reference.theta, validation)
             if not args.no_plot:
                 from hil.identify.plots import plot_estimates, plot_validation
@@ -343,9 +366,17 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             )
         )
 
-    profile_validation = {"fit": validate(reference.theta, fit, lam=args.lam)}
-    if held_out is not None:
-        profile_validation["held_out"] = validate(reference.theta, held_out, lam=args.lam)
+    profile_validation = {
+        name: validate(
+            reference.theta,
+            rec,
+            lam=args.lam,
+            progress=progress,
+            stage=f"{robot} profile: validation on {name.replace('_', '-')}",
+        )
+        for name, rec in (("fit", fit), ("held_out", held_out))
+        if rec is not None
+    }
     report["profile_validation"] = {
         name: {k: v for k, v in val.items() if k not in PLOT_ONLY}
         for name, val in profile_validation.items()
@@ -379,14 +410,21 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         path = out / ("params.json" if i == 0 else f"params-{disc}.json")
         save_params(
             path,
-            {s: {"theta": r.theta, "discretization": disc, "lambda_rad_s": args.lam,
-                 "estimator": args.estimator, "physical_consistency": r.consistency}
-             for s, r in all_results[disc].items()},
+            {
+                s: {
+                    "theta": r.theta,
+                    "discretization": disc,
+                    "lambda_rad_s": args.lam,
+                    "estimator": args.estimator,
+                    "physical_consistency": r.consistency,
+                }
+                for s, r in all_results[disc].items()
+            },
             selected=args.params_scheme,
             robot=robot,
             recording=str(fit.path),
             discretization=disc,
-        )  # fmt: skip
+        )
         params_files.append(str(path))
     report["params_files"] = params_files
     write_json_atomic(out / "identify.json", report)

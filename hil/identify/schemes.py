@@ -8,7 +8,7 @@ experiments over a bench and writing files is :mod:`hil.identify.cli`'s job.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -81,6 +81,14 @@ class SchemeResult:
 # The fewest samples a segment must have to give regression rows (hil.model.regressors).
 MIN_SEGMENT_ROWS = 8
 
+# progress(stage, done, total): rows of a stage done so far, called after every chunk of rows
+# (the CLI prints it, throttled: hil.cli_options.StageProgress)
+Progress = Callable[[str, int, int], None]
+
+
+def _no_progress(stage: str, done: int, total: int) -> None:
+    pass
+
 
 def identify(
     q: np.ndarray,
@@ -94,6 +102,7 @@ def identify(
     t: np.ndarray | None = None,
     segments: Sequence[slice] | None = None,
     chunk: int = ROW_CHUNK,
+    progress: Progress | None = None,
 ) -> dict[str, SchemeResult]:
     """Identify θ with each scheme: regression (eqs. (24), (28), (30)), then recursive least
     squares (eqs. (20)-(22), P(0) = 1000·I, θ̂(0) = 0), batch and weighted least squares.
@@ -106,7 +115,7 @@ def identify(
     Memory is O(``chunk`` rows) beyond ``q``, ``tau``: every estimator runs over the rows of
     :func:`iter_regression` chunk after chunk, in three passes that rebuild them (least
     squares; RLS and the residual level; the weighted refit), never the whole regression
-    (issue 13)."""
+    (issue 13). ``progress``: told the rows done after every chunk of each pass."""
     if estimator not in ESTIMATORS:
         raise ValueError(
             f"unknown estimator {estimator!r}; expected one of {', '.join(ESTIMATORS)}"
@@ -117,6 +126,8 @@ def identify(
         raise ValueError(
             f"no segment between gaps has the {MIN_SEGMENT_ROWS} samples a regression row needs"
         )
+    report = progress or _no_progress
+    samples = sum(len(range(*p.indices(len(q)))) for p in parts)  # ≈ rows, before pass 1 counts
     out = {}
     for scheme in schemes:
         times = t if discretization == "exact" else None
@@ -141,6 +152,7 @@ def identify(
         for c in rows():
             ne = ne or LeastSquaresRows(c.Psi.shape[-1])
             ne.add(c.Psi, c.y, c.weights)
+            report(f"{scheme}: least squares", ne.rows, max(samples, ne.rows))
         assert ne is not None
         theta_ls = ne.solve()
         K, m = ne.rows, c.y.shape[1]
@@ -159,12 +171,16 @@ def identify(
             here = (pick >= row) & (pick < row + len(c.t))
             history_t[here] = c.t[pick[here] - row]
             row += len(c.t)
+            report(f"{scheme}: recursive least squares", row, K)
         hist = rls.history
         t2 = time.perf_counter()
         # pass 3: feasible weighted least squares (weighted_least_squares, in chunks)
         refit = WeightedRefit(theta_ls, level.level(), K)
+        row = 0
         for c in rows():
             refit.add(c.Psi, c.y, c.weights)
+            row += len(c.t)
+            report(f"{scheme}: weighted least squares", row, K)
         theta_wls = refit.solve()
         t3 = time.perf_counter()
         chosen = {"rls": hist[-1], "ls": theta_ls, "wls": theta_wls}[estimator]
@@ -220,7 +236,13 @@ PLOT_POINTS = 20000
 
 
 def validate(
-    theta: np.ndarray, rec: Recording, *, lam: float = 50.0, chunk: int = ROW_CHUNK
+    theta: np.ndarray,
+    rec: Recording,
+    *,
+    lam: float = 50.0,
+    chunk: int = ROW_CHUNK,
+    progress: Progress | None = None,
+    stage: str = "validation",
 ) -> dict[str, Any]:
     """How well θ explains a recording, both ways (per joint, NRMSE as a fraction):
 
@@ -239,7 +261,9 @@ def validate(
     ``chunk`` rows (simulation and regression), so memory does not grow with the recording
     (issue 13). ``simulated_q`` (for plots) holds the simulated
     positions at the rows ``simulated_rows``: all of them up to PLOT_POINTS, else every n-th.
+    ``progress`` is told the rows simulated, then the torque rows, as ``stage``: ...
     """
+    report = progress or _no_progress
     n = len(rec)
     q, tau = rec.q, rec.tau  # each access stacks the columns anew: once
     times = irregular_times(rec)
@@ -261,6 +285,7 @@ def validate(
             worst = np.maximum(worst, np.max(np.abs(recorded - c.q), axis=0))
             shown.append(c.q[(-first) % every :: every])
             first += len(c.q)
+            report(f"{stage}: open-loop simulation", first, n)
         if b - a < MIN_SEGMENT_ROWS:
             continue  # too short for a filtered row
         for c in iter_regression(
@@ -271,6 +296,7 @@ def validate(
             for j in range(2):
                 used = c.weights[:, j] > 0
                 torque[j].add(c.y[used, j], predicted[used, j])
+            report(f"{stage}: torque prediction", a + round(c.t[-1] / rec.period_s) + 1, n)
     return {
         "recording": str(rec.path),
         "position_nrmse": [float(x) for x in position.result()],

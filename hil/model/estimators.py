@@ -13,6 +13,17 @@ import numpy as np
 
 PAPER_P0 = 1000.0  # P(0) = 1000·I, θ̂(0) = 0 (Section 6)
 
+try:  # np.linalg.solve's own LAPACK gufunc (gesv), the same bits without its per-call checks
+    # and error-state context, which cost three times the solve of RLS's m×m S (S = I + ΨᵀPΨ is
+    # positive definite: nothing to check); private to numpy, hence the fallback
+    from numpy.linalg import _umath_linalg
+
+    def _SOLVE(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return _umath_linalg.solve(a, b, signature="dd->d")
+
+except ImportError:  # pragma: no cover - another numpy layout
+    _SOLVE = np.linalg.solve
+
 
 class RecursiveLeastSquares:
     """Recursive least squares, eqs. (20)-(22), for vector or scalar prediction errors.
@@ -126,13 +137,54 @@ class RecursiveLeastSquaresRows:
                 self.history[self.slot : stop],
             )  # fmt: skip
         else:
-            slot = 0
-            for k in range(K):
-                theta = self.rls.update(Psi[k], y[k], w[k])
-                if slot < len(local) and local[slot] == k:
-                    self.history[self.slot + slot] = theta
-                    slot += 1
+            rls = self.rls
+            rls.theta, rls.P, updates = _vector_rls(
+                Psi, y, w, rls.theta, rls.P, rls.forgetting, local,
+                self.history[self.slot : stop],
+            )  # fmt: skip
+            rls.updates += updates
         self.row, self.slot = end, stop
+
+
+def _vector_rls(
+    Psi: np.ndarray,
+    y: np.ndarray,
+    w: np.ndarray,
+    theta: np.ndarray,
+    P: np.ndarray,
+    forgetting: float,
+    keep: np.ndarray,
+    out: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Vector-error RLS, eqs. (20)-(22), over rows Psi (K, m, p), y (K, m), weights w (K, m)
+    from θ̂ and P: :meth:`RecursiveLeastSquares.update` row after row, the same floating-point
+    operations in the same order (so the same bits), with what does not depend on θ̂ or P (the
+    rows' √w scaling, I) done for the whole chunk at once and no per-row argument checks: the
+    per-row Python cost is most of the 2-DOF identification's (issue 13). θ̂(k) at the rows
+    ``keep`` into ``out``. Returns the final (θ̂, P) and the number of updates."""
+    K, m, _p = Psi.shape
+    sw = np.sqrt(w)
+    phi_rows = Psi * sw[:, :, None]  # Ψ(k)ᵀ√w, each row as update() scales it
+    y_rows = y * sw
+    used = sw.any(axis=1)
+    eye = forgetting * np.eye(m)
+    solve, matmul = _SOLVE, np.matmul
+    slot = updates = 0
+    for k in range(K):
+        if used[k]:
+            phi = phi_rows[k]
+            e = y_rows[k] - matmul(phi, theta)  # eq. (22)
+            PPsi = matmul(P, phi.T)
+            S = eye + matmul(phi, PPsi)
+            gain = solve(S, PPsi.T).T
+            theta = theta + matmul(gain, e)  # eq. (20)
+            P = (P - matmul(gain, PPsi.T)) / forgetting  # eq. (21)
+            P = 0.5 * (P + P.T)
+            updates += 1
+        if slot < len(keep) and keep[slot] == k:
+            out[slot] = theta
+            slot += 1
+    return theta, P, updates
 
 
 def _scalar_rls(
@@ -148,14 +200,17 @@ def _scalar_rls(
     P; θ̂(k) at the rows ``keep`` into ``out``. Returns the final (θ̂, P)."""
     K = len(psi)
     sw = np.sqrt(w)
+    phi_rows = psi * sw[:, None]  # the rows' √w scaling for the whole chunk: the same products
+    y_rows = y * sw
+    used = sw != 0
     slot = 0
     for k in range(K):
-        if sw[k] != 0:
-            phi = psi[k] * sw[k]
+        if used[k]:
+            phi = phi_rows[k]
             Pphi = P @ phi
             gain = Pphi / (1.0 + phi @ Pphi)
-            theta = theta + gain * (y[k] * sw[k] - phi @ theta)
-            P = P - np.outer(gain, Pphi)
+            theta = theta + gain * (y_rows[k] - phi @ theta)
+            P = P - gain[:, None] * Pphi  # np.outer(gain, Pphi) without its Python wrapper
         if slot < len(keep) and keep[slot] == k:
             out[slot] = theta
             slot += 1

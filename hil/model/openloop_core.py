@@ -497,6 +497,18 @@ def integrate_chunks(
                 tau1, tau2 = command  # the identity path's torque (others: over what remains)
                 substeps += 1
                 remaining = dt_seg if stretch is None else dt_seg * float(stretch[first + k])
+                if identity and not (stuck[0] or stuck[1]):
+                    # the common sub-step, both joints sliding under the held command: one RK4
+                    # step and the sign test below without the event loop's set-up (most of a
+                    # long recording's validation; issue 13). A sign change falls through to the
+                    # loop, which takes the same step again and locates the event.
+                    n1, n2, w1, w2 = step(q1, q2, v1, v2, tau1, tau2, remaining)
+                    if not (
+                        (sticky[0] and w1 * direction[0] < 0.0)
+                        or (sticky[1] and w2 * direction[1] < 0.0)
+                    ):
+                        q1, q2, v1, v2 = n1, n2, w1, w2
+                        continue
                 for _event in range(MAX_EVENTS_PER_SUBSTEP):
                     if not identity:
                         (tau1, tau2), path_end = path.applied(command, remaining)
