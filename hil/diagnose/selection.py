@@ -39,12 +39,13 @@ from hil.diagnose.stats import (
     Evidence,
     ScaledRows,
     block_index,
+    block_spans,
     block_stats,
     cross_validate,
     evidence,
     extend_stats_many,
     extended_stats,
-    joint_block_sums,
+    target_block_sums,
 )
 from hil.model.closed_form import TERMS, ArmModel
 
@@ -365,13 +366,18 @@ class Problem:
         U = [self.cache[k][:, j, :] for k in missing]  # (K, width) raw, on the joint's rows
         if sums is None:
             U = [self.Psi_raw[:, j, :], *U]
-        U_all = np.concatenate(U, axis=1)
+        # the columns and y (the last), joined once for all the grid's chunks
+        Uy = np.concatenate([*U, self.y_raw[:, j : j + 1]], axis=1)
+        m = Uy.shape[1] - 1
+        w, spans = self.w[:, j], block_spans(self.blocks)
         parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         for X in self._grid_columns(cand):
-            ux, xx, xy = joint_block_sums(U_all, X, self.y_raw[:, j], self.w[:, j], self.blocks)
-            n_blocks, m, _ = ux.shape
-            ux = ux.reshape(n_blocks, m, X.shape[1], X.shape[2]).transpose(2, 0, 1, 3)
+            uyx, xx = target_block_sums(Uy, X, w, spans)
+            n_blocks, (n_x, q) = len(spans), X.shape[1:]
+            ux = uyx[:, :m].reshape(n_blocks, m, n_x, q).transpose(2, 0, 1, 3)
+            xy = uyx[:, m].reshape(n_blocks, n_x, q)
             parts.append((ux, xx.transpose(1, 0, 2, 3), xy.transpose(1, 0, 2)))
+            del X  # not held while the next chunk is built
         ux = np.concatenate([u for u, _, _ in parts])  # (V, B, m, q)
         assert ux.shape[0] == n_var
         at = 0
@@ -395,10 +401,15 @@ class Problem:
         """Raw X of every variant on the candidate's joint, (K, ≤per, width) chunks of at most
         CHUNK_BYTES: a 400-period cogging grid over a long recording would not fit at once."""
         j, width = cand.joint, term_width(cand)
-        per_row = 8 * width * 4 + (96 if cand.chunks is not None else 0)  # columns + working
+        # per variant and row: its columns, and what they are built from (the unfiltered node
+        # averages of a cogging chunk); the chunk is weighted a block at a time when summed
+        per_row = 8 * width * 2
         per = max(1, int(CHUNK_BYTES // (per_row * max(len(self.y_raw), 1))))
         if cand.chunks is not None:
             streams = [cand.chunks(r, cand.variants, per) for r in self.rows]
+            if len(streams) == 1:  # one recording: its chunks, not a copy of each
+                yield from streams[0]
+                return
             for pieces in zip(*streams, strict=True):
                 yield np.concatenate(pieces)
             return

@@ -146,21 +146,34 @@ def joint_block_sums(
     U: np.ndarray, X: np.ndarray, y: np.ndarray, w: np.ndarray, blocks: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per block, of one joint's rows: Σ w Uᵀ X (B, m, V·q), Σ w XᵀX per variant (B, V, q, q)
-    and Σ w Xᵀ y (B, V, q), for columns U (K, m) and variants X (K, V, q). Per block one dense
-    product [U y]ᵀ (w X) and one batched Xᵀ (w X) (BLAS; the sparse block-selector product used
-    before did the same multiply-adds without it)."""
-    K, (V, q) = X.shape[0], X.shape[1:]
-    n_blocks, m = len(_starts(blocks)), U.shape[1]
-    wX = w[:, None, None] * X  # (K, V, q)
-    flat = wX.reshape(K, V * q)
-    Uy = np.concatenate([U, y[:, None]], axis=1)  # y rides along: Σ w yᵀX from the same product
-    uyx = np.empty((n_blocks, m + 1, V * q))
-    xx = np.empty((n_blocks, V, q, q))
-    for b, (lo, hi) in enumerate(block_spans(blocks)):
-        np.matmul(Uy[lo:hi].T, flat[lo:hi], out=uyx[b])
+    and Σ w Xᵀ y (B, V, q), for columns U (K, m) and variants X (K, V, q)
+    (:func:`target_block_sums` with y riding along as U's last column)."""
+    V, q = X.shape[1:]
+    m = U.shape[1]
+    Uy = np.concatenate([U, y[:, None]], axis=1)
+    uyx, xx = target_block_sums(Uy, X, w, block_spans(blocks))
+    return uyx[:, :m], xx, uyx[:, m].reshape(len(uyx), V, q)
+
+
+def target_block_sums(
+    Uy: np.ndarray, X: np.ndarray, w: np.ndarray, spans: Sequence[tuple[int, int]]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per block (``spans``: [first, end) rows, :func:`block_spans`) of one joint's rows:
+    Σ w Uyᵀ X (B, m, V·q) and Σ w XᵀX per variant (B, V, q, q), for columns Uy (K, m) (the
+    target y as their last column gives Σ w yᵀX from the same product) and variants X (K, V, q).
+    Per block one dense product Uyᵀ (w X) and one batched Xᵀ (w X) (BLAS; the sparse
+    block-selector product used before did the same multiply-adds without it). X is weighted
+    one block at a time, and ``Uy`` is the caller's (a grid's chunks share it): no (K, V·q) or
+    (K, m) copy per call, which at 600,000 rows cost more than the products."""
+    V, q = X.shape[1:]
+    uyx = np.empty((len(spans), Uy.shape[1], V * q))
+    xx = np.empty((len(spans), V, q, q))
+    for b, (lo, hi) in enumerate(spans):
+        wX = w[lo:hi, None, None] * X[lo:hi]  # (k, V, q)
+        np.matmul(Uy[lo:hi].T, wX.reshape(hi - lo, V * q), out=uyx[b])
         # per variant a (q, k) @ (k, q) product
-        np.matmul(X[lo:hi].transpose(1, 2, 0), wX[lo:hi].transpose(1, 0, 2), out=xx[b])
-    return uyx[:, :m], xx, uyx[:, m].reshape(n_blocks, V, q)
+        np.matmul(X[lo:hi].transpose(1, 2, 0), wX.transpose(1, 0, 2), out=xx[b])
+    return uyx, xx
 
 
 def extended_stats(
