@@ -237,7 +237,7 @@ def validate(
     positions at the rows ``simulated_rows``: all of them up to PLOT_POINTS, else every n-th.
     """
     n = len(rec)
-    q, tau = rec.q, rec.tau  # each access stacks the columns anew: once
+    q, tau = rec.q, rec.tau
     every = max(1, -(-n // PLOT_POINTS))
     position = NrmseAccumulator()
     worst = np.zeros(2)
