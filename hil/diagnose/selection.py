@@ -35,6 +35,7 @@ from hil.diagnose.columns import (
 )
 from hil.diagnose.stats import (
     BlockStats,
+    Columns,
     CrossValidation,
     Evidence,
     ScaledRows,
@@ -248,14 +249,20 @@ class Problem:
         entry = self._served.get(id(x))
         return entry[1] if entry is not None and entry[0]() is x else None
 
-    def joint_columns(self, extra: Sequence[np.ndarray]) -> Callable[[int], np.ndarray]:
-        """Joint j's columns of the design Ψ + ``extra`` (scaled), (K, p), built when asked:
-        not the whole (K, 2, 9) scaled Ψ for one joint's rows."""
+    def joint_columns(self, extra: Sequence[np.ndarray]) -> Callable[[int], Columns]:
+        """Joint j's columns of the design Ψ + ``extra`` (scaled), (K, p) as groups that are
+        joined a block at a time (:func:`hil.diagnose.stats.target_block_sums`): not the whole
+        (K, 2, 9) scaled Ψ for one joint's rows, nor a joined (K, p) copy."""
 
-        def columns(j: int) -> np.ndarray:
-            return np.hstack([self.Psi_raw[:, j, :] / self.scale[j], *(x[:, j, :] for x in extra)])
+        def columns(j: int) -> Columns:
+            return [ScaledRows(self.Psi_raw[:, j, :], self.scale[j]), *(x[:, j, :] for x in extra)]
 
         return columns
+
+    def design_groups(self, extra: Sequence[np.ndarray]) -> list[np.ndarray | ScaledRows]:
+        """The design Ψ + ``extra`` (scaled rows) as its column groups, Ψ scaled a block at a
+        time when read: :func:`block_stats` takes it without a joined (K, 2, p) copy."""
+        return [ScaledRows(self.Psi_raw, self.scale), *extra]
 
     def design_stats(self, extra: Sequence[np.ndarray]) -> BlockStats:
         """:func:`block_stats` of Ψ + ``extra`` (scaled rows), kept for the scale when every
@@ -266,9 +273,7 @@ class Problem:
             return self._design_stats[key]
         if key is not None and any(k[0] != key[0] for k in self._design_stats):
             self._design_stats = {}  # the scale changed: those designs are not asked for again
-        stats = block_stats(
-            [ScaledRows(self.Psi_raw, self.scale), *extra], self.y, self.w, self.blocks
-        )
+        stats = block_stats(self.design_groups(extra), self.y, self.w, self.blocks)
         if key is not None:
             self._design_stats[key] = stats
         return stats
@@ -366,9 +371,8 @@ class Problem:
         U = [self.cache[k][:, j, :] for k in missing]  # (K, width) raw, on the joint's rows
         if sums is None:
             U = [self.Psi_raw[:, j, :], *U]
-        # the columns and y (the last), joined once for all the grid's chunks
-        Uy = np.concatenate([*U, self.y_raw[:, j : j + 1]], axis=1)
-        m = Uy.shape[1] - 1
+        Uy = [*U, self.y_raw[:, j : j + 1]]  # the columns and y, joined a block at a time
+        m = sum(u.shape[1] for u in U)
         w, spans = self.w[:, j], block_spans(self.blocks)
         parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         for X in self._grid_columns(cand):
