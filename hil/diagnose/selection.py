@@ -372,33 +372,38 @@ class Problem:
         if sums is None:
             U = [self.Psi_raw[:, j, :], *U]
         Uy = [*U, self.y_raw[:, j : j + 1]]  # the columns and y, joined a block at a time
-        m = sum(u.shape[1] for u in U)
         w, spans = self.w[:, j], block_spans(self.blocks)
-        parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-        for X in self._grid_columns(cand):
-            uyx, xx = target_block_sums(Uy, X, w, spans)
-            n_blocks, (n_x, q) = len(spans), X.shape[1:]
-            ux = uyx[:, :m].reshape(n_blocks, m, n_x, q).transpose(2, 0, 1, 3)
-            xy = uyx[:, m].reshape(n_blocks, n_x, q)
-            parts.append((ux, xx.transpose(1, 0, 2, 3), xy.transpose(1, 0, 2)))
-            del X  # not held while the next chunk is built
-        ux = np.concatenate([u for u, _, _ in parts])  # (V, B, m, q)
-        assert ux.shape[0] == n_var
-        at = 0
+        n_blocks, q = len(spans), term_width(cand)
+        # where each group of U's columns goes: Ψ's to a new grid's PX, a term's to its own
+        widths = [u.shape[1] for u in U]
+        fresh = sums is None
         if sums is None:
             p = self.n_params
             sums = GridSums(
-                ux[:, :, :p].copy(),
-                np.concatenate([x for _, x, _ in parts]),
-                np.concatenate([x for _, _, x in parts]),
-                ux.shape[-1],
+                np.empty((n_var, n_blocks, p, q)),
+                np.empty((n_var, n_blocks, q, q)),
+                np.empty((n_var, n_blocks, q)),
+                q,
             )
-            self.grids[cand.key] = sums
-            at = p
         for k in missing:
-            width = self.cache[k].shape[-1]
-            sums.terms[k] = ux[:, :, at : at + width].copy()
-            at += width
+            sums.terms[k] = np.empty((n_var, n_blocks, self.cache[k].shape[-1], q))
+        dest = ([sums.PX] if fresh else []) + [sums.terms[k] for k in missing]
+        edges = np.cumsum([0, *widths])
+        lo = 0
+        for X in self._grid_columns(cand):
+            uyx, xx = target_block_sums(Uy, X, w, spans)  # (B, m + 1, n·q), (B, n, q, q)
+            hi = lo + X.shape[1]
+            uyx = uyx.reshape(n_blocks, -1, hi - lo, q).transpose(2, 0, 1, 3)  # (n, B, m + 1, q)
+            for out, a, b in zip(dest, edges[:-1], edges[1:], strict=True):
+                out[lo:hi] = uyx[:, :, a:b]
+            if fresh:
+                sums.XX[lo:hi] = xx.transpose(1, 0, 2, 3)
+                sums.Xy[lo:hi] = uyx[:, :, -1]
+            lo = hi
+            del X  # not held while the next chunk is built
+        assert lo == n_var
+        if fresh:
+            self.grids[cand.key] = sums
         return sums
 
     def _grid_columns(self, cand: Candidate) -> Iterator[np.ndarray]:
