@@ -83,6 +83,30 @@ def limit_blas_threads() -> None:
         threadpool_limits(limits=1, user_api="blas")
 
 
+# glibc's malloc gives a freed block back to the system only when it was mmapped, and raises
+# its mmap threshold to the size of every mmapped block freed (up to 32 MB): after the first
+# few, the 1–30 MB arrays of a long analysis come from the heap, whose freed middle stays
+# resident. A 10-minute diagnosis at 1 kHz held some 300 MB of freed heap that way at its peak
+# (docs/diagnosis.md, "Memory and long recordings"). A fixed threshold keeps blocks of at least
+# this size mmapped, returned on free; smaller ones (a block's rows) stay on the heap.
+MMAP_THRESHOLD_BYTES = 1 << 20
+_M_MMAP_THRESHOLD = -3  # mallopt parameter number (glibc malloc.h)
+
+
+def return_freed_memory() -> bool:
+    """Large arrays (≥ :data:`MMAP_THRESHOLD_BYTES`) mmapped by the C library, so that their
+    memory goes back to the system when freed (see above), called where a command starts,
+    never on import. False where the C library has no ``mallopt`` (not glibc): nothing set."""
+    import ctypes
+
+    try:
+        mallopt = ctypes.CDLL(None).mallopt  # the C library this interpreter runs on
+    except (OSError, AttributeError):
+        return False
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    return bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES))
+
+
 def install_exit_signals() -> None:
     """SIGINT, SIGTERM and SIGHUP raise KeyboardInterrupt once in the main thread."""
     for name in EXIT_SIGNALS:

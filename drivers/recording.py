@@ -200,6 +200,11 @@ class Recording:
     time_column: str = "t"  # the file's column the times came from
     findings_on_read: list[str] = field(default_factory=list)
     segment_starts: tuple[int, ...] = ()  # rows where a segment begins after a gap (not 0)
+    # q and tau stacked once, by prefix, with the column arrays they were stacked from (not
+    # copied by dataclasses.replace: a segment stacks its own)
+    _stacked: dict[str, tuple[list[np.ndarray], np.ndarray]] = field(
+        default_factory=dict, init=False, repr=False, compare=False
+    )
 
     def __post_init__(self) -> None:
         if not self.n_joints:
@@ -221,13 +226,26 @@ class Recording:
 
     @property
     def q(self) -> np.ndarray:
-        """Joint angles, shape (N, n_joints)."""
-        return np.column_stack([self.columns[f"q{j + 1}"] for j in range(self.n_joints)])
+        """Joint angles, shape (N, n_joints), read-only (stacked once, :meth:`_joint_stack`)."""
+        return self._joint_stack("q")
 
     @property
     def tau(self) -> np.ndarray:
-        """Held torques, shape (N, n_joints): row k's acts over [t_k, t_{k+1})."""
-        return np.column_stack([self.columns[f"tau{j + 1}"] for j in range(self.n_joints)])
+        """Held torques, shape (N, n_joints), read-only: row k's acts over [t_k, t_{k+1})."""
+        return self._joint_stack("tau")
+
+    def _joint_stack(self, prefix: str) -> np.ndarray:
+        """The columns ``prefix``1..N side by side, stacked on first use and kept while the
+        same column arrays stand in ``columns`` (a long recording's q is ten megabytes; the
+        property is read in per-chunk code). Read-only: every caller shares it."""
+        cols = [self.columns[f"{prefix}{j + 1}"] for j in range(self.n_joints)]
+        kept = self._stacked.get(prefix)
+        if kept is not None and all(a is b for a, b in zip(kept[0], cols, strict=True)):
+            return kept[1]
+        stacked = np.column_stack(cols)
+        stacked.flags.writeable = False
+        self._stacked[prefix] = (cols, stacked)
+        return stacked
 
     @property
     def period_s(self) -> float:

@@ -207,6 +207,24 @@ def test_lockstep_recording_reads_as_before(tmp_path):
     assert rec.segments() == [slice(0, len(rows))]
 
 
+def test_q_and_tau_are_stacked_once_and_shared_read_only(tmp_path):
+    """rec.q and rec.tau are one array each, not a new copy per access (a long recording's q is
+    ten megabytes, read in per-chunk code); read-only, since every caller shares it; stacked
+    anew when a column is replaced, and a segment stacks its own rows."""
+    rec = read_signals(write_run(tmp_path / "run", lockstep_rows()))
+    q, tau = rec.q, rec.tau
+    assert rec.q is q and rec.tau is tau
+    assert not q.flags.writeable and not tau.flags.writeable
+    with pytest.raises(ValueError):
+        q[0, 0] = 1.0
+    seg = rec.segment(slice(10, 50))
+    np.testing.assert_array_equal(seg.q, q[10:50])
+    assert seg.q is not q and seg.q is seg.q
+    rec.columns["q2"] = rec.columns["q2"] + 1.0
+    np.testing.assert_array_equal(rec.q[:, 1], q[:, 1] + 1.0)
+    np.testing.assert_array_equal(rec.q[:, 0], q[:, 0])
+
+
 def test_n_joints(tmp_path):
     csv_path = tmp_path / "three.csv"
     csv_path.write_text(

@@ -378,7 +378,9 @@ def cogging_column_chunks(
                 z *= once if step == 1 else np.exp(1j * step * q)
             mean = _GL_WEIGHTS @ z  # of e^{i n q}
             raw[:, i - lo, 0], raw[:, i - lo, 1] = mean.imag, mean.real
-        yield -_filtered(rows, raw)
+        out = _filtered(rows, raw)
+        del raw  # not held while the caller sums the chunk
+        yield np.negative(out, out=out)
 
 
 def stribeck_shape(v: np.ndarray, velocity_rad_s: float, exponent: float = 2.0) -> np.ndarray:

@@ -250,14 +250,13 @@ def _bin_columns(
     else:
         edges = np.quantile(values, np.linspace(0, 1, bins + 1)[1:-1])
         basis = np.eye(bins)[np.searchsorted(edges, values)]
-    cols = []
-    start = 0
-    for r in prob.rows:
-        n = r.rows
-        cols.append(moving_average(basis[start : start + n], r.window))
-        start += n
     X = np.zeros((len(values), 2, basis.shape[1] - 1))
-    X[:, joint, :] = np.concatenate(cols)[:, 1:] / prob.scale[joint]  # one is the baseline
+    start = 0
+    for r in prob.rows:  # each recording filtered on its own, straight into X
+        n = r.rows
+        filtered = moving_average(basis[start : start + n], r.window)
+        X[start : start + n, joint, :] = filtered[:, 1:] / prob.scale[joint]  # 0: the baseline
+        start += n
     return X
 
 
@@ -284,15 +283,15 @@ def lack_of_fit(
         if a.cand.kind not in VELOCITY_SHAPED:
             continue
         others = [prob.chosen(b) for b in kept if b is not a]
-        design = _design(prob, others)
-        stats = block_stats(design, prob.y, prob.w, prob.blocks)
+        stats = prob.design_stats(others)
+        design = prob.joint_columns(others)
         joint = a.cand.joint
         bins = _bin_columns(prob, joint, "velocity", shape="hat")
         with_term = cross_validate(
             extend_stats_many(stats, design, [prob.chosen(a)], prob.y, prob.w, prob.blocks)
         )
         with_bins = cross_validate(
-            extend_stats_many(stats, design, [bins], prob.y, prob.w, prob.blocks)
+            extend_stats_many(stats, design, bins[:, :, None], prob.y, prob.w, prob.blocks)
         )
         ev = evidence(with_term, with_bins, [joint])
         if log:
@@ -323,15 +322,16 @@ def unexplained(
     kept = [a for a in accepted if shaft is None or a.cand.kind != "rate"]
     cols = [prob.chosen(a) for a in kept]
     y = prob.y if shaft is None else shaft / prob.scale
-    design = _design(prob, cols)
-    stats = block_stats(design, y, prob.w, prob.blocks)
+    # the design as its column groups: never joined whole (hil.diagnose.stats.design_rows)
+    stats = block_stats(prob.design_groups(cols), y, prob.w, prob.blocks)
+    design = prob.joint_columns(cols)
     base = cross_validate(stats)
     out = []
     tests = UNEXPLAINED_TESTS
     for j in (0, 1):
         for variable in ("velocity", "position"):
-            X = _bin_columns(prob, j, variable)
-            cv = cross_validate(extend_stats_many(stats, design, [X], y, prob.w, prob.blocks))
+            X = _bin_columns(prob, j, variable)[:, :, None]  # one variant
+            cv = cross_validate(extend_stats_many(stats, design, X, y, prob.w, prob.blocks))
             ev = evidence(base, cv, [j])
             if ev.reduction >= 2 * MIN_REDUCTION and ev.sign_p <= FAMILY_ALPHA / tests:
                 out.append(

@@ -35,16 +35,18 @@ from hil.diagnose.columns import (
 )
 from hil.diagnose.stats import (
     BlockStats,
+    Columns,
     CrossValidation,
     Evidence,
     ScaledRows,
     block_index,
+    block_spans,
     block_stats,
     cross_validate,
     evidence,
     extend_stats_many,
     extended_stats,
-    joint_block_sums,
+    target_block_sums,
 )
 from hil.model.closed_form import TERMS, ArmModel
 
@@ -247,14 +249,20 @@ class Problem:
         entry = self._served.get(id(x))
         return entry[1] if entry is not None and entry[0]() is x else None
 
-    def joint_columns(self, extra: Sequence[np.ndarray]) -> Callable[[int], np.ndarray]:
-        """Joint j's columns of the design Ψ + ``extra`` (scaled), (K, p), built when asked:
-        not the whole (K, 2, 9) scaled Ψ for one joint's rows."""
+    def joint_columns(self, extra: Sequence[np.ndarray]) -> Callable[[int], Columns]:
+        """Joint j's columns of the design Ψ + ``extra`` (scaled), (K, p) as groups that are
+        joined a block at a time (:func:`hil.diagnose.stats.target_block_sums`): not the whole
+        (K, 2, 9) scaled Ψ for one joint's rows, nor a joined (K, p) copy."""
 
-        def columns(j: int) -> np.ndarray:
-            return np.hstack([self.Psi_raw[:, j, :] / self.scale[j], *(x[:, j, :] for x in extra)])
+        def columns(j: int) -> Columns:
+            return [ScaledRows(self.Psi_raw[:, j, :], self.scale[j]), *(x[:, j, :] for x in extra)]
 
         return columns
+
+    def design_groups(self, extra: Sequence[np.ndarray]) -> list[np.ndarray | ScaledRows]:
+        """The design Ψ + ``extra`` (scaled rows) as its column groups, Ψ scaled a block at a
+        time when read: :func:`block_stats` takes it without a joined (K, 2, p) copy."""
+        return [ScaledRows(self.Psi_raw, self.scale), *extra]
 
     def design_stats(self, extra: Sequence[np.ndarray]) -> BlockStats:
         """:func:`block_stats` of Ψ + ``extra`` (scaled rows), kept for the scale when every
@@ -265,9 +273,7 @@ class Problem:
             return self._design_stats[key]
         if key is not None and any(k[0] != key[0] for k in self._design_stats):
             self._design_stats = {}  # the scale changed: those designs are not asked for again
-        stats = block_stats(
-            [ScaledRows(self.Psi_raw, self.scale), *extra], self.y, self.w, self.blocks
-        )
+        stats = block_stats(self.design_groups(extra), self.y, self.w, self.blocks)
         if key is not None:
             self._design_stats[key] = stats
         return stats
@@ -365,40 +371,54 @@ class Problem:
         U = [self.cache[k][:, j, :] for k in missing]  # (K, width) raw, on the joint's rows
         if sums is None:
             U = [self.Psi_raw[:, j, :], *U]
-        U_all = np.concatenate(U, axis=1)
-        parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-        for X in self._grid_columns(cand):
-            ux, xx, xy = joint_block_sums(U_all, X, self.y_raw[:, j], self.w[:, j], self.blocks)
-            n_blocks, m, _ = ux.shape
-            ux = ux.reshape(n_blocks, m, X.shape[1], X.shape[2]).transpose(2, 0, 1, 3)
-            parts.append((ux, xx.transpose(1, 0, 2, 3), xy.transpose(1, 0, 2)))
-        ux = np.concatenate([u for u, _, _ in parts])  # (V, B, m, q)
-        assert ux.shape[0] == n_var
-        at = 0
+        Uy = [*U, self.y_raw[:, j : j + 1]]  # the columns and y, joined a block at a time
+        w, spans = self.w[:, j], block_spans(self.blocks)
+        n_blocks, q = len(spans), term_width(cand)
+        # where each group of U's columns goes: Ψ's to a new grid's PX, a term's to its own
+        widths = [u.shape[1] for u in U]
+        fresh = sums is None
         if sums is None:
             p = self.n_params
             sums = GridSums(
-                ux[:, :, :p].copy(),
-                np.concatenate([x for _, x, _ in parts]),
-                np.concatenate([x for _, _, x in parts]),
-                ux.shape[-1],
+                np.empty((n_var, n_blocks, p, q)),
+                np.empty((n_var, n_blocks, q, q)),
+                np.empty((n_var, n_blocks, q)),
+                q,
             )
-            self.grids[cand.key] = sums
-            at = p
         for k in missing:
-            width = self.cache[k].shape[-1]
-            sums.terms[k] = ux[:, :, at : at + width].copy()
-            at += width
+            sums.terms[k] = np.empty((n_var, n_blocks, self.cache[k].shape[-1], q))
+        dest = ([sums.PX] if fresh else []) + [sums.terms[k] for k in missing]
+        edges = np.cumsum([0, *widths])
+        lo = 0
+        for X in self._grid_columns(cand):
+            uyx, xx = target_block_sums(Uy, X, w, spans)  # (B, m + 1, n·q), (B, n, q, q)
+            hi = lo + X.shape[1]
+            uyx = uyx.reshape(n_blocks, -1, hi - lo, q).transpose(2, 0, 1, 3)  # (n, B, m + 1, q)
+            for out, a, b in zip(dest, edges[:-1], edges[1:], strict=True):
+                out[lo:hi] = uyx[:, :, a:b]
+            if fresh:
+                sums.XX[lo:hi] = xx.transpose(1, 0, 2, 3)
+                sums.Xy[lo:hi] = uyx[:, :, -1]
+            lo = hi
+            del X  # not held while the next chunk is built
+        assert lo == n_var
+        if fresh:
+            self.grids[cand.key] = sums
         return sums
 
     def _grid_columns(self, cand: Candidate) -> Iterator[np.ndarray]:
         """Raw X of every variant on the candidate's joint, (K, ≤per, width) chunks of at most
         CHUNK_BYTES: a 400-period cogging grid over a long recording would not fit at once."""
         j, width = cand.joint, term_width(cand)
-        per_row = 8 * width * 4 + (96 if cand.chunks is not None else 0)  # columns + working
+        # per variant and row: its columns, and what they are built from (the unfiltered node
+        # averages of a cogging chunk); the chunk is weighted a block at a time when summed
+        per_row = 8 * width * 2
         per = max(1, int(CHUNK_BYTES // (per_row * max(len(self.y_raw), 1))))
         if cand.chunks is not None:
             streams = [cand.chunks(r, cand.variants, per) for r in self.rows]
+            if len(streams) == 1:  # one recording: its chunks, not a copy of each
+                yield from streams[0]
+                return
             for pieces in zip(*streams, strict=True):
                 yield np.concatenate(pieces)
             return

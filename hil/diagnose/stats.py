@@ -50,15 +50,21 @@ class BlockStats:
 
 
 class ScaledRows:
-    """raw (K, 2, p) divided by a per-joint scale (2,), row ranges computed when asked: a
-    design's column group that is never scaled whole (a long recording's Ψ is 86 MB)."""
+    """raw (K, 2, p) divided by a per-joint scale (2,), or one joint's raw (K, p) by its scale
+    (a number), row ranges computed when asked: a design's column group that is never scaled
+    whole (a long recording's Ψ is 86 MB)."""
 
-    def __init__(self, raw: np.ndarray, scale: np.ndarray) -> None:
+    def __init__(self, raw: np.ndarray, scale: np.ndarray | float) -> None:
         self.raw, self.scale = raw, scale
         self.shape = raw.shape
+        self._divisor = scale[None, :, None] if np.ndim(scale) == 1 else scale
 
     def __getitem__(self, rows: slice) -> np.ndarray:
-        return self.raw[rows] / self.scale[None, :, None]
+        return self.raw[rows] / self._divisor
+
+
+# Columns (K, m) of one joint's rows, given as groups (K, m_i) joined one block at a time
+Columns = Sequence[np.ndarray | ScaledRows]
 
 
 # (K, 2, p), or its column groups (K, 2, p_i), each an array or ScaledRows
@@ -105,14 +111,14 @@ def _starts(blocks: np.ndarray) -> np.ndarray:
 
 def extend_stats_many(
     base: BlockStats,
-    Z: Design | Callable[[int], np.ndarray],
+    Z: Design | Callable[[int], Columns],
     variants: list[np.ndarray] | np.ndarray,
     y: np.ndarray,
     w: np.ndarray,
     blocks: np.ndarray,
 ) -> BlockStats:
     """Statistics of the designs [Z, X_v] for alternative X_v of the same width (Z, or a function
-    giving joint j's columns of it (K, p); a candidate's
+    giving joint j's columns of it as groups (K, p_i), :data:`Columns`); a candidate's
     variants, a list of (K, 2, q) or one array (K, 2, V, q)), from those of Z (``base``): only
     the new cross terms are computed, those of every variant from one matrix product per block
     and joint, which is what keeps a 400-variant cogging search to a fraction of a second. A
@@ -120,18 +126,20 @@ def extend_stats_many(
     variant."""
     X = variants if isinstance(variants, np.ndarray) else np.stack(variants, axis=2)
     V, q = X.shape[2], X.shape[3]
-    n_blocks, p = len(_starts(blocks)), base.G.shape[-1]
+    spans = block_spans(blocks)
+    n_blocks, p = len(spans), base.G.shape[-1]
     cross = np.zeros((n_blocks, 2, p, V * q))
     xx = np.zeros((n_blocks, 2, V, q, q))
     rx = np.zeros((n_blocks, 2, V, q))
     for j in (0, 1):
         if not np.any(X[:, j]):
             continue
-        if callable(Z):  # joint j's columns (K, p), built on demand
-            U = Z(j)
+        if callable(Z):  # joint j's columns, as groups joined a block at a time
+            U = list(Z(j))
         else:
-            U = Z[:, j, :] if isinstance(Z, np.ndarray) else np.hstack([P[:, j, :] for P in Z])
-        cross[:, j], xx[:, j], rx[:, j] = joint_block_sums(U, X[:, j], y[:, j], w[:, j], blocks)
+            U = [Z[:, j, :]] if isinstance(Z, np.ndarray) else [P[:, j, :] for P in Z]
+        uyx, xx[:, j] = target_block_sums([*U, y[:, j, None]], X[:, j], w[:, j], spans)
+        cross[:, j], rx[:, j] = uyx[:, :p], uyx[:, p].reshape(n_blocks, V, q)
     cross = cross.reshape(n_blocks, 2, p, V, q).transpose(3, 0, 1, 2, 4)  # (V, B, 2, p, q)
     return extended_stats(base, cross, xx.transpose(2, 0, 1, 3, 4), rx.transpose(2, 0, 1, 3))
 
@@ -146,21 +154,34 @@ def joint_block_sums(
     U: np.ndarray, X: np.ndarray, y: np.ndarray, w: np.ndarray, blocks: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per block, of one joint's rows: Σ w Uᵀ X (B, m, V·q), Σ w XᵀX per variant (B, V, q, q)
-    and Σ w Xᵀ y (B, V, q), for columns U (K, m) and variants X (K, V, q). Per block one dense
-    product [U y]ᵀ (w X) and one batched Xᵀ (w X) (BLAS; the sparse block-selector product used
-    before did the same multiply-adds without it)."""
-    K, (V, q) = X.shape[0], X.shape[1:]
-    n_blocks, m = len(_starts(blocks)), U.shape[1]
-    wX = w[:, None, None] * X  # (K, V, q)
-    flat = wX.reshape(K, V * q)
-    Uy = np.concatenate([U, y[:, None]], axis=1)  # y rides along: Σ w yᵀX from the same product
-    uyx = np.empty((n_blocks, m + 1, V * q))
-    xx = np.empty((n_blocks, V, q, q))
-    for b, (lo, hi) in enumerate(block_spans(blocks)):
-        np.matmul(Uy[lo:hi].T, flat[lo:hi], out=uyx[b])
+    and Σ w Xᵀ y (B, V, q), for columns U (K, m) and variants X (K, V, q)
+    (:func:`target_block_sums` with y riding along as U's last column)."""
+    V, q = X.shape[1:]
+    m = U.shape[1]
+    uyx, xx = target_block_sums([U, y[:, None]], X, w, block_spans(blocks))
+    return uyx[:, :m], xx, uyx[:, m].reshape(len(uyx), V, q)
+
+
+def target_block_sums(
+    Uy: Columns, X: np.ndarray, w: np.ndarray, spans: Sequence[tuple[int, int]]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per block (``spans``: [first, end) rows, :func:`block_spans`) of one joint's rows:
+    Σ w Uyᵀ X (B, m, V·q) and Σ w XᵀX per variant (B, V, q, q), for columns Uy (K, m) given
+    as groups (the target y as the last gives Σ w yᵀX from the same product) and variants X
+    (K, V, q). Per block one dense product Uyᵀ (w X) and one batched Xᵀ (w X) (BLAS; the
+    sparse block-selector product used before did the same multiply-adds without it). The
+    groups are joined and X weighted one block at a time: no (K, m) or (K, V·q) copy per call,
+    which at 600,000 rows cost more than the products (and 90 MB each)."""
+    V, q = X.shape[1:]
+    uyx = np.empty((len(spans), sum(g.shape[1] for g in Uy), V * q))
+    xx = np.empty((len(spans), V, q, q))
+    for b, (lo, hi) in enumerate(spans):
+        wX = w[lo:hi, None, None] * X[lo:hi]  # (k, V, q)
+        Ub = np.concatenate([g[lo:hi] for g in Uy], axis=1)
+        np.matmul(Ub.T, wX.reshape(hi - lo, V * q), out=uyx[b])
         # per variant a (q, k) @ (k, q) product
-        np.matmul(X[lo:hi].transpose(1, 2, 0), wX[lo:hi].transpose(1, 0, 2), out=xx[b])
-    return uyx[:, :m], xx, uyx[:, m].reshape(n_blocks, V, q)
+        np.matmul(X[lo:hi].transpose(1, 2, 0), wX.transpose(1, 0, 2), out=xx[b])
+    return uyx, xx
 
 
 def extended_stats(

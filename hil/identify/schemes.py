@@ -265,7 +265,7 @@ def validate(
     """
     report = progress or _no_progress
     n = len(rec)
-    q, tau = rec.q, rec.tau  # each access stacks the columns anew: once
+    q, tau = rec.q, rec.tau
     times = irregular_times(rec)
     every = max(1, -(-n // PLOT_POINTS))
     position = NrmseAccumulator()
