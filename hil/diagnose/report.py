@@ -138,6 +138,26 @@ def _estimate(cand: Candidate, variant: Any, coef: np.ndarray, theta: np.ndarray
     raise ValueError(cand.kind)
 
 
+def cogging_at_true_angle(findings: Sequence[Finding], fresh: set[int] | None = None) -> list[Finding]:
+    """``findings`` with each cogging phase moved from the recorded angle to the true one when
+    an angle offset is found on the same joint. The cogging columns are built on the recorded
+    angle q = q_true + δ, so the fit gives φ_rec in A sin(n q + φ_rec) = A sin(n q_true + n δ +
+    φ_rec): at the true angle, where the arm's cogging acts (and the open-loop simulator and
+    the effects profiles put it), the phase is φ_rec + n δ. Simulated with φ_rec, a 96/rev
+    cogging next to a −27 mrad offset was 150° out of phase and made the held-out motion worse
+    than no cogging at all. ``fresh``: the indices of the findings whose phase is still on the
+    recorded angle (default all)."""
+    offset = {f.joint: f.estimate["offset_rad"] for f in findings if f.effect == "angle_offset"}
+    out = list(findings)
+    for i, f in enumerate(out):
+        if f.effect != "cogging" or f.joint not in offset or (fresh is not None and i not in fresh):
+            continue
+        e = f.estimate
+        phase = math.remainder(e["phase_rad"] + e["periods_per_rev"] * offset[f.joint], math.tau)
+        out[i] = replace(f, estimate={**e, "phase_rad": _r(phase)})
+    return out
+
+
 def settle_gain_joint(
     prob: Problem, accepted: list[Accepted], library: Sequence[Candidate], reference: np.ndarray
 ) -> list[Accepted]:
@@ -227,7 +247,7 @@ def interpret(
     for f in findings:  # which term each finding stands on (the simulation gate drops terms)
         if not f.term:
             f.term = "rate" if f.effect in ("actuator_lag", "transport_delay") else ""
-    return findings, confounded, shaft
+    return cogging_at_true_angle(findings), confounded, shaft
 
 
 # --- structure no candidate explains -------------------------------------------------------------
@@ -424,6 +444,7 @@ def _training_findings(
     out = list(findings)
     p = len(beta) - sum(term_width(a.cand) for a in accepted)  # the nominal model's θ
     at = p
+    refreshed: set[int] = set()
     for a in accepted:
         width = term_width(a.cand)
         coef = beta[at : at + width]
@@ -431,13 +452,12 @@ def _training_findings(
         if a.cand.kind in ("rate", "gain", *TERMS):  # a model term is simulated in θ itself
             continue
         fresh = {f.effect: f for f in _estimate(a.cand, a.variant, coef, beta[:p])}
-        out = [
-            replace(f, estimate=fresh[f.effect].estimate)
-            if f.effect in fresh and f.joint == a.cand.joint + 1
-            else f
-            for f in out
-        ]
-    return out
+        for i, f in enumerate(out):
+            if f.effect in fresh and f.joint == a.cand.joint + 1:
+                out[i] = replace(f, estimate=fresh[f.effect].estimate)
+                refreshed.add(i)
+    # the fresh cogging phases are on the recorded angle, as _estimate gives them
+    return cogging_at_true_angle(out, refreshed)
 
 
 def _masks(prob: Problem) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, int]]]:
