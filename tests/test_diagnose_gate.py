@@ -94,7 +94,7 @@ def test_cogging_phase_moves_to_the_true_angle_with_an_angle_offset():
     other = Finding("angle_offset", 1, {"offset_rad": 0.5}, {})
     out = cogging_at_true_angle([cog, ang, other])
     want = math.remainder(-2.386 + 96 * -0.02708, math.tau)
-    assert out[0].estimate["phase_rad"] == pytest.approx(want, abs=1e-4)
+    assert out[0].estimate["phase_rad"] == pytest.approx(want, abs=1e-3)  # 4 significant digits
     assert out[1:] == [ang, other]
     # no offset on its joint: unchanged; only the ``fresh`` ones move
     assert cogging_at_true_angle([cog, other]) == [cog, other]
