@@ -706,7 +706,15 @@ def _phrase(f: Finding) -> str:
         e["pct"] = f"{100 * e['relative']:+.3g}"
     if "share_of_M22" in e:
         e["share"] = f"{100 * e['share_of_M22']:.3g}"
-    return _WORDS[f.effect].format(**e)
+    words = _WORDS[f.effect].format(**e)
+    if e.get("relative_at_reference_theta") is not None:
+        # docs/diagnosis.md 4a: a free θ absorbs part of a gain (most in closed loop)
+        words += (
+            f" ({100 * e['relative_at_reference_theta']:+.3g} % with θ1..θ5 held at the "
+            "reference; with θ free the estimate is biased toward zero, most on closed-loop "
+            "data)"
+        )
+    return words
 
 
 SEPARATE = {
