@@ -30,6 +30,7 @@ from virtual_robot.effects import (
     TransportDelay,
     amplifier_lag_step,
     cogging_torque,
+    friction_bands,
     gain_offset,
     payload_theta,
     stribeck_level,
@@ -69,25 +70,21 @@ class PlantParams:
     def from_profiles(
         cls, robot: RobotProfile, effects: EffectsProfile | None = None
     ) -> PlantParams:
-        effects = effects or EffectsProfile()
+        # per-joint values as 2-tuples (a wrong length is a one-line error naming the key)
+        effects = (effects or EffectsProfile()).for_joints(2, robot.name)
         theta = list(robot.theta()[:5])
         if effects.payload is not None:
             assert robot.link1.length_m is not None
             theta = payload_theta(theta, effects.payload, robot.link1.length_m, robot.gravity_m_s2)
-        pos, neg = robot.coulomb_positive_Nm, robot.coulomb_negative_Nm
-        if effects.coulomb is not None:
-            pos, neg = effects.coulomb.positive_Nm, effects.coulomb.negative_Nm
+        pos, neg, break_pos, break_neg = friction_bands(
+            robot.coulomb_positive_Nm, robot.coulomb_negative_Nm, effects
+        )
         kw: dict = {}
         if effects.stribeck is not None:
-            ratio = effects.stribeck.breakaway_ratio
             kw.update(
-                breakaway_positive_Nm=(pos[0] * ratio[0], pos[1] * ratio[1]),
-                breakaway_negative_Nm=(neg[0] * ratio[0], neg[1] * ratio[1]),
                 stribeck_velocity_rad_s=effects.stribeck.velocity_rad_s,
                 stribeck_exponent=effects.stribeck.exponent,
             )
-        else:
-            kw.update(breakaway_positive_Nm=pos, breakaway_negative_Nm=neg)
         if effects.cogging is not None:
             kw.update(
                 cogging_periods_per_rev=effects.cogging.periods_per_rev,
@@ -99,6 +96,8 @@ class PlantParams:
             viscous_Nms=robot.viscous_Nms,
             coulomb_positive_Nm=pos,
             coulomb_negative_Nm=neg,
+            breakaway_positive_Nm=break_pos,
+            breakaway_negative_Nm=break_neg,
             amplifier_lag_s=effects.amplifier_lag_s or (0.0, 0.0),
             transport_delay_s=effects.transport_delay_s,
             torque_gain_error=effects.torque_gain_error,
