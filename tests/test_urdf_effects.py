@@ -127,6 +127,27 @@ def test_bad_joint_tables_are_one_line(tmp_path, text, words):
     assert "\n" not in str(err.value) and words in str(err.value)
 
 
+def test_shipped_profiles_run_on_the_3_joint_arm_or_say_why():
+    """Every shipped effects profile either runs on cicese3 (finite motion) or is refused in
+    one line: arrays written for the 2-DOF arm, or a payload."""
+    from profiles import available
+
+    experiment = load_experiment("cicese3-excitation")
+    ran = []
+    for name in available("effects"):
+        try:
+            plant = plant_with(load_effects(name))
+        except ValueError as err:
+            assert "\n" not in str(err) and ("list of 3 numbers" in str(err) or "payload" in name)
+            continue
+        for k in range(40):
+            plant.command(experiment.torque(k * experiment.period_s))
+            plant.advance_to((k + 1) * experiment.period_s)
+        assert np.all(np.isfinite(plant.q)) and np.ptp(plant.q) > 0, name
+        ran.append(name)
+    assert {"none", "joint3-asymmetry", "joint3-gain"} <= set(ran)
+
+
 def test_payload_is_refused_on_the_n_joint_arm():
     with pytest.raises(ValueError, match="takes no payload effect") as err:
         UrdfPlantParams.from_profile(robot(), load_effects("payload"))
