@@ -317,6 +317,8 @@ class UrdfPlant:
         # the stuck joints' static bands [−band_neg, band_pos] (Karnopp's test)
         self._band_s = self.band_pos[self._stuck_idx], -self.band_neg[self._stuck_idx]
         self._reduced = None  # built when first needed (:meth:`_locked_arm`)
+        if self._in_derivative:
+            self._mode_forces()
 
     def _locked_arm(self) -> tuple[Any, Any] | None:
         """The arm with the stuck joints locked where they stand (Pinocchio's reduced model and
@@ -600,26 +602,42 @@ class UrdfPlant:
         within a step: τ + τ_cog(q) − F(|q̇|) dir − b q̇, F the Coulomb level, or the Stribeck
         curve, plus the drag c q̇² (virtual_robot.effects; the 2-DOF plant's _deriv and
         _friction_level). Also the friction power beyond the frozen Coulomb levels,
-        (f − F_c dir)ᵀ q̇ (those are booked exactly, as without effects)."""
-        free = self._free
-        c = self.command_Nm[free] - self.b[free] * v
-        if self._cogging is not None:
-            periods, amplitude, phase = self._cogging
-            c += cogging_torque(q, periods[free], amplitude[free], phase[free])
-        d = self.slip_dir[free]
-        forward = d > 0
-        level = np.where(forward, self.coulomb_pos[free], self.coulomb_neg[free])
+        (f − F_c dir)ᵀ q̇ (those are booked exactly, as without effects). The per-joint
+        constants of the sliding joints are :meth:`_mode_forces`'."""
+        free, b, d, coulomb, breakaway, stribeck_v, drag, cogging, frozen = self._sliding_fx
+        c = self.command_Nm[free] - b * v
+        if cogging is not None:
+            c += cogging_torque(q, *cogging)
         speed = np.abs(v)
-        if self._stribeck_v is not None:
-            breakaway = np.where(forward, self.band_pos[free], self.band_neg[free])
-            level = stribeck_level(
-                level, breakaway, speed, self._stribeck_v[free], self._stribeck_exponent
-            )
-        if self._drag is not None:
-            level = level + velocity_squared_drag(self._drag[free], speed)
+        level = coulomb
+        if stribeck_v is not None:
+            level = stribeck_level(coulomb, breakaway, speed, stribeck_v, self._stribeck_exponent)
+        if drag is not None:
+            level = level + velocity_squared_drag(drag, speed)
         sliding = d * level
         c -= sliding
-        return c, float((self.b[free] * v + sliding - self._level[free]) @ v)
+        return c, float((b * v + sliding - frozen) @ v)
+
+    def _mode_forces(self) -> None:
+        """The constants of :meth:`_state_forces` for the sliding joints of this stick mode."""
+        f = self._free
+        d = self.slip_dir[f]
+        forward = d > 0
+
+        def on_free(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else a[f]
+
+        self._sliding_fx = (
+            f,
+            self.b[f],
+            d,
+            np.where(forward, self.coulomb_pos[f], self.coulomb_neg[f]),
+            np.where(forward, self.band_pos[f], self.band_neg[f]),
+            on_free(self._stribeck_v),
+            on_free(self._drag),
+            None if self._cogging is None else tuple(a[f] for a in self._cogging),
+            self._level[f],
+        )
 
 
 def _rk4_aba(
