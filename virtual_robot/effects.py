@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -128,6 +129,45 @@ def friction_bands(
         tuple(f * r for f, r in zip(pos, ratio, strict=True)),
         tuple(f * r for f, r in zip(neg, ratio, strict=True)),
     )
+
+
+def plant_effect_params(
+    effects: EffectsProfile,
+    coulomb_positive_Nm: Sequence[float],
+    coulomb_negative_Nm: Sequence[float],
+) -> dict[str, Any]:
+    """The plant parameters of ``effects`` (fitted to the robot, EffectsProfile.for_joints) on a
+    robot with these Coulomb levels, by the names both plants' parameters use
+    (virtual_robot.plant.PlantParams, virtual_robot.urdf_plant.UrdfPlantParams); the payload is
+    each plant's own. Friction levels and bands by :func:`friction_bands`."""
+    pos, neg, break_pos, break_neg = friction_bands(
+        coulomb_positive_Nm, coulomb_negative_Nm, effects
+    )
+    none = (0.0,) * len(pos)
+    kw: dict[str, Any] = {
+        "coulomb_positive_Nm": pos,
+        "coulomb_negative_Nm": neg,
+        "breakaway_positive_Nm": break_pos,
+        "breakaway_negative_Nm": break_neg,
+        "amplifier_lag_s": effects.amplifier_lag_s or none,
+        "transport_delay_s": effects.transport_delay_s,
+        "torque_gain_error": effects.torque_gain_error,
+        "torque_offset_Nm": effects.torque_offset_Nm,
+        "encoder_offset_rad": effects.encoder_offset_rad,
+        "drag_Nms2": effects.velocity_squared_drag_Nms2 or none,
+    }
+    if effects.stribeck is not None:
+        kw.update(
+            stribeck_velocity_rad_s=effects.stribeck.velocity_rad_s,
+            stribeck_exponent=effects.stribeck.exponent,
+        )
+    if effects.cogging is not None:
+        kw.update(
+            cogging_periods_per_rev=effects.cogging.periods_per_rev,
+            cogging_amplitude_Nm=effects.cogging.amplitude_Nm,
+            cogging_phase_rad=effects.cogging.phase_rad,
+        )
+    return kw
 
 
 def payload_theta(

@@ -30,9 +30,9 @@ from virtual_robot.effects import (
     TransportDelay,
     amplifier_lag_step,
     cogging_torque,
-    friction_bands,
     gain_offset,
     payload_theta,
+    plant_effect_params,
     stribeck_level,
     velocity_squared_drag,
 )
@@ -76,35 +76,10 @@ class PlantParams:
         if effects.payload is not None:
             assert robot.link1.length_m is not None
             theta = payload_theta(theta, effects.payload, robot.link1.length_m, robot.gravity_m_s2)
-        pos, neg, break_pos, break_neg = friction_bands(
-            robot.coulomb_positive_Nm, robot.coulomb_negative_Nm, effects
-        )
-        kw: dict = {}
-        if effects.stribeck is not None:
-            kw.update(
-                stribeck_velocity_rad_s=effects.stribeck.velocity_rad_s,
-                stribeck_exponent=effects.stribeck.exponent,
-            )
-        if effects.cogging is not None:
-            kw.update(
-                cogging_periods_per_rev=effects.cogging.periods_per_rev,
-                cogging_amplitude_Nm=effects.cogging.amplitude_Nm,
-                cogging_phase_rad=effects.cogging.phase_rad,
-            )
         return cls(
             theta=tuple(float(x) for x in theta),  # type: ignore[arg-type]
             viscous_Nms=robot.viscous_Nms,
-            coulomb_positive_Nm=pos,
-            coulomb_negative_Nm=neg,
-            breakaway_positive_Nm=break_pos,
-            breakaway_negative_Nm=break_neg,
-            amplifier_lag_s=effects.amplifier_lag_s or (0.0, 0.0),
-            transport_delay_s=effects.transport_delay_s,
-            torque_gain_error=effects.torque_gain_error,
-            torque_offset_Nm=effects.torque_offset_Nm,
-            encoder_offset_rad=effects.encoder_offset_rad,
-            drag_Nms2=effects.velocity_squared_drag_Nms2 or (0.0, 0.0),
-            **kw,
+            **plant_effect_params(effects, robot.coulomb_positive_Nm, robot.coulomb_negative_Nm),
         )
 
 

@@ -64,8 +64,8 @@ from virtual_robot.effects import (
     amplifier_lag_step,
     cogging_torque,
     cogging_work,
-    friction_bands,
     gain_offset,
+    plant_effect_params,
     stribeck_level,
     velocity_squared_drag,
 )
@@ -120,37 +120,12 @@ class UrdfPlantParams:
                 f"effects {effects.name} (payload): the n-joint plant ({robot.name}) takes no "
                 "payload effect; add the payload as a body of its URDF"
             )
-        pos, neg, break_pos, break_neg = friction_bands(
-            robot.coulomb_positive_Nm, robot.coulomb_negative_Nm, effects
-        )
-        kw: dict[str, Any] = {}
-        if effects.stribeck is not None:
-            kw.update(
-                breakaway_positive_Nm=break_pos,
-                breakaway_negative_Nm=break_neg,
-                stribeck_velocity_rad_s=effects.stribeck.velocity_rad_s,
-                stribeck_exponent=effects.stribeck.exponent,
-            )
-        if effects.cogging is not None:
-            kw.update(
-                cogging_periods_per_rev=effects.cogging.periods_per_rev,
-                cogging_amplitude_Nm=effects.cogging.amplitude_Nm,
-                cogging_phase_rad=effects.cogging.phase_rad,
-            )
         return cls(
             urdf=robot.urdf,
             gravity_m_s2=robot.gravity_m_s2,
             viscous_Nms=robot.viscous_Nms,
-            coulomb_positive_Nm=pos,
-            coulomb_negative_Nm=neg,
             armature_kgm2=robot.armature_kgm2,
-            amplifier_lag_s=effects.amplifier_lag_s or (),
-            transport_delay_s=effects.transport_delay_s,
-            torque_gain_error=effects.torque_gain_error,
-            torque_offset_Nm=effects.torque_offset_Nm,
-            encoder_offset_rad=effects.encoder_offset_rad,
-            drag_Nms2=effects.velocity_squared_drag_Nms2 or (),
-            **kw,
+            **plant_effect_params(effects, robot.coulomb_positive_Nm, robot.coulomb_negative_Nm),
         )
 
 
