@@ -160,23 +160,44 @@ def test_lockstep_run_of_cicese3_equals_offline_simulation(bench, reference, tmp
         assert "3_" in log.read_text()  # unit address 3 on the multi-drop line
 
 
-def test_lockstep_run_with_an_effect_on_joint_3_equals_its_simulation(reference, tmp_path):
-    """`hil run --robot cicese3 --effects joint3-asymmetry` over slcan: bit-identical to
-    `virtual-robot simulate` with the same effects, not to the effect-free run (joint 3 moves
-    differently); meta.json records the effects' name as the 2-DOF run does, and the host
-    never loads the profile's contents (the robot process applies them)."""
-    effects = "joint3-asymmetry"
+# the torque path (delay, lag), cogging within the step and the encoder offset, per joint
+TORQUE_PATH = """name = "torque-path"
+[transport_delay]
+delay_s = 0.0007
+[amplifier_lag]
+time_constant_s = [0.002, 0.0, 0.003]
+[cogging]
+joint = 3
+periods_per_rev = 50
+amplitude_Nm = 0.1
+[encoder_offset]
+offset_rad = [0.001, 0.0, -0.002]
+"""
+
+
+@pytest.mark.parametrize(
+    "bench, effects", [("virtual-slcan", "joint3-asymmetry"), ("virtual-inprocess", TORQUE_PATH)]
+)
+def test_lockstep_run_with_effects_equals_its_simulation(bench, effects, reference, tmp_path):
+    """`hil run --robot cicese3 --effects joint3-asymmetry` over slcan (and a profile with the
+    torque-path effects in process): bit-identical to `virtual-robot simulate` with the same
+    effects, not to the effect-free run; meta.json records the effects' name as the 2-DOF run
+    does, and the host never loads the profile's contents (the robot process applies them)."""
+    if "\n" in effects:
+        (tmp_path / "torque-path.toml").write_text(effects)
+        effects = str(tmp_path / "torque-path.toml")
     simulated = simulate_cicese3(tmp_path / "sim", effects)
-    summary = run_cicese3(tmp_path / "run", "virtual-slcan", "--effects", effects,
+    summary = run_cicese3(tmp_path / "run", bench, "--effects", effects,
                           "--duration", str(DURATION_S))  # fmt: skip
     assert summary["status"] == "complete" and summary["rows"] == ROWS
     rec = read_signals(tmp_path / "run")
     assert np.array_equal(rec.q, simulated.q), np.max(np.abs(rec.q - simulated.q))
     assert np.array_equal(rec.tau, simulated.tau) and np.array_equal(rec.tau, reference.tau)
-    assert np.max(np.abs(rec.q[:, 2] - reference.q[:, 2])) > 0.01  # the effect is there
+    assert np.max(np.abs(rec.q[:, 2] - reference.q[:, 2])) > 0.001  # the effect is there
     meta = json.loads((tmp_path / "run" / "meta.json").read_text())
-    assert meta["effects"] == effects and simulated.meta["effects"] == effects
-    assert "coulomb" not in json.dumps(meta)  # the name only, never the concealed values
+    assert meta["effects"] == effects and simulated.meta["effects"] == Path(effects).stem
+    for concealed in ("coulomb", "amplifier_lag", "cogging"):  # the name only, never the values
+        assert concealed not in json.dumps(meta)
 
 
 def test_run_refuses_what_the_robot_cannot_take(tmp_path):
