@@ -300,7 +300,10 @@ def test_shipped_effects_profiles_run(robot):
     from profiles import available
 
     for name in available("effects"):
-        plant = Plant(PlantParams.from_profiles(robot, load_effects(name)))
+        effects = load_effects(name)
+        if any(joint > 2 for _, joint in effects.joint_of):
+            continue  # written for a longer arm: tests/test_urdf_effects.py runs it
+        plant = Plant(PlantParams.from_profiles(robot, effects))
         qs = run_torques(plant, torques)
         assert np.all(np.isfinite(qs)), name
 

@@ -1,11 +1,12 @@
 """N drives on the bus for a URDF arm (issue 14): the virtual robot serving the 3-DOF example arm
 (cicese3) behind every transport, `hil run --robot cicese3` recording it bit-identical to
-`virtual-robot simulate`, host limits per joint from the robot profile, and what the n-joint
-plant does not take yet refused in one line."""
+`virtual-robot simulate` (also with a concealed effect on joint 3), host limits per joint from the
+robot profile, and what the n-joint plant does not take refused in one line."""
 
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import can
@@ -31,18 +32,23 @@ ROWS = 400
 BENCHES = ["virtual-inprocess", "virtual-slcan", "virtual-serial"]
 
 
-@pytest.fixture(scope="module")
-def reference(tmp_path_factory) -> object:
-    """`virtual-robot simulate --robot cicese3` of the first second of the excitation."""
-    out = tmp_path_factory.mktemp("sim3")
+def simulate_cicese3(out: Path, effects: str | None = None) -> object:
+    """`virtual-robot simulate --robot cicese3 [--effects E]` of the excitation's first second."""
     simulate_urdf(
         load_urdf_robot("cicese3"),
         load_experiment(EXPERIMENT),
         out,
+        effects=load_effects(effects),
         duration_s=DURATION_S,
         plot=False,
     )
     return read_signals(out)
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> object:
+    """`virtual-robot simulate --robot cicese3` of the first second of the excitation."""
+    return simulate_cicese3(tmp_path_factory.mktemp("sim3"))
 
 
 def run_cicese3(out: Path, bench: str, *options: str) -> dict:
@@ -74,15 +80,20 @@ def test_virtual_robot_serves_one_drive_per_joint_of_a_urdf_arm():
     assert feedback[1].position_counts < 0 and feedback[0].position_counts == 0
 
 
-def test_n_joint_robot_refuses_effects_and_timing_faults(tmp_path):
-    """Concealed effects and timing faults the n-joint plant cannot apply yet: a one-line
-    ValueError when the robot is built, not a run that silently lacks them."""
+def test_n_joint_robot_refuses_what_it_cannot_take(tmp_path):
+    """A 2-DOF effects profile (arrays of 2), a payload and timing faults on the n-joint arm:
+    a one-line error when the robot is built, not a run that silently lacks them."""
     robot = load_urdf_robot("cicese3")
-    for name in ("cogging", "payload"):
-        with pytest.raises(ValueError, match="no concealed effects yet") as err:
+    for name, words in (
+        ("cogging", "must be a list of 3 numbers (robot cicese3 has 3 joints)"),
+        ("payload", "takes no payload effect"),
+    ):
+        with pytest.raises(ValueError, match=re.escape(words)) as err:
             VirtualRobot(robot, load_effects(name))
         assert "\n" not in str(err.value)
     VirtualRobot(robot, load_effects("none"))  # the empty profile is no effect
+    core = VirtualRobot(robot, load_effects("joint3-gain"))
+    assert isinstance(core.plant, UrdfPlant) and core.plant._gain_offset is not None
     source = Path(load_bench("virtual-inprocess").source).read_text()
     faulty = tmp_path / "faulty.toml"
     faulty.write_text(source + "\n[timing_faults.robot]\nlatency_s = 0.001\n")
@@ -149,13 +160,58 @@ def test_lockstep_run_of_cicese3_equals_offline_simulation(bench, reference, tmp
         assert "3_" in log.read_text()  # unit address 3 on the multi-drop line
 
 
+# the torque path (delay, lag), cogging within the step and the encoder offset, per joint
+TORQUE_PATH = """name = "torque-path"
+[transport_delay]
+delay_s = 0.0007
+[amplifier_lag]
+time_constant_s = [0.002, 0.0, 0.003]
+[cogging]
+joint = 3
+periods_per_rev = 50
+amplitude_Nm = 0.1
+[encoder_offset]
+offset_rad = [0.001, 0.0, -0.002]
+"""
+
+
+@pytest.mark.parametrize(
+    "bench, effects", [("virtual-slcan", "joint3-asymmetry"), ("virtual-inprocess", TORQUE_PATH)]
+)
+def test_lockstep_run_with_effects_equals_its_simulation(bench, effects, reference, tmp_path):
+    """`hil run --robot cicese3 --effects joint3-asymmetry` over slcan (and a profile with the
+    torque-path effects in process): bit-identical to `virtual-robot simulate` with the same
+    effects, not to the effect-free run; meta.json records the effects' name as the 2-DOF run
+    does, and the host never loads the profile's contents (the robot process applies them)."""
+    if "\n" in effects:
+        (tmp_path / "torque-path.toml").write_text(effects)
+        effects = str(tmp_path / "torque-path.toml")
+    simulated = simulate_cicese3(tmp_path / "sim", effects)
+    summary = run_cicese3(tmp_path / "run", bench, "--effects", effects,
+                          "--duration", str(DURATION_S))  # fmt: skip
+    assert summary["status"] == "complete" and summary["rows"] == ROWS
+    rec = read_signals(tmp_path / "run")
+    assert np.array_equal(rec.q, simulated.q), np.max(np.abs(rec.q - simulated.q))
+    assert np.array_equal(rec.tau, simulated.tau) and np.array_equal(rec.tau, reference.tau)
+    assert np.max(np.abs(rec.q[:, 2] - reference.q[:, 2])) > 0.001  # the effect is there
+    meta = json.loads((tmp_path / "run" / "meta.json").read_text())
+    assert meta["effects"] == effects and simulated.meta["effects"] == Path(effects).stem
+    for concealed in ("coulomb", "amplifier_lag", "cogging"):  # the name only, never the values
+        assert concealed not in json.dumps(meta)
+
+
 def test_run_refuses_what_the_robot_cannot_take(tmp_path):
-    """A 2-joint experiment on the 3-joint arm (the host refuses it: usage, 2), and effects on
-    it (the robot refuses to start, which `hil` reports as a launch failure, 3): one line each,
+    """A 2-joint experiment on the 3-joint arm (the host refuses it: usage, 2), and a 2-DOF
+    effects profile on it (the robot refuses to start, which `hil` reports as a launch failure,
+    3, naming the profile's file and key): one line each,
     at once (the in-process robot's refusal does not wait out the start-up timeout)."""
     for extra, words, status in (
         (["--experiment", "reyes-kelly"], "robot cicese3 has 3", 2),
-        (["--experiment", EXPERIMENT, "--effects", "cogging"], "no concealed effects yet", 3),
+        (
+            ["--experiment", EXPERIMENT, "--effects", "cogging"],
+            "field 'cogging.periods_per_rev'",
+            3,
+        ),
     ):
         out = tmp_path / f"r{len(extra)}"
         args = ["run", "--bench", "virtual-inprocess", "--robot", "cicese3", *extra]

@@ -32,6 +32,7 @@ from virtual_robot.effects import (
     cogging_torque,
     gain_offset,
     payload_theta,
+    plant_effect_params,
     stribeck_level,
     velocity_squared_drag,
 )
@@ -69,43 +70,16 @@ class PlantParams:
     def from_profiles(
         cls, robot: RobotProfile, effects: EffectsProfile | None = None
     ) -> PlantParams:
-        effects = effects or EffectsProfile()
+        # per-joint values as 2-tuples (a wrong length is a one-line error naming the key)
+        effects = (effects or EffectsProfile()).for_joints(2, robot.name)
         theta = list(robot.theta()[:5])
         if effects.payload is not None:
             assert robot.link1.length_m is not None
             theta = payload_theta(theta, effects.payload, robot.link1.length_m, robot.gravity_m_s2)
-        pos, neg = robot.coulomb_positive_Nm, robot.coulomb_negative_Nm
-        if effects.coulomb is not None:
-            pos, neg = effects.coulomb.positive_Nm, effects.coulomb.negative_Nm
-        kw: dict = {}
-        if effects.stribeck is not None:
-            ratio = effects.stribeck.breakaway_ratio
-            kw.update(
-                breakaway_positive_Nm=(pos[0] * ratio[0], pos[1] * ratio[1]),
-                breakaway_negative_Nm=(neg[0] * ratio[0], neg[1] * ratio[1]),
-                stribeck_velocity_rad_s=effects.stribeck.velocity_rad_s,
-                stribeck_exponent=effects.stribeck.exponent,
-            )
-        else:
-            kw.update(breakaway_positive_Nm=pos, breakaway_negative_Nm=neg)
-        if effects.cogging is not None:
-            kw.update(
-                cogging_periods_per_rev=effects.cogging.periods_per_rev,
-                cogging_amplitude_Nm=effects.cogging.amplitude_Nm,
-                cogging_phase_rad=effects.cogging.phase_rad,
-            )
         return cls(
             theta=tuple(float(x) for x in theta),  # type: ignore[arg-type]
             viscous_Nms=robot.viscous_Nms,
-            coulomb_positive_Nm=pos,
-            coulomb_negative_Nm=neg,
-            amplifier_lag_s=effects.amplifier_lag_s or (0.0, 0.0),
-            transport_delay_s=effects.transport_delay_s,
-            torque_gain_error=effects.torque_gain_error,
-            torque_offset_Nm=effects.torque_offset_Nm,
-            encoder_offset_rad=effects.encoder_offset_rad,
-            drag_Nms2=effects.velocity_squared_drag_Nms2 or (0.0, 0.0),
-            **kw,
+            **plant_effect_params(effects, robot.coulomb_positive_Nm, robot.coulomb_negative_Nm),
         )
 
 

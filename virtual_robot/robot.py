@@ -4,8 +4,9 @@ dictionary.
 The plant is the 2-DOF closed-form :class:`~virtual_robot.plant.Plant` for a 2-DOF robot profile
 (with the concealed effects of an effects profile), or the n-joint
 :class:`~virtual_robot.urdf_plant.UrdfPlant` for an arm described by its URDF (nodes and unit
-addresses are its drive profiles', 1..N for the shipped arms). The n-joint plant has no concealed
-effects and no timing faults yet: the core refuses them in one line rather than ignore them.
+addresses are its drive profiles', 1..N for the shipped arms), with the same concealed effects
+per joint. The n-joint plant takes no timing faults yet: the core refuses them in one line rather
+than ignore them.
 
 Protocol servers (CAN, serial) decode what arrives and call this core; it never does I/O.
 Time has two modes (DESIGN.md "Time"):
@@ -143,21 +144,14 @@ class VirtualRobot:
         max_step_s: float,
         timing: RobotTiming | None,
     ) -> SteppedPlant:
-        """The 2-DOF closed-form plant with the effects, or the n-joint plant of a URDF arm,
-        which takes neither concealed effects nor timing faults yet (refused, not ignored)."""
+        """The 2-DOF closed-form plant with the effects, or the n-joint plant of a URDF arm with
+        them, which takes no timing faults yet (refused, not ignored)."""
         if not isinstance(robot, UrdfRobotProfile):
             q = (0.0, 0.0) if q0 is None else (float(q0[0]), float(q0[1]))
             return Plant(
                 PlantParams.from_profiles(robot, self.effects), q0=q, max_step_s=max_step_s
             )
-        effects = self.effects
-        if effects.enabled or effects.timing_faults is not None:
-            what = ", ".join(effects.enabled) or "timing_faults"
-            raise ValueError(
-                f"effects {effects.name} ({what}): the n-joint plant ({robot.name}) has no "
-                "concealed effects yet; serve it without effects"
-            )
-        if timing is not None:
+        if self.effects.timing_faults is not None or timing is not None:
             raise ValueError(
                 f"timing faults: the n-joint plant ({robot.name}) does not take delayed or "
                 "dropped commands yet; use a bench without [timing_faults]"
@@ -165,7 +159,9 @@ class VirtualRobot:
         # Pinocchio is loaded only for an n-joint arm: the 2-DOF robot starts without it
         from virtual_robot.urdf_plant import UrdfPlant, UrdfPlantParams
 
-        return UrdfPlant(UrdfPlantParams.from_profile(robot), q0=q0, max_step_s=max_step_s)
+        return UrdfPlant(
+            UrdfPlantParams.from_profile(robot, self.effects), q0=q0, max_step_s=max_step_s
+        )
 
     # ---- time ---------------------------------------------------------------------------
     @property

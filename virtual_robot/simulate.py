@@ -45,15 +45,11 @@ def simulate(
     if isinstance(robot, UrdfRobotProfile):
         from virtual_robot.urdf_plant import simulate_urdf
 
-        if effects is not None and effects.enabled:
-            raise ValueError(
-                f"effects {effects.name}: the n-joint plant ({robot.name}) has no concealed "
-                "effects yet; simulate it without --effects"
-            )
         return simulate_urdf(
             robot,
             experiment,
             out_dir,
+            effects=effects,
             duration_s=duration_s,
             step_s=step_s,
             plot=plot,

@@ -26,9 +26,19 @@ four ABA calls of RK4 and about twenty numpy operations on n-vectors (:func:`_rk
 product to watch for a velocity crossing zero; everything else (breakaway tests, locating a
 stick, the locked-joint models) runs only while a joint is stuck or at a crossing.
 
+Concealed effects (an effects profile, docs/effects.md) per joint, by the 2-DOF plant's equations
+(:mod:`virtual_robot.effects`) and in the same places: the torque path (transport delay, amplifier
+lag as its mean over each step, gain and offset errors) sets the shaft torque held over a step;
+the encoder offset acts on ``measured_q``; the Coulomb override and Stribeck's breakaway set the
+friction levels and static bands; cogging τ_cog(q), Stribeck F(|q̇|) and the drag c q̇² change
+within a step, so with any of them the step is :func:`_rk4_effects` (the forces evaluated at
+every RK4 stage), not the sliding fast path. A payload is refused (it is a body of the URDF).
+Energy: the work of the cogging torques is booked exactly (they are conservative), the friction
+beyond the Coulomb levels by RK4 quadrature, so E(t) − E(0) = W_in − W_f holds with effects.
+
 The world builds its own Pinocchio model from the URDF file; it never imports the host's
-(``hil``) model. No concealed effects yet: the n-joint plant is the described arm itself.
-Imports profiles, drivers (recording, units), virtual_robot.plant/drive/offline.
+(``hil``) model, and the host never reads the effects profile.
+Imports profiles, drivers (recording, units), virtual_robot.plant/drive/offline/effects.
 """
 
 from __future__ import annotations
@@ -45,9 +55,20 @@ from scipy.optimize import brentq
 
 from drivers.recording import RecordingWriter, plot_positions, read_signals
 from profiles.drive import load_drive
+from profiles.effects import EffectsProfile
 from profiles.experiment import ExperimentProfile
 from profiles.robot import UrdfRobotProfile
 from virtual_robot import __version__
+from virtual_robot.effects import (
+    TransportDelay,
+    amplifier_lag_step,
+    cogging_torque,
+    cogging_work,
+    gain_offset,
+    plant_effect_params,
+    stribeck_level,
+    velocity_squared_drag,
+)
 from virtual_robot.offline import SimulationResult, drive_meta, enable_drives, record_open_loop
 from virtual_robot.plant import DEFAULT_STEP_S, breakaway_joint
 from virtual_robot.stepping import Stepper
@@ -62,7 +83,9 @@ LOCKED_ARMS_KEPT = 16
 
 @dataclass(frozen=True)
 class UrdfPlantParams:
-    """What the n-joint plant integrates: the URDF's bodies; per joint, friction and armature."""
+    """What the n-joint plant integrates: the URDF's bodies; per joint, friction and armature;
+    and the concealed effects, named as :class:`virtual_robot.plant.PlantParams` names them
+    (``()``: none on any joint)."""
 
     urdf: str
     gravity_m_s2: float
@@ -70,16 +93,39 @@ class UrdfPlantParams:
     coulomb_positive_Nm: tuple[float, ...]
     coulomb_negative_Nm: tuple[float, ...]
     armature_kgm2: tuple[float, ...]
+    breakaway_positive_Nm: tuple[float, ...] = ()  # static band; () = the Coulomb level
+    breakaway_negative_Nm: tuple[float, ...] = ()
+    stribeck_velocity_rad_s: tuple[float, ...] = ()
+    stribeck_exponent: float = 2.0
+    cogging_periods_per_rev: tuple[float, ...] = ()
+    cogging_amplitude_Nm: tuple[float, ...] = ()
+    cogging_phase_rad: tuple[float, ...] = ()
+    amplifier_lag_s: tuple[float, ...] = ()
+    transport_delay_s: float = 0.0
+    torque_gain_error: tuple[float, ...] = ()
+    torque_offset_Nm: tuple[float, ...] = ()
+    encoder_offset_rad: tuple[float, ...] = ()
+    drag_Nms2: tuple[float, ...] = ()  # velocity-squared drag coefficient c per joint
 
     @classmethod
-    def from_profile(cls, robot: UrdfRobotProfile) -> UrdfPlantParams:
+    def from_profile(
+        cls, robot: UrdfRobotProfile, effects: EffectsProfile | None = None
+    ) -> UrdfPlantParams:
+        """The arm of ``robot`` with the concealed ``effects`` (fitted to its joints: an array
+        of the wrong length is a one-line ProfileError). A payload is refused in one line: on
+        an n-joint arm it is a body of the URDF, not an effect."""
+        effects = (effects or EffectsProfile()).for_joints(robot.n_joints, robot.name)
+        if effects.payload is not None:
+            raise ValueError(
+                f"effects {effects.name} (payload): the n-joint plant ({robot.name}) takes no "
+                "payload effect; add the payload as a body of its URDF"
+            )
         return cls(
             urdf=robot.urdf,
             gravity_m_s2=robot.gravity_m_s2,
             viscous_Nms=robot.viscous_Nms,
-            coulomb_positive_Nm=robot.coulomb_positive_Nm,
-            coulomb_negative_Nm=robot.coulomb_negative_Nm,
             armature_kgm2=robot.armature_kgm2,
+            **plant_effect_params(effects, robot.coulomb_positive_Nm, robot.coulomb_negative_Nm),
         )
 
 
@@ -87,7 +133,8 @@ class UrdfPlant:
     """Fixed-step simulation of an n-joint arm under a zero-order-held torque command.
 
     ``command(τ)`` sets the joint torques, ``advance_to(t)`` integrates to time t; the state is
-    ``q``/``dq`` (numpy arrays, n), ``measured_q`` what the encoders see (no offset here).
+    ``q``/``dq`` (numpy arrays, n), ``measured_q`` what the encoders see (with the
+    encoder-offset effect).
     """
 
     def __init__(
@@ -125,14 +172,19 @@ class UrdfPlant:
             raise ValueError(f"initial state: need {n} values per joint vector")
         self.b = np.asarray(params.viscous_Nms, dtype=float)
         self._viscous = bool(self.b.any())  # without viscous friction its terms are skipped
-        self.band_pos = np.asarray(params.coulomb_positive_Nm, dtype=float)
-        self.band_neg = np.asarray(params.coulomb_negative_Nm, dtype=float)
+        self.coulomb_pos = np.asarray(params.coulomb_positive_Nm, dtype=float)
+        self.coulomb_neg = np.asarray(params.coulomb_negative_Nm, dtype=float)
+        # the static band: the breakaway level with Stribeck friction, else the Coulomb level
+        self.band_pos = np.asarray(params.breakaway_positive_Nm or self.coulomb_pos, dtype=float)
+        self.band_neg = np.asarray(params.breakaway_negative_Nm or self.coulomb_neg, dtype=float)
+        self._init_effects(params)
         # A joint without Coulomb friction never sticks: its dynamics are smooth.
         self.sticky = np.maximum(self.band_pos, self.band_neg) > 0
         self.stuck = self.sticky & (self.dq == 0.0)
         self.slip_dir = np.where(self.dq >= 0, 1.0, -1.0)
-        self.command_Nm = np.zeros(n)
-        self._held_Nm = np.zeros(n)  # the last command, before the power stages
+        self.command_Nm = np.zeros(n)  # the shaft torque (amplifier output, powered joints)
+        self._held_Nm = np.zeros(n)  # the last command delivered, before the amplifiers
+        self._powered = np.ones(n, dtype=bool)
         # Energy bookkeeping (work_in_J, dissipated_J): with τ held over a command and the
         # Coulomb levels fixed over a stick mode, ∫τᵀq̇ dt = τᵀΔq and ∫levelᵀq̇ dt = levelᵀΔq
         # exactly, so both are booked when τ or the mode changes, from the q of the last booking;
@@ -154,34 +206,48 @@ class UrdfPlant:
         powered: Sequence[bool] | None = None,
         deliver_at: float | None = None,
     ) -> None:
-        """Joint torques from now on; an unpowered joint's amplifier gives none. The signature
-        is the 2-DOF plant's (virtual_robot.stepping.SteppedPlant); this plant has no
-        amplifier-side effects, so ``issued_at`` changes nothing, and a delayed delivery
-        (timing faults) is refused."""
+        """Joint torques from now on (issued at ``issued_at``, default now: with the transport
+        delay effect they reach the amplifiers that much later); an unpowered joint's amplifier
+        gives none, from now. The signature is the 2-DOF plant's
+        (virtual_robot.stepping.SteppedPlant); a delayed delivery (timing faults) is refused."""
         if deliver_at is not None:
             raise ValueError("the n-joint plant does not take delayed commands (timing faults)")
         tau = np.array(torque_Nm, dtype=float)
         if tau.shape != (self.n_joints,):
             raise ValueError(f"need {self.n_joints} torques, got {tau.shape}")
-        self._held_Nm = tau.copy()
+        if self._delay is not None:
+            self._delay.push(self.t if issued_at is None else issued_at, tuple(tau))
+        else:
+            self._held_Nm = tau.copy()
         self.set_powered(powered if powered is not None else [True] * self.n_joints)
 
     def set_powered(self, powered: Sequence[bool]) -> None:
         """Switch the amplifiers: an unpowered joint gets no torque, a powered one the held."""
-        tau = self._held_Nm.copy()
-        tau[~np.asarray(powered, dtype=bool)] = 0.0
+        self._powered = np.array(powered, dtype=bool)
+        if self._lag is None:  # with a lag, each step's torque is set where it starts
+            self._apply_torque(self._held_Nm)
+
+    def _apply_torque(self, amplifier_Nm: np.ndarray) -> None:
+        """The shaft torque from the amplifiers' outputs: their gain and offset errors on the
+        powered joints, nothing at all on the unpowered ones (no offset, no lag tail)."""
+        tau = amplifier_Nm
+        if self._gain_offset is not None:
+            tau = gain_offset(tau, *self._gain_offset)
+        tau = np.where(self._powered, tau, 0.0)
         self._book_work()
         self.command_Nm = tau
         self._tau_minus_level = tau - self._level
 
     @property
     def measured_q(self) -> np.ndarray:
-        return self.q
+        """What the encoders see: q plus the encoder-offset effect, if any."""
+        return self.q if self._encoder_offset is None else self.q + self._encoder_offset
 
     @property
     def work_in_J(self) -> float:
-        """∫ τᵀ q̇ dt so far."""
-        return self._work_booked + float(self.command_Nm @ (self.q - self._booked_q))
+        """∫ τᵀ q̇ dt so far (τ the shaft torque, with cogging)."""
+        moved = self.q - self._booked_q
+        return self._work_booked + float(self.command_Nm @ moved) + self._cogging_work()
 
     @property
     def dissipated_J(self) -> float:
@@ -191,7 +257,7 @@ class UrdfPlant:
     def _book_work(self) -> None:
         """Book τᵀΔq and levelᵀΔq since the last booking, before τ or the levels change."""
         moved = self.q - self._booked_q
-        self._work_booked += float(self.command_Nm @ moved)
+        self._work_booked += float(self.command_Nm @ moved) + self._cogging_work()
         self._dissipated_booked += float(self._level @ moved)
         self._booked_q = self.q
 
@@ -202,7 +268,11 @@ class UrdfPlant:
         return float(kinetic + pin.computePotentialEnergy(m, d, self.q))
 
     def advance_to(self, t_end: float) -> None:
-        """Integrate to ``t_end`` in steps of at most ``max_step_s``."""
+        """Integrate to ``t_end`` in steps of at most ``max_step_s`` (cut where a delayed
+        command arrives, with the transport delay effect)."""
+        if self._delay is not None:
+            self._advance_delayed(t_end)
+            return
         while self.t < t_end - 1e-12:
             self._step(min(self.max_step_s, t_end - self.t))
 
@@ -212,7 +282,9 @@ class UrdfPlant:
         frozen until the next change), which velocities to watch for a sign change, and the
         index sets of the constrained dynamics (sliding F, stuck S)."""
         self._book_work()
-        self._level = self.slip_dir * np.where(self.slip_dir > 0, self.band_pos, self.band_neg)
+        self._level = self.slip_dir * np.where(
+            self.slip_dir > 0, self.coulomb_pos, self.coulomb_neg
+        )
         self._tau_minus_level = self.command_Nm - self._level
         self._watch = np.where(self.sticky & ~self.stuck, self.slip_dir, 0.0)
         self._n_stuck = int(self.stuck.sum())
@@ -220,6 +292,8 @@ class UrdfPlant:
         # the stuck joints' static bands [−band_neg, band_pos] (Karnopp's test)
         self._band_s = self.band_pos[self._stuck_idx], -self.band_neg[self._stuck_idx]
         self._reduced = None  # built when first needed (:meth:`_locked_arm`)
+        if self._in_derivative:
+            self._mode_forces()
 
     def _locked_arm(self) -> tuple[Any, Any] | None:
         """The arm with the stuck joints locked where they stand (Pinocchio's reduced model and
@@ -242,8 +316,12 @@ class UrdfPlant:
         """q̈ at (q, q̇) in the current stick mode under the held command, friction levels frozen:
         the arm's ABA of τ − f with every joint sliding; with some stuck, q̈_S = 0 and q̈_F from
         M_FF q̈_F = (τ − C q̇ − g − f)_F, the ABA of the arm with those joints locked (q_S and
-        q̇_S = 0 do not change while they stick); the derivative :func:`_rk4_aba` integrates."""
+        q̇_S = 0 do not change while they stick); the derivative :func:`_rk4_aba` integrates
+        (with cogging, Stribeck or drag, the forces of :meth:`_state_forces`)."""
         c = self._tau_minus_level - self.b * v if self._viscous else self._tau_minus_level
+        if self._in_derivative:
+            c = np.zeros(self.n_joints)
+            c[self._free] = self._state_forces(q[self._free], v[self._free])[0]
         if not self._n_stuck:
             return pin.aba(self.model, self.data, q, v, c)
         a = np.zeros(self.n_joints)
@@ -261,6 +339,8 @@ class UrdfPlant:
             if not self._n_stuck:
                 return
             q, dq, tau, stuck = self.q, self.dq, self.command_Nm, self._stuck_idx
+            if self._cogging is not None:
+                tau = tau + cogging_torque(q, *self._cogging)
             a = self._accelerations(q, dq)
             held_s = tau[stuck] - pin.rnea(self.model, self.data, q, dq, a)[stuck]
             # |f| ≤ its band for every stuck joint: none breaks away (breakaway_joint's test)
@@ -278,6 +358,8 @@ class UrdfPlant:
 
     def _step(self, dt: float) -> None:
         """Advance dt, cutting the step where a sliding joint's velocity reaches zero."""
+        if self._lag is not None:
+            self._apply_lag(dt)
         if self._n_stuck:
             self._release_stuck_joints()
         q, v, viscous = self._rk4_mode(dt)
@@ -286,6 +368,8 @@ class UrdfPlant:
             self._dissipated_booked += viscous
             self.t += dt
             self.steps += 1
+            if self._lag is not None:
+                self._advance_lag(dt)
             return
         self._step_with_events(dt, (q, v, viscous))
 
@@ -299,6 +383,8 @@ class UrdfPlant:
             if remaining <= 1e-15:
                 return
             if first is None:
+                if self._lag is not None:
+                    self._apply_lag(remaining)
                 if self._n_stuck:
                     self._release_stuck_joints()
                 q, v, viscous = self._rk4_mode(remaining)
@@ -312,6 +398,8 @@ class UrdfPlant:
             self._dissipated_booked += viscous
             self.t += used
             self.steps += 1
+            if self._lag is not None:
+                self._advance_lag(used)
             remaining -= used
             if joint < 0:
                 return
@@ -329,22 +417,34 @@ class UrdfPlant:
         :func:`_rk4_aba`: every joint sliding, the arm's ABA; some stuck, the ABA of the arm
         with those locked (q_S and q̇_S = 0 stay as they are); all stuck, no motion.
         Returns (q, q̇, ∫bᵀq̇² dt). tests/test_urdf_plant.py checks it against a textbook RK4
-        on the constrained dynamics by CRBA and RNEA."""
+        on the constrained dynamics by CRBA and RNEA. With an amplifier lag, the torque is its
+        mean over dt (:meth:`_apply_lag`); with cogging, Stribeck or drag, the forces depend on
+        the state within the step (:func:`_rk4_effects`, and the third value is ∫(f − F_c)ᵀq̇
+        dt: the friction work beyond the Coulomb levels booked apart)."""
+        if self._lag is not None:
+            self._apply_lag(dt)
         b = self.b if self._viscous else None
         if not self._n_stuck:
+            if self._in_derivative:
+                return _rk4_effects(self.model, self.data, self.q, self.dq, self._state_forces, dt)
             return _rk4_aba(self.model, self.data, self.q, self.dq, self._tau_minus_level, b, dt)
         locked = self._locked_arm()
         if locked is None:
             return self.q, self.dq, 0.0
         free = self._free
-        q_f, v_f, viscous = _rk4_aba(
-            *locked,
-            self.q[free],
-            self.dq[free],
-            self._tau_minus_level[free],
-            None if b is None else b[free],
-            dt,
-        )
+        if self._in_derivative:
+            q_f, v_f, viscous = _rk4_effects(
+                *locked, self.q[free], self.dq[free], self._state_forces, dt
+            )
+        else:
+            q_f, v_f, viscous = _rk4_aba(
+                *locked,
+                self.q[free],
+                self.dq[free],
+                self._tau_minus_level[free],
+                None if b is None else b[free],
+                dt,
+            )
         q, v = self.q.copy(), self.dq.copy()
         q[free], v[free] = q_f, v_f
         return q, v, viscous
@@ -382,6 +482,137 @@ class UrdfPlant:
                 best = (s, int(j), None)
         s, joint, _ = best
         return s, joint, self._rk4_mode(s) if s > 0 else (q0, v0, 0.0)
+
+    # ---- concealed effects (virtual_robot.effects; docs/effects.md) ---------------------------
+    def _init_effects(self, p: UrdfPlantParams) -> None:
+        """The effects' per-joint arrays; None where an effect is off on every joint."""
+        n = self.n_joints
+
+        def per_joint(name: str, values: tuple[float, ...]) -> np.ndarray | None:
+            if values and len(values) != n:
+                raise ValueError(f"{p.urdf}: {n} joints, {name} given for {len(values)}")
+            a = np.asarray(values, dtype=float)
+            return a if a.any() else None
+
+        self._lag = per_joint("amplifier_lag_s", p.amplifier_lag_s)
+        self._lag_state = np.zeros(n)  # amplifier outputs (the lag's state)
+        gain = per_joint("torque_gain_error", p.torque_gain_error)
+        offset = per_joint("torque_offset_Nm", p.torque_offset_Nm)
+        self._gain_offset = None
+        if gain is not None or offset is not None:
+            self._gain_offset = (
+                np.zeros(n) if gain is None else gain,
+                np.zeros(n) if offset is None else offset,
+            )
+        self._encoder_offset = per_joint("encoder_offset_rad", p.encoder_offset_rad)
+        self._drag = per_joint("drag_Nms2", p.drag_Nms2)
+        self._stribeck_v = per_joint("stribeck_velocity_rad_s", p.stribeck_velocity_rad_s)
+        self._stribeck_exponent = p.stribeck_exponent
+        amplitude = per_joint("cogging_amplitude_Nm", p.cogging_amplitude_Nm)
+        self._cogging = None
+        if amplitude is not None:
+            periods = per_joint("cogging_periods_per_rev", p.cogging_periods_per_rev)
+            phase = per_joint("cogging_phase_rad", p.cogging_phase_rad)
+            self._cogging = (
+                np.zeros(n) if periods is None else periods,
+                amplitude,
+                np.zeros(n) if phase is None else phase,
+            )
+        self._delay = TransportDelay(p.transport_delay_s) if p.transport_delay_s else None
+        # forces that change within a step with q or q̇ (the 2-DOF plant's _deriv has them too)
+        self._in_derivative = (
+            self._cogging is not None or self._stribeck_v is not None or self._drag is not None
+        )
+
+    def _advance_delayed(self, t_end: float) -> None:
+        """:meth:`advance_to` with the transport delay: steps cut where a command arrives."""
+        assert self._delay is not None
+        while self.t < t_end - 1e-12:
+            self._deliver_due()
+            stop = min(t_end, self.t + self.max_step_s)
+            arrives = self._delay.next_delivery()
+            if arrives is not None and self.t < arrives < stop:
+                stop = arrives
+            self._step(stop - self.t)
+        self._deliver_due()
+
+    def _deliver_due(self) -> None:
+        """The newest delayed command that has arrived reaches the amplifiers."""
+        assert self._delay is not None
+        due = self._delay.pop_due(self.t)
+        if due is not None:
+            self._held_Nm = np.array(due, dtype=float)
+            if self._lag is None:
+                self._apply_torque(self._held_Nm)
+
+    def _apply_lag(self, dt: float) -> None:
+        """The shaft torque over the next dt: each amplifier's first-order lag toward the held
+        command, its mean over dt (:func:`virtual_robot.effects.amplifier_lag_step`)."""
+        assert self._lag is not None
+        mean = np.array(
+            [
+                amplifier_lag_step(x, cmd, dt, tc)[0]
+                for x, cmd, tc in zip(self._lag_state, self._held_Nm, self._lag, strict=True)
+            ]
+        )
+        self._apply_torque(mean)
+
+    def _advance_lag(self, dt: float) -> None:
+        """The lag's state after a step of dt; an unpowered amplifier discharges to zero."""
+        assert self._lag is not None
+        end = [
+            amplifier_lag_step(x, cmd, dt, tc)[1]
+            for x, cmd, tc in zip(self._lag_state, self._held_Nm, self._lag, strict=True)
+        ]
+        self._lag_state = np.where(self._powered, end, 0.0)
+
+    def _cogging_work(self) -> float:
+        """Work of the cogging torques since the last booking (exact: they are conservative)."""
+        if self._cogging is None:
+            return 0.0
+        return cogging_work(self._booked_q, self.q, *self._cogging)
+
+    def _state_forces(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, float]:
+        """Generalized forces on the sliding joints at their (q, q̇), with the effects that vary
+        within a step: τ + τ_cog(q) − F(|q̇|) dir − b q̇, F the Coulomb level, or the Stribeck
+        curve, plus the drag c q̇² (virtual_robot.effects; the 2-DOF plant's _deriv and
+        _friction_level). Also the friction power beyond the frozen Coulomb levels,
+        (f − F_c dir)ᵀ q̇ (those are booked exactly, as without effects). The per-joint
+        constants of the sliding joints are :meth:`_mode_forces`'."""
+        free, b, d, coulomb, breakaway, stribeck_v, drag, cogging, frozen = self._sliding_fx
+        c = self.command_Nm[free] - b * v
+        if cogging is not None:
+            c += cogging_torque(q, *cogging)
+        speed = np.abs(v)
+        level = coulomb
+        if stribeck_v is not None:
+            level = stribeck_level(coulomb, breakaway, speed, stribeck_v, self._stribeck_exponent)
+        if drag is not None:
+            level = level + velocity_squared_drag(drag, speed)
+        sliding = d * level
+        c -= sliding
+        return c, float((b * v + sliding - frozen) @ v)
+
+    def _mode_forces(self) -> None:
+        """The constants of :meth:`_state_forces` for the sliding joints of this stick mode."""
+        f = self._free
+        d = self.slip_dir[f]
+        forward = d > 0
+
+        def on_free(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else a[f]
+
+        self._sliding_fx = (
+            f,
+            self.b[f],
+            d,
+            np.where(forward, self.coulomb_pos[f], self.coulomb_neg[f]),
+            np.where(forward, self.band_pos[f], self.band_neg[f]),
+            on_free(self._stribeck_v),
+            on_free(self._drag),
+            None if self._cogging is None else tuple(a[f] for a in self._cogging),
+            self._level[f],
+        )
 
 
 def _rk4_aba(
@@ -426,19 +657,54 @@ def _rk4_aba(
     )
 
 
+def _rk4_effects(
+    model: Any,
+    data: Any,
+    q: np.ndarray,
+    v: np.ndarray,
+    forces: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, float]],
+    dt: float,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """One classical RK4 step of dt on (q, q̇) of ``model`` with every joint sliding, the
+    generalized forces ``forces(q, q̇)`` (and a power) evaluated at each of the four stages:
+    :func:`_rk4_aba` for forces that change within the step (cogging, Stribeck, drag).
+    Returns (q, q̇, RK4 quadrature of the power over the step)."""
+    aba = pin.aba
+    h2 = 0.5 * dt
+    k = dt / 6.0
+    c, p1 = forces(q, v)
+    a1 = aba(model, data, q, v, c)
+    y = v + h2 * a1
+    c, p2 = forces(q + h2 * v, y)
+    a2 = aba(model, data, q + h2 * v, y, c)
+    z = v + h2 * a2
+    c, p3 = forces(q + h2 * y, z)
+    a3 = aba(model, data, q + h2 * y, z, c)
+    u = v + dt * a3
+    c, p4 = forces(q + dt * z, u)
+    a4 = aba(model, data, q + dt * z, u, c)
+    return (
+        q + k * (v + 2.0 * (y + z) + u),
+        v + k * (a1 + 2.0 * (a2 + a3) + a4),
+        k * (p1 + 2.0 * (p2 + p3) + p4),
+    )
+
+
 def simulate_urdf(
     robot: UrdfRobotProfile,
     experiment: ExperimentProfile,
     out_dir: str | Path,
     *,
+    effects: EffectsProfile | None = None,
     duration_s: float | None = None,
     step_s: float = DEFAULT_STEP_S,
     plot: bool = True,
     progress: Callable[[float, float], None] | None = None,
 ) -> SimulationResult:
-    """Run ``experiment`` open loop on the n-joint arm through its n drive models (quantized,
-    clamped, held over each period as in :func:`virtual_robot.simulate.simulate`) and write the
-    recording ``t, q1..qn, tau1..taun, status1..statusn`` to ``out_dir``."""
+    """Run ``experiment`` open loop on the n-joint arm, with the concealed ``effects``, through
+    its n drive models (quantized, clamped, held over each period as in
+    :func:`virtual_robot.simulate.simulate`) and write the recording
+    ``t, q1..qn, tau1..taun, status1..statusn`` to ``out_dir``."""
     n = robot.n_joints
     experiment.check_joints(n, robot.name)
     if robot.drives is None:
@@ -447,8 +713,11 @@ def simulate_urdf(
     h = experiment.period_s
     duration = experiment.duration_s if duration_s is None else duration_s
     n_rows = max(1, round(duration / h))
+    effects = effects or EffectsProfile()
     plant = UrdfPlant(
-        UrdfPlantParams.from_profile(robot), q0=experiment.initial_q_rad, max_step_s=min(step_s, h)
+        UrdfPlantParams.from_profile(robot, effects),
+        q0=experiment.initial_q_rad,
+        max_step_s=min(step_s, h),
     )
     drives = enable_drives(drives_p, h, plant.measured_q, plant.dq)
     meta = {
@@ -458,7 +727,9 @@ def simulate_urdf(
         "robot_profile": robot.source,
         "urdf": robot.urdf,
         "n_joints": n,
-        "effects": None,
+        "effects": effects.name,
+        "effects_profile": effects.source,
+        "effects_enabled": list(effects.enabled),
         "experiment": experiment.name,
         "experiment_profile": experiment.source,
         "mode": "offline",
@@ -493,7 +764,8 @@ def simulate_urdf(
         result.plot = plot_positions(
             read_signals(out_dir),
             Path(out_dir) / "positions.png",
-            title=f"virtual-robot simulate: {robot.name}, {experiment.name}",
+            title=f"virtual-robot simulate: {robot.name}, {experiment.name}, "
+            f"effects {effects.name}",
         )
     return result
 
