@@ -118,7 +118,14 @@ def panda_table(model: UrdfArmModel) -> dict | None:
     start = time.process_time()
     feasible = identify_torque(model, rec, consistent=True)
     feasible_cpu = time.process_time() - start
+    energy = {}
+    for scheme in ENERGY_SCHEMES:  # on the same held-out rows
+        theta = identify_energy(model, rec, scheme).theta
+        energy[scheme] = nrmse(
+            result.rows.tau[held], np.einsum("knp,p->kn", result.rows.Y[held], theta)
+        ).tolist()
     return {
+        **energy,
         "ours_consistent": feasible.nrmse_held_out.tolist(),
         "consistent_fit_cpu_s": feasible_cpu,
         "ls_physically_consistent": model.physical_consistency(result.theta)["consistent"],
@@ -242,13 +249,15 @@ def main() -> int:
         if isinstance(table, dict):
             print(f"Panda (Gaz et al. 2019), held-out NRMSE after {table['fit_until_s']:.2f} s:")
             print(
-                "| joint | ours (LS) | ours (consistent) | Gaz et al. (2019) model | URDF nominal |"
+                "| joint | ours (LS) | ours (consistent) | Gaz et al. (2019) model | URDF nominal "
+                "| supplied energy | filtered power |"
             )
-            print("|---|---|---|---|---|")
+            print("|---|---|---|---|---|---|---|")
             for j in range(7):
                 print(
                     f"| {j + 1} | {table['ours'][j]:.3f} | {table['ours_consistent'][j]:.3f} | "
-                    f"{table['gaz_2019'][j]:.3f} | {table['urdf_nominal'][j]:.3f} |"
+                    f"{table['gaz_2019'][j]:.3f} | {table['urdf_nominal'][j]:.3f} | "
+                    f"{table['supplied_energy'][j]:.3f} | {table['filtered_power'][j]:.3f} |"
                 )
             print(
                 f"LS parameters physically consistent: {table['ls_physically_consistent']}; "
