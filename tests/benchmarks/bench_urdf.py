@@ -87,8 +87,11 @@ def closed_form_timings(rng: np.random.Generator) -> dict[str, float]:
     }
 
 
-def synthetic_panda(model: UrdfArmModel, rng: np.random.Generator, seconds: float = 60.0):
-    """A multisine around a mid configuration at 1 kHz with ±20 % jitter; torque with 1 % noise."""
+def synthetic_panda(
+    model: UrdfArmModel, rng: np.random.Generator, seconds: float = 60.0, noise: float = 0.01
+):
+    """A multisine around a mid configuration at 1 kHz with ±20 % jitter; torque with ``noise``
+    (a fraction of each joint's torque spread, 1 %)."""
     t = np.cumsum(rng.uniform(0.8e-3, 1.2e-3, int(seconds * 1000)))
     w = rng.uniform(0.5, 4.0, (7, 4))
     a = rng.uniform(0.05, 0.25, (7, 4))
@@ -100,7 +103,7 @@ def synthetic_panda(model: UrdfArmModel, rng: np.random.Generator, seconds: floa
     ddq = (-a * w**2 * np.sin(arg)).sum(-1)
     truth = model.base_theta()
     tau = model.torque(truth, q, dq, ddq)
-    tau = tau + 0.01 * tau.std(0) * rng.normal(size=tau.shape)
+    tau = tau + noise * tau.std(0) * rng.normal(size=tau.shape)
     return TorqueRecording(t, q, tau, "synthetic"), truth
 
 
@@ -209,6 +212,9 @@ def main() -> int:
     parser.add_argument("--no-panda", action="store_true", help="skip the real-data table")
     parser.add_argument("--only-simulate", action="store_true", help="part 4 only")
     parser.add_argument("--only-identify", action="store_true", help="parts 1 and 2 only")
+    parser.add_argument(
+        "--noise", type=float, default=0.01, help="part 2: torque noise per joint (of its spread)"
+    )
     parser.add_argument("--repeats", type=int, default=3, help="simulation runs per arm (best)")
     args = parser.parse_args()
     if args.only_simulate:
@@ -227,7 +233,7 @@ def main() -> int:
             "urdf_7 (panda)": model_timings(panda, rng),
         }
     }
-    rec, truth = synthetic_panda(panda, rng)
+    rec, truth = synthetic_panda(panda, rng, noise=args.noise)
     doc["identify_60s_7joints_1kHz"] = ident = identify_speed(panda, rec, truth)
     cpu = ident["cpu_seconds"]
     if args.only_identify:
