@@ -9,6 +9,7 @@ import json
 import numpy as np
 import pinocchio as pin
 import pytest
+from cicese3_targets import check_targets
 
 from hil.cli import main as hil_main
 from hil.identify.urdf import ENERGY_SCHEMES, TorqueRecording, identify_energy
@@ -181,3 +182,23 @@ def test_cli_schemes_for_a_urdf_arm(tmp_path, cicese3, capsys):
     err = capsys.readouterr().err.strip()
     assert "exact" in err and "\n" not in err, err
     assert not (tmp_path / "no" / "identify.json").exists()
+
+
+def test_cli_identifies_a_urdf_arm_over_the_bench(tmp_path, capsys):
+    """`hil identify --robot cicese3 --bench virtual-inprocess` (no --from): the arm's own
+    excitation (cicese3-excitation) runs over the bench with its three drives, then all three
+    schemes identify it within the CICESE targets from 8 s, the last quarter held out."""
+    out = tmp_path / "id"
+    argv = ["identify", "--robot", "cicese3", "--bench", "virtual-inprocess", "--duration", "8",
+            "--out", str(out), "--no-plot", "--json"]  # fmt: skip
+    assert hil_main(argv) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert (out / "fit" / "signals.csv").is_file() and not (out / "validation").exists()
+    assert report["recording"] == str(out / "fit") and report["torque"].startswith("held")
+    nominal = [x["nominal"] for x in report["parameters"]]
+    true = report["validation"]["torque_nrmse_nominal"]
+    assert list(report["schemes"]) == ["filtered_dynamic", "supplied_energy", "filtered_power"]
+    for scheme, entry in report["schemes"].items():
+        check_targets(report, entry["theta"], nominal, scheme)
+        fit = entry["validation"]["torque_nrmse"]
+        assert all(a < b + 0.01 for a, b in zip(fit, true, strict=True)), (scheme, fit, true)

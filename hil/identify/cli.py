@@ -61,11 +61,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     src.add_argument("--from", dest="from_recording", help="identify from this recording instead")
     p.add_argument("--validate", help="held-out recording for validation (not used to fit)")
-    p.add_argument("--experiment", default="reyes-kelly", help="excitation (default: eqs. 31-32)")
+    p.add_argument(
+        "--experiment",
+        default=None,
+        help="excitation (default: eqs. 31-32, reyes-kelly; for a URDF arm <robot>-excitation)",
+    )
     p.add_argument(
         "--validation-experiment",
-        default="validation-multisine",
-        help="held-out excitation run over the bench ('none' to skip)",
+        default=None,
+        help="held-out excitation run over the bench ('none' to skip; default "
+        "validation-multisine; for a URDF arm none: the fit run's last quarter is held out)",
     )
     p.add_argument("--duration", type=float, default=None, help="seconds of excitation")
     add_drive_options(p)
@@ -136,7 +141,10 @@ def _record(
     experiment: str,
     out: Path,
     online: OnlineIdentifier | None,
+    robot: str | None = None,
 ) -> Recording:
+    """Run ``experiment`` over ``bench`` (with ``robot`` in place of the bench's arm if given)
+    into ``out``, feeding ``online`` as it runs; the recording."""
     from hil.bench.run import run_experiment
 
     last: dict[str, Any] = {}
@@ -156,6 +164,7 @@ def _record(
         **drive_kwargs(args),
         progress=not args.json,
         observer=observer,
+        robot=robot,
     )
     if run["status"] != "complete":
         raise RuntimeError(
@@ -211,7 +220,7 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         raise ValueError(f"--params-scheme {args.params_scheme} is not among --schemes")
     if args.lam is not None and not args.lam > 0:
         raise ValueError(f"--lambda must be > 0 rad/s, got {args.lam}")
-    if args.from_recording and _urdf_robot(args):
+    if _urdf_robot(args):
         return run_identify_urdf(args)
     if getattr(args, "consistent", False):
         raise ValueError(
@@ -222,6 +231,8 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         return run_identify_model(args)
     if args.lam is None:
         args.lam = 50.0
+    args.experiment = args.experiment or "reyes-kelly"
+    args.validation_experiment = args.validation_experiment or "validation-multisine"
     discretizations = ["exact", "paper"] if args.discretization == "both" else [args.discretization]
     out = Path(args.out)
 
@@ -689,17 +700,29 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         raise ValueError("--discretization: a URDF arm's rows are the exact ones only")
     schemes = split_list(args.schemes)
     model = UrdfArmModel.from_profile(args.robot)
-    fit = read_recording(args, args.from_recording, command="identify", min_rows=8)
-    if fit.n_joints != model.n_joints:
-        raise ValueError(
-            f"{fit.path}: {fit.n_joints} joints (q1..q{fit.n_joints}), robot {args.robot} has "
-            f"{model.n_joints}"
-        )
+    out = Path(args.out)
+    bench = args.bench or "virtual-slcan"
+    # files first: a bad --validate is refused before any run over the bench
     val = (
         read_recording(args, args.validate, command="identify", min_rows=8)
         if args.validate
         else None
     )
+    if args.from_recording:
+        fit = read_recording(args, args.from_recording, command="identify", min_rows=8)
+    else:  # over a bench: the arm's own excitation, its drives on the bench's bus
+        experiment = args.experiment or f"{Path(args.robot).stem}-excitation"
+        fit = _record(args, bench, experiment, out / "fit", None, robot=args.robot)
+        if val is None and args.validation_experiment not in (None, "none"):
+            val = _record(
+                args, bench, args.validation_experiment, out / "validation", None, robot=args.robot
+            )
+    for rec in (fit, val):
+        if rec is not None and rec.n_joints != model.n_joints:
+            raise ValueError(
+                f"{rec.path}: {rec.n_joints} joints (q1..q{rec.n_joints}), robot {args.robot} "
+                f"has {model.n_joints}"
+            )
     say(
         "identify",
         f"identifying {args.robot} ({model.n_joints} joints, {model.n_params} base parameters) "
@@ -803,7 +826,6 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     if args.consistent and "filtered_dynamic" in results:
         results["filtered_dynamic"]["method"] += " (--consistent: this scheme only)"
         report["schemes"]["filtered_dynamic"]["method"] = results["filtered_dynamic"]["method"]
-    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out / "identify.json", report)
     return report, format_urdf_report(report)
