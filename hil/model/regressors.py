@@ -452,7 +452,10 @@ def raw_rows(
     # Energy balance over [t_k, t_{k+1}]: τ_kᵀΔq_k = [Δφ_ℰ, ∫q̇ᵀφ_F dt] θ   (eqs. (25), (27)),
     # for any number of joints: eq. (25) sums q̇ᵀτ over the joints.
     work = np.sum(tau[k] * (q[k + 1] - q[k]), axis=1)[:, None]
-    d_energy = model.energy_regressor(q[k + 1], v[k + 1]) - model.energy_regressor(q[k], v[k])
+    # φ_ℰ once per sample (each is the end of one interval and the start of the next)
+    at = np.union1d(k, k + 1)
+    energy = model.energy_regressor(q[at], v[at])
+    d_energy = energy[np.searchsorted(at, k + 1)] - energy[np.searchsorted(at, k)]
     fw = np.zeros((len(k), p))
     fw[:, list(model.friction_columns)] = ii.friction_work
     if "friction_offset" in model.terms:  # a constant torque f_o does the work f_o Δq
