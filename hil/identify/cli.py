@@ -742,7 +742,9 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             )
             theta = torque_res.theta
             entry: dict[str, Any] = {
-                "method": torque_res.method + " on the torque regressor (parallel filtering)",
+                "method": torque_res.method
+                + " on the torque regressor (parallel filtering)"
+                + (" (--consistent: this scheme only)" if args.consistent else ""),
                 "smoothing_cutoff_hz": cutoff,
                 "rows": len(torque_res.rows.t),
             }
@@ -823,9 +825,6 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             for s, r in results.items()
         },
     }
-    if args.consistent and "filtered_dynamic" in results:
-        results["filtered_dynamic"]["method"] += " (--consistent: this scheme only)"
-        report["schemes"]["filtered_dynamic"]["method"] = results["filtered_dynamic"]["method"]
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out / "identify.json", report)
     return report, format_urdf_report(report)
