@@ -10,8 +10,8 @@ Imports: :mod:`hil.model`, :mod:`hil.bench` (to record over a bench), :mod:`hil.
 Public API (``from hil.identify import ...``, docs/api.md): ``identify`` (the three schemes of
 the paper on one recording), ``validate`` (held-out position and torque NRMSE),
 ``identify_model`` (any :class:`hil.model.ArmModel`, bounded and with uncertainty),
-``OnlineIdentifier``, ``design_excitation``, ``identify_torque`` (a URDF arm) and the rest of
-``__all__``; each loads on first use.
+``OnlineIdentifier``, ``design_excitation``, ``identify_torque`` and ``identify_energy`` (a URDF
+arm) and the rest of ``__all__``; each loads on first use.
 """
 
 from hil import lazy_exports
@@ -37,6 +37,12 @@ __getattr__, __dir__, __all__ = lazy_exports(
             "DesignResult",
             "design_excitation",
         ],
-        "hil.identify.urdf": ["TorqueRecording", "TorqueIdentification", "identify_torque"],
+        "hil.identify.urdf": [
+            "TorqueRecording",
+            "TorqueIdentification",
+            "identify_torque",
+            "EnergyIdentification",
+            "identify_energy",
+        ],
     },
 )

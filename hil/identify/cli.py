@@ -40,6 +40,7 @@ from hil.identify.online import OnlineIdentifier
 from hil.identify.schemes import (
     ESTIMATORS,
     PAPER_TABLE_II,
+    SCHEME_TITLES,
     SchemeResult,
     format_table_ii,
     identify,
@@ -64,11 +65,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     src.add_argument("--from", dest="from_recording", help="identify from this recording instead")
     p.add_argument("--validate", help="held-out recording for validation (not used to fit)")
-    p.add_argument("--experiment", default="reyes-kelly", help="excitation (default: eqs. 31-32)")
+    p.add_argument(
+        "--experiment",
+        default=None,
+        help="excitation (default: eqs. 31-32, reyes-kelly; for a URDF arm <robot>-excitation)",
+    )
     p.add_argument(
         "--validation-experiment",
-        default="validation-multisine",
-        help="held-out excitation run over the bench ('none' to skip)",
+        default=None,
+        help="held-out excitation run over the bench ('none' to skip; default "
+        "validation-multisine; for a URDF arm none: the fit run's last quarter is held out)",
     )
     p.add_argument("--duration", type=float, default=None, help="seconds of excitation")
     add_drive_options(p)
@@ -147,7 +153,10 @@ def _record(
     experiment: str,
     out: Path,
     online: OnlineIdentifier | None,
+    robot: str | None = None,
 ) -> Recording:
+    """Run ``experiment`` over ``bench`` (with ``robot`` in place of the bench's arm if given)
+    into ``out``, feeding ``online`` as it runs; the recording."""
     from hil.bench.run import run_experiment
 
     last: dict[str, Any] = {}
@@ -167,6 +176,7 @@ def _record(
         **drive_kwargs(args),
         progress=not args.json,
         observer=observer,
+        robot=robot,
     )
     if run["status"] != "complete":
         raise RuntimeError(
@@ -223,7 +233,7 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         raise ValueError(f"--params-scheme {args.params_scheme} is not among --schemes")
     if args.lam is not None and not args.lam > 0:
         raise ValueError(f"--lambda must be > 0 rad/s, got {args.lam}")
-    if args.from_recording and _urdf_robot(args):
+    if _urdf_robot(args):
         return run_identify_urdf(args)
     if getattr(args, "consistent", False):
         raise ValueError(
@@ -234,6 +244,8 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         return run_identify_model(args)
     if args.lam is None:
         args.lam = 50.0
+    args.experiment = args.experiment or "reyes-kelly"
+    args.validation_experiment = args.validation_experiment or "validation-multisine"
     discretizations = ["exact", "paper"] if args.discretization == "both" else [args.discretization]
     out = Path(args.out)
     progress = StageProgress(
@@ -716,12 +728,17 @@ def _held(rec: Any) -> bool:
 
 
 def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
-    """`hil identify --from A [--validate B] --robot R` for a URDF arm: base parameters and
-    friction by weighted batch least squares on the torque regressor (hil.identify.urdf),
-    validated on B, or on the last quarter of A's time when no B is given; beside the
-    URDF's and profile's nominal parameters on the same rows."""
+    """`hil identify --from A [--validate B] --robot R [--schemes ...]` for a URDF arm: base
+    parameters and friction by each scheme — ``filtered_dynamic``: weighted batch least squares
+    on the torque regressor, parallel filtering (:func:`hil.identify.urdf.identify_torque`);
+    ``supplied_energy``, ``filtered_power``: batch least squares on the energy rows
+    (:func:`hil.identify.urdf.identify_energy`) — every scheme validated on the same torque rows
+    of B, or of the last quarter of A's time when no B is given; beside the URDF's and profile's
+    nominal parameters on those rows. The top-level ``parameters`` hold ``--params-scheme``'s."""
     from hil.identify.urdf import (
         TorqueRecording,
+        fit_split,
+        identify_energy,
         identify_torque,
         regression_rows,
         smoothing_cutoff_hz,
@@ -731,28 +748,75 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
 
     if args.terms is not None:
         raise ValueError("--terms: a URDF arm takes its terms from the profile's [model] terms")
+    if args.discretization != "exact":
+        raise ValueError("--discretization: a URDF arm's rows are the exact ones only")
+    schemes = split_list(args.schemes)
     model = UrdfArmModel.from_profile(args.robot)
-    fit = read_recording(args, args.from_recording, command="identify", min_rows=8)
-    if fit.n_joints != model.n_joints:
-        raise ValueError(
-            f"{fit.path}: {fit.n_joints} joints (q1..q{fit.n_joints}), robot {args.robot} has "
-            f"{model.n_joints}"
-        )
+    out = Path(args.out)
+    bench = args.bench or "virtual-slcan"
+    # files first: a bad --validate is refused before any run over the bench
+    val = (
+        read_recording(args, args.validate, command="identify", min_rows=8)
+        if args.validate
+        else None
+    )
+    if args.from_recording:
+        fit = read_recording(args, args.from_recording, command="identify", min_rows=8)
+    else:  # over a bench: the arm's own excitation, its drives on the bench's bus
+        experiment = args.experiment or f"{Path(args.robot).stem}-excitation"
+        fit = _record(args, bench, experiment, out / "fit", None, robot=args.robot)
+        if val is None and args.validation_experiment not in (None, "none"):
+            val = _record(
+                args, bench, args.validation_experiment, out / "validation", None, robot=args.robot
+            )
+    for rec in (fit, val):
+        if rec is not None and rec.n_joints != model.n_joints:
+            raise ValueError(
+                f"{rec.path}: {rec.n_joints} joints (q1..q{rec.n_joints}), robot {args.robot} "
+                f"has {model.n_joints}"
+            )
     say(
         "identify",
         f"identifying {args.robot} ({model.n_joints} joints, {model.n_params} base parameters) "
-        f"from {fit.path}",
+        f"from {fit.path} ({', '.join(schemes)})",
     )
-    held_out = 0.0 if args.validate else 0.25
+    held_out = 0.0 if val is not None else 0.25
     # this bench's own recordings (meta.json) hold each commanded torque over its period
     recording = TorqueRecording(fit.t, fit.q, fit.tau, str(fit.path), held=_held(fit))
     cutoff = smoothing_cutoff_hz(recording)
-    res = identify_torque(
-        model, recording, held_out=held_out, consistent=args.consistent, cutoff_hz=cutoff
-    )
+    results: dict[str, dict[str, Any]] = {}
+    torque_res = None
+    for scheme in schemes:
+        start = time.process_time()
+        if scheme == "filtered_dynamic":
+            torque_res = identify_torque(
+                model, recording, held_out=held_out, consistent=args.consistent, cutoff_hz=cutoff
+            )
+            theta = torque_res.theta
+            entry: dict[str, Any] = {
+                "method": torque_res.method
+                + " on the torque regressor (parallel filtering)"
+                + (" (--consistent: this scheme only)" if args.consistent else ""),
+                "smoothing_cutoff_hz": cutoff,
+                "rows": len(torque_res.rows.t),
+            }
+        else:
+            res = identify_energy(model, recording, scheme, lam=args.lam, held_out=held_out)
+            theta = res.theta
+            entry = {
+                "method": "least squares on the exact "
+                + (
+                    "energy rows, eq. (28)"
+                    if scheme == "supplied_energy"
+                    else "power rows, eq. (30)"
+                ),
+                "lambda_rad_s": res.lam,
+                "rows": res.rows,
+            }
+        entry["cpu_s"] = time.process_time() - start
+        results[scheme] = {"theta": theta, **entry}
     nominal = model.base_theta()
-    if args.validate:
-        val = read_recording(args, args.validate, command="identify", min_rows=8)
+    if val is not None:
         rows = regression_rows(
             model,
             TorqueRecording(val.t, val.q, val.tau, str(val.path), held=_held(val)),
@@ -760,59 +824,96 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         )
         where = str(val.path)
     else:
-        keep = res.rows.t >= res.fit_until_s
-        rows = type(res.rows)(res.rows.t[keep], res.rows.tau[keep], res.rows.Y[keep])
-        where = f"last 25 % of {fit.path} (t >= {res.fit_until_s:.3f} s)"
+        # the torque rows of the last quarter: the same rows judge every scheme
+        split = fit_split(recording, 0.25)
+        all_rows = (
+            torque_res.rows
+            if torque_res is not None
+            else regression_rows(model, recording, cutoff_hz=cutoff)
+        )
+        keep = all_rows.t >= split
+        rows = type(all_rows)(all_rows.t[keep], all_rows.tau[keep], all_rows.Y[keep])
+        where = f"last 25 % of {fit.path} (t >= {split:.3f} s)"
+    for r in results.values():
+        r["physical_consistency"] = model.physical_consistency(r["theta"])
+        r["validation"] = {"torque_nrmse": torque_nrmse(r["theta"], rows).tolist()}
+    chosen = results[args.params_scheme]
     report: dict[str, Any] = {
         "recording": str(fit.path),
         "robot": args.robot,
         "model": "urdf",
         "urdf": model.urdf,
         "terms": list(model.terms),
-        "method": res.method,
+        "params_scheme": args.params_scheme,
+        "method": chosen["method"],
         "smoothing_cutoff_hz": cutoff,
         "torque": "held over each period (averaged onto the samples)"
         if recording.held
         else "sampled with the positions",
         "standard_parameters": None
-        if res.theta_standard is None
-        else dict(zip(model.standard_names, res.theta_standard.tolist(), strict=True)),
+        if torque_res is None or torque_res.theta_standard is None
+        else dict(zip(model.standard_names, torque_res.theta_standard.tolist(), strict=True)),
         "parameters": [
-            {"name": n, "meaning": m, "unit": u, "identified": float(x), "nominal": float(y)}
-            for n, m, u, x, y in zip(
-                model.names, model.meanings, model.units, res.theta, nominal, strict=True
+            {
+                "name": n,
+                "meaning": m,
+                "unit": u,
+                "identified": float(chosen["theta"][i]),
+                "nominal": float(nominal[i]),
+                "schemes": {s: float(r["theta"][i]) for s, r in results.items()},
+            }
+            for i, (n, m, u) in enumerate(
+                zip(model.names, model.meanings, model.units, strict=True)
             )
         ],
-        "physical_consistency": model.physical_consistency(res.theta),
+        "physical_consistency": chosen["physical_consistency"],
         "validation": {
             "on": where,
-            "torque_nrmse_identified": torque_nrmse(res.theta, rows).tolist(),
+            "torque_nrmse_identified": chosen["validation"]["torque_nrmse"],
             "torque_nrmse_nominal": torque_nrmse(nominal, rows).tolist(),
         },
+        "schemes": {
+            s: {**{k: v for k, v in r.items() if k != "theta"}, "theta": r["theta"].tolist()}
+            for s, r in results.items()
+        },
     }
-    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out / "identify.json", report)
+    return report, format_urdf_report(report)
+
+
+def format_urdf_report(report: dict[str, Any]) -> str:
+    """The text of :func:`run_identify_urdf`: per base parameter the nominal value and each
+    scheme's estimate, then each scheme's physical consistency and held-out torque NRMSE."""
+    schemes = list(report["schemes"])
     lines = [
-        f"Identification of {args.robot} from {fit.path} ({model.n_joints} joints, base "
-        f"parameters by pivoted QR of the torque regressor; terms: "
-        f"{', '.join(model.terms) or 'none'}; {res.method})",
-        f"{'':8s} {'identified':>12s} {'nominal':>12s}  unit     meaning",
+        f"Identification of {report['robot']} from {report['recording']} "
+        f"({len(report['validation']['torque_nrmse_nominal'])} joints, base parameters by "
+        f"pivoted QR of the torque regressor; terms: {', '.join(report['terms']) or 'none'})",
+        f"{'':8s} {'nominal':>11s}"
+        + "".join(f" {SCHEME_TITLES[s]:>17s}" for s in schemes)
+        + "  unit     meaning",
     ]
     for p in report["parameters"]:
         lines.append(
-            f"{p['name']:8s} {p['identified']:12.5g} {p['nominal']:12.5g}  {p['unit']:8s} "
-            f"{p['meaning']}"
+            f"{p['name']:8s} {p['nominal']:11.5g}"
+            + "".join(f" {p['schemes'][s]:17.5g}" for s in schemes)
+            + f"  {p['unit']:8s} {p['meaning']}"
         )
-    pc = report["physical_consistency"]
-    lines.append(
-        "physically consistent (friction >= 0, M(q) > 0 at sampled q)"
-        if pc["consistent"]
-        else "NOT physically consistent: " + "; ".join(pc["violations"])
-    )
+    for s in schemes:
+        r = report["schemes"][s]
+        pc = r["physical_consistency"]
+        verdict = (
+            "physically consistent (friction >= 0, M(q) > 0 at sampled q)"
+            if pc["consistent"]
+            else "NOT physically consistent: " + "; ".join(pc["violations"])
+        )
+        lines.append(f"{SCHEME_TITLES[s]} ({r['method']}, {r['cpu_s']:.2f} s CPU): {verdict}")
     v = report["validation"]
     lines.append(f"held-out torque NRMSE per joint on {v['on']}:")
-    lines.append("  identified " + " ".join(f"{x:6.3f}" for x in v["torque_nrmse_identified"]))
-    lines.append("  nominal    " + " ".join(f"{x:6.3f}" for x in v["torque_nrmse_nominal"]))
-    lines.append(f"report: {out / 'identify.json'}")
-    return report, "\n".join(lines)
+    for s in schemes:
+        nrmse_s = report["schemes"][s]["validation"]["torque_nrmse"]
+        lines.append(f"  {SCHEME_TITLES[s]:17s} " + " ".join(f"{x:6.3f}" for x in nrmse_s))
+    lines.append(f"  {'nominal':17s} " + " ".join(f"{x:6.3f}" for x in v["torque_nrmse_nominal"]))
+    lines.append(f"parameters: {report['params_scheme']} ('identified' in identify.json)")
+    return "\n".join(lines)

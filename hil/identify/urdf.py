@@ -13,10 +13,18 @@ keeps the solve small. The solve is
 Panda's joint torques span 0.5 to 40 Nm, and plain least squares would all but ignore the
 wrist).
 
+The supplied-energy and filtered-power schemes of Reyes & Kelly (1997) for n joints
+(:func:`identify_energy`): the ``exact`` rows of :mod:`hil.model.regressors` — the interval
+energy balance τ_kᵀΔq_k = [Δφ_ℰ, ∫q̇ᵀφ_F dt] θ (eqs. (25), (27)), summed from the start
+(supplied energy, eq. (28)) or divided by each interval's length and low-passed (filtered
+power, eq. (30)) — on the model's energy regressors (:meth:`UrdfArmModel.energy_regressor`)
+and the recording's real time stamps, the same code that builds the 2-DOF rows; batch least
+squares (:class:`hil.model.estimators.LeastSquaresRows`).
+
 The Panda log layout (``rbt_log/exciting_traj_{time,positions,torques}.txt``: one number a
 line, 7 joints of a sample on 7 consecutive lines) is read by :func:`read_one_per_line_log`
 into the standard recording ``t, q1..qn, tau1..taun``. Imports hil.model.estimators,
-hil.model.metrics and hil.model.urdf; no plotting.
+hil.model.metrics, hil.model.regressors and hil.model.urdf; no plotting.
 """
 
 from __future__ import annotations
@@ -28,9 +36,9 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.signal import butter, sosfiltfilt
 
-from hil.model.estimators import weighted_least_squares
+from hil.model.estimators import LeastSquaresRows, weighted_least_squares
 from hil.model.metrics import nrmse
-from hil.model.regressors import excitation_bandwidth
+from hil.model.regressors import data_bandwidth, excitation_bandwidth, iter_rows
 from hil.model.urdf import UrdfArmModel
 
 # Smoothing of positions before differentiation, and of both sides of the regression.
@@ -69,6 +77,17 @@ class TorqueRecording:
             return self.tau
         out = self.tau.copy()
         out[1:] = 0.5 * (self.tau[1:] + self.tau[:-1])
+        return out
+
+    def torque_over_intervals(self) -> np.ndarray:
+        """Row k: the torque over [t_k, t_{k+1}] whose work the energy rows take as
+        τ_kᵀ (q_{k+1} − q_k). A held torque is that (exactly); a sampled one is taken as linear
+        between its samples, (τ_k + τ_{k+1})/2 (the trapezoid rule; τ_k alone would be the
+        half-period lead :meth:`torque_at_samples` describes). The last row has no interval."""
+        if self.held:
+            return self.tau
+        out = self.tau.copy()
+        out[:-1] = 0.5 * (self.tau[:-1] + self.tau[1:])
         return out
 
     def write_csv(self, path: str | Path) -> None:
@@ -201,6 +220,18 @@ class TorqueIdentification:
     method: str = "weighted least squares"
 
 
+def fit_split(rec: TorqueRecording, held_out: float) -> float:
+    """The time before which rows are fitted: the first (1 − ``held_out``) of the span."""
+    return float(rec.t[0] + (1.0 - held_out) * (rec.t[-1] - rec.t[0]))
+
+
+def _check_joints(model: UrdfArmModel, rec: TorqueRecording) -> None:
+    if rec.n_joints != model.n_joints:
+        raise ValueError(
+            f"{rec.source}: {rec.n_joints} joints in the recording, the model has {model.n_joints}"
+        )
+
+
 def regression_rows(
     model: UrdfArmModel,
     rec: TorqueRecording,
@@ -209,10 +240,7 @@ def regression_rows(
     decimate: int = DEFAULT_DECIMATE,
 ) -> FilteredRows:
     """The rows τ ≈ Y θ of a recording: smoothed motion, torque regressor, block average."""
-    if rec.n_joints != model.n_joints:
-        raise ValueError(
-            f"{rec.source}: {rec.n_joints} joints in the recording, the model has {model.n_joints}"
-        )
+    _check_joints(model, rec)
     motion = smoothed_motion(rec, cutoff_hz=cutoff_hz)
     Y = model.torque_regressor(motion.q, motion.dq, motion.ddq)
     return filtered_rows(motion, Y, decimate=decimate)
@@ -237,7 +265,7 @@ def identify_torque(
     (``held_out`` = 0: fit on everything, no held-out error). ``consistent``: the fit is
     constrained to physically consistent standard parameters (:func:`consistent_fit`)."""
     rows = regression_rows(model, rec, cutoff_hz=cutoff_hz, decimate=decimate)
-    split = rec.t[0] + (1.0 - held_out) * (rec.t[-1] - rec.t[0])
+    split = fit_split(rec, held_out)
     fit = rows.t < split if held_out > 0 else np.ones(len(rows.t), dtype=bool)
     held_out_rows = ~fit
     if fit.sum() * model.n_joints < 2 * model.n_params or (
@@ -259,6 +287,85 @@ def identify_torque(
         else np.full(model.n_joints, np.nan)
     )
     return TorqueIdentification(theta, split, rows, predicted, held, theta_standard, method)
+
+
+# --- the energy schemes: supplied energy and filtered power ---------------------------------------
+
+ENERGY_SCHEMES = ("supplied_energy", "filtered_power")
+# Samples either side of each velocity the energy rows take: 1, the three-point derivative on
+# the real stamps. The kinetic energy takes q̇ itself, and a wider window biases it: a quadratic
+# over ±T lowers a harmonic ω's velocity by about (ωT)²/10, its energy twice that (on a clean
+# multisine of cicese3 the 2-DOF model path's window, ±1/(4λ) s, put friction parameters 10 to
+# 14 % off, this one within 0.3 %: tests/test_urdf_energy.py). Velocity noise, which the wider
+# window is for, enters the supplied energy only at each row's end sample (Δφ_K telescopes)
+# and the filtered power through the λ low-pass.
+ENERGY_VELOCITY_HALF_WINDOW = 1
+
+
+@dataclass(frozen=True)
+class EnergyIdentification:
+    """θ (base parameters) of one energy scheme, fitted on rows with t < ``fit_until_s``."""
+
+    scheme: str
+    theta: np.ndarray
+    lam: float  # rad/s, the filtered-power row filter's bandwidth (and the velocity window's)
+    rows: int  # rows fitted
+    fit_until_s: float
+
+
+def identify_energy(
+    model: UrdfArmModel,
+    rec: TorqueRecording,
+    scheme: str,
+    *,
+    lam: float | None = None,
+    held_out: float = 0.25,
+    half_window: int = ENERGY_VELOCITY_HALF_WINDOW,
+    decimate: int = DEFAULT_DECIMATE,
+) -> EnergyIdentification:
+    """Batch least squares of the base parameters from the rows of ``scheme``
+    (``supplied_energy``: eq. (28), ``filtered_power``: eq. (30), in the ``exact`` form of
+    :mod:`hil.model.regressors`) on the recording's real time stamps (:func:`iter_rows`:
+    velocities by a local quadratic over ±``half_window`` samples, see
+    ENERGY_VELOCITY_HALF_WINDOW; interval integrals on each interval's own length), fitted on
+    the first (1 − ``held_out``) of the time span. λ defaults to
+    :func:`hil.model.regressors.data_bandwidth` (twice the excitation bandwidth). The work of
+    interval k is τᵀΔq with the torque of :meth:`TorqueRecording.torque_over_intervals`.
+    Rows are averaged over blocks of ``decimate`` consecutive ones before the solve, as the
+    torque scheme's are (:func:`filtered_rows`): a mean of exact equations is exact, and the
+    QR of the least squares, most of the cost at 1 kHz, shrinks by as much. Streams the rows
+    in chunks: memory O(chunk · p) whatever the recording's length."""
+    if scheme not in ENERGY_SCHEMES:
+        raise ValueError(f"unknown energy scheme {scheme!r}; one of {', '.join(ENERGY_SCHEMES)}")
+    _check_joints(model, rec)
+    lam = data_bandwidth(rec.q, rec.t) if lam is None else float(lam)
+    split = fit_split(rec, held_out)
+    ls = LeastSquaresRows(model.n_params)
+    rows = 0
+    tau = rec.torque_over_intervals()
+    for c in iter_rows(scheme, rec.q, tau, rec.t, lam, model, half_window=half_window):
+        fit = c.t < split if held_out > 0 else np.ones(len(c.t), dtype=bool)
+        if fit.any():
+            # energy rows all have weight 1 (static friction does no work, so no row is
+            # dropped for a stuck joint, hil.model.regressors)
+            y, Psi = _block_mean(c.y[fit], decimate), _block_mean(c.Psi[fit], decimate)
+            ls.add(Psi, y)
+            rows += len(y)
+    if rows < 2 * model.n_params:
+        raise ValueError(
+            f"{rec.source}: {rows} {scheme} rows to fit, too few for {model.n_params} parameters"
+        )
+    return EnergyIdentification(scheme, ls.solve(), lam, rows, float(split))
+
+
+def _block_mean(x: np.ndarray, size: int) -> np.ndarray:
+    """Means of consecutive blocks of ``size`` rows of ``x`` (the last block may be shorter)."""
+    if size <= 1:
+        return x
+    K = len(x)
+    full = K // size * size
+    out = x[:full].reshape(K // size, size, *x.shape[1:]).mean(axis=1)
+    return out if full == K else np.concatenate([out, x[full:].mean(axis=0, keepdims=True)])
 
 
 # --- physically consistent fit ------------------------------------------------------------------
@@ -358,8 +465,12 @@ def consistent_fit(
 
 
 __all__ = [
+    "ENERGY_SCHEMES",
+    "EnergyIdentification",
     "TorqueIdentification",
     "TorqueRecording",
+    "fit_split",
+    "identify_energy",
     "identify_torque",
     "read_one_per_line_log",
     "regression_rows",

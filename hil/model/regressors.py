@@ -39,7 +39,11 @@ equal intervals and refuses irregular ones.
 
 Every builder takes the model object (:class:`hil.model.closed_form.ArmModel`, default the
 9-parameter
-model) whose columns it fills; p = ``model.n_params``.
+model) whose columns it fills; p = ``model.n_params``. Any model with the same methods and
+``n_joints`` joints (:class:`hil.model.urdf.UrdfArmModel`) gives the ``exact`` rows of all three
+schemes for n joints, q and τ of shape (N, n): the momentum and energy balances above are the
+paper's n-joint equations (eqs. (11)-(13), (25)-(30)); only the 9-parameter closed form is
+2-DOF.
 """
 
 from __future__ import annotations
@@ -222,9 +226,9 @@ class IntervalIntegrals:
     k = first..last (K intervals), on the cubic Hermite interpolant of q."""
 
     k: np.ndarray  # (K,) interval index (starts at sample k)
-    R: np.ndarray  # (K, 2, p)  ∫ R(q, q̇) dt
-    friction_work: np.ndarray  # (K, 4)  ∫ [q̇1², q̇2², |q̇1|, |q̇2|] dt
-    stuck: np.ndarray  # (K, 2)  joint did not move over the interval (stick)
+    R: np.ndarray | None  # (K, n, p)  ∫ R(q, q̇) dt (None: not asked for, ``static=False``)
+    friction_work: np.ndarray  # (K, 2n)  ∫ [q̇1², .., q̇n², |q̇1|, .., |q̇n|] dt
+    stuck: np.ndarray  # (K, n)  joint did not move over the interval (stick)
 
 
 # Intervals integrated at once: bounds the quadrature's temporaries. A power of two: BLAS sums
@@ -238,31 +242,41 @@ def interval_integrals(
     v: np.ndarray,
     h: float | np.ndarray,
     model: ArmModel = NINE_PARAMETERS,
+    *,
+    static: bool = True,
 ) -> IntervalIntegrals:
     """∫ R dt and ∫ q̇ᵀφ_F dt over every interval whose two end velocities are known.
 
-    ``h``: the common interval (s), or every interval's own length, shape (N − 1,)."""
+    ``h``: the common interval (s), or every interval's own length, shape (N − 1,).
+    ``static`` False: leave ∫ R dt out (``R`` None); the energy and power rows need only the
+    friction work, and R is most of the cost for a model through Pinocchio.
+    ``model``: any model object with the static regressor and ``friction_columns`` (the
+    viscous columns of joints 1..n, then the Coulomb ones), n joints."""
     ok = np.isfinite(v).all(axis=1)
     k = np.flatnonzero(ok[:-1] & ok[1:])
     if len(k) > INTERVAL_CHUNK:
         # Every interval's integrals are its own: in chunks, so the (nodes, K, 2, p) values at
         # the quadrature nodes never exist for a whole long recording at once (issue 13).
         parts = [
-            _interval_integrals(q, v, h, model, k[i : i + INTERVAL_CHUNK])
+            _interval_integrals(q, v, h, model, k[i : i + INTERVAL_CHUNK], static)
             for i in range(0, len(k), INTERVAL_CHUNK)
         ]
+        R = np.concatenate([c.R for c in parts]) if static else None
         return IntervalIntegrals(
             k,
-            *(
-                np.concatenate([getattr(c, f) for c in parts])
-                for f in ("R", "friction_work", "stuck")
-            ),
+            R,
+            *(np.concatenate([getattr(c, f) for c in parts]) for f in ("friction_work", "stuck")),
         )
-    return _interval_integrals(q, v, h, model, k)
+    return _interval_integrals(q, v, h, model, k, static)
 
 
 def _interval_integrals(
-    q: np.ndarray, v: np.ndarray, h: float | np.ndarray, model: ArmModel, k: np.ndarray
+    q: np.ndarray,
+    v: np.ndarray,
+    h: float | np.ndarray,
+    model: ArmModel,
+    k: np.ndarray,
+    static: bool = True,
 ) -> IntervalIntegrals:
     """:func:`interval_integrals` over the intervals ``k`` (both end velocities known)."""
     q0, q1 = q[k], q[k + 1]
@@ -275,19 +289,26 @@ def _interval_integrals(
     # All Gauss–Legendre nodes at once: shape (nodes, K, 2).
     nodes = _GL_NODES[:, None, None]
     qs, ds = _hermite(q0[None], q1[None], d0[None], d1[None], nodes)
+    R = None
     if np.ndim(hk) == 0:
-        R = np.tensordot(_GL_WEIGHTS * hk, model.static_regressor(qs, ds / hk), axes=(0, 0))
+        if static:
+            R = np.tensordot(_GL_WEIGHTS * hk, model.static_regressor(qs, ds / hk), axes=(0, 0))
         sq = np.tensordot(_GL_WEIGHTS * hk, (ds / hk) ** 2, axes=(0, 0))  # degree 4: exact
     else:
         hn = hk[None, :, None]
-        R = np.einsum("n,nkmp->kmp", _GL_WEIGHTS, model.static_regressor(qs, ds / hn))
-        R *= hk[:, None, None]
+        if static:
+            R = np.einsum("n,nkmp->kmp", _GL_WEIGHTS, model.static_regressor(qs, ds / hn))
+            R *= hk[:, None, None]
         sq = np.einsum("n,nkj->kj", _GL_WEIGHTS, (ds / hn) ** 2) * hk[:, None]
     sgn_int, abs_int = _sign_and_abs_integrals(q0, q1, d0, d1)
     dq = q1 - q0
-    # Viscous (θ6, θ7) and Coulomb (θ8, θ9) columns exactly: ∫ q̇ dt = Δq, ∫ sgn q̇ dt piecewise.
-    R[:, 0, 5], R[:, 1, 6] = dq[:, 0], dq[:, 1]
-    R[:, 0, 7], R[:, 1, 8] = hk * sgn_int[:, 0], hk * sgn_int[:, 1]
+    if R is not None:
+        # Viscous (θ6, θ7) and Coulomb (θ8, θ9) columns, or joint j's of an n-joint model,
+        # exactly: ∫ q̇ dt = Δq, ∫ sgn q̇ dt piecewise.
+        n, fr = dq.shape[1], model.friction_columns
+        for j in range(n):
+            R[:, j, fr[j]] = dq[:, j]
+            R[:, j, fr[n + j]] = hk * sgn_int[:, j]
     friction_work = np.column_stack([sq, abs_int])
     stuck = (dq == 0) & (np.abs(v[k]) < 1e-12) & (np.abs(v[k + 1]) < 1e-12)
     return IntervalIntegrals(k, R, friction_work, stuck)
@@ -296,9 +317,13 @@ def _interval_integrals(
 # --- the three models -------------------------------------------------------------------------
 
 
-def _check(q: np.ndarray, tau: np.ndarray, h: float, lam: float, discretization: str) -> None:
-    if q.ndim != 2 or q.shape[1] != 2 or tau.shape != q.shape:
-        raise ValueError(f"q and tau must both have shape (N, 2); got {q.shape} and {tau.shape}")
+def _check(
+    q: np.ndarray, tau: np.ndarray, h: float, lam: float, discretization: str, n_joints: int = 2
+) -> None:
+    if q.ndim != 2 or q.shape[1] != n_joints or tau.shape != q.shape:
+        raise ValueError(
+            f"q and tau must both have shape (N, {n_joints}); got {q.shape} and {tau.shape}"
+        )
     if not (np.isfinite(q).all() and np.isfinite(tau).all()):
         raise ValueError("q and tau must be finite (a NaN or inf in the recording?)")
     if not h > 0:
@@ -347,19 +372,21 @@ def kinematics(
     t: np.ndarray | None = None,
     half_window: int = 1,
     keep: tuple[int, int] | None = None,
+    static: bool = True,
 ) -> Kinematics:
     """Velocities (backward difference for ``paper``, central for ``exact``) and, for
     ``exact``, the integrals over every interval with both end velocities known. ``t``: the
     samples' real times (``exact`` only), used instead of k·h; ``half_window`` > 1: velocities
     by :func:`local_polynomial_velocity` over 2·half_window + 1 samples (real times only);
-    ``keep`` = (i, j): only intervals i..j−1 of the window (chunked building)."""
+    ``keep`` = (i, j): only intervals i..j−1 of the window (chunked building); ``static``
+    False: without ∫ R dt (rows of the energy and power schemes only)."""
     if discretization == "paper":
         if t is not None:
             raise ValueError("the paper discretization assumes equal intervals; use exact")
         return Kinematics(backward_difference(q, h), None, model)
     if t is None:
         v = central_difference(q, h)
-        return Kinematics(v, interval_integrals(q, v, h, model), model)
+        return Kinematics(v, interval_integrals(q, v, h, model, static=static), model)
     t = np.asarray(t, dtype=float)
     dt = np.diff(t)
     if half_window <= 1:
@@ -369,7 +396,7 @@ def kinematics(
     if keep is not None:  # intervals outside keep lose an end velocity, hence their rows
         v[: keep[0]] = np.nan
         v[keep[1] + 1 :] = np.nan
-    return Kinematics(v, interval_integrals(q, v, dt, model), model, dt)
+    return Kinematics(v, interval_integrals(q, v, dt, model, static=static), model, dt)
 
 
 def raw_rows(
@@ -422,11 +449,17 @@ def raw_rows(
         hr = hk if np.ndim(hk) == 0 else hk[:, :, None]
         parts = (("interval_lowpass", (P1 - P0 + ii.R) / hr),)
         return RawRows(k + 1, tau[k], "interval_lowpass", parts, ii.stuck)
-    # Energy balance over [t_k, t_{k+1}]: τ_kᵀΔq_k = [Δφ_ℰ, ∫q̇ᵀφ_F dt] θ   (eqs. (25), (27)).
+    # Energy balance over [t_k, t_{k+1}]: τ_kᵀΔq_k = [Δφ_ℰ, ∫q̇ᵀφ_F dt] θ   (eqs. (25), (27)),
+    # for any number of joints: eq. (25) sums q̇ᵀτ over the joints.
     work = np.sum(tau[k] * (q[k + 1] - q[k]), axis=1)[:, None]
-    d_energy = model.energy_regressor(q[k + 1], v[k + 1]) - model.energy_regressor(q[k], v[k])
+    # φ_ℰ once per sample (each is the end of one interval and the start of the next)
+    at = np.union1d(k, k + 1)
+    energy = model.energy_regressor(q[at], v[at])
+    d_energy = energy[np.searchsorted(at, k + 1)] - energy[np.searchsorted(at, k)]
     fw = np.zeros((len(k), p))
     fw[:, list(model.friction_columns)] = ii.friction_work
+    if "friction_offset" in model.terms:  # a constant torque f_o does the work f_o Δq
+        fw[:, model.term_columns("friction_offset")] = q[k + 1] - q[k]
     rows = (d_energy + fw)[:, None, :]
     stuck = np.zeros((len(k), 1), bool)  # static friction does no work: energy rows hold
     if scheme == "supplied_energy":  # Σ from the first interval: eq. (28)
@@ -558,7 +591,7 @@ def iter_regression(
     which intervals hold a stuck joint, when not the interval integrals' exact rule (real
     recordings, :func:`quantized_stick`); it applies to the filtered dynamic rows only."""
     q, tau = np.asarray(q, float), np.asarray(tau, float)
-    _check(q, tau, h, lam, discretization)
+    _check(q, tau, h, lam, discretization, model.n_joints)
     if len(q) < 8:
         raise ValueError(f"need at least 8 samples to identify, got {len(q)}")
     if not chunk >= 1:
@@ -585,13 +618,14 @@ def iter_regression(
         tw = None if t is None else t[a:b]
         keep = None if t is None or discretization == "paper" else (s - a, e - a)
         kin = kinematics(
-            discretization, q[a:b], h, model=model, t=tw, half_window=half_window, keep=keep
-        )
+            discretization, q[a:b], h, model=model, t=tw, half_window=half_window, keep=keep,
+            static=scheme == "filtered_dynamic",
+        )  # fmt: skip
         raw = raw_rows(scheme, discretization, q[a:b], tau[a:b], h, kin)
         if discretization == "paper":
             raw = _rows_from(raw, s - a)
         row_stuck = raw.stuck
-        if stuck is not None and row_stuck.shape[1] == 2:
+        if stuck is not None and scheme == "filtered_dynamic":
             row_stuck = stuck[raw.index - 1 + a]  # row k+1 is about interval k
         y, Psi = filters.apply(raw)
         weights = memory.weights(row_stuck)
@@ -708,7 +742,7 @@ def iter_rows(
     here :func:`quantized_stick`). Yields :class:`RowChunk`."""
     q, tau, t = (np.asarray(a, dtype=float) for a in (q, tau, t))
     h = float(np.median(np.diff(t)))
-    _check(q, tau, h, lam, "exact")
+    _check(q, tau, h, lam, "exact", model.n_joints)
     m = velocity_half_window(lam, t) if half_window is None else max(1, int(half_window))
     yield from iter_regression(
         scheme, q, tau, h, lam, "exact", model=model, t=t, half_window=m,

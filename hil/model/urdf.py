@@ -353,7 +353,15 @@ class UrdfArmModel:
         return self._to_base(self._standard_potential(q)).reshape(*lead, -1)
 
     def energy_regressor(self, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
-        """φ_ℰ = φ_K + φ_P with ℰ = K + U = φ_ℰ θ, shape (..., p)   (eq. (8))."""
+        """φ_ℰ = φ_K + φ_P with ℰ = K + U = φ_ℰ θ, shape (..., p)   (eq. (8)).
+
+        The energy regressors take the torque regressor's base columns, and that is exact: a
+        standard direction c with Y c = 0 for every (q, q̇, q̈) does no work, q̇ᵀY c =
+        d/dt(φ_ℰ c) = 0 along every motion, so φ_ℰ c is constant and, as φ_ℰ vanishes at rest
+        at q = 0, zero; φ_P c (its q̇-free part) and φ_K c vanish each. Hence the energy columns
+        of the dependent standard parameters are the same combinations K of the independent
+        ones, φ θ_std = φ₁ (θ₁ + K θ₂) = φ₁ θ_base, for φ_K, φ_P and φ_ℰ alike
+        (tests/test_urdf_energy.py checks it against Pinocchio's energies)."""
         return self.kinetic_energy_regressor(q, dq) + self.potential_energy_regressor(q)
 
     def friction_power_regressor(self, dq: ArrayLike) -> np.ndarray:
