@@ -994,6 +994,20 @@ def _term_joints(prob: Problem, accepted: Sequence[Accepted], term: str) -> list
     return _joints(a.cand)
 
 
+def _own_gain(fit: dict[str, Any], fit_wo: dict[str, Any], joints: list[int], name: str) -> float:
+    """How much a term lowers the held-out NRMSE of its own joints, summed, in the measure
+    ``name`` ("torque" or "simulated position"; 0 when it cannot be scored). On an n-joint
+    arm every term moves the rigid-body parameters all joints share, so each other joint's
+    held-out error moves a little by chance, more often the more joints there are: there a
+    harm counts only when it exceeds the term's own gain in the same measure (a 7 % gain on
+    joint 3 of cicese3 lowers its torque NRMSE 2.9 % → 0.5 % and moved joint 1's
+    0.69 % → 0.71 %)."""
+    key = "torque_nrmse" if name == "torque" else "position_nrmse"
+    with_, without = fit["after"][key], fit_wo["after"][key]
+    pairs = [(without[j], with_[j]) for j in joints if j < len(with_) and j < len(without)]
+    return sum(b - a for b, a in pairs if None not in (a, b))
+
+
 def simulation_gate(
     prob: Problem,
     accepted: list[Accepted],
@@ -1085,6 +1099,8 @@ def simulation_gate(
                 for a, b in [(fit["after"][key][j], fit_wo["after"][key][j])]
                 if None not in (a, b) and a > (1 + SIMULATION_TOLERANCE) * b + 1e-12
             ]
+            if not isinstance(prob.model, ArmModel):
+                harmed = [x for x in harmed if x[3] - x[2] > _own_gain(fit, fit_wo, joints, x[1])]
             if harmed:
                 ratio = max(a / max(b, 1e-12) for _, _, b, a in harmed)
                 if 1e6 * ratio > worst_ratio:

@@ -728,7 +728,10 @@ def rigid_body_deviation(theta: np.ndarray, reference: np.ndarray, n_rigid: int 
     the 2-DOF model, the first ``n_rigid``) are from the reference's (robot profile or
     --params)."""
     ref = np.asarray(reference, float)[:n_rigid]
-    return float(np.linalg.norm((np.asarray(theta, float)[:n_rigid] - ref) / ref))
+    # a URDF arm's base parameters can be zero (the offset moment of a symmetric link): those
+    # are measured against the parameters' RMS instead
+    scale = np.where(np.abs(ref) > 0, np.abs(ref), np.sqrt(np.mean(ref**2)))
+    return float(np.linalg.norm((np.asarray(theta, float)[:n_rigid] - ref) / scale))
 
 
 # A torque gain error is only believed when modelling it brings θ1..θ5 at least this much closer
@@ -754,9 +757,9 @@ def _gain_supported(
         return False
     there = _cv(prob, extra, other)
     n = rigid_count(prob.model)
-    best = min(
-        rigid_body_deviation(cv.beta, reference, n), rigid_body_deviation(there.beta, reference, n)
-    )
+    best = rigid_body_deviation(cv.beta, reference, n)
+    if prob.n_joints == 2:  # only the ratio of the two gains is known: either hypothesis
+        best = min(best, rigid_body_deviation(there.beta, reference, n))
     return best <= GAIN_SUPPORT_RATIO * rigid_body_deviation(base.beta, reference, n)
 
 
