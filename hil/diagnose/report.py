@@ -62,7 +62,7 @@ from hil.diagnose.selection import (
 from hil.diagnose.stats import block_stats, cross_validate, evidence, extend_stats_many
 from hil.model.closed_form import TERMS, ArmModel
 from hil.model.metrics import nrmse
-from hil.model.openloop import OpenLoopExtras, simulate_open_loop, simulate_segment
+from hil.model.openloop import OpenLoopExtras, simulate_open_loop, simulate_segments
 
 HELD_OUT_FRACTION = 0.25  # of a single recording: its last quarter
 
@@ -602,25 +602,20 @@ def _segment_simulation_n(
 ) -> np.ndarray:
     """:func:`_segment_simulation` of an n-joint model object (a URDF model): each segment
     from the recorded state, the findings as :func:`_shaft_effects` gives them, integrated by
-    :func:`hil.model.openloop.simulate_segment` (no stiction: Coulomb friction as f_c sgn q̇)."""
+    :func:`hil.model.openloop.simulate_segments` (no stiction: Coulomb friction as f_c sgn q̇)."""
     shaft, state_torque, ang = _shaft_effects(findings, tau, h)
-    out = []
-    for a, b in segments:
-        inside = 0 < a < len(q) - 1
-        dq0 = (q[a + 1] - q[a - 1]) / (t[a + 1] - t[a - 1]) if inside else np.zeros(q.shape[1])
-        out.append(
-            simulate_segment(
-                model,
-                theta,
-                t[a:b],
-                q[a],
-                dq0,
-                shaft[a:b],
-                shaft_torque=state_torque,
-                angle_offset=ang,
-            )
-        )
-    return np.concatenate(out)
+    dq0 = np.array(
+        [
+            (q[a + 1] - q[a - 1]) / (t[a + 1] - t[a - 1])
+            if 0 < a < len(q) - 1
+            else np.zeros(q.shape[1])
+            for a, _b in segments
+        ]
+    )
+    sims = simulate_segments(
+        model, theta, t, q, shaft, segments, dq0, shaft_torque=state_torque, angle_offset=ang
+    )
+    return np.concatenate(sims)
 
 
 def before_after(

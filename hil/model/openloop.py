@@ -68,7 +68,7 @@ __all__ = [
     "rk4_held",
     "simulate_open_loop",
     "simulate_open_loop_chunks",
-    "simulate_segment",
+    "simulate_segments",
     "simulate_windows",
 ]
 
@@ -340,45 +340,54 @@ def rk4_held(
     return x_q, x_v, bad
 
 
-def simulate_segment(
+def simulate_segments(
     model: object,
     theta: ArrayLike,
     t: np.ndarray,
-    q0: np.ndarray,
-    dq0: np.ndarray,
+    q: np.ndarray,
     tau: np.ndarray,
+    segments: Sequence[tuple[int, int]],
+    dq0: np.ndarray,
     *,
     shaft_torque=None,
     angle_offset: np.ndarray | None = None,
     max_step_s: float = 1.25e-3,
-) -> np.ndarray:
+) -> list[np.ndarray]:
     """Open-loop simulation of any model object with ``forward_dynamics`` (an n-joint
-    :class:`hil.model.urdf.UrdfArmModel`) from (``q0``, ``dq0``) at t[0] over the sample times
-    ``t``, row k's torque held over [t_k, t_{k+1}) (the shaft torque: a lag, delay, gain or
-    offset already applied). ``shaft_torque(q, q̇)``: a torque added on the shaft (cogging,
-    Stribeck friction as −f); ``angle_offset``: encoder reading = true angle + δ (the model
-    moves in true angles, the result is in readings). RK4 (:func:`rk4_held`) with sub-steps of
-    at most ``max_step_s``; a state that diverges is left at NaN from there on. Returns q
-    (len(t), n)."""
+    :class:`hil.model.urdf.UrdfArmModel`) over the sample ranges ``segments`` ([a, b) of the
+    recording ``t``, ``q``), each from the recorded q[a] and ``dq0`` (one row per segment), row
+    k's torque ``tau`` held over [t_k, t_{k+1}) (the shaft torque: a lag, delay, gain or offset
+    already applied). ``shaft_torque(q, q̇)``: a torque added on the shaft (cogging, Stribeck
+    friction as −f); ``angle_offset``: encoder reading = true angle + δ (the model moves in true
+    angles, the result is in readings). RK4 (:func:`rk4_held`) with sub-steps of at most
+    ``max_step_s``; segments of one length are integrated together (one model call per stage
+    for all of them); a segment that diverges is NaN from there on. Returns q of each segment."""
     th = np.asarray(theta, dtype=float)
-    n = len(q0)
+    n = q.shape[1]
     delta = np.zeros(n) if angle_offset is None else np.asarray(angle_offset, float)
 
     def acc(qq, vv, uu):
-        extra = 0.0 if shaft_torque is None else shaft_torque(qq, vv)
+        extra = 0.0 if shaft_torque is None else shaft_torque(qq + delta, vv)
         return model.forward_dynamics(th, qq, vv, uu + extra)
 
-    out = np.full((len(t), n), np.nan)
-    x_q = (np.asarray(q0, float) - delta)[None]
-    x_v = np.asarray(dq0, float)[None]
-    out[0] = x_q[0] + delta
-    for k in range(len(t) - 1):
-        h = t[k + 1] - t[k]
-        steps = max(1, int(np.ceil(h / max_step_s - 1e-9)))
-        x_q, x_v, bad = rk4_held(acc, x_q, x_v, tau[k][None], h / steps, steps)
-        if bad[0]:
-            break
-        out[k + 1] = x_q[0] + delta
+    out: list[np.ndarray] = [np.empty(0)] * len(segments)
+    lengths = [b - a for a, b in segments]
+    for length in sorted(set(lengths)):
+        group = [i for i, size in enumerate(lengths) if size == length]
+        starts = np.array([segments[i][0] for i in group])
+        sim = np.full((len(group), length, n), np.nan)
+        x_q, x_v = q[starts] - delta, np.asarray(dq0, float)[group]
+        sim[:, 0] = q[starts]
+        ok = np.ones(len(group), bool)
+        for j in range(length - 1):
+            k = starts + j
+            h = t[k + 1] - t[k]
+            steps = max(1, int(np.ceil(h.max() / max_step_s - 1e-9)))
+            x_q, x_v, bad = rk4_held(acc, x_q, x_v, tau[k], (h / steps)[:, None], steps)
+            ok &= ~bad
+            sim[ok, j + 1] = x_q[ok] + delta
+        for i, g in enumerate(group):
+            out[g] = sim[i]
     return out
 
 
@@ -388,6 +397,6 @@ __all__ = [
     "rk4_held",
     "simulate_open_loop",
     "simulate_open_loop_chunks",
-    "simulate_segment",
+    "simulate_segments",
     "simulate_windows",
 ]
