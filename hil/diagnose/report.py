@@ -359,46 +359,78 @@ def unexplained(
 # --- before / after ------------------------------------------------------------------------------
 
 
-def _extras(findings: Sequence[Finding]) -> OpenLoopExtras:
-    """The findings as the open-loop simulator's extras. Of a confounded pair one is used: they
-    fit alike (a torque offset stands for the Coulomb asymmetry, a lag for a lag-or-delay)."""
-    off, gain, lag, ang = [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]
-    cog_n, cog_a, cog_p = [0.0, 0.0], [0.0, 0.0], [0.0, 0.0]
-    str_r, str_v = [1.0, 1.0], [1.0, 1.0]
-    delay, has_stribeck = 0.0, False
+@dataclass
+class SimulatedEffects:
+    """The findings' magnitudes as a simulation takes them, per joint (list index 0..n−1)."""
+
+    offset: list[float]
+    gain: list[float]
+    lag: list[float]
+    angle: list[float]
+    delay: list[float]  # per joint (a delay on all joints sets every one)
+    last_delay: float  # the 2-DOF simulator's one delay: the last delay finding's
+    cogging: list[tuple[float, float, float]]  # periods per revolution, amplitude, phase
+    stribeck_ratio: list[float]
+    stribeck_velocity: list[float]
+    stribeck_excess: list[tuple[float, float]]  # breakaway excess, velocity (n-joint)
+    has_stribeck: bool  # a Stribeck finding with its breakaway ratio
+
+
+def simulated_effects(findings: Sequence[Finding], n_joints: int) -> SimulatedEffects:
+    """Read the findings a simulation applies. Of a confounded pair one is used: they fit alike
+    (a torque offset stands for the Coulomb asymmetry, a lag for a lag-or-delay)."""
+    n = n_joints
+    fx = SimulatedEffects(
+        [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n, 0.0,
+        [(0.0, 0.0, 0.0)] * n, [1.0] * n, [1.0] * n, [(0.0, 1.0)] * n, False,
+    )  # fmt: skip
     for f in findings:
         if f.term in TERMS and f.effect != f.term:
             continue  # the rival of an accepted model term: the term is in θ already
         j, e = (f.joint or 1) - 1, f.estimate
         if f.effect == "torque_offset":
-            off[j] = e["offset_Nm"]
+            fx.offset[j] = e["offset_Nm"]
         elif f.effect == "torque_gain" and not f.confounded_with:
-            gain[j] = e["relative"]
+            fx.gain[j] = e["relative"]
         elif f.effect == "actuator_lag":
-            lag[j] = max(0.0, e["time_constant_s"])
+            fx.lag[j] = max(0.0, e["time_constant_s"])
         elif f.effect == "transport_delay" and not f.confounded_with:
-            delay = max(0.0, e["delay_s"])
+            fx.last_delay = max(0.0, e["delay_s"])
+            for i in range(n) if f.joint is None else (j,):
+                fx.delay[i] = fx.last_delay
         elif f.effect == "cogging":
-            cog_n[j], cog_a[j], cog_p[j] = e["periods_per_rev"], e["amplitude_Nm"], e["phase_rad"]
+            fx.cogging[j] = (e["periods_per_rev"], e["amplitude_Nm"], e["phase_rad"])
         elif f.effect == "angle_offset":
-            ang[j] = e["offset_rad"]
-        elif f.effect == "stribeck" and e.get("breakaway_ratio"):
-            has_stribeck = True
-            str_r[j], str_v[j] = max(1.0, e["breakaway_ratio"]), e["velocity_rad_s"]
+            fx.angle[j] = e["offset_rad"]
+        elif f.effect == "stribeck":
+            fx.stribeck_excess[j] = (e["breakaway_excess_Nm"], e["velocity_rad_s"])
+            if e.get("breakaway_ratio"):
+                fx.has_stribeck = True
+                fx.stribeck_ratio[j] = max(1.0, e["breakaway_ratio"])
+                fx.stribeck_velocity[j] = e["velocity_rad_s"]
+    return fx
+
+
+def _extras(findings: Sequence[Finding]) -> OpenLoopExtras:
+    """The findings as the 2-DOF open-loop simulator's extras (:func:`simulated_effects`)."""
+    fx = simulated_effects(findings, 2)
     stribeck = (
-        {"stribeck_breakaway_ratio": tuple(str_r), "stribeck_velocity_rad_s": tuple(str_v)}
-        if has_stribeck
+        {
+            "stribeck_breakaway_ratio": tuple(fx.stribeck_ratio),
+            "stribeck_velocity_rad_s": tuple(fx.stribeck_velocity),
+        }
+        if fx.has_stribeck
         else {}
     )
     return OpenLoopExtras(
-        torque_offset_Nm=tuple(off),
-        torque_gain=tuple(gain),
-        actuator_lag_s=tuple(lag),
-        transport_delay_s=delay,
-        cogging_periods_per_rev=tuple(cog_n),
-        cogging_amplitude_Nm=tuple(abs(x) for x in cog_a),
-        cogging_phase_rad=tuple(cog_p),
-        angle_offset_rad=tuple(ang),
+        torque_offset_Nm=tuple(fx.offset),
+        torque_gain=tuple(fx.gain),
+        actuator_lag_s=tuple(fx.lag),
+        transport_delay_s=fx.last_delay,
+        cogging_periods_per_rev=tuple(c[0] for c in fx.cogging),
+        cogging_amplitude_Nm=tuple(abs(c[1]) for c in fx.cogging),
+        cogging_phase_rad=tuple(c[2] for c in fx.cogging),
+        angle_offset_rad=tuple(fx.angle),
         **stribeck,
     )
 
@@ -549,28 +581,11 @@ def _shaft_effects(
     path (delay or lag, then gain, then offset) for every recorded row, the state-dependent
     shaft torque (cogging, minus the Stribeck excess of friction) and the angle offsets."""
     n = tau.shape[1]
-    off, gain, lag, delay, ang = (np.zeros(n) for _ in range(5))
-    cogging: list[tuple[int, float, float, float]] = []
-    stribeck: list[tuple[int, float, float]] = []
-    for f in findings or ():
-        j, e = (f.joint or 1) - 1, f.estimate
-        if f.effect == "torque_offset":
-            off[j] = e["offset_Nm"]
-        elif f.effect == "torque_gain" and not f.confounded_with:
-            gain[j] = e["relative"]
-        elif f.effect == "actuator_lag":
-            lag[j] = max(0.0, e["time_constant_s"])
-        elif f.effect == "transport_delay" and not f.confounded_with:
-            if f.joint is None:
-                delay[:] = max(0.0, e["delay_s"])
-            else:
-                delay[j] = max(0.0, e["delay_s"])
-        elif f.effect == "cogging":
-            cogging.append((j, e["periods_per_rev"], e["amplitude_Nm"], e["phase_rad"]))
-        elif f.effect == "angle_offset":
-            ang[j] = e["offset_rad"]
-        elif f.effect == "stribeck":
-            stribeck.append((j, e["breakaway_excess_Nm"], e["velocity_rad_s"]))
+    fx = simulated_effects(findings or (), n)
+    cogging = [(j, *c) for j, c in enumerate(fx.cogging) if c[1] != 0]
+    stribeck = [(j, *x) for j, x in enumerate(fx.stribeck_excess) if x[0] != 0]
+    delay, lag = fx.delay, fx.lag
+    gain, off, ang = np.array(fx.gain), np.array(fx.offset), np.array(fx.angle)
     shaft = tau.astype(float).copy()
     for j in range(n):
         if delay[j] > 0:
