@@ -1211,6 +1211,37 @@ def timing_findings(recordings: Sequence[Recording]) -> list[dict[str, str]]:
             kind = next((k for needle, k in TIMING_NOTES if needle in note), None)
             if kind is not None:
                 out.append({"kind": kind, "recording": str(r.path), "note": note})
+        stale = repeated_samples(r.q, r.tau)
+        if stale.any():
+            out.append(
+                {
+                    "kind": "repeated_samples",
+                    "recording": str(r.path),
+                    "note": f"repeated samples: {int(stale.sum())} rows (first at line "
+                    f"{int(np.argmax(stale)) + 2}) repeat the previous row's positions on "
+                    f"every joint ({int((stale & repeated_torques(r.tau)).sum())} of them the "
+                    "torques too) with a new time stamp while every joint moves before and "
+                    "after: stale samples of the logger, which the rows take as standstill "
+                    "(left out with their neighbours) and as position noise",
+                }
+            )
+    return out
+
+
+def repeated_torques(tau: np.ndarray) -> np.ndarray:
+    """Rows whose every torque equals the previous row's (row 0: False)."""
+    return np.r_[False, np.all(np.diff(tau, axis=0) == 0, axis=1)]
+
+
+def repeated_samples(q: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """Rows k that repeat row k − 1's positions on every joint while every joint moved from
+    k − 2 to k − 1 and moves from k to k + 1: a logger that wrote a stale state with a new
+    stamp (a joint at rest, or a hold, repeats its positions over many rows and is not this)."""
+    step = np.diff(q, axis=0) != 0  # (N−1, n): interval i = rows i → i+1 moved
+    out = np.zeros(len(q), bool)
+    if len(q) >= 4:
+        still = ~step[1:-1].any(axis=1)  # interval k−1 → k, for k = 2..N−2
+        out[2:-1] = still & step[:-2].all(axis=1) & step[2:].all(axis=1)
     return out
 
 
