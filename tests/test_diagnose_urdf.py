@@ -134,3 +134,24 @@ def test_repeated_samples_are_counted_in_motion_only():
     q[20:30] = q[20]  # a hold
     stale = repeated_samples(q, np.zeros_like(q))
     assert np.flatnonzero(stale).tolist() == [10]
+
+
+def test_coulomb_asymmetry_on_joint_3_found_when_the_model_lacks_the_offset(
+    recordings, tmp_path, capsys
+):
+    """cicese3's plant has direction-dependent Coulomb friction on joint 3 (0.35 Nm forward,
+    0.40 Nm backward); a profile whose model has no friction_offset term conceals it, and the
+    diagnosis names it on joint 3 with its two levels."""
+    robots = Path(__file__).resolve().parents[1] / "profiles" / "robots"
+    text = (robots / "cicese3.toml").read_text()
+    text = text.replace('urdf = "cicese3.urdf"', f'urdf = "{robots / "cicese3.urdf"}"')
+    text = text.replace('terms = ["friction_offset"]', "terms = []")
+    profile = tmp_path / "cicese3-symmetric.toml"
+    profile.write_text(text)
+    doc = _diagnose(recordings["null"], str(profile), capsys)
+    found = {(f["effect"], f["joint"]): f["estimate"] for f in doc["findings"]}
+    assert set(found) == {("coulomb_asymmetry", 3), ("torque_offset", 3)}, doc["summary"]
+    est = found[("coulomb_asymmetry", 3)]
+    assert abs(est["positive_Nm"] - 0.35) <= WITHIN * 0.05, est  # the difference's 25 %
+    assert abs(est["negative_Nm"] - 0.40) <= WITHIN * 0.05, est
+    assert "not_tested" in doc and "offset" not in doc["not_tested"]
