@@ -1,6 +1,7 @@
 """The whole diagnosis of a set of recordings, as one JSON-able document plus arrays for plots.
 
-1. nominal fit (9 parameters) and where its residual lives (:mod:`hil.diagnose.locate`);
+1. nominal fit (9 parameters, the profile's model terms, or an n-joint URDF model's base
+   parameters) and where its residual lives (:mod:`hil.diagnose.locate`);
 2. candidate selection (:mod:`hil.diagnose.selection`), findings with magnitudes
    (:mod:`hil.diagnose.findings`), a test for structure nothing in the vocabulary explains;
 3. before/after fit on held-out data: torque NRMSE and open-loop simulated-position NRMSE;
