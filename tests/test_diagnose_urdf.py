@@ -12,12 +12,12 @@ so the recording is exactly that of the arm with the effect. The Panda recording
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
 from realdata import realdata
+from urdf_effect_recordings import with_effect
 
 from drivers.recording import read_signals
 from hil.cli import main as hil_main
@@ -28,26 +28,12 @@ WITHIN = 0.25  # the catalogue's magnitude tolerance (tests/test_diagnose.py)
 GAIN = 0.07  # a 7 % torque gain error on joint 3
 
 
-def _with_gain_on_joint_3(src: Path, out: Path, gain: float) -> Path:
-    """The recording of the arm whose joint 3 applies (1 + gain) times its command."""
-    shutil.copytree(src, out)
-    lines = (src / "signals.csv").read_text().splitlines()
-    col = lines[0].split(",").index("tau3")
-    rows = [lines[0]]
-    for line in lines[1:]:
-        fields = line.split(",")
-        fields[col] = repr(float(fields[col]) / (1.0 + gain))
-        rows.append(",".join(fields))
-    (out / "signals.csv").write_text("\n".join(rows) + "\n")
-    return out
-
-
 @pytest.fixture(scope="module")
 def recordings(tmp_path_factory) -> dict[str, Path]:
     root = tmp_path_factory.mktemp("diag-urdf")
     args = ["simulate", "--robot", "cicese3", "--experiment", "cicese3-excitation"]
     assert vr_main([*args, "--duration", "10", "--out", str(root / "null"), "--no-plot"]) == 0
-    gain = _with_gain_on_joint_3(root / "null", root / "gain3", GAIN)
+    gain = with_effect(root / "null", root / "gain3", "gain", 3, GAIN)
     return {"null": root / "null", "gain3": gain}
 
 
