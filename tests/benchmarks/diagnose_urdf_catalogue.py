@@ -20,7 +20,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from urdf_effect_recordings import with_effect  # noqa: E402
+from urdf_effect_recordings import with_effect
 
 # (name, kind, joint, size, extra): the truth
 CASES = [
@@ -71,7 +71,7 @@ def main() -> int:
                     "--json",
                     "--no-plots",
                 ]
-            )  # fmt: skip
+            )
         )
         found = "; ".join(
             f"{f['effect']} j{f['joint']}: "
