@@ -1012,7 +1012,7 @@ def _own_gain(fit: dict[str, Any], fit_wo: dict[str, Any], joints: list[int], na
     held-out error moves a little by chance, more often the more joints there are: there a
     harm counts only when it exceeds the term's own gain in the same measure (a 7 % gain on
     joint 3 of cicese3 lowers its torque NRMSE 2.9 % → 0.5 % and moved joint 1's
-    0.69 % → 0.71 %)."""
+    0.69 % → 0.72 %, on 20 s of cicese3-excitation)."""
     key = "torque_nrmse" if name == "torque" else "position_nrmse"
     with_, without = fit["after"][key], fit_wo["after"][key]
     pairs = [(without[j], with_[j]) for j in joints if j < len(with_) and j < len(without)]
