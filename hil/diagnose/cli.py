@@ -3,8 +3,9 @@ find the physics the 9-parameter model leaves out (docs/diagnosis.md); with a ro
 a URDF (``--robot cicese3``, ``panda``), the physics its n-joint model leaves out.
 
 Reads recordings in the standard format (a run directory or a CSV with t,q1,q2,tau1,tau2, or
-t,q1..qN,tau1..tauN for an N-joint robot), from this bench or a real one; prints the findings and the before/after fit in words, or one JSON
-document with ``--json``; writes ``diagnosis.json`` and plots to ``--out``.
+t,q1..qN,tau1..tauN for an N-joint robot), from this bench or a real one; prints the findings
+and the before/after fit in words, or one JSON document with ``--json``; writes
+``diagnosis.json`` and plots to ``--out``.
 """
 
 from __future__ import annotations
