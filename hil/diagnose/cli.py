@@ -1,9 +1,11 @@
 """`hil diagnose RECORDING [RECORDING ...] --robot cicese [--params FILE] [--out DIR] [--json]`:
-find the physics the 9-parameter model leaves out (docs/diagnosis.md).
+find the physics the 9-parameter model leaves out (docs/diagnosis.md); with a robot described by
+a URDF (``--robot cicese3``, ``panda``), the physics its n-joint model leaves out.
 
-Reads recordings in the standard format (a run directory or a CSV with t,q1,q2,tau1,tau2), from
-this bench or a real one; prints the findings and the before/after fit in words, or one JSON
-document with ``--json``; writes ``diagnosis.json`` and plots to ``--out``.
+Reads recordings in the standard format (a run directory or a CSV with t,q1,q2,tau1,tau2, or
+t,q1..qN,tau1..tauN for an N-joint robot), from this bench or a real one; prints the findings
+and the before/after fit in words, or one JSON document with ``--json``; writes
+``diagnosis.json`` and plots to ``--out``.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from drivers.recording import write_json_atomic
 from hil.cli_options import (
@@ -25,14 +28,21 @@ from hil.cli_options import (
 from hil.diagnose.report import diagnose, percent
 from hil.model.closed_form import ArmModel
 from hil.model.params import check_inertia, load_params, robot_params
+from profiles.robot import describes_urdf_only
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("recordings", nargs="+", help="run directories or CSV files (t,q1,q2,tau1,tau2)")
+    p.add_argument(
+        "recordings",
+        nargs="+",
+        help="run directories or CSV files (t,q1,q2,tau1,tau2; t,q1..qN,tau1..tauN for an "
+        "N-joint --robot)",
+    )
     p.add_argument(
         "--robot",
         default="cicese",
-        help="robot profile: the reference θ and the nominal model's terms (default cicese)",
+        help="robot profile: the reference θ and the nominal model's terms (default cicese); "
+        "a URDF arm (cicese3, panda) is diagnosed over its n-joint model",
     )
     p.add_argument(
         "--params",
@@ -52,12 +62,26 @@ def _progress(message: str) -> None:
 def main(args: argparse.Namespace) -> int:
     if args.out:
         prepare_out_dir(args.out, args.overwrite, inputs=args.recordings)
+    if describes_urdf_only(args.robot):
+        # an n-joint arm described by a URDF (docs/urdf.md): the model object from the
+        # profile, its base parameters at the URDF's bodies and the profile's friction as the
+        # reference
+        if args.params:
+            raise ValueError(
+                f"--params: for the 2-DOF closed-form model; {args.robot} is a URDF arm, "
+                "diagnosed against its own least-squares fit (docs/diagnosis.md)"
+            )
+        from hil.model.urdf import UrdfArmModel  # Pinocchio: loaded only for a URDF arm
+
+        model: Any = UrdfArmModel.from_profile(args.robot)
+        reference, joints = model.base_theta(), model.n_joints
+    else:
+        profile = robot_params(args.robot)
+        reference, model, joints = profile.theta, ArmModel(profile.terms), 2
     recs = [
-        read_recording(args, path, command="diagnose", min_rows=2, joints=2, allow_gaps=True)
+        read_recording(args, path, command="diagnose", min_rows=2, joints=joints, allow_gaps=True)
         for path in args.recordings
     ]
-    profile = robot_params(args.robot)
-    reference, model = profile.theta, ArmModel(profile.terms)
     nominal = None
     if args.params:  # the nominal model is the one the parameters were identified in
         params = load_params(args.params)
@@ -87,6 +111,7 @@ def main(args: argparse.Namespace) -> int:
 
 def format_report(doc: dict) -> str:
     lines = ["Mismatch diagnosis", ""]
+    every = "both" if len(doc["fit"]["before"]["torque_nrmse"]) == 2 else "all"
     if not doc["findings"]:
         lines.append("Findings: none.")
     else:
@@ -100,7 +125,7 @@ def format_report(doc: dict) -> str:
                 else ""
             )
             lines.append(
-                f"  {f['effect']:18s} joint {f['joint'] or 'both'}: {est}; held-out error "
+                f"  {f['effect']:18s} joint {f['joint'] or every}: {est}; held-out error "
                 f"-{100 * ev.get('held_out_error_reduction', 0):.1f} % in "
                 f"{ev.get('blocks_improved', '?')}/{ev.get('blocks', '?')} blocks{conf}"
             )
@@ -112,8 +137,8 @@ def format_report(doc: dict) -> str:
     for name in ("before", "after"):
         t = fit[name]["torque_nrmse"]
         pz = fit[name]["position_nrmse"]
-        pos = f"; simulated position {percent(pz[0])} / {percent(pz[1])}" if pz else ""
-        lines.append(f"  {name:6s}: torque {percent(t[0])} / {percent(t[1])}{pos}")
+        pos = f"; simulated position {' / '.join(percent(x) for x in pz)}" if pz else ""
+        lines.append(f"  {name:6s}: torque {' / '.join(percent(x) for x in t)}{pos}")
     lines += ["", "Where the nominal model's residual lives:"]
     for j in doc["location"]["joints"]:
         carried = ", ".join(j["carried_by"]) or "nothing in particular (noise-like)"

@@ -87,8 +87,8 @@ GAP_FACTOR = 3.0
 class NoiseModel:
     """What the data say about their own noise, per joint, and the windows it implies."""
 
-    quantum_rad: tuple[float, float]
-    velocity_noise_rad_s: tuple[float, float]  # of the velocity estimate actually used
+    quantum_rad: tuple[float, ...]  # per joint
+    velocity_noise_rad_s: tuple[float, ...]  # of the velocity estimate actually used
     half_window: int  # samples either side of each velocity estimate
     window: int  # intervals of the moving-average filter F
     irregular_intervals: int  # intervals off the median by more than 1 %
@@ -142,7 +142,7 @@ def noise_model(q: np.ndarray, t: np.ndarray) -> NoiseModel:
         a = (q[2 * s :] - 2 * q[s:-s] + q[: -2 * s]) / (s * h) ** 2
         a_rms = np.sqrt(np.mean(a**2, axis=0))
     else:
-        a_rms = np.full(2, np.inf)
+        a_rms = np.full(q.shape[1], np.inf)
     moving = v_rms > 0
     m = 1
     while m * h < MAX_HALF_WINDOW_S and np.any(
@@ -155,8 +155,8 @@ def noise_model(q: np.ndarray, t: np.ndarray) -> NoiseModel:
     window = max(window_intervals(h), int(np.ceil(np.max(need[np.isfinite(need)], initial=0))))
     window = min(window, max(window_intervals(h), round(MAX_WINDOW_S / h)))
     return NoiseModel(
-        (float(quantum[0]), float(quantum[1])),
-        (float(sigma_v[0]), float(sigma_v[1])),
+        tuple(float(x) for x in quantum),
+        tuple(float(x) for x in sigma_v),
         m,
         window,
         int(np.sum(np.abs(dt / h - 1) > 0.01)),
@@ -194,6 +194,10 @@ class RecordingRows:
     @property
     def rows(self) -> int:
         return len(self.k)
+
+    @property
+    def n_joints(self) -> int:
+        return self.y.shape[1]
 
     @property
     def t(self) -> np.ndarray:
@@ -242,7 +246,7 @@ def _momentum_rows(
     n = len(q)
     margin = half_window + 2
     parts = []
-    v_all = np.full((n, 2), np.nan)
+    v_all = np.full(q.shape, np.nan)
     for a in range(0, n, ROW_CHUNK):
         b = min(a + ROW_CHUNK, n)
         lo, hi = max(0, a - margin), min(n, b + margin)
@@ -334,9 +338,9 @@ def _node_average(values: np.ndarray) -> np.ndarray:
     return np.tensordot(_GL_WEIGHTS, values, axes=(0, 0))
 
 
-def _on_joint(column: np.ndarray, joint: int) -> np.ndarray:
-    """(K, p) column(s) of one joint's row → (K, 2, p) with zeros in the other row."""
-    out = np.zeros((column.shape[0], 2, column.shape[1]))
+def _on_joint(column: np.ndarray, joint: int, n_joints: int) -> np.ndarray:
+    """(K, p) column(s) of one joint's row → (K, n, p) with zeros in the other rows."""
+    out = np.zeros((column.shape[0], n_joints, column.shape[1]))
     out[:, joint, :] = column
     return out
 
@@ -345,17 +349,19 @@ def offset_column(rows: RecordingRows, joint: int) -> np.ndarray:
     """Torque offset c on ``joint`` (τ_a = τ + c): X = −F[1]. A direction-dependent Coulomb
     friction gives the same column on every row the model uses (rows with the joint stuck carry
     weight 0): F⁺ = θ_fc − c, F⁻ = θ_fc + c."""
-    return _on_joint(-_filtered(rows, np.ones((rows.rows, 1))), joint)
+    return _on_joint(-_filtered(rows, np.ones((rows.rows, 1))), joint, rows.n_joints)
 
 
 def gain_column(rows: RecordingRows, joint: int) -> np.ndarray:
     """Torque gain error r on ``joint`` (τ_a = (1 + r) τ): X = −F[τ_j] = −y_j."""
-    return _on_joint(-rows.y[:, joint : joint + 1], joint)
+    return _on_joint(-rows.y[:, joint : joint + 1], joint, rows.n_joints)
 
 
 def cogging_columns(rows: RecordingRows, joint: int, periods_per_rev: float) -> np.ndarray:
     """Cogging A sin(n q + φ) added to the shaft torque: X = −F[sin n q, cos n q] (K, 2, 2)."""
-    return _on_joint(next(cogging_column_chunks(rows, joint, [periods_per_rev], 1))[:, 0], joint)
+    return _on_joint(
+        next(cogging_column_chunks(rows, joint, [periods_per_rev], 1))[:, 0], joint, rows.n_joints
+    )
 
 
 def cogging_column_chunks(
@@ -393,7 +399,7 @@ def stribeck_column(
 ) -> np.ndarray:
     """Stribeck friction ΔF sgn(q̇) exp(−(|q̇|/v_s)^δ) on ``joint``: X = +F[shape] (K, 2, 1)."""
     shape = stribeck_shape(rows.v_nodes[:, :, joint], velocity_rad_s, exponent)
-    return _on_joint(_filtered(rows, _node_average(shape)[:, None]), joint)
+    return _on_joint(_filtered(rows, _node_average(shape)[:, None]), joint, rows.n_joints)
 
 
 def lagged_torque_rows(rows: RecordingRows, time_constant_s: float) -> np.ndarray:
@@ -402,26 +408,35 @@ def lagged_torque_rows(rows: RecordingRows, time_constant_s: float) -> np.ndarra
     The lag state x_k at t_k obeys x_{k+1} = e^{−h/T} x_k + (1 − e^{−h/T}) τ_k and the average of
     τ_a over [t_k, t_{k+1}) is τ_k + (x_k − τ_k) (T/h)(1 − e^{−h/T}) (the virtual robot's
     ``amplifier_lag_step``); x_0 = τ_0 (the recording starts settled)."""
-    tau, h = rows.tau, rows.h
     if time_constant_s <= 0:
         return rows.y.copy()
+    return _filtered(rows, lagged_torque_means(rows.tau, rows.h, time_constant_s)[rows.k])
+
+
+def lagged_torque_means(tau: np.ndarray, h: float, time_constant_s: float) -> np.ndarray:
+    """The mean over each interval [t_k, t_{k+1}) of the first-order lag of the held torque
+    ``tau`` (N, n), exact under zero-order hold (:func:`lagged_torque_rows`), (N, n)."""
     decay = np.exp(-h / time_constant_s)
     free = decay ** np.arange(len(tau))[:, None] * tau[0]  # x_0 = τ_0
     x = lfilter([0.0, 1.0 - decay], [1.0, -decay], tau, axis=0) + free
-    mean = tau + (x - tau) * (time_constant_s / h) * (1.0 - decay)
-    return _filtered(rows, mean[rows.k])
+    return tau + (x - tau) * (time_constant_s / h) * (1.0 - decay)
 
 
 def delayed_torque_rows(rows: RecordingRows, delay_s: float) -> np.ndarray:
     """F[τ_a] for τ_a(t) = τ(t − d) of the held torque (exact under zero-order hold), (K, 2):
     with d = (m + f) h, the average over [t_k, t_{k+1}) is (1 − f) τ_{k−m} + f τ_{k−m−1}."""
-    tau, h = rows.tau, rows.h
+    return _filtered(rows, delayed_torque_means(rows.tau, rows.h, delay_s)[rows.k])
+
+
+def delayed_torque_means(tau: np.ndarray, h: float, delay_s: float) -> np.ndarray:
+    """The mean over each interval of the held torque ``tau`` (N, n) delayed by ``delay_s``
+    (:func:`delayed_torque_rows`), (N, n)."""
     m = int(np.floor(delay_s / h))
     f = delay_s / h - m
     idx = np.arange(len(tau))
     a = tau[np.clip(idx - m, 0, None)]
     b = tau[np.clip(idx - m - 1, 0, None)]
-    return _filtered(rows, ((1.0 - f) * a + f * b)[rows.k])
+    return (1.0 - f) * a + f * b
 
 
 # Probe lags for the rate columns: F[τ − τ_a]/T → F[τ̇] as T → 0; a second, longer probe spans
@@ -434,7 +449,7 @@ def torque_rate_column(rows: RecordingRows, joint: int) -> np.ndarray:
     """Columns of a lag or delay on ``joint``: X = F[τ − τ_a(T_i)]/T_i for the two probe lags
     (K, 2, 2); for a small lag T, β₁ + β₂ ≈ T (both columns tend to F[τ̇])."""
     cols = [(rows.y - lagged_torque_rows(rows, T)) / T for T in RATE_PROBES_S]
-    return _on_joint(np.stack([c[:, joint] for c in cols], axis=-1), joint)
+    return _on_joint(np.stack([c[:, joint] for c in cols], axis=-1), joint, rows.n_joints)
 
 
 def angle_offset_column(
@@ -443,7 +458,7 @@ def angle_offset_column(
     """Encoder zero offset δ on ``joint`` (reading = true angle + δ): the model holds at q − δ,
     Ψ(q − δ e_j) θ ≈ Ψ(q) θ − δ ∂(Ψθ)/∂q_j, so X = −∂(Ψθ)/∂q_j (central difference), (K, 2, 1).
     A constant shift leaves every velocity unchanged, so the rows are rebuilt exactly."""
-    shift = np.zeros(2)
+    shift = np.zeros(rows.q.shape[1])
     shift[joint] = step_rad
     args = (rows.h, rows.stamps, rows.half_window, rows.model)
     th = np.asarray(theta, float)[: rows.model.n_params]

@@ -30,13 +30,25 @@ from hil.diagnose.selection import (
     _passes,
     evidence,
     fit_theta,
+    rigid_body_deviation,
+    rigid_count,
     term_width,
 )
 from hil.diagnose.stats import CrossValidation, block_stats, cross_validate
 
 SEPARATE_REDUCTION = 0.05  # held-out reduction needed to call lag vs delay (see classify_rate)
 SAME_DELAY = 0.25  # two joints' delays this close (relative) are reported as one, joint null
-THETA_FC = {0: 7, 1: 8}  # index of θ8, θ9: the Coulomb level of each joint
+THETA_FC = {0: 7, 1: 8}  # index of θ8, θ9: the Coulomb level of each joint (2-DOF model)
+
+
+def coulomb_column(model: Any, joint: int) -> int:
+    """Index in θ of ``joint``'s Coulomb level: θ8, θ9 of the 2-DOF model; of a URDF model
+    (:class:`hil.model.urdf.UrdfArmModel`), its f_c column of that joint."""
+    if model is None or not hasattr(model, "n_friction"):
+        return THETA_FC[joint]
+    return model.n_params - model.n_friction + model.n_joints + joint
+
+
 # How far apart two gain hypotheses' rigid-body parameters must be from the reference (ratio of
 # their relative deviations) before the reference decides between them.
 GAIN_REFERENCE_RATIO = 1.5
@@ -82,7 +94,7 @@ def _cv_with(
         if i in skip:
             continue
         if a.cand.kind == "gain":
-            col = np.zeros((len(y_raw), 2, 1))
+            col = np.zeros((len(y_raw), prob.n_joints, 1))
             col[:, a.cand.joint, 0] = -y_raw[:, a.cand.joint] / prob.scale[a.cand.joint]
             cols.append(col)
         else:
@@ -100,7 +112,10 @@ def _shaft_rows(
     return np.concatenate(
         [
             np.column_stack(
-                [shaft(rows, values[i])[:, i] if i in joints else rows.y[:, i] for i in (0, 1)]
+                [
+                    shaft(rows, values[i])[:, i] if i in joints else rows.y[:, i]
+                    for i in range(prob.n_joints)
+                ]
             )
             for rows in prob.rows
         ]
@@ -147,7 +162,7 @@ def classify_rate(
     # far: the two hypotheses get the same freedom, so only the shape of the response decides.
     found = {}
     for kind in ("lag", "delay"):
-        values = [0.0, 0.0]
+        values = [0.0] * prob.n_joints
         for j in joints:
 
             def sse(x: float, j: int = j, kind: str = kind, base: list = values) -> float:
@@ -188,8 +203,8 @@ def classify_rate(
             out.append(Finding("actuator_lag", j + 1, {"time_constant_s": _r(lags[j])}, dict(ev)))
     if delay_ok:
         ds = [delays[j] for j in joints]
-        if len(joints) == 2 and abs(ds[0] - ds[1]) <= SAME_DELAY * max(ds):
-            # one delay on both joints, as a bus or a shared drive clock gives
+        if len(joints) >= 2 and max(ds) - min(ds) <= SAME_DELAY * max(ds):
+            # one delay on all of them, as a bus or a shared drive clock gives
             est = {"delay_s": _r(float(np.mean(ds))), "per_joint_s": [_r(d) for d in ds]}
             out.append(Finding("transport_delay", None, est, dict(ev)))
         else:
@@ -210,8 +225,26 @@ def resolve_gain(
     gain error} for the joint(s) to report, and the evidence for the choice."""
     i = next(i for i, a in enumerate(accepted) if a.cand.kind == "gain")
     j = accepted[i].cand.joint
-    other = 1 - j
     y = prob.y_raw
+    n_rigid = rigid_count(prob.model)
+    if prob.n_joints > 2:
+        # More than two joints: a gain on one joint is not the inverse gain on another single
+        # joint (that would be the inverse gain on all the others at once), so it stays where
+        # the selection put it; the reference only scales it (gain_at_reference).
+        here = _cv_with(prob, accepted, set(), y)
+        ref = np.asarray(reference_theta, float)[:n_rigid]
+        ev = {
+            "decided_by": "the selection (one joint's gain is identifiable with n > 2 joints)",
+            "rigid_body_deviation_from_reference": {
+                str(j + 1): _r(rigid_body_deviation(here.beta, ref, n_rigid))
+            },
+            "relative_at_reference_theta": {
+                str(j + 1): _r(gain_at_reference(prob, accepted, i, j, y, ref))
+            },
+        }
+        r_here = float(here.beta[prob.n_params + sum(term_width(a.cand) for a in accepted[:i])])
+        return {j: r_here}, ev
+    other = 1 - j
     alt_cols = [
         np.concatenate([gain_column(r, other) for r in prob.rows]) / prob.scale[None, :, None]
     ]
@@ -258,12 +291,13 @@ def gain_at_reference(
     1) and 4.3 % (joint 2); held at the reference, 4.97 % and 4.99 %
     (tests/benchmarks/closed_loop_bias.py, docs/diagnosis.md "Closed loop"). Only as good as the
     reference, which the choice of joint already trusts."""
-    col = np.zeros((len(y_raw), 2, 1))
+    n = len(reference_rigid)  # θ1..θ5, or a URDF model's rigid base parameters (rigid_count)
+    col = np.zeros((len(y_raw), prob.n_joints, 1))
     col[:, joint, 0] = -y_raw[:, joint] / prob.scale[joint]
     cols = [prob.chosen(a) for k, a in enumerate(accepted) if k != i] + [col]
     Z = _design(prob, cols)
-    target = prob.y - prob.Psi[:, :, :5] @ np.asarray(reference_rigid, float)[:5]
-    return float(fit_theta(Z[:, :, 5:], target, prob.w)[-1])
+    target = prob.y - prob.Psi[:, :, :n] @ np.asarray(reference_rigid, float)[:n]
+    return float(fit_theta(Z[:, :, n:], target, prob.w)[-1])
 
 
 __all__ = [

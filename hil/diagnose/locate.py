@@ -52,7 +52,7 @@ def locate(prob: Problem, theta: np.ndarray) -> Location:
     # time since the joint last stood still or reversed (the rows the fit leaves out)
     since = np.concatenate([_since_still(r.weights, r.h) for r in prob.rows])
     joints = []
-    for j in (0, 1):
+    for j in range(prob.n_joints):
         ok = prob.w[:, j] > 0
         e = e_all[ok, j]
         rms = float(np.sqrt(np.mean(e**2))) if len(e) else 0.0

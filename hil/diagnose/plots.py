@@ -32,8 +32,9 @@ def plot_diagnosis(result: DiagnosisResult, out: Path) -> list[Path]:
     torque and simulated position, before and after)."""
     loc = result.arrays["location"]
     paths = []
-    fig, axes = plt.subplots(2, 3, figsize=(14, 7))
-    for j in (0, 1):
+    n = loc["residual"].shape[1]  # joints
+    fig, axes = plt.subplots(n, 3, figsize=(14, 3.5 * n), squeeze=False)
+    for j in range(n):
         ok = loc["usable"][:, j]
         e = loc["residual"][ok, j]
         axes[j, 0].plot(loc["t"][ok], e, ".", ms=1)
@@ -48,22 +49,25 @@ def plot_diagnosis(result: DiagnosisResult, out: Path) -> list[Path]:
             ax.grid(alpha=0.3)
     found = (
         ", ".join(
-            f"{f['effect']} (joint {f['joint'] or 'both'})" for f in result.document["findings"]
+            f"{f['effect']} (joint {f['joint'] or ('both' if n == 2 else 'all')})"
+            for f in result.document["findings"]
         )
         or "none"
     )
     fig.suptitle(
-        f"Nominal 9-parameter model: torque residual F[τ] − Ψθ̂. Findings: {found}", fontsize=10
+        f"Nominal {'9-parameter ' if n == 2 else ''}model: torque residual F[τ] − Ψθ̂. "
+        f"Findings: {found}",
+        fontsize=10,
     )
     fig.tight_layout()
     paths.append(out / "residual.png")
     fig.savefig(paths[-1], dpi=90)
     plt.close(fig)
 
-    fig, axes = plt.subplots(2, 2, figsize=(14, 7), sharex="col")
+    fig, axes = plt.subplots(n, 2, figsize=(14, 3.5 * n), sharex="col", squeeze=False)
     test = result.arrays["test"]
     fit = result.document["fit"]
-    for j in (0, 1):
+    for j in range(n):
         ax = axes[j, 0]
         idx = np.flatnonzero(test)
         # rows the model cannot explain (a joint at rest or reversing) are gaps, not lines

@@ -109,6 +109,9 @@ class Candidate:
     # X of many variants on the candidate's joint, ``per`` at a time ((K, ≤per, width) arrays),
     # when that is cheaper than one by one
     chunks: Callable[[RecordingRows, tuple[Any, ...], int], Iterator[np.ndarray]] | None = None
+    # the joints whose rows the columns reach, when not :func:`_joints`' 2-DOF rule (an angle
+    # offset on an n-joint arm moves the gravity and inertia torques of every joint)
+    acts_on: tuple[int, ...] | None = None
 
     @property
     def key(self) -> str:
@@ -141,7 +144,7 @@ def stribeck_velocities(speeds: np.ndarray | None) -> tuple[float, ...]:
 def usable_speeds(prob: Problem) -> list[np.ndarray]:
     """|q̇| (interval means) of the rows the model uses, per joint."""
     v = np.abs(prob.v_mean)
-    return [v[prob.w[:, j] > 0, j] for j in (0, 1)]
+    return [v[prob.w[:, j] > 0, j] for j in range(prob.n_joints)]
 
 
 # The joint whose rows a model term's columns reach first (its key names no joint): the rotor
@@ -152,6 +155,8 @@ MODEL_TERM_JOINT = {"rotor_inertia": 1, "com_offset": 0}
 def model_term_candidates(model: ArmModel) -> list[Candidate]:
     """The model terms ``model`` lacks, as candidates: their columns are the regressor columns
     the model with the term appends (:func:`hil.diagnose.columns.model_term_columns`)."""
+    if not isinstance(model, ArmModel):
+        return []  # a URDF model's bodies carry their own centres of mass (refused_candidates)
     return [
         Candidate(
             term, MODEL_TERM_JOINT[term], (None,), lambda r, _v, t=term: model_term_columns(r, t)
@@ -159,6 +164,29 @@ def model_term_candidates(model: ArmModel) -> list[Candidate]:
         for term in TERMS
         if term not in model.terms
     ]
+
+
+def refused_candidates(model: Any) -> dict[str, str]:
+    """Candidates of the vocabulary not tested against ``model``, with the reason: none for
+    the closed-form 2-DOF model; for an n-joint model from a URDF
+    (:class:`hil.model.urdf.UrdfArmModel`) the 2-DOF model terms, and the torque offset when
+    the model already has one per joint (its ``friction_offset`` term)."""
+    if isinstance(model, ArmModel):
+        return {}
+    out = {
+        "rotor_inertia": "a 2-DOF closed-form term (θ_rotor beside θ3); an n-joint arm's "
+        "armature is the URDF model's own rotor_inertia term: identify with it in the "
+        "profile's [model] terms and compare",
+        "com_offset": "a 2-DOF closed-form term; a URDF model's bodies carry their centres of "
+        "mass in every direction already (10 parameters per body)",
+    }
+    if "friction_offset" in model.terms:
+        out["offset"] = (
+            "the nominal model has a torque offset per joint (its friction_offset term: "
+            "asymmetric Coulomb friction), so a Coulomb asymmetry or torque offset is a "
+            "parameter of the model, fitted, not missing physics"
+        )
+    return out
 
 
 def candidates(
@@ -172,14 +200,17 @@ def candidates(
     (default the 9-parameter one); the model terms it lacks are candidates too, after the
     others."""
     out: list[Candidate] = []
-    for j in (0, 1):
+    model = ArmModel(()) if model is None else model
+    refused = refused_candidates(model)
+    for j in range(model.n_joints):
         stribeck = stribeck_velocities(None if speeds is None else speeds[j])
         if stribeck:
             out.append(
                 Candidate("stribeck", j, stribeck, lambda r, v, j=j: stribeck_column(r, j, v))
             )
+        if "offset" not in refused:
+            out.append(Candidate("offset", j, (None,), lambda r, _v, j=j: offset_column(r, j)))
         out += [
-            Candidate("offset", j, (None,), lambda r, _v, j=j: offset_column(r, j)),
             Candidate("gain", j, (None,), lambda r, _v, j=j: gain_column(r, j)),
             Candidate(
                 "cogging",
@@ -190,10 +221,14 @@ def candidates(
             ),
             Candidate("rate", j, (None,), lambda r, _v, j=j: torque_rate_column(r, j)),
             Candidate(
-                "angle", j, (None,), lambda r, _v, j=j, th=theta: angle_offset_column(r, j, th)
+                "angle",
+                j,
+                (None,),
+                lambda r, _v, j=j, th=theta: angle_offset_column(r, j, th),
+                acts_on=None if isinstance(model, ArmModel) else tuple(range(model.n_joints)),
             ),
         ]
-    return out + model_term_candidates(ArmModel(()) if model is None else model)
+    return out + model_term_candidates(model)
 
 
 def term_width(cand: Candidate) -> int:
@@ -236,6 +271,10 @@ class Problem:
     @property
     def n_params(self) -> int:
         return self.Psi_raw.shape[-1]
+
+    @property
+    def n_joints(self) -> int:
+        return self.y_raw.shape[1]
 
     @property
     def y(self) -> np.ndarray:
@@ -339,12 +378,12 @@ class Problem:
         s2 = self.scale[j] ** 2
         for lo in range(0, n_var, per):
             hi = min(lo + per, n_var)
-            cross = np.zeros((hi - lo, n_blocks, 2, p, q))
+            cross = np.zeros((hi - lo, n_blocks, self.n_joints, p, q))
             parts = [sums.PX[lo:hi], *(sums.terms[k][lo:hi] for k in term_keys)]
             cross[:, :, j] = np.concatenate(parts, axis=2) / s2
-            xx = np.zeros((hi - lo, n_blocks, 2, q, q))
+            xx = np.zeros((hi - lo, n_blocks, self.n_joints, q, q))
             xx[:, :, j] = sums.XX[lo:hi] / s2
-            rx = np.zeros((hi - lo, n_blocks, 2, q))
+            rx = np.zeros((hi - lo, n_blocks, self.n_joints, q))
             rx[:, :, j] = sums.Xy[lo:hi] / s2
             yield extended_stats(base, cross, xx, rx)
 
@@ -467,8 +506,8 @@ def fit_theta(
 def robust_scale(residual: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Per-joint noise scale: 1.4826 · median absolute residual of the usable rows (1 Nm for a
     joint without any: its rows carry no weight, so the scale only has to be finite)."""
-    out = np.ones(2)
-    for j in range(2):
+    out = np.ones(residual.shape[1])
+    for j in range(residual.shape[1]):
         used = residual[w[:, j] > 0, j]
         if len(used):
             out[j] = 1.4826 * np.median(np.abs(used)) + 1e-12
@@ -588,7 +627,7 @@ def _rewhiten(prob: Problem, accepted: Sequence[Accepted]) -> None:
 
 def _harms_other_joint(base: CrossValidation, cv: CrossValidation, cand: Candidate) -> bool:
     """The term makes the held-out error of a joint it is not about worse by MIN_REDUCTION."""
-    others = [j for j in (0, 1) if j not in _joints(cand)]
+    others = [j for j in range(base.held_out_sse.shape[1]) if j not in _joints(cand)]
     return bool(others) and evidence(base, cv, others).reduction <= -MIN_REDUCTION
 
 
@@ -662,7 +701,7 @@ def model_columns(model: ArmModel, cands: Sequence[Candidate]) -> tuple[ArmModel
             terms.append(c.kind)
             index += range(at, at + width)
         at += width
-    return model.with_terms(tuple(terms)), np.array(index)
+    return (model.with_terms(tuple(terms)) if terms else model), np.array(index)
 
 
 def unphysical(
@@ -692,15 +731,27 @@ def _passes(ev: Evidence, tests: int) -> bool:
 
 def _joints(cand: Candidate) -> list[int]:
     """The rows a candidate's columns act on: an angle offset moves gravity on both joints, a
-    centre-of-mass offset the inertia and gravity of both."""
+    centre-of-mass offset the inertia and gravity of both (on an n-joint arm: ``acts_on``)."""
+    if cand.acts_on is not None:
+        return list(cand.acts_on)
     return [0, 1] if cand.kind in ("angle", "com_offset") else [cand.joint]
 
 
-def rigid_body_deviation(theta: np.ndarray, reference: np.ndarray) -> float:
-    """‖(θ1..θ5 − reference)/reference‖: how far a fit's rigid-body parameters are from the
-    reference's (robot profile or --params)."""
-    ref = np.asarray(reference, float)[:5]
-    return float(np.linalg.norm((np.asarray(theta, float)[:5] - ref) / ref))
+def rigid_count(model: Any) -> int:
+    """How many of ``model``'s first parameters are rigid-body ones: θ1..θ5 of the 2-DOF
+    model; every base parameter before the friction columns of a URDF model."""
+    return 5 if isinstance(model, ArmModel) else model.n_params - model.n_friction
+
+
+def rigid_body_deviation(theta: np.ndarray, reference: np.ndarray, n_rigid: int = 5) -> float:
+    """‖(θ_rigid − reference)/reference‖: how far a fit's rigid-body parameters (θ1..θ5 of
+    the 2-DOF model, the first ``n_rigid``) are from the reference's (robot profile or
+    --params)."""
+    ref = np.asarray(reference, float)[:n_rigid]
+    # a URDF arm's base parameters can be zero (the offset moment of a symmetric link): those
+    # are measured against the parameters' RMS instead
+    scale = np.where(np.abs(ref) > 0, np.abs(ref), np.sqrt(np.mean(ref**2)))
+    return float(np.linalg.norm((np.asarray(theta, float)[:n_rigid] - ref) / scale))
 
 
 # A torque gain error is only believed when modelling it brings θ1..θ5 at least this much closer
@@ -725,10 +776,11 @@ def _gain_supported(
     if other is None:  # the other joint is not tested: nothing to weigh the gain against
         return False
     there = _cv(prob, extra, other)
-    best = min(
-        rigid_body_deviation(cv.beta, reference), rigid_body_deviation(there.beta, reference)
-    )
-    return best <= GAIN_SUPPORT_RATIO * rigid_body_deviation(base.beta, reference)
+    n = rigid_count(prob.model)
+    best = rigid_body_deviation(cv.beta, reference, n)
+    if prob.n_joints == 2:  # only the ratio of the two gains is known: either hypothesis
+        best = min(best, rigid_body_deviation(there.beta, reference, n))
+    return best <= GAIN_SUPPORT_RATIO * rigid_body_deviation(base.beta, reference, n)
 
 
 PAIR_POOL = 4  # strongest single candidates tried in pairs when no single one passes
@@ -986,7 +1038,11 @@ def relinearise_angle(prob: Problem, accepted: list[Accepted]) -> list[Accepted]
             theta = final_fit(prob, out).theta
             j = a.cand.joint
             cand = Candidate(
-                "angle", j, (None,), lambda r, _v, j=j, th=theta: angle_offset_column(r, j, th)
+                "angle",
+                j,
+                (None,),
+                lambda r, _v, j=j, th=theta: angle_offset_column(r, j, th),
+                acts_on=a.cand.acts_on,
             )
             prob.forget((cand.key, 0))
             a = Accepted(cand, None, a.evidence, a.confounded_with, a.rival_variants)

@@ -90,9 +90,9 @@ def block_stats(Z: Design, y: np.ndarray, w: np.ndarray, blocks: np.ndarray) -> 
     at a time, so memory stays O(K p), not O(K p²)."""
     starts = _starts(blocks)
     ends = np.r_[starts[1:], len(blocks)]
-    n_blocks, p = len(starts), design_width(Z)
-    G = np.empty((n_blocks, 2, p, p))
-    r = np.empty((n_blocks, 2, p))
+    n_blocks, p, n = len(starts), design_width(Z), y.shape[1]
+    G = np.empty((n_blocks, n, p, p))
+    r = np.empty((n_blocks, n, p))
     for b, (lo, hi) in enumerate(zip(starts.tolist(), ends.tolist(), strict=True)):
         Zb = design_rows(Z, lo, hi)
         # per joint (leading axis) a (p, k) @ (k, p) product: BLAS, not an einsum loop
@@ -127,11 +127,11 @@ def extend_stats_many(
     X = variants if isinstance(variants, np.ndarray) else np.stack(variants, axis=2)
     V, q = X.shape[2], X.shape[3]
     spans = block_spans(blocks)
-    n_blocks, p = len(spans), base.G.shape[-1]
-    cross = np.zeros((n_blocks, 2, p, V * q))
-    xx = np.zeros((n_blocks, 2, V, q, q))
-    rx = np.zeros((n_blocks, 2, V, q))
-    for j in (0, 1):
+    n_blocks, p, n = len(spans), base.G.shape[-1], y.shape[1]
+    cross = np.zeros((n_blocks, n, p, V * q))
+    xx = np.zeros((n_blocks, n, V, q, q))
+    rx = np.zeros((n_blocks, n, V, q))
+    for j in range(n):
         if not np.any(X[:, j]):
             continue
         if callable(Z):  # joint j's columns, as groups joined a block at a time
@@ -140,7 +140,7 @@ def extend_stats_many(
             U = [Z[:, j, :]] if isinstance(Z, np.ndarray) else [P[:, j, :] for P in Z]
         uyx, xx[:, j] = target_block_sums([*U, y[:, j, None]], X[:, j], w[:, j], spans)
         cross[:, j], rx[:, j] = uyx[:, :p], uyx[:, p].reshape(n_blocks, V, q)
-    cross = cross.reshape(n_blocks, 2, p, V, q).transpose(3, 0, 1, 2, 4)  # (V, B, 2, p, q)
+    cross = cross.reshape(n_blocks, n, p, V, q).transpose(3, 0, 1, 2, 4)  # (V, B, n, p, q)
     return extended_stats(base, cross, xx.transpose(2, 0, 1, 3, 4), rx.transpose(2, 0, 1, 3))
 
 

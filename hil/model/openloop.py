@@ -65,8 +65,10 @@ from hil.model.openloop_effects import OpenLoopExtras, integrate_with_extras
 __all__ = [
     "OpenLoopExtras",
     "OpenLoopResult",
+    "rk4_held",
     "simulate_open_loop",
     "simulate_open_loop_chunks",
+    "simulate_segments",
     "simulate_windows",
 ]
 
@@ -292,53 +294,120 @@ def simulate_windows(
     starts = np.arange(1, len(q) - L - 1, L)
     if len(starts) == 0:
         raise ValueError(f"recording shorter than one window of {window_s} s")
-    x_q = q[starts].copy()
-    x_v = v[starts].copy()
-    sim = np.empty((len(starts), L + 1, 2))
-    sim[:, 0] = x_q
+    n = q.shape[1]
+    sim = np.empty((len(starts), L + 1, n))
+    sim[:, 0] = q[starts]
     ok = np.ones(len(starts), bool)
 
     def acc(qq, vv, uu):
         with np.errstate(all="ignore"):
             return model.forward_dynamics(th, qq, vv, uu)
 
-    # a window whose state leaves this range (rad, rad/s) has diverged; it is counted and its
-    # state reset to the recording so the arrays stay finite
-    limit = 1e3
+    x_q, x_v = q[starts].copy(), v[starts].copy()
     for j in range(L):
         k = starts + j
         dt = (t[k + 1] - t[k])[:, None] / steps_per_interval
-        u = tau[k]
-        with np.errstate(all="ignore"):
-            for _ in range(steps_per_interval):
-                a1 = acc(x_q, x_v, u)
-                a2 = acc(x_q + 0.5 * dt * x_v, x_v + 0.5 * dt * a1, u)
-                a3 = acc(x_q + 0.5 * dt * (x_v + 0.5 * dt * a1), x_v + 0.5 * dt * a2, u)
-                a4 = acc(x_q + dt * (x_v + 0.5 * dt * a2), x_v + dt * a3, u)
-                x_q = x_q + dt * x_v + dt**2 / 6 * (a1 + a2 + a3)
-                x_v = x_v + dt / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
-                bad = ~(np.abs(x_q) < limit).all(axis=1) | ~(np.abs(x_v) < limit).all(axis=1)
-                ok &= ~bad
-                x_q[bad], x_v[bad] = q[k[bad] + 1], 0.0
+        x_q, x_v, bad = rk4_held(acc, x_q, x_v, tau[k], dt, steps_per_interval)
+        ok &= ~bad
+        x_q[bad], x_v[bad] = q[k[bad] + 1], 0.0
         sim[:, j + 1] = x_q
     idx = starts[:, None] + np.arange(L + 1)[None, :]
     rec = q[idx]
     # error per window relative to each window's own start, so the spread measures motion
     # within windows, not the recording's overall excursion
-    ref = (rec - rec[:, :1])[ok].reshape(-1, 2)
-    est = (sim - rec[:, :1])[ok].reshape(-1, 2)
+    ref = (rec - rec[:, :1])[ok].reshape(-1, n)
+    est = (sim - rec[:, :1])[ok].reshape(-1, n)
     return {
-        "position_nrmse": [float(x) for x in nrmse(ref, est)] if ok.any() else [np.nan] * 2,
+        "position_nrmse": [float(x) for x in nrmse(ref, est)] if ok.any() else [np.nan] * n,
         "windows": len(starts),
         "diverged": int(np.sum(~ok)),
         "window_s": float(L * h),
     }
 
 
+# a state that leaves this range (rad, rad/s) has diverged (rk4_held)
+DIVERGED = 1e3
+
+
+def rk4_held(
+    acc, x_q: np.ndarray, x_v: np.ndarray, u: np.ndarray, dt: np.ndarray | float, steps: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``steps`` RK4 sub-steps of ``dt`` of q̈ = acc(q, q̇, u) under the held torque ``u``, for
+    a batch of states (rows); returns q, q̇ and which rows left the finite range (DIVERGED),
+    whose state the caller resets. Coulomb friction is whatever ``acc`` makes of sgn q̇ (no
+    stiction): the integrator of :func:`simulate_windows` and of any n-joint model object."""
+    bad = np.zeros(len(x_q), bool)
+    with np.errstate(all="ignore"):
+        for _ in range(steps):
+            a1 = acc(x_q, x_v, u)
+            a2 = acc(x_q + 0.5 * dt * x_v, x_v + 0.5 * dt * a1, u)
+            a3 = acc(x_q + 0.5 * dt * (x_v + 0.5 * dt * a1), x_v + 0.5 * dt * a2, u)
+            a4 = acc(x_q + dt * (x_v + 0.5 * dt * a2), x_v + dt * a3, u)
+            x_q = x_q + dt * x_v + dt**2 / 6 * (a1 + a2 + a3)
+            x_v = x_v + dt / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
+            now = ~(np.abs(x_q) < DIVERGED).all(axis=1) | ~(np.abs(x_v) < DIVERGED).all(axis=1)
+            bad |= now
+            x_q, x_v = np.where(now[:, None], 0.0, x_q), np.where(now[:, None], 0.0, x_v)
+    return x_q, x_v, bad
+
+
+def simulate_segments(
+    model: object,
+    theta: ArrayLike,
+    t: np.ndarray,
+    q: np.ndarray,
+    tau: np.ndarray,
+    segments: Sequence[tuple[int, int]],
+    dq0: np.ndarray,
+    *,
+    shaft_torque=None,
+    angle_offset: np.ndarray | None = None,
+    max_step_s: float = 1.25e-3,
+) -> list[np.ndarray]:
+    """Open-loop simulation of any model object with ``forward_dynamics`` (an n-joint
+    :class:`hil.model.urdf.UrdfArmModel`) over the sample ranges ``segments`` ([a, b) of the
+    recording ``t``, ``q``), each from the recorded q[a] and ``dq0`` (one row per segment), row
+    k's torque ``tau`` held over [t_k, t_{k+1}) (the shaft torque: a lag, delay, gain or offset
+    already applied). ``shaft_torque(q, q̇)``: a torque added on the shaft (cogging, Stribeck
+    friction as −f); ``angle_offset``: encoder reading = true angle + δ (the model moves in true
+    angles, the result is in readings). RK4 (:func:`rk4_held`) with sub-steps of at most
+    ``max_step_s``; segments of one length are integrated together (one model call per stage
+    for all of them); a segment that diverges is NaN from there on. Returns q of each segment."""
+    th = np.asarray(theta, dtype=float)
+    n = q.shape[1]
+    delta = np.zeros(n) if angle_offset is None else np.asarray(angle_offset, float)
+
+    def acc(qq, vv, uu):
+        extra = 0.0 if shaft_torque is None else shaft_torque(qq + delta, vv)
+        return model.forward_dynamics(th, qq, vv, uu + extra)
+
+    out: list[np.ndarray] = [np.empty(0)] * len(segments)
+    lengths = [b - a for a, b in segments]
+    for length in sorted(set(lengths)):
+        group = [i for i, size in enumerate(lengths) if size == length]
+        starts = np.array([segments[i][0] for i in group])
+        sim = np.full((len(group), length, n), np.nan)
+        x_q, x_v = q[starts] - delta, np.asarray(dq0, float)[group]
+        sim[:, 0] = q[starts]
+        ok = np.ones(len(group), bool)
+        for j in range(length - 1):
+            k = starts + j
+            h = t[k + 1] - t[k]
+            steps = max(1, int(np.ceil(h.max() / max_step_s - 1e-9)))
+            x_q, x_v, bad = rk4_held(acc, x_q, x_v, tau[k], (h / steps)[:, None], steps)
+            ok &= ~bad
+            sim[ok, j + 1] = x_q[ok] + delta
+        for i, g in enumerate(group):
+            out[g] = sim[i]
+    return out
+
+
 __all__ = [
     "OpenLoopExtras",
     "OpenLoopResult",
+    "rk4_held",
     "simulate_open_loop",
     "simulate_open_loop_chunks",
+    "simulate_segments",
     "simulate_windows",
 ]

@@ -420,6 +420,19 @@ class UrdfArmModel:
         """τ = M(q) q̈ + C(q, q̇) q̇ + g(q) + f(q̇), shape (..., n)   (eq. (15))."""
         return self.torque_regressor(q, dq, ddq) @ np.asarray(theta, dtype=float)
 
+    def forward_dynamics(
+        self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike, tau: ArrayLike
+    ) -> np.ndarray:
+        """q̈ = M(q)⁻¹ (τ − C(q, q̇) q̇ − g(q) − f(q̇)) of base parameters θ, shape (..., n)
+        (Coulomb friction as f_c sgn q̇, no stiction). From the regressors, not ABA: a base
+        vector need not come from standard parameters with positive masses."""
+        (q, dq, tau), lead = self._samples(q, dq, tau)
+        t = np.asarray(theta, dtype=float)
+        rest = self.torque_regressor(q, dq, np.zeros_like(q)) @ t  # C q̇ + g + f
+        M = self.mass_matrix(t, q)
+        ddq = np.linalg.solve(M, (tau - rest)[..., None])[..., 0]
+        return ddq.reshape(*lead, self.n_joints)
+
     # --- physical consistency ------------------------------------------------------------------
 
     def _base_consistency(self, theta: np.ndarray) -> dict[str, object]:
