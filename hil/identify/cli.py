@@ -184,7 +184,8 @@ def _record(
             f"({run['rows']} rows kept in {run['signals']})"
         )
     # as `hil identify --from OUT` reads it: a realtime run on its real times
-    rec = read_recording(args, out, command="identify", min_rows=2, joints=2, allow_gaps=True)
+    joints = 2 if robot is None else None  # an arm named by --robot: its own joint count
+    rec = read_recording(args, out, command="identify", min_rows=2, joints=joints, allow_gaps=True)
     if online is not None:
         online.push(rec.q[-1], rec.tau[-1])  # the last row's torque is only in the recording
     return rec
