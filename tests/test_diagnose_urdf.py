@@ -129,7 +129,10 @@ def test_coulomb_asymmetry_on_joint_3_found_when_the_model_lacks_the_offset(
 ):
     """cicese3's plant has direction-dependent Coulomb friction on joint 3 (0.35 Nm forward,
     0.40 Nm backward); a profile whose model has no friction_offset term conceals it, and the
-    diagnosis names it on joint 3 with its two levels."""
+    diagnosis names it on joint 3 with its two levels. Joint 1's asymmetry (7.17 / 8.049 Nm,
+    Table I) is concealed too: its 0.44 Nm offset is 1 % of joint 1's torque, and this
+    excitation keeps joint 1 where gravity's columns take most of a constant up, so it may show
+    as a structure by position on joint 1; nothing may be found on joint 2."""
     robots = Path(__file__).resolve().parents[1] / "profiles" / "robots"
     text = (robots / "cicese3.toml").read_text()
     text = text.replace('urdf = "cicese3.urdf"', f'urdf = "{robots / "cicese3.urdf"}"')
@@ -138,7 +141,8 @@ def test_coulomb_asymmetry_on_joint_3_found_when_the_model_lacks_the_offset(
     profile.write_text(text)
     doc = _diagnose(recordings["null"], str(profile), capsys)
     found = {(f["effect"], f["joint"]): f["estimate"] for f in doc["findings"]}
-    assert set(found) == {("coulomb_asymmetry", 3), ("torque_offset", 3)}, doc["summary"]
+    assert {("coulomb_asymmetry", 3), ("torque_offset", 3)} <= set(found), doc["summary"]
+    assert {j for _effect, j in found} <= {1, 3}, doc["summary"]
     est = found[("coulomb_asymmetry", 3)]
     assert abs(est["positive_Nm"] - 0.35) <= WITHIN * 0.05, est  # the difference's 25 %
     assert abs(est["negative_Nm"] - 0.40) <= WITHIN * 0.05, est
