@@ -131,7 +131,8 @@ def test_coulomb_asymmetry_on_joint_3_found_when_the_model_lacks_the_offset(
     0.40 Nm backward); a profile whose model has no friction_offset term conceals it, and the
     diagnosis names it on joint 3 with its two levels. Joint 1's asymmetry (7.17 / 8.049 Nm,
     Table I) is concealed too: its 0.44 Nm offset is 1 % of joint 1's torque, and this
-    excitation keeps joint 1 where gravity's columns take most of a constant up, so it may show
+    excitation keeps joint 1 in [0, 1.2] rad, where its gravity columns can take part of a
+    constant up, so it may show
     as a structure by position on joint 1; nothing may be found on joint 2."""
     robots = Path(__file__).resolve().parents[1] / "profiles" / "robots"
     text = (robots / "cicese3.toml").read_text()
