@@ -48,6 +48,12 @@ from profiles.drive import load_drive
 from profiles.experiment import ExperimentProfile
 from profiles.robot import UrdfRobotProfile
 from virtual_robot import __version__
+from virtual_robot.compiled_step import (
+    CompiledArm,
+    KernelStatus,
+    KernelUnavailableError,
+    kernel_status,
+)
 from virtual_robot.offline import SimulationResult, drive_meta, enable_drives, record_open_loop
 from virtual_robot.plant import DEFAULT_STEP_S, breakaway_joint
 from virtual_robot.stepping import Stepper
@@ -145,6 +151,14 @@ class UrdfPlant:
         self._mode_changed()
         self.steps = 0
         self.stick_events = 0
+        # The sliding-path RK4 substeps in C++ when the compiled step builds (compiled_step.py)
+        self._compiled: CompiledArm | None = None
+        self.kernel: KernelStatus = kernel_status()
+        if self.kernel.kernel == "compiled":
+            try:
+                self._compiled = CompiledArm(params.urdf, params.gravity_m_s2, params.armature_kgm2)
+            except KernelUnavailableError as exc:
+                self.kernel = KernelStatus("python", str(exc))
 
     # ---- inputs and outputs -----------------------------------------------------------------
     def command(
@@ -202,9 +216,34 @@ class UrdfPlant:
         return float(kinetic + pin.computePotentialEnergy(m, d, self.q))
 
     def advance_to(self, t_end: float) -> None:
-        """Integrate to ``t_end`` in steps of at most ``max_step_s``."""
+        """Integrate to ``t_end`` in steps of at most ``max_step_s``; while every joint slides,
+        the compiled step takes them when there is one (:meth:`_advance_compiled`)."""
         while self.t < t_end - 1e-12:
-            self._step(min(self.max_step_s, t_end - self.t))
+            if self._compiled is not None and not self._n_stuck:
+                self._advance_compiled(t_end)
+            else:
+                self._step(min(self.max_step_s, t_end - self.t))
+
+    def _advance_compiled(self, t_end: float) -> None:
+        """The steps :meth:`_step` would take towards ``t_end`` with every joint sliding, by the
+        compiled kernel (rk4_aba.cpp: :func:`_rk4_aba` in C++, the same operations on the same
+        model) until t_end or the first step where a watched velocity changes sign; that step
+        then goes through :meth:`_step_with_events` as in :meth:`_step`."""
+        q, v, t, dissipated, steps, crossing = self._compiled.advance_sliding(
+            self.q,
+            self.dq,
+            self._tau_minus_level,
+            self.b if self._viscous else None,
+            self._watch,
+            self.t,
+            t_end,
+            self.max_step_s,
+            self._dissipated_booked,
+        )
+        self.q, self.dq, self.t, self._dissipated_booked = q, v, t, dissipated
+        self.steps += steps
+        if crossing is not None:
+            self._step_with_events(*crossing)
 
     # ---- dynamics -----------------------------------------------------------------------------
     def _mode_changed(self) -> None:

@@ -1,0 +1,306 @@
+"""The compiled sliding-path step of the n-joint plant (issue 14's speed target): builds
+``rk4_aba.cpp`` against the Pinocchio C++ library that the ``pin`` wheel installs, loads it
+through ctypes, and gives :class:`CompiledArm`, which :class:`virtual_robot.urdf_plant.UrdfPlant`
+calls for the RK4 substeps of a control period while every joint slides.
+
+The shared library is built once per source and toolchain, lazily on first use (or by
+``make`` setup: ``python -m virtual_robot.compiled_step``), into a cache directory
+(``$DDBENCH_KERNEL_CACHE``, else ``$XDG_CACHE_HOME/ddbench``, else ``~/.cache/ddbench``) under a
+name keyed by the hash of the source, the compiler, its flags and the Pinocchio version, under a
+file lock so concurrent processes build it once; a compile is bounded by
+:data:`BUILD_TIMEOUT_S`. When the compiler or the headers are missing or the build fails, the
+plant runs the Python step and says so in one line (:func:`kernel_status`); a failed compile is
+remembered beside the library so later runs do not retry it.
+
+``DDBENCH_PLANT_KERNEL`` chooses: ``auto`` (default: compiled when it builds), ``python``
+(always the Python step), ``compiled`` (refuse to run without it).
+
+Imports only the standard library, numpy and pinocchio (for its install prefix); nothing of
+this project.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import fcntl
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+SOURCE = Path(__file__).with_name("rk4_aba.cpp")
+KERNEL_ENV = "DDBENCH_PLANT_KERNEL"
+CACHE_ENV = "DDBENCH_KERNEL_CACHE"
+# 20 s of CPU quiet, 80 s wall at load 13 on the shared 2-core VM: a generous bound
+BUILD_TIMEOUT_S = 600.0
+# The compile flags. No -ffast-math and no FMA contraction: the kernel must round exactly as
+# numpy does in urdf_plant._rk4_aba. The definitions are those of Pinocchio's exported CMake
+# targets (pinocchio_headers, pinocchio_default, pinocchio_parsers), so ABA and the URDF
+# parser are the library's explicit instantiations, the code pin.aba runs.
+CXXFLAGS = ("-O2", "-std=c++17", "-fPIC", "-shared", "-ffp-contract=off", "-DNDEBUG")
+DEFINES = (
+    "PINOCCHIO_ENABLE_TEMPLATE_INSTANTIATION",
+    "BOOST_MPL_LIMIT_LIST_SIZE=30",
+    "BOOST_MPL_LIMIT_VECTOR_SIZE=30",
+    "BOOST_MPL_CFG_NO_PREPROCESSED_HEADERS",
+    "BOOST_FUSION_INVOKE_MAX_ARITY=12",
+    "PINOCCHIO_WITH_URDFDOM",
+    "PINOCCHIO_URDFDOM_HEADERS_MAJOR_VERSION=3",
+    "PINOCCHIO_URDFDOM_HEADERS_MINOR_VERSION=0",
+    "PINOCCHIO_URDFDOM_HEADERS_PATCH_VERSION=0",
+)
+ERROR_CHARS = 512
+
+
+class KernelUnavailableError(RuntimeError):
+    """The compiled step cannot be had; the message is one line saying why."""
+
+
+@dataclass(frozen=True)
+class KernelStatus:
+    """Which step the plant runs: ``compiled`` or ``python``, and why not compiled (one line)."""
+
+    kernel: str
+    reason: str | None = None
+    library: str | None = None
+
+
+def kernel_choice() -> str:
+    choice = os.environ.get(KERNEL_ENV, "auto").strip().lower() or "auto"
+    if choice not in ("auto", "python", "compiled"):
+        raise ValueError(f"{KERNEL_ENV}={choice!r}: use auto, python or compiled")
+    return choice
+
+
+def cache_dir() -> Path:
+    if os.environ.get(CACHE_ENV):
+        return Path(os.environ[CACHE_ENV])
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "ddbench"
+
+
+def pinocchio_prefix() -> Path:
+    """The install prefix of the pin wheel (cmeel.prefix): include/ and lib/ of its C++ side."""
+    import pinocchio
+
+    # <prefix>/lib/python3.X/site-packages/pinocchio/__init__.py
+    return Path(pinocchio.__file__).resolve().parents[4]
+
+
+def build_command(output: Path) -> list[str]:
+    """The compiler call; KernelUnavailableError (one line) without a compiler or a header."""
+    cxx = os.environ.get("CXX", "g++")
+    if shutil.which(cxx) is None:
+        raise KernelUnavailableError(f"no C++ compiler {cxx!r} on PATH")
+    prefix = pinocchio_prefix()
+    include = prefix / "include"
+    needed = {
+        "Pinocchio": include / "pinocchio" / "algorithm" / "aba.hpp",
+        "Eigen (cmeel-eigen)": include / "eigen3" / "Eigen" / "Core",
+        "urdfdom headers (cmeel-urdfdom-headers)": (
+            include / "urdfdom_headers" / "urdf_model" / "model.h"
+        ),
+        "libpinocchio_default": prefix / "lib" / "libpinocchio_default.so",
+    }
+    missing = [name for name, path in needed.items() if not path.exists()]
+    if missing:
+        raise KernelUnavailableError(f"missing {', '.join(missing)} under {prefix}")
+    lib = prefix / "lib"
+    return [
+        cxx,
+        *CXXFLAGS,
+        *(f"-D{d}" for d in DEFINES),
+        f"-I{include}",
+        f"-I{include / 'eigen3'}",
+        f"-I{include / 'urdfdom_headers'}",
+        f"-I{include / 'urdfdom'}",
+        str(SOURCE),
+        "-o",
+        str(output),
+        f"-L{lib}",
+        "-lpinocchio_default",
+        "-lpinocchio_parsers",
+        f"-Wl,-rpath,{lib}",
+    ]
+
+
+def library_path() -> Path:
+    """Where the library of this source and toolchain is (or will be) cached."""
+    import pinocchio
+
+    key = hashlib.sha256(SOURCE.read_bytes())
+    placeholder = Path("OUT")
+    for part in (*build_command(placeholder), pinocchio.__version__, sys.platform):
+        key.update(part.encode() + b"\0")
+    return cache_dir() / f"rk4_aba-{key.hexdigest()[:16]}.so"
+
+
+def _first_error(stderr: str) -> str:
+    lines = [line.strip() for line in stderr.splitlines() if line.strip()]
+    picked = next((line for line in lines if "error" in line), lines[0] if lines else "")
+    return picked[:ERROR_CHARS]
+
+
+def build(timeout_s: float = BUILD_TIMEOUT_S) -> Path:
+    """The compiled library, built if not cached; KernelUnavailableError (one line) if not."""
+    target = library_path()
+    failed = target.with_suffix(".err")
+    if target.exists():
+        return target
+    if failed.exists():
+        raise KernelUnavailableError(failed.read_text().strip())
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with open(target.with_suffix(".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # another process may be building it: wait for it
+        if target.exists():
+            return target
+        if failed.exists():
+            raise KernelUnavailableError(failed.read_text().strip())
+        partial = target.with_suffix(f".{os.getpid()}.tmp")
+        command = build_command(partial)
+        try:
+            done = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            partial.unlink(missing_ok=True)
+            # not remembered: a loaded machine may finish it next time
+            raise KernelUnavailableError(
+                f"compiling {SOURCE.name} took over {timeout_s:g} s"
+            ) from None
+        except OSError as exc:
+            raise KernelUnavailableError(f"{command[0]}: {exc}") from None
+        if done.returncode != 0:
+            partial.unlink(missing_ok=True)
+            message = f"{command[0]} failed on {SOURCE.name}: {_first_error(done.stderr)}"
+            failed.write_text(message + "\n")
+            raise KernelUnavailableError(message)
+        os.replace(partial, target)
+    return target
+
+
+_LIBRARIES: dict[Path, ctypes.CDLL] = {}
+
+
+def load() -> ctypes.CDLL:
+    """The compiled library (built on first use), or KernelUnavailableError saying why not."""
+    path = build()
+    if path not in _LIBRARIES:
+        try:
+            lib = ctypes.CDLL(str(path))
+        except OSError as exc:
+            raise KernelUnavailableError(f"loading {path.name}: {exc}") from None
+        lib.ddb_arm_new.restype = ctypes.c_void_p
+        lib.ddb_arm_new.argtypes = [ctypes.c_char_p, ctypes.c_double, ctypes.c_void_p,
+                                    ctypes.c_int, ctypes.c_char_p, ctypes.c_int]  # fmt: skip
+        lib.ddb_arm_nv.argtypes = [ctypes.c_void_p]
+        lib.ddb_arm_free.argtypes = [ctypes.c_void_p]
+        lib.ddb_advance_sliding.restype = ctypes.c_int
+        lib.ddb_advance_sliding.argtypes = [ctypes.c_void_p] * 6 + [ctypes.c_double] * 2 + [
+            ctypes.c_void_p] * 4 + [ctypes.c_int]  # fmt: skip
+        _LIBRARIES[path] = lib
+    return _LIBRARIES[path]
+
+
+def kernel_status() -> KernelStatus:
+    """Which step an n-joint plant made now would run, and why not compiled (one line)."""
+    if kernel_choice() == "python":
+        return KernelStatus("python", f"{KERNEL_ENV}=python")
+    try:
+        load()
+        return KernelStatus("compiled", library=str(library_path()))
+    except KernelUnavailableError as exc:
+        if kernel_choice() == "compiled":
+            raise ValueError(f"{KERNEL_ENV}=compiled: {exc}") from None
+        return KernelStatus("python", str(exc))
+
+
+class CompiledArm:
+    """One arm's model in the compiled kernel (built from the same URDF, gravity and armature
+    as the plant's Pinocchio model) and the preallocated buffers a call passes by address."""
+
+    def __init__(self, urdf: str, gravity_m_s2: float, armature: Sequence[float]) -> None:
+        self._lib = load()
+        self.n = n = len(armature)
+        self._armature = np.ascontiguousarray(armature, dtype=float)
+        self._error = ctypes.create_string_buffer(ERROR_CHARS)
+        handle = self._lib.ddb_arm_new(
+            urdf.encode(), gravity_m_s2, self._armature.ctypes.data, n, self._error, ERROR_CHARS
+        )
+        if not handle:
+            raise KernelUnavailableError(f"{urdf}: {self._error.value.decode(errors='replace')}")
+        self._handle = handle
+        # q, q̇, τ − level, b, watch, q and q̇ at a crossing: rows of one buffer; then the
+        # scalars [t, dissipated, steps, dt of the crossing step, its viscous work]
+        self._rows = np.zeros((7, n))
+        self._scalars = np.zeros(5)
+        addr, stride = self._rows.ctypes.data, self._rows.strides[0]
+        self._q, self._v, self._c, self._b, self._watch, self._qx, self._vx = self._rows
+        self._addr = [addr + i * stride for i in range(7)]
+        self._scalars_addr = self._scalars.ctypes.data
+
+    def __del__(self) -> None:
+        handle = getattr(self, "_handle", None)
+        if handle:
+            self._lib.ddb_arm_free(handle)
+            self._handle = None
+
+    def advance_sliding(
+        self,
+        q: np.ndarray,
+        v: np.ndarray,
+        tau_minus_level: np.ndarray,
+        b: np.ndarray | None,
+        watch: np.ndarray,
+        t: float,
+        t_end: float,
+        max_step_s: float,
+        dissipated: float,
+    ) -> tuple[np.ndarray, np.ndarray, float, float, int, tuple | None]:
+        """RK4 substeps of min(max_step_s, t_end − t) from (q, q̇) at t, every joint sliding under
+        the held τ − level (viscous b, or None), as UrdfPlant.advance_to takes them, until t_end
+        or the first substep where a watched velocity changes sign. Returns (q, q̇, t,
+        dissipated, accepted steps, crossing) with crossing None, or (dt, (q, q̇, ∫bᵀq̇² dt))
+        of that substep for the plant to locate the stick in."""
+        self._q[:] = q
+        self._v[:] = v
+        self._c[:] = tau_minus_level
+        self._watch[:] = watch
+        if b is not None:
+            self._b[:] = b
+        s = self._scalars
+        s[0], s[1], s[2] = t, dissipated, 0.0
+        a = self._addr
+        status = self._lib.ddb_advance_sliding(
+            self._handle, a[0], a[1], a[2], None if b is None else a[3], a[4], t_end,
+            max_step_s, self._scalars_addr, a[5], a[6], self._error, ERROR_CHARS,
+        )  # fmt: skip
+        if status < 0:
+            raise RuntimeError(f"compiled plant step: {self._error.value.decode(errors='replace')}")
+        crossing = None
+        if status == 1:
+            crossing = (float(s[3]), (self._qx.copy(), self._vx.copy(), float(s[4])))
+        return self._q.copy(), self._v.copy(), float(s[0]), float(s[1]), int(s[2]), crossing
+
+
+def main() -> int:
+    """Build (or find) the compiled step and print one line saying which step the plant runs;
+    exit 0 either way (the Python step is a working fallback)."""
+    try:
+        status = kernel_status()
+    except ValueError as exc:
+        print(f"virtual-robot: error: {exc}", file=sys.stderr)
+        return 2
+    if status.kernel == "compiled":
+        print(f"plant step: compiled ({status.library})")
+    else:
+        print(f"plant step: python ({status.reason})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
