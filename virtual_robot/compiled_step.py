@@ -24,6 +24,7 @@ from __future__ import annotations
 import ctypes
 import fcntl
 import hashlib
+import logging
 import os
 import shutil
 import subprocess
@@ -184,6 +185,7 @@ def build(timeout_s: float = BUILD_TIMEOUT_S) -> Path:
 
 
 _LIBRARIES: dict[Path, ctypes.CDLL] = {}
+_WARNED: set[str] = set()
 
 
 def load() -> ctypes.CDLL:
@@ -216,6 +218,9 @@ def kernel_status() -> KernelStatus:
     except KernelUnavailableError as exc:
         if kernel_choice() == "compiled":
             raise ValueError(f"{KERNEL_ENV}=compiled: {exc}") from None
+        if str(exc) not in _WARNED:  # once per process and reason, one line
+            _WARNED.add(str(exc))
+            logging.getLogger(__name__).warning("compiled plant step unavailable: %s", exc)
         return KernelStatus("python", str(exc))
 
 

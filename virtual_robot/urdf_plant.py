@@ -188,6 +188,11 @@ class UrdfPlant:
         self.command_Nm = tau
         self._tau_minus_level = tau - self._level
 
+    def kernel_summary(self) -> dict[str, str]:
+        """Which step integrates the sliding joints, and why not the compiled one (one line)."""
+        k = self.kernel
+        return {"kernel": k.kernel} | ({"reason": k.reason} if k.reason else {})
+
     @property
     def measured_q(self) -> np.ndarray:
         return self.q
@@ -508,6 +513,7 @@ def simulate_urdf(
         "integrator": {
             "method": "RK4, fixed step, stick-slip events located; Pinocchio ABA/CRBA/RNEA",
             "step_s": plant.max_step_s,
+            "kernel": plant.kernel_summary(),
         },
     }
     commanded_Nm = experiment.torque_rows(h, n_rows)
@@ -528,6 +534,7 @@ def simulate_urdf(
             faults=faults,
         )
     result = SimulationResult(Path(out_dir), n_rows, wall, n_rows * h, plant.steps, faults)
+    result.plant_kernel = plant.kernel_summary()
     if plot:
         result.plot = plot_positions(
             read_signals(out_dir),
