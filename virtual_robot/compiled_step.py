@@ -1,7 +1,7 @@
 """The compiled sliding-path step of the n-joint plant (issue 14's speed target): builds
 ``rk4_aba.cpp`` against the Pinocchio C++ library that the ``pin`` wheel installs, loads it
 through ctypes, and gives :class:`CompiledArm`, which :class:`virtual_robot.urdf_plant.UrdfPlant`
-calls for the RK4 substeps of a control period while every joint slides.
+calls for the RK4 substeps of a control period in one stick mode.
 
 The shared library is built once per source and toolchain, lazily on first use (or by
 ``make`` setup: ``python -m virtual_robot.compiled_step``), into a cache directory
@@ -201,8 +201,12 @@ def load() -> ctypes.CDLL:
                                     ctypes.c_int, ctypes.c_char_p, ctypes.c_int]  # fmt: skip
         lib.ddb_arm_nv.argtypes = [ctypes.c_void_p]
         lib.ddb_arm_free.argtypes = [ctypes.c_void_p]
-        lib.ddb_advance_sliding.restype = ctypes.c_int
-        lib.ddb_advance_sliding.argtypes = [ctypes.c_void_p] * 6 + [ctypes.c_double] * 2 + [
+        lib.ddb_locked_new.restype = ctypes.c_void_p
+        lib.ddb_locked_new.argtypes = [ctypes.c_void_p, ctypes.c_int, ctypes.c_void_p,
+                                       ctypes.c_void_p, ctypes.c_char_p, ctypes.c_int]  # fmt: skip
+        lib.ddb_locked_free.argtypes = [ctypes.c_void_p]
+        lib.ddb_advance.restype = ctypes.c_int
+        lib.ddb_advance.argtypes = [ctypes.c_void_p] * 10 + [ctypes.c_double] * 2 + [
             ctypes.c_void_p] * 4 + [ctypes.c_int]  # fmt: skip
         _LIBRARIES[path] = lib
     return _LIBRARIES[path]
@@ -224,9 +228,17 @@ def kernel_status() -> KernelStatus:
         return KernelStatus("python", str(exc))
 
 
+# ddb_advance's outcomes
+REACHED, CROSSED, BREAKS = 0, 1, 2
+# Locked-joint models kept in the kernel (as UrdfPlant keeps its own: LOCKED_ARMS_KEPT)
+LOCKED_KEPT = 16
+_ROWS = ("q", "v", "c", "b", "watch", "q_cross", "v_cross", "command", "upper", "lower")
+
+
 class CompiledArm:
     """One arm's model in the compiled kernel (built from the same URDF, gravity and armature
-    as the plant's Pinocchio model) and the preallocated buffers a call passes by address."""
+    as the plant's Pinocchio model), its locked-joint models, and the preallocated buffers a
+    call passes by address."""
 
     def __init__(self, urdf: str, gravity_m_s2: float, armature: Sequence[float]) -> None:
         self._lib = load()
@@ -237,24 +249,50 @@ class CompiledArm:
             urdf.encode(), gravity_m_s2, self._armature.ctypes.data, n, self._error, ERROR_CHARS
         )
         if not handle:
-            raise KernelUnavailableError(f"{urdf}: {self._error.value.decode(errors='replace')}")
+            raise KernelUnavailableError(f"{urdf}: {self._message()}")
         self._handle = handle
-        # q, q̇, τ − level, b, watch, q and q̇ at a crossing: rows of one buffer; then the
-        # scalars [t, dissipated, steps, dt of the crossing step, its viscous work]
-        self._rows = np.zeros((7, n))
+        self._locked: dict[tuple[bytes, bytes], int] = {}
+        # the n-vectors of a call (_ROWS), rows of one buffer; then the scalars [t,
+        # dissipated, steps, dt of the crossing step, its viscous work]
+        self._rows = np.zeros((len(_ROWS), n))
         self._scalars = np.zeros(5)
+        self._buf = dict(zip(_ROWS, self._rows, strict=True))
         addr, stride = self._rows.ctypes.data, self._rows.strides[0]
-        self._q, self._v, self._c, self._b, self._watch, self._qx, self._vx = self._rows
-        self._addr = [addr + i * stride for i in range(7)]
+        self._addr = {name: addr + i * stride for i, name in enumerate(_ROWS)}
         self._scalars_addr = self._scalars.ctypes.data
+
+    def _message(self) -> str:
+        return self._error.value.decode(errors="replace")
 
     def __del__(self) -> None:
         handle = getattr(self, "_handle", None)
         if handle:
+            for locked in self._locked.values():
+                self._lib.ddb_locked_free(locked)
             self._lib.ddb_arm_free(handle)
             self._handle = None
 
-    def advance_sliding(
+    def locked(self, stuck: np.ndarray, q: np.ndarray) -> int:
+        """The kernel's arm with the joints ``stuck`` (indices) locked at ``q`` (Pinocchio's
+        reduced model, as UrdfPlant._locked_arm), kept for the last few stuck sets and
+        positions."""
+        key = (stuck.tobytes(), q[stuck].tobytes())
+        handle = self._locked.get(key)
+        if handle is None:
+            idx = np.ascontiguousarray(stuck, dtype=np.intc)
+            q_ref = np.ascontiguousarray(q, dtype=float)
+            handle = self._lib.ddb_locked_new(
+                self._handle, idx.size, idx.ctypes.data, q_ref.ctypes.data, self._error,
+                ERROR_CHARS,
+            )  # fmt: skip
+            if not handle:
+                raise RuntimeError(f"compiled plant step: {self._message()}")
+            if len(self._locked) >= LOCKED_KEPT:
+                self._lib.ddb_locked_free(self._locked.pop(next(iter(self._locked))))
+            self._locked[key] = handle
+        return handle
+
+    def advance(
         self,
         q: np.ndarray,
         v: np.ndarray,
@@ -265,31 +303,45 @@ class CompiledArm:
         t_end: float,
         max_step_s: float,
         dissipated: float,
-    ) -> tuple[np.ndarray, np.ndarray, float, float, int, tuple | None]:
-        """RK4 substeps of min(max_step_s, t_end − t) from (q, q̇) at t, every joint sliding under
-        the held τ − level (viscous b, or None), as UrdfPlant.advance_to takes them, until t_end
-        or the first substep where a watched velocity changes sign. Returns (q, q̇, t,
-        dissipated, accepted steps, crossing) with crossing None, or (dt, (q, q̇, ∫bᵀq̇² dt))
-        of that substep for the plant to locate the stick in."""
-        self._q[:] = q
-        self._v[:] = v
-        self._c[:] = tau_minus_level
-        self._watch[:] = watch
+        stuck: tuple[int, np.ndarray, tuple[np.ndarray, np.ndarray]] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, float, float, int, int, tuple | None]:
+        """RK4 substeps of min(max_step_s, t_end − t) from (q, q̇) at t in one stick mode, as
+        UrdfPlant.advance_to takes them: every joint sliding under the held τ − level (viscous
+        b, or None), or with ``stuck`` = (handle from :meth:`locked`, the command τ, the stuck
+        joints' bands (upper, lower)), Karnopp's test before each substep. Until t_end, the
+        first substep where a watched velocity changes sign, or the first where a stuck joint
+        breaks away. Returns (q, q̇, t, dissipated, accepted steps, outcome, crossing): outcome
+        REACHED, CROSSED or BREAKS (before that substep); crossing, when CROSSED, is (dt, (q,
+        q̇, ∫bᵀq̇² dt)) of the substep for the plant to locate the stick in."""
+        buf, a = self._buf, self._addr
+        buf["q"][:] = q
+        buf["v"][:] = v
+        buf["c"][:] = tau_minus_level
+        buf["watch"][:] = watch
         if b is not None:
-            self._b[:] = b
+            buf["b"][:] = b
+        locked = None
+        if stuck is not None:
+            locked, command, (upper, lower) = stuck
+            buf["command"][:] = command
+            buf["upper"][: upper.size] = upper
+            buf["lower"][: lower.size] = lower
         s = self._scalars
         s[0], s[1], s[2] = t, dissipated, 0.0
-        a = self._addr
-        status = self._lib.ddb_advance_sliding(
-            self._handle, a[0], a[1], a[2], None if b is None else a[3], a[4], t_end,
-            max_step_s, self._scalars_addr, a[5], a[6], self._error, ERROR_CHARS,
+        outcome = self._lib.ddb_advance(
+            self._handle, locked, a["q"], a["v"], a["c"], None if b is None else a["b"],
+            a["watch"], a["command"], a["upper"], a["lower"], t_end, max_step_s,
+            self._scalars_addr, a["q_cross"], a["v_cross"], self._error, ERROR_CHARS,
         )  # fmt: skip
-        if status < 0:
-            raise RuntimeError(f"compiled plant step: {self._error.value.decode(errors='replace')}")
+        if outcome < 0:
+            raise RuntimeError(f"compiled plant step: {self._message()}")
         crossing = None
-        if status == 1:
-            crossing = (float(s[3]), (self._qx.copy(), self._vx.copy(), float(s[4])))
-        return self._q.copy(), self._v.copy(), float(s[0]), float(s[1]), int(s[2]), crossing
+        if outcome == CROSSED:
+            crossing = (float(s[3]), (buf["q_cross"].copy(), buf["v_cross"].copy(), float(s[4])))
+        return (
+            buf["q"].copy(), buf["v"].copy(), float(s[0]), float(s[1]), int(s[2]), outcome,
+            crossing,
+        )  # fmt: skip
 
 
 def main() -> int:

@@ -1,19 +1,25 @@
-// The compiled sliding-path step of the n-joint plant (virtual_robot/urdf_plant.py): the RK4
-// substeps of one control period with every joint sliding, around Pinocchio's C++ ABA, in one
-// call from Python through ctypes (virtual_robot/compiled_step.py builds and loads it).
+// The compiled step of the n-joint plant (virtual_robot/urdf_plant.py): the RK4 substeps of one
+// control period in one stick mode, around Pinocchio's C++ ABA, in one call from Python through
+// ctypes (virtual_robot/compiled_step.py builds and loads it).
 //
-// It is the Python kernel urdf_plant._rk4_aba operation for operation (same expression trees,
-// no FMA contraction, no fast-math), on a model built from the same URDF with the same gravity
-// and armature, so its trajectory equals the Python path's to round-off
-// (tests/test_urdf_plant.py runs both against the frozen reference). Friction directions are
-// fixed over the call: it returns at the first substep where a watched (sliding, sticky) joint's
-// velocity changes sign, with that substep's RK4 result, and Python locates the stick exactly as
-// before. Stuck joints, breakaway and stick location never run here.
+// It is the Python step operation for operation (urdf_plant._rk4_aba with the same expression
+// trees, no FMA contraction, no fast-math; the same library ABA, RNEA and reduced models), on a
+// model built from the same URDF with the same gravity and armature, so its trajectory equals
+// the Python path's to round-off (tests/test_urdf_plant.py runs both against the frozen
+// reference). The stick mode is fixed over a call: every joint sliding (the arm's ABA), or some
+// stuck (the ABA of the arm with those locked, Pinocchio's reduced model, and before each
+// substep Karnopp's breakaway test of UrdfPlant._release_stuck_joints). It returns at the first
+// substep where a watched (sliding, sticky) joint's velocity changes sign, with that substep's
+// RK4 result, or before the first substep where a stuck joint's holding torque leaves its
+// static band; Python then locates the stick or releases the joint exactly as before.
 //
 // C interface (every function catches C++ exceptions; errors come back as text):
 //   ddb_arm_new(urdf, gravity, armature, n, err, err_len) -> handle or NULL
+//   ddb_locked_new(arm, n_stuck, stuck, q, err, err_len) -> handle of the arm with the stuck
+//     joints locked at q, or NULL; ddb_locked_free(handle)
 //   ddb_arm_nv(handle), ddb_arm_free(handle)
-//   ddb_advance_sliding(...) -> 0 reached t_end, 1 stopped at a crossing, -1 error
+//   ddb_advance(...) -> 0 reached t_end, 1 stopped at a crossing, 2 stopped before a
+//     breakaway, -1 error
 
 #include <algorithm>
 #include <cstdio>
@@ -21,6 +27,8 @@
 #include <string>
 
 #include "pinocchio/algorithm/aba.hpp"
+#include "pinocchio/algorithm/model.hpp"
+#include "pinocchio/algorithm/rnea.hpp"
 #include "pinocchio/parsers/urdf.hpp"
 
 namespace
@@ -34,7 +42,37 @@ namespace
     pinocchio::Data data;
     // scratch of one RK4 step (allocated once)
     Vec q, v, c, b, watch, tau, qs, a1, a2, a3, a4, y, z, u, qn, vn, w;
+    Vec command, upper, lower;  // τ, and the stuck joints' static bands [lower, upper]
+
+    void allocate(Eigen::Index n)
+    {
+      data = pinocchio::Data(model);
+      for (Vec * x : {&q, &v, &c, &b, &watch, &tau, &qs, &a1, &a2, &a3, &a4, &y, &z, &u, &qn,
+                      &vn, &w, &command})
+        x->setZero(n);
+    }
   };
+
+  // The arm with its stuck joints locked where they stand (UrdfPlant._locked_arm): the reduced
+  // model, its armature the sliding joints', and which coordinates are free and stuck. With
+  // every joint stuck there is no reduced model and no motion.
+  struct Locked
+  {
+    Arm arm;
+    std::vector<Eigen::Index> free, stuck;
+  };
+
+  void gather(const Vec & from, const std::vector<Eigen::Index> & idx, Vec & to)
+  {
+    for (size_t i = 0; i < idx.size(); ++i)
+      to[static_cast<Eigen::Index>(i)] = from[idx[i]];
+  }
+
+  void scatter(const Vec & from, const std::vector<Eigen::Index> & idx, Vec & to)
+  {
+    for (size_t i = 0; i < idx.size(); ++i)
+      to[idx[i]] = from[static_cast<Eigen::Index>(i)];
+  }
 
   void set_error(char * err, int err_len, const char * what)
   {
@@ -114,11 +152,7 @@ void * ddb_arm_new(
     }
     arm->model.gravity.linear(Eigen::Vector3d(0.0, 0.0, -gravity));
     arm->model.armature = Eigen::Map<const Vec>(armature, n);
-    arm->data = pinocchio::Data(arm->model);
-    for (Vec * x : {&arm->q, &arm->v, &arm->c, &arm->b, &arm->watch, &arm->tau, &arm->qs,
-                    &arm->a1, &arm->a2, &arm->a3, &arm->a4, &arm->y, &arm->z, &arm->u,
-                    &arm->qn, &arm->vn, &arm->w})
-      x->setZero(n);
+    arm->allocate(n);
     return arm;
   }
   catch (const std::exception & e)
@@ -142,20 +176,77 @@ void ddb_arm_free(void * handle)
   delete static_cast<Arm *>(handle);
 }
 
+void * ddb_locked_new(
+  void * handle, int n_stuck, const int * stuck, const double * q, char * err, int err_len)
+{
+  try
+  {
+    const Arm & full = *static_cast<Arm *>(handle);
+    const Eigen::Index n = full.model.nv;
+    Locked * locked = new Locked();
+    std::vector<bool> is_stuck(static_cast<size_t>(n), false);
+    for (int i = 0; i < n_stuck; ++i)
+      is_stuck[static_cast<size_t>(stuck[i])] = true;
+    std::vector<pinocchio::JointIndex> joints;  // joint i + 1 moves coordinate i
+    for (Eigen::Index i = 0; i < n; ++i)
+    {
+      if (is_stuck[static_cast<size_t>(i)])
+      {
+        locked->stuck.push_back(i);
+        joints.push_back(static_cast<pinocchio::JointIndex>(i + 1));
+      }
+      else
+        locked->free.push_back(i);
+    }
+    const Eigen::Index nf = static_cast<Eigen::Index>(locked->free.size());
+    if (nf > 0)
+    {
+      const Vec q_ref = Eigen::Map<const Vec>(q, n);
+      locked->arm.model = pinocchio::buildReducedModel(full.model, joints, q_ref);
+      Vec armature(nf);
+      gather(full.model.armature, locked->free, armature);
+      locked->arm.model.armature = armature;
+      locked->arm.allocate(nf);
+    }
+    return locked;
+  }
+  catch (const std::exception & e)
+  {
+    set_error(err, err_len, e.what());
+  }
+  catch (...)
+  {
+    set_error(err, err_len, "unknown C++ exception");
+  }
+  return nullptr;
+}
+
+void ddb_locked_free(void * handle)
+{
+  delete static_cast<Locked *>(handle);
+}
+
 // Integrate from scalars[0] (t) to t_end in steps of min(max_step, t_end − t), as
-// UrdfPlant.advance_to, every joint sliding under the held τ − level `c` (viscous `b`, or
-// NULL for none). q, v: in/out. scalars: [t, dissipated, steps] in/out (t and the booked
-// dissipation advance per accepted step, in the same order of additions as Python), then out:
-// [3] the dt and [4] the viscous work of the substep where a watched velocity changed sign
-// (v_j · watch_j < 0, or NaN), whose RK4 result is in q_cross, v_cross; return 1 then, 0 when
-// t_end is reached, −1 on a C++ exception (text in err).
-int ddb_advance_sliding(
+// UrdfPlant.advance_to, in the current stick mode under the held τ − level `c` (viscous `b`, or
+// NULL for none): `locked` NULL, every joint sliding; else the arm with its stuck joints locked
+// (ddb_locked_new), whose holding torques τ_S − RNEA(q, q̇, q̈)_S are tested against the bands
+// [lower, upper] (n_stuck each) before each substep, with τ = `command`. q, v: in/out.
+// scalars: [t, dissipated, steps] in/out (t and the booked dissipation advance per accepted
+// step, in the same order of additions as Python), then out: [3] the dt and [4] the viscous
+// work of the substep where a watched velocity changed sign (v_j · watch_j < 0, or NaN), whose
+// RK4 result is in q_cross, v_cross; return 1 then, 2 before a substep where a stuck joint's
+// holding torque left its band, 0 when t_end is reached, −1 on a C++ exception (text in err).
+int ddb_advance(
   void * handle,
+  void * locked_handle,
   double * q,
   double * v,
   const double * c,
   const double * b,
   const double * watch,
+  const double * command,
+  const double * upper,
+  const double * lower,
   double t_end,
   double max_step,
   double * scalars,
@@ -167,6 +258,7 @@ int ddb_advance_sliding(
   try
   {
     Arm & arm = *static_cast<Arm *>(handle);
+    Locked * locked = static_cast<Locked *>(locked_handle);
     const Eigen::Index n = arm.model.nv;
     arm.q = Eigen::Map<const Vec>(q, n);
     arm.v = Eigen::Map<const Vec>(v, n);
@@ -175,12 +267,72 @@ int ddb_advance_sliding(
     const bool viscous = b != nullptr;
     if (viscous)
       arm.b = Eigen::Map<const Vec>(b, n);
+    Eigen::Index nf = n;
+    if (locked)
+    {
+      const Eigen::Index ns = static_cast<Eigen::Index>(locked->stuck.size());
+      nf = n - ns;
+      arm.command = Eigen::Map<const Vec>(command, n);
+      arm.upper = Eigen::Map<const Vec>(upper, ns);
+      arm.lower = Eigen::Map<const Vec>(lower, ns);
+      if (nf > 0)
+      {
+        gather(arm.c, locked->free, locked->arm.c);
+        if (viscous)
+          gather(arm.b, locked->free, locked->arm.b);
+      }
+    }
     double t = scalars[0], dissipated = scalars[1], steps = scalars[2];
     int status = 0;
     while (t < t_end - 1e-12)
     {
       const double dt = std::min(max_step, t_end - t);
-      const double work = rk4_step(arm, dt, viscous);
+      double work = 0.0;
+      if (!locked)
+        work = rk4_step(arm, dt, viscous);
+      else
+      {
+        // Karnopp's breakaway test (UrdfPlant._release_stuck_joints): q̈ of the mode
+        // (UrdfPlant._accelerations: q̈_S = 0, q̈_F the locked arm's ABA of τ − level − b q̇),
+        // the holding torques f_S = (τ − RNEA(q, q̇, q̈))_S against their static bands
+        if (viscous)
+          arm.tau = arm.c - arm.b.cwiseProduct(arm.v);
+        else
+          arm.tau = arm.c;
+        arm.a1.setZero();
+        Arm & lk = locked->arm;
+        if (nf > 0)
+        {
+          gather(arm.q, locked->free, lk.q);
+          gather(arm.v, locked->free, lk.v);
+          gather(arm.tau, locked->free, lk.tau);
+          aba(lk, lk.q, lk.v, lk.tau, lk.a1);
+          scatter(lk.a1, locked->free, arm.a1);
+        }
+        const Vec & inverse =
+          pinocchio::rnea(arm.model, arm.data, CRef(arm.q), CRef(arm.v), CRef(arm.a1));
+        bool breaks = false;
+        for (size_t s = 0; s < locked->stuck.size(); ++s)
+        {
+          const Eigen::Index j = locked->stuck[s], k = static_cast<Eigen::Index>(s);
+          const double held = arm.command[j] - inverse[j];
+          breaks = breaks || held > arm.upper[k] || held < arm.lower[k];
+        }
+        if (breaks)
+        {
+          status = 2;
+          break;
+        }
+        // the locked arm's RK4 (UrdfPlant._rk4_mode); q_S, q̇_S stay as they are
+        arm.qn = arm.q;
+        arm.vn = arm.v;
+        if (nf > 0)
+        {
+          work = rk4_step(lk, dt, viscous);
+          scatter(lk.qn, locked->free, arm.qn);
+          scatter(lk.vn, locked->free, arm.vn);
+        }
+      }
       bool crossed = false;
       for (Eigen::Index i = 0; i < n; ++i)
         crossed = crossed || !(arm.vn[i] * arm.watch[i] >= 0.0);

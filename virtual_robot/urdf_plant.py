@@ -49,6 +49,8 @@ from profiles.experiment import ExperimentProfile
 from profiles.robot import UrdfRobotProfile
 from virtual_robot import __version__
 from virtual_robot.compiled_step import (
+    BREAKS,
+    CROSSED,
     CompiledArm,
     KernelStatus,
     KernelUnavailableError,
@@ -224,17 +226,24 @@ class UrdfPlant:
         """Integrate to ``t_end`` in steps of at most ``max_step_s``; while every joint slides,
         the compiled step takes them when there is one (:meth:`_advance_compiled`)."""
         while self.t < t_end - 1e-12:
-            if self._compiled is not None and not self._n_stuck:
+            if self._compiled is not None:
                 self._advance_compiled(t_end)
             else:
                 self._step(min(self.max_step_s, t_end - self.t))
 
     def _advance_compiled(self, t_end: float) -> None:
-        """The steps :meth:`_step` would take towards ``t_end`` with every joint sliding, by the
-        compiled kernel (rk4_aba.cpp: :func:`_rk4_aba` in C++, the same operations on the same
-        model) until t_end or the first step where a watched velocity changes sign; that step
-        then goes through :meth:`_step_with_events` as in :meth:`_step`."""
-        q, v, t, dissipated, steps, crossing = self._compiled.advance_sliding(
+        """The steps :meth:`_step` would take towards ``t_end``, by the compiled kernel
+        (rk4_aba.cpp: :func:`_rk4_aba` in C++ on the same models, the arm's or the locked
+        arm's, with Karnopp's test of :meth:`_release_stuck_joints` before each step) until
+        t_end or the first step where a watched velocity changes sign or a stuck joint breaks
+        away; that step then goes through :meth:`_step_with_events` or :meth:`_step` as in
+        :meth:`_step`."""
+        compiled = self._compiled
+        stuck = None
+        if self._n_stuck:
+            locked = compiled.locked(self._stuck_idx, self.q)
+            stuck = (locked, self.command_Nm, self._band_s)
+        q, v, t, dissipated, steps, outcome, crossing = compiled.advance(
             self.q,
             self.dq,
             self._tau_minus_level,
@@ -244,11 +253,14 @@ class UrdfPlant:
             t_end,
             self.max_step_s,
             self._dissipated_booked,
+            stuck,
         )
         self.q, self.dq, self.t, self._dissipated_booked = q, v, t, dissipated
         self.steps += steps
-        if crossing is not None:
+        if outcome == CROSSED:
             self._step_with_events(*crossing)
+        elif outcome == BREAKS:
+            self._step(min(self.max_step_s, t_end - self.t))
 
     # ---- dynamics -----------------------------------------------------------------------------
     def _mode_changed(self) -> None:
