@@ -205,6 +205,11 @@ def load() -> ctypes.CDLL:
         lib.ddb_locked_new.argtypes = [ctypes.c_void_p, ctypes.c_int, ctypes.c_void_p,
                                        ctypes.c_void_p, ctypes.c_char_p, ctypes.c_int]  # fmt: skip
         lib.ddb_locked_free.argtypes = [ctypes.c_void_p]
+        lib.ddb_step.restype = ctypes.c_int
+        lib.ddb_step.argtypes = [ctypes.c_void_p] * 6 + [ctypes.c_double] + [
+            ctypes.c_void_p] * 4 + [ctypes.c_int]  # fmt: skip
+        lib.ddb_accelerations.restype = ctypes.c_int
+        lib.ddb_accelerations.argtypes = [ctypes.c_void_p] * 8 + [ctypes.c_int]
         lib.ddb_advance.restype = ctypes.c_int
         lib.ddb_advance.argtypes = [ctypes.c_void_p] * 10 + [ctypes.c_double] * 2 + [
             ctypes.c_void_p] * 4 + [ctypes.c_int]  # fmt: skip
@@ -232,7 +237,7 @@ def kernel_status() -> KernelStatus:
 REACHED, CROSSED, BREAKS = 0, 1, 2
 # Locked-joint models kept in the kernel (as UrdfPlant keeps its own: LOCKED_ARMS_KEPT)
 LOCKED_KEPT = 16
-_ROWS = ("q", "v", "c", "b", "watch", "q_cross", "v_cross", "command", "upper", "lower")
+_ROWS = ("q", "v", "c", "b", "watch", "q_cross", "v_cross", "command", "upper", "lower", "a")
 
 
 class CompiledArm:
@@ -255,7 +260,7 @@ class CompiledArm:
         # the n-vectors of a call (_ROWS), rows of one buffer; then the scalars [t,
         # dissipated, steps, dt of the crossing step, its viscous work]
         self._rows = np.zeros((len(_ROWS), n))
-        self._scalars = np.zeros(5)
+        self._scalars = np.zeros(5)  # also ddb_step's work in [4]
         self._buf = dict(zip(_ROWS, self._rows, strict=True))
         addr, stride = self._rows.ctypes.data, self._rows.strides[0]
         self._addr = {name: addr + i * stride for i, name in enumerate(_ROWS)}
@@ -292,6 +297,55 @@ class CompiledArm:
             self._locked[key] = handle
         return handle
 
+    def _load(self, q: np.ndarray, v: np.ndarray, c: np.ndarray, b: np.ndarray | None) -> int:
+        buf = self._buf
+        buf["q"][:] = q
+        buf["v"][:] = v
+        buf["c"][:] = c
+        if b is None:
+            return 0  # NULL: no viscous friction
+        buf["b"][:] = b
+        return self._addr["b"]
+
+    def step(
+        self,
+        locked: int | None,
+        q: np.ndarray,
+        v: np.ndarray,
+        tau_minus_level: np.ndarray,
+        b: np.ndarray | None,
+        dt: float,
+    ) -> tuple[np.ndarray, np.ndarray, float]:
+        """One RK4 step of dt of the mode (UrdfPlant._rk4_mode): every joint sliding (locked
+        None) or the arm ``locked`` (:meth:`locked`). Returns (q, q̇, ∫bᵀq̇² dt)."""
+        a, buf = self._addr, self._buf
+        b_addr = self._load(q, v, tau_minus_level, b)
+        s4 = self._scalars_addr + 4 * self._scalars.itemsize
+        if self._lib.ddb_step(
+            self._handle, locked, a["q"], a["v"], a["c"], b_addr or None, dt, a["q_cross"],
+            a["v_cross"], s4, self._error, ERROR_CHARS,
+        ):  # fmt: skip
+            raise RuntimeError(f"compiled plant step: {self._message()}")
+        return buf["q_cross"].copy(), buf["v_cross"].copy(), float(self._scalars[4])
+
+    def accelerations(
+        self,
+        locked: int | None,
+        q: np.ndarray,
+        v: np.ndarray,
+        tau_minus_level: np.ndarray,
+        b: np.ndarray | None,
+    ) -> np.ndarray:
+        """q̈ of the mode at (q, q̇) (UrdfPlant._accelerations)."""
+        a = self._addr
+        b_addr = self._load(q, v, tau_minus_level, b)
+        if self._lib.ddb_accelerations(
+            self._handle, locked, a["q"], a["v"], a["c"], b_addr or None, a["a"], self._error,
+            ERROR_CHARS,
+        ):  # fmt: skip
+            raise RuntimeError(f"compiled plant step: {self._message()}")
+        return self._buf["a"].copy()
+
     def advance(
         self,
         q: np.ndarray,
@@ -314,12 +368,8 @@ class CompiledArm:
         REACHED, CROSSED or BREAKS (before that substep); crossing, when CROSSED, is (dt, (q,
         q̇, ∫bᵀq̇² dt)) of the substep for the plant to locate the stick in."""
         buf, a = self._buf, self._addr
-        buf["q"][:] = q
-        buf["v"][:] = v
-        buf["c"][:] = tau_minus_level
+        b_addr = self._load(q, v, tau_minus_level, b)
         buf["watch"][:] = watch
-        if b is not None:
-            buf["b"][:] = b
         locked = None
         if stuck is not None:
             locked, command, (upper, lower) = stuck
@@ -329,9 +379,9 @@ class CompiledArm:
         s = self._scalars
         s[0], s[1], s[2] = t, dissipated, 0.0
         outcome = self._lib.ddb_advance(
-            self._handle, locked, a["q"], a["v"], a["c"], None if b is None else a["b"],
-            a["watch"], a["command"], a["upper"], a["lower"], t_end, max_step_s,
-            self._scalars_addr, a["q_cross"], a["v_cross"], self._error, ERROR_CHARS,
+            self._handle, locked, a["q"], a["v"], a["c"], b_addr or None, a["watch"],
+            a["command"], a["upper"], a["lower"], t_end, max_step_s, self._scalars_addr,
+            a["q_cross"], a["v_cross"], self._error, ERROR_CHARS,
         )  # fmt: skip
         if outcome < 0:
             raise RuntimeError(f"compiled plant step: {self._message()}")

@@ -20,6 +20,8 @@
 //   ddb_arm_nv(handle), ddb_arm_free(handle)
 //   ddb_advance(...) -> 0 reached t_end, 1 stopped at a crossing, 2 stopped before a
 //     breakaway, -1 error
+//   ddb_step(...), ddb_accelerations(...): one RK4 step of the mode, q̈ of the mode (for the
+//     Python code that locates a stick or releases a joint) -> 0, or -1 error
 
 #include <algorithm>
 #include <cstdio>
@@ -68,11 +70,6 @@ namespace
       to[static_cast<Eigen::Index>(i)] = from[idx[i]];
   }
 
-  void scatter(const Vec & from, const std::vector<Eigen::Index> & idx, Vec & to)
-  {
-    for (size_t i = 0; i < idx.size(); ++i)
-      to[idx[i]] = from[static_cast<Eigen::Index>(i)];
-  }
 
   void set_error(char * err, int err_len, const char * what)
   {
@@ -132,6 +129,75 @@ namespace
     arm.qn = q + k * (v + 2.0 * (arm.y + arm.z) + arm.u);
     arm.vn = v + k * (arm.a1 + 2.0 * (arm.a2 + arm.a3) + arm.a4);
     return dissipated;
+  }
+  void scatter(const Vec & from, const std::vector<Eigen::Index> & idx, Vec & to)
+  {
+    for (size_t i = 0; i < idx.size(); ++i)
+      to[idx[i]] = from[static_cast<Eigen::Index>(i)];
+  }
+
+  // The mode's inputs: (q, q̇), τ − level `c` and viscous `b` (NULL: none) into arm, and for a
+  // locked arm the sliding joints' share of c and b.
+  void load_mode(
+    Arm & arm, Locked * locked, const double * q, const double * v, const double * c,
+    const double * b)
+  {
+    const Eigen::Index n = arm.model.nv;
+    arm.q = Eigen::Map<const Vec>(q, n);
+    arm.v = Eigen::Map<const Vec>(v, n);
+    arm.c = Eigen::Map<const Vec>(c, n);
+    if (b)
+      arm.b = Eigen::Map<const Vec>(b, n);
+    if (locked && !locked->free.empty())
+    {
+      gather(arm.c, locked->free, locked->arm.c);
+      if (b)
+        gather(arm.b, locked->free, locked->arm.b);
+    }
+  }
+
+  // q̈ of the mode at (arm.q, arm.v) into arm.a1 (UrdfPlant._accelerations): the arm's ABA of
+  // τ − level − b q̇; with joints locked, q̈_S = 0 and q̈_F the locked arm's ABA.
+  void mode_accelerations(Arm & arm, Locked * locked, bool viscous)
+  {
+    if (viscous)
+      arm.tau = arm.c - arm.b.cwiseProduct(arm.v);
+    else
+      arm.tau = arm.c;
+    if (!locked)
+    {
+      aba(arm, arm.q, arm.v, arm.tau, arm.a1);
+      return;
+    }
+    arm.a1.setZero();
+    if (locked->free.empty())
+      return;
+    Arm & lk = locked->arm;
+    gather(arm.q, locked->free, lk.q);
+    gather(arm.v, locked->free, lk.v);
+    gather(arm.tau, locked->free, lk.tau);
+    aba(lk, lk.q, lk.v, lk.tau, lk.a1);
+    scatter(lk.a1, locked->free, arm.a1);
+  }
+
+  // One RK4 step of dt of the mode from (arm.q, arm.v) into (arm.qn, arm.vn)
+  // (UrdfPlant._rk4_mode): the arm's, or the locked arm's with q_S, q̇_S as they are, or no
+  // motion with every joint stuck. Returns ∫bᵀq̇² dt.
+  double mode_step(Arm & arm, Locked * locked, double dt, bool viscous)
+  {
+    if (!locked)
+      return rk4_step(arm, dt, viscous);
+    arm.qn = arm.q;
+    arm.vn = arm.v;
+    if (locked->free.empty())
+      return 0.0;
+    Arm & lk = locked->arm;
+    gather(arm.q, locked->free, lk.q);
+    gather(arm.v, locked->free, lk.v);
+    const double work = rk4_step(lk, dt, viscous);
+    scatter(lk.qn, locked->free, arm.qn);
+    scatter(lk.vn, locked->free, arm.vn);
+    return work;
   }
 } // namespace
 
@@ -260,55 +326,26 @@ int ddb_advance(
     Arm & arm = *static_cast<Arm *>(handle);
     Locked * locked = static_cast<Locked *>(locked_handle);
     const Eigen::Index n = arm.model.nv;
-    arm.q = Eigen::Map<const Vec>(q, n);
-    arm.v = Eigen::Map<const Vec>(v, n);
-    arm.c = Eigen::Map<const Vec>(c, n);
-    arm.watch = Eigen::Map<const Vec>(watch, n);
     const bool viscous = b != nullptr;
-    if (viscous)
-      arm.b = Eigen::Map<const Vec>(b, n);
-    Eigen::Index nf = n;
+    load_mode(arm, locked, q, v, c, b);
+    arm.watch = Eigen::Map<const Vec>(watch, n);
     if (locked)
     {
       const Eigen::Index ns = static_cast<Eigen::Index>(locked->stuck.size());
-      nf = n - ns;
       arm.command = Eigen::Map<const Vec>(command, n);
       arm.upper = Eigen::Map<const Vec>(upper, ns);
       arm.lower = Eigen::Map<const Vec>(lower, ns);
-      if (nf > 0)
-      {
-        gather(arm.c, locked->free, locked->arm.c);
-        if (viscous)
-          gather(arm.b, locked->free, locked->arm.b);
-      }
     }
     double t = scalars[0], dissipated = scalars[1], steps = scalars[2];
     int status = 0;
     while (t < t_end - 1e-12)
     {
       const double dt = std::min(max_step, t_end - t);
-      double work = 0.0;
-      if (!locked)
-        work = rk4_step(arm, dt, viscous);
-      else
+      if (locked)
       {
-        // Karnopp's breakaway test (UrdfPlant._release_stuck_joints): q̈ of the mode
-        // (UrdfPlant._accelerations: q̈_S = 0, q̈_F the locked arm's ABA of τ − level − b q̇),
-        // the holding torques f_S = (τ − RNEA(q, q̇, q̈))_S against their static bands
-        if (viscous)
-          arm.tau = arm.c - arm.b.cwiseProduct(arm.v);
-        else
-          arm.tau = arm.c;
-        arm.a1.setZero();
-        Arm & lk = locked->arm;
-        if (nf > 0)
-        {
-          gather(arm.q, locked->free, lk.q);
-          gather(arm.v, locked->free, lk.v);
-          gather(arm.tau, locked->free, lk.tau);
-          aba(lk, lk.q, lk.v, lk.tau, lk.a1);
-          scatter(lk.a1, locked->free, arm.a1);
-        }
+        // Karnopp's breakaway test (UrdfPlant._release_stuck_joints): the holding torques
+        // f_S = (τ − RNEA(q, q̇, q̈))_S, q̈ of the mode, against their static bands
+        mode_accelerations(arm, locked, viscous);
         const Vec & inverse =
           pinocchio::rnea(arm.model, arm.data, CRef(arm.q), CRef(arm.v), CRef(arm.a1));
         bool breaks = false;
@@ -323,16 +360,8 @@ int ddb_advance(
           status = 2;
           break;
         }
-        // the locked arm's RK4 (UrdfPlant._rk4_mode); q_S, q̇_S stay as they are
-        arm.qn = arm.q;
-        arm.vn = arm.v;
-        if (nf > 0)
-        {
-          work = rk4_step(lk, dt, viscous);
-          scatter(lk.qn, locked->free, arm.qn);
-          scatter(lk.vn, locked->free, arm.vn);
-        }
       }
+      const double work = mode_step(arm, locked, dt, viscous);
       bool crossed = false;
       for (Eigen::Index i = 0; i < n; ++i)
         crossed = crossed || !(arm.vn[i] * arm.watch[i] >= 0.0);
@@ -357,6 +386,59 @@ int ddb_advance(
     scalars[1] = dissipated;
     scalars[2] = steps;
     return status;
+  }
+  catch (const std::exception & e)
+  {
+    set_error(err, err_len, e.what());
+  }
+  catch (...)
+  {
+    set_error(err, err_len, "unknown C++ exception");
+  }
+  return -1;
+}
+
+// One RK4 step of dt of the mode (locked NULL: every joint sliding) from (q, v) into
+// (q_out, v_out), its ∫bᵀq̇² dt in work[0] (UrdfPlant._rk4_mode). 0, or −1 on an exception.
+int ddb_step(
+  void * handle, void * locked_handle, const double * q, const double * v, const double * c,
+  const double * b, double dt, double * q_out, double * v_out, double * work, char * err,
+  int err_len)
+{
+  try
+  {
+    Arm & arm = *static_cast<Arm *>(handle);
+    Locked * locked = static_cast<Locked *>(locked_handle);
+    load_mode(arm, locked, q, v, c, b);
+    work[0] = mode_step(arm, locked, dt, b != nullptr);
+    Eigen::Map<Vec>(q_out, arm.model.nv) = arm.qn;
+    Eigen::Map<Vec>(v_out, arm.model.nv) = arm.vn;
+    return 0;
+  }
+  catch (const std::exception & e)
+  {
+    set_error(err, err_len, e.what());
+  }
+  catch (...)
+  {
+    set_error(err, err_len, "unknown C++ exception");
+  }
+  return -1;
+}
+
+// q̈ of the mode at (q, v) into a_out (UrdfPlant._accelerations). 0, or −1 on an exception.
+int ddb_accelerations(
+  void * handle, void * locked_handle, const double * q, const double * v, const double * c,
+  const double * b, double * a_out, char * err, int err_len)
+{
+  try
+  {
+    Arm & arm = *static_cast<Arm *>(handle);
+    Locked * locked = static_cast<Locked *>(locked_handle);
+    load_mode(arm, locked, q, v, c, b);
+    mode_accelerations(arm, locked, b != nullptr);
+    Eigen::Map<Vec>(a_out, arm.model.nv) = arm.a1;
+    return 0;
   }
   catch (const std::exception & e)
   {

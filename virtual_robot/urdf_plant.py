@@ -241,8 +241,7 @@ class UrdfPlant:
         compiled = self._compiled
         stuck = None
         if self._n_stuck:
-            locked = compiled.locked(self._stuck_idx, self.q)
-            stuck = (locked, self.command_Nm, self._band_s)
+            stuck = (self._compiled_locked(), self.command_Nm, self._band_s)
         q, v, t, dissipated, steps, outcome, crossing = compiled.advance(
             self.q,
             self.dq,
@@ -277,6 +276,13 @@ class UrdfPlant:
         self._band_s = self.band_pos[self._stuck_idx], -self.band_neg[self._stuck_idx]
         self._reduced = None  # built when first needed (:meth:`_locked_arm`)
 
+    def _compiled_locked(self) -> int | None:
+        """The compiled kernel's arm of the current stick mode: None with every joint sliding,
+        else its handle of the arm with the stuck joints locked where they stand."""
+        if not self._n_stuck:
+            return None
+        return self._compiled.locked(self._stuck_idx, self.q)
+
     def _locked_arm(self) -> tuple[Any, Any] | None:
         """The arm with the stuck joints locked where they stand (Pinocchio's reduced model and
         its data; None when every joint is stuck): its ABA gives the sliding joints'
@@ -299,6 +305,11 @@ class UrdfPlant:
         the arm's ABA of τ − f with every joint sliding; with some stuck, q̈_S = 0 and q̈_F from
         M_FF q̈_F = (τ − C q̇ − g − f)_F, the ABA of the arm with those joints locked (q_S and
         q̇_S = 0 do not change while they stick); the derivative :func:`_rk4_aba` integrates."""
+        if self._compiled is not None:  # the same in C++ (rk4_aba.cpp)
+            b = self.b if self._viscous else None
+            return self._compiled.accelerations(
+                self._compiled_locked(), q, v, self._tau_minus_level, b
+            )
         c = self._tau_minus_level - self.b * v if self._viscous else self._tau_minus_level
         if not self._n_stuck:
             return pin.aba(self.model, self.data, q, v, c)
@@ -387,6 +398,10 @@ class UrdfPlant:
         Returns (q, q̇, ∫bᵀq̇² dt). tests/test_urdf_plant.py checks it against a textbook RK4
         on the constrained dynamics by CRBA and RNEA."""
         b = self.b if self._viscous else None
+        if self._compiled is not None:  # the same in C++ (rk4_aba.cpp)
+            return self._compiled.step(
+                self._compiled_locked(), self.q, self.dq, self._tau_minus_level, b, dt
+            )
         if not self._n_stuck:
             return _rk4_aba(self.model, self.data, self.q, self.dq, self._tau_minus_level, b, dt)
         locked = self._locked_arm()
