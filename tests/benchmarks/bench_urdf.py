@@ -173,6 +173,11 @@ def simulate_speed(tmp: Path, repeats: int = 3) -> dict[str, dict[str, float]]:
             }
             if result.plant_kernel:
                 out[name]["plant_kernel"] = result.plant_kernel
+            if urdf:  # the plant alone, with the torques the drives gave it in that run
+                out[name]["plant_alone_realtime_factor_cpu"] = SIMULATE_S / min(
+                    plant_alone_cpu(robot, experiment, tmp / name.split()[0])
+                    for _ in range(repeats)
+                )
         if urdf:
             # the floor: four ABA calls per RK4 step and nothing else, at this moment's cost
             aba_us = aba_call_us(robot)
@@ -182,6 +187,22 @@ def simulate_speed(tmp: Path, repeats: int = 3) -> dict[str, dict[str, float]]:
                 realtime_factor_aba_only=SIMULATE_S / (4 * aba_us * 1e-6 * steps),
             )
     return out
+
+
+def plant_alone_cpu(robot, experiment, recording: Path) -> float:
+    """CPU seconds of the n-joint plant alone (the default step) over a recording's torque
+    rows, held over each period as in the simulation: no drive models, no CSV rows."""
+    from drivers.recording import read_signals
+    from virtual_robot.urdf_plant import UrdfPlant, UrdfPlantParams
+
+    tau = read_signals(recording).tau
+    h = experiment.period_s
+    plant = UrdfPlant(UrdfPlantParams.from_profile(robot), q0=experiment.initial_q_rad)
+    cpu = time.process_time()
+    for k, row in enumerate(tau):
+        plant.command(row)
+        plant.advance_to((k + 1) * h)
+    return time.process_time() - cpu
 
 
 def _simulate_with_kernel(kernel: str, simulate, robot, experiment, out: Path):
@@ -311,6 +332,11 @@ def _speed_lines(speed: dict[str, dict[str, float]]) -> str:
             kernel = x["plant_kernel"]
             why = f" ({kernel['reason']})" if "reason" in kernel else ""
             lines.append(f"  {'':24s} plant step: {kernel['kernel']}{why}")
+        if "plant_alone_realtime_factor_cpu" in x:
+            lines.append(
+                f"  {'':24s} the plant alone (the recorded torques, no drives, no rows): "
+                f"{x['plant_alone_realtime_factor_cpu']:.1f}x"
+            )
         if "python_step_realtime_factor_cpu" in x:
             lines.append(
                 f"  {'':24s} with the Python step forced: "
