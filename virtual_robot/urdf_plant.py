@@ -21,14 +21,17 @@ With every joint sliding (the common case) the accelerations are Pinocchio's ABA
 locked where they stand (Pinocchio's reduced model: q̈_F = M_FF⁻¹ r_F exactly, since q_S and
 q̇_S = 0 do not change while they stick), and the holding torques f_S from one RNEA.
 
-Speed (issue 14; ``python tests/benchmarks/bench_urdf.py --only-simulate``): a step is the
-four ABA calls of RK4 and about twenty numpy operations on n-vectors (:func:`_rk4_aba`), and one
-product to watch for a velocity crossing zero; everything else (breakaway tests, locating a
-stick, the locked-joint models) runs only while a joint is stuck or at a crossing.
+Speed (issue 14; ``python tests/benchmarks/bench_urdf.py --only-simulate``): the steps of a
+control period run in C++ when the compiled step builds (:mod:`virtual_robot.compiled_step`,
+``rk4_aba.cpp``): the same RK4 (:func:`_rk4_aba`), the same locked-joint models and breakaway
+test, around Pinocchio's C++ ABA and RNEA, in one call per period and stick mode, returning
+at a velocity crossing or a breakaway, which this module handles as before (its single steps
+and accelerations also come from the kernel then); bit-identical to the Python step, which
+runs when the kernel cannot be built or ``DDBENCH_PLANT_KERNEL=python``.
 
 The world builds its own Pinocchio model from the URDF file; it never imports the host's
 (``hil``) model. No concealed effects yet: the n-joint plant is the described arm itself.
-Imports profiles, drivers (recording, units), virtual_robot.plant/drive/offline.
+Imports profiles, drivers (recording, units), virtual_robot.plant/drive/offline/compiled_step.
 """
 
 from __future__ import annotations
