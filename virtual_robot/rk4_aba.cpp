@@ -26,7 +26,9 @@
 #include <algorithm>
 #include <cstdio>
 #include <exception>
+#include <memory>
 #include <string>
+#include <vector>
 
 #include "pinocchio/algorithm/aba.hpp"
 #include "pinocchio/algorithm/model.hpp"
@@ -75,6 +77,26 @@ namespace
   {
     if (err && err_len > 0)
       std::snprintf(err, static_cast<size_t>(err_len), "%s", what);
+  }
+
+  // body(), or `failed` with the C++ exception's text in err: nothing is thrown across the C
+  // interface
+  template<typename T, typename Body>
+  T guarded(T failed, char * err, int err_len, Body body)
+  {
+    try
+    {
+      return body();
+    }
+    catch (const std::exception & e)
+    {
+      set_error(err, err_len, e.what());
+    }
+    catch (...)
+    {
+      set_error(err, err_len, "unknown C++ exception");
+    }
+    return failed;
   }
 
   // One ABA call (Featherstone (2008) ch. 7) into `out`; Pinocchio returns a reference to
@@ -206,30 +228,19 @@ extern "C" {
 void * ddb_arm_new(
   const char * urdf, double gravity, const double * armature, int n, char * err, int err_len)
 {
-  try
-  {
-    Arm * arm = new Arm();
+  return guarded(static_cast<void *>(nullptr), err, err_len, [&]() -> void * {
+    auto arm = std::make_unique<Arm>();  // freed if the parser throws
     pinocchio::urdf::buildModel(std::string(urdf), arm->model);
     if (arm->model.nv != n || arm->model.nq != n)
     {
-      delete arm;
       set_error(err, err_len, "joint count differs from the Python model");
       return nullptr;
     }
     arm->model.gravity.linear(Eigen::Vector3d(0.0, 0.0, -gravity));
     arm->model.armature = Eigen::Map<const Vec>(armature, n);
     arm->allocate(n);
-    return arm;
-  }
-  catch (const std::exception & e)
-  {
-    set_error(err, err_len, e.what());
-  }
-  catch (...)
-  {
-    set_error(err, err_len, "unknown C++ exception");
-  }
-  return nullptr;
+    return arm.release();
+  });
 }
 
 int ddb_arm_nv(void * handle)
@@ -245,11 +256,10 @@ void ddb_arm_free(void * handle)
 void * ddb_locked_new(
   void * handle, int n_stuck, const int * stuck, const double * q, char * err, int err_len)
 {
-  try
-  {
+  return guarded(static_cast<void *>(nullptr), err, err_len, [&]() -> void * {
     const Arm & full = *static_cast<Arm *>(handle);
     const Eigen::Index n = full.model.nv;
-    Locked * locked = new Locked();
+    auto locked = std::make_unique<Locked>();
     std::vector<bool> is_stuck(static_cast<size_t>(n), false);
     for (int i = 0; i < n_stuck; ++i)
       is_stuck[static_cast<size_t>(stuck[i])] = true;
@@ -274,17 +284,8 @@ void * ddb_locked_new(
       locked->arm.model.armature = armature;
       locked->arm.allocate(nf);
     }
-    return locked;
-  }
-  catch (const std::exception & e)
-  {
-    set_error(err, err_len, e.what());
-  }
-  catch (...)
-  {
-    set_error(err, err_len, "unknown C++ exception");
-  }
-  return nullptr;
+    return locked.release();
+  });
 }
 
 void ddb_locked_free(void * handle)
@@ -321,8 +322,7 @@ int ddb_advance(
   char * err,
   int err_len)
 {
-  try
-  {
+  return guarded(-1, err, err_len, [&]() -> int {
     Arm & arm = *static_cast<Arm *>(handle);
     Locked * locked = static_cast<Locked *>(locked_handle);
     const Eigen::Index n = arm.model.nv;
@@ -386,16 +386,7 @@ int ddb_advance(
     scalars[1] = dissipated;
     scalars[2] = steps;
     return status;
-  }
-  catch (const std::exception & e)
-  {
-    set_error(err, err_len, e.what());
-  }
-  catch (...)
-  {
-    set_error(err, err_len, "unknown C++ exception");
-  }
-  return -1;
+  });
 }
 
 // One RK4 step of dt of the mode (locked NULL: every joint sliding) from (q, v) into
@@ -405,8 +396,7 @@ int ddb_step(
   const double * b, double dt, double * q_out, double * v_out, double * work, char * err,
   int err_len)
 {
-  try
-  {
+  return guarded(-1, err, err_len, [&]() -> int {
     Arm & arm = *static_cast<Arm *>(handle);
     Locked * locked = static_cast<Locked *>(locked_handle);
     load_mode(arm, locked, q, v, c, b);
@@ -414,16 +404,7 @@ int ddb_step(
     Eigen::Map<Vec>(q_out, arm.model.nv) = arm.qn;
     Eigen::Map<Vec>(v_out, arm.model.nv) = arm.vn;
     return 0;
-  }
-  catch (const std::exception & e)
-  {
-    set_error(err, err_len, e.what());
-  }
-  catch (...)
-  {
-    set_error(err, err_len, "unknown C++ exception");
-  }
-  return -1;
+  });
 }
 
 // q̈ of the mode at (q, v) into a_out (UrdfPlant._accelerations). 0, or −1 on an exception.
@@ -431,24 +412,14 @@ int ddb_accelerations(
   void * handle, void * locked_handle, const double * q, const double * v, const double * c,
   const double * b, double * a_out, char * err, int err_len)
 {
-  try
-  {
+  return guarded(-1, err, err_len, [&]() -> int {
     Arm & arm = *static_cast<Arm *>(handle);
     Locked * locked = static_cast<Locked *>(locked_handle);
     load_mode(arm, locked, q, v, c, b);
     mode_accelerations(arm, locked, b != nullptr);
     Eigen::Map<Vec>(a_out, arm.model.nv) = arm.a1;
     return 0;
-  }
-  catch (const std::exception & e)
-  {
-    set_error(err, err_len, e.what());
-  }
-  catch (...)
-  {
-    set_error(err, err_len, "unknown C++ exception");
-  }
-  return -1;
+  });
 }
 
 } // extern "C"
