@@ -1,4 +1,4 @@
-"""The compiled sliding-path step of the n-joint plant (issue 14's speed target): builds
+"""The compiled RK4 step of the n-joint plant (issue 14's speed target): builds
 ``rk4_aba.cpp`` against the Pinocchio C++ library that the ``pin`` wheel installs, loads it
 through ctypes, and gives :class:`CompiledArm`, which :class:`virtual_robot.urdf_plant.UrdfPlant`
 calls for the RK4 substeps of a control period in one stick mode.
@@ -148,6 +148,10 @@ def _first_error(stderr: str) -> str:
     return picked[:ERROR_CHARS]
 
 
+def _remembered(failed: Path) -> KernelUnavailableError:
+    return KernelUnavailableError(f"{failed.read_text().strip()} (remembered in {failed})")
+
+
 def build(timeout_s: float = BUILD_TIMEOUT_S) -> Path:
     """The compiled library, built if not cached; KernelUnavailableError (one line) if not."""
     target = library_path()
@@ -155,16 +159,19 @@ def build(timeout_s: float = BUILD_TIMEOUT_S) -> Path:
     if target.exists():
         return target
     if failed.exists():
-        raise KernelUnavailableError(failed.read_text().strip())
+        raise _remembered(failed)
     target.parent.mkdir(parents=True, exist_ok=True)
     with open(target.with_suffix(".lock"), "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # another process may be building it: wait for it
         if target.exists():
             return target
         if failed.exists():
-            raise KernelUnavailableError(failed.read_text().strip())
+            raise _remembered(failed)
         partial = target.with_suffix(f".{os.getpid()}.tmp")
         command = build_command(partial)
+        logging.getLogger(__name__).warning(
+            "building the compiled plant step once into %s (about 20 s of CPU)", target.parent
+        )
         try:
             done = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s)
         except subprocess.TimeoutExpired:
@@ -199,7 +206,6 @@ def load() -> ctypes.CDLL:
         lib.ddb_arm_new.restype = ctypes.c_void_p
         lib.ddb_arm_new.argtypes = [ctypes.c_char_p, ctypes.c_double, ctypes.c_void_p,
                                     ctypes.c_int, ctypes.c_char_p, ctypes.c_int]  # fmt: skip
-        lib.ddb_arm_nv.argtypes = [ctypes.c_void_p]
         lib.ddb_arm_free.argtypes = [ctypes.c_void_p]
         lib.ddb_locked_new.restype = ctypes.c_void_p
         lib.ddb_locked_new.argtypes = [ctypes.c_void_p, ctypes.c_int, ctypes.c_void_p,

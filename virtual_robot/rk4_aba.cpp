@@ -17,7 +17,7 @@
 //   ddb_arm_new(urdf, gravity, armature, n, err, err_len) -> handle or NULL
 //   ddb_locked_new(arm, n_stuck, stuck, q, err, err_len) -> handle of the arm with the stuck
 //     joints locked at q, or NULL; ddb_locked_free(handle)
-//   ddb_arm_nv(handle), ddb_arm_free(handle)
+//   ddb_arm_free(handle)
 //   ddb_advance(...) -> 0 reached t_end, 1 stopped at a crossing, 2 stopped before a
 //     breakaway, -1 error
 //   ddb_step(...), ddb_accelerations(...): one RK4 step of the mode, q̈ of the mode (for the
@@ -241,11 +241,6 @@ void * ddb_arm_new(
     arm->allocate(n);
     return arm.release();
   });
-}
-
-int ddb_arm_nv(void * handle)
-{
-  return static_cast<Arm *>(handle)->model.nv;
 }
 
 void ddb_arm_free(void * handle)
