@@ -1,6 +1,7 @@
 """The virtual robot: plant physics, effects, drive emulation and protocol servers.
 
-What lives here: the world (:mod:`.plant`, :mod:`.dynamics`, :mod:`.effects`), the CiA 402
+What lives here: the world (:mod:`.plant`, :mod:`.dynamics`, :mod:`.effects`; the n-joint
+:mod:`.urdf_plant` with its compiled RK4 step, :mod:`.compiled_step`), the CiA 402
 drive model (:mod:`.drive`), the robot behind any transport in lockstep or realtime
 (:mod:`.robot`), the transports (:mod:`.can_server`, :mod:`.slcan_device`,
 :mod:`.socketcand_hub`, :mod:`.serial_server`, :mod:`.raw_pty`), robot-side timing faults and

@@ -161,6 +161,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         if result.plot:
             print(f"plot: {result.plot}")
         print(f"{summary['realtime_factor']}x real time, {summary['plant_steps']} plant steps")
+        if result.plant_kernel:  # the n-joint plant: which RK4 step ran (compiled_step.py)
+            why = result.plant_kernel.get("reason")
+            print(f"plant step: {result.plant_kernel['kernel']}" + (f" ({why})" if why else ""))
     return 0
 
 

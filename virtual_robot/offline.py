@@ -35,6 +35,8 @@ class SimulationResult:
     plant_steps: int
     faults: list[dict[str, Any]] = field(default_factory=list)
     plot: Path | None = None
+    # n-joint plant only: which RK4 step ran, "compiled" or "python", and why not compiled
+    plant_kernel: dict[str, Any] | None = None
 
     @property
     def realtime_factor(self) -> float:
@@ -51,7 +53,7 @@ class SimulationResult:
             "realtime_factor": round(self.realtime_factor, 1),
             "plant_steps": self.plant_steps,
             "faults": self.faults,
-        }
+        } | ({"plant_kernel": self.plant_kernel} if self.plant_kernel else {})
 
 
 def enable_drives(

@@ -21,10 +21,13 @@ With every joint sliding (the common case) the accelerations are Pinocchio's ABA
 locked where they stand (Pinocchio's reduced model: q̈_F = M_FF⁻¹ r_F exactly, since q_S and
 q̇_S = 0 do not change while they stick), and the holding torques f_S from one RNEA.
 
-Speed (issue 14; ``python tests/benchmarks/bench_urdf.py --only-simulate``): a step is the
-four ABA calls of RK4 and about twenty numpy operations on n-vectors (:func:`_rk4_aba`), and one
-product to watch for a velocity crossing zero; everything else (breakaway tests, locating a
-stick, the locked-joint models) runs only while a joint is stuck or at a crossing.
+Speed (issue 14; ``python tests/benchmarks/bench_urdf.py --only-simulate``): the steps of a
+control period run in C++ when the compiled step builds (:mod:`virtual_robot.compiled_step`,
+``rk4_aba.cpp``): the same RK4 (:func:`_rk4_aba`), the same locked-joint models and breakaway
+test, around Pinocchio's C++ ABA and RNEA, in one call per period and stick mode, returning
+at a velocity crossing or a breakaway, which this module handles as before (its single steps
+and accelerations also come from the kernel then); bit-identical to the Python step, which
+runs when the kernel cannot be built or ``DDBENCH_PLANT_KERNEL=python``.
 
 Concealed effects (an effects profile, docs/effects.md) per joint, by the 2-DOF plant's equations
 (:mod:`virtual_robot.effects`) and in the same places: the torque path (transport delay, amplifier
@@ -38,7 +41,8 @@ beyond the Coulomb levels by RK4 quadrature, so E(t) − E(0) = W_in − W_f hol
 
 The world builds its own Pinocchio model from the URDF file; it never imports the host's
 (``hil``) model, and the host never reads the effects profile.
-Imports profiles, drivers (recording, units), virtual_robot.plant/drive/offline/effects.
+Imports profiles, drivers (recording, units), virtual_robot.plant/drive/offline/effects/
+compiled_step.
 """
 
 from __future__ import annotations
@@ -59,6 +63,14 @@ from profiles.effects import EffectsProfile
 from profiles.experiment import ExperimentProfile
 from profiles.robot import UrdfRobotProfile
 from virtual_robot import __version__
+from virtual_robot.compiled_step import (
+    BREAKS,
+    CROSSED,
+    CompiledArm,
+    KernelStatus,
+    KernelUnavailableError,
+    kernel_status,
+)
 from virtual_robot.effects import (
     TransportDelay,
     amplifier_lag_step,
@@ -197,6 +209,19 @@ class UrdfPlant:
         self._mode_changed()
         self.steps = 0
         self.stick_events = 0
+        # The sliding-path RK4 substeps in C++ when the compiled step builds (compiled_step.py)
+        self._compiled: CompiledArm | None = None
+        self.kernel: KernelStatus = kernel_status()
+        if self.kernel.kernel == "compiled" and (self._in_derivative or self._lag is not None):
+            # the kernel holds τ − f_c over a step; these effects change it within one
+            self.kernel = KernelStatus(
+                "python", "cogging, Stribeck, drag or an amplifier lag act within a step"
+            )
+        if self.kernel.kernel == "compiled":
+            try:
+                self._compiled = CompiledArm(params.urdf, params.gravity_m_s2, params.armature_kgm2)
+            except KernelUnavailableError as exc:
+                self.kernel = KernelStatus("python", str(exc))
 
     # ---- inputs and outputs -----------------------------------------------------------------
     def command(
@@ -238,6 +263,11 @@ class UrdfPlant:
         self.command_Nm = tau
         self._tau_minus_level = tau - self._level
 
+    def kernel_summary(self) -> dict[str, str]:
+        """Which step integrates the sliding joints, and why not the compiled one (one line)."""
+        k = self.kernel
+        return {"kernel": k.kernel} | ({"reason": k.reason} if k.reason else {})
+
     @property
     def measured_q(self) -> np.ndarray:
         """What the encoders see: q plus the encoder-offset effect, if any."""
@@ -269,11 +299,45 @@ class UrdfPlant:
 
     def advance_to(self, t_end: float) -> None:
         """Integrate to ``t_end`` in steps of at most ``max_step_s`` (cut where a delayed
-        command arrives, with the transport delay effect)."""
+        command arrives, with the transport delay effect); while every joint slides, the
+        compiled step takes them when there is one (:meth:`_advance_compiled`)."""
         if self._delay is not None:
             self._advance_delayed(t_end)
             return
         while self.t < t_end - 1e-12:
+            if self._compiled is not None:
+                self._advance_compiled(t_end)
+            else:
+                self._step(min(self.max_step_s, t_end - self.t))
+
+    def _advance_compiled(self, t_end: float) -> None:
+        """The steps :meth:`_step` would take towards ``t_end``, by the compiled kernel
+        (rk4_aba.cpp: :func:`_rk4_aba` in C++ on the same models, the arm's or the locked
+        arm's, with Karnopp's test of :meth:`_release_stuck_joints` before each step) until
+        t_end or the first step where a watched velocity changes sign or a stuck joint breaks
+        away; that step then goes through :meth:`_step_with_events` or :meth:`_step` as in
+        :meth:`_step`."""
+        compiled = self._compiled
+        stuck = None
+        if self._n_stuck:
+            stuck = (self._compiled_locked(), self.command_Nm, self._band_s)
+        q, v, t, dissipated, steps, outcome, crossing = compiled.advance(
+            self.q,
+            self.dq,
+            self._tau_minus_level,
+            self.b if self._viscous else None,
+            self._watch,
+            self.t,
+            t_end,
+            self.max_step_s,
+            self._dissipated_booked,
+            stuck,
+        )
+        self.q, self.dq, self.t, self._dissipated_booked = q, v, t, dissipated
+        self.steps += steps
+        if outcome == CROSSED:
+            self._step_with_events(*crossing)
+        elif outcome == BREAKS:
             self._step(min(self.max_step_s, t_end - self.t))
 
     # ---- dynamics -----------------------------------------------------------------------------
@@ -294,6 +358,13 @@ class UrdfPlant:
         self._reduced = None  # built when first needed (:meth:`_locked_arm`)
         if self._in_derivative:
             self._mode_forces()
+
+    def _compiled_locked(self) -> int | None:
+        """The compiled kernel's arm of the current stick mode: None with every joint sliding,
+        else its handle of the arm with the stuck joints locked where they stand."""
+        if not self._n_stuck:
+            return None
+        return self._compiled.locked(self._stuck_idx, self.q)
 
     def _locked_arm(self) -> tuple[Any, Any] | None:
         """The arm with the stuck joints locked where they stand (Pinocchio's reduced model and
@@ -318,6 +389,11 @@ class UrdfPlant:
         M_FF q̈_F = (τ − C q̇ − g − f)_F, the ABA of the arm with those joints locked (q_S and
         q̇_S = 0 do not change while they stick); the derivative :func:`_rk4_aba` integrates
         (with cogging, Stribeck or drag, the forces of :meth:`_state_forces`)."""
+        if self._compiled is not None:  # the same in C++ (rk4_aba.cpp)
+            b = self.b if self._viscous else None
+            return self._compiled.accelerations(
+                self._compiled_locked(), q, v, self._tau_minus_level, b
+            )
         c = self._tau_minus_level - self.b * v if self._viscous else self._tau_minus_level
         if self._in_derivative:
             c = np.zeros(self.n_joints)
@@ -424,6 +500,10 @@ class UrdfPlant:
         if self._lag is not None:
             self._apply_lag(dt)
         b = self.b if self._viscous else None
+        if self._compiled is not None:  # the same in C++ (rk4_aba.cpp)
+            return self._compiled.step(
+                self._compiled_locked(), self.q, self.dq, self._tau_minus_level, b, dt
+            )
         if not self._n_stuck:
             if self._in_derivative:
                 return _rk4_effects(self.model, self.data, self.q, self.dq, self._state_forces, dt)
@@ -740,6 +820,7 @@ def simulate_urdf(
         "integrator": {
             "method": "RK4, fixed step, stick-slip events located; Pinocchio ABA/CRBA/RNEA",
             "step_s": plant.max_step_s,
+            "kernel": plant.kernel_summary(),
         },
     }
     commanded_Nm = experiment.torque_rows(h, n_rows)
@@ -760,6 +841,7 @@ def simulate_urdf(
             faults=faults,
         )
     result = SimulationResult(Path(out_dir), n_rows, wall, n_rows * h, plant.steps, faults)
+    result.plant_kernel = plant.kernel_summary()
     if plot:
         result.plot = plot_positions(
             read_signals(out_dir),

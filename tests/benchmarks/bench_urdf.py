@@ -164,28 +164,76 @@ def simulate_speed(tmp: Path, repeats: int = 3) -> dict[str, dict[str, float]]:
     }
     out = {}
     for name, (robot, experiment) in cases.items():
-        runs = []  # (CPU, wall) of each repeat; the machine's load only ever adds to them
-        for _ in range(repeats):
-            start, cpu = time.perf_counter(), time.process_time()
-            result = simulate(robot, experiment, tmp / name.split()[0], duration_s=SIMULATE_S,
-                              plot=False)  # fmt: skip
-            runs.append((time.process_time() - cpu, time.perf_counter() - start))
-        cpu, wall = min(c for c, _ in runs), min(w for _, w in runs)
-        out[name] = {
-            "realtime_factor_cpu": SIMULATE_S / cpu,
-            "realtime_factor_wall": SIMULATE_S / wall,
-            "plant_steps": result.plant_steps,
-            "repeats": repeats,
-        }
-        if name.startswith("urdf"):
+        urdf = name.startswith("urdf")
+        # each URDF arm with the plant's default step (compiled when it builds) and with the
+        # Python step forced (compiled_step.py): after and before on the same machine, now
+        for kernel in ("auto", "python") if urdf else ("auto",):
+            runs = []  # (CPU, wall) of each repeat; the machine's load only ever adds to them
+            for _ in range(repeats):
+                start, cpu = time.perf_counter(), time.process_time()
+                result = _simulate_with_kernel(kernel, simulate, robot, experiment,
+                                               tmp / name.split()[0])  # fmt: skip
+                runs.append((time.process_time() - cpu, time.perf_counter() - start))
+            cpu, wall = min(c for c, _ in runs), min(w for _, w in runs)
+            if kernel == "python":
+                out[name]["python_step_realtime_factor_cpu"] = SIMULATE_S / cpu
+                continue
+            steps, default_cpu = result.plant_steps, cpu
+            out[name] = {
+                "realtime_factor_cpu": SIMULATE_S / cpu,
+                "realtime_factor_wall": SIMULATE_S / wall,
+                "plant_steps": result.plant_steps,
+                "repeats": repeats,
+            }
+            if result.plant_kernel:
+                out[name]["plant_kernel"] = result.plant_kernel
+            if urdf:  # the plant alone, with the torques the drives gave it in that run
+                out[name]["plant_alone_realtime_factor_cpu"] = SIMULATE_S / min(
+                    plant_alone_cpu(robot, experiment, tmp / name.split()[0])
+                    for _ in range(repeats)
+                )
+        if urdf:
             # the floor: four ABA calls per RK4 step and nothing else, at this moment's cost
             aba_us = aba_call_us(robot)
             out[name].update(
                 aba_call_us=aba_us,
-                aba_share_of_cpu=4 * aba_us * 1e-6 * result.plant_steps / cpu,
-                realtime_factor_aba_only=SIMULATE_S / (4 * aba_us * 1e-6 * result.plant_steps),
+                aba_share_of_cpu=4 * aba_us * 1e-6 * steps / default_cpu,
+                realtime_factor_aba_only=SIMULATE_S / (4 * aba_us * 1e-6 * steps),
             )
     return out
+
+
+def plant_alone_cpu(robot, experiment, recording: Path) -> float:
+    """CPU seconds of the n-joint plant alone (the default step) over a recording's torque
+    rows, held over each period as in the simulation: no drive models, no CSV rows."""
+    from drivers.recording import read_signals
+    from virtual_robot.urdf_plant import UrdfPlant, UrdfPlantParams
+
+    tau = read_signals(recording).tau
+    h = experiment.period_s
+    plant = UrdfPlant(UrdfPlantParams.from_profile(robot), q0=experiment.initial_q_rad)
+    cpu = time.process_time()
+    for k, row in enumerate(tau):
+        plant.command(row)
+        plant.advance_to((k + 1) * h)
+    return time.process_time() - cpu
+
+
+def _simulate_with_kernel(kernel: str, simulate, robot, experiment, out: Path):
+    """One `virtual-robot simulate` run with DDBENCH_PLANT_KERNEL set to ``kernel``."""
+    import os
+
+    from virtual_robot.compiled_step import KERNEL_ENV
+
+    before = os.environ.get(KERNEL_ENV)
+    os.environ[KERNEL_ENV] = kernel
+    try:
+        return simulate(robot, experiment, out, duration_s=SIMULATE_S, plot=False)
+    finally:
+        if before is None:
+            del os.environ[KERNEL_ENV]
+        else:
+            os.environ[KERNEL_ENV] = before
 
 
 def aba_call_us(robot, calls: int = 20000) -> float:
@@ -337,6 +385,20 @@ def _speed_lines(speed: dict[str, dict[str, float]]) -> str:
             f"  {name:24s} {x['realtime_factor_cpu']:6.1f}x real time per CPU second "
             f"({x['realtime_factor_wall']:.1f}x wall), {x['plant_steps']} plant steps"
         )
+        if "plant_kernel" in x:
+            kernel = x["plant_kernel"]
+            why = f" ({kernel['reason']})" if "reason" in kernel else ""
+            lines.append(f"  {'':24s} plant step: {kernel['kernel']}{why}")
+        if "plant_alone_realtime_factor_cpu" in x:
+            lines.append(
+                f"  {'':24s} the plant alone (the recorded torques, no drives, no rows): "
+                f"{x['plant_alone_realtime_factor_cpu']:.1f}x"
+            )
+        if "python_step_realtime_factor_cpu" in x:
+            lines.append(
+                f"  {'':24s} with the Python step forced: "
+                f"{x['python_step_realtime_factor_cpu']:.1f}x real time per CPU second"
+            )
         if "aba_call_us" in x:
             lines.append(
                 f"  {'':24s} one ABA call {x['aba_call_us']:.2f} µs CPU: the 4 per step are "

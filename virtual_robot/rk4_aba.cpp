@@ -1,0 +1,420 @@
+// The compiled step of the n-joint plant (virtual_robot/urdf_plant.py): the RK4 substeps of one
+// control period in one stick mode, around Pinocchio's C++ ABA, in one call from Python through
+// ctypes (virtual_robot/compiled_step.py builds and loads it).
+//
+// It is the Python step operation for operation (urdf_plant._rk4_aba with the same expression
+// trees, no FMA contraction, no fast-math; the same library ABA, RNEA and reduced models), on a
+// model built from the same URDF with the same gravity and armature, so its trajectory equals
+// the Python path's to round-off (tests/test_urdf_plant.py runs both against the frozen
+// reference). The stick mode is fixed over a call: every joint sliding (the arm's ABA), or some
+// stuck (the ABA of the arm with those locked, Pinocchio's reduced model, and before each
+// substep Karnopp's breakaway test of UrdfPlant._release_stuck_joints). It returns at the first
+// substep where a watched (sliding, sticky) joint's velocity changes sign, with that substep's
+// RK4 result, or before the first substep where a stuck joint's holding torque leaves its
+// static band; Python then locates the stick or releases the joint exactly as before.
+//
+// C interface (every function catches C++ exceptions; errors come back as text):
+//   ddb_arm_new(urdf, gravity, armature, n, err, err_len) -> handle or NULL
+//   ddb_locked_new(arm, n_stuck, stuck, q, err, err_len) -> handle of the arm with the stuck
+//     joints locked at q, or NULL; ddb_locked_free(handle)
+//   ddb_arm_free(handle)
+//   ddb_advance(...) -> 0 reached t_end, 1 stopped at a crossing, 2 stopped before a
+//     breakaway, -1 error
+//   ddb_step(...), ddb_accelerations(...): one RK4 step of the mode, q̈ of the mode (for the
+//     Python code that locates a stick or releases a joint) -> 0, or -1 error
+
+#include <algorithm>
+#include <cstdio>
+#include <exception>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "pinocchio/algorithm/aba.hpp"
+#include "pinocchio/algorithm/model.hpp"
+#include "pinocchio/algorithm/rnea.hpp"
+#include "pinocchio/parsers/urdf.hpp"
+
+namespace
+{
+  using Vec = Eigen::VectorXd;
+  using CRef = Eigen::Ref<const Vec>;
+
+  struct Arm
+  {
+    pinocchio::Model model;
+    pinocchio::Data data;
+    // scratch of one RK4 step (allocated once)
+    Vec q, v, c, b, watch, tau, qs, a1, a2, a3, a4, y, z, u, qn, vn, w;
+    Vec command, upper, lower;  // τ, and the stuck joints' static bands [lower, upper]
+
+    void allocate(Eigen::Index n)
+    {
+      data = pinocchio::Data(model);
+      for (Vec * x : {&q, &v, &c, &b, &watch, &tau, &qs, &a1, &a2, &a3, &a4, &y, &z, &u, &qn,
+                      &vn, &w, &command})
+        x->setZero(n);
+    }
+  };
+
+  // The arm with its stuck joints locked where they stand (UrdfPlant._locked_arm): the reduced
+  // model, its armature the sliding joints', and which coordinates are free and stuck. With
+  // every joint stuck there is no reduced model and no motion.
+  struct Locked
+  {
+    Arm arm;
+    std::vector<Eigen::Index> free, stuck;
+  };
+
+  void gather(const Vec & from, const std::vector<Eigen::Index> & idx, Vec & to)
+  {
+    for (size_t i = 0; i < idx.size(); ++i)
+      to[static_cast<Eigen::Index>(i)] = from[idx[i]];
+  }
+
+
+  void set_error(char * err, int err_len, const char * what)
+  {
+    if (err && err_len > 0)
+      std::snprintf(err, static_cast<size_t>(err_len), "%s", what);
+  }
+
+  // body(), or `failed` with the C++ exception's text in err: nothing is thrown across the C
+  // interface
+  template<typename T, typename Body>
+  T guarded(T failed, char * err, int err_len, Body body)
+  {
+    try
+    {
+      return body();
+    }
+    catch (const std::exception & e)
+    {
+      set_error(err, err_len, e.what());
+    }
+    catch (...)
+    {
+      set_error(err, err_len, "unknown C++ exception");
+    }
+    return failed;
+  }
+
+  // One ABA call (Featherstone (2008) ch. 7) into `out`; Pinocchio returns a reference to
+  // data.ddq, overwritten by the next call, so it is copied as pin.aba's numpy result is.
+  void aba(Arm & arm, const Vec & q, const Vec & v, const Vec & tau, Vec & out)
+  {
+    out = pinocchio::aba(arm.model, arm.data, CRef(q), CRef(v), CRef(tau));
+  }
+
+  // One classical RK4 step of dt on (q, q̇), every joint sliding: urdf_plant._rk4_aba with the
+  // same association of every operation. Leaves q, q̇ in arm.qn, arm.vn; returns ∫bᵀq̇² dt.
+  double rk4_step(Arm & arm, double dt, bool viscous)
+  {
+    const double h2 = 0.5 * dt;
+    const double k = dt / 6.0;
+    const Vec &q = arm.q, &v = arm.v, &c = arm.c, &b = arm.b;
+    double dissipated = 0.0;
+    if (viscous)
+    {
+      arm.tau = c - b.cwiseProduct(v);
+      aba(arm, q, v, arm.tau, arm.a1);
+      arm.y = v + h2 * arm.a1;
+      arm.qs = q + h2 * v;
+      arm.tau = c - b.cwiseProduct(arm.y);
+      aba(arm, arm.qs, arm.y, arm.tau, arm.a2);
+      arm.z = v + h2 * arm.a2;
+      arm.qs = q + h2 * arm.y;
+      arm.tau = c - b.cwiseProduct(arm.z);
+      aba(arm, arm.qs, arm.z, arm.tau, arm.a3);
+      arm.u = v + dt * arm.a3;
+      arm.qs = q + dt * arm.z;
+      arm.tau = c - b.cwiseProduct(arm.u);
+      aba(arm, arm.qs, arm.u, arm.tau, arm.a4);
+      arm.w = v.cwiseProduct(v)
+              + 2.0 * (arm.y.cwiseProduct(arm.y) + arm.z.cwiseProduct(arm.z))
+              + arm.u.cwiseProduct(arm.u);
+      dissipated = k * b.dot(arm.w);
+    }
+    else
+    {
+      aba(arm, q, v, c, arm.a1);
+      arm.y = v + h2 * arm.a1;
+      arm.qs = q + h2 * v;
+      aba(arm, arm.qs, arm.y, c, arm.a2);
+      arm.z = v + h2 * arm.a2;
+      arm.qs = q + h2 * arm.y;
+      aba(arm, arm.qs, arm.z, c, arm.a3);
+      arm.u = v + dt * arm.a3;
+      arm.qs = q + dt * arm.z;
+      aba(arm, arm.qs, arm.u, c, arm.a4);
+    }
+    arm.qn = q + k * (v + 2.0 * (arm.y + arm.z) + arm.u);
+    arm.vn = v + k * (arm.a1 + 2.0 * (arm.a2 + arm.a3) + arm.a4);
+    return dissipated;
+  }
+  void scatter(const Vec & from, const std::vector<Eigen::Index> & idx, Vec & to)
+  {
+    for (size_t i = 0; i < idx.size(); ++i)
+      to[idx[i]] = from[static_cast<Eigen::Index>(i)];
+  }
+
+  // The mode's inputs: (q, q̇), τ − level `c` and viscous `b` (NULL: none) into arm, and for a
+  // locked arm the sliding joints' share of c and b.
+  void load_mode(
+    Arm & arm, Locked * locked, const double * q, const double * v, const double * c,
+    const double * b)
+  {
+    const Eigen::Index n = arm.model.nv;
+    arm.q = Eigen::Map<const Vec>(q, n);
+    arm.v = Eigen::Map<const Vec>(v, n);
+    arm.c = Eigen::Map<const Vec>(c, n);
+    if (b)
+      arm.b = Eigen::Map<const Vec>(b, n);
+    if (locked && !locked->free.empty())
+    {
+      gather(arm.c, locked->free, locked->arm.c);
+      if (b)
+        gather(arm.b, locked->free, locked->arm.b);
+    }
+  }
+
+  // q̈ of the mode at (arm.q, arm.v) into arm.a1 (UrdfPlant._accelerations): the arm's ABA of
+  // τ − level − b q̇; with joints locked, q̈_S = 0 and q̈_F the locked arm's ABA.
+  void mode_accelerations(Arm & arm, Locked * locked, bool viscous)
+  {
+    if (viscous)
+      arm.tau = arm.c - arm.b.cwiseProduct(arm.v);
+    else
+      arm.tau = arm.c;
+    if (!locked)
+    {
+      aba(arm, arm.q, arm.v, arm.tau, arm.a1);
+      return;
+    }
+    arm.a1.setZero();
+    if (locked->free.empty())
+      return;
+    Arm & lk = locked->arm;
+    gather(arm.q, locked->free, lk.q);
+    gather(arm.v, locked->free, lk.v);
+    gather(arm.tau, locked->free, lk.tau);
+    aba(lk, lk.q, lk.v, lk.tau, lk.a1);
+    scatter(lk.a1, locked->free, arm.a1);
+  }
+
+  // One RK4 step of dt of the mode from (arm.q, arm.v) into (arm.qn, arm.vn)
+  // (UrdfPlant._rk4_mode): the arm's, or the locked arm's with q_S, q̇_S as they are, or no
+  // motion with every joint stuck. Returns ∫bᵀq̇² dt.
+  double mode_step(Arm & arm, Locked * locked, double dt, bool viscous)
+  {
+    if (!locked)
+      return rk4_step(arm, dt, viscous);
+    arm.qn = arm.q;
+    arm.vn = arm.v;
+    if (locked->free.empty())
+      return 0.0;
+    Arm & lk = locked->arm;
+    gather(arm.q, locked->free, lk.q);
+    gather(arm.v, locked->free, lk.v);
+    const double work = rk4_step(lk, dt, viscous);
+    scatter(lk.qn, locked->free, arm.qn);
+    scatter(lk.vn, locked->free, arm.vn);
+    return work;
+  }
+} // namespace
+
+extern "C" {
+
+void * ddb_arm_new(
+  const char * urdf, double gravity, const double * armature, int n, char * err, int err_len)
+{
+  return guarded(static_cast<void *>(nullptr), err, err_len, [&]() -> void * {
+    auto arm = std::make_unique<Arm>();  // freed if the parser throws
+    pinocchio::urdf::buildModel(std::string(urdf), arm->model);
+    if (arm->model.nv != n || arm->model.nq != n)
+    {
+      set_error(err, err_len, "joint count differs from the Python model");
+      return nullptr;
+    }
+    arm->model.gravity.linear(Eigen::Vector3d(0.0, 0.0, -gravity));
+    arm->model.armature = Eigen::Map<const Vec>(armature, n);
+    arm->allocate(n);
+    return arm.release();
+  });
+}
+
+void ddb_arm_free(void * handle)
+{
+  delete static_cast<Arm *>(handle);
+}
+
+void * ddb_locked_new(
+  void * handle, int n_stuck, const int * stuck, const double * q, char * err, int err_len)
+{
+  return guarded(static_cast<void *>(nullptr), err, err_len, [&]() -> void * {
+    const Arm & full = *static_cast<Arm *>(handle);
+    const Eigen::Index n = full.model.nv;
+    auto locked = std::make_unique<Locked>();
+    std::vector<bool> is_stuck(static_cast<size_t>(n), false);
+    for (int i = 0; i < n_stuck; ++i)
+      is_stuck[static_cast<size_t>(stuck[i])] = true;
+    std::vector<pinocchio::JointIndex> joints;  // joint i + 1 moves coordinate i
+    for (Eigen::Index i = 0; i < n; ++i)
+    {
+      if (is_stuck[static_cast<size_t>(i)])
+      {
+        locked->stuck.push_back(i);
+        joints.push_back(static_cast<pinocchio::JointIndex>(i + 1));
+      }
+      else
+        locked->free.push_back(i);
+    }
+    const Eigen::Index nf = static_cast<Eigen::Index>(locked->free.size());
+    if (nf > 0)
+    {
+      const Vec q_ref = Eigen::Map<const Vec>(q, n);
+      locked->arm.model = pinocchio::buildReducedModel(full.model, joints, q_ref);
+      Vec armature(nf);
+      gather(full.model.armature, locked->free, armature);
+      locked->arm.model.armature = armature;
+      locked->arm.allocate(nf);
+    }
+    return locked.release();
+  });
+}
+
+void ddb_locked_free(void * handle)
+{
+  delete static_cast<Locked *>(handle);
+}
+
+// Integrate from scalars[0] (t) to t_end in steps of min(max_step, t_end − t), as
+// UrdfPlant.advance_to, in the current stick mode under the held τ − level `c` (viscous `b`, or
+// NULL for none): `locked` NULL, every joint sliding; else the arm with its stuck joints locked
+// (ddb_locked_new), whose holding torques τ_S − RNEA(q, q̇, q̈)_S are tested against the bands
+// [lower, upper] (n_stuck each) before each substep, with τ = `command`. q, v: in/out.
+// scalars: [t, dissipated, steps] in/out (t and the booked dissipation advance per accepted
+// step, in the same order of additions as Python), then out: [3] the dt and [4] the viscous
+// work of the substep where a watched velocity changed sign (v_j · watch_j < 0, or NaN), whose
+// RK4 result is in q_cross, v_cross; return 1 then, 2 before a substep where a stuck joint's
+// holding torque left its band, 0 when t_end is reached, −1 on a C++ exception (text in err).
+int ddb_advance(
+  void * handle,
+  void * locked_handle,
+  double * q,
+  double * v,
+  const double * c,
+  const double * b,
+  const double * watch,
+  const double * command,
+  const double * upper,
+  const double * lower,
+  double t_end,
+  double max_step,
+  double * scalars,
+  double * q_cross,
+  double * v_cross,
+  char * err,
+  int err_len)
+{
+  return guarded(-1, err, err_len, [&]() -> int {
+    Arm & arm = *static_cast<Arm *>(handle);
+    Locked * locked = static_cast<Locked *>(locked_handle);
+    const Eigen::Index n = arm.model.nv;
+    const bool viscous = b != nullptr;
+    load_mode(arm, locked, q, v, c, b);
+    arm.watch = Eigen::Map<const Vec>(watch, n);
+    if (locked)
+    {
+      const Eigen::Index ns = static_cast<Eigen::Index>(locked->stuck.size());
+      arm.command = Eigen::Map<const Vec>(command, n);
+      arm.upper = Eigen::Map<const Vec>(upper, ns);
+      arm.lower = Eigen::Map<const Vec>(lower, ns);
+    }
+    double t = scalars[0], dissipated = scalars[1], steps = scalars[2];
+    int status = 0;
+    while (t < t_end - 1e-12)
+    {
+      const double dt = std::min(max_step, t_end - t);
+      if (locked)
+      {
+        // Karnopp's breakaway test (UrdfPlant._release_stuck_joints): the holding torques
+        // f_S = (τ − RNEA(q, q̇, q̈))_S, q̈ of the mode, against their static bands
+        mode_accelerations(arm, locked, viscous);
+        const Vec & inverse =
+          pinocchio::rnea(arm.model, arm.data, CRef(arm.q), CRef(arm.v), CRef(arm.a1));
+        bool breaks = false;
+        for (size_t s = 0; s < locked->stuck.size(); ++s)
+        {
+          const Eigen::Index j = locked->stuck[s], k = static_cast<Eigen::Index>(s);
+          const double held = arm.command[j] - inverse[j];
+          breaks = breaks || held > arm.upper[k] || held < arm.lower[k];
+        }
+        if (breaks)
+        {
+          status = 2;
+          break;
+        }
+      }
+      const double work = mode_step(arm, locked, dt, viscous);
+      bool crossed = false;
+      for (Eigen::Index i = 0; i < n; ++i)
+        crossed = crossed || !(arm.vn[i] * arm.watch[i] >= 0.0);
+      if (crossed)
+      {
+        Eigen::Map<Vec>(q_cross, n) = arm.qn;
+        Eigen::Map<Vec>(v_cross, n) = arm.vn;
+        scalars[3] = dt;
+        scalars[4] = work;
+        status = 1;
+        break;
+      }
+      arm.q.swap(arm.qn);
+      arm.v.swap(arm.vn);
+      dissipated += work;
+      t += dt;
+      steps += 1.0;
+    }
+    Eigen::Map<Vec>(q, n) = arm.q;
+    Eigen::Map<Vec>(v, n) = arm.v;
+    scalars[0] = t;
+    scalars[1] = dissipated;
+    scalars[2] = steps;
+    return status;
+  });
+}
+
+// One RK4 step of dt of the mode (locked NULL: every joint sliding) from (q, v) into
+// (q_out, v_out), its ∫bᵀq̇² dt in work[0] (UrdfPlant._rk4_mode). 0, or −1 on an exception.
+int ddb_step(
+  void * handle, void * locked_handle, const double * q, const double * v, const double * c,
+  const double * b, double dt, double * q_out, double * v_out, double * work, char * err,
+  int err_len)
+{
+  return guarded(-1, err, err_len, [&]() -> int {
+    Arm & arm = *static_cast<Arm *>(handle);
+    Locked * locked = static_cast<Locked *>(locked_handle);
+    load_mode(arm, locked, q, v, c, b);
+    work[0] = mode_step(arm, locked, dt, b != nullptr);
+    Eigen::Map<Vec>(q_out, arm.model.nv) = arm.qn;
+    Eigen::Map<Vec>(v_out, arm.model.nv) = arm.vn;
+    return 0;
+  });
+}
+
+// q̈ of the mode at (q, v) into a_out (UrdfPlant._accelerations). 0, or −1 on an exception.
+int ddb_accelerations(
+  void * handle, void * locked_handle, const double * q, const double * v, const double * c,
+  const double * b, double * a_out, char * err, int err_len)
+{
+  return guarded(-1, err, err_len, [&]() -> int {
+    Arm & arm = *static_cast<Arm *>(handle);
+    Locked * locked = static_cast<Locked *>(locked_handle);
+    load_mode(arm, locked, q, v, c, b);
+    mode_accelerations(arm, locked, b != nullptr);
+    Eigen::Map<Vec>(a_out, arm.model.nv) = arm.a1;
+    return 0;
+  });
+}
+
+} // extern "C"
