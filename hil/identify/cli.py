@@ -214,6 +214,27 @@ def _scheme_json(res: SchemeResult, reference: np.ndarray, validation: dict) -> 
     }
 
 
+def _validations(
+    theta: np.ndarray,
+    who: str,
+    recordings: dict[str, Recording],
+    lam: float,
+    progress: StageProgress,
+) -> dict[str, dict[str, Any]]:
+    """:func:`validate` of θ on each named recording (fit, held_out), its progress told as
+    ``<who>: validation on <name>``."""
+    return {
+        name: validate(
+            theta,
+            rec,
+            lam=lam,
+            progress=progress,
+            stage=f"{who}: validation on {name.replace('_', '-')}",
+        )
+        for name, rec in recordings.items()
+    }
+
+
 def main(args: argparse.Namespace) -> int:
     prepare_out_dir(args.out, args.overwrite, inputs=(args.from_recording, args.validate))
     report, text = run_identify(args)
@@ -289,6 +310,7 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     if len(fit) < 8:
         raise ValueError(f"{fit.path}: only {len(fit)} rows, too short to identify")
     out.mkdir(parents=True, exist_ok=True)  # after reading: a refused run writes nothing
+    recordings = {"fit": fit} if held_out is None else {"fit": fit, "held_out": held_out}
     reference = robot_params(robot)
     h = fit.period_s
 
@@ -345,17 +367,7 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             },
         }
         for scheme, res in results.items():
-            validation = {
-                name: validate(
-                    res.theta,
-                    rec,
-                    lam=args.lam,
-                    progress=progress,
-                    stage=f"{scheme}: validation on {name.replace('_', '-')}",
-                )
-                for name, rec in (("fit", fit), ("held_out", held_out))
-                if rec is not None
-            }
+            validation = _validations(res.theta, scheme, recordings, args.lam, progress)
             entry["schemes"][scheme] = _scheme_json(res, reference.theta, validation)
             if not args.no_plot:
                 from hil.identify.plots import plot_estimates, plot_validation
@@ -379,17 +391,9 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             )
         )
 
-    profile_validation = {
-        name: validate(
-            reference.theta,
-            rec,
-            lam=args.lam,
-            progress=progress,
-            stage=f"{robot} profile: validation on {name.replace('_', '-')}",
-        )
-        for name, rec in (("fit", fit), ("held_out", held_out))
-        if rec is not None
-    }
+    profile_validation = _validations(
+        reference.theta, f"{robot} profile", recordings, args.lam, progress
+    )
     report["profile_validation"] = {
         name: {k: v for k, v in val.items() if k not in PLOT_ONLY}
         for name, val in profile_validation.items()
