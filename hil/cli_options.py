@@ -442,3 +442,29 @@ def prepare_out_dir(
             else:
                 child.unlink()
     return out  # created by the command when it writes (a refused run leaves nothing)
+
+
+def recorded_urdf_robot(recording: str | Path) -> str | None:
+    """The robot a run directory of this bench was recorded with when a URDF describes it (its
+    meta.json: `virtual-robot simulate` writes the profile's path, `hil run` the robot's name or
+    --robot's file), so that `hil identify --from` and `hil diagnose` take an n-joint run without
+    --robot; None for a 2-DOF run, a CSV, or a profile not found here (made elsewhere)."""
+    from profiles import ProfileError
+    from profiles.robot import describes_urdf_only
+
+    meta = Path(recording) / "meta.json"
+    try:
+        recorded = json.loads(meta.read_text()) if meta.is_file() else {}
+    except (OSError, ValueError):
+        return None
+    if not isinstance(recorded, dict):
+        return None
+    for profile in (recorded.get("robot_profile"), recorded.get("robot")):
+        if not isinstance(profile, str):
+            continue
+        try:
+            if describes_urdf_only(profile):
+                return profile
+        except (ProfileError, OSError):
+            continue
+    return None

@@ -66,6 +66,11 @@ def test_effect_free_recording_reports_nothing(recordings, capsys):
     assert doc["findings"] == [], doc["summary"]
     assert len(doc["fit"]["before"]["torque_nrmse"]) == 3
     assert len(doc["location"]["joints"]) == 3
+    # without --robot, the run's own arm from its meta.json: the same diagnosis
+    capsys.readouterr()
+    assert hil_main(["diagnose", str(recordings["null"]), "--json", "--no-plots"]) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert again["fit"] == doc["fit"] and again["findings"] == []
 
 
 def test_wrong_joint_count_is_a_one_line_error(recordings, tmp_path, capsys):

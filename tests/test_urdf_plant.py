@@ -197,7 +197,7 @@ def test_cicese3_identified_from_its_simulation(tmp_path, capsys):
     assert hil_main(["identify", "--from", str(sim), "--robot", "cicese3", "--out", str(out)]) == 0
     report = json.loads((out / "identify.json").read_text())
     check_cicese3_identified(report)
-    # without --robot the recording's own robot (meta.json) is used; the 2-DOF commands refuse
+    # without --robot the recording's own robot (meta.json) is used; the 2-DOF model refuses
     # an n-joint recording in one line
     again = tmp_path / "id-again"
     assert hil_main(["identify", "--from", str(sim), "--out", str(again)]) == 0
@@ -205,7 +205,7 @@ def test_cicese3_identified_from_its_simulation(tmp_path, capsys):
     capsys.readouterr()
     for bad in (
         ["identify", "--from", str(sim), "--robot", "cicese", "--out", str(tmp_path / "x")],
-        ["diagnose", str(sim), "--out", str(tmp_path / "y")],
+        ["diagnose", str(sim), "--robot", "cicese", "--out", str(tmp_path / "y")],
     ):
         assert hil_main(bad) == 2
         err = capsys.readouterr().err.strip().splitlines()[-1]

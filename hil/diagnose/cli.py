@@ -23,6 +23,7 @@ from hil.cli_options import (
     prepare_out_dir,
     print_document,
     read_recording,
+    recorded_urdf_robot,
     say,
 )
 from hil.diagnose.report import diagnose, percent
@@ -40,9 +41,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--robot",
-        default="cicese",
-        help="robot profile: the reference θ and the nominal model's terms (default cicese); "
-        "a URDF arm (cicese3, panda) is diagnosed over its n-joint model",
+        default=None,
+        help="robot profile: the reference θ and the nominal model's terms (default: the "
+        "recording's own URDF arm from its meta.json, else cicese); a URDF arm (cicese3, "
+        "panda) is diagnosed over its n-joint model",
     )
     p.add_argument(
         "--params",
@@ -62,6 +64,14 @@ def _progress(message: str) -> None:
 def main(args: argparse.Namespace) -> int:
     if args.out:
         prepare_out_dir(args.out, args.overwrite, inputs=args.recordings)
+    if args.robot is None:
+        recorded = {recorded_urdf_robot(path) for path in args.recordings}
+        if len(recorded) > 1:
+            raise ValueError(
+                "the recordings were made with different robots "
+                f"({', '.join(sorted(r or 'a 2-DOF arm' for r in recorded))}): give --robot"
+            )
+        args.robot = recorded.pop() or "cicese"
     if describes_urdf_only(args.robot):
         # an n-joint arm described by a URDF (docs/urdf.md): the model object from the
         # profile, its base parameters at the URDF's bodies and the profile's friction as the

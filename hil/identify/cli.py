@@ -11,7 +11,6 @@ report says so.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 from typing import Any
@@ -33,6 +32,7 @@ from hil.cli_options import (
     prepare_out_dir,
     print_document,
     read_recording,
+    recorded_urdf_robot,
     say,
     split_list,
 )
@@ -699,30 +699,8 @@ def _urdf_robot(args: argparse.Namespace) -> bool:
     from profiles.robot import describes_urdf_only
 
     if not args.robot and args.from_recording:
-        # the recording's own robot, as the 2-DOF path takes it (meta.json of this bench)
-        meta = Path(args.from_recording) / "meta.json"
-        try:
-            recorded = json.loads(meta.read_text()) if meta.is_file() else {}
-        except (OSError, ValueError):
-            recorded = {}
-        # simulate writes the profile's path, `hil run` the robot's name (or --robot's file)
-        for profile in (recorded.get("robot_profile"), recorded.get("robot")):
-            if isinstance(profile, str) and _is_urdf_only(profile):
-                args.robot = profile
-                break
+        args.robot = recorded_urdf_robot(args.from_recording)
     return bool(args.robot) and describes_urdf_only(args.robot)
-
-
-def _is_urdf_only(profile: str) -> bool:
-    """A robot profile (name or file) that describes its arm by a URDF only; False for one that
-    cannot be found here (a recording made elsewhere)."""
-    from profiles import ProfileError
-    from profiles.robot import describes_urdf_only
-
-    try:
-        return describes_urdf_only(profile)
-    except (ProfileError, OSError):
-        return False
 
 
 def _held(rec: Any) -> bool:
