@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from drivers.recording import Recording, RecordingError, reassemble
-from profiles.timing_faults import TimingTrace, check_trace
+from profiles.timing_faults import MAX_FEEDBACK_BUDGET_S, TimingTrace, check_trace
 
 ROBOT_EVENTS = "robot-events.csv"  # realtime: the virtual robot's own sample and command times
 # Host time from a cycle's feedback to its command taking effect on the robot, used when only
@@ -43,10 +43,11 @@ COMPUTE_S = {"hil run": 2.1e-4, "hil control": 4.4e-4}
 DEFAULT_COMPUTE_S = 2.1e-4
 
 
-def robot_event_trace(path: Path, rows: int) -> TimingTrace:
+def robot_event_trace(path: Path, rows: int, *, bounded: bool = True) -> TimingTrace:
     """The trace of a run from the robot's event log (virtual_robot EventLog), on the robot's
     clock: sample times, the first and the last command write of each cycle, and every other
-    time it integrated its plant to (period ticks, frames)."""
+    time it integrated its plant to (period ticks, frames). ``bounded`` False: an interval
+    past the longest feedback budget is taken (a gap, for analysis), not refused."""
     samples: dict[int, float] = {}
     first: dict[int, float] = {}
     last: dict[int, float] = {}
@@ -80,23 +81,27 @@ def robot_event_trace(path: Path, rows: int) -> TimingTrace:
     sample = np.array([samples[k] for k in range(rows)])
     command = np.array([last.get(k, samples[k]) for k in range(rows)])
     first_command = np.array([first.get(k, samples[k]) for k in range(rows)])
-    _checked(sample, first_command, command, str(path))
+    _checked(sample, first_command, command, str(path), bounded)
     grid = np.array(sorted(t for t in steps if t > sample[0]))
     return TimingTrace(
         sample, np.maximum.accumulate(command), first_command, grid if len(grid) else None
     )
 
 
-def _checked(sample: np.ndarray, first: np.ndarray, command: np.ndarray, where: str) -> None:
-    """:func:`profiles.timing_faults.check_trace` as a :class:`RecordingError` (a run's file)."""
+def _checked(
+    sample: np.ndarray, first: np.ndarray, command: np.ndarray, where: str, bounded: bool
+) -> None:
+    """:func:`profiles.timing_faults.check_trace` as a :class:`RecordingError` (a run's file);
+    ``bounded`` False: no bound on an interval (module docstring of :func:`run_trace`)."""
     try:
-        check_trace(sample, first, command, where)
+        check_trace(sample, first, command, where, None if not bounded else MAX_FEEDBACK_BUDGET_S)
     except ValueError as exc:
         raise RecordingError(str(exc)) from None
 
 
-def host_stamp_trace(rec: Recording, compute_s: float) -> TimingTrace:
-    """The trace from the host's stamps of every cycle (module docstring)."""
+def host_stamp_trace(rec: Recording, compute_s: float, *, bounded: bool = True) -> TimingTrace:
+    """The trace from the host's stamps of every cycle (module docstring); ``bounded`` as for
+    :func:`robot_event_trace`."""
     cols = rec.columns
     for name in ("sync_sent_s", "feedback_s"):
         if name not in cols:
@@ -106,21 +111,26 @@ def host_stamp_trace(rec: Recording, compute_s: float) -> TimingTrace:
         raise RecordingError(f"{rec.path}: a sync_sent_s or feedback_s value is missing")
     sample = sent - sent[0]
     command = np.maximum(received - sent[0] + compute_s, sample)
-    _checked(sample, command, command, f"{rec.path}: sync_sent_s, feedback_s")
+    _checked(sample, command, command, f"{rec.path}: sync_sent_s, feedback_s", bounded)
     return TimingTrace(sample, np.maximum.accumulate(command))
 
 
 def run_trace(rec: Recording) -> tuple[TimingTrace, str] | None:
     """The trace of a realtime run directory (robot events if there, else the host's stamps)
-    and where it came from; None for a recording that is not a realtime run of this bench."""
+    and where it came from; None for a recording that is not a realtime run of this bench.
+    Read for analysis: a stall past the longest feedback budget (a host suspended, say) is kept
+    as a long interval, which the reader then splits the run at as a gap; a replay, which would
+    integrate over it, reads the trace bounded (hil.timing.replay)."""
     if rec.meta.get("mode") != "realtime" or rec.loop_delay != 0:
         return None
     events = Path(rec.path) / ROBOT_EVENTS
     if events.is_file() and rec.meta.get("protocol") != "serial":
-        return robot_event_trace(events, len(rec)), f"the robot's clock ({ROBOT_EVENTS})"
+        trace = robot_event_trace(events, len(rec), bounded=False)
+        return trace, f"the robot's clock ({ROBOT_EVENTS})"
     if {"sync_sent_s", "feedback_s"} <= set(rec.columns):
         compute = COMPUTE_S.get(str(rec.meta.get("kind", "")), DEFAULT_COMPUTE_S)
-        return host_stamp_trace(rec, compute), "the host's stamps (sync_sent_s, feedback_s)"
+        trace = host_stamp_trace(rec, compute, bounded=False)
+        return trace, "the host's stamps (sync_sent_s, feedback_s)"
     return None
 
 

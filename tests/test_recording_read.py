@@ -517,3 +517,26 @@ def test_realtime_run_read_on_its_host_stamps(tmp_path):
     with pytest.raises(RecordingError) as exc:
         read_signals(tmp_path / "rt", columns="t=sync_sent_s")
     assert "inconsistent with meta.json's period_s" in one_line_error(exc)
+
+
+def test_realtime_run_with_a_stall_past_every_budget_reads_as_a_gap(tmp_path):
+    """A realtime run whose host stopped for 20 s (longer than any feedback budget: Ctrl-Z,
+    say) keeps its rows for analysis: run_trace reads the stall as one long interval, which the
+    reader splits the run at; a replay's bounded reading refuses to integrate over it."""
+    from drivers.realtime_times import host_stamp_trace, on_real_times, run_trace
+
+    sent = np.arange(100) * H
+    sent[60:] += 20.0
+    with RecordingWriter(tmp_path / "rt", {"period_s": H, "mode": "realtime"},
+                         extra_columns=("sync_sent_s", "feedback_s")) as w:  # fmt: skip
+        for k in range(100):
+            w.write([k * H, 0.01 * k, 0.0, 1.0, 0.0, float(sent[k]), float(sent[k] + 1e-3)])
+    rec = read_signals(tmp_path / "rt")
+    trace, source = run_trace(rec)
+    assert "host's stamps" in source
+    moved = on_real_times(rec, trace, source)
+    assert len(moved) == 100 and moved.t[60] - moved.t[59] == pytest.approx(20.0 + H)
+    assert len(moved.segments()) == 2  # the stall is a gap, never bridged
+    with pytest.raises(RecordingError) as exc:
+        host_stamp_trace(rec, 2e-4)  # bounded, as hil replay reads it
+    assert "beyond the longest feedback budget" in one_line_error(exc)
