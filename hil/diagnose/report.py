@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.process import release_freed_heap
 from drivers.recording import Recording
 from hil.diagnose.columns import GAP_FACTOR, moving_average
 from hil.diagnose.findings import (
@@ -1081,6 +1082,7 @@ def diagnose(
     for r in recordings:
         check_recording(str(r.path), r.t, r.q, r.tau)
     prob, theta_fit = build_problem([(r.q, r.tau, r.period_s, r.t) for r in recordings], model)
+    release_freed_heap()  # the rows' building blocks, before the selection's peak
     usable = (prob.w > 0).sum(axis=0)
     live = [j for j in (0, 1) if usable[j] >= MIN_USABLE_ROWS]
     if not live:
@@ -1123,6 +1125,7 @@ def diagnose(
         cannot = []
         say(f"diagnose: testing {len(library)} candidates (both joints)")
         accepted, first = select(prob, library, reference=reference_theta, rejected=rejected)
+        release_freed_heap()  # the grids and columns the selection dropped (Problem.keep_only)
         accepted = physical_gate(prob, relinearise_angle(prob, accepted), rejected)
         accepted = lack_of_fit(prob, accepted, rejected, say)
         accepted = settle_gain_joint(prob, accepted, library, reference_theta)
