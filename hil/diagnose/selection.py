@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.process import release_freed_heap
 from hil.diagnose.columns import (
     RecordingRows,
     angle_offset_column,
@@ -404,6 +405,7 @@ class Problem:
         assert lo == n_var
         if fresh:
             self.grids[cand.key] = sums
+        release_freed_heap()  # the chunks' columns and working arrays (drivers.process)
         return sums
 
     def _grid_columns(self, cand: Candidate) -> Iterator[np.ndarray]:
