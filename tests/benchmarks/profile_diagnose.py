@@ -1,10 +1,12 @@
 """Profile one `hil diagnose` of a recording: CPU time and resident memory at every stage, the
 stack where the resident size peaked, optionally cProfile, and the document as JSON.
 
-    python tests/benchmarks/profile_diagnose.py RUN_DIR OUT_PREFIX [--cprofile]
+    python tests/benchmarks/profile_diagnose.py RUN_DIR OUT_PREFIX [--cprofile] [--tracemalloc]
 
 Writes OUT_PREFIX.json (the document without its timing, to compare two trees field by field)
-and with ``--cprofile`` OUT_PREFIX.prof (``python -m pstats``). Runs with one BLAS thread, as
+and with ``--cprofile`` OUT_PREFIX.prof (``python -m pstats``); ``--tracemalloc`` also prints
+the live (traced) memory at every stage, against the resident size (several times slower). Runs
+with one BLAS thread, as
 every ``hil`` command does. The stack is sampled every 20 ms from a thread, so the peak it names
 is the nearest sample's. Used for docs/diagnosis.md, "Memory and long recordings".
 """
@@ -19,6 +21,7 @@ import sys
 import threading
 import time
 import traceback
+import tracemalloc
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
@@ -36,6 +39,7 @@ def main() -> int:
     ap.add_argument("recording", help="run directory or CSV")
     ap.add_argument("out", help="output prefix: OUT.json, OUT.prof")
     ap.add_argument("--cprofile", action="store_true", help="also write OUT.prof")
+    ap.add_argument("--tracemalloc", action="store_true", help="also print the live memory")
     args = ap.parse_args()
     limit_blas_threads()
     from drivers.recording import read_signals
@@ -56,11 +60,17 @@ def main() -> int:
 
     def say(message: str) -> None:
         maxrss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3
+        live = ""
+        if tracemalloc.is_tracing():
+            live = f"live {tracemalloc.get_traced_memory()[0] / 1e6:5.0f} MB, "
         print(
-            f"[{time.process_time():6.1f} s CPU] resident {resident_mb():5.0f} MB, "
+            f"[{time.process_time():6.1f} s CPU] {live}resident {resident_mb():5.0f} MB, "
             f"peak {maxrss:5.0f} MB: {message}",
             flush=True,
         )
+
+    if args.tracemalloc:
+        tracemalloc.start()
 
     threading.Thread(target=sample, daemon=True).start()
     rec = read_signals(args.recording)
