@@ -83,14 +83,22 @@ def test_large_recording_says_what_reading_does(tmp_path: Path, monkeypatch, cap
 
 
 _FREED_PROBE = """
+import ctypes
 import numpy as np
 from drivers.process import release_freed_heap
 def rss():
     with open("/proc/self/statm") as f:
         return int(f.read().split()[1]) * 4096
-first = np.ones(4_000_000)  # 32 MB, mmapped; freed, it raises glibc's own threshold
-del first
-middle = np.ones(2_000_000)  # 16 MB, now from the heap
+libc = ctypes.CDLL(None)
+if not hasattr(libc, "mallopt"):
+    print("unsupported")
+    raise SystemExit
+# glibc's state after a long analysis, set outright (left to itself it depends on what the
+# process freed before): the mmap threshold grown to 32 MB, the heap's top trimmed only
+# beyond twice that
+libc.mallopt(-3, 32 << 20)  # M_MMAP_THRESHOLD
+libc.mallopt(-1, 64 << 20)  # M_TRIM_THRESHOLD
+middle = np.ones(2_000_000)  # 16 MB, from the heap
 after = np.ones(1000)  # a small block behind it
 middle[:] = 2.0
 before = rss()
@@ -104,9 +112,9 @@ print(kept, before - rss())
 
 
 def test_freed_heap_goes_back_to_the_system() -> None:
-    """drivers.process.release_freed_heap: a 16 MB array freed in the middle of the heap stays
-    resident (glibc's mmap threshold had grown to the first array's size) until the heap is
-    trimmed. Skipped where there is no /proc or no malloc_trim."""
+    """drivers.process.release_freed_heap: a 16 MB array freed on the heap stays resident (glibc
+    with the thresholds a long analysis leaves it) until the heap is trimmed. Skipped where
+    there is no /proc or no mallopt and malloc_trim (not glibc)."""
     if not Path("/proc/self/statm").exists():
         pytest.skip("no /proc/self/statm to read the resident size from")
     root = Path(__file__).resolve().parents[1]
