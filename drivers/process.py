@@ -83,28 +83,28 @@ def limit_blas_threads() -> None:
         threadpool_limits(limits=1, user_api="blas")
 
 
-# glibc's malloc gives a freed block back to the system only when it was mmapped, and raises
-# its mmap threshold to the size of every mmapped block freed (up to 32 MB): after the first
-# few, the 1–30 MB arrays of a long analysis come from the heap, whose freed middle stays
-# resident. A 10-minute diagnosis at 1 kHz held some 300 MB of freed heap that way at its peak
-# (docs/diagnosis.md, "Memory and long recordings"). A fixed threshold keeps blocks of at least
-# this size mmapped, returned on free; smaller ones (a block's rows) stay on the heap.
-MMAP_THRESHOLD_BYTES = 1 << 20
-_M_MMAP_THRESHOLD = -3  # mallopt parameter number (glibc malloc.h)
+# glibc's malloc gives a freed block back to the system at once only when it was mmapped, and
+# raises its mmap threshold to the size of every mmapped block freed (up to 32 MB): after the
+# first few, the 1–30 MB arrays of a long analysis come from the heap, whose freed middle stays
+# resident. A 10-minute diagnosis at 1 kHz held 300–600 MB of freed heap that way (resident
+# against live memory, tracemalloc; docs/diagnosis.md, "Memory and long recordings"). A fixed
+# low threshold would return them but page-fault every large array afresh (a third more CPU
+# time there); trimming the heap between an analysis's stages returns it at no such cost.
 
 
-def return_freed_memory() -> bool:
-    """Large arrays (≥ :data:`MMAP_THRESHOLD_BYTES`) mmapped by the C library, so that their
-    memory goes back to the system when freed (see above), called where a command starts,
-    never on import. False where the C library has no ``mallopt`` (not glibc): nothing set."""
+def release_freed_heap() -> bool:
+    """Return the heap's freed pages to the system (glibc ``malloc_trim``): for analyses
+    between stages whose arrays are freed. Changes nothing but the resident size. False where
+    the C library has no ``malloc_trim`` (not glibc): nothing done."""
     import ctypes
 
     try:
-        mallopt = ctypes.CDLL(None).mallopt  # the C library this interpreter runs on
+        trim = ctypes.CDLL(None).malloc_trim  # the C library this interpreter runs on
     except (OSError, AttributeError):
         return False
-    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
-    return bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES))
+    trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
+    trim(0)
+    return True
 
 
 def install_exit_signals() -> None:

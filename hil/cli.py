@@ -29,7 +29,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from drivers.logsetup import add_verbosity_options, configure, verbosity
-from drivers.process import limit_blas_threads, return_freed_memory
+from drivers.process import limit_blas_threads
 from hil import __version__
 from hil.cli_options import (
     EXIT_USAGE,
@@ -287,7 +287,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parse(argv)
     configure("hil", verbosity(args))
     limit_blas_threads()  # every way in (hil, python -m hil, python -m hil.cli) passes here
-    return_freed_memory()
     if args.command == "run":
         return run_command("run", cmd_run, args)
     if args.command == "demo":

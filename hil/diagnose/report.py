@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.process import release_freed_heap
 from drivers.recording import Recording
 from hil.diagnose.columns import (
     GAP_FACTOR,
@@ -1360,6 +1361,7 @@ def diagnose(
     for r in recordings:
         check_recording(str(r.path), r.t, r.q, r.tau)
     prob, theta_fit = build_problem([(r.q, r.tau, r.period_s, r.t) for r in recordings], model)
+    release_freed_heap()  # the rows' building blocks, before the selection's peak
     usable = (prob.w > 0).sum(axis=0)
     n_joints = prob.n_joints
     live = [j for j in range(n_joints) if usable[j] >= MIN_USABLE_ROWS]
@@ -1406,6 +1408,7 @@ def diagnose(
         said = "both joints" if n_joints == 2 else f"{n_joints} joints"
         say(f"diagnose: testing {len(library)} candidates ({said})")
         accepted, first = select(prob, library, reference=reference_theta, rejected=rejected)
+        release_freed_heap()  # the grids and columns the selection dropped (Problem.keep_only)
         accepted = physical_gate(prob, relinearise_angle(prob, accepted), rejected)
         accepted = lack_of_fit(prob, accepted, rejected, say)
         accepted = settle_gain_joint(prob, accepted, library, reference_theta)

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.process import release_freed_heap
 from hil.diagnose.columns import (
     RecordingRows,
     angle_offset_column,
@@ -443,6 +444,7 @@ class Problem:
         assert lo == n_var
         if fresh:
             self.grids[cand.key] = sums
+        release_freed_heap()  # the chunks' columns and working arrays (drivers.process)
         return sums
 
     def _grid_columns(self, cand: Candidate) -> Iterator[np.ndarray]:
@@ -620,9 +622,16 @@ def _cv_terms(prob: Problem, terms: Sequence[Accepted], cand: Candidate) -> Cros
 def _rewhiten(prob: Problem, accepted: Sequence[Accepted]) -> None:
     """Noise scale per joint from the residual of the model with the accepted terms."""
     cols = [prob.chosen(a) for a in accepted]
-    Z = _design(prob, cols) * prob.scale[None, :, None]  # unscaled
-    beta = fit_theta(Z, prob.y_raw, prob.w)
-    prob.scale = robust_scale(prob.y_raw - Z @ beta, prob.w)
+
+    def unscaled() -> np.ndarray:
+        Z = _design(prob, cols)
+        Z *= prob.scale[None, :, None]
+        return Z
+
+    # the design is weighted in place by the fit and built again for the residual: on a long
+    # recording two (K, 2, p) copies fewer while the grids' sums are held
+    beta = fit_theta(unscaled(), prob.y_raw, prob.w, overwrite_design=True)
+    prob.scale = robust_scale(prob.y_raw - unscaled() @ beta, prob.w)
 
 
 def _harms_other_joint(base: CrossValidation, cv: CrossValidation, cand: Candidate) -> bool:

@@ -40,9 +40,8 @@ LONG_TARGET_S, LONG_TARGET_BYTES = 60.0, 1e9
 def long_case(minutes: float, recording: str | None = None) -> None:
     """Diagnose ``minutes`` of the validation multisine at 1 kHz in a child process
     (``recording``: a run directory, made there and kept when it holds no recording yet, so that
-    reruns diagnose the same one instead of simulating it again). The child starts as every
-    ``hil`` command does: one BLAS thread (drivers.process.limit_blas_threads), large arrays
-    returned to the system when freed (drivers.process.return_freed_memory)."""
+    reruns diagnose the same one instead of simulating it again). The child runs with one BLAS
+    thread, as every ``hil`` command does (drivers.process.limit_blas_threads)."""
     from profiles.experiment import load_experiment
 
     text = Path(load_experiment("validation-multisine").source).read_text()
@@ -58,8 +57,7 @@ def long_case(minutes: float, recording: str | None = None) -> None:
         else:
             path = Path(recording)
         code = (
-            "from drivers.process import limit_blas_threads, return_freed_memory; "
-            "limit_blas_threads(); return_freed_memory(); "
+            "from drivers.process import limit_blas_threads; limit_blas_threads(); "
             "import sys, time; from drivers.recording import read_signals; "
             "from hil.diagnose.report import diagnose; from hil.model.params import robot_params; "
             "rec = read_signals(sys.argv[1]); t = time.perf_counter(); "
