@@ -83,6 +83,13 @@ def test_worse_beyond_noise_arithmetic():
     assert not worse_beyond_noise(0.1015, 0.1, 0.0)
     # 50 % on a 10 % fit, sensitivity 0.2 %: a worsening
     assert worse_beyond_noise(0.15, 0.10, 0.002)
+    # a poor fit (a real arm: position 20 %, sensitivity 70 %): the allowance is bounded, so
+    # the joint a finding is about may not get worse beyond the noise floor ...
+    assert worse_beyond_noise(0.25, 0.20, 0.70, own_joint=True)
+    assert not worse_beyond_noise(0.2065, 0.20, 0.70, own_joint=True)
+    # ... and another joint not beyond twice its error
+    assert not worse_beyond_noise(0.35, 0.20, 0.70)
+    assert worse_beyond_noise(0.45, 0.20, 0.70)
 
 
 def test_cogging_phase_moves_to_the_true_angle_with_an_angle_offset():

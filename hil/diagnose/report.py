@@ -1056,20 +1056,33 @@ def simulation_sensitivity(moved: np.ndarray, simulated: np.ndarray, recorded: n
     return nrmse(recorded, recorded + moved - simulated)
 
 
+# Held-out simulated-position NRMSE up to which a fit counts as near-perfect: there equally good
+# models move the simulation by tenths of a point (0.1–0.3 % at 0.1–0.6 % torque NRMSE on the
+# blind-like sets), and that much movement is noise, not a worsening.
+SIMULATION_NOISE_FLOOR = 0.005
+
+
 def worse_beyond_noise(
     with_term: float,
     without_term: float,
     sensitivity: float,
     tolerance: float = SIMULATION_TOLERANCE,
+    *,
+    own_joint: bool = False,
 ) -> bool:
     """Is a held-out simulated-position NRMSE of ``with_term`` a real worsening of
     ``without_term``? Only when it exceeds it by the integrator's relative ``tolerance`` plus
-    the simulation's ``sensitivity`` to the model's own torque error. On a near-perfect fit
-    (0.1–0.3 % position NRMSE at 0.1–0.6 % torque NRMSE) equally good models move the
-    simulation by tenths of a point and a bare relative test dropped true terms for it (issue
-    12: four blind-set terms, a closed-loop gain); where the fit is far from the noise a rise
-    of half the error stays a worsening."""
-    return with_term > (1.0 + tolerance) * without_term + sensitivity + 1e-12
+    an allowance for the simulation's ``sensitivity`` to the model's own torque error. On a
+    near-perfect fit equally good models move the simulation by tenths of a point and a bare
+    relative test dropped true terms for it (issue 12: four blind-set terms, a closed-loop
+    gain). The allowance is bounded, so that the test still holds where the fit is poor: on a
+    real arm whose torque error is 40–120 % the sensitivity (58–86 %) exceeds the position
+    error (17–21 %) itself, and unbounded it would pass any worsening. On the joint a finding
+    is about (``own_joint``) it is at most :data:`SIMULATION_NOISE_FLOOR` (a finding must
+    improve the motion it explains); on another joint at most the larger of that floor and
+    ``without_term`` (twice the error stays a worsening)."""
+    cap = SIMULATION_NOISE_FLOOR if own_joint else max(SIMULATION_NOISE_FLOOR, without_term)
+    return with_term > (1.0 + tolerance) * without_term + min(sensitivity, cap) + 1e-12
 
 
 def _term_joints(prob: Problem, accepted: Sequence[Accepted], term: str) -> list[int]:
@@ -1212,7 +1225,7 @@ def simulation_gate(
             e_without = sum(without[j] for j in joints)
             ratio = e_with / max(e_without, 1e-12)
             if ratio > worst_ratio and worse_beyond_noise(
-                e_with, e_without, sum(noise[j] or 0.0 for j in joints)
+                e_with, e_without, sum(noise[j] or 0.0 for j in joints), own_joint=True
             ):
                 worst, worst_ratio = term, ratio
                 worst_text = (
