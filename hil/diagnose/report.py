@@ -826,9 +826,9 @@ def _phrase(f: Finding) -> str:
     if e.get("relative_at_reference_theta") is not None:
         # docs/diagnosis.md 4a: a free θ absorbs part of a gain (most in closed loop)
         words += (
-            f" ({100 * e['relative_at_reference_theta']:+.3g} % with θ1..θ5 held at the "
-            "reference; with θ free the estimate is biased toward zero, most on closed-loop "
-            "data)"
+            f" ({100 * e['relative_at_reference_theta']:+.3g} % with the rigid-body parameters "
+            "(θ1..θ5 of the 2-DOF arm) held at the reference; with θ free the estimate is "
+            "biased toward zero, most on closed-loop data)"
         )
     return words
 
