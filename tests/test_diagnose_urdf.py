@@ -1,8 +1,9 @@
 """`hil diagnose --robot cicese3` (and `--robot panda`): the diagnosis over an n-joint model
 object (hil.model.urdf.UrdfArmModel), docs/diagnosis.md "n joints".
 
-The recordings with a concealed effect are made the physically valid way while the n-joint
-virtual plant has no effects of its own: the effect-free cicese3 arm is simulated offline with
+One recording carries the n-joint plant's own concealed effect (`--effects joint3-gain`); the
+others are made from the effect-free run, which reaches effects the plant does not have in
+`cicese3`'s profile (a gain of any size, on any joint): the effect-free arm is simulated with
 applied torques τ_a, and the recording is written with the command τ an arm with the effect
 needed to apply τ_a (a torque gain r on joint 3: τ_3 = τ_a3 / (1 + r)). Held torques stay held,
 so the recording is exactly that of the arm with the effect. The Panda recording of Gaz et al.
@@ -59,6 +60,21 @@ def test_gain_on_joint_3_is_found_on_joint_3_with_its_size(recordings, capsys):
     # what the URDF model cannot take is named with the reason
     assert set(doc["not_tested"]) == {"rotor_inertia", "com_offset", "offset"}
     assert "friction_offset" in doc["not_tested"]["offset"]
+
+
+def test_plant_concealed_gain_on_joint_3_found_end_to_end(tmp_path, capsys):
+    """The issue's proof with the plant's own effect: `virtual-robot simulate --robot cicese3
+    --effects joint3-gain` (the n-joint plant applies 1.07 τ on joint 3), then `hil diagnose`
+    of that run without --robot (the arm from its meta.json): a torque gain on joint 3 only."""
+    run = tmp_path / "joint3-gain"
+    args = ["simulate", "--robot", "cicese3", "--experiment", "cicese3-excitation"]
+    assert vr_main([*args, "--effects", "joint3-gain", "--duration", "10", "--out", str(run),
+                    "--no-plot"]) == 0  # fmt: skip
+    capsys.readouterr()
+    assert hil_main(["diagnose", str(run), "--json", "--no-plots"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert [(f["effect"], f["joint"]) for f in doc["findings"]] == [("torque_gain", 3)]
+    assert abs(doc["findings"][0]["estimate"]["relative"] - GAIN) <= WITHIN * GAIN
 
 
 def test_effect_free_recording_reports_nothing(recordings, capsys):
