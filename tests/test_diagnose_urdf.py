@@ -2,8 +2,8 @@
 object (hil.model.urdf.UrdfArmModel), docs/diagnosis.md "n joints".
 
 One recording carries the n-joint plant's own concealed effect (`--effects joint3-gain`); the
-others are made from the effect-free run, which reaches effects the plant does not have in
-`cicese3`'s profile (a gain of any size, on any joint): the effect-free arm is simulated with
+others are rewritten from the effect-free run (any effect, size and joint without an effects
+profile for each), the physically valid way: the effect-free arm is simulated with
 applied torques τ_a, and the recording is written with the command τ an arm with the effect
 needed to apply τ_a (a torque gain r on joint 3: τ_3 = τ_a3 / (1 + r)). Held torques stay held,
 so the recording is exactly that of the arm with the effect. The Panda recording of Gaz et al.
