@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 import hil.model.closed_form as closed_form
+from drivers.process import limit_blas_threads
 from hil.identify.urdf import (
     ENERGY_SCHEMES,
     TorqueRecording,
@@ -266,6 +267,7 @@ def main() -> int:
     )
     parser.add_argument("--repeats", type=int, default=3, help="simulation runs per arm (best)")
     args = parser.parse_args()
+    limit_blas_threads()  # as `hil identify` and `virtual-robot simulate` run: one BLAS thread
     if args.only_simulate:
         import tempfile
 
