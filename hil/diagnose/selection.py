@@ -991,7 +991,9 @@ def _forward(
             passing = _passing_pair(prob, extra, base, scored, tests)
             if not passing:
                 break
-        cand, cv, ev = _prefer_effect(max(passing, key=lambda s: s[2].drop), passing, tests)
+        cand, cv, ev = _prefer_effect(
+            max(passing, key=lambda s: s[2].drop), passing, tests, prob, extra, scored
+        )
         chosen_cols = prob.column(cand, cv.variant)
         acc = Accepted(cand, cand.variants[cv.variant], ev)
         accepted.append(acc)
@@ -1010,12 +1012,21 @@ def _prefer_effect(
     best: tuple[Candidate, CrossValidation, Evidence],
     passing: Sequence[tuple[Candidate, CrossValidation, Evidence]],
     tests: int,
+    prob: Problem | None = None,
+    extra: Sequence[np.ndarray] = (),
+    scored: Sequence[tuple[Candidate, CrossValidation, Evidence]] = (),
 ) -> tuple[Candidate, CrossValidation, Evidence]:
     """A model term (several parameters, hil.model.closed_form) is taken before a passing
     effect of the vocabulary only when it explains the data clearly better (the test, the term
     against the effect): an encoder zero offset on joint 1 is exactly a centre-of-mass offset
     with θ2⊥ = 0, and the narrower explanation goes in first (the other is then reported as
-    confounded with it, :func:`_confounding`)."""
+    confounded with it, :func:`_confounding`). Narrower also means two passing effects taken
+    together (two parameters against the term's three): a centre-of-mass offset took up an
+    encoder offset on joint 2 together with joint 1's Coulomb asymmetry and beat each of them
+    alone (blind-like sets, rec-25 of every seed); it must beat the pair too (with ``prob``).
+    The pair's members are drawn as :func:`_passing_pair` draws them (from ``scored``: each
+    lowers the error by the least reduction counted), since one of the two may pass only once
+    the other is in."""
     if best[0].kind not in TERMS:
         return best
     rivals = [
@@ -1026,7 +1037,22 @@ def _prefer_effect(
             evidence(s[1], best[1], sorted(set(_joints(s[0])) | set(_joints(best[0])))), tests
         )
     ]
-    return max(rivals, key=lambda s: s[2].drop) if rivals else best
+    if rivals or prob is None:
+        return max(rivals, key=lambda s: s[2].drop) if rivals else best
+    pool = [
+        s
+        for s in [*passing, *(s for s in scored if s not in passing)]
+        if s[0].kind not in TERMS and s[2].reduction >= MIN_REDUCTION and _large_enough(s[0], s[1])
+    ]
+    effects = sorted(pool, key=lambda s: -s[2].drop)[:PAIR_POOL]
+    pairs = [(a, b) for i, a in enumerate(effects) for b in effects[i + 1 :]]
+    for a, b in pairs:
+        cols = [*extra, prob.column(a[0], a[1].variant), prob.column(b[0], b[1].variant)]
+        joints = sorted(set(_joints(a[0])) | set(_joints(b[0])) | set(_joints(best[0])))
+        if not _passes(evidence(_cv(prob, cols), best[1], joints), tests + len(pairs)):
+            # the stronger of the pair if it passes alone; the other gets its chance next round
+            return a if a in passing else b if b in passing else best
+    return best
 
 
 # An angle offset's column is −∂(Ψθ)/∂q_j at a θ; relinearised this many times about the refit.
