@@ -603,3 +603,16 @@ def test_design_statistics_are_kept_per_scale_and_terms_and_released_after_selec
     prob.keep_only([(offset.key, 0)])
     assert set(prob.cache) == {(offset.key, 0)} and not prob.grids
     np.testing.assert_array_equal(prob.column(gain, 0), before)
+
+
+def test_held_out_nrmse_without_spread_is_none_not_nan():
+    """A held-out joint whose torque has no spread beyond rounding has no scale for an NRMSE
+    (nrmse gives nan): reported as None, as too few rows are (JSON has no nan)."""
+    from hil.diagnose.report import _nrmse_or_none
+
+    y = np.zeros((200, 2))
+    y[:, 0] = 1.0 + np.arange(200) * 1e-18  # spread below rounding
+    y[:, 1] = np.sin(np.arange(200) / 10)
+    rows = np.ones(200, dtype=bool)
+    assert _nrmse_or_none(y, y + 0.01, rows, 0) is None
+    assert _nrmse_or_none(y, y + 0.01, rows, 1) == pytest.approx(0.01 / np.std(y[:, 1]), rel=1e-9)

@@ -477,10 +477,12 @@ MIN_HELD_OUT_ROWS = 50
 
 def _nrmse_or_none(y: np.ndarray, pred: np.ndarray, rows: np.ndarray, j: int) -> float | None:
     """NRMSE of joint j over ``rows``; None when the held-out part has too few usable rows for
-    it (the joint stood still throughout)."""
+    it (the joint stood still throughout) or no spread to scale by (:func:`nrmse` gives nan:
+    DFKI A.0 trajectory_05's joint 1 printed 1e17 %, then nan, and JSON has no nan)."""
     if rows.sum() < MIN_HELD_OUT_ROWS or np.ptp(y[rows, j]) == 0:
         return None
-    return float(nrmse(y[rows, j], pred[rows, j]))
+    value = float(nrmse(y[rows, j], pred[rows, j]))
+    return value if np.isfinite(value) else None
 
 
 def _training_findings(
