@@ -42,10 +42,20 @@ def _env(**extra: str) -> dict[str, str]:
     return env
 
 
+def _default_sigint() -> None:
+    """In the child before exec: Ctrl-C's default action. An ignored SIGINT is inherited across
+    exec, and Python then installs no KeyboardInterrupt handler: a suite started in the
+    background of a script (`make test &`) ignores it, so the recipes' `can.logger`s never
+    stopped on the test's SIGINT and spun on their closed hub."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _start(name: str, env: dict[str, str], **kwargs) -> subprocess.Popen:
     lang, code = recipes()[name]
     argv = ["bash", "-c", code] if lang == "sh" else [sys.executable, "-c", code]
-    return subprocess.Popen(argv, cwd=ROOT, env=env, text=True, **kwargs)
+    return subprocess.Popen(
+        argv, cwd=ROOT, env=env, text=True, preexec_fn=_default_sigint, **kwargs
+    )
 
 
 def _run(name: str, env: dict[str, str], timeout: float = 60) -> subprocess.CompletedProcess:
@@ -134,8 +144,8 @@ def test_canopen_master_and_python_can_tools(socketcand_robot: dict[str, str]) -
             try:
                 logger.communicate(timeout=30)
             except subprocess.TimeoutExpired:
-                # never left behind: one that ignored SIGINT under heavy load spun at 40 % CPU
-                # for the rest of the suite
+                # never left behind: one that ignored SIGINT spun at 40 % CPU for the rest of
+                # the suite
                 logger.kill()
                 logger.communicate()
                 stuck.append(logger.args)
