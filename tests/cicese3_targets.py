@@ -46,3 +46,17 @@ def check_targets(
         for name in (f"fv{j}", f"fc{j}"):
             got, want = p[name]
             assert abs(got - want) < 0.10 * want, (scheme, name, got, want)
+
+
+def energy_balance_over_excitation(plant: Any, periods: int) -> float:
+    """Drive an n-joint plant with ``periods`` periods of cicese3-excitation and return its
+    energy balance E(t) − E(0) − (W_in − W_f), which the plant keeps to round-off."""
+    from profiles.experiment import load_experiment
+
+    e0 = plant.energy_J()
+    experiment = load_experiment("cicese3-excitation")
+    h = experiment.period_s
+    for k in range(periods):
+        plant.command(experiment.torque(k * h))
+        plant.advance_to((k + 1) * h)
+    return plant.energy_J() - e0 - (plant.work_in_J - plant.dissipated_J)

@@ -795,6 +795,25 @@ def _gain_supported(
 PAIR_POOL = 4  # strongest single candidates tried in pairs when no single one passes
 
 
+def _candidate_pairs(
+    scored: Sequence[tuple[Candidate, CrossValidation, Evidence]], effects_only: bool = False
+) -> list[tuple[tuple[Candidate, CrossValidation, Evidence], ...]]:
+    """The pairs tried together: of the PAIR_POOL strongest candidates that each lower the
+    error by the least reduction counted (``effects_only``: vocabulary effects, no model
+    terms), strongest first."""
+    pool = sorted(
+        (
+            s
+            for s in scored
+            if s[2].reduction >= MIN_REDUCTION
+            and _large_enough(s[0], s[1])
+            and not (effects_only and s[0].kind in TERMS)
+        ),
+        key=lambda s: -s[2].drop,
+    )[:PAIR_POOL]
+    return [(a, b) for i, a in enumerate(pool) for b in pool[i + 1 :]]
+
+
 def _passing_pair(
     prob: Problem,
     extra: Sequence[np.ndarray],
@@ -806,11 +825,7 @@ def _passing_pair(
     passes alone (a torque offset and a lag on joint 2, say). The strongest few candidates are
     then tried in pairs; when a pair passes (the family now counting the pairs too), its stronger
     member is returned as passing and the other gets its chance in the next round."""
-    pool = sorted(
-        (s for s in scored if s[2].reduction >= MIN_REDUCTION and _large_enough(s[0], s[1])),
-        key=lambda s: -s[2].drop,
-    )[:PAIR_POOL]
-    pairs = [(a, b) for i, a in enumerate(pool) for b in pool[i + 1 :]]
+    pairs = _candidate_pairs(scored)
     for a, b in pairs:
         cols_a = prob.column(a[0], a[1].variant)
         cols_b = prob.column(b[0], b[1].variant)
@@ -1024,9 +1039,9 @@ def _prefer_effect(
     together (two parameters against the term's three): a centre-of-mass offset took up an
     encoder offset on joint 2 together with joint 1's Coulomb asymmetry and beat each of them
     alone (blind-like sets, rec-25 of every seed); it must beat the pair too (with ``prob``).
-    The pair's members are drawn as :func:`_passing_pair` draws them (from ``scored``: each
-    lowers the error by the least reduction counted), since one of the two may pass only once
-    the other is in."""
+    The pair's members are drawn as :func:`_passing_pair` draws them
+    (:func:`_candidate_pairs` of ``scored``), since one of the two may pass only once the
+    other is in."""
     if best[0].kind not in TERMS:
         return best
     rivals = [
@@ -1039,13 +1054,7 @@ def _prefer_effect(
     ]
     if rivals or prob is None:
         return max(rivals, key=lambda s: s[2].drop) if rivals else best
-    pool = [
-        s
-        for s in [*passing, *(s for s in scored if s not in passing)]
-        if s[0].kind not in TERMS and s[2].reduction >= MIN_REDUCTION and _large_enough(s[0], s[1])
-    ]
-    effects = sorted(pool, key=lambda s: -s[2].drop)[:PAIR_POOL]
-    pairs = [(a, b) for i, a in enumerate(effects) for b in effects[i + 1 :]]
+    pairs = _candidate_pairs([*passing, *(s for s in scored if s not in passing)], True)
     for a, b in pairs:
         cols = [*extra, prob.column(a[0], a[1].variant), prob.column(b[0], b[1].variant)]
         joints = sorted(set(_joints(a[0])) | set(_joints(b[0])) | set(_joints(best[0])))
