@@ -18,9 +18,10 @@ from drivers.recording import read_signals
 from hil.bench.run import run_experiment
 from profiles import ProfileError
 from profiles.bench import load_bench
+from profiles.drive import load_drive
 from profiles.effects import load_effects
 from profiles.experiment import load_experiment
-from profiles.robot import load_robot
+from profiles.robot import load_robot, load_urdf_robot
 from profiles.timing_faults import (
     Jitter,
     SideFaults,
@@ -349,3 +350,110 @@ def test_host_latency_is_measured_in_the_recorded_timestamps(tmp_path: Path) -> 
     meta = json.loads((tmp_path / "late" / "meta.json").read_text())
     injected = meta["timing_faults"]["host_injected"]
     assert injected["cycles"] == 400 and injected["mean_delay_s"] == pytest.approx(1e-3)
+
+
+# ---- n joints: the same faults on the n-joint plant (virtual_robot/urdf_plant.py) --------------
+CICESE3_EXCITATION = "cicese3-excitation"
+
+
+def run_cicese3(out: Path, effects: Path, bench: str = "virtual-inprocess") -> dict:
+    """`hil run --robot cicese3` of the first second of its excitation with ``effects``."""
+    return run_experiment(
+        bench,
+        CICESE3_EXCITATION,
+        out,
+        duration_s=1.0,
+        effects=str(effects),
+        plot=False,
+        progress=False,
+        robot="cicese3",
+    )
+
+
+def test_n_joint_robot_latency_in_lockstep_is_a_transport_delay(tmp_path: Path) -> None:
+    """The 2-DOF test above on the 3-joint arm: a 1 ms robot-side latency in lockstep applies
+    τ_k at t_k + 1 ms on every joint, bit-identical to the n-joint offline simulation with a
+    1 ms transport delay effect, and the recording differs from the undelayed one."""
+    from virtual_robot.urdf_plant import simulate_urdf
+
+    latency = effects_file(tmp_path, "[timing_faults.robot]\nlatency_s = 0.001\n", "lat")
+    delay = effects_file(tmp_path, "[transport_delay]\ndelay_s = 0.001\n", "delay")
+    assert run_cicese3(tmp_path / "run", latency)["status"] == "complete"
+    robot, experiment = load_urdf_robot("cicese3"), load_experiment(CICESE3_EXCITATION)
+    for name, fx in (("sim", load_effects(delay)), ("plain", None)):
+        simulate_urdf(robot, experiment, tmp_path / name, effects=fx, duration_s=1.0, plot=False)
+    a, b, plain = (read_signals(tmp_path / name) for name in ("run", "sim", "plain"))
+    assert a.q.shape == (400, 3)
+    assert np.array_equal(a.q, b.q) and np.array_equal(a.tau, b.tau)
+    moved = np.max(np.abs(a.q - plain.q), axis=0)
+    assert np.all(moved > 1e-5), moved  # the latency moves every joint differently
+    meta = json.loads((tmp_path / "run" / "meta.json").read_text())
+    assert meta["timing_faults"]["robot"]["latency_s"] == 0.001
+
+
+@pytest.mark.parametrize("bench", ["virtual-inprocess", "virtual-serial"])
+def test_n_joint_robot_drops_are_counted_and_deterministic(
+    tmp_path: Path, capsys, bench: str
+) -> None:
+    """Lost command frames on the 3-joint arm, on the bus and on the serial line: counted at
+    the injected rate, the same run for the same seed, and the arm moves otherwise than
+    without them (a drive holds its previous torque)."""
+    fx = effects_file(
+        tmp_path, "[timing_faults]\nseed = 4\n[timing_faults.robot]\ndrop_probability = 0.1\n"
+    )
+    runs = []
+    for name in ("a", "b"):
+        capsys.readouterr()
+        assert run_cicese3(tmp_path / name, fx, bench)["status"] == "complete"
+        # the robot's summary line: on stderr in process, in virtual-robot.log from its process
+        log = tmp_path / name / "virtual-robot.log"
+        lines = capsys.readouterr().err + (log.read_text() if log.exists() else "")
+        line = next(ln for ln in lines.splitlines() if "timing faults:" in ln)
+        runs.append(json.loads(line.split("timing faults: ", 1)[1]))
+    frames = 3 * 400  # one command frame per drive per cycle
+    dropped = runs[0]["dropped_commands"]
+    assert abs(dropped - 0.1 * frames) < 4 * math.sqrt(frames * 0.1 * 0.9), dropped
+    assert runs[1]["dropped_commands"] == dropped
+    a, b = read_signals(tmp_path / "a"), read_signals(tmp_path / "b")
+    assert np.array_equal(a.q, b.q)
+    plain = effects_file(tmp_path, "", "plain")
+    assert run_cicese3(tmp_path / "plain", plain, bench)["status"] == "complete"
+    assert np.max(np.abs(a.q - read_signals(tmp_path / "plain").q)) > 1e-4
+
+
+def test_n_joint_realtime_command_takes_effect_after_the_latency() -> None:
+    """Realtime on the 3-joint arm: a command arriving at t takes effect at t + latency (the
+    plant holds the previous torque until then), and the event log says when."""
+    from virtual_robot.drive import MODE_CST
+    from virtual_robot.offline import ENABLE_SEQUENCE
+    from virtual_robot.robot import REALTIME, VirtualRobot
+
+    now = [0.0]
+    faults = TimingFaults("latency.toml", robot=SideFaults(latency_s=0.001))
+    robot = load_urdf_robot("cicese3")
+    core = VirtualRobot(
+        robot,
+        mode=REALTIME,
+        period_s=H,
+        clock=lambda: now[0],
+        timing=RobotTiming(faults, lockstep=False, period_s=H),
+    )
+    events: list[tuple[str, int, float]] = []
+    core.event_log = lambda event, n, t: events.append((event, n, t))
+    for node in (1, 2, 3):
+        core.write(0x6060, 0, MODE_CST, node=node)
+        for cw in ENABLE_SEQUENCE:
+            core.write(0x6040, 0, cw, node=node)
+    now[0] = 0.001
+    core.sync_sample()
+    now[0] = 0.0015
+    core.write(0x6071, 0, 250, node=3)  # 25 % of joint 3's rated torque
+    now[0] = 0.0024
+    core.tick()
+    assert np.array_equal(core.plant.command_Nm, np.zeros(3))  # not arrived yet
+    now[0] = 0.0026
+    core.tick()
+    rated = load_drive(robot.drives[2]).rated_torque_Nm
+    assert np.array_equal(core.plant.command_Nm, [0.0, 0.0, 0.25 * rated])
+    assert ("command", 1, pytest.approx(0.0025)) in events
+    assert core.timing is not None and core.timing.stats.max_delay_s == pytest.approx(0.001)

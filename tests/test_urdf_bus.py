@@ -22,7 +22,6 @@ from profiles.effects import load_effects
 from profiles.experiment import load_experiment
 from profiles.robot import load_urdf_robot
 from virtual_robot.robot import VirtualRobot
-from virtual_robot.serve import build_core
 from virtual_robot.urdf_plant import UrdfPlant, simulate_urdf
 
 EXPERIMENT = "cicese3-excitation"  # moves every joint from the first period (joint 3: 3 sines)
@@ -80,9 +79,10 @@ def test_virtual_robot_serves_one_drive_per_joint_of_a_urdf_arm():
     assert feedback[1].position_counts < 0 and feedback[0].position_counts == 0
 
 
-def test_n_joint_robot_refuses_what_it_cannot_take(tmp_path):
-    """A 2-DOF effects profile (arrays of 2), a payload and timing faults on the n-joint arm:
-    a one-line error when the robot is built, not a run that silently lacks them."""
+def test_n_joint_robot_refuses_what_it_cannot_take():
+    """A 2-DOF effects profile (arrays of 2) and a payload on the n-joint arm: a one-line error
+    when the robot is built, not a run that silently lacks them. Timing faults it takes
+    (tests/test_timing_faults.py, "n joints")."""
     robot = load_urdf_robot("cicese3")
     for name, words in (
         ("cogging", "must be a list of 3 numbers (robot cicese3 has 3 joints)"),
@@ -94,13 +94,6 @@ def test_n_joint_robot_refuses_what_it_cannot_take(tmp_path):
     VirtualRobot(robot, load_effects("none"))  # the empty profile is no effect
     core = VirtualRobot(robot, load_effects("joint3-gain"))
     assert isinstance(core.plant, UrdfPlant) and core.plant._gain_offset is not None
-    source = Path(load_bench("virtual-inprocess").source).read_text()
-    faulty = tmp_path / "faulty.toml"
-    faulty.write_text(source + "\n[timing_faults.robot]\nlatency_s = 0.001\n")
-    bench = bench_for_robot(load_bench(faulty), "cicese3")
-    with pytest.raises(ValueError, match="timing faults") as err:
-        build_core(bench, effects=None, mode=None)
-    assert "\n" not in str(err.value)
 
 
 def test_bench_for_robot_takes_host_limits_from_the_robot_profile(tmp_path):

@@ -5,8 +5,9 @@ The plant is the 2-DOF closed-form :class:`~virtual_robot.plant.Plant` for a 2-D
 (with the concealed effects of an effects profile), or the n-joint
 :class:`~virtual_robot.urdf_plant.UrdfPlant` for an arm described by its URDF (nodes and unit
 addresses are its drive profiles', 1..N for the shipped arms), with the same concealed effects
-per joint. The n-joint plant takes no timing faults yet: the core refuses them in one line rather
-than ignore them.
+per joint. Timing faults (virtual_robot/timing_faults.py) act on either plant the same way:
+the one :class:`~virtual_robot.stepping.Stepper` decides when a command takes effect and the plant
+takes it then (``command(..., deliver_at=...)``).
 
 Protocol servers (CAN, serial) decode what arrives and call this core; it never does I/O.
 Time has two modes (DESIGN.md "Time"):
@@ -120,7 +121,7 @@ class VirtualRobot:
                 f"(nodes {[p.node_id for p in self.profiles]}, "
                 f"units {[p.unit_address for p in self.profiles]})"
             )
-        self.plant: SteppedPlant = self._plant(robot, q0, min(step_s, period_s), timing)
+        self.plant: SteppedPlant = self._plant(robot, q0, min(step_s, period_s))
         # the stepping sequence (sample, apply, advance); its time, SYNC count, pending commands
         # and timing faults are the robot's
         self.stepper = Stepper(
@@ -142,19 +143,13 @@ class VirtualRobot:
         robot: RobotProfile | UrdfRobotProfile,
         q0: Sequence[float] | None,
         max_step_s: float,
-        timing: RobotTiming | None,
     ) -> SteppedPlant:
         """The 2-DOF closed-form plant with the effects, or the n-joint plant of a URDF arm with
-        them, which takes no timing faults yet (refused, not ignored)."""
+        them."""
         if not isinstance(robot, UrdfRobotProfile):
             q = (0.0, 0.0) if q0 is None else (float(q0[0]), float(q0[1]))
             return Plant(
                 PlantParams.from_profiles(robot, self.effects), q0=q, max_step_s=max_step_s
-            )
-        if self.effects.timing_faults is not None or timing is not None:
-            raise ValueError(
-                f"timing faults: the n-joint plant ({robot.name}) does not take delayed or "
-                "dropped commands yet; use a bench without [timing_faults]"
             )
         # Pinocchio is loaded only for an n-joint arm: the 2-DOF robot starts without it
         from virtual_robot.urdf_plant import UrdfPlant, UrdfPlantParams

@@ -233,14 +233,19 @@ class UrdfPlant:
     ) -> None:
         """Joint torques from now on (issued at ``issued_at``, default now: with the transport
         delay effect they reach the amplifiers that much later); an unpowered joint's amplifier
-        gives none, from now. The signature is the 2-DOF plant's
-        (virtual_robot.stepping.SteppedPlant); a delayed delivery (timing faults) is refused."""
-        if deliver_at is not None:
-            raise ValueError("the n-joint plant does not take delayed commands (timing faults)")
+        gives none, from now. ``deliver_at``: the command reaches the drives at this time, not
+        at ``issued_at`` (an injected timing fault or a replayed timing trace,
+        virtual_robot.timing_faults); the transport-delay effect, if any, runs from there, as in
+        the 2-DOF plant's :meth:`~virtual_robot.plant.Plant.command` (the same queue). The
+        signature is the 2-DOF plant's (virtual_robot.stepping.SteppedPlant)."""
         tau = np.array(torque_Nm, dtype=float)
         if tau.shape != (self.n_joints,):
             raise ValueError(f"need {self.n_joints} torques, got {tau.shape}")
-        if self._delay is not None:
+        if deliver_at is not None:
+            if self._delay is None:  # from now on commands go through the delivery queue
+                self._delay = TransportDelay(self.params.transport_delay_s)
+            self._delay.push(deliver_at, tuple(tau))
+        elif self._delay is not None:
             self._delay.push(self.t if issued_at is None else issued_at, tuple(tau))
         else:
             self._held_Nm = tau.copy()
