@@ -8,7 +8,7 @@ such a run on the real times (drivers/realtime_times.py) and the diagnosis integ
 The slow test makes a realtime-like run deterministically: the virtual robot in lockstep with a
 timing trace imposed (``[timing_faults.trace]``, the mechanism of `hil replay`), the trace being
 what a realtime run with two host stalls produces; the run directory then holds the robot's
-event log of those times, as a realtime run's does.
+event log of those times, as a realtime run's does (tests/realtime_twin.py).
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from realtime_twin import H, lockstep_twin, realtime_like_trace, write_events
 
 from drivers.realtime_times import ROBOT_EVENTS, interval_torque, on_real_times, run_trace
 from drivers.recording import RecordingWriter, read_signals
@@ -28,43 +29,6 @@ from hil.cli_options import read_recording
 from hil.diagnose.columns import noise_model
 from hil.model.openloop import simulate_open_loop
 from hil.model.params import robot_params
-from profiles.timing_faults import TimingTrace, write_trace
-
-H = 0.0025
-
-
-def realtime_like_trace(
-    n: int, seed: int, stalls: tuple[tuple[float, float], ...] = ((6.0, 0.06), (13.0, 0.03))
-) -> TimingTrace:
-    """Sample and command times of a realtime run at 400 Hz: releases on the deadline grid, late
-    by the host's wake-up; a stall holds the releases back, then they come 0.4 ms apart until
-    caught up; the robot samples on arrival and each drive's command acts ~0.3 ms later."""
-    rng = np.random.default_rng(seed)
-    release = np.empty(n)
-    free = 0.0
-    for k in range(n):
-        t = k * H
-        for at, length in stalls:
-            if at <= t < at + length:
-                t = at + length
-        release[k] = max(t, free) + rng.exponential(2e-5)
-        free = release[k] + 4e-4
-    sample = release + 1e-4 + rng.exponential(3e-5, n)
-    first = sample + 2.5e-4 + rng.exponential(5e-5, n)
-    last = first + 2e-5 + rng.exponential(1e-5, n)
-    return TimingTrace(sample, np.maximum.accumulate(last), first)
-
-
-def write_events(path: Path, trace: TimingTrace) -> None:
-    """The robot's event log of ``trace`` (virtual_robot EventLog): sample k, then the commands
-    of cycle k (n = k + 1 SYNCs so far), joint 1's first."""
-    assert trace.first_command_s is not None
-    with open(path, "w") as f:
-        f.write("event,n,t\n")
-        for k in range(len(trace)):
-            f.write(f"sample,{k},{float(trace.sample_s[k])!r}\n")
-            f.write(f"command,{k + 1},{float(trace.first_command_s[k])!r}\n")
-            f.write(f"command,{k + 1},{float(trace.command_s[k])!r}\n")
 
 
 def test_interval_torque_is_the_mean_of_what_acted() -> None:
@@ -164,20 +128,7 @@ def test_realtime_run_with_stalls_diagnoses_like_its_lockstep_twin(tmp_path: Pat
     """The default robot under a realtime timing with two host stalls: joint 1's Coulomb
     asymmetry found (7.17 / 8.049 Nm), no gain, no lag or delay, no cogging, nothing else."""
     n = 8000  # the `diagnosis` experiment, 20 s at 400 Hz
-    trace = realtime_like_trace(n + 1, seed=5)
-    write_trace(tmp_path / "trace.csv", trace)
-    effects = tmp_path / "effects.toml"
-    effects.write_text(f'name = "twin"\n[timing_faults.trace]\nfile = "{tmp_path / "trace.csv"}"\n')
-    run = tmp_path / "run"
-    subprocess.run(
-        [sys.executable, "-m", "hil.cli", "run", "--bench", "virtual-inprocess", "--mode",
-         "lockstep", "--experiment", "diagnosis", "--effects", str(effects), "--out", str(run),
-         "--no-plot", "-q"],
-        check=True, timeout=900,
-    )  # fmt: skip
-    write_events(run / ROBOT_EVENTS, trace)
-    meta = json.loads((run / "meta.json").read_text())
-    (run / "meta.json").write_text(json.dumps({**meta, "mode": "realtime"}))
+    run = lockstep_twin(tmp_path, realtime_like_trace(n + 1, seed=5), "--experiment", "diagnosis")
     doc = _diagnose(run)
     effects_found = {(f["effect"], f["joint"]) for f in doc["findings"]}
     assert effects_found == {("coulomb_asymmetry", 1), ("torque_offset", 1)}, doc["summary"]

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from realdata import realdata
+from realtime_twin import lockstep_twin, realtime_like_trace
 from urdf_effect_recordings import with_effect
 
 from drivers.recording import read_signals
@@ -87,6 +88,22 @@ def test_effect_free_recording_reports_nothing(recordings, capsys):
     assert hil_main(["diagnose", str(recordings["null"]), "--json", "--no-plots"]) == 0
     again = json.loads(capsys.readouterr().out)
     assert again["fit"] == doc["fit"] and again["findings"] == []
+
+
+def test_realtime_run_with_stalls_gives_the_timing_findings_on_n_joints(tmp_path, capsys):
+    """The 2-DOF realtime twin (tests/test_diagnose_realtime.py) on the 3-joint arm: a lockstep
+    run over the bus with a realtime-like timing trace imposed (jittered samples, commands
+    ~0.3 ms late, host stalls of 60 and 30 ms with their catch-up bursts), read on the robot's
+    clock: the timing findings (gaps, irregular sampling), and no concealed effect, since the
+    arm has none."""
+    trace = realtime_like_trace(4001, seed=5, stalls=((4.0, 0.06), (7.0, 0.03)))
+    run = lockstep_twin(tmp_path, trace, "--robot", "cicese3", "--experiment",
+                        "cicese3-excitation", "--duration", "10")  # fmt: skip
+    doc = _diagnose(run, "cicese3", capsys)
+    assert {t["kind"] for t in doc["timing"]} >= {"gaps", "irregular_sampling"}
+    assert "Timing, from the time stamps: gaps, irregular sampling" in doc["summary"]
+    assert doc["findings"] == [], doc["summary"]
+    assert max(doc["fit"]["before"]["torque_nrmse"]) < 0.02
 
 
 def test_wrong_joint_count_is_a_one_line_error(recordings, tmp_path, capsys):
