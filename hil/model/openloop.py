@@ -54,6 +54,7 @@ from numpy.typing import ArrayLike
 from hil.model.closed_form import N_PARAMS, ArmModel
 from hil.model.openloop_core import (
     SIMULATION_CHUNK,
+    ClosedFormArm,
     Friction,
     OpenLoopResult,
     integrate,
@@ -148,9 +149,8 @@ def simulate_open_loop_chunks(
         theta, tau, period_s, q0, dq0, steps_per_period, None, None
     )
     intervals = _intervals(intervals_s, len(torques))
-    return integrate_chunks(
-        th, torques, h, n_sub, start, Friction(pos, neg), intervals=intervals, chunk=chunk
-    )
+    arm = ClosedFormArm(th, Friction(pos, neg))
+    return integrate_chunks(arm, torques, h, n_sub, start, intervals=intervals, chunk=chunk)
 
 
 def _intervals(intervals_s: ArrayLike | None, rows: int) -> np.ndarray | None:

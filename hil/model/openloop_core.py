@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -34,9 +35,10 @@ MAX_EVENTS_PER_SUBSTEP = 8
 ZERO_VELOCITY_TOL = 1e-12
 
 Pair = tuple[float, float]
-State = tuple[float, float, float, float]  # q1, q2, q̇1, q̇2
-Step = Callable[[float, float, float, float, float, float, float], State]  # (state, τ, dt)
-Flow = Callable[[float, float, float, float, float], State]  # (state, s): τ bound
+# q1..qn, q̇1..q̇n (2-DOF: q1, q2, q̇1, q̇2)
+State = tuple[float, ...]
+Step = Callable[[State, Sequence[float], float], State]  # (state, τ, dt) → state after dt
+Flow = Callable[[State, float], State]  # (state, s): τ bound
 Accelerations = Callable[[float, float, float, float, float, float], Pair]
 ShaftTorque = Callable[[float, float], Pair]  # q1, q2 → torque added at the shaft (Nm)
 # Sub-steps of a period as (length s, 0 = the command before its delayed arrival / 1 = after)
@@ -234,7 +236,9 @@ def _accelerations(
 def _rk4(acc: Accelerations) -> Step:
     """Classical fourth-order Runge–Kutta on (q, q̇) with τ held, step length given per call."""
 
-    def step(q1, q2, v1, v2, tau1, tau2, dt):
+    def step(state, tau, dt):
+        q1, q2, v1, v2 = state
+        tau1, tau2 = tau
         h2 = 0.5 * dt
         a1, a2 = acc(q1, q2, v1, v2, tau1, tau2)
         u1, u2 = v1 + h2 * a1, v2 + h2 * a2
@@ -305,9 +309,10 @@ def _locate_zero(
     torque of the step's first instants pushes it back) sticks at once, s = 0, as the plant's
     regula falsi does (virtual_robot/plant.py, Plant._locate_stick).
     """
-    if start[2 + joint] * direction < 0.0:
+    v = len(start) // 2 + joint  # the joint's velocity in the state
+    if start[v] * direction < 0.0:
         return 0.0, start
-    lo, f_lo = 0.0, start[2 + joint]
+    lo, f_lo = 0.0, start[v]
     hi, f_hi = dt, v_end
     if f_lo == 0.0:
         # The joint broke away at the start of the step: it first moves in its break-away
@@ -316,9 +321,9 @@ def _locate_zero(
         s = dt
         for _ in range(60):
             s *= 0.5
-            state = flow(*start, s)
-            if state[2 + joint] * f_hi < 0.0:
-                lo, f_lo = s, state[2 + joint]
+            state = flow(start, s)
+            if state[v] * f_hi < 0.0:
+                lo, f_lo = s, state[v]
                 break
         else:
             return 0.0, start  # numerically no motion at all: it sticks at once
@@ -326,37 +331,35 @@ def _locate_zero(
     last = 0
     for _ in range(40):
         s = lo + (hi - lo) * f_lo / (f_lo - f_hi)
-        state = flow(*start, s)
-        v = state[2 + joint]
-        if abs(v) < ZERO_VELOCITY_TOL or hi - lo < 1e-15 * dt:
+        state = flow(start, s)
+        w = state[v]
+        if abs(w) < ZERO_VELOCITY_TOL or hi - lo < 1e-15 * dt:
             break
-        if (v > 0) == (f_lo > 0):  # not yet at zero
-            lo, f_lo = s, v
+        if (w > 0) == (f_lo > 0):  # not yet at zero
+            lo, f_lo = s, w
             if last == 1:
                 f_hi *= 0.5
             last = 1
         else:
-            hi, f_hi = s, v
+            hi, f_hi = s, w
             if last == -1:
                 f_lo *= 0.5
             last = -1
     return s, state
 
 
-def _flow(step: Step, path: TorquePath, command: Sequence[float], tau: Pair) -> Flow:
+def _flow(step: Step, path: TorquePath, command: Sequence[float], tau: Sequence[float]) -> Flow:
     """The RK4 flow over s from a state: under ``tau`` held, or under the lagged path's mean
     torque over s (a lag makes the torque depend on how far the step goes)."""
     if path.lagged:
 
-        def lagged(q1, q2, v1, v2, s):
-            tau1, tau2 = path.applied(command, s)[0]
-            return step(q1, q2, v1, v2, tau1, tau2, s)
+        def lagged(state, s):
+            return step(state, path.applied(command, s)[0], s)
 
         return lagged
-    tau1, tau2 = tau
 
-    def held(q1, q2, v1, v2, s):
-        return step(q1, q2, v1, v2, tau1, tau2, s)
+    def held(state, s):
+        return step(state, tau, s)
 
     return held
 
@@ -367,6 +370,62 @@ def _flow(step: Step, path: TorquePath, command: Sequence[float], tau: Pair) -> 
 # Rows simulated between two yields of :func:`integrate_chunks`: bounds the per-row Python
 # objects (the rows' commands, the states) a long recording would otherwise hold (issue 13).
 SIMULATION_CHUNK = 1 << 16
+
+
+class StickSlipArm(Protocol):
+    """What :func:`integrate_arm` needs of an arm model, for any number of joints n: the RK4
+    step of each stick mode and the holding torques of the stuck joints, on states
+    (q1..qn, q̇1..q̇n) and torques of n joints. :class:`ClosedFormArm` is the 2-DOF closed form
+    of Reyes & Kelly (1997), Section 5; ``hil.model.openloop.ModelArm`` any model object with
+    regressors (an n-joint URDF model)."""
+
+    n_joints: int
+    friction: Friction  # Coulomb levels and static bands by direction, per joint
+
+    def mode_step(self, stuck: tuple[bool, ...], direction: tuple[float, ...]) -> Step:
+        """RK4 under τ held in one stick mode: q̈ = M⁻¹(τ − C q̇ − g − f) with the sliding
+        joints' friction directions frozen and the stuck joints' q̈_i = 0."""
+        ...
+
+    def holding_torques(
+        self,
+        state: State,
+        tau: Sequence[float],
+        stuck: Sequence[bool],
+        direction: Sequence[float],
+    ) -> Sequence[float]:
+        """The friction torque each stuck joint needs to stay at rest (q̈_S = 0), from the
+        constrained dynamics (zero for the sliding joints)."""
+        ...
+
+
+class ClosedFormArm:
+    """The 2-DOF closed-form model θ (:mod:`hil.model.closed_form`) as a :class:`StickSlipArm`,
+    with ``friction`` and an optional position-dependent ``shaft_torque`` (cogging)."""
+
+    n_joints = 2
+
+    def __init__(
+        self, theta: np.ndarray, friction: Friction, shaft_torque: ShaftTorque | None = None
+    ) -> None:
+        self.theta, self.friction, self.shaft_torque = theta, friction, shaft_torque
+
+    def mode_step(self, stuck: tuple[bool, ...], direction: tuple[float, ...]) -> Step:
+        return _rk4(
+            _accelerations(self.theta, *stuck, *direction, self.friction, self.shaft_torque)  # type: ignore[misc]
+        )
+
+    def holding_torques(
+        self,
+        state: State,
+        tau: Sequence[float],
+        stuck: Sequence[bool],
+        direction: Sequence[float],
+    ) -> Pair:
+        return _holding_torques(
+            self.theta, state, (tau[0], tau[1]), stuck, direction, self.friction,
+            self.shaft_torque,
+        )  # fmt: skip
 
 
 def integrate(
@@ -380,16 +439,27 @@ def integrate(
     shaft_torque: ShaftTorque | None = None,
     intervals: np.ndarray | None = None,
 ) -> OpenLoopResult:
-    """Simulate θ (checked by the caller) from the true state ``start`` under ``torques`` (N, 2)
-    through ``path`` (None: the identity), ``n_sub`` RK4 sub-steps per period h (more where a
-    delayed command arrives inside one), with stick–slip ``friction`` and ``shaft_torque``:
-    the pieces of :func:`integrate_chunks`, joined.
+    """Simulate the 2-DOF closed-form θ (checked by the caller) from the true state ``start``
+    under ``torques`` (N, 2) through ``path`` (None: the identity), ``n_sub`` RK4 sub-steps per
+    period h (more where a delayed command arrives inside one), with stick–slip ``friction`` and
+    ``shaft_torque``: :func:`integrate_arm` of :class:`ClosedFormArm`.
     """
-    parts = list(
-        integrate_chunks(
-            theta, torques, h, n_sub, start, friction, path, shaft_torque, intervals=intervals
-        )
-    )
+    arm = ClosedFormArm(theta, friction, shaft_torque)
+    return integrate_arm(arm, torques, h, n_sub, start, path, intervals)
+
+
+def integrate_arm(
+    arm: StickSlipArm,
+    torques: np.ndarray,
+    h: float,
+    n_sub: int,
+    start: State,
+    path: TorquePath | None = None,
+    intervals: np.ndarray | None = None,
+) -> OpenLoopResult:
+    """Simulate ``arm`` (any number of joints) from the true state ``start`` under ``torques``
+    (N, n): the pieces of :func:`integrate_chunks`, joined."""
+    parts = list(integrate_chunks(arm, torques, h, n_sub, start, path, intervals=intervals))
     last = parts[-1]
     return OpenLoopResult(
         *(np.concatenate([getattr(c, f) for c in parts]) for f in ("t", "q", "dq", "stuck")),
@@ -400,26 +470,26 @@ def integrate(
 
 
 def integrate_chunks(
-    theta: np.ndarray,
+    arm: StickSlipArm,
     torques: np.ndarray,
     h: float,
     n_sub: int,
     start: State,
-    friction: Friction,
     path: TorquePath | None = None,
-    shaft_torque: ShaftTorque | None = None,
     *,
     intervals: np.ndarray | None = None,
     chunk: int = SIMULATION_CHUNK,
 ):
-    """:func:`integrate`, yielding its rows ``chunk`` at a time as :class:`OpenLoopResult`
+    """:func:`integrate_arm`, yielding its rows ``chunk`` at a time as :class:`OpenLoopResult`
     pieces (``t``, ``q``, ``dq``, ``stuck`` of those rows; the counters so far), so a long
     recording's simulation needs memory for one chunk, not for every row (issue 13).
 
-    The scheme (:mod:`hil.model.openloop`'s docstring): at each sub-step boundary stuck joints
-    whose holding torque leaves the static band break away; a sliding joint's direction is frozen
-    over a sub-step; a velocity sign change inside it is located on the RK4 flow map, the joint
-    sticks there and the rest of the sub-step is integrated in the new mode.
+    The scheme (:mod:`hil.model.openloop`'s docstring), for n joints: at each sub-step boundary
+    stuck joints whose holding torque leaves the static band break away (the worst first, then
+    the others' holding torques again); a sliding joint's direction is frozen over a sub-step; a
+    velocity sign change inside it is located on the RK4 flow map (the earliest by linear
+    interpolation when several joints cross), the joint sticks there and the rest of the sub-step
+    is integrated in the new mode.
 
     ``intervals`` (N − 1 durations, s): period k lasts intervals[k] instead of h (a recording's
     real sample times); its sub-steps are stretched by intervals[k]/h, so a delay's arrival
@@ -431,31 +501,35 @@ def integrate_chunks(
     times = None if intervals is None else np.concatenate([[0.0], np.cumsum(stretch * h)])
     identity = path.identity
     n_rows = torques.shape[0]
+    n = arm.n_joints
+    joints = range(n)
+    friction = arm.friction
     pos, neg = friction.static_positive, friction.static_negative
-    sticky = (max(pos[0], neg[0]) > 0.0, max(pos[1], neg[1]) > 0.0)
-    q1, q2, v1, v2 = start
-    stuck = [sticky[0] and v1 == 0.0, sticky[1] and v2 == 0.0]
-    direction = [1.0 if v1 >= 0.0 else -1.0, 1.0 if v2 >= 0.0 else -1.0]
-    stick_events = [0, 0]
-    breakaways = [0, 0]
+    sticky = tuple(max(pos[i], neg[i]) > 0.0 for i in joints)
+    watched = tuple(i for i in joints if sticky[i])  # joints that can stick
+    state = tuple(float(x) for x in start)
+    stuck = [sticky[i] and state[n + i] == 0.0 for i in joints]
+    direction = [1.0 if state[n + i] >= 0.0 else -1.0 for i in joints]
+    stick_events = [0] * n
+    breakaways = [0] * n
     substeps = 0
-    steps: dict[tuple[bool, bool, float, float], Step] = {}
+    steps: dict[tuple[tuple[bool, ...], tuple[float, ...]], Step] = {}
 
     def mode_step() -> Step:
-        key = (stuck[0], stuck[1], direction[0], direction[1])
+        key = (tuple(stuck), tuple(direction))
         step = steps.get(key)
         if step is None:
-            step = steps[key] = _rk4(_accelerations(theta, *key, friction, shaft_torque))
+            step = steps[key] = arm.mode_step(*key)
         return step
 
-    def release(state: State, tau: Pair) -> bool:
+    def release(state: State, tau: Sequence[float]) -> bool:
         """Let stuck joints whose holding torque leaves the static band break away; True if any
         did."""
         changed = False
-        for _ in range(2):  # releasing one joint changes the other's holding torque
-            held = _holding_torques(theta, state, tau, stuck, direction, friction, shaft_torque)
+        for _ in joints:  # releasing one joint changes the others' holding torques
+            held = arm.holding_torques(state, tau, stuck, direction)
             worst, worst_ratio = -1, 1.0
-            for i in (0, 1):
+            for i in joints:
                 if not stuck[i]:
                     continue
                 band = pos[i] if held[i] > 0 else neg[i]
@@ -468,7 +542,7 @@ def integrate_chunks(
             direction[worst] = 1.0 if held[worst] > 0 else -1.0
             breakaways[worst] += 1
             changed = True
-            if not (stuck[0] or stuck[1]):
+            if not any(stuck):
                 break
         return changed
 
@@ -482,70 +556,70 @@ def integrate_chunks(
         else:
             before, after = whole[0][first : first + rows], whole[1][first : first + rows]
             segments = whole[2]
-        q_out = [(q1, q2)] * rows
-        dq_out = [(v1, v2)] * rows
-        stuck_out = [(stuck[0], stuck[1])] * rows
+        q_out = [state[:n]] * rows
+        dq_out = [state[n:]] * rows
+        stuck_out = [tuple(stuck)] * rows
         for k in range(rows):
-            q_out[k] = (q1, q2)
-            dq_out[k] = (v1, v2)
-            stuck_out[k] = (stuck[0], stuck[1])
+            q_out[k] = state[:n]
+            dq_out[k] = state[n:]
+            stuck_out[k] = tuple(stuck)
             if first + k == n_rows - 1:
                 break  # the last torque acts after the last sample
             commands = (before[k], after[k])
             for dt_seg, which in segments:
                 command = commands[which]
-                tau1, tau2 = command  # the identity path's torque (others: over what remains)
+                tau = command  # the identity path's torque (others: over what remains)
                 substeps += 1
                 remaining = dt_seg if stretch is None else dt_seg * float(stretch[first + k])
-                if identity and not (stuck[0] or stuck[1]):
-                    # the common sub-step, both joints sliding under the held command: one RK4
+                if identity and not any(stuck):
+                    # the common sub-step, every joint sliding under the held command: one RK4
                     # step and the sign test below without the event loop's set-up (most of a
                     # long recording's validation; issue 13). A sign change falls through to the
                     # loop, which takes the same step again and locates the event.
-                    n1, n2, w1, w2 = step(q1, q2, v1, v2, tau1, tau2, remaining)
-                    if not (
-                        (sticky[0] and w1 * direction[0] < 0.0)
-                        or (sticky[1] and w2 * direction[1] < 0.0)
-                    ):
-                        q1, q2, v1, v2 = n1, n2, w1, w2
+                    new = step(state, tau, remaining)
+                    for i in watched:
+                        if new[n + i] * direction[i] < 0.0:
+                            break
+                    else:
+                        state = new
                         continue
                 for _event in range(MAX_EVENTS_PER_SUBSTEP):
                     if not identity:
-                        (tau1, tau2), path_end = path.applied(command, remaining)
-                    if (stuck[0] or stuck[1]) and release((q1, q2, v1, v2), (tau1, tau2)):
+                        tau, path_end = path.applied(command, remaining)
+                    if any(stuck) and release(state, tau):
                         step = mode_step()
-                    n1, n2, w1, w2 = step(q1, q2, v1, v2, tau1, tau2, remaining)
-                    # a sliding, sticky joint whose velocity changed sign crossed zero in the step
-                    cross1 = sticky[0] and not stuck[0] and w1 * direction[0] < 0.0
-                    cross2 = sticky[1] and not stuck[1] and w2 * direction[1] < 0.0
-                    if not (cross1 or cross2):
-                        q1, q2, v1, v2 = n1, n2, w1, w2
+                    new = step(state, tau, remaining)
+                    # the sliding, sticky joints whose velocity changed sign crossed zero
+                    crossed = [
+                        i for i in watched if not stuck[i] and new[n + i] * direction[i] < 0.0
+                    ]
+                    if not crossed:
+                        state = new
                         if not identity:
                             path.settle(path_end)
                         break
-                    if cross1 and cross2:  # the earlier one by linear interpolation
-                        joint = 0 if v1 / (v1 - w1) <= v2 / (v2 - w2) else 1
-                    else:
-                        joint = 0 if cross1 else 1
-                    flow = _flow(step, path, command, (tau1, tau2))
-                    here = (q1, q2, v1, v2)
+                    joint = crossed[0]
+                    if len(crossed) > 1:  # the earliest by linear interpolation (first of ties)
+                        joint = min(
+                            crossed, key=lambda i: state[n + i] / (state[n + i] - new[n + i])
+                        )
+                    flow = _flow(step, path, command, tau)
+                    here = state
                     s, state = _locate_zero(
-                        flow, here, joint, remaining, (w1, w2)[joint], direction[joint]
+                        flow, here, joint, remaining, new[n + joint], direction[joint]
                     )
-                    other = 1 - joint
-                    if cross1 and cross2 and state[2 + other] * direction[other] < 0.0:
-                        joint, other = other, joint  # the other joint crossed first after all
+                    earlier = [
+                        i for i in crossed if i != joint and state[n + i] * direction[i] < 0.0
+                    ]
+                    if earlier:  # another joint crossed first after all
+                        joint = earlier[0]
                         s, state = _locate_zero(
-                            flow, here, joint, s, state[2 + joint], direction[joint]
+                            flow, here, joint, s, state[n + joint], direction[joint]
                         )
                     # (a zero-length lag step would jump to the command)
                     if s > 0.0 and not identity:
                         path.settle(path.applied(command, s)[1])
-                    q1, q2, v1, v2 = state
-                    if joint == 0:
-                        v1 = 0.0
-                    else:
-                        v2 = 0.0
+                    state = (*state[: n + joint], 0.0, *state[n + joint + 1 :])
                     stuck[joint] = True
                     stick_events[joint] += 1
                     step = mode_step()
