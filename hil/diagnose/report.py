@@ -652,7 +652,8 @@ def _segment_simulation_n(
 ) -> np.ndarray:
     """:func:`_segment_simulation` of an n-joint model object (a URDF model): each segment
     from the recorded state, the findings as :func:`_shaft_effects` gives them, integrated by
-    :func:`hil.model.openloop.simulate_segments` (no stiction: Coulomb friction as f_c sgn q̇)."""
+    :func:`hil.model.openloop.simulate_segments` (the 2-DOF simulation's stick–slip over the
+    model object)."""
     shaft, state_torque, ang = _shaft_effects(findings, tau, h)
     dq0 = np.array(
         [

@@ -31,7 +31,9 @@ Where it lives: this module is the entry (input checks, the angle offset, :class
 re-exported) and :func:`simulate_windows`; the integrator is
 :func:`hil.model.openloop_core.integrate`, one scheme for the rigid model and for the diagnosis's
 effects, which :mod:`hil.model.openloop_effects` brings in as a torque path (delay, lag, gain,
-offset), a friction law (Stribeck) and a shaft torque (cogging). Imports: numpy,
+offset), a friction law (Stribeck) and a shaft torque (cogging). The same scheme simulates an
+n-joint model object (:class:`ModelArm`, :func:`simulate_segments`: the URDF models of
+:mod:`hil.model.urdf`), through :func:`hil.model.openloop_core.integrate_arm`. Imports: numpy,
 :mod:`hil.model.closed_form`, :mod:`hil.model.openloop_core`, :mod:`hil.model.openloop_effects`
 (and, inside :func:`simulate_windows`, :mod:`hil.model.metrics` and :mod:`hil.model.regressors`).
 
@@ -46,7 +48,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import operator
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -58,12 +61,14 @@ from hil.model.openloop_core import (
     Friction,
     OpenLoopResult,
     integrate,
+    integrate_arm,
     integrate_chunks,
     pair,
 )
 from hil.model.openloop_effects import OpenLoopExtras, integrate_with_extras
 
 __all__ = [
+    "ModelArm",
     "OpenLoopExtras",
     "OpenLoopResult",
     "rk4_held",
@@ -335,7 +340,7 @@ def rk4_held(
     """``steps`` RK4 sub-steps of ``dt`` of q̈ = acc(q, q̇, u) under the held torque ``u``, for
     a batch of states (rows); returns q, q̇ and which rows left the finite range (DIVERGED),
     whose state the caller resets. Coulomb friction is whatever ``acc`` makes of sgn q̇ (no
-    stiction): the integrator of :func:`simulate_windows` and of any n-joint model object."""
+    stiction): the integrator of :func:`simulate_windows`."""
     bad = np.zeros(len(x_q), bool)
     with np.errstate(all="ignore"):
         for _ in range(steps):
@@ -351,6 +356,118 @@ def rk4_held(
     return x_q, x_v, bad
 
 
+class ModelArm:
+    """A model object with regressors and M(q) (an n-joint :class:`hil.model.urdf.UrdfArmModel`)
+    at base parameters θ as the stick–slip integrator's arm
+    (:class:`hil.model.openloop_core.StickSlipArm`): the one scheme of the 2-DOF simulation
+    (module docstring) over n joints, in place of Coulomb friction as f_c sgn q̇.
+
+    The model's friction f = f_v q̇ + f_c sgn q̇ + f_o (eq. (12), f_o with the friction_offset
+    term) becomes: viscous f_v q̇ and the offset f_o as torques always acting, and Coulomb
+    friction of level f_c by Karnopp's stick–slip (a joint at rest is held while the torque
+    needed to hold it lies in [f_o − f_c, f_o + f_c]). ``shaft_torque(q, q̇)`` (rows of n, as
+    :func:`simulate_segments` takes it): a torque added at the shaft (cogging, −the Stribeck
+    excess). A step that leaves the finite range (DIVERGED) or meets a singular M(q) gives a
+    NaN state, and NaN stays."""
+
+    def __init__(self, model: Any, theta: ArrayLike, shaft_torque: Any = None) -> None:
+        th = np.asarray(theta, dtype=float)
+        n = model.n_joints
+        columns = model.term_columns("friction")  # f_v (n), f_c (n)[, f_o (n)]
+        friction = th[columns]
+        coulomb = friction[n : 2 * n]
+        if not np.all(coulomb >= 0):
+            raise ValueError(
+                f"theta has a negative Coulomb level ({', '.join(f'{c:.4g}' for c in coulomb)}); "
+                "cannot simulate stick-slip"
+            )
+        self.model, self.theta, self.n_joints = model, th, n
+        self.offset = friction[2 * n : 3 * n] if len(friction) > 2 * n else np.zeros(n)
+        # θ without the Coulomb levels and offsets: its torque at q̈ = 0 is C q̇ + g + f_v q̇
+        self._smooth_theta = th.copy()
+        self._smooth_theta[np.arange(th.size)[columns][n:]] = 0.0
+        levels = tuple(float(c) for c in coulomb)
+        self.friction = Friction(levels, levels)
+        self.shaft_torque = shaft_torque
+        self._zero = np.zeros(n)
+
+    def _residual(self, q: np.ndarray, v: np.ndarray, tau: Sequence[float]) -> np.ndarray:
+        """r = τ + τ_shaft − f_o − C(q, q̇) q̇ − g(q) − f_v q̇: all but the Coulomb friction."""
+        r = np.asarray(tau, dtype=float) - self.offset
+        if self.shaft_torque is not None:
+            r = r + self.shaft_torque(q[None], v[None])[0]
+        return r - self.model.torque_regressor(q, v, self._zero) @ self._smooth_theta
+
+    def mode_step(self, stuck: tuple[bool, ...], direction: tuple[float, ...]) -> Callable:
+        """RK4 in one stick mode: q̈_S = 0, M_FF q̈_F = (r − d F^d)_F (F sliding, S stuck)."""
+        n = self.n_joints
+        free = np.flatnonzero(~np.array(stuck, dtype=bool))
+        levels = np.array([self.friction.level(i, direction[i]) for i in range(n)])
+        block = np.ix_(free, free)
+
+        def acc(q: np.ndarray, v: np.ndarray, tau: Sequence[float]) -> np.ndarray:
+            a = np.zeros(n)
+            if free.size:
+                r = self._residual(q, v, tau) - levels
+                M = self.model.mass_matrix(self.theta, q)
+                a[free] = np.linalg.solve(M[block], r[free])
+            return a
+
+        def step(state: tuple[float, ...], tau: Sequence[float], dt: float) -> tuple[float, ...]:
+            x = np.asarray(state, dtype=float)
+            if not np.all(np.isfinite(x)):
+                return state  # diverged before: NaN stays
+            q, v = x[:n], x[n:]
+            h2 = 0.5 * dt
+            try:
+                with np.errstate(all="ignore"):
+                    a1 = acc(q, v, tau)
+                    u = v + h2 * a1
+                    a2 = acc(q + h2 * v, u, tau)
+                    w = v + h2 * a2
+                    a3 = acc(q + h2 * u, w, tau)
+                    z = v + dt * a3
+                    a4 = acc(q + dt * w, z, tau)
+                    k = dt / 6.0
+                    out = np.concatenate(
+                        [q + k * (v + 2.0 * (u + w) + z), v + k * (a1 + 2.0 * (a2 + a3) + a4)]
+                    )
+            except np.linalg.LinAlgError:
+                out = np.full(2 * n, np.nan)
+            if not np.all(np.abs(out) < DIVERGED):
+                out = np.full(2 * n, np.nan)
+            return tuple(out.tolist())
+
+        return step
+
+    def holding_torques(
+        self,
+        state: tuple[float, ...],
+        tau: Sequence[float],
+        stuck: Sequence[bool],
+        direction: Sequence[float],
+    ) -> list[float]:
+        """f_S = r_S − M_SF q̈_F with M_FF q̈_F = (r − d F^d)_F: the friction that keeps the
+        stuck joints at rest (q̈_S = 0); zero for the sliding joints."""
+        n = self.n_joints
+        x = np.asarray(state, dtype=float)
+        q, v = x[:n], x[n:]
+        s = np.array(stuck, dtype=bool)
+        r = self._residual(q, v, tau)
+        held = np.zeros(n)
+        free = np.flatnonzero(~s)
+        held[s] = r[s]
+        if free.size:
+            M = self.model.mass_matrix(self.theta, q)
+            levels = np.array([self.friction.level(int(i), direction[i]) for i in free])
+            try:
+                a_free = np.linalg.solve(M[np.ix_(free, free)], r[free] - levels)
+            except np.linalg.LinAlgError:
+                return [0.0] * n
+            held[s] -= M[np.ix_(np.flatnonzero(s), free)] @ a_free
+        return held.tolist()
+
+
 def simulate_segments(
     model: object,
     theta: ArrayLike,
@@ -364,45 +481,33 @@ def simulate_segments(
     angle_offset: np.ndarray | None = None,
     max_step_s: float = 1.25e-3,
 ) -> list[np.ndarray]:
-    """Open-loop simulation of any model object with ``forward_dynamics`` (an n-joint
+    """Open-loop simulation of any model object with regressors and M(q) (an n-joint
     :class:`hil.model.urdf.UrdfArmModel`) over the sample ranges ``segments`` ([a, b) of the
     recording ``t``, ``q``), each from the recorded q[a] and ``dq0`` (one row per segment), row
     k's torque ``tau`` held over [t_k, t_{k+1}) (the shaft torque: a lag, delay, gain or offset
     already applied). ``shaft_torque(q, q̇)``: a torque added on the shaft (cogging, Stribeck
     friction as −f); ``angle_offset``: encoder reading = true angle + δ (the model moves in true
-    angles, the result is in readings). RK4 (:func:`rk4_held`) with sub-steps of at most
-    ``max_step_s``; segments of one length are integrated together (one model call per stage
-    for all of them); a segment that diverges is NaN from there on. Returns q of each segment."""
-    th = np.asarray(theta, dtype=float)
+    angles, the result is in readings). The 2-DOF simulation's stick–slip integrator
+    (:func:`hil.model.openloop_core.integrate_arm` of :class:`ModelArm`), on the segment's real
+    intervals, sub-steps of at most ``max_step_s`` (of the median interval); a segment that
+    diverges is NaN from there on. Returns q of each segment."""
+    arm = ModelArm(model, theta, shaft_torque)
     n = q.shape[1]
     delta = np.zeros(n) if angle_offset is None else np.asarray(angle_offset, float)
-
-    def acc(qq, vv, uu):
-        extra = 0.0 if shaft_torque is None else shaft_torque(qq + delta, vv)
-        return model.forward_dynamics(th, qq, vv, uu + extra)
-
-    out: list[np.ndarray] = [np.empty(0)] * len(segments)
-    lengths = [b - a for a, b in segments]
-    for length in sorted(set(lengths)):
-        group = [i for i, size in enumerate(lengths) if size == length]
-        starts = np.array([segments[i][0] for i in group])
-        sim = np.full((len(group), length, n), np.nan)
-        x_q, x_v = q[starts] - delta, np.asarray(dq0, float)[group]
-        sim[:, 0] = q[starts]
-        ok = np.ones(len(group), bool)
-        for j in range(length - 1):
-            k = starts + j
-            h = t[k + 1] - t[k]
-            steps = max(1, int(np.ceil(h.max() / max_step_s - 1e-9)))
-            x_q, x_v, bad = rk4_held(acc, x_q, x_v, tau[k], (h / steps)[:, None], steps)
-            ok &= ~bad
-            sim[ok, j + 1] = x_q[ok] + delta
-        for i, g in enumerate(group):
-            out[g] = sim[i]
+    dq0 = np.asarray(dq0, float)
+    out: list[np.ndarray] = []
+    for i, (a, b) in enumerate(segments):
+        intervals = np.diff(t[a:b])
+        h = float(np.median(intervals)) if len(intervals) else 1.0
+        n_sub = max(1, int(np.ceil(h / max_step_s - 1e-9)))
+        start = (*(q[a] - delta).tolist(), *dq0[i].tolist())
+        sim = integrate_arm(arm, tau[a:b], h, n_sub, start, intervals=intervals)
+        out.append(sim.q + delta)
     return out
 
 
 __all__ = [
+    "ModelArm",
     "OpenLoopExtras",
     "OpenLoopResult",
     "rk4_held",
