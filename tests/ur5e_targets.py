@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.recording import read_signals
 from hil.identify.urdf import TorqueRecording, regression_rows
 from hil.model.regressors import SCHEMES
 from hil.model.urdf import UrdfArmModel
@@ -31,13 +32,10 @@ INERTIAL_TOLERANCE = 0.02  # CICESE targets (docs/identification.md)
 FRICTION_TOLERANCE = 0.10
 
 
-def read_signals(run: Path) -> TorqueRecording:
-    """The recording ``run/signals.csv`` (t, q1..q6, tau1..tau6, ...), torques held."""
-    data = np.genfromtxt(Path(run) / "signals.csv", delimiter=",", names=True)
-    n = sum(1 for name in data.dtype.names if name.startswith("tau"))
-    q = np.column_stack([data[f"q{j}"] for j in range(1, n + 1)])
-    tau = np.column_stack([data[f"tau{j}"] for j in range(1, n + 1)])
-    return TorqueRecording(data["t"], q, tau, str(run), held=True)
+def torque_recording(run: Path) -> TorqueRecording:
+    """The run's recording (drivers.recording.read_signals), its torques held over each period."""
+    rec = read_signals(run)
+    return TorqueRecording(rec.t, rec.q, rec.tau, str(run), held=True)
 
 
 def torque_shares(model: UrdfArmModel, rec: TorqueRecording, delta: np.ndarray) -> np.ndarray:
@@ -67,7 +65,7 @@ def check_targets(
                     misses.append(f"{meaning}: {theta[k]:.6g} vs {nominal[k]:.6g}")
                 continue
         if error_shares[k].max() > SMALL_ERROR:
-            misses.append(f"{meaning}: error {error_shares[k].max():.3f} of a joint's torque")
+            misses.append(f"{meaning}: error {error_shares[k].max():.4f} of a joint's torque")
     return misses
 
 
@@ -79,7 +77,7 @@ def check_ur5e_identified(
     parameters (within 0.01 NRMSE per joint) and the fit is physically consistent."""
     assert sorted(report["schemes"]) == sorted(SCHEMES)
     model = UrdfArmModel.from_profile("ur5e")
-    rec = read_signals(run)
+    rec = torque_recording(run)
     nominal = np.array([x["nominal"] for x in report["parameters"]])
     shares = torque_shares(model, rec, nominal)
     true = report["validation"]["torque_nrmse_nominal"]
@@ -91,3 +89,20 @@ def check_ur5e_identified(
         assert entry["physical_consistency"]["consistent"], scheme
         misses[scheme] = check_targets(report, entry["theta"], shares, model, rec)
     return misses
+
+
+def main() -> int:
+    """``python tests/ur5e_targets.py RUN IDENTIFY_JSON``: every scheme's misses (docs/urdf.md)."""
+    import json
+    import sys
+
+    run, report = Path(sys.argv[1]), json.loads(Path(sys.argv[2]).read_text())
+    for scheme, missed in check_ur5e_identified(report, run).items():
+        print(f"{scheme}: {len(missed)} missed")
+        for line in missed:
+            print(f"  {line}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
