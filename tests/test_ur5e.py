@@ -118,10 +118,12 @@ def test_simulate_cli_writes_a_6_joint_recording(tmp_path, capsys):
     assert np.all(np.abs(rec.q[-1] - rec.q[0]) > 1e-4)  # every joint moved
 
 
-@pytest.mark.parametrize("bench", ["virtual-slcan", "virtual-serial"])
+@pytest.mark.parametrize("bench", ["virtual-inprocess", "virtual-slcan", "virtual-serial"])
 def test_lockstep_run_of_ur5e_equals_offline_simulation(bench, reference, tmp_path):
-    """`hil run --robot ur5e` over slcan and the serial multi-drop line: six drives, q1..q6 and
-    tau1..tau6 bit-identical to `virtual-robot simulate`; node 6 / unit 6 on the wire."""
+    """`hil run --robot ur5e` over in-process CAN, slcan and the serial multi-drop line: six
+    drives, q1..q6 and tau1..tau6 bit-identical to `virtual-robot simulate` (which starts the arm
+    hanging, at the experiment's initial_q_rad, as the served robot now does); node 6 / unit 6
+    on the wire."""
     args = ["--bench", bench, "--robot", ROBOT, "--experiment", EXPERIMENT]
     proc = hil("run", *args, "--duration", str(DURATION_S), "--out", str(tmp_path), "--json",
                "--no-plot")  # fmt: skip
