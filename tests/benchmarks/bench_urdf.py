@@ -14,8 +14,9 @@
    0.5 ms RK4 step, drives included: simulated seconds per CPU second for the 3-DOF cicese3,
    the 6-DOF ur5e and the 7-joint Panda (issue 14's target for a 6-DOF arm: ≥ 20× real time),
    and the 2-DOF closed-form plant beside them; best of ``--repeats`` runs (the load of a
-   shared machine only ever adds). Beside each URDF arm, the floor: one ABA call's CPU cost now, the share of the
-   run that the four ABA calls per RK4 step take, and the factor ABA alone would give.
+   shared machine only ever adds). Beside each URDF arm, the floor: one ABA call's CPU cost
+   now, the share of the run that the four ABA calls per RK4 step take, and the factor ABA
+   alone would give.
 
 ``--json`` prints one JSON document; exit 1 if the identification target is missed (on CPU
 time: the work is single-threaded; wall time is printed beside it).
