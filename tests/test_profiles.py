@@ -159,10 +159,12 @@ def test_robot_drives_are_shipped():
 
 
 def test_experiments_have_one_excitation_per_joint():
-    # the 2-DOF arm's experiments, and the 3-DOF example arm's (profiles/robots/cicese3.toml)
+    # the 2-DOF arm's experiments, and those of the n-joint arms named by their first word
+    # (cicese3-excitation: profiles/robots/cicese3.toml, 3 joints; ur5e-excitation: 6)
     for name in (n for n in available("experiments") if not _is_tracking(n)):
         exp = load_experiment(name)
-        n = 3 if name.startswith("cicese3") else 2
+        arm = name.split("-")[0]
+        n = load_urdf_robot(arm).n_joints if arm in ("cicese3", "ur5e") else 2
         assert exp.n_joints == len(exp.joints) == len(exp.initial_q_rad) == n, name
         assert exp.torque_table([0.0, 0.1]).shape == (2, n)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import threading
@@ -88,6 +89,13 @@ def _parser() -> argparse.ArgumentParser:
         help="stop when the process that started us dies (used by `hil`)",
     )
     v.add_argument(
+        "--initial-q",
+        default=None,
+        metavar="Q1,Q2,...",
+        help="the arm's position at rest when serving starts, rad, one per joint (default 0; "
+        "`hil run` passes its experiment's initial_q_rad)",
+    )
+    v.add_argument(
         "--event-log",
         default=None,
         help="realtime: write the robot's sample and command times here (for `hil replay`)",
@@ -167,6 +175,23 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _initial_q(text: str | None, n_joints: int) -> tuple[float, ...] | None:
+    """``--initial-q``: ``n_joints`` finite angles in [−2π, 2π] (an experiment's range), comma
+    separated."""
+    if text is None:
+        return None
+    try:
+        q = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise ValueError(f"--initial-q takes comma-separated angles in rad, got {text!r}") from None
+    if len(q) != n_joints or not all(math.isfinite(x) and abs(x) <= 2 * math.pi for x in q):
+        raise ValueError(
+            f"--initial-q takes {n_joints} angles in [-2 pi, 2 pi] rad (one per joint), "
+            f"got {text!r}"
+        )
+    return q
+
+
 def cmd_serve(args: argparse.Namespace) -> int:
     """Serve until SIGTERM/SIGINT; the first stdout line is the JSON announcement."""
     import signal
@@ -187,6 +212,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         )
     if args.effects is not None:
         load_effects(args.effects)  # fail fast, with the one-line error, before announcing
+    initial_q = _initial_q(args.initial_q, load_any_robot(bench.robot).n_joints)
     stop = threading.Event()
 
     def on_signal(signum: int, _frame: object) -> None:
@@ -208,6 +234,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         announce=announce,
         stop=stop,
         event_log=args.event_log,
+        initial_q=initial_q,
     )
     print("virtual-robot: stopped", file=sys.stderr)
     return code

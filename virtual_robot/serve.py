@@ -34,7 +34,7 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -58,10 +58,16 @@ def _stderr(line: str) -> None:
 
 
 def build_core(
-    bench: BenchProfile, *, effects: str | None, mode: str | None, seed: int | None = None
+    bench: BenchProfile,
+    *,
+    effects: str | None,
+    mode: str | None,
+    seed: int | None = None,
+    initial_q: Sequence[float] | None = None,
 ) -> VirtualRobot:
     """The virtual robot of a bench: robot profile, effects, time mode and period, and the
-    timing faults of the bench and effects profiles (seeded by ``seed``, else the profile's)."""
+    timing faults of the bench and effects profiles (seeded by ``seed``, else the profile's);
+    the arm at rest at ``initial_q`` (default: every joint at 0)."""
     mode = mode or bench.mode
     effects_profile = load_effects(effects or bench.effects)
     faults = combine(bench.timing_faults, effects_profile.timing_faults)
@@ -81,6 +87,7 @@ def build_core(
         period_s=bench.period_s,
         clock=time.monotonic if mode == REALTIME else None,
         timing=timing,
+        q0=initial_q,
     )
 
 
@@ -110,6 +117,7 @@ def serve(
     stop: threading.Event,
     log: Callable[[str], None] | None = None,
     event_log: str | Path | None = None,
+    initial_q: Sequence[float] | None = None,
 ) -> int:
     """Serve the bench's virtual robot until ``stop`` is set; returns the exit status (0).
 
@@ -117,9 +125,11 @@ def serve(
     ``{"event": "ready", "protocol", "transport", "channel", ...}``. ``seed`` is recorded in the
     announcement and seeds the injected timing faults, if any. ``event_log``: realtime, a file
     for the robot's own times of its samples and of the host's commands (``hil replay``).
+    ``initial_q``: the arm's position at rest when serving starts (an experiment's
+    ``initial_q_rad``; default 0 on every joint).
     """
     log = log or _stderr
-    core = build_core(bench, effects=effects, mode=mode, seed=seed)
+    core = build_core(bench, effects=effects, mode=mode, seed=seed, initial_q=initial_q)
     if event_log is not None and core.mode == REALTIME:  # robot times, for `hil replay`
         core.event_log = EventLog(event_log)
     if core.mode == REALTIME:

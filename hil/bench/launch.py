@@ -20,6 +20,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from importlib import import_module
 from pathlib import Path
 from typing import Any
@@ -47,8 +48,11 @@ class VirtualRobotProcess:
         seed: int | None = None,
         log_path: str | Path | None = None,
         event_log: str | Path | None = None,
+        initial_q: Sequence[float] | None = None,
     ) -> None:
         self.bench, self.mode, self.effects, self.seed = bench, mode, effects, seed
+        # the arm's position at rest when the robot starts (an experiment's initial_q_rad)
+        self.initial_q = None if initial_q is None else tuple(float(x) for x in initial_q)
         self.log_path = Path(log_path) if log_path else None
         # realtime: the robot writes its own sample and command times here (`hil replay`)
         self.event_log = Path(event_log) if event_log else None
@@ -118,6 +122,8 @@ class VirtualRobotProcess:
             args += ["--seed", str(self.seed)]
         if self.event_log is not None:
             args += ["--event-log", str(self.event_log)]
+        if self.initial_q is not None:  # repr: the exact float, read back by float()
+            args += ["--initial-q", ",".join(repr(x) for x in self.initial_q)]
         return args
 
     def _start_process(self) -> None:
@@ -179,6 +185,7 @@ class VirtualRobotProcess:
                     announce=announce,
                     stop=self._stop,
                     event_log=self.event_log,
+                    initial_q=self.initial_q,
                 )
             except Exception as exc:  # refused before serving (e.g. effects the robot lacks)
                 if ready.is_set():

@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -110,6 +110,7 @@ def record_over_bench(
     progress: bool = True,
     realtime_policy: str = "auto",
     spin: bool = True,
+    initial_q: Sequence[float] | None = None,
 ) -> BenchRun:
     """Start the bench's virtual robot (if virtual), open the arm, run ``command`` for
     ``n_periods`` through the loop runner and record it in ``out``.
@@ -118,6 +119,7 @@ def record_over_bench(
     at zero torque and disabled on every path; meta.json says how the run ended. Realtime:
     ``realtime_policy`` "auto" tries SCHED_FIFO and a memory lock (hil.bench.scheduler) before the
     link opens, "off" does not; ``spin=False``: the deadline wait sleeps, never spins.
+    ``initial_q``: where a virtual robot's arm starts at rest (default 0 on every joint).
     """
     realtime = mode == "realtime"
     h = bench.period_s
@@ -129,6 +131,7 @@ def record_over_bench(
             seed=seed,
             log_path=out / "virtual-robot.log",
             event_log=out / ROBOT_EVENTS if realtime else None,  # for `hil replay`
+            initial_q=initial_q,
         )
         if bench.virtual
         else contextlib.nullcontext()
@@ -297,6 +300,9 @@ def run_experiment(
         effects=effects,
         seed=seed,
         progress=progress,
+        # the arm starts where `virtual-robot simulate` starts it; a robot at rest at 0 is
+        # the default, so the flag is left out for it (the 2-DOF benches' launch unchanged)
+        initial_q=experiment.initial_q_rad if any(experiment.initial_q_rad) else None,
     )
     result, reason, factor = run.result, run.reason, run.realtime_factor
     summary = {
