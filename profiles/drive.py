@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
-from profiles.loader import Fields, load_toml
+from profiles.loader import Fields, ProfileError, load_toml
 
 WATCHDOG_DEFAULT_S = 0.2  # 2× the benches' default feedback budget (docs/virtual-robot.md)
 
@@ -42,6 +42,15 @@ class DriveProfile:
 
 
 def load_drive(name_or_path: str | Path) -> DriveProfile:
+    """The drive profile ``name_or_path``; ``"name@k"`` is that drive at CAN node id and serial
+    unit address k, so an arm with several drives of one model (robots/ur5e.toml) gives each its
+    own address without a copy of the drive's numbers."""
+    if isinstance(name_or_path, str) and "@" in name_or_path:
+        name, _, address = name_or_path.rpartition("@")
+        if not address.isdigit() or not 1 <= int(address) <= 127:
+            raise ProfileError(name_or_path, None, "the address after '@' must be a node id 1..127")
+        k = int(address)
+        return replace(load_drive(name), node_id=k, unit_address=k)
     data, source = load_toml("drives", name_or_path)
     f = Fields(data, source)
     f.only(

@@ -21,7 +21,13 @@ from profiles import ProfileError, available
 from profiles.drive import DriveProfile, load_drive
 from profiles.effects import EffectsProfile, load_effects
 from profiles.experiment import ExperimentProfile, JointExcitation, Sine, load_experiment
-from profiles.robot import RobotProfile, UrdfRobotProfile, load_robot, load_urdf_robot
+from profiles.robot import (
+    RobotProfile,
+    UrdfRobotProfile,
+    load_any_robot,
+    load_robot,
+    load_urdf_robot,
+)
 from profiles.tracking import TrackingProfile, load_tracking
 from virtual_robot.simulate import simulate
 
@@ -150,12 +156,30 @@ def test_shipped_names():
         available("spaceships")
 
 
-def test_robot_drives_are_shipped():
-    robot = load_robot("cicese")
-    for drive in robot.drives:
-        assert drive in available("drives")
-    ids = {load_drive(d).node_id for d in robot.drives}
-    assert len(ids) == 2
+@pytest.mark.parametrize("name", available("robots"))
+def test_robot_drives_are_shipped(name):
+    robot = load_any_robot(name)
+    for drive in robot.drives or ():
+        assert drive.partition("@")[0] in available("drives")
+    drives = [load_drive(d) for d in robot.drives or ()]
+    # every drive at its own node id and unit address (one bus, one multi-drop line)
+    assert len({d.node_id for d in drives}) == len(drives)
+    assert len({d.unit_address for d in drives}) == len(drives)
+
+
+def test_drive_at_an_address_is_the_shipped_drive_there():
+    at5 = load_drive("dm1015b@5")
+    assert (at5.node_id, at5.unit_address) == (5, 5)
+    shipped_drive = load_drive("dm1015b")
+    assert shipped_drive.node_id != 5
+    assert at5 == dataclasses.replace(shipped_drive, node_id=5, unit_address=5)
+
+
+@pytest.mark.parametrize("name", ["dm1015b@0", "dm1015b@128", "dm1015b@x", "dm1015b@"])
+def test_drive_address_out_of_range_is_a_one_line_error(name):
+    with pytest.raises(ProfileError) as exc:
+        load_drive(name)
+    assert "\n" not in str(exc.value) and "1..127" in str(exc.value)
 
 
 def test_experiments_have_one_excitation_per_joint():
