@@ -350,7 +350,7 @@ class Problem:
 
     def keep_only(self, keys: Sequence[tuple[str, int]]) -> None:
         """The selection is over: drop the grids' sums and every column but those of ``keys``
-        (the accepted terms); a column asked for again is rebuilt, identical. On a long
+        (the accepted terms and their rivals); a column asked for again is rebuilt, identical. On a long
         recording they are hundreds of megabytes the refit and the simulations need room for."""
         self.grids.clear()
         self.cache = {k: v for k, v in self.cache.items() if k in keys}
@@ -950,8 +950,23 @@ def select(
     for a in accepted:  # refused on top of a term that is gone, accepted without it
         rejected.pop(a.cand.key, None)
     _confounding(prob, accepted, [c for c in library if c.key in first_round], len(library), log)
-    prob.keep_only([_term_key(a) for a in accepted])
+    prob.keep_only(_kept_columns(accepted, library))
     return accepted, first_round
+
+
+def _kept_columns(
+    accepted: Sequence[Accepted], library: Sequence[Candidate]
+) -> list[tuple[str, int]]:
+    """The columns the report asks for after the selection: the accepted terms' and their
+    rivals' (report.interpret refits each rival in its term's place; a model term's columns,
+    rebuilt, cost a pass over every interval's regressor)."""
+    by_key = {c.key: c for c in library}
+    keys = [_term_key(a) for a in accepted]
+    for a in accepted:
+        for key in a.confounded_with:
+            rival = by_key[key]
+            keys.append((key, rival.variants.index(a.rival_variants.get(key, rival.variants[0]))))
+    return keys
 
 
 def _forward(
