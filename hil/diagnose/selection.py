@@ -350,8 +350,9 @@ class Problem:
 
     def keep_only(self, keys: Sequence[tuple[str, int]]) -> None:
         """The selection is over: drop the grids' sums and every column but those of ``keys``
-        (the accepted terms and their rivals); a column asked for again is rebuilt, identical. On a long
-        recording they are hundreds of megabytes the refit and the simulations need room for."""
+        (the accepted terms and their rivals); a column asked for again is rebuilt, identical.
+        On a long recording they are hundreds of megabytes the refit and the simulations need
+        room for."""
         self.grids.clear()
         self.cache = {k: v for k, v in self.cache.items() if k in keys}
         self._design_stats.clear()
