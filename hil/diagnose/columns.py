@@ -215,12 +215,14 @@ class RecordingRows:
         return _node_average(self.q_nodes)
 
 
-def moving_average(x: np.ndarray, window: int) -> np.ndarray:
-    """F: the mean of the last ``window`` rows (fewer at the start), along the first axis."""
+def moving_average(x: np.ndarray, window: int, *, overwrite_input: bool = False) -> np.ndarray:
+    """F: the mean of the last ``window`` rows (fewer at the start), along the first axis.
+    ``overwrite_input``: x (float) may hold the cumulative sums afterwards (no third array)."""
     # Two arrays of x's size, the sums and the result: the in-place out[w:] -= out[:-w] this
     # replaces held as much (numpy copies an overlapping operand first) and took three times
     # the cumulative sum's time doing it (a long diagnosis filters hundreds of cogging chunks).
-    sums = np.cumsum(x, axis=0, dtype=float)
+    in_place = overwrite_input and x.dtype == float
+    sums = np.cumsum(x, axis=0, dtype=float, out=x if in_place else None)
     out = np.empty_like(sums)
     out[:window] = sums[:window]
     np.subtract(sums[window:], sums[:-window], out=out[window:])
@@ -389,7 +391,9 @@ def cogging_column_chunks(
                 z *= once if step == 1 else np.exp(1j * step * q)
             mean = _GL_WEIGHTS @ z  # of e^{i n q}
             raw[:, i - lo, 0], raw[:, i - lo, 1] = mean.imag, mean.real
-        out = _filtered(rows, raw)
+        # F (as _filtered), its sums taken in raw's place: one chunk-sized array fewer at the
+        # selection's peak
+        out = moving_average(raw, rows.window, overwrite_input=True)
         del raw  # not held while the caller sums the chunk
         yield np.negative(out, out=out)
 

@@ -412,7 +412,9 @@ class Problem:
         U = [self.cache[k][:, j, :] for k in missing]  # (K, width) raw, on the joint's rows
         if sums is None:
             U = [self.Psi_raw[:, j, :], *U]
-        Uy = [*U, self.y_raw[:, j : j + 1]]  # the columns and y, joined a block at a time
+        # the columns and y joined once for all the grid's chunks (K, m + 1): joined a block at
+        # a time instead, every chunk paid the joins again, half the cost of its block sums
+        Uy = [np.concatenate([*U, self.y_raw[:, j : j + 1]], axis=1)]
         w, spans = self.w[:, j], block_spans(self.blocks)
         n_blocks, q = len(spans), term_width(cand)
         # where each group of U's columns goes: Ψ's to a new grid's PX, a term's to its own
