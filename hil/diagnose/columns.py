@@ -382,6 +382,8 @@ def cogging_column_chunks(
     n = np.asarray(periods_per_rev, float)
     z = np.exp(1j * n[0] * q)
     once = np.exp(1j * q)
+    mean = np.empty(q.shape[1], complex)  # the node average of e^{i n q}, one period's
+    sin_cos = mean.view(float).reshape(-1, 2)[:, ::-1]  # its (imag, real): one copy per period
     for lo in range(0, len(n), per):
         hi = min(lo + per, len(n))
         raw = np.empty((q.shape[1], hi - lo, 2))  # (K, chunk, sin|cos): node averages
@@ -389,8 +391,8 @@ def cogging_column_chunks(
             if i:
                 step = n[i] - n[i - 1]
                 z *= once if step == 1 else np.exp(1j * step * q)
-            mean = _GL_WEIGHTS @ z  # of e^{i n q}
-            raw[:, i - lo, 0], raw[:, i - lo, 1] = mean.imag, mean.real
+            np.matmul(_GL_WEIGHTS, z, out=mean)
+            raw[:, i - lo] = sin_cos
         # F (as _filtered), its sums taken in raw's place: one chunk-sized array fewer at the
         # selection's peak
         out = moving_average(raw, rows.window, overwrite_input=True)
