@@ -412,9 +412,10 @@ class Problem:
         U = [self.cache[k][:, j, :] for k in missing]  # (K, width) raw, on the joint's rows
         if sums is None:
             U = [self.Psi_raw[:, j, :], *U]
-        # the columns and y joined once for all the grid's chunks (K, m + 1): joined a block at
-        # a time instead, every chunk paid the joins again, half the cost of its block sums
-        Uy = [np.concatenate([*U, self.y_raw[:, j : j + 1]], axis=1)]
+        # the columns and y, joined a block at a time: joined once for all the grid's chunks
+        # they would save a third of a cogging chunk's block sums, but the (K, m + 1) copy
+        # (90 MB at 600,000 rows) lifted a 10-minute diagnosis's peak beyond 1 GB
+        Uy = [*U, self.y_raw[:, j : j + 1]]
         w, spans = self.w[:, j], block_spans(self.blocks)
         n_blocks, q = len(spans), term_width(cand)
         # where each group of U's columns goes: Ψ's to a new grid's PX, a term's to its own
