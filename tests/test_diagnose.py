@@ -667,3 +667,29 @@ def test_before_after_reuses_its_fits_and_simulations_and_changes_nothing(
     assert json.dumps(final) == json.dumps(fresh)
     for name in ("before", "after"):
         np.testing.assert_array_equal(arrays["simulation"][name], fresh_arrays["simulation"][name])
+
+
+def test_the_columns_kept_after_the_selection_are_the_terms_and_their_rivals():
+    """keep_only keeps the accepted terms' columns and their rivals' at the rival's variant
+    (report.interpret refits each rival in its term's place; a model term's column rebuilt is
+    a pass over every interval's regressor: issue 12, performance)."""
+    from hil.diagnose.selection import Accepted, Candidate, _kept_columns
+
+    def cols(_rows, _variant):
+        raise AssertionError("not built")
+
+    offset = Candidate("offset", 0, (None,), cols)
+    cogging = Candidate("cogging", 0, (20, 21, 22), cols)
+    com = Candidate("com_offset", 0, (None,), cols)
+    gain = Candidate("gain", 1, (None,), cols)
+    library = [offset, cogging, com, gain]
+    accepted = [
+        Accepted(offset, None, None, ["com_offset", "cogging:1"], {"cogging:1": 21}),
+        Accepted(gain, None, None),
+    ]
+    assert _kept_columns(accepted, library) == [
+        ("offset:1", 0),
+        ("gain:2", 0),
+        ("com_offset", 0),
+        ("cogging:1", 1),
+    ]
