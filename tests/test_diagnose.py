@@ -616,3 +616,80 @@ def test_held_out_nrmse_without_spread_is_none_not_nan():
     rows = np.ones(200, dtype=bool)
     assert _nrmse_or_none(y, y + 0.01, rows, 0) is None
     assert _nrmse_or_none(y, y + 0.01, rows, 1) == pytest.approx(0.01 / np.std(y[:, 1]), rel=1e-9)
+
+
+def test_moving_average_is_the_mean_of_the_last_window_rows():
+    """F, the filter of every column (issue 12, performance: the lagged sums are subtracted into
+    a second array, and a cogging chunk's sums taken in its own place): the mean of the last
+    ``window`` rows, fewer at the start; overwriting the input gives the same bits."""
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(300, 3, 2))
+    for window in (1, 2, 7, 300, 500):
+        want = np.array([x[max(0, k - window + 1) : k + 1].mean(axis=0) for k in range(len(x))])
+        got = moving_average(x, window)
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+        scratch = x.copy()
+        np.testing.assert_array_equal(moving_average(scratch, window, overwrite_input=True), got)
+    np.testing.assert_array_equal(moving_average(x, 7), moving_average(x, 7))  # x unchanged
+    ints = rng.integers(0, 9, size=(50, 2))
+    np.testing.assert_allclose(
+        moving_average(ints, 4, overwrite_input=True), moving_average(ints.astype(float), 4)
+    )
+
+
+def test_before_after_reuses_its_fits_and_simulations_and_changes_nothing(
+    default_recording, monkeypatch
+):
+    """The simulation gate's last round and the final comparison refit and simulate the same
+    model: with one memo the second call simulates only what is new (the nominal model) and
+    gives the document a call without the memo gives (issue 12, performance)."""
+    from hil.diagnose import report
+
+    rec = read_signals(default_recording)
+    prob, theta = build_problem([(rec.q, rec.tau, rec.period_s)])
+    library = candidates(theta, np.ptp(rec.q, axis=0))
+    accepted, _first = select(prob, library, reference=REFERENCE)
+    assert accepted  # joint 1's asymmetry
+    findings, _confounded, shaft = report.interpret(prob, accepted, library, REFERENCE)
+    calls = []
+    simulate = report._segment_simulation
+    monkeypatch.setattr(
+        report, "_segment_simulation", lambda *a, **k: calls.append(1) or simulate(*a, **k)
+    )
+    memo: dict = {}
+    gate, _ = report.before_after(prob, accepted, findings, None, False, None, shaft, memo=memo)
+    assert len(calls) == 1  # "after"
+    final, arrays = report.before_after(prob, accepted, findings, None, memo=memo)
+    assert len(calls) == 2  # "before" only: "after" is the gate's
+    assert final["after"] == gate["after"]
+    fresh, fresh_arrays = report.before_after(prob, accepted, findings, None)
+    assert len(calls) == 4
+    assert json.dumps(final) == json.dumps(fresh)
+    for name in ("before", "after"):
+        np.testing.assert_array_equal(arrays["simulation"][name], fresh_arrays["simulation"][name])
+
+
+def test_the_columns_kept_after_the_selection_are_the_terms_and_their_rivals():
+    """keep_only keeps the accepted terms' columns and their rivals' at the rival's variant
+    (report.interpret refits each rival in its term's place; a model term's column rebuilt is
+    a pass over every interval's regressor: issue 12, performance)."""
+    from hil.diagnose.selection import Accepted, Candidate, _kept_columns
+
+    def cols(_rows, _variant):
+        raise AssertionError("not built")
+
+    offset = Candidate("offset", 0, (None,), cols)
+    cogging = Candidate("cogging", 0, (20, 21, 22), cols)
+    com = Candidate("com_offset", 0, (None,), cols)
+    gain = Candidate("gain", 1, (None,), cols)
+    library = [offset, cogging, com, gain]
+    accepted = [
+        Accepted(offset, None, None, ["com_offset", "cogging:1"], {"cogging:1": 21}),
+        Accepted(gain, None, None),
+    ]
+    assert _kept_columns(accepted, library) == [
+        ("offset:1", 0),
+        ("gain:2", 0),
+        ("com_offset", 0),
+        ("cogging:1", 1),
+    ]

@@ -215,11 +215,18 @@ class RecordingRows:
         return _node_average(self.q_nodes)
 
 
-def moving_average(x: np.ndarray, window: int) -> np.ndarray:
-    """F: the mean of the last ``window`` rows (fewer at the start), along the first axis."""
-    # in place: one array of x's size, not four (numpy buffers the overlapping subtraction)
-    out = np.cumsum(x, axis=0, dtype=float)
-    out[window:] -= out[:-window]
+def moving_average(x: np.ndarray, window: int, *, overwrite_input: bool = False) -> np.ndarray:
+    """F: the mean of the last ``window`` rows (fewer at the start), along the first axis.
+    ``overwrite_input``: x (float) may hold the cumulative sums afterwards (no third array)."""
+    # Two arrays of x's size, the sums and the result: the in-place out[w:] -= out[:-w] this
+    # replaces held as much (numpy copies an overlapping operand first) and took three times
+    # the cumulative sum's time doing it (a long diagnosis filters hundreds of cogging chunks).
+    in_place = overwrite_input and x.dtype == float
+    sums = np.cumsum(x, axis=0, dtype=float, out=x if in_place else None)
+    out = np.empty_like(sums)
+    out[:window] = sums[:window]
+    np.subtract(sums[window:], sums[:-window], out=out[window:])
+    del sums
     n = np.minimum(np.arange(1, len(x) + 1), window).reshape((-1,) + (1,) * (x.ndim - 1))
     out /= n
     return out
@@ -375,6 +382,8 @@ def cogging_column_chunks(
     n = np.asarray(periods_per_rev, float)
     z = np.exp(1j * n[0] * q)
     once = np.exp(1j * q)
+    mean = np.empty(q.shape[1], complex)  # the node average of e^{i n q}, one period's
+    sin_cos = mean.view(float).reshape(-1, 2)[:, ::-1]  # its (imag, real): one copy per period
     for lo in range(0, len(n), per):
         hi = min(lo + per, len(n))
         raw = np.empty((q.shape[1], hi - lo, 2))  # (K, chunk, sin|cos): node averages
@@ -382,9 +391,11 @@ def cogging_column_chunks(
             if i:
                 step = n[i] - n[i - 1]
                 z *= once if step == 1 else np.exp(1j * step * q)
-            mean = _GL_WEIGHTS @ z  # of e^{i n q}
-            raw[:, i - lo, 0], raw[:, i - lo, 1] = mean.imag, mean.real
-        out = _filtered(rows, raw)
+            np.matmul(_GL_WEIGHTS, z, out=mean)
+            raw[:, i - lo] = sin_cos
+        # F (as _filtered), its sums taken in raw's place: one chunk-sized array fewer at the
+        # selection's peak
+        out = moving_average(raw, rows.window, overwrite_input=True)
         del raw  # not held while the caller sums the chunk
         yield np.negative(out, out=out)
 

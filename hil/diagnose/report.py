@@ -46,6 +46,7 @@ from hil.diagnose.selection import (
     Problem,
     _design,
     _joints,
+    _term_key,
     build_problem,
     candidates,
     check_recording,
@@ -601,6 +602,30 @@ def _segment_simulation(
     return np.concatenate(out)
 
 
+def _kept_simulation(
+    memo: dict,
+    rec_i: int,
+    theta: np.ndarray,
+    extras: OpenLoopExtras | Sequence[Finding] | None,
+    r: Any,
+    segments: Sequence[tuple[int, int]],
+    model: Any,
+) -> np.ndarray:
+    """:func:`_segment_simulation` of recording ``rec_i``'s rows ``r``, kept in ``memo`` by its
+    inputs (:func:`before_after`): the simulation gate's last round and the final comparison
+    simulate the same model. An n-joint model's (it takes the findings) is not kept."""
+    if not isinstance(model, ArmModel) or not (
+        extras is None or isinstance(extras, OpenLoopExtras)
+    ):
+        return _segment_simulation(theta, extras, r.q, r.tau, r.h, segments, r.stamps, model)
+    key = ("simulation", rec_i, tuple(segments), theta.tobytes(), model.terms, extras)
+    if key not in memo:
+        simulated = _segment_simulation(theta, extras, r.q, r.tau, r.h, segments, r.stamps, model)
+        simulated.flags.writeable = False  # shared by the calls that reuse it
+        memo[key] = simulated
+    return memo[key]
+
+
 def _torque_spread(tau: np.ndarray) -> np.ndarray:
     """Per joint, std(τ) / rms(τ): a gain of ε times this moves τ by ε of its spread in RMS, the
     scale an NRMSE of ε is measured in."""
@@ -678,6 +703,7 @@ def before_after(
     friction_se: np.ndarray | None = None,
     shaft: np.ndarray | None = None,
     sensitivity: bool = False,
+    memo: dict | None = None,
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Torque NRMSE and open-loop position NRMSE per joint on held-out data, nominal model
     (``nominal_theta`` when given, else fitted on the training part) and with the accepted terms.
@@ -686,21 +712,33 @@ def before_after(
     of a found lag or delay; the refit then explains them instead of carrying the first-order
     rate columns, so θ is the one the simulation with that lag or delay needs.
     ``sensitivity``: also the arrays' ``position_sensitivity`` (:func:`simulation_sensitivity`)
-    of the model with the accepted terms."""
+    of the model with the accepted terms. ``memo``: a dict kept over the calls of one diagnosis
+    (the simulation gate's rounds, then the final comparison), in which the fits and the
+    simulations are kept by what they depend on and reused, not computed again."""
+    memo = {} if memo is None else memo
     train, test, spans = _masks(prob)
     if shaft is not None:
         accepted = [a for a in accepted if a.cand.kind != "rate"]
     cols = [prob.chosen(a) for a in accepted]
     w_train = prob.w * train[:, None]
-    theta0 = (
-        fit_theta(prob.Psi, prob.y, w_train, overwrite_design=True)
-        if nominal_theta is None
-        else np.asarray(nominal_theta, float)
-    )
+    if nominal_theta is None:
+        key0 = ("nominal fit", prob.scale.tobytes())
+        if key0 not in memo:
+            memo[key0] = fit_theta(prob.Psi, prob.y, w_train, overwrite_design=True)
+        theta0 = memo[key0].copy()
+    else:
+        theta0 = np.asarray(nominal_theta, float)
     target = prob.y if shaft is None else shaft / prob.scale
     # the design is weighted in place by the fit and built again for the prediction: on a long
     # recording a (K, 2, p) copy fewer at the memory peak
-    beta = fit_theta(_design(prob, cols), target, w_train, overwrite_design=True)
+    # kept by the terms' columns and the shaft rows themselves (a rebuilt column is a new array)
+    key1 = ("refit", tuple(a.cand.key for a in accepted), prob.scale.tobytes())
+    inputs = (shaft, *(prob.cache[_term_key(a)] for a in accepted))
+    kept = memo.get(key1)
+    if kept is None or any(x is not y for x, y in zip(kept[0], inputs, strict=True)):
+        beta = fit_theta(_design(prob, cols), target, w_train, overwrite_design=True)
+        kept = memo[key1] = (inputs, beta)
+    beta = kept[1].copy()
     Z = _design(prob, cols)
     y = prob.y_raw
     pred0 = prob.Psi_raw @ theta0
@@ -742,7 +780,7 @@ def before_after(
         ):
             if name in unphysical_fit or (name == "before" and not simulate_before):
                 continue
-            sims[name] = _segment_simulation(theta, ex, r.q, r.tau, h, segments, r.stamps, model)
+            sims[name] = _kept_simulation(memo, rec_i, theta, ex, r, segments, model)
             position[name] = _finite(nrmse(q, sims[name]))
         if sensitivity and "after" in sims:
             # the same simulation driven by a torque off by the model's own held-out error
@@ -1117,6 +1155,7 @@ def simulation_gate(
     say: Callable[[str], None],
     se: np.ndarray | None = None,
     shaft: np.ndarray | None = None,
+    memo: dict | None = None,
 ) -> tuple[list[Accepted], list[Finding], dict[str, str], np.ndarray | None]:
     """A finding must improve the held-out simulated motion too, or it is not one: every term
     is taken out in turn and the held-out open-loop simulation rerun; a term without which the
@@ -1125,11 +1164,13 @@ def simulation_gate(
     better beyond noise (:func:`worse_beyond_noise`: SIMULATION_TOLERANCE plus the
     simulation's sensitivity to the model's own torque error) is dropped (the one that hurts
     most first, then the rest are checked again). Returns the kept terms and findings and, per
-    dropped term, the reason."""
+    dropped term, the reason. ``memo``: :func:`before_after`'s, shared with the caller's final
+    comparison."""
     dropped: dict[str, str] = {}
+    memo = {} if memo is None else memo
     while accepted:
         fit, arrays = before_after(
-            prob, accepted, findings, nominal_theta, False, se, shaft, sensitivity=True
+            prob, accepted, findings, nominal_theta, False, se, shaft, sensitivity=True, memo=memo
         )
         with_all = fit["after"]["position_nrmse"]
         noise = arrays["simulation"].get("position_sensitivity") or [0.0] * len(with_all)
@@ -1171,6 +1212,7 @@ def simulation_gate(
                 False,
                 se,
                 None if term == "rate" else shaft,
+                memo=memo,
             )
             joints = _term_joints(prob, accepted, term)
             # the held-out torque first: a term whose refit predicts it no better is no finding
@@ -1406,6 +1448,7 @@ def diagnose(
     )
     nominal_unphysical = physical_theta(theta_fit, nominal_se, model)[1]
     rejected: dict[str, str] = {}
+    memo: dict = {}  # before_after's fits and simulations, from the gate to the final comparison
     if nominal_unphysical:
         # nothing built on an unphysical fit is a finding: say so and stop there
         say("diagnose: the nominal fit is not physical; no candidates tested")
@@ -1432,13 +1475,13 @@ def diagnose(
         findings, confounded, shaft = interpret(prob, accepted, library, reference_theta)
         findings += unexplained(prob, accepted, shaft)
         accepted, findings, dropped, shaft = simulation_gate(
-            prob, accepted, findings, nominal_theta, say, nominal_se, shaft
+            prob, accepted, findings, nominal_theta, say, nominal_se, shaft, memo
         )
         rejected.update(dropped)
         kept = {f.effect for f in findings}
         confounded = [pair for pair in confounded if set(pair) <= kept]
     fit, fit_arrays = before_after(
-        prob, accepted, findings, nominal_theta, friction_se=nominal_se, shaft=shaft
+        prob, accepted, findings, nominal_theta, friction_se=nominal_se, shaft=shaft, memo=memo
     )
     refused = refused_candidates(model)
     notes = (

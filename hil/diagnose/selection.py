@@ -350,8 +350,9 @@ class Problem:
 
     def keep_only(self, keys: Sequence[tuple[str, int]]) -> None:
         """The selection is over: drop the grids' sums and every column but those of ``keys``
-        (the accepted terms); a column asked for again is rebuilt, identical. On a long
-        recording they are hundreds of megabytes the refit and the simulations need room for."""
+        (the accepted terms and their rivals); a column asked for again is rebuilt, identical.
+        On a long recording they are hundreds of megabytes the refit and the simulations need
+        room for."""
         self.grids.clear()
         self.cache = {k: v for k, v in self.cache.items() if k in keys}
         self._design_stats.clear()
@@ -411,7 +412,10 @@ class Problem:
         U = [self.cache[k][:, j, :] for k in missing]  # (K, width) raw, on the joint's rows
         if sums is None:
             U = [self.Psi_raw[:, j, :], *U]
-        Uy = [*U, self.y_raw[:, j : j + 1]]  # the columns and y, joined a block at a time
+        # the columns and y, joined a block at a time: joined once for all the grid's chunks
+        # they would save a third of a cogging chunk's block sums, but the (K, m + 1) copy
+        # (90 MB at 600,000 rows) lifted a 10-minute diagnosis's peak beyond 1 GB
+        Uy = [*U, self.y_raw[:, j : j + 1]]
         w, spans = self.w[:, j], block_spans(self.blocks)
         n_blocks, q = len(spans), term_width(cand)
         # where each group of U's columns goes: Ψ's to a new grid's PX, a term's to its own
@@ -950,8 +954,23 @@ def select(
     for a in accepted:  # refused on top of a term that is gone, accepted without it
         rejected.pop(a.cand.key, None)
     _confounding(prob, accepted, [c for c in library if c.key in first_round], len(library), log)
-    prob.keep_only([_term_key(a) for a in accepted])
+    prob.keep_only(_kept_columns(accepted, library))
     return accepted, first_round
+
+
+def _kept_columns(
+    accepted: Sequence[Accepted], library: Sequence[Candidate]
+) -> list[tuple[str, int]]:
+    """The columns the report asks for after the selection: the accepted terms' and their
+    rivals' (report.interpret refits each rival in its term's place; a model term's columns,
+    rebuilt, cost a pass over every interval's regressor)."""
+    by_key = {c.key: c for c in library}
+    keys = [_term_key(a) for a in accepted]
+    for a in accepted:
+        for key in a.confounded_with:
+            rival = by_key[key]
+            keys.append((key, rival.variants.index(a.rival_variants.get(key, rival.variants[0]))))
+    return keys
 
 
 def _forward(

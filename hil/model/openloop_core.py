@@ -69,7 +69,9 @@ class TorquePath:
 
     A subclass with a delay returns other commands and cut sub-steps from :meth:`schedule`; one
     with an actuator lag sets ``lagged`` (the torque applied over a step depends on its length
-    and on a state carried from step to step, :meth:`applied` and :meth:`settle`).
+    and on a state carried from step to step, :meth:`applied` and :meth:`settle`). Without
+    ``lagged`` the applied torque is a function of the command alone: the integrator maps the
+    scheduled commands through :meth:`applied` once and runs them as the identity path's.
     """
 
     identity = True  # applied torque = command: the integrator skips the calls below
@@ -496,10 +498,14 @@ def integrate_chunks(
     keeps its place as a fraction of the period (exact for the identity path and the lag).
     """
     path = TorquePath() if path is None else path
+    # a path without a lag applies a torque that depends on the command alone (a gain, an
+    # offset, a delayed row): mapped once per row below, then integrated as the identity path's
+    # commands (the sub-steps without events take the fast branch; the same numbers)
+    mapped = not path.identity and not path.lagged
     stretch = None if intervals is None else np.asarray(intervals, float) / h
     # the rows' times: k·h, or the real sample times the intervals add up to
     times = None if intervals is None else np.concatenate([[0.0], np.cumsum(stretch * h)])
-    identity = path.identity
+    identity = path.identity or mapped
     n_rows = torques.shape[0]
     n = arm.n_joints
     joints = range(n)
@@ -546,6 +552,9 @@ def integrate_chunks(
                 break
         return changed
 
+    def applied(commands: list) -> list:
+        return [path.applied(c, h)[0] for c in commands] if mapped else commands
+
     # a row-local path's commands are each period's own row: scheduled chunk by chunk
     whole = None if path.row_local else path.schedule(torques, h, n_sub)
     step = mode_step()
@@ -556,6 +565,7 @@ def integrate_chunks(
         else:
             before, after = whole[0][first : first + rows], whole[1][first : first + rows]
             segments = whole[2]
+        before, after = applied(before), applied(after)
         q_out = [state[:n]] * rows
         dq_out = [state[n:]] * rows
         stuck_out = [tuple(stuck)] * rows
