@@ -1,5 +1,7 @@
 """Process life of a run: exit signals, and whether the process that wrote a run still lives.
 
+* :func:`run_command_line`: every way into a command line passes here, so each installs the
+  exit signals below before its imports (the one place that does).
 * :func:`install_exit_signals`: SIGTERM and SIGHUP behave like Ctrl-C (a ``KeyboardInterrupt``
   in the main thread), so every way of stopping a run goes through the same safe path: zero
   torque, drives disabled, meta.json closed. Signals that arrive while that path runs are not
@@ -20,7 +22,7 @@ import os
 import signal
 import socket
 import sys
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from types import FrameType
 from typing import Any
 
@@ -112,6 +114,23 @@ def install_exit_signals() -> None:
     for name in EXIT_SIGNALS:
         with contextlib.suppress(ValueError, OSError, AttributeError):  # not the main thread
             signal.signal(getattr(signal, name), _on_exit_signal)
+
+
+def run_command_line(
+    prog: str, load_main: Callable[[], Callable[[Any], int]], argv: Any = None
+) -> int:
+    """A command line's way in (the ``hil`` console script, ``python -m hil``, ``python -m
+    hil.cli``): the exit signals first, then ``load_main()`` (the import of the command line)
+    and its ``main(argv)``. An exit signal during the import ends with one line; an interrupted
+    command's 130 becomes 128 + the signal's number, as a shell reports it."""
+    install_exit_signals()
+    try:
+        main = load_main()
+        code = main(argv)
+    except KeyboardInterrupt:
+        print(f"{prog}: {interrupt_reason()}; nothing was running yet", file=sys.stderr)
+        return interrupt_exit_code()
+    return interrupt_exit_code() if code == 130 else code
 
 
 def exit_signal() -> int | None:

@@ -214,6 +214,44 @@ class Recording:
             ):
                 self.n_joints += 1
 
+    @classmethod
+    def from_arrays(
+        cls,
+        t: np.ndarray,
+        q: np.ndarray,
+        tau: np.ndarray,
+        *,
+        source: str | Path = "",
+        held: bool = False,
+    ) -> Recording:
+        """A recording of real sample times ``t`` (N,), positions ``q`` and torques ``tau``
+        (N, n) made in memory (a log in another layout, a synthetic test), named ``source``.
+        ``held``: row k's torque is a command held over [t_k, t_{k+1}), as this bench records
+        it (:attr:`torque_held`); else a torque sampled with the positions at t_k."""
+        t, q, tau = (np.asarray(x, dtype=float) for x in (t, q, tau))
+        n = q.shape[1]
+        columns = {"t": t}
+        columns |= {f"q{j + 1}": q[:, j] for j in range(n)}
+        columns |= {f"tau{j + 1}": tau[:, j] for j in range(n)}
+        meta = {"period_s": float(np.median(np.diff(t)))} if held and len(t) > 1 else {}
+        source_name = "commanded" if held else "measured"
+        return cls(Path(source), columns, meta, n_joints=n, torque_source=source_name)
+
+    @property
+    def torque_held(self) -> bool:
+        """Whether row k's torque is a command held over [t_k, t_{k+1}) (this bench's own
+        recordings: commanded torques with meta.json's period beside them), not a torque
+        sampled with the positions at t_k (a foreign file's, taken as such)."""
+        return self.torque_source == "commanded" and "period_s" in self.meta
+
+    def write_csv(self, path: str | Path) -> None:
+        """``t,q1..qn,tau1..taun`` with a header line (a bare CSV :func:`read_signals` reads)."""
+        n = self.n_joints
+        header = ",".join(["t", *(f"q{j}" for j in range(1, n + 1))])
+        header += "," + ",".join(f"tau{j}" for j in range(1, n + 1))
+        data = np.column_stack([self.t, self.q, self.tau])
+        np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.9g")
+
     @property
     def t(self) -> np.ndarray:
         """The real sample times, s."""

@@ -297,5 +297,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     return EXIT_USAGE
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+if __name__ == "__main__":  # `python -m hil.cli`: the exit signals as the `hil` entry point's
+    from drivers.process import run_command_line
+
+    sys.exit(run_command_line("hil", lambda: main))

@@ -2,28 +2,26 @@
 
 SIGTERM and SIGHUP are set to behave like Ctrl-C before anything heavy is imported, and a
 Ctrl-C (or either signal) that lands while the command line is still being imported ends with
-one line, not a traceback. Everything else is :func:`hil.cli.main`.
+one line, not a traceback (:func:`drivers.process.run_command_line`, which ``python -m hil.cli``
+passes through too). Everything else is :func:`hil.cli.main`.
 """
 
 from __future__ import annotations
 
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
-from drivers.process import install_exit_signals, interrupt_exit_code, interrupt_reason
+from drivers.process import run_command_line
+
+
+def _load_cli() -> Callable[[Sequence[str] | None], int]:
+    from hil.cli import main as cli_main
+
+    return cli_main
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    install_exit_signals()
-    try:
-        from hil.cli import main as cli_main
-
-        code = cli_main(argv)
-    except KeyboardInterrupt:
-        print(f"hil: {interrupt_reason()}; nothing was running yet", file=sys.stderr)
-        return interrupt_exit_code()
-    # the commands return 130 for an interrupted run; a shell reports 128 + the signal's number
-    return interrupt_exit_code() if code == 130 else code
+    return run_command_line("hil", _load_cli, argv)
 
 
 if __name__ == "__main__":

@@ -49,11 +49,12 @@ def wait_rows(
     raise AssertionError(f"fewer than {rows} rows after {timeout} s")
 
 
-def start_hil(*args: str) -> subprocess.Popen:
+def start_hil(*args: str, module: str = "hil.entry") -> subprocess.Popen:
     """``hil ARGS`` started through the console entry point (hil.entry: the exit signals
-    installed as for a user), output captured as text; the caller waits for it or kills it."""
+    installed as for a user), or as ``python -m MODULE``, output captured as text; the caller
+    waits for it or kills it."""
     return subprocess.Popen(
-        [sys.executable, "-m", "hil.entry", *args],
+        [sys.executable, "-m", module, *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

@@ -157,6 +157,26 @@ def test_control_refuses_unphysical_params(tmp_path, capsys, theta):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("index", [0, 3, 5])
+@pytest.mark.parametrize("command", ["control", "diagnose"])
+def test_theta_beyond_any_arm_is_refused(tmp_path, capsys, command, index):
+    """θ entries of ±1e308 pass the positive-definiteness test (θ1 θ3 − θ3² − θ2² is inf) but
+    make the control law inf − inf = NaN: refused, naming the file and the entry."""
+    theta = [2.35, 0.08, 0.1, 38, 1.8, 2.3, 0.17, 7, 1.7]
+    theta[index] = 1e308
+    params = tmp_path / "params.json"
+    params.write_text(json.dumps({"theta": theta}))
+    out = tmp_path / "c"
+    if command == "control":
+        argv = ["control", "--bench", "virtual-inprocess", "--scheme", "ct", "--duration", "0.1"]
+    else:
+        argv = ["diagnose", str(write_run(tmp_path / "rec", moving_rows(300))), "--no-plots"]
+    code, err = run_hil([*argv, "--params", str(params), "--out", str(out)], capsys)
+    assert_one_line_error(code, err)
+    assert str(params) in err and f"theta{index + 1} = 1e+308" in err
+    assert not out.exists()
+
+
 def test_out_reuse_is_refused_without_overwrite(tmp_path, capsys):
     run = write_run(tmp_path / "rec", moving_rows(300))
     out = tmp_path / "id"

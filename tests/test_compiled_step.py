@@ -108,3 +108,29 @@ def test_broken_build_falls_back_in_one_line(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv(KERNEL_ENV, "auto")
     status = kernel_status()
     assert status.kernel == "python" and "no C++ compiler" in status.reason
+
+
+def test_cached_library_is_used_without_a_compiler(tmp_path, monkeypatch):
+    """A library built once stays in use when the compiler is gone later (a machine whose
+    build tools were removed, a container built from a cached image): its key (source,
+    compiler name, flags, Pinocchio version) matches, so nothing needs compiling."""
+    monkeypatch.delenv(KERNEL_ENV, raising=False)
+    real = kernel_status()
+    if real.kernel != "compiled":
+        pytest.skip(f"no compiled step to reuse here: {real.reason}")
+    compiler = tmp_path / "bin" / "c++"  # a compiler that "builds" by copying the real one
+    compiler.parent.mkdir()
+    compiler.write_text(f'#!/bin/sh\nfor a; do [ "$p" = -o ] && out="$a"; p="$a"; done\n'
+                        f'cp "{real.library}" "$out"\n')  # fmt: skip
+    compiler.chmod(compiler.stat().st_mode | stat.S_IXUSR)
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path / "cache"))
+    monkeypatch.setenv("CXX", str(compiler))
+    built = kernel_status()
+    assert built.kernel == "compiled", built.reason
+    compiler.unlink()  # the compiler is gone; the cached library is not
+    status = kernel_status()
+    assert status.kernel == "compiled", status.reason
+    assert status.library == built.library
+    (tmp_path / "cache" / os.path.basename(built.library)).unlink()  # and without it: why not
+    status = kernel_status()
+    assert status.kernel == "python" and "no C++ compiler" in status.reason

@@ -33,9 +33,10 @@ from virtual_robot.socketcand_hub import SocketcandHub
 
 
 # ---- helpers ----------------------------------------------------------------------------
-def _hil(out: Path, *args: str) -> subprocess.Popen:
-    """``hil run`` through the console entry point (exit signals installed as for a user)."""
-    return start_hil("run", "--out", str(out), "--no-plot", *args)
+def _hil(out: Path, *args: str, module: str = "hil.entry") -> subprocess.Popen:
+    """``hil run`` through the console entry point (exit signals installed as for a user), or
+    as ``python -m MODULE``."""
+    return start_hil("run", "--out", str(out), "--no-plot", *args, module=module)
 
 
 def _patient_bench(tmp_path: Path, base: str = "virtual-slcan") -> str:
@@ -147,10 +148,18 @@ def test_robot_killed_is_gone_at_once(tmp_path: Path, bench: str) -> None:
 
 
 # ---- signals and exits ----------------------------------------------------------------------
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
-def test_sigterm_and_sighup_stop_the_host_like_ctrl_c(tmp_path: Path, sig: int) -> None:
+@pytest.mark.parametrize(
+    ("module", "sig"),
+    [("hil.entry", signal.SIGTERM), ("hil.entry", signal.SIGHUP), ("hil.cli", signal.SIGTERM)],
+    ids=["hil-SIGTERM", "hil-SIGHUP", "python-m-hil.cli-SIGTERM"],
+)
+def test_sigterm_and_sighup_stop_the_host_like_ctrl_c(
+    tmp_path: Path, module: str, sig: int
+) -> None:
+    """Through the console entry point and through ``python -m hil.cli`` alike."""
     bench = _patient_bench(tmp_path)
-    proc = _hil(tmp_path / "run", "--bench", bench, "--mode", "realtime", "--duration", "60")
+    argv = ("--bench", bench, "--mode", "realtime", "--duration", "60")
+    proc = _hil(tmp_path / "run", *argv, module=module)
     tmp_path = tmp_path / "run"
     try:
         robot = wait_rows(tmp_path, 100, proc)["channel"]["pid"]

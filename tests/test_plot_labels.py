@@ -81,3 +81,34 @@ def test_diagnosis_simulation_lines_break_at_skipped_segments():
     b = broken_at_gaps(t)
     assert np.isnan(b).sum() == 2 and np.isnan(b[100]) and np.isnan(b[200])
     assert np.array_equal(b[:100], t[:100])
+
+
+def test_diagnosis_torque_error_is_drawn_against_time(monkeypatch, tmp_path):
+    """fit.png's torque panels: the held-out rows against their time, as the position panels
+    beside them, not against the row index; lines break where the held-out rows skip."""
+    from matplotlib.figure import Figure
+
+    from hil.diagnose.plots import plot_diagnosis
+    from hil.diagnose.report import DiagnosisResult
+
+    rng = np.random.default_rng(0)
+    rows = 400
+    t = 3.0 + np.cumsum(0.0025 * rng.uniform(0.6, 1.4, rows))  # irregular stamps
+    test = np.zeros(rows, dtype=bool)
+    test[200:300] = test[350:] = True  # two held-out spans
+    zeros = np.zeros((rows, 2))
+    loc = {"t": t, "residual": zeros, "v": zeros, "q": zeros, "usable": np.ones((rows, 2), bool)}
+    arrays = {"location": loc, "test": test, "torque": rng.normal(size=(rows, 2)),
+              "pred_before": zeros, "pred_after": zeros, "simulation": {}}  # fmt: skip
+    fit = {name: {"torque_nrmse": [0.1, 0.2]} for name in ("before", "after")}
+    doc = {"findings": [], "fit": {**fit, "held_out": "the last 20 %"}}
+    drawn: dict[str, Figure] = {}
+    monkeypatch.setattr(Figure, "savefig", lambda fig, path, **kw: drawn.update({path.name: fig}))
+    plot_diagnosis(DiagnosisResult(doc, arrays), tmp_path)
+    torque_axes = drawn["fit.png"].axes[0::2]  # joint j: (torque, position)
+    for ax in torque_axes:
+        assert ax.get_xlabel() == "t [s]"
+        x = np.asarray(ax.lines[0].get_xdata(), dtype=float)
+        held = t[test]
+        assert np.array_equal(x[~np.isnan(x)], np.delete(held, 100))  # NaN where rows skip
+        assert np.isnan(x[100])

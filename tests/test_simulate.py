@@ -79,6 +79,27 @@ def test_same_inputs_same_recording(tmp_path):
     assert (tmp_path / "a/signals.csv").read_bytes() == (tmp_path / "b/signals.csv").read_bytes()
 
 
+def test_two_dof_and_n_joint_simulations_end_alike(tmp_path):
+    """The 2-DOF closed-form plant and the n-joint URDF plant share the run's ending
+    (virtual_robot.offline.run_open_loop): the same status columns, the same totals in
+    meta.json (the 2-DOF run lacked the CPU time), the same plot."""
+    from profiles.robot import load_urdf_robot
+
+    runs = {
+        "cicese": (load_robot("cicese"), load_experiment("reyes-kelly")),
+        "cicese3": (load_urdf_robot("cicese3"), load_experiment("cicese3-excitation")),
+    }
+    totals = {"wall_time_s", "cpu_time_s", "realtime_factor", "plant_steps", "stick_events"}
+    for name, (robot, experiment) in runs.items():
+        result = simulate(robot, experiment, tmp_path / name, duration_s=0.1)
+        meta = json.loads((tmp_path / name / "meta.json").read_text())
+        n = robot.n_joints if name == "cicese3" else 2
+        assert meta["columns"][-n:] == [f"status{j}" for j in range(1, n + 1)]
+        assert totals <= set(meta) and meta["faults"] == [] and meta["rows"] == 40, name
+        assert meta["cpu_time_s"] > 0 and meta["plant_steps"] == result.plant_steps
+        assert result.plot == tmp_path / name / "positions.png" and result.plot.is_file()
+
+
 def test_effects_change_the_world_not_the_commands(tmp_path):
     out_a, out_b = tmp_path / "a", tmp_path / "b"
     assert run_cli("simulate", "--duration", "2", "--out", str(out_a), "--no-plot").returncode == 0

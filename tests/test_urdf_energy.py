@@ -11,8 +11,14 @@ import pinocchio as pin
 import pytest
 from cicese3_targets import check_targets
 
+from drivers.recording import Recording
 from hil.cli import main as hil_main
-from hil.identify.urdf import DEFAULT_DECIMATE, ENERGY_SCHEMES, TorqueRecording, identify_energy
+from hil.identify.urdf import (
+    DEFAULT_DECIMATE,
+    ENERGY_SCHEMES,
+    identify_energy,
+    torque_over_intervals,
+)
 from hil.model.regressors import build_regression, velocity_half_window
 from hil.model.urdf import UrdfArmModel
 from profiles.robot import load_urdf_robot
@@ -122,7 +128,7 @@ def test_energy_schemes_recover_the_base_parameters(cicese3, scheme):
     or Coulomb parameter. λ from the data (12 rad/s, twice its bandwidth)."""
     t, q, dq, ddq = multisine(cicese3, 12.0, np.random.default_rng(5))
     tau = cicese3.torque(cicese3.base_theta(), q, dq, ddq)
-    rec = TorqueRecording(t, q, tau, "synthetic")
+    rec = Recording.from_arrays(t, q, tau, source="synthetic")
     res = identify_energy(cicese3, rec, scheme)
     err = relative_errors(cicese3, res.theta)
     for m, e in err.items():
@@ -149,7 +155,7 @@ def test_two_dof_and_n_joint_rows_are_one_code(cicese3):
     trajectory, τ_kᵀΔq_k = Δℰ + friction work."""
     t, q, dq, ddq = multisine(cicese3, 2.0, np.random.default_rng(8))
     tau = cicese3.torque(cicese3.base_theta(), q, dq, ddq)
-    held = TorqueRecording(t, q, tau, "synthetic").torque_over_intervals()
+    held = torque_over_intervals(Recording.from_arrays(t, q, tau, source="synthetic"))
     reg = build_regression("supplied_energy", q, held, float(np.median(np.diff(t))),
                            model=cicese3, t=t)  # fmt: skip
     residual = reg.y[:, 0] - reg.Psi[:, 0] @ cicese3.base_theta()
@@ -163,7 +169,7 @@ def test_cli_schemes_for_a_urdf_arm(tmp_path, cicese3, capsys):
     t, q, dq, ddq = multisine(cicese3, 12.0, np.random.default_rng(6))
     tau = cicese3.torque(cicese3.base_theta(), q, dq, ddq)
     csv = tmp_path / "c3.csv"
-    TorqueRecording(t, q, tau).write_csv(csv)
+    Recording.from_arrays(t, q, tau).write_csv(csv)
     out = tmp_path / "out"
     argv = ["identify", "--from", str(csv), "--robot", "cicese3", "--out", str(out), "--json",
             "--schemes", "supplied_energy,filtered_power",

@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 
 import hil.model.closed_form as closed_form
+from drivers.recording import Recording, RecordingWriter, read_signals
 from hil.identify.urdf import (
-    TorqueRecording,
     filtered_rows,
     identify_torque,
     read_one_per_line_log,
     smoothed_motion,
+    torque_at_samples,
 )
 from hil.model.metrics import nrmse
 from hil.model.urdf import UrdfArmModel, _bilinear_inertia_regressor
@@ -249,7 +250,9 @@ def test_identification_recovers_a_simulated_arm(cicese):
     ddq = (-a * w**2 * np.sin(arg)).sum(-1)
     truth = cicese.base_theta()
     tau = cicese.torque(truth, q, dq, ddq)
-    result = identify_torque(cicese, TorqueRecording(t, q, tau, "simulated"), cutoff_hz=5.0)
+    result = identify_torque(
+        cicese, Recording.from_arrays(t, q, tau, source="simulated"), cutoff_hz=5.0
+    )
     rel = np.abs(result.theta - truth) / np.maximum(np.abs(truth), 1e-2)
     assert rel.max() < 0.02, dict(zip(cicese.meanings, rel.round(4), strict=True))
     assert result.nrmse_held_out.max() < 0.01
@@ -322,7 +325,7 @@ def _synthetic_csv(path, model: UrdfArmModel, seconds: float, seed: int) -> np.n
     ddq = (-a * w**2 * np.sin(arg)).sum(-1)
     tau = model.torque(model.base_theta(), q, dq, ddq)
     tau += 0.01 * tau.std(0) * rng.normal(size=tau.shape)
-    TorqueRecording(t, q, tau).write_csv(path)
+    Recording.from_arrays(t, q, tau).write_csv(path)
     return tau
 
 
@@ -345,10 +348,33 @@ def test_hil_identify_robot_panda_on_a_standard_csv(tmp_path, panda, capsys):
     two = tmp_path / "two.csv"
     t50 = np.arange(50) * 1e-3
     q50 = np.column_stack([np.sin(20 * t50), np.cos(20 * t50)])  # it moves: only n is wrong
-    TorqueRecording(t50, q50, np.zeros((50, 2))).write_csv(two)
+    Recording.from_arrays(t50, q50, np.zeros((50, 2))).write_csv(two)
     code = hil_main(["identify", "--from", str(two), "--robot", "panda", "--out",
                      str(tmp_path / "out2")])  # fmt: skip
     assert code != 0
     err = capsys.readouterr().err.strip()
     assert err.endswith("two.csv: 2 joints (q1..q2), robot panda has 7") and "\n" not in err
     assert not (tmp_path / "out2" / "identify.json").exists()
+
+
+def test_identification_takes_the_recording_every_analysis_reads(tmp_path, cicese):
+    """One recording type (drivers.recording.Recording): what `read_signals` returns goes into
+    the n-joint identification as it is. Its torque is held over each period when this bench
+    wrote it (meta.json's period beside commanded torques) and sampled with the positions in a
+    bare CSV, and the rows treat it so."""
+    t = np.arange(3000) * 2e-3
+    q = np.column_stack([0.8 * np.sin(1.3 * t), 0.5 * np.sin(2.1 * t + 0.4)])
+    tau = np.column_stack([3.0 * np.cos(0.9 * t), np.sin(1.7 * t)])
+    bare = tmp_path / "bare.csv"
+    Recording.from_arrays(t, q, tau).write_csv(bare)
+    with RecordingWriter(tmp_path / "run", {"period_s": 2e-3, "robot": "cicese"}) as w:
+        for row in np.column_stack([t, q, tau]):
+            w.write(row.tolist())
+    sampled, held = read_signals(bare), read_signals(tmp_path / "run")
+    assert not sampled.torque_held and held.torque_held
+    assert Recording.from_arrays(t, q, tau, held=True).torque_held
+    np.testing.assert_allclose(torque_at_samples(sampled), sampled.tau)
+    np.testing.assert_allclose(torque_at_samples(held)[1:], 0.5 * (tau[1:] + tau[:-1]))
+    for rec in (sampled, held):
+        result = identify_torque(cicese, rec, cutoff_hz=5.0)
+        assert np.all(np.isfinite(result.theta)) and result.theta.shape == (cicese.n_params,)

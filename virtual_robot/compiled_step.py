@@ -6,11 +6,12 @@ calls for the RK4 substeps of a control period in one stick mode.
 The shared library is built once per source and toolchain, lazily on first use (or by
 ``make`` setup: ``python -m virtual_robot.compiled_step``), into a cache directory
 (``$DDBENCH_KERNEL_CACHE``, else ``$XDG_CACHE_HOME/ddbench``, else ``~/.cache/ddbench``) under a
-name keyed by the hash of the source, the compiler, its flags and the Pinocchio version, under a
-file lock so concurrent processes build it once; a compile is bounded by
-:data:`BUILD_TIMEOUT_S`. When the compiler or the headers are missing or the build fails, the
-plant runs the Python step and says so in one line (:func:`kernel_status`); a failed compile is
-remembered beside the library so later runs do not retry it.
+name keyed by the hash of the source, the compiler, its flags and the Pinocchio version (a
+cached library is used even when the compiler is gone later), under a file lock so
+concurrent processes build it once; a compile is bounded by :data:`BUILD_TIMEOUT_S`. When
+the compiler or the headers are missing or the build fails, the plant runs the Python step and
+says so in one line (:func:`kernel_status`); a failed compile is remembered beside the library
+so later runs do not retry it.
 
 ``DDBENCH_PLANT_KERNEL`` chooses: ``auto`` (default: compiled when it builds), ``python``
 (always the Python step), ``compiled`` (refuse to run without it).
@@ -96,9 +97,9 @@ def pinocchio_prefix() -> Path:
 
 def build_command(output: Path) -> list[str]:
     """The compiler call; KernelUnavailableError (one line) without a compiler or a header."""
-    cxx = os.environ.get("CXX", "g++")
-    if shutil.which(cxx) is None:
-        raise KernelUnavailableError(f"no C++ compiler {cxx!r} on PATH")
+    command = _compile_command(output)
+    if shutil.which(command[0]) is None:
+        raise KernelUnavailableError(f"no C++ compiler {command[0]!r} on PATH")
     prefix = pinocchio_prefix()
     include = prefix / "include"
     needed = {
@@ -112,6 +113,15 @@ def build_command(output: Path) -> list[str]:
     missing = [name for name, path in needed.items() if not path.exists()]
     if missing:
         raise KernelUnavailableError(f"missing {', '.join(missing)} under {prefix}")
+    return command
+
+
+def _compile_command(output: Path) -> list[str]:
+    """The compiler call, whether or not the compiler and headers are there: the library's
+    cache key, so a library built earlier is found after they are gone."""
+    cxx = os.environ.get("CXX", "g++")
+    prefix = pinocchio_prefix()
+    include = prefix / "include"
     lib = prefix / "lib"
     return [
         cxx,
@@ -137,7 +147,7 @@ def library_path() -> Path:
 
     key = hashlib.sha256(SOURCE.read_bytes())
     placeholder = Path("OUT")
-    for part in (*build_command(placeholder), pinocchio.__version__, sys.platform):
+    for part in (*_compile_command(placeholder), pinocchio.__version__, sys.platform):
         key.update(part.encode() + b"\0")
     return cache_dir() / f"rk4_aba-{key.hexdigest()[:16]}.so"
 

@@ -1,7 +1,8 @@
 """What every offline simulation shares, whatever the arm (virtual_robot.simulate for the 2-DOF
 closed-form plant, virtual_robot.urdf_plant for n joints): booting the drive models as a host
 would, the open-loop rows (:func:`record_open_loop`: command, step, sample, record), booking the
-drives' faults, describing them in meta.json, and the result.
+drives' faults, describing them in meta.json, and the run's ending (:func:`run_open_loop`:
+the recording, its meta.json totals, the result and the plot).
 
 Imports drivers.recording, drivers.units, profiles.drive, virtual_robot.drive and
 virtual_robot.stepping only.
@@ -17,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from drivers.recording import RecordingWriter
+from drivers.recording import RecordingWriter, plot_positions, read_signals
 from drivers.units import counts_to_rad, torque_to_permille, unwrap_int32
 from profiles.drive import DriveProfile
 from virtual_robot.drive import MODE_CST, DriveModel, State
@@ -132,3 +133,49 @@ def record_open_loop(
             progress(t + h, n_rows * h)
     stepper.advance()  # the last row's torque held over its period too
     return faults
+
+
+def run_open_loop(
+    out_dir: str | Path,
+    meta: dict[str, Any],
+    plant: Any,
+    drives: Sequence[DriveModel],
+    profiles: Sequence[DriveProfile],
+    commanded_Nm: Any,
+    n_rows: int,
+    *,
+    plot: bool = True,
+    progress: Callable[[float, float], None] | None = None,
+) -> SimulationResult:
+    """The recording of an offline simulation, whatever the arm: ``n_rows`` rows of
+    ``commanded_Nm`` through the enabled ``drives`` into ``plant`` (a 2-DOF ``Plant`` or an
+    n-joint ``UrdfPlant``: ``steps``, ``stick_events``) in the one lockstep sequence
+    (:class:`virtual_robot.stepping.Stepper`, :func:`record_open_loop`), written to ``out_dir``
+    with ``meta`` (its ``period_s``) and the run's totals; positions.png when ``plot``."""
+    h = meta["period_s"]
+    n = len(drives)
+    status = tuple(f"status{j}" for j in range(1, n + 1))
+    started = time.perf_counter()
+    cpu_started = time.process_time()
+    with RecordingWriter(out_dir, meta, extra_columns=status, n_joints=n) as rec:
+        stepper = Stepper(plant, drives, h)
+        faults = record_open_loop(rec, stepper, drives, profiles, commanded_Nm, n_rows, progress)
+        wall = time.perf_counter() - started
+        cpu = time.process_time() - cpu_started
+        rec.meta.update(
+            wall_time_s=wall,
+            cpu_time_s=cpu,
+            realtime_factor=n_rows * h / wall if wall else None,
+            plant_steps=plant.steps,
+            stick_events=plant.stick_events,
+            faults=faults,
+        )
+    result = SimulationResult(Path(out_dir), n_rows, wall, n_rows * h, plant.steps, faults)
+    if plot:
+        result.plot = plot_positions(
+            read_signals(out_dir),
+            Path(out_dir) / "positions.png",
+            title=f"virtual-robot simulate: {meta['robot']}, {meta['experiment']}, "
+            f"effects {meta['effects']}",
+        )
+    return result

@@ -4,24 +4,22 @@ No transport and no wall clock: each period k the drives sample the encoders at 
 experiment's torque is quantized by the drive (0x6071 per-mille, clamped to 0x6072) and held over
 [t, t + h) while the plant integrates. The stepping is the served robot's lockstep sequence
 (virtual_robot.stepping.Stepper), without its lock. The recording follows DESIGN.md
-(drivers.recording).
+(drivers.recording); it and the run's ending are the n-joint arm's too
+(:func:`virtual_robot.offline.run_open_loop`).
 """
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from pathlib import Path
 
-from drivers.recording import RecordingWriter, plot_positions, read_signals
 from profiles.drive import DriveProfile, load_drive
 from profiles.effects import EffectsProfile
 from profiles.experiment import ExperimentProfile
 from profiles.robot import RobotProfile, UrdfRobotProfile
 from virtual_robot import __version__
-from virtual_robot.offline import SimulationResult, drive_meta, enable_drives, record_open_loop
+from virtual_robot.offline import SimulationResult, drive_meta, enable_drives, run_open_loop
 from virtual_robot.plant import DEFAULT_STEP_S, Plant, PlantParams
-from virtual_robot.stepping import Stepper
 
 
 def drive_profiles(robot: RobotProfile) -> tuple[DriveProfile, DriveProfile]:
@@ -67,7 +65,6 @@ def simulate(
         max_step_s=min(step_s, h),
     )
     drives = enable_drives(drives_p, h, plant.measured_q, plant.dq)
-    stepper = Stepper(plant, drives, h)
     meta = {
         "kind": "simulate",
         "version": __version__,
@@ -89,23 +86,6 @@ def simulate(
         },
     }
     commanded_Nm = experiment.torque_rows(h, n_rows)  # a block at a time: bounded memory
-    started = time.perf_counter()
-    with RecordingWriter(out_dir, meta, extra_columns=("status1", "status2")) as rec:
-        faults = record_open_loop(rec, stepper, drives, drives_p, commanded_Nm, n_rows, progress)
-        wall = time.perf_counter() - started
-        rec.meta.update(
-            wall_time_s=wall,
-            realtime_factor=n_rows * h / wall if wall else None,
-            plant_steps=plant.steps,
-            stick_events=plant.stick_events,
-            faults=faults,
-        )
-    result = SimulationResult(Path(out_dir), n_rows, wall, n_rows * h, plant.steps, faults)
-    if plot:
-        result.plot = plot_positions(
-            read_signals(out_dir),
-            Path(out_dir) / "positions.png",
-            title=f"virtual-robot simulate: {robot.name}, "
-            f"{experiment.name}, effects {effects.name}",
-        )
-    return result
+    return run_open_loop(
+        out_dir, meta, plant, drives, drives_p, commanded_Nm, n_rows, plot=plot, progress=progress
+    )

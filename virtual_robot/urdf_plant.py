@@ -47,7 +47,6 @@ compiled_step.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -57,7 +56,6 @@ import numpy as np
 import pinocchio as pin
 from scipy.optimize import brentq
 
-from drivers.recording import RecordingWriter, plot_positions, read_signals
 from profiles.drive import load_drive
 from profiles.effects import EffectsProfile
 from profiles.experiment import ExperimentProfile
@@ -81,9 +79,8 @@ from virtual_robot.effects import (
     stribeck_level,
     velocity_squared_drag,
 )
-from virtual_robot.offline import SimulationResult, drive_meta, enable_drives, record_open_loop
+from virtual_robot.offline import SimulationResult, drive_meta, enable_drives, run_open_loop
 from virtual_robot.plant import DEFAULT_STEP_S, breakaway_joint
-from virtual_robot.stepping import Stepper
 
 # Velocity below which a located crossing counts as exactly zero (as the 2-DOF plant's 1e-12).
 ZERO_VELOCITY = 1e-12
@@ -829,31 +826,10 @@ def simulate_urdf(
         },
     }
     commanded_Nm = experiment.torque_rows(h, n_rows)
-    status = tuple(f"status{j}" for j in range(1, n + 1))
-    started = time.perf_counter()
-    cpu_started = time.process_time()
-    with RecordingWriter(out_dir, meta, extra_columns=status, n_joints=n) as rec:
-        stepper = Stepper(plant, drives, h)  # the one lockstep sequence (virtual_robot.stepping)
-        faults = record_open_loop(rec, stepper, drives, drives_p, commanded_Nm, n_rows, progress)
-        wall = time.perf_counter() - started
-        cpu = time.process_time() - cpu_started
-        rec.meta.update(
-            wall_time_s=wall,
-            cpu_time_s=cpu,
-            realtime_factor=n_rows * h / wall if wall else None,
-            plant_steps=plant.steps,
-            stick_events=plant.stick_events,
-            faults=faults,
-        )
-    result = SimulationResult(Path(out_dir), n_rows, wall, n_rows * h, plant.steps, faults)
+    result = run_open_loop(
+        out_dir, meta, plant, drives, drives_p, commanded_Nm, n_rows, plot=plot, progress=progress
+    )
     result.plant_kernel = plant.kernel_summary()
-    if plot:
-        result.plot = plot_positions(
-            read_signals(out_dir),
-            Path(out_dir) / "positions.png",
-            title=f"virtual-robot simulate: {robot.name}, {experiment.name}, "
-            f"effects {effects.name}",
-        )
     return result
 
 

@@ -67,21 +67,22 @@ def plot_diagnosis(result: DiagnosisResult, out: Path) -> list[Path]:
     fig, axes = plt.subplots(n, 2, figsize=(14, 3.5 * n), sharex="col", squeeze=False)
     test = result.arrays["test"]
     fit = result.document["fit"]
+    idx = np.flatnonzero(test)
+    t_test = broken_at_gaps(loc["t"][idx])  # held-out spans apart, as the simulations beside
     for j in range(n):
         ax = axes[j, 0]
-        idx = np.flatnonzero(test)
         # rows the model cannot explain (a joint at rest or reversing) are gaps, not lines
         gap = np.where(loc["usable"][idx, j], 0.0, np.nan)
         for name, style in (("before", "-"), ("after", "-")):
             err = result.arrays["torque"][idx, j] - result.arrays[f"pred_{name}"][idx, j]
             ax.plot(
-                idx,
+                t_test,
                 err + gap,
                 style,
                 lw=0.6,
                 label=f"{name} ({percent(fit[name]['torque_nrmse'][j])})",
             )
-        ax.set(ylabel=f"joint {j + 1} torque error [Nm]", xlabel="held-out row")
+        ax.set(ylabel=f"joint {j + 1} torque error [Nm]", xlabel="t [s]")
         ax.legend(fontsize=8)
         ax.grid(alpha=0.3)
         sim = result.arrays["simulation"]

@@ -38,7 +38,6 @@ __getattr__, __dir__, __all__ = lazy_exports(
             "design_excitation",
         ],
         "hil.identify.urdf": [
-            "TorqueRecording",
             "TorqueIdentification",
             "identify_torque",
             "EnergyIdentification",

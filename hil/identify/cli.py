@@ -703,13 +703,6 @@ def _urdf_robot(args: argparse.Namespace) -> bool:
     return bool(args.robot) and describes_urdf_only(args.robot)
 
 
-def _held(rec: Any) -> bool:
-    """Whether a recording's torques are this bench's commands, each held over its period
-    (drivers.recording): the bench writes meta.json with the period beside them; a foreign
-    CSV's torques are taken as sampled with the positions."""
-    return rec.torque_source == "commanded" and "period_s" in rec.meta
-
-
 def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     """`hil identify --from A [--validate B] --robot R [--schemes ...]` for a URDF arm: base
     parameters and friction by each scheme — ``filtered_dynamic``: weighted batch least squares
@@ -719,7 +712,6 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     of B, or of the last quarter of A's time when no B is given; beside the URDF's and profile's
     nominal parameters on those rows. The top-level ``parameters`` hold ``--params-scheme``'s."""
     from hil.identify.urdf import (
-        TorqueRecording,
         fit_split,
         identify_energy,
         identify_torque,
@@ -765,7 +757,8 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     )
     held_out = 0.0 if val is not None else 0.25
     # this bench's own recordings (meta.json) hold each commanded torque over its period
-    recording = TorqueRecording(fit.t, fit.q, fit.tau, str(fit.path), held=_held(fit))
+    # (Recording.torque_held); a foreign file's torques are taken as sampled with the positions
+    recording = fit
     cutoff = smoothing_cutoff_hz(recording)
     results: dict[str, dict[str, Any]] = {}
     torque_res = None
@@ -800,11 +793,7 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         results[scheme] = {"theta": theta, **entry}
     nominal = model.base_theta()
     if val is not None:
-        rows = regression_rows(
-            model,
-            TorqueRecording(val.t, val.q, val.tau, str(val.path), held=_held(val)),
-            cutoff_hz=cutoff,
-        )
+        rows = regression_rows(model, val, cutoff_hz=cutoff)
         where = str(val.path)
     else:
         # the torque rows of the last quarter: the same rows judge every scheme
@@ -831,7 +820,7 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         "method": chosen["method"],
         "smoothing_cutoff_hz": cutoff,
         "torque": "held over each period (averaged onto the samples)"
-        if recording.held
+        if recording.torque_held
         else "sampled with the positions",
         "standard_parameters": None
         if torque_res is None or torque_res.theta_standard is None

@@ -23,8 +23,9 @@ squares (:class:`hil.model.estimators.LeastSquaresRows`).
 
 The Panda log layout (``rbt_log/exciting_traj_{time,positions,torques}.txt``: one number a
 line, 7 joints of a sample on 7 consecutive lines) is read by :func:`read_one_per_line_log`
-into the standard recording ``t, q1..qn, tau1..taun``. Imports hil.model.estimators,
-hil.model.metrics, hil.model.regressors and hil.model.urdf; no plotting.
+into the standard recording (:class:`drivers.recording.Recording`, the one every analysis
+reads). Imports drivers.recording, hil.model.estimators, hil.model.metrics,
+hil.model.regressors and hil.model.urdf; no plotting.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.signal import butter, sosfiltfilt
 
+from drivers.recording import Recording
 from hil.model.estimators import LeastSquaresRows, weighted_least_squares
 from hil.model.metrics import nrmse
 from hil.model.regressors import data_bandwidth, excitation_bandwidth, iter_rows
@@ -50,58 +52,35 @@ REGULARIZATION = 1e-4
 EDGE_S = 0.5
 
 
-@dataclass(frozen=True)
-class TorqueRecording:
-    """A standard recording: real sample times ``t`` (N,), positions ``q`` and torques ``tau``
-    (N, n). Row k's torque belongs to row k's state (measured, not commanded, torques)."""
+def torque_at_samples(rec: Recording) -> np.ndarray:
+    """The torque that goes with the motion at each t_k. A held torque
+    (:attr:`~drivers.recording.Recording.torque_held`) steps at t_k, so the acceleration
+    there, smoothed, is that of the mean of the torques on either side, (τ_{k−1} + τ_k)/2
+    (row 0 keeps τ_0); taking τ_k instead is a half-period lead that biases the viscous
+    coefficients (−18 % and −22 % on joints 1 and 2 of the simulated cicese3 arm,
+    docs/urdf.md). A sampled torque already belongs to its row's state."""
+    if not rec.torque_held:
+        return rec.tau
+    out = rec.tau.copy()
+    out[1:] = 0.5 * (rec.tau[1:] + rec.tau[:-1])
+    return out
 
-    t: np.ndarray
-    q: np.ndarray
-    tau: np.ndarray
-    source: str = ""
-    # True: row k's torque is a command held over [t_k, t_{k+1}) (this bench's recordings,
-    # drivers.recording), not a sample at t_k; see :meth:`torque_at_samples`.
-    held: bool = False
 
-    @property
-    def n_joints(self) -> int:
-        return self.q.shape[1]
-
-    def torque_at_samples(self) -> np.ndarray:
-        """The torque that goes with the motion at each t_k. A held torque steps at t_k, so the
-        acceleration there, smoothed, is that of the mean of the torques on either side,
-        (τ_{k−1} + τ_k)/2 (row 0 keeps τ_0); taking τ_k instead is a half-period lead that
-        biases the viscous coefficients (−18 % and −22 % on joints 1 and 2 of the simulated
-        cicese3 arm, docs/urdf.md)."""
-        if not self.held:
-            return self.tau
-        out = self.tau.copy()
-        out[1:] = 0.5 * (self.tau[1:] + self.tau[:-1])
-        return out
-
-    def torque_over_intervals(self) -> np.ndarray:
-        """Row k: the torque over [t_k, t_{k+1}] whose work the energy rows take as
-        τ_kᵀ (q_{k+1} − q_k). A held torque is that (exactly); a sampled one is taken as linear
-        between its samples, (τ_k + τ_{k+1})/2 (the trapezoid rule; τ_k alone would be the
-        half-period lead :meth:`torque_at_samples` describes). The last row has no interval."""
-        if self.held:
-            return self.tau
-        out = self.tau.copy()
-        out[:-1] = 0.5 * (self.tau[:-1] + self.tau[1:])
-        return out
-
-    def write_csv(self, path: str | Path) -> None:
-        """``t,q1..qn,tau1..taun`` with a header line."""
-        n = self.n_joints
-        header = ",".join(["t", *(f"q{i}" for i in range(1, n + 1))])
-        header += "," + ",".join(f"tau{i}" for i in range(1, n + 1))
-        data = np.column_stack([self.t, self.q, self.tau])
-        np.savetxt(path, data, delimiter=",", header=header, comments="", fmt="%.9g")
+def torque_over_intervals(rec: Recording) -> np.ndarray:
+    """Row k: the torque over [t_k, t_{k+1}] whose work the energy rows take as
+    τ_kᵀ (q_{k+1} − q_k). A held torque is that (exactly); a sampled one is taken as linear
+    between its samples, (τ_k + τ_{k+1})/2 (the trapezoid rule; τ_k alone would be the
+    half-period lead :func:`torque_at_samples` describes). The last row has no interval."""
+    if rec.torque_held:
+        return rec.tau
+    out = rec.tau.copy()
+    out[:-1] = 0.5 * (rec.tau[:-1] + rec.tau[1:])
+    return out
 
 
 def read_one_per_line_log(
     folder: str | Path, *, n_joints: int = 7, prefix: str = "exciting_traj"
-) -> TorqueRecording:
+) -> Recording:
     """Read ``<prefix>_{time,positions,torques}.txt`` of ``folder`` (one number a line; the
     position and torque files hold the ``n_joints`` values of a sample on consecutive lines).
     Raises ValueError with one line naming the file for a length mismatch or bad time stamps."""
@@ -126,7 +105,7 @@ def read_one_per_line_log(
         out[kind] = x.reshape(t.size, n_joints)
     if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
         raise ValueError(f"{folder / f'{prefix}_time.txt'}: time stamps not strictly increasing")
-    return TorqueRecording(t, out["positions"], out["torques"], source=str(folder))
+    return Recording.from_arrays(t, out["positions"], out["torques"], source=folder)
 
 
 @dataclass(frozen=True)
@@ -149,7 +128,7 @@ def _lowpass(x: np.ndarray, cutoff_hz: float, period_s: float) -> np.ndarray:
     return sosfiltfilt(sos, x, axis=0)
 
 
-def smoothed_motion(rec: TorqueRecording, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -> Motion:
+def smoothed_motion(rec: Recording, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -> Motion:
     """q, q̇, q̈ at the recording's real time stamps, smoothed: q is interpolated (cubic spline
     through the samples at their real times) onto a uniform grid at the median interval,
     low-passed there (zero phase), and the cubic spline of the result gives q, q̇ and q̈ back at
@@ -163,11 +142,11 @@ def smoothed_motion(rec: TorqueRecording, *, cutoff_hz: float = DEFAULT_CUTOFF_H
     smooth = CubicSpline(grid, _lowpass(CubicSpline(t, rec.q)(grid), cutoff_hz, period))
     keep = (t >= t[0] + EDGE_S) & (t <= t[-1] - EDGE_S)
     tk = t[keep]
-    tau = rec.torque_at_samples()[keep]
+    tau = torque_at_samples(rec)[keep]
     return Motion(tk, smooth(tk), smooth(tk, 1), smooth(tk, 2), tau, cutoff_hz)
 
 
-def smoothing_cutoff_hz(rec: TorqueRecording) -> float:
+def smoothing_cutoff_hz(rec: Recording) -> float:
     """A cutoff for :func:`smoothed_motion` read from the data: eight times the excitation
     bandwidth (:func:`hil.model.regressors.excitation_bandwidth`, 95 % of the position
     variance), at least :data:`DEFAULT_CUTOFF_HZ` and at most a tenth of the sample rate.
@@ -220,21 +199,21 @@ class TorqueIdentification:
     method: str = "weighted least squares"
 
 
-def fit_split(rec: TorqueRecording, held_out: float) -> float:
+def fit_split(rec: Recording, held_out: float) -> float:
     """The time before which rows are fitted: the first (1 − ``held_out``) of the span."""
     return float(rec.t[0] + (1.0 - held_out) * (rec.t[-1] - rec.t[0]))
 
 
-def _check_joints(model: UrdfArmModel, rec: TorqueRecording) -> None:
+def _check_joints(model: UrdfArmModel, rec: Recording) -> None:
     if rec.n_joints != model.n_joints:
         raise ValueError(
-            f"{rec.source}: {rec.n_joints} joints in the recording, the model has {model.n_joints}"
+            f"{rec.path}: {rec.n_joints} joints in the recording, the model has {model.n_joints}"
         )
 
 
 def regression_rows(
     model: UrdfArmModel,
-    rec: TorqueRecording,
+    rec: Recording,
     *,
     cutoff_hz: float = DEFAULT_CUTOFF_HZ,
     decimate: int = DEFAULT_DECIMATE,
@@ -253,7 +232,7 @@ def torque_nrmse(theta: np.ndarray, rows: FilteredRows) -> np.ndarray:
 
 def identify_torque(
     model: UrdfArmModel,
-    rec: TorqueRecording,
+    rec: Recording,
     *,
     cutoff_hz: float = DEFAULT_CUTOFF_HZ,
     decimate: int = DEFAULT_DECIMATE,
@@ -272,7 +251,7 @@ def identify_torque(
         held_out > 0 and held_out_rows.sum() < 2
     ):
         raise ValueError(
-            f"{rec.source}: {len(rows.t)} rows after averaging, too few to fit "
+            f"{rec.path}: {len(rows.t)} rows after averaging, too few to fit "
             f"{model.n_params} parameters"
         )
     theta = weighted_least_squares(rows.Y[fit], rows.tau[fit])
@@ -315,7 +294,7 @@ class EnergyIdentification:
 
 def identify_energy(
     model: UrdfArmModel,
-    rec: TorqueRecording,
+    rec: Recording,
     scheme: str,
     *,
     lam: float | None = None,
@@ -330,7 +309,7 @@ def identify_energy(
     ENERGY_VELOCITY_HALF_WINDOW; interval integrals on each interval's own length), fitted on
     the first (1 − ``held_out``) of the time span. λ defaults to
     :func:`hil.model.regressors.data_bandwidth` (twice the excitation bandwidth). The work of
-    interval k is τᵀΔq with the torque of :meth:`TorqueRecording.torque_over_intervals`.
+    interval k is τᵀΔq with the torque of :func:`torque_over_intervals`.
     Rows are averaged over blocks of ``decimate`` consecutive ones before the solve, as the
     torque scheme's are (:func:`filtered_rows`): a mean of exact equations is exact, and the
     QR of the least squares, most of the cost at 1 kHz, shrinks by as much. Streams the rows
@@ -342,7 +321,7 @@ def identify_energy(
     split = fit_split(rec, held_out)
     ls = LeastSquaresRows(model.n_params)
     rows = 0
-    tau = rec.torque_over_intervals()
+    tau = torque_over_intervals(rec)
     for c in iter_rows(scheme, rec.q, tau, rec.t, lam, model, half_window=half_window):
         fit = c.t < split if held_out > 0 else np.ones(len(c.t), dtype=bool)
         if fit.any():
@@ -353,7 +332,7 @@ def identify_energy(
             rows += len(y)
     if rows < 2 * model.n_params:
         raise ValueError(
-            f"{rec.source}: {rows} {scheme} rows to fit, too few for {model.n_params} parameters"
+            f"{rec.path}: {rows} {scheme} rows to fit, too few for {model.n_params} parameters"
         )
     return EnergyIdentification(scheme, ls.solve(), lam, rows, float(split))
 
@@ -468,11 +447,12 @@ __all__ = [
     "ENERGY_SCHEMES",
     "EnergyIdentification",
     "TorqueIdentification",
-    "TorqueRecording",
     "fit_split",
     "identify_energy",
     "identify_torque",
     "read_one_per_line_log",
     "regression_rows",
+    "torque_at_samples",
     "torque_nrmse",
+    "torque_over_intervals",
 ]

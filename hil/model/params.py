@@ -27,6 +27,12 @@ from hil.model.closed_form import TERMS, ArmModel
 
 KIND = "ddbench parameters"
 
+# The largest |θ| entry an arm can have, in θ's SI units (kg m², Nm, Nm s): the heaviest
+# industrial arms (a tonne of payload at 3 m) have joint inertias near 2e4 kg m² and gravity
+# torques near 1e5 Nm. A larger entry is a unit slip or a broken fit, and entries near float's
+# range (±1e308) pass the M(q) test as inf > 0 but make a control law inf − inf = NaN.
+MAX_THETA_MAGNITUDE = 1e6
+
 
 class ParamsError(ValueError):
     """A parameter file that cannot be used; the message is one line naming the file."""
@@ -115,12 +121,22 @@ def check_inertia(params: ParamSet, model: Any = None) -> None:
     """One-line :class:`ParamsError` naming the file and the field unless θ describes an arm
     whose M(q) is positive definite for every q (``model.physical_consistency``; default the
     :class:`ArmModel` of ``params.terms``): θ all zero, a negative mass term or a failed fit
-    would make every model-based law and simulation command or integrate nonsense. Negative
-    friction coefficients are let through (they only weaken a compensation)."""
+    would make every model-based law and simulation command or integrate nonsense, and so
+    would an entry beyond :data:`MAX_THETA_MAGNITUDE`. Negative friction coefficients are let
+    through (they only weaken a compensation)."""
     model = ArmModel(params.terms) if model is None else model
     where = f"{params.source}: 'theta'"
     if isinstance(params.document.get("schemes"), dict) and params.scheme is not None:
         where = f"{params.source}: scheme {params.scheme}: 'theta'"
+    theta = np.asarray(params.theta, dtype=float)
+    beyond = np.flatnonzero(~(np.abs(theta) <= MAX_THETA_MAGNITUDE))
+    if beyond.size:
+        i = int(beyond[0])
+        name = model.names[i] if i < len(model.names) else f"theta[{i}]"
+        raise ParamsError(
+            f"{where}: {name} = {theta[i]:.4g} is beyond any arm's magnitude "
+            f"(|θ| <= {MAX_THETA_MAGNITUDE:.0e} in kg m², Nm, Nm s)"
+        )
     try:
         violations = model.physical_consistency(params.theta)["violations"]
     except ValueError as exc:  # θ of the wrong length for the model's terms
@@ -205,6 +221,7 @@ def load_base_params(path: str | Path, model: Any) -> ParamSet:
 
 __all__ = [
     "KIND",
+    "MAX_THETA_MAGNITUDE",
     "ParamSet",
     "ParamsError",
     "check_inertia",

@@ -35,9 +35,9 @@ import numpy as np
 
 import hil.model.closed_form as closed_form
 from drivers.process import limit_blas_threads
+from drivers.recording import Recording
 from hil.identify.urdf import (
     ENERGY_SCHEMES,
-    TorqueRecording,
     filtered_rows,
     identify_energy,
     identify_torque,
@@ -106,7 +106,7 @@ def synthetic_panda(
     truth = model.base_theta()
     tau = model.torque(truth, q, dq, ddq)
     tau = tau + noise * tau.std(0) * rng.normal(size=tau.shape)
-    return TorqueRecording(t, q, tau, "synthetic"), truth
+    return Recording.from_arrays(t, q, tau, source="synthetic"), truth
 
 
 def panda_table(model: UrdfArmModel) -> dict | None:
@@ -333,7 +333,7 @@ def main() -> int:
     return 0 if cpu < TARGET_IDENTIFY_S else 1
 
 
-def identify_speed(model: UrdfArmModel, rec: TorqueRecording, truth: np.ndarray) -> dict:
+def identify_speed(model: UrdfArmModel, rec: Recording, truth: np.ndarray) -> dict:
     """CPU and wall seconds of each scheme on ``rec`` (fit on the first 75 %), its held-out
     torque NRMSE (the torque scheme's rows, as `hil identify` reports) and its largest base
     parameter error (relative, against max(|θ|, 0.01))."""

@@ -6,7 +6,8 @@
 A truth effect counts as named when a finding has its effect and joint (a truth on both joints,
 joint null, also accepts a finding on either joint) and, for the magnitude, when the finding's size
 is within 25 % of the truth's. A null recording passes when it has no findings. Findings that
-match no truth are listed as extra (a confounded partner of a named truth is not extra).
+match no truth are listed as extra (a confounded partner of a named truth is not extra; a
+partner with no joint, the model term com_offset, is one on either joint).
 """
 
 from __future__ import annotations
@@ -74,7 +75,8 @@ def score(entry: dict, doc: dict) -> dict:
                 k
                 for k, g in enumerate(findings)
                 if g["effect"] in findings[i].get("confounded_with", [])
-                and g["joint"] == findings[i]["joint"]
+                # a partner with no joint (a model term such as com_offset) spans both joints
+                and g["joint"] in (findings[i]["joint"], None)
             )
         want = SIZE[t["effect"]](t["magnitude"])
         got = [FINDING_SIZE[t["effect"]](findings[i]["estimate"]) for i in hits]
