@@ -171,6 +171,8 @@ class DriveModel:
         self, profile: DriveProfile, boot_time_s: float = 0.0, period_s: float = 0.0025
     ) -> None:
         self.profile = profile
+        self._rad_per_count = profile.rad_per_count  # read every period
+        self._rated_torque_Nm = profile.rated_torque_Nm
         # the profile's watchdog (seconds) in periods of this drive's timer
         self.watchdog_periods = profile.watchdog_periods(period_s)
         self._counts = 0  # unbounded encoder count
@@ -251,12 +253,22 @@ class DriveModel:
         """
         if not (math.isfinite(position_rad) and math.isfinite(velocity_rad_s)):
             raise ValueError("position and velocity must be finite")
-        self._boot(now)
-        counts = math.floor(_ratio(position_rad, self.profile.rad_per_count))
-        if self._t_prev is None or now <= self._t_prev:
+        if self._state is _NOT_READY:
+            self._boot(now)
+        # the quotients by plain division, by _ratio only where that overflows (once a period
+        # per joint: the call costs as much as the arithmetic)
+        try:
+            counts = math.floor(position_rad / self._rad_per_count)
+        except OverflowError:
+            counts = math.floor(_ratio(position_rad, self._rad_per_count))
+        t_prev = self._t_prev
+        if t_prev is None or now <= t_prev:
             self._velocity = 0
         else:
-            v = round(_ratio(counts - self._counts, now - self._t_prev))
+            try:
+                v = round((counts - self._counts) / (now - t_prev))
+            except OverflowError:
+                v = round(_ratio(counts - self._counts, now - t_prev))
             self._velocity = min(max(v, INT32_MIN), INT32_MAX)
         self._counts, self._t_prev = counts, now
 
@@ -336,7 +348,7 @@ class DriveModel:
 
     @property
     def torque_Nm(self) -> float:
-        return self.torque_actual_permille * self.profile.rated_torque_Nm / 1000.0
+        return self.torque_actual_permille * self._rated_torque_Nm / 1000.0
 
     @property
     def statusword(self) -> int:

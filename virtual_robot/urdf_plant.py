@@ -197,6 +197,7 @@ class UrdfPlant:
         self.command_Nm = np.zeros(n)  # the shaft torque (amplifier output, powered joints)
         self._held_Nm = np.zeros(n)  # the last command delivered, before the amplifiers
         self._powered = np.ones(n, dtype=bool)
+        self._all_powered = True
         # Energy bookkeeping (work_in_J, dissipated_J): with τ held over a command and the
         # Coulomb levels fixed over a stick mode, ∫τᵀq̇ dt = τᵀΔq and ∫levelᵀq̇ dt = levelᵀΔq
         # exactly, so both are booked when τ or the mode changes, from the q of the last booking;
@@ -243,12 +244,13 @@ class UrdfPlant:
         if self._delay is not None:
             self._delay.push(self.t if issued_at is None else issued_at, tuple(tau))
         else:
-            self._held_Nm = tau.copy()
+            self._held_Nm = tau  # a new array: nothing else holds it
         self.set_powered(powered if powered is not None else [True] * self.n_joints)
 
     def set_powered(self, powered: Sequence[bool]) -> None:
         """Switch the amplifiers: an unpowered joint gets no torque, a powered one the held."""
         self._powered = np.array(powered, dtype=bool)
+        self._all_powered = all(powered)
         if self._lag is None:  # with a lag, each step's torque is set where it starts
             self._apply_torque(self._held_Nm)
 
@@ -258,7 +260,8 @@ class UrdfPlant:
         tau = amplifier_Nm
         if self._gain_offset is not None:
             tau = gain_offset(tau, *self._gain_offset)
-        tau = np.where(self._powered, tau, 0.0)
+        if not self._all_powered:
+            tau = np.where(self._powered, tau, 0.0)
         self._book_work()
         self.command_Nm = tau
         self._tau_minus_level = tau - self._level
