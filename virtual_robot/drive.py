@@ -129,6 +129,15 @@ _TRANSITIONS: dict[tuple[State, _Cmd], State] = {
     (_S.QUICK_STOP_ACTIVE, _C.DISABLE_VOLTAGE): _S.SWITCH_ON_DISABLED,  # 12
 }
 _VOLTAGE_ON = {_S.READY_TO_SWITCH_ON, _S.SWITCHED_ON, _S.OPERATION_ENABLED, _S.QUICK_STOP_ACTIVE}
+# The statusword bits a state alone sets: its pattern, 9 remote, 4 voltage enabled, 5 quick stop
+# not active (one lookup a period per drive instead of three on the Enum, whose hash is Python)
+_SW_STATE_BITS = {
+    state: _SW_BITS[state]
+    | 0x0200
+    | (0x0010 if state in _VOLTAGE_ON else 0)
+    | (0x0020 if state is not _S.QUICK_STOP_ACTIVE else 0)
+    for state in State
+}
 
 
 class DriveError(Exception):
@@ -179,6 +188,8 @@ class DriveModel:
         self._velocity = 0  # counts/s, INT32-clamped
         self._t_prev: float | None = None
         self._emcy: list[Emcy] = []
+        self._sw_state: State | None = None  # the state whose _SW_STATE_BITS are memoized
+        self._sw_state_bits = 0
         self._power_on(boot_time_s)
 
     def _power_on(self, boot_time_s: float) -> None:
@@ -217,8 +228,10 @@ class DriveModel:
 
     def write_target_torque(self, permille: int, now: float) -> None:
         """0x6071 (INT16, ‰ of 0x6076). Feeds the command watchdog."""
-        _check_range("target torque", permille, INT16_MIN, INT16_MAX)
-        self._boot(now)
+        if not INT16_MIN <= permille <= INT16_MAX:  # written every period: the check inline
+            _check_range("target torque", permille, INT16_MIN, INT16_MAX)
+        if self._state is _NOT_READY:
+            self._boot(now)
         self._target = permille
         self._watchdog = 0
 
@@ -325,13 +338,10 @@ class DriveModel:
         return self._max_torque
 
     @property
-    def _applying(self) -> bool:
-        return self._state is _ENABLED and not self._controlword & CW_HALT
-
-    @property
     def torque_actual_permille(self) -> int:
         """0x6077: the clamped target while applying torque, else 0."""
-        # _applying, inlined: read several times per period by the stepper and the recording
+        # applying torque: enabled, not halted (saturated tests the same; both are read every
+        # period, inline rather than through a shared property)
         if self._state is not _ENABLED or self._controlword & CW_HALT:
             return 0
         return min(max(self._target, -self._max_torque), self._max_torque)
@@ -339,7 +349,10 @@ class DriveModel:
     @property
     def saturated(self) -> bool:
         """The applied torque is the clamped target (statusword bit 11, internal limit)."""
-        return self._applying and abs(self._target) > self._max_torque
+        # applying torque, as torque_actual_permille tests it
+        if self._state is not _ENABLED or self._controlword & CW_HALT:
+            return False
+        return abs(self._target) > self._max_torque
 
     @property
     def powered(self) -> bool:
@@ -355,11 +368,9 @@ class DriveModel:
         """0x6041: state pattern + bit 4 voltage enabled, 5 quick stop (1 = not active),
         9 remote, 10 target reached (enabled, not saturated), 11 internal limit active."""
         state = self._state
-        sw = _SW_BITS[state] | 0x0200
-        if state in _VOLTAGE_ON:
-            sw |= 0x0010
-        if state is not _QUICK_STOP:
-            sw |= 0x0020
+        if state is not self._sw_state:  # the state's bits, looked up when it changed
+            self._sw_state, self._sw_state_bits = state, _SW_STATE_BITS[state]
+        sw = self._sw_state_bits
         saturated = self.saturated
         if state is _ENABLED and not saturated:
             sw |= 0x0400

@@ -359,15 +359,19 @@ class UrdfPlant:
         # the stuck joints' static bands [−band_neg, band_pos] (Karnopp's test)
         self._band_s = self.band_pos[self._stuck_idx], -self.band_neg[self._stuck_idx]
         self._reduced = None  # built when first needed (:meth:`_locked_arm`)
+        self._locked_handle: int | None = None  # looked up when first needed (_compiled_locked)
         if self._in_derivative:
             self._mode_forces()
 
     def _compiled_locked(self) -> int | None:
         """The compiled kernel's arm of the current stick mode: None with every joint sliding,
-        else its handle of the arm with the stuck joints locked where they stand."""
+        else its handle of the arm with the stuck joints locked where they stand, looked up
+        once per mode (q_S does not change while the joints stick), as :meth:`_locked_arm`."""
         if not self._n_stuck:
             return None
-        return self._compiled.locked(self._stuck_idx, self.q)
+        if self._locked_handle is None:
+            self._locked_handle = self._compiled.locked(self._stuck_idx, self.q)
+        return self._locked_handle
 
     def _locked_arm(self) -> tuple[Any, Any] | None:
         """The arm with the stuck joints locked where they stand (Pinocchio's reduced model and
