@@ -344,7 +344,8 @@ class DriveModel:
         # period, inline rather than through a shared property)
         if self._state is not _ENABLED or self._controlword & CW_HALT:
             return 0
-        return min(max(self._target, -self._max_torque), self._max_torque)
+        target, limit = self._target, self._max_torque  # clamped to ±limit (comparisons:
+        return limit if target > limit else -limit if target < -limit else target  # no calls)
 
     @property
     def saturated(self) -> bool:
