@@ -282,7 +282,7 @@ class DriveModel:
                 v = round((counts - self._counts) / (now - t_prev))
             except OverflowError:
                 v = round(_ratio(counts - self._counts, now - t_prev))
-            self._velocity = min(max(v, INT32_MIN), INT32_MAX)
+            self._velocity = INT32_MAX if v > INT32_MAX else INT32_MIN if v < INT32_MIN else v
         self._counts, self._t_prev = counts, now
 
         powered = self._state is _ENABLED or self._state is _QUICK_STOP
