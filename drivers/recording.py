@@ -106,7 +106,10 @@ class RecordingWriter:
             raise ValueError(
                 f"row has {len(row)} values, recording has {len(self.columns)} columns"
             )
-        self._file.write(",".join(_fmt(v) for v in row) + "\n")
+        if {*map(type, row)} <= _PLAIN:  # the common row: repr each value, as _fmt would
+            self._file.write(",".join(map(repr, row)) + "\n")
+        else:
+            self._file.write(",".join(_fmt(v) for v in row) + "\n")
         self.rows += 1
         if self.rows % self.flush_every == 0:
             self._file.flush()
@@ -130,6 +133,9 @@ class RecordingWriter:
             self.close("interrupted")
         else:
             self.close("failed", error=f"{exc_type.__name__}: {exc}")
+
+
+_PLAIN = {float, int}  # the value types _fmt writes as their repr (not bool, not numpy's)
 
 
 def _fmt(value: float | int) -> str:

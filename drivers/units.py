@@ -19,8 +19,9 @@ def wrap_int32(value: int) -> int:
 
 def unwrap_int32(previous_unwrapped: int, raw: int) -> int:
     """Continue an unbounded count from an INT32 reading, assuming |change| < 2³¹ per sample."""
-    delta = wrap_int32(raw - wrap_int32(previous_unwrapped))
-    return previous_unwrapped + delta
+    # wrap_int32 twice, inline: every joint's reading goes through here once a period
+    previous_raw = (previous_unwrapped + 2**31) % 2**32 - 2**31
+    return previous_unwrapped + (raw - previous_raw + 2**31) % 2**32 - 2**31
 
 
 def counts_to_rad(counts: int, counts_per_rev: int) -> float:
@@ -32,7 +33,7 @@ def torque_to_permille(torque_Nm: float, rated_torque_Nm: float) -> int:
     if not math.isfinite(torque_Nm):
         raise ValueError(f"torque must be finite, got {torque_Nm}")
     value = round(torque_Nm * 1000.0 / rated_torque_Nm)
-    return max(INT16_MIN, min(INT16_MAX, value))
+    return INT16_MAX if value > INT16_MAX else INT16_MIN if value < INT16_MIN else value
 
 
 def permille_to_torque(permille: int, rated_torque_Nm: float) -> float:

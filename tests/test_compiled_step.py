@@ -54,6 +54,49 @@ def test_compiled_step_is_the_python_step(monkeypatch):
     assert cc.dissipated_J == pytest.approx(py.dissipated_J, rel=1e-12)
 
 
+@needs_compiler
+def test_a_recycled_locked_arm_is_a_fresh_one(monkeypatch):
+    """A stuck set locked again at other positions reuses a freed locked arm and its Pinocchio
+    Data (rk4_aba.cpp, ddb_locked_new): its accelerations and RK4 step equal, bit for bit, those
+    of a locked arm built fresh in a new CompiledArm, and those of the Python step's reduced
+    model; a different stuck set is not given the spare."""
+    monkeypatch.setenv(KERNEL_ENV, "compiled")
+    from virtual_robot.compiled_step import CompiledArm
+
+    panda = UrdfPlant(UrdfPlantParams.from_profile(load_urdf_robot("panda")))
+    p = panda.params
+    rng = np.random.default_rng(3)
+    q_a, q_b, v, c = rng.uniform(-1.0, 1.0, (4, 7))
+    stuck, other = np.array([1, 3]), np.array([2])
+    v[stuck] = 0.0
+    reused = CompiledArm(p.urdf, p.gravity_m_s2, p.armature_kgm2)
+    for q in (q_a, q_b, q_a):  # keep more than one spare, and take them back in turn
+        for s in (stuck, other):
+            handle = reused.locked(s, q)
+            reused._lib.ddb_locked_free(reused._locked.pop(next(iter(reused._locked))))
+            assert handle not in reused._locked.values()
+    for q in (q_b, q_a):
+        fresh = CompiledArm(p.urdf, p.gravity_m_s2, p.armature_kgm2)
+        locked_r, locked_f = reused.locked(stuck, q), fresh.locked(stuck, q)
+        b = np.asarray(p.viscous_Nms)
+        a_r = reused.accelerations(locked_r, q, v, c, b)
+        a_f = fresh.accelerations(locked_f, q, v, c, b)
+        assert np.array_equal(a_r, a_f) and np.all(a_r[stuck] == 0.0)
+        step_r, step_f = (
+            reused.step(locked_r, q, v, c, b, 5e-4),
+            fresh.step(locked_f, q, v, c, b, 5e-4),
+        )
+        assert all(np.array_equal(x, y) for x, y in zip(step_r, step_f, strict=True))
+        # the Python step's locked arm: Pinocchio's reduced model, fresh Data
+        import pinocchio as pin
+
+        reduced = pin.buildReducedModel(panda.model, [int(j) + 1 for j in stuck], q)
+        free = np.setdiff1d(np.arange(7), stuck)
+        reduced.armature = panda.model.armature[free]
+        a_py = pin.aba(reduced, reduced.createData(), q[free], v[free], (c - b * v)[free])
+        assert np.array_equal(a_r[free], a_py)
+
+
 def test_python_step_forced(monkeypatch, tmp_path, capsys):
     monkeypatch.setenv(KERNEL_ENV, "python")
     plant = UrdfPlant(UrdfPlantParams.from_profile(load_urdf_robot("cicese3")))

@@ -484,3 +484,23 @@ def test_invariants(profile, boot: float, steps: list) -> None:
             assert d.error_code in (ERR_RPDO_TIMEOUT, ERR_OVERSPEED)
         else:
             assert d.error_code == ERR_NONE and d.error_register == 0
+
+
+def test_encoder_counts_and_velocity_exact_where_the_float_quotient_overflows() -> None:
+    """update() divides by plain float division, and falls back to the exact quotient
+    (Fraction) where that overflows: a position of 1.7e308 rad is counted exactly (the floor of
+    the exact quotient, wrapped to INT32) and the velocity from the huge count change clamps to
+    INT32_MAX, as a moderate position's count equals the float floor."""
+    from fractions import Fraction
+
+    from drivers.units import wrap_int32
+
+    d = DriveModel(DM1200A, period_s=DT)
+    rpc = DM1200A.rad_per_count
+    d.update(0.0, 0.5, 0.0)
+    assert d.position_counts == math.floor(0.5 / rpc)
+    d.update(DT, 1.7e308, 0.0)
+    assert d.position_counts == wrap_int32(math.floor(Fraction(1.7e308) / Fraction(rpc)))
+    assert d.velocity_counts_s == INT32_MAX
+    d.update(2 * DT, -1.7e308, 0.0)
+    assert d.velocity_counts_s == INT32_MIN

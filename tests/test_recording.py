@@ -99,6 +99,25 @@ def test_round_trip_of_numpy_and_integer_values(tmp_path):
     )
 
 
+def test_rows_of_plain_values_are_written_as_any_other(tmp_path):
+    """RecordingWriter.write joins a row of plain floats and ints by repr (its fast path): the
+    same text as a row with a numpy value or a bool in it (which goes value by value), for
+    -0.0, subnormals, huge ints and the shortest round-trip forms."""
+    plain = [-0.0, 5e-324, 2**70, 0.1 + 0.2, 1e16]
+    mixed = [np.float64(-0.0), 5e-324, 2**70, 0.1 + 0.2, np.float64(1e16)]
+    for name, row in (("plain", plain), ("mixed", mixed)):
+        with RecordingWriter(tmp_path / name, {}) as w:
+            w.write(row)
+    plain_text = (tmp_path / "plain" / SIGNALS).read_text()
+    assert plain_text == (tmp_path / "mixed" / SIGNALS).read_text()
+    assert (
+        plain_text.splitlines()[1] == "-0.0,5e-324,1180591620717411303424,0.30000000000000004,1e+16"
+    )
+    with RecordingWriter(tmp_path / "bool", {}) as w:
+        w.write([0.5, True, False, 1, 2])
+    assert (tmp_path / "bool" / SIGNALS).read_text().splitlines()[1] == "0.5,1,0,1,2"
+
+
 def test_write_rejects_a_row_of_the_wrong_width(tmp_path):
     with RecordingWriter(tmp_path / "run", {}, extra_columns=EXTRA) as w:
         with pytest.raises(ValueError):

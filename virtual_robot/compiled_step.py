@@ -281,6 +281,10 @@ class CompiledArm:
         addr, stride = self._rows.ctypes.data, self._rows.strides[0]
         self._addr = {name: addr + i * stride for i, name in enumerate(_ROWS)}
         self._scalars_addr = self._scalars.ctypes.data
+        # the arrays last copied into the "b" and "watch" rows (the callers' arrays are never
+        # changed in place, so the same object holds the same values)
+        self._b_loaded: np.ndarray | None = None
+        self._watch_loaded: np.ndarray | None = None
 
     def _message(self) -> str:
         return self._error.value.decode(errors="replace")
@@ -320,7 +324,9 @@ class CompiledArm:
         buf["c"][:] = c
         if b is None:
             return 0  # NULL: no viscous friction
-        buf["b"][:] = b
+        if b is not self._b_loaded:  # the plant's b: loaded once (it never changes in place)
+            buf["b"][:] = b
+            self._b_loaded = b
         return self._addr["b"]
 
     def step(
@@ -385,7 +391,9 @@ class CompiledArm:
         q̇, ∫bᵀq̇² dt)) of the substep for the plant to locate the stick in."""
         buf, a = self._buf, self._addr
         b_addr = self._load(q, v, tau_minus_level, b)
-        buf["watch"][:] = watch
+        if watch is not self._watch_loaded:  # the plant's, new at each stick mode
+            buf["watch"][:] = watch
+            self._watch_loaded = watch
         locked = None
         if stuck is not None:
             locked, command, (upper, lower) = stuck

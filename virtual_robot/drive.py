@@ -129,6 +129,15 @@ _TRANSITIONS: dict[tuple[State, _Cmd], State] = {
     (_S.QUICK_STOP_ACTIVE, _C.DISABLE_VOLTAGE): _S.SWITCH_ON_DISABLED,  # 12
 }
 _VOLTAGE_ON = {_S.READY_TO_SWITCH_ON, _S.SWITCHED_ON, _S.OPERATION_ENABLED, _S.QUICK_STOP_ACTIVE}
+# The statusword bits a state alone sets: its pattern, 9 remote, 4 voltage enabled, 5 quick stop
+# not active (one lookup a period per drive instead of three on the Enum, whose hash is Python)
+_SW_STATE_BITS = {
+    state: _SW_BITS[state]
+    | 0x0200
+    | (0x0010 if state in _VOLTAGE_ON else 0)
+    | (0x0020 if state is not _S.QUICK_STOP_ACTIVE else 0)
+    for state in State
+}
 
 
 class DriveError(Exception):
@@ -171,12 +180,16 @@ class DriveModel:
         self, profile: DriveProfile, boot_time_s: float = 0.0, period_s: float = 0.0025
     ) -> None:
         self.profile = profile
+        self._rad_per_count = profile.rad_per_count  # read every period
+        self._rated_torque_Nm = profile.rated_torque_Nm
         # the profile's watchdog (seconds) in periods of this drive's timer
         self.watchdog_periods = profile.watchdog_periods(period_s)
         self._counts = 0  # unbounded encoder count
         self._velocity = 0  # counts/s, INT32-clamped
         self._t_prev: float | None = None
         self._emcy: list[Emcy] = []
+        self._sw_state: State | None = None  # the state whose _SW_STATE_BITS are memoized
+        self._sw_state_bits = 0
         self._power_on(boot_time_s)
 
     def _power_on(self, boot_time_s: float) -> None:
@@ -215,8 +228,10 @@ class DriveModel:
 
     def write_target_torque(self, permille: int, now: float) -> None:
         """0x6071 (INT16, ‰ of 0x6076). Feeds the command watchdog."""
-        _check_range("target torque", permille, INT16_MIN, INT16_MAX)
-        self._boot(now)
+        if not INT16_MIN <= permille <= INT16_MAX:  # written every period: the check inline
+            _check_range("target torque", permille, INT16_MIN, INT16_MAX)
+        if self._state is _NOT_READY:
+            self._boot(now)
         self._target = permille
         self._watchdog = 0
 
@@ -251,13 +266,23 @@ class DriveModel:
         """
         if not (math.isfinite(position_rad) and math.isfinite(velocity_rad_s)):
             raise ValueError("position and velocity must be finite")
-        self._boot(now)
-        counts = math.floor(_ratio(position_rad, self.profile.rad_per_count))
-        if self._t_prev is None or now <= self._t_prev:
+        if self._state is _NOT_READY:
+            self._boot(now)
+        # the quotients by plain division, by _ratio only where that overflows (once a period
+        # per joint: the call costs as much as the arithmetic)
+        try:
+            counts = math.floor(position_rad / self._rad_per_count)
+        except OverflowError:
+            counts = math.floor(_ratio(position_rad, self._rad_per_count))
+        t_prev = self._t_prev
+        if t_prev is None or now <= t_prev:
             self._velocity = 0
         else:
-            v = round(_ratio(counts - self._counts, now - self._t_prev))
-            self._velocity = min(max(v, INT32_MIN), INT32_MAX)
+            try:
+                v = round((counts - self._counts) / (now - t_prev))
+            except OverflowError:
+                v = round(_ratio(counts - self._counts, now - t_prev))
+            self._velocity = INT32_MAX if v > INT32_MAX else INT32_MIN if v < INT32_MIN else v
         self._counts, self._t_prev = counts, now
 
         powered = self._state is _ENABLED or self._state is _QUICK_STOP
@@ -313,21 +338,22 @@ class DriveModel:
         return self._max_torque
 
     @property
-    def _applying(self) -> bool:
-        return self._state is _ENABLED and not self._controlword & CW_HALT
-
-    @property
     def torque_actual_permille(self) -> int:
         """0x6077: the clamped target while applying torque, else 0."""
-        # _applying, inlined: read several times per period by the stepper and the recording
+        # applying torque: enabled, not halted (saturated tests the same; both are read every
+        # period, inline rather than through a shared property)
         if self._state is not _ENABLED or self._controlword & CW_HALT:
             return 0
-        return min(max(self._target, -self._max_torque), self._max_torque)
+        target, limit = self._target, self._max_torque  # clamped to ±limit (comparisons:
+        return limit if target > limit else -limit if target < -limit else target  # no calls)
 
     @property
     def saturated(self) -> bool:
         """The applied torque is the clamped target (statusword bit 11, internal limit)."""
-        return self._applying and abs(self._target) > self._max_torque
+        # applying torque, as torque_actual_permille tests it
+        if self._state is not _ENABLED or self._controlword & CW_HALT:
+            return False
+        return abs(self._target) > self._max_torque
 
     @property
     def powered(self) -> bool:
@@ -336,18 +362,16 @@ class DriveModel:
 
     @property
     def torque_Nm(self) -> float:
-        return self.torque_actual_permille * self.profile.rated_torque_Nm / 1000.0
+        return self.torque_actual_permille * self._rated_torque_Nm / 1000.0
 
     @property
     def statusword(self) -> int:
         """0x6041: state pattern + bit 4 voltage enabled, 5 quick stop (1 = not active),
         9 remote, 10 target reached (enabled, not saturated), 11 internal limit active."""
         state = self._state
-        sw = _SW_BITS[state] | 0x0200
-        if state in _VOLTAGE_ON:
-            sw |= 0x0010
-        if state is not _QUICK_STOP:
-            sw |= 0x0020
+        if state is not self._sw_state:  # the state's bits, looked up when it changed
+            self._sw_state, self._sw_state_bits = state, _SW_STATE_BITS[state]
+        sw = self._sw_state_bits
         saturated = self.saturated
         if state is _ENABLED and not saturated:
             sw |= 0x0400

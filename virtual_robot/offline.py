@@ -109,25 +109,29 @@ def record_open_loop(
     a row: the torques written at t_{k-1} are held over [t_{k-1}, t_k), the encoders sampled at
     t_k; each row ``t, q1..qn, tau1..taun, status1..statusn`` is written to ``rec``. Returns the
     drives' faults (each also said on stderr)."""
-    n = len(drives)
     h = stepper.period_s
-    cpr = [p.counts_per_rev for p in profiles]
-    rated = [p.rated_torque_Nm for p in profiles]
+    joints = tuple(
+        (d, p.counts_per_rev, p.rated_torque_Nm, p.model)
+        for d, p in zip(drives, profiles, strict=True)
+    )
     counts = [d.position_counts for d in drives]
-    q, tau = [0.0] * n, [0.0] * n
+    enabled = State.OPERATION_ENABLED
     faults: list[dict[str, Any]] = []
     last_report = time.perf_counter()
     for k in range(n_rows):
         t = stepper.sync()
         commanded = commanded_Nm[k]
-        for i, d in enumerate(drives):
+        q: list[float | int] = [t]  # the row: t, q1..qn, then tau1..taun, status1..statusn
+        tau, status = [], []
+        for i, (d, cpr, rated, model) in enumerate(joints):
             counts[i] = unwrap_int32(counts[i], d.position_counts)
-            q[i] = counts_to_rad(counts[i], cpr[i])
-            d.write_target_torque(torque_to_permille(commanded[i], rated[i]), t)
-            tau[i] = d.torque_Nm  # quantized, clamped, zero unless enabled: held over [t, t+h)
-            if d.state is not State.OPERATION_ENABLED:
-                collect_faults(d, profiles[i].model, t, faults)
-        rec.write((t, *q, *tau, *[d.statusword for d in drives]))
+            q.append(counts_to_rad(counts[i], cpr))
+            d.write_target_torque(torque_to_permille(commanded[i], rated), t)
+            tau.append(d.torque_Nm)  # quantized, clamped, zero unless enabled: held over [t, t+h)
+            if d.state is not enabled:
+                collect_faults(d, model, t, faults)
+            status.append(d.statusword)
+        rec.write(q + tau + status)
         if progress is not None and time.perf_counter() - last_report > 1.0:
             last_report = time.perf_counter()
             progress(t + h, n_rows * h)

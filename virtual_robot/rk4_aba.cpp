@@ -47,6 +47,9 @@ namespace
     // scratch of one RK4 step (allocated once)
     Vec q, v, c, b, watch, tau, qs, a1, a2, a3, a4, y, z, u, qn, vn, w;
     Vec command, upper, lower;  // τ, and the stuck joints' static bands [lower, upper]
+    // a full arm's freed locked arms (Locked *), kept for their Data: a stuck set locked again
+    // at other positions reuses one (ddb_locked_new), its Data sized for that reduced model
+    std::vector<void *> spares;
 
     void allocate(Eigen::Index n)
     {
@@ -64,7 +67,10 @@ namespace
   {
     Arm arm;
     std::vector<Eigen::Index> free, stuck;
+    Arm * full = nullptr;  // the arm it was built from (its spares take it back when freed)
   };
+  // Freed locked arms a full arm keeps (as many as compiled_step.LOCKED_KEPT keeps in use)
+  constexpr size_t kSpares = 16;
 
   void gather(const Vec & from, const std::vector<Eigen::Index> & idx, Vec & to)
   {
@@ -245,30 +251,52 @@ void * ddb_arm_new(
 
 void ddb_arm_free(void * handle)
 {
-  delete static_cast<Arm *>(handle);
+  Arm * arm = static_cast<Arm *>(handle);
+  for (void * spare : arm->spares)
+    delete static_cast<Locked *>(spare);
+  delete arm;
 }
 
 void * ddb_locked_new(
   void * handle, int n_stuck, const int * stuck, const double * q, char * err, int err_len)
 {
   return guarded(static_cast<void *>(nullptr), err, err_len, [&]() -> void * {
-    const Arm & full = *static_cast<Arm *>(handle);
+    Arm & full = *static_cast<Arm *>(handle);
     const Eigen::Index n = full.model.nv;
-    auto locked = std::make_unique<Locked>();
     std::vector<bool> is_stuck(static_cast<size_t>(n), false);
     for (int i = 0; i < n_stuck; ++i)
       is_stuck[static_cast<size_t>(stuck[i])] = true;
     std::vector<pinocchio::JointIndex> joints;  // joint i + 1 moves coordinate i
+    std::vector<Eigen::Index> stuck_idx, free_idx;
     for (Eigen::Index i = 0; i < n; ++i)
     {
       if (is_stuck[static_cast<size_t>(i)])
       {
-        locked->stuck.push_back(i);
+        stuck_idx.push_back(i);
         joints.push_back(static_cast<pinocchio::JointIndex>(i + 1));
       }
       else
-        locked->free.push_back(i);
+        free_idx.push_back(i);
     }
+    // A spare of the same stuck set has the Data of this reduced model's structure (Data
+    // depends on the joint tree, not on q_S or the inertias; ABA writes every field it reads):
+    // reused, only the model is built again. Else a new one.
+    std::unique_ptr<Locked> locked;
+    for (auto it = full.spares.begin(); it != full.spares.end(); ++it)
+      if (static_cast<Locked *>(*it)->stuck == stuck_idx)
+      {
+        locked.reset(static_cast<Locked *>(*it));
+        full.spares.erase(it);
+        break;
+      }
+    const bool reused = locked != nullptr;
+    if (!reused)
+    {
+      locked = std::make_unique<Locked>();
+      locked->stuck = stuck_idx;
+      locked->free = free_idx;
+    }
+    locked->full = &full;
     const Eigen::Index nf = static_cast<Eigen::Index>(locked->free.size());
     if (nf > 0)
     {
@@ -277,7 +305,8 @@ void * ddb_locked_new(
       Vec armature(nf);
       gather(full.model.armature, locked->free, armature);
       locked->arm.model.armature = armature;
-      locked->arm.allocate(nf);
+      if (!reused)
+        locked->arm.allocate(nf);
     }
     return locked.release();
   });
@@ -285,7 +314,12 @@ void * ddb_locked_new(
 
 void ddb_locked_free(void * handle)
 {
-  delete static_cast<Locked *>(handle);
+  Locked * locked = static_cast<Locked *>(handle);
+  Arm * full = locked->full;
+  if (full && full->spares.size() < kSpares)
+    full->spares.push_back(locked);  // kept for its Data (ddb_locked_new)
+  else
+    delete locked;
 }
 
 // Integrate from scalars[0] (t) to t_end in steps of min(max_step, t_end − t), as

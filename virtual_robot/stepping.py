@@ -103,6 +103,8 @@ class Stepper:
         """Every drive samples its encoder (the plant's measured q and q̇) at ``now``;
         ``count_period``: one period of its command watchdog passes (DriveModel.update)."""
         measured, rates = self.plant.measured_q, self.plant.dq
+        if hasattr(measured, "tolist"):  # numpy's: the drives' arithmetic on its scalars costs
+            measured, rates = measured.tolist(), rates.tolist()  # twice Python floats' (same bits)
         for i, d in enumerate(self.drives):
             d.update(now, measured[i], rates[i], count_period)
 

@@ -194,6 +194,8 @@ class UrdfPlant:
         self.command_Nm = np.zeros(n)  # the shaft torque (amplifier output, powered joints)
         self._held_Nm = np.zeros(n)  # the last command delivered, before the amplifiers
         self._powered = np.ones(n, dtype=bool)
+        self._all_powered = True
+        self._powered_given: tuple[bool, ...] = (True,) * n  # as set_powered was last given it
         # Energy bookkeeping (work_in_J, dissipated_J): with τ held over a command and the
         # Coulomb levels fixed over a stick mode, ∫τᵀq̇ dt = τᵀΔq and ∫levelᵀq̇ dt = levelᵀΔq
         # exactly, so both are booked when τ or the mode changes, from the q of the last booking;
@@ -245,12 +247,16 @@ class UrdfPlant:
         elif self._delay is not None:
             self._delay.push(self.t if issued_at is None else issued_at, tuple(tau))
         else:
-            self._held_Nm = tau.copy()
+            self._held_Nm = tau  # a new array: nothing else holds it
         self.set_powered(powered if powered is not None else [True] * self.n_joints)
 
     def set_powered(self, powered: Sequence[bool]) -> None:
         """Switch the amplifiers: an unpowered joint gets no torque, a powered one the held."""
-        self._powered = np.array(powered, dtype=bool)
+        given = tuple(powered)
+        if given != self._powered_given:  # mostly the same as at the last command
+            self._powered = np.array(given, dtype=bool)
+            self._all_powered = all(given)
+            self._powered_given = given
         if self._lag is None:  # with a lag, each step's torque is set where it starts
             self._apply_torque(self._held_Nm)
 
@@ -260,7 +266,8 @@ class UrdfPlant:
         tau = amplifier_Nm
         if self._gain_offset is not None:
             tau = gain_offset(tau, *self._gain_offset)
-        tau = np.where(self._powered, tau, 0.0)
+        if not self._all_powered:
+            tau = np.where(self._powered, tau, 0.0)
         self._book_work()
         self.command_Nm = tau
         self._tau_minus_level = tau - self._level
@@ -358,15 +365,19 @@ class UrdfPlant:
         # the stuck joints' static bands [−band_neg, band_pos] (Karnopp's test)
         self._band_s = self.band_pos[self._stuck_idx], -self.band_neg[self._stuck_idx]
         self._reduced = None  # built when first needed (:meth:`_locked_arm`)
+        self._locked_handle: int | None = None  # looked up when first needed (_compiled_locked)
         if self._in_derivative:
             self._mode_forces()
 
     def _compiled_locked(self) -> int | None:
         """The compiled kernel's arm of the current stick mode: None with every joint sliding,
-        else its handle of the arm with the stuck joints locked where they stand."""
+        else its handle of the arm with the stuck joints locked where they stand, looked up
+        once per mode (q_S does not change while the joints stick), as :meth:`_locked_arm`."""
         if not self._n_stuck:
             return None
-        return self._compiled.locked(self._stuck_idx, self.q)
+        if self._locked_handle is None:
+            self._locked_handle = self._compiled.locked(self._stuck_idx, self.q)
+        return self._locked_handle
 
     def _locked_arm(self) -> tuple[Any, Any] | None:
         """The arm with the stuck joints locked where they stand (Pinocchio's reduced model and
@@ -471,7 +482,9 @@ class UrdfPlant:
             used, joint = remaining, -1
             if (v * self._watch < 0.0).any():  # a sliding sticky joint's velocity crossed zero
                 crossed = v * self._watch < 0.0
-                used, joint, (q, v, viscous) = self._locate_stick(remaining, crossed)
+                used, joint, (q, v, viscous) = self._locate_stick(
+                    remaining, crossed, (q, v, viscous)
+                )
             self.q, self.dq = q, v
             self._dissipated_booked += viscous
             self.t += used
@@ -532,17 +545,32 @@ class UrdfPlant:
         return q, v, viscous
 
     def _locate_stick(
-        self, dt: float, crossed: np.ndarray
+        self, dt: float, crossed: np.ndarray, end: tuple[np.ndarray, np.ndarray, float]
     ) -> tuple[float, int, tuple[np.ndarray, np.ndarray, float]]:
         """The first joint whose velocity reaches zero within [0, dt], the time it does and the
         state there: Brent's method on that joint's velocity along the RK4 flow map of the
-        current mode (:meth:`_rk4_mode` over s)."""
+        current mode (:meth:`_rk4_mode` over s); ``end``: that map at s = dt, already taken."""
         q0, v0, d = self.q, self.dq, self.slip_dir
         best = (dt, -1, None)
+        # The flow map at each s evaluated, shared by the crossed joints: brentq evaluates the
+        # ends of its bracket again, and the root it returns last. Without an amplifier lag the
+        # map is a pure function of s (a lag's mean torque is set as a side effect: recomputed).
+        flow: dict[float, tuple[np.ndarray, np.ndarray, float]] = {}
+        if self._lag is None:
+            flow[dt] = end
+
+        def state(s: float) -> tuple[np.ndarray, np.ndarray, float]:
+            at = flow.get(s)
+            if at is None:
+                at = self._rk4_mode(s)
+                if self._lag is None:
+                    flow[s] = at
+            return at
+
         for j in np.flatnonzero(crossed):
 
             def velocity(s: float, j: int = j) -> float:
-                return self._rk4_mode(s)[1][j] * d[j]
+                return state(s)[1][j] * d[j]
 
             lo = 0.0
             if v0[j] == 0.0:
@@ -563,7 +591,7 @@ class UrdfPlant:
             if s < best[0] or best[1] < 0:
                 best = (s, int(j), None)
         s, joint, _ = best
-        return s, joint, self._rk4_mode(s) if s > 0 else (q0, v0, 0.0)
+        return s, joint, state(s) if s > 0 else (q0, v0, 0.0)
 
     # ---- concealed effects (virtual_robot.effects; docs/effects.md) ---------------------------
     def _init_effects(self, p: UrdfPlantParams) -> None:

@@ -12,11 +12,11 @@
    published model on the same rows — the table of docs/urdf.md.
 4. `virtual-robot simulate` of n-joint arms (virtual_robot/urdf_plant.py) at 2.5 ms with a
    0.5 ms RK4 step, drives included: simulated seconds per CPU second for the 3-DOF cicese3,
-   the 6-DOF ur5e and the 7-joint Panda (issue 14's target for a 6-DOF arm: ≥ 20× real time),
-   and the 2-DOF closed-form plant beside them; best of ``--repeats`` runs (the load of a
-   shared machine only ever adds). Beside each URDF arm, the floor: one ABA call's CPU cost
-   now, the share of the run that the four ABA calls per RK4 step take, and the factor ABA
-   alone would give.
+   the 7-joint Panda and every shipped 6-joint arm (issue 14's target for a 6-DOF arm: ≥ 20×
+   real time), and the 2-DOF closed-form plant beside them; best of ``--repeats`` runs (the
+   load of a shared machine only ever adds). Beside each URDF arm, the floor: one ABA call's
+   CPU cost now, the share of the run that the four ABA calls per RK4 step take, and the
+   factor ABA alone would give.
 
 ``--json`` prints one JSON document; exit 1 if the identification target is missed (on CPU
 time: the work is single-threaded; wall time is printed beside it).
@@ -162,9 +162,8 @@ def simulate_speed(tmp: Path, repeats: int = 3) -> dict[str, dict[str, float]]:
     cases = {
         "closed_form_2 (cicese)": (load_robot("cicese"), load_experiment("reyes-kelly")),
         "urdf_3 (cicese3)": (load_urdf_robot("cicese3"), load_experiment("cicese3-excitation")),
-        # the shipped 6-DOF arm with its own drives and excitation (issue 14's 6-DOF target)
-        "urdf_6 (ur5e)": (load_urdf_robot("ur5e"), load_experiment("ur5e-excitation")),
         "urdf_7 (panda)": (panda, panda_exp),
+        **six_dof_arms(),
     }
     out = {}
     for name, (robot, experiment) in cases.items():
@@ -205,6 +204,23 @@ def simulate_speed(tmp: Path, repeats: int = 3) -> dict[str, dict[str, float]]:
                 realtime_factor_aba_only=SIMULATE_S / (4 * aba_us * 1e-6 * steps),
             )
     return out
+
+
+def six_dof_arms() -> dict:
+    """Every shipped 6-joint URDF arm with drives and an experiment ``<name>-excitation``,
+    for issue 14's target itself (the shipped ur5e)."""
+    from profiles import available
+    from profiles.experiment import load_experiment
+    from profiles.robot import describes_urdf_only, load_urdf_robot
+
+    arms = {}
+    for name in available("robots"):
+        if not describes_urdf_only(name) or f"{name}-excitation" not in available("experiments"):
+            continue
+        robot = load_urdf_robot(name)
+        if robot.n_joints == 6 and robot.drives:
+            arms[f"urdf_6 ({name})"] = (robot, load_experiment(f"{name}-excitation"))
+    return arms
 
 
 def plant_alone_cpu(robot, experiment, recording: Path) -> float:
