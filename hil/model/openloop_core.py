@@ -14,7 +14,8 @@ With the identity path, plain Coulomb friction and no shaft torque this is the r
 :func:`hil.model.openloop.simulate_open_loop`; every effect enters through these three, so the
 stick–slip and event logic exists once. Also the input checks both modules share.
 
-Imports: numpy only, nothing from ``hil``: :mod:`hil.model.openloop_effects` and
+Imports: numpy and :mod:`hil.model.compiled_openloop` (the compiled sub-step of the rows on
+which both joints slide, the same bits as the Python one); :mod:`hil.model.openloop_effects` and
 :mod:`hil.model.openloop` build on this module.
 """
 
@@ -25,6 +26,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
+from hil.model.compiled_openloop import slider
 
 # Stick events that may occur within one sub-step; after that many (a degenerate, chattering
 # case: it happens with an actuator lag) the joints stay as they are for the rest of the sub-step,
@@ -475,6 +478,10 @@ def integrate_chunks(
     # a row-local path's commands are each period's own row: scheduled chunk by chunk
     whole = None if path.row_local else path.schedule(torques, h, n_sub)
     step = mode_step()
+    # the rows on which both joints slide, compiled when it can be (the same bits; issue 13)
+    fast = None
+    if type(path) is TorquePath and shaft_torque is None and not friction.speed_dependent:
+        fast = slider(_rigid(theta), torques, stretch, n_sub, h / n_sub, sticky)
     for first in range(0, n_rows, chunk):
         rows = min(chunk, n_rows - first)
         if whole is None:
@@ -485,7 +492,23 @@ def integrate_chunks(
         q_out = [(q1, q2)] * rows
         dq_out = [(v1, v2)] * rows
         stuck_out = [(stuck[0], stuck[1])] * rows
-        for k in range(rows):
+        k = 0
+        while k < rows:
+            if fast is not None and not (stuck[0] or stuck[1]) and first + k < n_rows - 1:
+                levels = (friction.level(0, direction[0]), friction.level(1, direction[1]))
+                span = min(rows, n_rows - 1 - first) - k  # the last row is never stepped
+                done, (q1, q2, v1, v2), q_fast, dq_fast = fast.run(
+                    first + k, span, (q1, q2, v1, v2), levels, (direction[0], direction[1])
+                )
+                # rows k..k + done − 1 taken; the one it stopped before has a sign change that
+                # the loop below takes again and locates
+                q_out[k : k + done] = q_fast.tolist()
+                dq_out[k : k + done] = dq_fast.tolist()
+                stuck_out[k : k + done] = [(False, False)] * done
+                substeps += done * n_sub
+                k += done
+                if k == rows:
+                    break
             q_out[k] = (q1, q2)
             dq_out[k] = (v1, v2)
             stuck_out[k] = (stuck[0], stuck[1])
@@ -552,6 +575,7 @@ def integrate_chunks(
                     remaining -= s
                     if remaining <= 1e-15 * dt_seg:
                         break
+            k += 1
         yield OpenLoopResult(
             t=np.arange(first, first + rows) * h if times is None else times[first : first + rows],
             q=np.array(q_out, dtype=float),

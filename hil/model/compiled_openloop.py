@@ -1,0 +1,204 @@
+"""The open-loop validation's common sub-step compiled (issue 13's time on a 10 M-row recording):
+``openloop_slide.c`` built once into the kernel cache (:mod:`drivers.native_build`), loaded
+through ctypes, and :func:`slider`, which :func:`hil.model.openloop_core.integrate_chunks` asks
+for a :class:`Slider` running the rows on which both joints slide under the held command.
+
+The C code is ``_rk4(_accelerations(...))`` of :mod:`hil.model.openloop_core` in the mode
+"both sliding" with frozen Coulomb levels, no shaft torque and the identity torque path, the
+same operations in the same order, compiled without fast-math, FMA contraction or builtins and
+calling the C library's sin and cos as :mod:`math` does: it gives the same bits as the Python
+step (tests/test_openloop_compiled.py). It stops before any row inside which a sticky joint's
+velocity changes sign; the Python integrator takes that row (locating the stick event) and the
+ones after, until both joints slide again.
+
+``DDBENCH_OPENLOOP_KERNEL`` chooses: ``auto`` (default: compiled when it builds), ``python``
+(always the Python step), ``compiled`` (refuse to run without it). Built lazily on first use
+or by ``make`` setup (``python -m hil.model.compiled_openloop``); without a C compiler the
+Python step runs, with one warning line saying why.
+
+Imports the standard library, numpy and :mod:`drivers.native_build`.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import os
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from drivers.native_build import KernelUnavailableError, build_cached, cache_dir, cached_name
+
+SOURCE = Path(__file__).with_name("openloop_slide.c")
+KERNEL_ENV = "DDBENCH_OPENLOOP_KERNEL"
+BUILD_TIMEOUT_S = 300.0  # a 2 s compile quiet; generous for a loaded machine
+# Same rounding as Python's float arithmetic and math.sin/cos: no fast-math, no FMA
+# contraction, no builtins (gcc fuses sin and cos of one argument into sincos otherwise).
+CFLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off", "-fno-fast-math", "-fno-builtin")
+
+_P = ctypes.POINTER(ctypes.c_double)
+
+
+def kernel_choice() -> str:
+    """``auto``, ``python`` or ``compiled`` from $DDBENCH_OPENLOOP_KERNEL; ValueError if not."""
+    choice = os.environ.get(KERNEL_ENV, "auto").strip().lower() or "auto"
+    if choice not in ("auto", "python", "compiled"):
+        raise ValueError(f"{KERNEL_ENV}={choice!r}: use auto, python or compiled")
+    return choice
+
+
+def build_command(output: Path) -> list[str]:
+    """The compiler call; KernelUnavailableError (one line) without a C compiler."""
+    cc = os.environ.get("CC", "cc")
+    if shutil.which(cc) is None:
+        raise KernelUnavailableError(f"no C compiler {cc!r} on PATH")
+    return [cc, *CFLAGS, str(SOURCE), "-o", str(output), "-lm"]
+
+
+def library_path() -> Path:
+    """Where the library of this source and toolchain is (or will be) cached."""
+    return cached_name(SOURCE, (*build_command(Path("OUT")), sys.platform))
+
+
+_LIBRARIES: dict[Path, ctypes.CDLL] = {}
+_PATHS: dict[tuple[str | None, str | None, str], Path] = {}
+_WARNED: set[str] = set()
+
+
+def load() -> ctypes.CDLL:
+    """The compiled library (built on first use), or KernelUnavailableError saying why not."""
+    # the path hashes the source: once per toolchain and cache in a process, not per simulation
+    toolchain = (os.environ.get("CC"), os.environ.get("PATH"), str(cache_dir()))
+    if toolchain not in _PATHS:
+        _PATHS[toolchain] = library_path()
+    path = build_cached(
+        SOURCE, _PATHS[toolchain], build_command, BUILD_TIMEOUT_S, "the compiled open-loop step"
+    )
+    if path not in _LIBRARIES:
+        try:
+            lib = ctypes.CDLL(str(path))
+        except OSError as exc:
+            raise KernelUnavailableError(f"loading {path.name}: {exc}") from None
+        fn = lib.ddb_openloop_slide
+        fn.restype = ctypes.c_long
+        fn.argtypes = [_P, ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_double,
+                       ctypes.c_double, _P, _P, ctypes.c_long, ctypes.c_int, ctypes.c_double,
+                       _P, _P, _P]  # fmt: skip
+        _LIBRARIES[path] = lib
+    return _LIBRARIES[path]
+
+
+def kernel_status() -> tuple[str, str | None]:
+    """(``compiled`` or ``python``, why not compiled); ValueError when it is required
+    (``compiled``) and cannot be had. Warns once per process and reason."""
+    if kernel_choice() == "python":
+        return "python", f"{KERNEL_ENV}=python"
+    try:
+        load()
+        return "compiled", None
+    except KernelUnavailableError as exc:
+        if kernel_choice() == "compiled":
+            raise ValueError(f"{KERNEL_ENV}=compiled: {exc}") from None
+        if str(exc) not in _WARNED:
+            _WARNED.add(str(exc))
+            logging.getLogger(__name__).warning("compiled open-loop step unavailable: %s", exc)
+        return "python", str(exc)
+
+
+def _ptr(a: np.ndarray):
+    return a.ctypes.data_as(_P)
+
+
+class Slider:
+    """Rows of one simulation on which both joints slide, run by the compiled step.
+
+    ``rigid`` are the 11 numbers of :func:`hil.model.openloop_core._rigid`; ``torques`` (N, 2)
+    and ``stretch`` (N − 1 period stretches, or None) those the integrator runs on.
+    """
+
+    def __init__(
+        self,
+        lib: ctypes.CDLL,
+        rigid: tuple[float, ...],
+        torques: np.ndarray,
+        stretch: np.ndarray | None,
+        n_sub: int,
+        dt_seg: float,
+        sticky: tuple[bool, bool],
+    ) -> None:
+        self._fn = lib.ddb_openloop_slide
+        self._p = np.zeros(13)
+        self._p[:11] = rigid
+        p2, p4, p5 = rigid[8:11]
+        self._perp = int(p2 != 0.0 or p4 != 0.0 or p5 != 0.0)
+        self._tau = np.ascontiguousarray(torques, dtype=float)
+        self._stretch = None if stretch is None else np.ascontiguousarray(stretch, dtype=float)
+        self._n_sub, self._dt_seg = n_sub, float(dt_seg)
+        self._sticky = (int(sticky[0]), int(sticky[1]))
+        self._x = np.zeros(4)
+        self._q_out = self._dq_out = np.empty((0, 2))
+
+    def run(
+        self,
+        row: int,
+        rows: int,
+        state: tuple[float, float, float, float],
+        levels: tuple[float, float],
+        direction: tuple[float, float],
+    ) -> tuple[int, tuple[float, float, float, float], np.ndarray, np.ndarray]:
+        """From ``state`` at the start of recording row ``row``, up to ``rows`` rows with both
+        joints sliding (Coulomb ``levels`` of their ``direction``): (rows fully stepped m, the
+        state after them, q and q̇ at the start of each of rows row..row + m − 1 (views of
+        buffers the next call overwrites))."""
+        self._p[11], self._p[12] = levels
+        x = self._x
+        x[:] = state
+        if self._q_out.shape[0] < rows:  # kept from call to call: one chunk's rows
+            self._q_out, self._dq_out = np.empty((rows, 2)), np.empty((rows, 2))
+        q_out, dq_out = self._q_out, self._dq_out
+        tau = self._tau[row:]
+        stretch = None if self._stretch is None else _ptr(self._stretch[row:])
+        done = self._fn(
+            _ptr(self._p), self._perp, *self._sticky, float(direction[0]), float(direction[1]),
+            _ptr(tau), stretch, rows, self._n_sub, self._dt_seg, _ptr(x), _ptr(q_out),
+            _ptr(dq_out),
+        )  # fmt: skip
+        state = (float(x[0]), float(x[1]), float(x[2]), float(x[3]))
+        return int(done), state, q_out[:done], dq_out[:done]
+
+
+def slider(
+    rigid: tuple[float, ...],
+    torques: np.ndarray,
+    stretch: np.ndarray | None,
+    n_sub: int,
+    dt_seg: float,
+    sticky: tuple[bool, bool],
+) -> Slider | None:
+    """A :class:`Slider` for this simulation, or None when the Python step is to run
+    (forced, or the compiled one cannot be had: one warning line, see :func:`kernel_status`)."""
+    if kernel_status()[0] != "compiled":
+        return None
+    return Slider(load(), rigid, torques, stretch, n_sub, dt_seg, sticky)
+
+
+def main() -> int:
+    """Build (or find) the compiled step and print which step the open-loop simulation runs;
+    exit 0 either way (the Python step is a working fallback)."""
+    try:
+        kernel, reason = kernel_status()
+    except ValueError as exc:
+        print(f"hil: error: {exc}", file=sys.stderr)
+        return 2
+    if kernel == "compiled":
+        print(f"open-loop step: compiled ({library_path()})")
+    else:
+        print(f"open-loop step: python ({reason})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
