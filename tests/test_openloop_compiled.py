@@ -104,26 +104,31 @@ def test_compiled_step_with_model_terms_and_real_sample_times(monkeypatch):
 
 @needs_compiler
 def test_compiled_step_runs_most_rows(monkeypatch):
-    """On a sliding run the compiled step takes the rows (the Python step only those with a
-    stick event): counted through the slider's calls."""
+    """The compiled step takes the rows in every stick mode, the Python step only those in
+    which the mode changes: counted through the slider's calls, on a run that sticks often."""
     monkeypatch.setenv(KERNEL_ENV, "compiled")
-    taken = []
+    taken: dict[tuple[bool, bool], int] = {}
     real_run = compiled.Slider.run
 
-    def counting(self, row, rows, state, levels, direction):
-        out = real_run(self, row, rows, state, levels, direction)
-        taken.append(out[0])
+    def counting(self, row, rows, state, stuck, levels, direction):
+        out = real_run(self, row, rows, state, stuck, levels, direction)
+        taken[stuck] = taken.get(stuck, 0) + out[0]
         return out
 
     monkeypatch.setattr(compiled.Slider, "run", counting)
-    sim = simulate_open_loop(robot_params().theta, torques("validation-multisine", 2000), H)
-    assert sum(taken) > 0.9 * (len(sim.q) - 1)
+    sim = simulate_open_loop(robot_params().theta, torques("reyes-kelly", 4000, 0.3), H)
+    events = int(sim.stick_events.sum() + sim.breakaways.sum())
+    assert events > 20 and sim.stuck[:-1].any(axis=1).sum() > 4 * events
+    assert sum(taken.values()) >= len(sim.q) - 1 - events  # at most a row per event in Python
+    stuck_rows = sim.stuck[:-1].any(axis=1).sum()
+    assert sum(n for mode, n in taken.items() if any(mode)) >= stuck_rows - events
 
 
 def test_python_step_forced(monkeypatch):
     monkeypatch.setenv(KERNEL_ENV, "python")
     assert kernel_status() == ("python", f"{KERNEL_ENV}=python")
-    assert compiled.slider((0.0,) * 11, np.zeros((3, 2)), None, 5, H / 5, (True, True)) is None
+    args = ((0.0,) * 11, np.zeros((3, 2)), None, 5, H / 5, (True, True), (1.0,) * 4)
+    assert compiled.slider(*args) is None
     monkeypatch.setenv(KERNEL_ENV, "fortran")
     with pytest.raises(ValueError, match=KERNEL_ENV):
         kernel_status()

@@ -1,15 +1,16 @@
 """The open-loop validation's common sub-step compiled (issue 13's time on a 10 M-row recording):
 ``openloop_slide.c`` built once into the kernel cache (:mod:`drivers.native_build`), loaded
 through ctypes, and :func:`slider`, which :func:`hil.model.openloop_core.integrate_chunks` asks
-for a :class:`Slider` running the rows on which both joints slide under the held command.
+for a :class:`Slider` running the rows on which the stick mode does not change.
 
-The C code is ``_rk4(_accelerations(...))`` of :mod:`hil.model.openloop_core` in the mode
-"both sliding" with frozen Coulomb levels, no shaft torque and the identity torque path, the
-same operations in the same order, compiled without fast-math, FMA contraction or builtins and
-calling the C library's sin and cos as :mod:`math` does: it gives the same bits as the Python
-step (tests/test_openloop_compiled.py). It stops before any row inside which a sticky joint's
-velocity changes sign; the Python integrator takes that row (locating the stick event) and the
-ones after, until both joints slide again.
+The C code is ``_rk4(_accelerations(...))`` of :mod:`hil.model.openloop_core` in each stick
+mode, with the break-away test of its ``release`` (``_holding_torques``), for plain Coulomb
+friction, no shaft torque and the identity torque path: the same operations in the same order,
+compiled without fast-math, FMA contraction or builtins and calling the C library's sin and cos
+as :mod:`math` does, so it gives the same bits as the Python step
+(tests/test_openloop_compiled.py). It stops before any row inside which the mode changes (a
+stuck joint breaks away, a sliding sticky joint's velocity changes sign); the Python integrator
+takes that row (locating the event) and hands the rows after it back.
 
 ``DDBENCH_OPENLOOP_KERNEL`` chooses: ``auto`` (default: compiled when it builds), ``python``
 (always the Python step), ``compiled`` (refuse to run without it). Built lazily on first use
@@ -38,8 +39,6 @@ BUILD_TIMEOUT_S = 300.0  # a 2 s compile quiet; generous for a loaded machine
 # Same rounding as Python's float arithmetic and math.sin/cos: no fast-math, no FMA
 # contraction, no builtins (gcc fuses sin and cos of one argument into sincos otherwise).
 CFLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off", "-fno-fast-math", "-fno-builtin")
-
-_P = ctypes.POINTER(ctypes.c_double)
 
 
 def kernel_choice() -> str:
@@ -84,9 +83,11 @@ def load() -> ctypes.CDLL:
             raise KernelUnavailableError(f"loading {path.name}: {exc}") from None
         fn = lib.ddb_openloop_slide
         fn.restype = ctypes.c_long
-        fn.argtypes = [_P, ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_double,
-                       ctypes.c_double, _P, _P, ctypes.c_long, ctypes.c_int, ctypes.c_double,
-                       _P, _P, _P]  # fmt: skip
+        # (p, perp, sticky1, sticky2, stuck1, stuck2, dir1, dir2, tau, stretch, rows, n_sub,
+        # dt_seg, x, q_out, dq_out); the arrays by address
+        fn.argtypes = [ctypes.c_void_p, *[ctypes.c_int] * 5, ctypes.c_double, ctypes.c_double,
+                       ctypes.c_void_p, ctypes.c_void_p, ctypes.c_long, ctypes.c_int,
+                       ctypes.c_double, *[ctypes.c_void_p] * 3]  # fmt: skip
         _LIBRARIES[path] = lib
     return _LIBRARIES[path]
 
@@ -108,15 +109,12 @@ def kernel_status() -> tuple[str, str | None]:
         return "python", str(exc)
 
 
-def _ptr(a: np.ndarray):
-    return a.ctypes.data_as(_P)
-
-
 class Slider:
-    """Rows of one simulation on which both joints slide, run by the compiled step.
+    """Rows of one simulation in one stick mode, run by the compiled step.
 
     ``rigid`` are the 11 numbers of :func:`hil.model.openloop_core._rigid`; ``torques`` (N, 2)
-    and ``stretch`` (N − 1 period stretches, or None) those the integrator runs on.
+    and ``stretch`` (N − 1 period stretches, or None) those the integrator runs on; ``bands``
+    the static bands (F⁺ joint 1, joint 2, F⁻ joint 1, joint 2) of its Coulomb friction.
     """
 
     def __init__(
@@ -128,10 +126,13 @@ class Slider:
         n_sub: int,
         dt_seg: float,
         sticky: tuple[bool, bool],
+        bands: tuple[float, float, float, float],
     ) -> None:
         self._fn = lib.ddb_openloop_slide
-        self._p = np.zeros(13)
+        # t1..t5 b1 b2 rot p2 p4 p5, the two levels (set per call), the four bands
+        self._p = np.zeros(17)
         self._p[:11] = rigid
+        self._p[13:] = bands
         p2, p4, p5 = rigid[8:11]
         self._perp = int(p2 != 0.0 or p4 != 0.0 or p5 != 0.0)
         self._tau = np.ascontiguousarray(torques, dtype=float)
@@ -146,25 +147,28 @@ class Slider:
         row: int,
         rows: int,
         state: tuple[float, float, float, float],
+        stuck: tuple[bool, bool],
         levels: tuple[float, float],
         direction: tuple[float, float],
     ) -> tuple[int, tuple[float, float, float, float], np.ndarray, np.ndarray]:
-        """From ``state`` at the start of recording row ``row``, up to ``rows`` rows with both
-        joints sliding (Coulomb ``levels`` of their ``direction``): (rows fully stepped m, the
-        state after them, q and q̇ at the start of each of rows row..row + m − 1 (views of
-        buffers the next call overwrites))."""
+        """From ``state`` at the start of recording row ``row``, up to ``rows`` rows in the
+        mode ``stuck`` (the sliding joints' Coulomb ``levels`` of their ``direction``):
+        (rows fully stepped m, the state after them, q and q̇ at the start of each of rows
+        row..row + m − 1 (views of buffers the next call overwrites))."""
         self._p[11], self._p[12] = levels
         x = self._x
         x[:] = state
         if self._q_out.shape[0] < rows:  # kept from call to call: one chunk's rows
             self._q_out, self._dq_out = np.empty((rows, 2)), np.empty((rows, 2))
         q_out, dq_out = self._q_out, self._dq_out
-        tau = self._tau[row:]
-        stretch = None if self._stretch is None else _ptr(self._stretch[row:])
+        tau = self._tau.ctypes.data + row * self._tau.strides[0]
+        stretch = None
+        if self._stretch is not None:
+            stretch = self._stretch.ctypes.data + row * self._stretch.strides[0]
         done = self._fn(
-            _ptr(self._p), self._perp, *self._sticky, float(direction[0]), float(direction[1]),
-            _ptr(tau), stretch, rows, self._n_sub, self._dt_seg, _ptr(x), _ptr(q_out),
-            _ptr(dq_out),
+            self._p.ctypes.data, self._perp, *self._sticky, int(stuck[0]), int(stuck[1]),
+            float(direction[0]), float(direction[1]), tau, stretch, rows, self._n_sub,
+            self._dt_seg, x.ctypes.data, q_out.ctypes.data, dq_out.ctypes.data,
         )  # fmt: skip
         state = (float(x[0]), float(x[1]), float(x[2]), float(x[3]))
         return int(done), state, q_out[:done], dq_out[:done]
@@ -177,12 +181,13 @@ def slider(
     n_sub: int,
     dt_seg: float,
     sticky: tuple[bool, bool],
+    bands: tuple[float, float, float, float],
 ) -> Slider | None:
     """A :class:`Slider` for this simulation, or None when the Python step is to run
     (forced, or the compiled one cannot be had: one warning line, see :func:`kernel_status`)."""
     if kernel_status()[0] != "compiled":
         return None
-    return Slider(load(), rigid, torques, stretch, n_sub, dt_seg, sticky)
+    return Slider(load(), rigid, torques, stretch, n_sub, dt_seg, sticky, bands)
 
 
 def main() -> int:

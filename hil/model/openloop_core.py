@@ -478,10 +478,10 @@ def integrate_chunks(
     # a row-local path's commands are each period's own row: scheduled chunk by chunk
     whole = None if path.row_local else path.schedule(torques, h, n_sub)
     step = mode_step()
-    # the rows on which both joints slide, compiled when it can be (the same bits; issue 13)
+    # the rows on which the stick mode holds, compiled when it can be (the same bits; issue 13)
     fast = None
-    if type(path) is TorquePath and shaft_torque is None and not friction.speed_dependent:
-        fast = slider(_rigid(theta), torques, stretch, n_sub, h / n_sub, sticky)
+    if type(path) is TorquePath and shaft_torque is None and type(friction) is Friction:
+        fast = slider(_rigid(theta), torques, stretch, n_sub, h / n_sub, sticky, (*pos, *neg))
     for first in range(0, n_rows, chunk):
         rows = min(chunk, n_rows - first)
         if whole is None:
@@ -494,17 +494,18 @@ def integrate_chunks(
         stuck_out = [(stuck[0], stuck[1])] * rows
         k = 0
         while k < rows:
-            if fast is not None and not (stuck[0] or stuck[1]) and first + k < n_rows - 1:
+            if fast is not None and first + k < n_rows - 1:
                 levels = (friction.level(0, direction[0]), friction.level(1, direction[1]))
+                mode = (stuck[0], stuck[1])
                 span = min(rows, n_rows - 1 - first) - k  # the last row is never stepped
                 done, (q1, q2, v1, v2), q_fast, dq_fast = fast.run(
-                    first + k, span, (q1, q2, v1, v2), levels, (direction[0], direction[1])
+                    first + k, span, (q1, q2, v1, v2), mode, levels, (direction[0], direction[1])
                 )
-                # rows k..k + done − 1 taken; the one it stopped before has a sign change that
-                # the loop below takes again and locates
+                # rows k..k + done − 1 taken; in the one it stopped before the mode changes (a
+                # break-away or a sign change) and the loop below takes it again with its events
                 q_out[k : k + done] = q_fast.tolist()
                 dq_out[k : k + done] = dq_fast.tolist()
-                stuck_out[k : k + done] = [(False, False)] * done
+                stuck_out[k : k + done] = [mode] * done
                 substeps += done * n_sub
                 k += done
                 if k == rows:

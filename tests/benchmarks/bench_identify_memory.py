@@ -12,7 +12,8 @@ the bytes per recording row, the wall time and the CPU time (user + system) per 
 
 ``--stages``: also the CPU time of each stage per row, in this process on the same file
 (reading; each scheme's rows built once; each scheme's RLS over them; one validation's
-open-loop simulation): where a long recording's time goes.
+open-loop simulation, with the compiled sub-step and with the Python one): where a long
+recording's time goes.
 
 ``--tile-mb MB`` makes a long file quickly (simulating 700 MB, 10 M rows, outright takes the
 better part of an hour): one settled stretch of the simulated run repeated until signals.csv
@@ -30,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -90,6 +92,7 @@ def stages(run: Path) -> None:
     """CPU time per row of each stage of `hil identify --from run` (see the module doc)."""
     from drivers.recording import read_signals
     from hil.identify.schemes import initial_velocity
+    from hil.model.compiled_openloop import KERNEL_ENV, kernel_status
     from hil.model.estimators import RecursiveLeastSquaresRows
     from hil.model.openloop import simulate_open_loop_chunks
     from hil.model.params import robot_params
@@ -112,12 +115,16 @@ def stages(run: Path) -> None:
         for c in chunks:
             rls.add(c.Psi, c.y, c.weights)
         line(f"{scheme}: recursive least squares", start, n)
-    start = time.process_time()
     dq0 = initial_velocity(rec)
-    for _ in simulate_open_loop_chunks(robot_params("cicese").theta, tau[:100_000], h,
-                                       q0=q[0], dq0=dq0):  # fmt: skip
-        pass
-    line("validation: open-loop simulation", start, min(len(q), 100_000))
+    for kernel in ("compiled", "python"):  # hil.model.compiled_openloop's step, then Python's
+        os.environ[KERNEL_ENV] = kernel
+        if kernel_status()[0] != kernel:
+            continue  # no compiler: the Python step's line alone
+        start = time.process_time()
+        for _ in simulate_open_loop_chunks(robot_params("cicese").theta, tau[:100_000], h,
+                                           q0=q[0], dq0=dq0):  # fmt: skip
+            pass
+        line(f"validation: open-loop simulation ({kernel})", start, min(len(q), 100_000))
 
 
 def command(args: argparse.Namespace, run: Path, tmp: str) -> list[str]:
