@@ -20,11 +20,13 @@ import hashlib
 import logging
 import os
 import subprocess
+import sys
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["CACHE_ENV", "ERROR_CHARS", "KernelUnavailableError", "build_cached", "cache_dir",
-           "cached_name"]  # fmt: skip
+__all__ = ["CACHE_ENV", "ERROR_CHARS", "KernelStatus", "KernelUnavailableError", "build_cached",
+           "cache_dir", "cached_name", "kernel_status", "print_kernel_status"]  # fmt: skip
 
 CACHE_ENV = "DDBENCH_KERNEL_CACHE"
 ERROR_CHARS = 512
@@ -32,6 +34,58 @@ ERROR_CHARS = 512
 
 class KernelUnavailableError(RuntimeError):
     """The compiled kernel cannot be had; the message is one line saying why."""
+
+
+@dataclass(frozen=True)
+class KernelStatus:
+    """Which step runs: ``compiled`` or ``python``, and why not compiled (one line)."""
+
+    kernel: str
+    reason: str | None = None
+    library: str | None = None
+
+
+_WARNED: set[str] = set()
+
+
+def kernel_status(
+    env: str, load: Callable[[], object], library: Callable[[], Path], what: str
+) -> KernelStatus:
+    """Which step runs as the environment variable ``env`` chooses: ``auto`` (default:
+    compiled when ``load()`` succeeds), ``python`` (always the Python step), ``compiled``
+    (ValueError, one line, when ``load()`` fails). In ``auto`` a failure warns once per
+    process and reason, naming ``what`` ("compiled plant step unavailable: ...")."""
+    choice = os.environ.get(env, "auto").strip().lower() or "auto"
+    if choice not in ("auto", "python", "compiled"):
+        raise ValueError(f"{env}={choice!r}: use auto, python or compiled")
+    if choice == "python":
+        return KernelStatus("python", f"{env}=python")
+    try:
+        load()
+        return KernelStatus("compiled", library=str(library()))
+    except KernelUnavailableError as exc:
+        if choice == "compiled":
+            raise ValueError(f"{env}=compiled: {exc}") from None
+        if str(exc) not in _WARNED:  # once per process and reason, one line
+            _WARNED.add(str(exc))
+            logging.getLogger(__name__).warning("%s unavailable: %s", what, exc)
+        return KernelStatus("python", str(exc))
+
+
+def print_kernel_status(program: str, step: str, status: Callable[[], KernelStatus]) -> int:
+    """A kernel module's ``main``: build (or find) it and print one line saying which
+    ``step`` runs; exit 0 either way (the Python step is a working fallback), 2 on a bad
+    choice or a required kernel missing (one line on stderr)."""
+    try:
+        current = status()
+    except ValueError as exc:
+        print(f"{program}: error: {exc}", file=sys.stderr)
+        return 2
+    if current.kernel == "compiled":
+        print(f"{step}: compiled ({current.library})")
+    else:
+        print(f"{step}: python ({current.reason})")
+    return 0
 
 
 def cache_dir() -> Path:

@@ -8,10 +8,10 @@ from __future__ import annotations
 import logging
 import os
 import shutil
-import stat
 
 import numpy as np
 import pytest
+from fake_compiler import failing_compiler
 
 import hil.model.compiled_openloop as compiled
 from drivers.native_build import CACHE_ENV
@@ -37,7 +37,7 @@ def both(monkeypatch, run):
     results = {}
     for kernel in ("python", "compiled"):
         monkeypatch.setenv(KERNEL_ENV, kernel)
-        assert kernel_status()[0] == kernel
+        assert kernel_status().kernel == kernel
         results[kernel] = run()
     return results["python"], results["compiled"]
 
@@ -126,9 +126,7 @@ def test_compiled_step_runs_most_rows(monkeypatch):
 
 def test_python_step_forced(monkeypatch):
     monkeypatch.setenv(KERNEL_ENV, "python")
-    assert kernel_status() == ("python", f"{KERNEL_ENV}=python")
-    args = ((0.0,) * 11, np.zeros((3, 2)), None, 5, H / 5, (True, True), (1.0,) * 4)
-    assert compiled.slider(*args) is None
+    assert kernel_status().reason == f"{KERNEL_ENV}=python" and not compiled.compiled()
     monkeypatch.setenv(KERNEL_ENV, "fortran")
     with pytest.raises(ValueError, match=KERNEL_ENV):
         kernel_status()
@@ -138,21 +136,18 @@ def test_broken_build_falls_back_in_one_line(tmp_path, monkeypatch, caplog):
     """A compiler that fails: the Python step runs, one warning line says why, the failure is
     remembered (the compiler is not run again); with DDBENCH_OPENLOOP_KERNEL=compiled it is a
     one-line ValueError. No compiler at all: the same fallback."""
-    calls = tmp_path / "calls"
-    broken = tmp_path / "broken-cc"
-    broken.write_text(
-        f'#!/bin/sh\necho run >> "{calls}"\n'
-        'echo "openloop_slide.c:1:10: fatal error: math.h: No such file" >&2\nexit 1\n'
+    broken, calls = failing_compiler(
+        tmp_path, "openloop_slide.c:1:10: fatal error: math.h: No such file"
     )
-    broken.chmod(broken.stat().st_mode | stat.S_IXUSR)
     monkeypatch.setenv(CACHE_ENV, str(tmp_path / "cache"))
     monkeypatch.setenv("CC", str(broken))
     monkeypatch.setenv(KERNEL_ENV, "auto")
     theta, tau = robot_params().theta, torques("reyes-kelly", 200)
     with caplog.at_level(logging.WARNING):
         for _ in range(2):
-            kernel, reason = kernel_status()
-            assert kernel == "python" and "math.h" in reason and "\n" not in reason
+            status = kernel_status()
+            assert status.kernel == "python" and "math.h" in status.reason
+            assert "\n" not in status.reason
             assert len(simulate_open_loop(theta, tau, H).q) == 200
     assert calls.read_text().count("run") == 1  # remembered beside the library
     monkeypatch.setenv(KERNEL_ENV, "compiled")
@@ -161,5 +156,5 @@ def test_broken_build_falls_back_in_one_line(tmp_path, monkeypatch, caplog):
     assert "\n" not in str(err.value)
     monkeypatch.setenv("CC", str(tmp_path / "no-such-compiler"))
     monkeypatch.setenv(KERNEL_ENV, "auto")
-    kernel, reason = kernel_status()
-    assert kernel == "python" and "no C compiler" in reason
+    status = kernel_status()
+    assert status.kernel == "python" and "no C compiler" in status.reason

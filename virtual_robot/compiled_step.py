@@ -22,16 +22,15 @@ Imports the standard library, numpy, pinocchio (for its install prefix) and
 from __future__ import annotations
 
 import ctypes
-import logging
 import os
 import shutil
 import sys
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from drivers import native_build
 from drivers.native_build import CACHE_ENV as CACHE_ENV  # re-exported for its callers
 from drivers.native_build import (
     ERROR_CHARS,
@@ -39,6 +38,7 @@ from drivers.native_build import (
     build_cached,
     cached_name,
 )
+from drivers.native_build import KernelStatus as KernelStatus  # re-exported: urdf_plant
 
 SOURCE = Path(__file__).with_name("rk4_aba.cpp")
 KERNEL_ENV = "DDBENCH_PLANT_KERNEL"
@@ -60,22 +60,6 @@ DEFINES = (
     "PINOCCHIO_URDFDOM_HEADERS_MINOR_VERSION=0",
     "PINOCCHIO_URDFDOM_HEADERS_PATCH_VERSION=0",
 )
-
-
-@dataclass(frozen=True)
-class KernelStatus:
-    """Which step the plant runs: ``compiled`` or ``python``, and why not compiled (one line)."""
-
-    kernel: str
-    reason: str | None = None
-    library: str | None = None
-
-
-def kernel_choice() -> str:
-    choice = os.environ.get(KERNEL_ENV, "auto").strip().lower() or "auto"
-    if choice not in ("auto", "python", "compiled"):
-        raise ValueError(f"{KERNEL_ENV}={choice!r}: use auto, python or compiled")
-    return choice
 
 
 def pinocchio_prefix() -> Path:
@@ -138,7 +122,6 @@ def build(timeout_s: float = BUILD_TIMEOUT_S) -> Path:
 
 
 _LIBRARIES: dict[Path, ctypes.CDLL] = {}
-_WARNED: set[str] = set()
 
 
 def load() -> ctypes.CDLL:
@@ -171,18 +154,7 @@ def load() -> ctypes.CDLL:
 
 def kernel_status() -> KernelStatus:
     """Which step an n-joint plant made now would run, and why not compiled (one line)."""
-    if kernel_choice() == "python":
-        return KernelStatus("python", f"{KERNEL_ENV}=python")
-    try:
-        load()
-        return KernelStatus("compiled", library=str(library_path()))
-    except KernelUnavailableError as exc:
-        if kernel_choice() == "compiled":
-            raise ValueError(f"{KERNEL_ENV}=compiled: {exc}") from None
-        if str(exc) not in _WARNED:  # once per process and reason, one line
-            _WARNED.add(str(exc))
-            logging.getLogger(__name__).warning("compiled plant step unavailable: %s", exc)
-        return KernelStatus("python", str(exc))
+    return native_build.kernel_status(KERNEL_ENV, load, library_path, "compiled plant step")
 
 
 # ddb_advance's outcomes
@@ -349,16 +321,7 @@ class CompiledArm:
 def main() -> int:
     """Build (or find) the compiled step and print one line saying which step the plant runs;
     exit 0 either way (the Python step is a working fallback)."""
-    try:
-        status = kernel_status()
-    except ValueError as exc:
-        print(f"virtual-robot: error: {exc}", file=sys.stderr)
-        return 2
-    if status.kernel == "compiled":
-        print(f"plant step: compiled ({status.library})")
-    else:
-        print(f"plant step: python ({status.reason})")
-    return 0
+    return native_build.print_kernel_status("virtual-robot", "plant step", kernel_status)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """The open-loop validation's common sub-step compiled (issue 13's time on a 10 M-row recording):
 ``openloop_slide.c`` built once into the kernel cache (:mod:`drivers.native_build`), loaded
-through ctypes, and :func:`slider`, which :func:`hil.model.openloop_core.integrate_chunks` asks
-for a :class:`Slider` running the rows on which the stick mode does not change.
+through ctypes, and :class:`Slider`, which :func:`hil.model.openloop_core.integrate_chunks`
+runs (when :func:`compiled`) on the rows on which the stick mode does not change.
 
 The C code is ``_rk4(_accelerations(...))`` of :mod:`hil.model.openloop_core` in each stick
 mode, with the break-away test of its ``release`` (``_holding_torques``), for plain Coulomb
@@ -23,7 +23,6 @@ Imports the standard library, numpy and :mod:`drivers.native_build`.
 from __future__ import annotations
 
 import ctypes
-import logging
 import os
 import shutil
 import sys
@@ -31,7 +30,14 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.native_build import KernelUnavailableError, build_cached, cache_dir, cached_name
+from drivers import native_build
+from drivers.native_build import (
+    KernelStatus,
+    KernelUnavailableError,
+    build_cached,
+    cache_dir,
+    cached_name,
+)
 
 SOURCE = Path(__file__).with_name("openloop_slide.c")
 KERNEL_ENV = "DDBENCH_OPENLOOP_KERNEL"
@@ -39,14 +45,6 @@ BUILD_TIMEOUT_S = 300.0  # a 2 s compile quiet; generous for a loaded machine
 # Same rounding as Python's float arithmetic and math.sin/cos: no fast-math, no FMA
 # contraction, no builtins (gcc fuses sin and cos of one argument into sincos otherwise).
 CFLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off", "-fno-fast-math", "-fno-builtin")
-
-
-def kernel_choice() -> str:
-    """``auto``, ``python`` or ``compiled`` from $DDBENCH_OPENLOOP_KERNEL; ValueError if not."""
-    choice = os.environ.get(KERNEL_ENV, "auto").strip().lower() or "auto"
-    if choice not in ("auto", "python", "compiled"):
-        raise ValueError(f"{KERNEL_ENV}={choice!r}: use auto, python or compiled")
-    return choice
 
 
 def build_command(output: Path) -> list[str]:
@@ -64,17 +62,21 @@ def library_path() -> Path:
 
 _LIBRARIES: dict[Path, ctypes.CDLL] = {}
 _PATHS: dict[tuple[str | None, str | None, str], Path] = {}
-_WARNED: set[str] = set()
+
+
+def _library() -> Path:
+    """:func:`library_path`, hashed once per toolchain and cache in a process (not once per
+    simulation: the diagnosis runs many)."""
+    toolchain = (os.environ.get("CC"), os.environ.get("PATH"), str(cache_dir()))
+    if toolchain not in _PATHS:
+        _PATHS[toolchain] = library_path()
+    return _PATHS[toolchain]
 
 
 def load() -> ctypes.CDLL:
     """The compiled library (built on first use), or KernelUnavailableError saying why not."""
-    # the path hashes the source: once per toolchain and cache in a process, not per simulation
-    toolchain = (os.environ.get("CC"), os.environ.get("PATH"), str(cache_dir()))
-    if toolchain not in _PATHS:
-        _PATHS[toolchain] = library_path()
     path = build_cached(
-        SOURCE, _PATHS[toolchain], build_command, BUILD_TIMEOUT_S, "the compiled open-loop step"
+        SOURCE, _library(), build_command, BUILD_TIMEOUT_S, "the compiled open-loop step"
     )
     if path not in _LIBRARIES:
         try:
@@ -92,21 +94,16 @@ def load() -> ctypes.CDLL:
     return _LIBRARIES[path]
 
 
-def kernel_status() -> tuple[str, str | None]:
-    """(``compiled`` or ``python``, why not compiled); ValueError when it is required
-    (``compiled``) and cannot be had. Warns once per process and reason."""
-    if kernel_choice() == "python":
-        return "python", f"{KERNEL_ENV}=python"
-    try:
-        load()
-        return "compiled", None
-    except KernelUnavailableError as exc:
-        if kernel_choice() == "compiled":
-            raise ValueError(f"{KERNEL_ENV}=compiled: {exc}") from None
-        if str(exc) not in _WARNED:
-            _WARNED.add(str(exc))
-            logging.getLogger(__name__).warning("compiled open-loop step unavailable: %s", exc)
-        return "python", str(exc)
+def kernel_status() -> KernelStatus:
+    """Which step the open-loop simulation runs, and why not compiled (one line); ValueError
+    when the compiled one is required (``compiled``) and cannot be had."""
+    return native_build.kernel_status(KERNEL_ENV, load, _library, "compiled open-loop step")
+
+
+def compiled() -> bool:
+    """Whether the simulation is to run the compiled step (:class:`Slider`): not when forced
+    to Python, nor when it cannot be had (one warning line, see :func:`kernel_status`)."""
+    return kernel_status().kernel == "compiled"
 
 
 class Slider:
@@ -119,7 +116,6 @@ class Slider:
 
     def __init__(
         self,
-        lib: ctypes.CDLL,
         rigid: tuple[float, ...],
         torques: np.ndarray,
         stretch: np.ndarray | None,
@@ -128,7 +124,7 @@ class Slider:
         sticky: tuple[bool, bool],
         bands: tuple[float, float, float, float],
     ) -> None:
-        self._fn = lib.ddb_openloop_slide
+        self._fn = load().ddb_openloop_slide
         # t1..t5 b1 b2 rot p2 p4 p5, the two levels (set per call), the four bands
         self._p = np.zeros(17)
         self._p[:11] = rigid
@@ -174,35 +170,10 @@ class Slider:
         return int(done), state, q_out[:done], dq_out[:done]
 
 
-def slider(
-    rigid: tuple[float, ...],
-    torques: np.ndarray,
-    stretch: np.ndarray | None,
-    n_sub: int,
-    dt_seg: float,
-    sticky: tuple[bool, bool],
-    bands: tuple[float, float, float, float],
-) -> Slider | None:
-    """A :class:`Slider` for this simulation, or None when the Python step is to run
-    (forced, or the compiled one cannot be had: one warning line, see :func:`kernel_status`)."""
-    if kernel_status()[0] != "compiled":
-        return None
-    return Slider(load(), rigid, torques, stretch, n_sub, dt_seg, sticky, bands)
-
-
 def main() -> int:
     """Build (or find) the compiled step and print which step the open-loop simulation runs;
     exit 0 either way (the Python step is a working fallback)."""
-    try:
-        kernel, reason = kernel_status()
-    except ValueError as exc:
-        print(f"hil: error: {exc}", file=sys.stderr)
-        return 2
-    if kernel == "compiled":
-        print(f"open-loop step: compiled ({library_path()})")
-    else:
-        print(f"open-loop step: python ({reason})")
-    return 0
+    return native_build.print_kernel_status("hil", "open-loop step", kernel_status)
 
 
 if __name__ == "__main__":

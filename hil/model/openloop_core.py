@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hil.model.compiled_openloop import slider
+from hil.model.compiled_openloop import Slider, compiled
 
 # Stick events that may occur within one sub-step; after that many (a degenerate, chattering
 # case: it happens with an actuator lag) the joints stay as they are for the rest of the sub-step,
@@ -480,8 +480,9 @@ def integrate_chunks(
     step = mode_step()
     # the rows on which the stick mode holds, compiled when it can be (the same bits; issue 13)
     fast = None
-    if type(path) is TorquePath and shaft_torque is None and type(friction) is Friction:
-        fast = slider(_rigid(theta), torques, stretch, n_sub, h / n_sub, sticky, (*pos, *neg))
+    plain = type(path) is TorquePath and shaft_torque is None and type(friction) is Friction
+    if plain and compiled():
+        fast = Slider(_rigid(theta), torques, stretch, n_sub, h / n_sub, sticky, (*pos, *neg))
     for first in range(0, n_rows, chunk):
         rows = min(chunk, n_rows - first)
         if whole is None:

@@ -99,7 +99,7 @@ def stages(run: Path) -> None:
     from hil.model.regressors import SCHEMES, iter_regression
 
     def line(name: str, start: float, n: int) -> None:
-        print(f"  {name:40s} {(time.process_time() - start) / n * 1e6:6.1f} µs CPU a row")
+        print(f"  {name:46s} {(time.process_time() - start) / n * 1e6:6.1f} µs CPU a row")
 
     start = time.process_time()
     rec = read_signals(run)
@@ -118,7 +118,7 @@ def stages(run: Path) -> None:
     dq0 = initial_velocity(rec)
     for kernel in ("compiled", "python"):  # hil.model.compiled_openloop's step, then Python's
         os.environ[KERNEL_ENV] = kernel
-        if kernel_status()[0] != kernel:
+        if kernel_status().kernel != kernel:
             continue  # no compiler: the Python step's line alone
         start = time.process_time()
         for _ in simulate_open_loop_chunks(robot_params("cicese").theta, tau[:100_000], h,
