@@ -24,7 +24,8 @@ arm follows that period, its state at t and t + 11π s a few encoder counts apar
 So copies of [25 s, 25 s + 11π s) meet with jumps of that size, and the file identifies like
 a long physical run (``--seconds`` must then be ≥ 60).
 
-The recording is kept in ``--dir`` (default: a temporary directory, removed at the end).
+The command's progress lines (every 30 s) pass through on stderr. The recording is kept in
+``--dir`` (default: a temporary directory, removed at the end).
 """
 
 from __future__ import annotations
@@ -63,16 +64,18 @@ def main() -> int:
         with open(run / "signals.csv") as f:
             rows = sum(1 for _ in f) - 1
         t0 = time.perf_counter()
+        # the command's progress lines pass through on stderr (a 700 MB run takes a while);
+        # time's figures go to a file, the JSON on stdout is not needed
+        measured = Path(tmp) / "time.txt"
         proc = subprocess.run(
-            ["/usr/bin/time", "-f", "%M %U %S", sys.executable, "-m", "hil.cli",
-             *command(args, run, tmp)],
-            capture_output=True, text=True, check=False,
+            ["/usr/bin/time", "-o", str(measured), "-f", "%M %U %S", sys.executable, "-m",
+             "hil.cli", *command(args, run, tmp)],
+            stdout=subprocess.DEVNULL, check=False,
         )  # fmt: skip
         seconds = time.perf_counter() - t0
         if proc.returncode != 0:
-            print(proc.stderr.strip(), file=sys.stderr)
             return 1
-        kb, user, system = proc.stderr.strip().splitlines()[-1].split()
+        kb, user, system = measured.read_text().strip().splitlines()[-1].split()
         peak, cpu = int(kb) * 1024, float(user) + float(system)
         size = (run / "signals.csv").stat().st_size
         print(
@@ -131,7 +134,8 @@ def command(args: argparse.Namespace, run: Path, tmp: str) -> list[str]:
     out = str(Path(args.dir or tmp) / args.command)
     if args.command == "diagnose":
         return ["diagnose", str(run), "--out", out, "--overwrite", "--no-plots", "--json"]
-    return ["identify", "--from", str(run), "--out", out, "--overwrite", "--no-plot", "--json"]
+    return ["identify", "--from", str(run), "--out", out, "--overwrite", "--no-plot", "--json",
+            "--progress-every", "30"]  # fmt: skip
 
 
 # A stretch of whole excitation periods (11π s) once the arm has settled (from 25 s): see the
