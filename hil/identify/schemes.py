@@ -306,7 +306,8 @@ def validate_many(
                 recorded = q[first : first + len(c.q)]
                 position[i].add(recorded, c.q)
                 worst[i] = np.maximum(worst[i], np.max(np.abs(recorded - c.q), axis=0))
-                shown[i].append(c.q[(-first) % every :: every])
+                # a copy: a view would keep the whole chunk alive until the end (1 MB a chunk)
+                shown[i].append(c.q[(-first) % every :: every].copy())
                 first += len(c.q)
                 report(f"{stages[i]}: open-loop simulation", first, n)
         if b - a < MIN_SEGMENT_ROWS:
