@@ -13,6 +13,8 @@ $(STAMP): pyproject.toml
 	# the n-joint plant's compiled RK4 step, built once into the cache (about 20 s of CPU);
 	# never fails setup: without it the plant runs its Python step and says why
 	timeout 900 $(BIN)/python -m virtual_robot.compiled_step || true
+	# the host's compiled open-loop sub-step (about 1 s); the same: Python step without it
+	timeout 300 $(BIN)/python -m hil.model.compiled_openloop || true
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -8,10 +8,10 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import stat
 
 import numpy as np
 import pytest
+from fake_compiler import failing_compiler
 
 from profiles.robot import load_urdf_robot
 from virtual_robot.cli import main as vr_main
@@ -123,13 +123,9 @@ def test_broken_build_falls_back_in_one_line(tmp_path, capsys, monkeypatch):
     """A compiler that fails, and none at all: the plant runs its Python step, `simulate`
     says why in one line and exits 0; the failure is remembered (the compiler is not run
     again for the same source); with DDBENCH_PLANT_KERNEL=compiled it is a one-line error."""
-    calls = tmp_path / "calls"
-    broken = tmp_path / "broken-c++"
-    broken.write_text(
-        f'#!/bin/sh\necho run >> "{calls}"\n'
-        'echo "rk4_aba.cpp:1:10: fatal error: Eigen/Core: No such file" >&2\nexit 1\n'
+    broken, calls = failing_compiler(
+        tmp_path, "rk4_aba.cpp:1:10: fatal error: Eigen/Core: No such file"
     )
-    broken.chmod(broken.stat().st_mode | stat.S_IXUSR)
     monkeypatch.setenv(CACHE_ENV, str(tmp_path / "cache"))
     monkeypatch.setenv("CXX", str(broken))
     monkeypatch.delenv(KERNEL_ENV, raising=False)

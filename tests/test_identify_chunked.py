@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from drivers.recording import read_signals
-from hil.identify.schemes import identify, validate
+from hil.identify.schemes import identify, validate, validate_many
 from hil.model.estimators import (
     LeastSquaresRows,
     RecursiveLeastSquares,
@@ -157,6 +157,24 @@ def test_validation_in_chunks_equals_all_at_once(rec) -> None:
     pieces = list(simulate_open_loop_chunks(theta, rec.tau, rec.period_s, q0=rec.q[0], chunk=97))
     np.testing.assert_array_equal(np.concatenate([c.q for c in pieces]), sim.q)
     assert pieces[-1].substeps == sim.substeps
+
+
+def test_validation_of_several_thetas_shares_the_rows_and_changes_no_bit(rec) -> None:
+    """`hil identify` validates every scheme's θ and the profile's in one call: the torque rows
+    built once for all, each θ's simulation its own; every number as validate() gives it for
+    that θ alone, bit for bit, chunked or not (and the θ do differ in their results)."""
+    fits = identify(rec.q, rec.tau, rec.period_s, chunk=256)
+    thetas = [fits[s].theta for s in SCHEMES] + [robot_params("cicese").theta]
+    for chunk in (97, WHOLE):
+        together = validate_many(thetas, rec, chunk=chunk, stages=list("abcd"))
+        for theta, shared in zip(thetas, together, strict=True):
+            alone = validate(theta, rec, chunk=chunk)
+            assert shared.keys() == alone.keys()
+            for key, value in alone.items():
+                assert np.asarray(shared[key]).tobytes() == np.asarray(value).tobytes(), key
+        assert len({tuple(v["torque_nrmse"]) for v in together}) == len(thetas)
+    with pytest.raises(ValueError, match="stage names"):
+        validate_many(thetas, rec, stages=["only one"])
 
 
 def test_validation_plot_points_are_bounded(rec, monkeypatch) -> None:

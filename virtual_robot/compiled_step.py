@@ -5,40 +5,44 @@ calls for the RK4 substeps of a control period in one stick mode.
 
 The shared library is built once per source and toolchain, lazily on first use (or by
 ``make`` setup: ``python -m virtual_robot.compiled_step``), into a cache directory
-(``$DDBENCH_KERNEL_CACHE``, else ``$XDG_CACHE_HOME/ddbench``, else ``~/.cache/ddbench``) under a
-name keyed by the hash of the source, the compiler, its flags and the Pinocchio version (a
-cached library is used even when the compiler is gone later), under a file lock so
-concurrent processes build it once; a compile is bounded by :data:`BUILD_TIMEOUT_S`. When
-the compiler or the headers are missing or the build fails, the plant runs the Python step and
+(:func:`drivers.native_build.cache_dir`) under a name keyed by the hash of the source, the
+compiler, its flags and the Pinocchio version (a cached library is used even when the compiler
+is gone later), under a file lock so concurrent processes build it once; a compile is bounded
+by :data:`BUILD_TIMEOUT_S` (all of it :func:`drivers.native_build.build_cached`). When the
+compiler or the headers are missing or the build fails, the plant runs the Python step and
 says so in one line (:func:`kernel_status`); a failed compile is remembered beside the library
 so later runs do not retry it.
 
 ``DDBENCH_PLANT_KERNEL`` chooses: ``auto`` (default: compiled when it builds), ``python``
 (always the Python step), ``compiled`` (refuse to run without it).
 
-Imports only the standard library, numpy and pinocchio (for its install prefix); nothing of
-this project.
+Imports the standard library, numpy, pinocchio (for its install prefix) and
+:mod:`drivers.native_build` (the build cache it shares with the host's compiled open-loop step).
 """
 
 from __future__ import annotations
 
 import ctypes
-import fcntl
-import hashlib
-import logging
 import os
 import shutil
-import subprocess
 import sys
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from drivers import native_build
+from drivers.native_build import CACHE_ENV as CACHE_ENV  # re-exported for its callers
+from drivers.native_build import (
+    ERROR_CHARS,
+    KernelUnavailableError,
+    build_cached,
+    cached_name,
+)
+from drivers.native_build import KernelStatus as KernelStatus  # re-exported: urdf_plant
+
 SOURCE = Path(__file__).with_name("rk4_aba.cpp")
 KERNEL_ENV = "DDBENCH_PLANT_KERNEL"
-CACHE_ENV = "DDBENCH_KERNEL_CACHE"
 # 20 s of CPU quiet, 80 s wall at load 13 on the shared 2-core VM: a generous bound
 BUILD_TIMEOUT_S = 600.0
 # The compile flags. No -ffast-math and no FMA contraction: the kernel must round exactly as
@@ -57,34 +61,6 @@ DEFINES = (
     "PINOCCHIO_URDFDOM_HEADERS_MINOR_VERSION=0",
     "PINOCCHIO_URDFDOM_HEADERS_PATCH_VERSION=0",
 )
-ERROR_CHARS = 512
-
-
-class KernelUnavailableError(RuntimeError):
-    """The compiled step cannot be had; the message is one line saying why."""
-
-
-@dataclass(frozen=True)
-class KernelStatus:
-    """Which step the plant runs: ``compiled`` or ``python``, and why not compiled (one line)."""
-
-    kernel: str
-    reason: str | None = None
-    library: str | None = None
-
-
-def kernel_choice() -> str:
-    choice = os.environ.get(KERNEL_ENV, "auto").strip().lower() or "auto"
-    if choice not in ("auto", "python", "compiled"):
-        raise ValueError(f"{KERNEL_ENV}={choice!r}: use auto, python or compiled")
-    return choice
-
-
-def cache_dir() -> Path:
-    if os.environ.get(CACHE_ENV):
-        return Path(os.environ[CACHE_ENV])
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "ddbench"
 
 
 def pinocchio_prefix() -> Path:
@@ -145,64 +121,17 @@ def library_path() -> Path:
     """Where the library of this source and toolchain is (or will be) cached."""
     import pinocchio
 
-    key = hashlib.sha256(SOURCE.read_bytes())
-    placeholder = Path("OUT")
-    for part in (*_compile_command(placeholder), pinocchio.__version__, sys.platform):
-        key.update(part.encode() + b"\0")
-    return cache_dir() / f"rk4_aba-{key.hexdigest()[:16]}.so"
-
-
-def _first_error(stderr: str) -> str:
-    lines = [line.strip() for line in stderr.splitlines() if line.strip()]
-    picked = next((line for line in lines if "error" in line), lines[0] if lines else "")
-    return picked[:ERROR_CHARS]
-
-
-def _remembered(failed: Path) -> KernelUnavailableError:
-    return KernelUnavailableError(f"{failed.read_text().strip()} (remembered in {failed})")
+    parts = (*_compile_command(Path("OUT")), pinocchio.__version__, sys.platform)
+    return cached_name(SOURCE, parts)
 
 
 def build(timeout_s: float = BUILD_TIMEOUT_S) -> Path:
     """The compiled library, built if not cached; KernelUnavailableError (one line) if not."""
-    target = library_path()
-    failed = target.with_suffix(".err")
-    if target.exists():
-        return target
-    if failed.exists():
-        raise _remembered(failed)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    with open(target.with_suffix(".lock"), "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)  # another process may be building it: wait for it
-        if target.exists():
-            return target
-        if failed.exists():
-            raise _remembered(failed)
-        partial = target.with_suffix(f".{os.getpid()}.tmp")
-        command = build_command(partial)
-        logging.getLogger(__name__).warning(
-            "building the compiled plant step once into %s (about 20 s of CPU)", target.parent
-        )
-        try:
-            done = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            partial.unlink(missing_ok=True)
-            # not remembered: a loaded machine may finish it next time
-            raise KernelUnavailableError(
-                f"compiling {SOURCE.name} took over {timeout_s:g} s"
-            ) from None
-        except OSError as exc:
-            raise KernelUnavailableError(f"{command[0]}: {exc}") from None
-        if done.returncode != 0:
-            partial.unlink(missing_ok=True)
-            message = f"{command[0]} failed on {SOURCE.name}: {_first_error(done.stderr)}"
-            failed.write_text(message + "\n")
-            raise KernelUnavailableError(message)
-        os.replace(partial, target)
-    return target
+    what = "the compiled plant step (about 20 s of CPU)"
+    return build_cached(SOURCE, library_path(), build_command, timeout_s, what)
 
 
 _LIBRARIES: dict[Path, ctypes.CDLL] = {}
-_WARNED: set[str] = set()
 
 
 def load() -> ctypes.CDLL:
@@ -235,18 +164,7 @@ def load() -> ctypes.CDLL:
 
 def kernel_status() -> KernelStatus:
     """Which step an n-joint plant made now would run, and why not compiled (one line)."""
-    if kernel_choice() == "python":
-        return KernelStatus("python", f"{KERNEL_ENV}=python")
-    try:
-        load()
-        return KernelStatus("compiled", library=str(library_path()))
-    except KernelUnavailableError as exc:
-        if kernel_choice() == "compiled":
-            raise ValueError(f"{KERNEL_ENV}=compiled: {exc}") from None
-        if str(exc) not in _WARNED:  # once per process and reason, one line
-            _WARNED.add(str(exc))
-            logging.getLogger(__name__).warning("compiled plant step unavailable: %s", exc)
-        return KernelStatus("python", str(exc))
+    return native_build.kernel_status(KERNEL_ENV, load, library_path, "compiled plant step")
 
 
 # ddb_advance's outcomes
@@ -421,16 +339,7 @@ class CompiledArm:
 def main() -> int:
     """Build (or find) the compiled step and print one line saying which step the plant runs;
     exit 0 either way (the Python step is a working fallback)."""
-    try:
-        status = kernel_status()
-    except ValueError as exc:
-        print(f"virtual-robot: error: {exc}", file=sys.stderr)
-        return 2
-    if status.kernel == "compiled":
-        print(f"plant step: compiled ({status.library})")
-    else:
-        print(f"plant step: python ({status.reason})")
-    return 0
+    return native_build.print_kernel_status("virtual-robot", "plant step", kernel_status)
 
 
 if __name__ == "__main__":

@@ -46,7 +46,7 @@ from hil.identify.schemes import (
     identify,
     irregular_times,
     table_ii_rows,
-    validate,
+    validate_many,
 )
 from hil.model.closed_form import TERMS, THETA_NAMES, ArmModel
 from hil.model.params import robot_params, save_params
@@ -215,24 +215,25 @@ def _scheme_json(res: SchemeResult, reference: np.ndarray, validation: dict) -> 
 
 
 def _validations(
-    theta: np.ndarray,
-    who: str,
+    thetas: dict[str, np.ndarray],
     recordings: dict[str, Recording],
     lam: float,
     progress: StageProgress,
-) -> dict[str, dict[str, Any]]:
-    """:func:`validate` of θ on each named recording (fit, held_out), its progress told as
-    ``<who>: validation on <name>``."""
-    return {
-        name: validate(
-            theta,
-            rec,
-            lam=lam,
-            progress=progress,
-            stage=f"{who}: validation on {name.replace('_', '-')}",
-        )
-        for name, rec in recordings.items()
-    }
+) -> dict[str, dict[str, dict[str, Any]]]:
+    """:func:`validate_many` of every named θ (``who`` → θ) on each named recording (fit,
+    held_out), its torque rows built once per recording: ``who`` → recording → validation.
+    Progress told as ``<who>: validation on <name>: open-loop simulation`` and ``validation
+    on <name>: torque prediction``."""
+    out: dict[str, dict[str, dict[str, Any]]] = {who: {} for who in thetas}
+    for name, rec in recordings.items():
+        on = f"validation on {name.replace('_', '-')}"
+        results = validate_many(
+            list(thetas.values()), rec, lam=lam, progress=progress,
+            stages=[f"{who}: {on}" for who in thetas], stage=on,
+        )  # fmt: skip
+        for who, result in zip(thetas, results, strict=True):
+            out[who][name] = result
+    return out
 
 
 def main(args: argparse.Namespace) -> int:
@@ -366,21 +367,6 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
                 ),
             },
         }
-        for scheme, res in results.items():
-            validation = _validations(res.theta, scheme, recordings, args.lam, progress)
-            entry["schemes"][scheme] = _scheme_json(res, reference.theta, validation)
-            if not args.no_plot:
-                from hil.identify.plots import plot_estimates, plot_validation
-
-                p1 = plot_estimates(res, reference.theta, out / f"theta-{disc}-{scheme}.png")
-                panels = [
-                    (name, rec, validation[name]["simulated_rows"],
-                     validation[name]["simulated_q"], validation[name]["position_nrmse"])
-                    for name, rec in (("fit", fit), ("held_out", held_out))
-                    if rec is not None
-                ]  # fmt: skip
-                p2 = plot_validation(scheme, disc, panels, out / f"validation-{disc}-{scheme}.png")
-                report["plots"] += [str(p1), str(p2)]
         report["discretizations"][disc] = entry
         texts.append(
             format_table_ii(
@@ -391,9 +377,34 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             )
         )
 
-    profile_validation = _validations(
-        reference.theta, f"{robot} profile", recordings, args.lam, progress
-    )
+    # every θ (each discretization's schemes, then the profile's) validated together: the
+    # torque rows of a recording are built once for all of them (issue 13)
+    who = {
+        (disc, scheme): scheme if len(discretizations) == 1 else f"{disc} {scheme}"
+        for disc in discretizations
+        for scheme in all_results[disc]
+    }
+    thetas = {who[key]: all_results[key[0]][key[1]].theta for key in who}
+    thetas[f"{robot} profile"] = reference.theta
+    validations = _validations(thetas, recordings, args.lam, progress)
+    for (disc, scheme), label in who.items():
+        res, validation = all_results[disc][scheme], validations[label]
+        report["discretizations"][disc]["schemes"][scheme] = _scheme_json(
+            res, reference.theta, validation
+        )
+        if not args.no_plot:
+            from hil.identify.plots import plot_estimates, plot_validation
+
+            p1 = plot_estimates(res, reference.theta, out / f"theta-{disc}-{scheme}.png")
+            panels = [
+                (name, rec, validation[name]["simulated_rows"],
+                 validation[name]["simulated_q"], validation[name]["position_nrmse"])
+                for name, rec in (("fit", fit), ("held_out", held_out))
+                if rec is not None
+            ]  # fmt: skip
+            p2 = plot_validation(scheme, disc, panels, out / f"validation-{disc}-{scheme}.png")
+            report["plots"] += [str(p1), str(p2)]
+    profile_validation = validations[f"{robot} profile"]
     report["profile_validation"] = {
         name: {k: v for k, v in val.items() if k not in PLOT_ONLY}
         for name, val in profile_validation.items()

@@ -14,7 +14,8 @@ With the identity path, plain Coulomb friction and no shaft torque this is the r
 :func:`hil.model.openloop.simulate_open_loop`; every effect enters through these three, so the
 stick–slip and event logic exists once. Also the input checks both modules share.
 
-Imports: numpy only, nothing from ``hil``: :mod:`hil.model.openloop_effects` and
+Imports: numpy and :mod:`hil.model.compiled_openloop` (the compiled sub-steps of the rows on
+which a 2-DOF stick mode holds, the same bits as the Python ones); :mod:`hil.model.openloop_effects` and
 :mod:`hil.model.openloop` build on this module.
 """
 
@@ -26,6 +27,8 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
+
+from hil.model.compiled_openloop import Slider, compiled
 
 # Stick events that may occur within one sub-step; after that many (a degenerate, chattering
 # case: it happens with an actuator lag) the joints stay as they are for the rest of the sub-step,
@@ -558,6 +561,17 @@ def integrate_chunks(
     # a row-local path's commands are each period's own row: scheduled chunk by chunk
     whole = None if path.row_local else path.schedule(torques, h, n_sub)
     step = mode_step()
+    # the rows on which the stick mode holds, compiled when it can be (the same bits; issue 13)
+    fast = None
+    plain = (
+        type(arm) is ClosedFormArm
+        and arm.shaft_torque is None
+        and type(path) is TorquePath
+        and type(friction) is Friction
+    )
+    if plain and compiled():
+        theta = arm.theta
+        fast = Slider(_rigid(theta), torques, stretch, n_sub, h / n_sub, sticky, (*pos, *neg))
     for first in range(0, n_rows, chunk):
         rows = min(chunk, n_rows - first)
         if whole is None:
@@ -569,7 +583,24 @@ def integrate_chunks(
         q_out = [state[:n]] * rows
         dq_out = [state[n:]] * rows
         stuck_out = [tuple(stuck)] * rows
-        for k in range(rows):
+        k = 0
+        while k < rows:
+            if fast is not None and first + k < n_rows - 1:
+                levels = (friction.level(0, direction[0]), friction.level(1, direction[1]))
+                mode = (stuck[0], stuck[1])
+                span = min(rows, n_rows - 1 - first) - k  # the last row is never stepped
+                done, state, q_fast, dq_fast = fast.run(
+                    first + k, span, state, mode, levels, (direction[0], direction[1])
+                )
+                # rows k..k + done − 1 taken; in the one it stopped before the mode changes (a
+                # break-away or a sign change) and the loop below takes it again with its events
+                q_out[k : k + done] = q_fast.tolist()
+                dq_out[k : k + done] = dq_fast.tolist()
+                stuck_out[k : k + done] = [mode] * done
+                substeps += done * n_sub
+                k += done
+                if k == rows:
+                    break
             q_out[k] = state[:n]
             dq_out[k] = state[n:]
             stuck_out[k] = tuple(stuck)
@@ -636,6 +667,7 @@ def integrate_chunks(
                     remaining -= s
                     if remaining <= 1e-15 * dt_seg:
                         break
+            k += 1
         yield OpenLoopResult(
             t=np.arange(first, first + rows) * h if times is None else times[first : first + rows],
             q=np.array(q_out, dtype=float),

@@ -12,7 +12,8 @@ the bytes per recording row, the wall time and the CPU time (user + system) per 
 
 ``--stages``: also the CPU time of each stage per row, in this process on the same file
 (reading; each scheme's rows built once; each scheme's RLS over them; one validation's
-open-loop simulation): where a long recording's time goes.
+open-loop simulation, with the compiled sub-step and with the Python one): where a long
+recording's time goes.
 
 ``--tile-mb MB`` makes a long file quickly (simulating 700 MB, 10 M rows, outright takes the
 better part of an hour): one settled stretch of the simulated run repeated until signals.csv
@@ -23,13 +24,15 @@ arm follows that period, its state at t and t + 11π s a few encoder counts apar
 So copies of [25 s, 25 s + 11π s) meet with jumps of that size, and the file identifies like
 a long physical run (``--seconds`` must then be ≥ 60).
 
-The recording is kept in ``--dir`` (default: a temporary directory, removed at the end).
+The command's progress lines (every 30 s) pass through on stderr. The recording is kept in
+``--dir`` (default: a temporary directory, removed at the end).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -61,16 +64,18 @@ def main() -> int:
         with open(run / "signals.csv") as f:
             rows = sum(1 for _ in f) - 1
         t0 = time.perf_counter()
+        # the command's progress lines pass through on stderr (a 700 MB run takes a while);
+        # time's figures go to a file, the JSON on stdout is not needed
+        measured = Path(tmp) / "time.txt"
         proc = subprocess.run(
-            ["/usr/bin/time", "-f", "%M %U %S", sys.executable, "-m", "hil.cli",
-             *command(args, run, tmp)],
-            capture_output=True, text=True, check=False,
+            ["/usr/bin/time", "-o", str(measured), "-f", "%M %U %S", sys.executable, "-m",
+             "hil.cli", *command(args, run, tmp)],
+            stdout=subprocess.DEVNULL, check=False,
         )  # fmt: skip
         seconds = time.perf_counter() - t0
         if proc.returncode != 0:
-            print(proc.stderr.strip(), file=sys.stderr)
             return 1
-        kb, user, system = proc.stderr.strip().splitlines()[-1].split()
+        kb, user, system = measured.read_text().strip().splitlines()[-1].split()
         peak, cpu = int(kb) * 1024, float(user) + float(system)
         size = (run / "signals.csv").stat().st_size
         print(
@@ -90,13 +95,14 @@ def stages(run: Path) -> None:
     """CPU time per row of each stage of `hil identify --from run` (see the module doc)."""
     from drivers.recording import read_signals
     from hil.identify.schemes import initial_velocity
+    from hil.model.compiled_openloop import KERNEL_ENV, kernel_status
     from hil.model.estimators import RecursiveLeastSquaresRows
     from hil.model.openloop import simulate_open_loop_chunks
     from hil.model.params import robot_params
     from hil.model.regressors import SCHEMES, iter_regression
 
     def line(name: str, start: float, n: int) -> None:
-        print(f"  {name:40s} {(time.process_time() - start) / n * 1e6:6.1f} µs CPU a row")
+        print(f"  {name:46s} {(time.process_time() - start) / n * 1e6:6.1f} µs CPU a row")
 
     start = time.process_time()
     rec = read_signals(run)
@@ -112,19 +118,24 @@ def stages(run: Path) -> None:
         for c in chunks:
             rls.add(c.Psi, c.y, c.weights)
         line(f"{scheme}: recursive least squares", start, n)
-    start = time.process_time()
     dq0 = initial_velocity(rec)
-    for _ in simulate_open_loop_chunks(robot_params("cicese").theta, tau[:100_000], h,
-                                       q0=q[0], dq0=dq0):  # fmt: skip
-        pass
-    line("validation: open-loop simulation", start, min(len(q), 100_000))
+    for kernel in ("compiled", "python"):  # hil.model.compiled_openloop's step, then Python's
+        os.environ[KERNEL_ENV] = kernel
+        if kernel_status().kernel != kernel:
+            continue  # no compiler: the Python step's line alone
+        start = time.process_time()
+        for _ in simulate_open_loop_chunks(robot_params("cicese").theta, tau[:100_000], h,
+                                           q0=q[0], dq0=dq0):  # fmt: skip
+            pass
+        line(f"validation: open-loop simulation ({kernel})", start, min(len(q), 100_000))
 
 
 def command(args: argparse.Namespace, run: Path, tmp: str) -> list[str]:
     out = str(Path(args.dir or tmp) / args.command)
     if args.command == "diagnose":
         return ["diagnose", str(run), "--out", out, "--overwrite", "--no-plots", "--json"]
-    return ["identify", "--from", str(run), "--out", out, "--overwrite", "--no-plot", "--json"]
+    return ["identify", "--from", str(run), "--out", out, "--overwrite", "--no-plot", "--json",
+            "--progress-every", "30"]  # fmt: skip
 
 
 # A stretch of whole excitation periods (11π s) once the arm has settled (from 25 s): see the
