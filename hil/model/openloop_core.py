@@ -15,8 +15,8 @@ With the identity path, plain Coulomb friction and no shaft torque this is the r
 stick–slip and event logic exists once. Also the input checks both modules share.
 
 Imports: numpy and :mod:`hil.model.compiled_openloop` (the compiled sub-steps of the rows on
-which a 2-DOF stick mode holds, the same bits as the Python ones); :mod:`hil.model.openloop_effects` and
-:mod:`hil.model.openloop` build on this module.
+which a 2-DOF stick mode holds, the same bits as the Python ones);
+:mod:`hil.model.openloop_effects` and :mod:`hil.model.openloop` build on this module.
 """
 
 from __future__ import annotations
