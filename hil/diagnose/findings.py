@@ -52,6 +52,8 @@ def coulomb_column(model: Any, joint: int) -> int:
 # How far apart two gain hypotheses' rigid-body parameters must be from the reference (ratio of
 # their relative deviations) before the reference decides between them.
 GAIN_REFERENCE_RATIO = 1.5
+# The key of a torque gain's estimate read with the rigid-body parameters at the reference.
+AT_REFERENCE = "relative_at_reference_theta"
 
 
 @dataclass

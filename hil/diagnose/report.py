@@ -29,6 +29,7 @@ from hil.diagnose.columns import (
     stribeck_shape,
 )
 from hil.diagnose.findings import (
+    AT_REFERENCE,
     Finding,
     _r,
     classify_rate,
@@ -57,6 +58,7 @@ from hil.diagnose.selection import (
     physical_theta,
     refused_candidates,
     relinearise_angle,
+    rigid_count,
     select,
     term_width,
     usable_speeds,
@@ -417,7 +419,7 @@ def simulated_effects(findings: Sequence[Finding], n_joints: int) -> SimulatedEf
         if f.effect == "torque_offset":
             fx.offset[j] = e["offset_Nm"]
         elif f.effect == "torque_gain" and not f.confounded_with:
-            fx.gain[j] = e["relative"]
+            fx.gain[j] = e[e.get("reading", "relative")]  # the reading reported (gain_reading)
         elif f.effect == "actuator_lag":
             fx.lag[j] = max(0.0, e["time_constant_s"])
         elif f.effect == "transport_delay" and not f.confounded_with:
@@ -677,6 +679,7 @@ def before_after(
     friction_se: np.ndarray | None = None,
     shaft: np.ndarray | None = None,
     sensitivity: bool = False,
+    rigid_reference: np.ndarray | None = None,
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Torque NRMSE and open-loop position NRMSE per joint on held-out data, nominal model
     (``nominal_theta`` when given, else fitted on the training part) and with the accepted terms.
@@ -685,7 +688,9 @@ def before_after(
     of a found lag or delay; the refit then explains them instead of carrying the first-order
     rate columns, so θ is the one the simulation with that lag or delay needs.
     ``sensitivity``: also the arrays' ``position_sensitivity`` (:func:`simulation_sensitivity`)
-    of the model with the accepted terms."""
+    of the model with the accepted terms. ``rigid_reference``: the rigid-body parameters
+    (θ1..θ5) the refit with the accepted terms holds fixed, the rest fitted: the model of a
+    torque gain read at the reference (:func:`gain_reading`)."""
     train, test, spans = _masks(prob)
     if shaft is not None:
         accepted = [a for a in accepted if a.cand.kind != "rate"]
@@ -699,7 +704,15 @@ def before_after(
     target = prob.y if shaft is None else shaft / prob.scale
     # the design is weighted in place by the fit and built again for the prediction: on a long
     # recording a (K, 2, p) copy fewer at the memory peak
-    beta = fit_theta(_design(prob, cols), target, w_train, overwrite_design=True)
+    if rigid_reference is None:
+        beta = fit_theta(_design(prob, cols), target, w_train, overwrite_design=True)
+    else:
+        # hil.diagnose.findings.gain_at_reference's fit, on the training part
+        n = len(rigid_reference)
+        Z = _design(prob, cols)
+        rest = target - Z[:, :, :n] @ rigid_reference
+        beta = np.concatenate([rigid_reference, fit_theta(Z[:, :, n:], rest, w_train, True)])
+        del Z
     Z = _design(prob, cols)
     y = prob.y_raw
     pred0 = prob.Psi_raw @ theta0
@@ -821,11 +834,19 @@ def _phrase(f: Finding) -> str:
     if "offset_rad" in e:
         e["deg"] = f"{math.degrees(e['offset_rad']):+.3g}"
     if "relative" in e:
-        e["pct"] = f"{100 * e['relative']:+.3g}"
+        e["pct"] = f"{100 * e[e.get('reading', 'relative')]:+.3g}"
     if "share_of_M22" in e:
         e["share"] = f"{100 * e['share_of_M22']:.3g}"
     words = _WORDS[f.effect].format(**e)
-    if e.get("relative_at_reference_theta") is not None:
+    if e.get("reading") == AT_REFERENCE:
+        # docs/diagnosis.md 4a: the θ-free reading failed the simulation gate, this one passed
+        words += (
+            " (read with the rigid-body parameters (θ1..θ5 of the 2-DOF arm) held at the "
+            f"reference; with θ free the estimate is {100 * e['relative']:+.3g} %, biased toward "
+            "zero because a free θ absorbs part of the gain (most on closed-loop data), and that "
+            f"reading {f.evidence.get('theta_free_reading', 'failed the simulation gate')})"
+        )
+    elif e.get("relative_at_reference_theta") is not None:
         # docs/diagnosis.md 4a: a free θ absorbs part of a gain (most in closed loop)
         words += (
             f" ({100 * e['relative_at_reference_theta']:+.3g} % with the rigid-body parameters "
@@ -1108,6 +1129,43 @@ def _own_gain(fit: dict[str, Any], fit_wo: dict[str, Any], joints: list[int], na
     return sum(b - a for b, a in pairs if None not in (a, b))
 
 
+def pinned_rigid_body(
+    prob: Problem, findings: Sequence[Finding], reference: np.ndarray | None
+) -> np.ndarray | None:
+    """θ1..θ5 of ``reference`` when a torque gain among ``findings`` is read with them held
+    there (:func:`hil.diagnose.findings.gain_reading`): the model the held-out refit and
+    simulation of that reading are; None otherwise (θ free)."""
+    if reference is None or not any(
+        f.effect == "torque_gain" and f.estimate.get("reading") == AT_REFERENCE for f in findings
+    ):
+        return None
+    return np.asarray(reference, float)[: rigid_count(prob.model)]
+
+
+def _read_at_reference(findings: Sequence[Finding], term: str, reference: Any) -> bool:
+    """Is ``term`` a torque gain read with θ free that has a reading at the reference?"""
+    gains = [f for f in findings if f.term == term and f.effect == "torque_gain"]
+    return (
+        reference is not None
+        and bool(gains)
+        and all(f.estimate.get(AT_REFERENCE) is not None for f in gains)
+        and not any(f.estimate.get("reading") == AT_REFERENCE for f in gains)
+    )
+
+
+def _free_reading_failed(findings: Sequence[Finding], term: str) -> str:
+    """The words for a gain that failed both readings: what its θ-free reading did first."""
+    f = next((f for f in findings if f.term == term and "theta_free_reading" in f.evidence), None)
+    if f is None:
+        return ""
+    e = f.estimate
+    return (
+        f"not identifiable from these data: read with θ free ({100 * e['relative']:+.3g} %) it "
+        f"{f.evidence['theta_free_reading']}; read with the rigid-body parameters at the reference "
+        f"({100 * e[AT_REFERENCE]:+.3g} %) it "
+    )
+
+
 def simulation_gate(
     prob: Problem,
     accepted: list[Accepted],
@@ -1116,6 +1174,7 @@ def simulation_gate(
     say: Callable[[str], None],
     se: np.ndarray | None = None,
     shaft: np.ndarray | None = None,
+    reference: np.ndarray | None = None,
 ) -> tuple[list[Accepted], list[Finding], dict[str, str], np.ndarray | None]:
     """A finding must improve the held-out simulated motion too, or it is not one: every term
     is taken out in turn and the held-out open-loop simulation rerun; a term without which the
@@ -1128,7 +1187,15 @@ def simulation_gate(
     dropped: dict[str, str] = {}
     while accepted:
         fit, arrays = before_after(
-            prob, accepted, findings, nominal_theta, False, se, shaft, sensitivity=True
+            prob,
+            accepted,
+            findings,
+            nominal_theta,
+            False,
+            se,
+            shaft,
+            sensitivity=True,
+            rigid_reference=pinned_rigid_body(prob, findings, reference),
         )
         with_all = fit["after"]["position_nrmse"]
         noise = arrays["simulation"].get("position_sensitivity") or [0.0] * len(with_all)
@@ -1162,14 +1229,16 @@ def simulation_gate(
                 for a in accepted
                 if a.cand.key != term and not (term == "rate" and a.cand.kind == "rate")
             ]
+            rest = [f for f in findings if f.term != term]
             fit_wo, _ = before_after(
                 prob,
                 keep,
-                [f for f in findings if f.term != term],
+                rest,
                 nominal_theta,
                 False,
                 se,
                 None if term == "rate" else shaft,
+                rigid_reference=pinned_rigid_body(prob, rest, reference),
             )
             joints = _term_joints(prob, accepted, term)
             # the held-out torque first: a term whose refit predicts it no better is no finding
@@ -1240,8 +1309,24 @@ def simulation_gate(
                 )
         if worst is None:
             break
+        if _read_at_reference(findings, worst, reference):
+            # docs/diagnosis.md 4a: with θ free a gain is biased toward zero (in closed loop θ
+            # absorbs most of it); judged once more read with θ1..θ5 at the reference, against
+            # the same free model without it, before it is dropped
+            say(f"diagnose: {worst} with θ free {worst_text}; judging it at the reference θ")
+            findings = [
+                replace(
+                    f,
+                    estimate={**f.estimate, "reading": AT_REFERENCE},
+                    evidence={**f.evidence, "theta_free_reading": worst_text},
+                )
+                if f.term == worst
+                else f
+                for f in findings
+            ]
+            continue
         say(f"diagnose: dropped {worst}: {worst_text}")
-        dropped[worst] = worst_text
+        dropped[worst] = _free_reading_failed(findings, worst) + worst_text
         accepted = [
             a
             for a in accepted
@@ -1431,13 +1516,19 @@ def diagnose(
         findings, confounded, shaft = interpret(prob, accepted, library, reference_theta)
         findings += unexplained(prob, accepted, shaft)
         accepted, findings, dropped, shaft = simulation_gate(
-            prob, accepted, findings, nominal_theta, say, nominal_se, shaft
+            prob, accepted, findings, nominal_theta, say, nominal_se, shaft, reference_theta
         )
         rejected.update(dropped)
         kept = {f.effect for f in findings}
         confounded = [pair for pair in confounded if set(pair) <= kept]
     fit, fit_arrays = before_after(
-        prob, accepted, findings, nominal_theta, friction_se=nominal_se, shaft=shaft
+        prob,
+        accepted,
+        findings,
+        nominal_theta,
+        friction_se=nominal_se,
+        shaft=shaft,
+        rigid_reference=pinned_rigid_body(prob, findings, reference_theta),
     )
     refused = refused_candidates(model)
     notes = (
