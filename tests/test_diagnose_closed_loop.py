@@ -12,14 +12,18 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
 from drivers.recording import read_signals
-from hil.diagnose.findings import AT_REFERENCE, gain_at_reference
-from hil.diagnose.report import diagnose
+from hil.diagnose import report
+from hil.diagnose.findings import AT_REFERENCE, Finding, gain_at_reference
+from hil.diagnose.report import _phrase, diagnose, simulated_effects
 from hil.diagnose.selection import build_problem
+from hil.model.closed_form import ArmModel
 from hil.model.params import robot_params
 
 REFERENCE = robot_params("cicese").theta
@@ -117,3 +121,33 @@ def test_closed_loop_gain_on_joint_1_with_a_wrong_reference_is_not_identifiable(
     assert why.startswith("not identifiable from these data"), why
     assert "read with θ free (+2.85 %)" in why and "at the reference (+7.9 %)" in why, why
     assert "Not a finding: torque_gain on joint 1: not identifiable" in doc["summary"]
+
+
+def test_the_reading_reported_is_the_one_simulated_and_judged():
+    """A gain read at the reference is simulated at that reading, said first with the θ-free
+    one's bias after it, and holds θ1..θ5 at the reference in the refits; read with θ free it
+    is as before. The gate gives it its second reading only once, and only with a reference."""
+    free = Finding("torque_gain", 1, {"relative": 0.0285, AT_REFERENCE: 0.0499}, {}, term="gain:1")
+    why = "fits the torque but worsens the simulation"
+    at_ref = replace(
+        free,
+        estimate={**free.estimate, "reading": AT_REFERENCE},
+        evidence={"theta_free_reading": why},
+    )
+    prob = SimpleNamespace(model=ArmModel(()))
+    assert simulated_effects([free], 2).gain == [0.0285, 0.0]
+    assert simulated_effects([at_ref], 2).gain == [0.0499, 0.0]
+    assert _phrase(free).startswith("the torque gain is off by +2.85 % (+4.99 % with")
+    words = _phrase(at_ref)
+    assert words.startswith("the torque gain is off by +4.99 % (read with the rigid-body")
+    assert "with θ free the estimate is +2.85 %, biased toward zero" in words and why in words
+    assert report.pinned_rigid_body(prob, [free], REFERENCE) is None
+    assert list(report.pinned_rigid_body(prob, [at_ref], REFERENCE)) == list(REFERENCE[:5])
+    assert report.pinned_rigid_body(prob, [at_ref], None) is None
+    assert report._read_at_reference([free], "gain:1", REFERENCE)
+    assert not report._read_at_reference([at_ref], "gain:1", REFERENCE)  # judged there already
+    assert not report._read_at_reference([free], "gain:1", None)
+    no_ref = replace(free, estimate={"relative": 0.0285, AT_REFERENCE: None})
+    assert not report._read_at_reference([no_ref], "gain:1", REFERENCE)
+    assert report._free_reading_failed([at_ref], "gain:1").startswith("not identifiable")
+    assert report._free_reading_failed([free], "gain:1") == ""
