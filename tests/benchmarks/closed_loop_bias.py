@@ -125,6 +125,30 @@ def reference_reading(run: Path, reference: np.ndarray) -> dict[str, list]:
     return out
 
 
+def gate_at_each_reading(run: Path, reference: np.ndarray) -> dict[str, str]:
+    """The simulation gate run on the accepted terms with the gain read only with θ free (its
+    second reading switched off: no reference) and only at the reference: kept, or why not."""
+    prob, accepted, findings, nominal, se, shaft = _gate_inputs(run, reference, _keep_all)["args"]
+    out = {}
+    for name, ref, reading in (
+        ("θ free", None, "relative"),
+        ("reference", reference, AT_REFERENCE),
+    ):
+        finds = [
+            replace(f, estimate={**f.estimate, "reading": reading})
+            if f.effect == "torque_gain"
+            else f
+            for f in findings
+        ]
+        say = lambda _m: None  # noqa: E731
+        _, _, dropped, _ = report.simulation_gate(
+            prob, list(accepted), finds, nominal, say, se, shaft, ref
+        )
+        gain = [k for k in dropped if k.startswith("gain")]
+        out[name] = f"dropped: {dropped[gain[0]]}" if gain else "kept"
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=None, help="keep the runs here (default: a temporary dir)")
@@ -165,6 +189,8 @@ def main() -> int:
                     for k in ("free", "no gain", "reference")
                 )
             )
+            for reading, verdict in gate_at_each_reading(base / name, reference).items():
+                print(f"{'':10s} simulation gate, gain read {reading} alone: {verdict}")
         fits = gain_fits(base / name, reference)
         print(
             f"{'':10s} gain regression r (θ free / θ1..θ5 at the reference): "
