@@ -29,7 +29,7 @@ from hil.diagnose.selection import (
     _design,
     _passes,
     evidence,
-    fit_theta,
+    fit_theta_at,
     rigid_body_deviation,
     rigid_count,
     term_width,
@@ -297,9 +297,8 @@ def gain_at_reference(
     col = np.zeros((len(y_raw), prob.n_joints, 1))
     col[:, joint, 0] = -y_raw[:, joint] / prob.scale[joint]
     cols = [prob.chosen(a) for k, a in enumerate(accepted) if k != i] + [col]
-    Z = _design(prob, cols)
-    target = prob.y - prob.Psi[:, :, :n] @ np.asarray(reference_rigid, float)[:n]
-    return float(fit_theta(Z[:, :, n:], target, prob.w)[-1])
+    fixed = np.asarray(reference_rigid, float)[:n]
+    return float(fit_theta_at(_design(prob, cols), prob.y, prob.w, fixed, True)[-1])
 
 
 __all__ = [

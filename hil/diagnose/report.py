@@ -52,6 +52,7 @@ from hil.diagnose.selection import (
     check_recording,
     final_fit,
     fit_theta,
+    fit_theta_at,
     jackknife_se,
     model_columns,
     physical_gate,
@@ -682,12 +683,9 @@ def _refit(
     weights ``w``; with ``rigid_reference``, θ's first parameters held at it and the rest
     fitted (:func:`hil.diagnose.findings.gain_at_reference`'s model). The design is weighted
     in place by the fit: on a long recording a (K, 2, p) copy fewer at the memory peak."""
-    Z = _design(prob, cols)
     if rigid_reference is None:
-        return fit_theta(Z, target, w, overwrite_design=True)
-    n = len(rigid_reference)
-    rest = target - Z[:, :, :n] @ rigid_reference
-    return np.concatenate([rigid_reference, fit_theta(Z[:, :, n:], rest, w, True)])
+        return fit_theta(_design(prob, cols), target, w, overwrite_design=True)
+    return fit_theta_at(_design(prob, cols), target, w, rigid_reference, overwrite_design=True)
 
 
 def read_at_reference(
