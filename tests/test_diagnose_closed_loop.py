@@ -149,5 +149,7 @@ def test_the_reading_reported_is_the_one_simulated_and_judged():
     assert not report._read_at_reference([free], "gain:1", None)
     no_ref = replace(free, estimate={"relative": 0.0285, AT_REFERENCE: None})
     assert not report._read_at_reference([no_ref], "gain:1", REFERENCE)
+    either = replace(free, confounded_with=["torque_gain"])  # simulated on neither joint
+    assert not report._read_at_reference([either], "gain:1", REFERENCE)
     assert report._free_reading_failed([at_ref], "gain:1").startswith("not identifiable")
     assert report._free_reading_failed([free], "gain:1") == ""

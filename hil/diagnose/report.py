@@ -1172,12 +1172,14 @@ def pinned_rigid_body(
 
 
 def _read_at_reference(findings: Sequence[Finding], term: str, reference: Any) -> bool:
-    """Is ``term`` a torque gain read with θ free that has a reading at the reference?"""
+    """Is ``term`` a torque gain on one joint, read with θ free, that has a reading at the
+    reference? (Confounded across the joints, it is simulated on neither: no reading to judge.)"""
     gains = [f for f in findings if f.term == term and f.effect == "torque_gain"]
     return (
         reference is not None
-        and bool(gains)
-        and all(f.estimate.get(AT_REFERENCE) is not None for f in gains)
+        and len(gains) == 1
+        and not gains[0].confounded_with
+        and gains[0].estimate.get(AT_REFERENCE) is not None
         and not any(f.estimate.get("reading") == AT_REFERENCE for f in gains)
     )
 
