@@ -420,7 +420,7 @@ def simulated_effects(findings: Sequence[Finding], n_joints: int) -> SimulatedEf
         if f.effect == "torque_offset":
             fx.offset[j] = e["offset_Nm"]
         elif f.effect == "torque_gain" and not f.confounded_with:
-            fx.gain[j] = e[e.get("reading", "relative")]  # the reading reported (gain_reading)
+            fx.gain[j] = e[e.get("reading", "relative")]  # the reading reported (simulation_gate)
         elif f.effect == "actuator_lag":
             fx.lag[j] = max(0.0, e["time_constant_s"])
         elif f.effect == "transport_delay" and not f.confounded_with:
@@ -728,7 +728,7 @@ def before_after(
     ``sensitivity``: also the arrays' ``position_sensitivity`` (:func:`simulation_sensitivity`)
     of the model with the accepted terms. ``rigid_reference``: the rigid-body parameters
     (θ1..θ5) the refit with the accepted terms holds fixed, the rest fitted: the model of a
-    torque gain read at the reference (:func:`gain_reading`)."""
+    torque gain read at the reference (:func:`simulation_gate`)."""
     train, test, spans = _masks(prob)
     if shaft is not None:
         accepted = [a for a in accepted if a.cand.kind != "rate"]
@@ -1162,7 +1162,7 @@ def pinned_rigid_body(
     prob: Problem, findings: Sequence[Finding], reference: np.ndarray | None
 ) -> np.ndarray | None:
     """θ1..θ5 of ``reference`` when a torque gain among ``findings`` is read with them held
-    there (:func:`hil.diagnose.findings.gain_reading`): the model the held-out refit and
+    there (:func:`simulation_gate`): the model the held-out refit and
     simulation of that reading are; None otherwise (θ free)."""
     if reference is None or not any(
         f.effect == "torque_gain" and f.estimate.get("reading") == AT_REFERENCE for f in findings
@@ -1236,8 +1236,17 @@ def simulation_gate(
             # improve the motion, so the last accepted goes (the others stood without it)
             last = accepted[-1].cand.key
             group = "rate" if accepted[-1].cand.kind == "rate" else last
-            why = "its held-out refit is not physical (" + "; ".join(fit["unphysical"]["after"])
-            dropped[group] = why + "), so it cannot be shown to improve the simulated motion"
+            first = _free_reading_failed(findings, group)  # a gain's θ-free reading failed
+            lead = (
+                first + "has a held-out refit that is not physical ("
+                if first
+                else "its held-out refit is not physical ("
+            )
+            dropped[group] = (
+                lead
+                + "; ".join(fit["unphysical"]["after"])
+                + "), so it cannot be shown to improve the simulated motion"
+            )
             say(f"diagnose: dropped {group}: {dropped[group]}")
             accepted = [
                 a
