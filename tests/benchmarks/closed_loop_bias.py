@@ -10,9 +10,9 @@ selection fits) and with θ1..θ5 held at the reference (the robot profile's Tab
 and r free). For the gain cases also the diagnosis with its simulation gate switched off, to show
 the selection's own estimate (`relative`) next to `relative_at_reference_theta`, and the held-out
 simulated position of the gain read with θ free and with θ1..θ5 at the reference (the two
-readings the gate judges, in that order), the gate at each reading alone, and for joint 1's gain
-the diagnosis against a reference whose θ1, θ4 are 3 % high (not identifiable, said why). A few minutes on a loaded machine; ``--only
-gain_j1,gain_j2`` runs some of the cases.
+readings the gate judges, in that order), the gate at each reading alone, and for joint 1's
+gain the diagnosis against a reference whose θ1, θ4 are 3 % high (not identifiable, said why).
+A few minutes on a loaded machine; ``--only gain_j1,gain_j2`` runs some of the cases.
 """
 
 from __future__ import annotations
