@@ -3,21 +3,27 @@
 On a PD tracking run the commanded torque follows Ψθ along the trajectory, so with θ free the
 gain column is nearly collinear with Ψ and θ absorbs part of the gain (5 % came out as 2.85 % on
 joint 1). Refitted with θ1..θ5 held at the reference, the gain is recovered; on a run without a
-gain error it is zero.
+gain error it is zero. The simulation gate judges a gain it would drop with θ free once more at
+that reading: joint 1's 5 % is found there, and with a reference that is off it is not, with
+the words saying why.
 """
 
 from __future__ import annotations
 
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
 from drivers.recording import read_signals
-from hil.diagnose.findings import gain_at_reference
-from hil.diagnose.report import diagnose
+from hil.diagnose import report
+from hil.diagnose.findings import AT_REFERENCE, Finding, gain_at_reference
+from hil.diagnose.report import _phrase, diagnose, simulated_effects
 from hil.diagnose.selection import build_problem
+from hil.model.closed_form import ArmModel
 from hil.model.params import robot_params
 
 REFERENCE = robot_params("cicese").theta
@@ -38,6 +44,7 @@ def runs(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("closed_loop")
     return {
         "null": _pd_run(tmp / "null", None),
+        "gain_j1": _pd_run(tmp / "gain_j1", "[torque_gain_error]\nrelative = [0.05, 0.0]\n"),
         "gain_j2": _pd_run(tmp / "gain_j2", "[torque_gain_error]\nrelative = [0.0, 0.05]\n"),
     }
 
@@ -51,6 +58,8 @@ def test_closed_loop_gain_is_recovered_with_the_rigid_body_at_the_reference(runs
         got[name] = [gain_at_reference(prob, [], -1, j, prob.y_raw, REFERENCE) for j in (0, 1)]
     assert got["gain_j2"][1] == pytest.approx(0.05, rel=0.05)
     assert abs(got["gain_j2"][0]) < 0.005
+    assert got["gain_j1"][0] == pytest.approx(0.05, rel=0.05)
+    assert abs(got["gain_j1"][1]) < 0.005
     assert max(abs(r) for r in got["null"]) < 0.005
 
 
@@ -66,6 +75,81 @@ def test_closed_loop_gain_is_a_finding_with_its_bias_stated(runs):
     est = gains[0]["estimate"]
     assert est["relative_at_reference_theta"] == pytest.approx(0.05, rel=0.05)
     assert 0.0 < est["relative"] < est["relative_at_reference_theta"]  # the bias: toward zero
-    assert not [f for f in docs["null"]["findings"] if f["effect"] == "torque_gain"]
-    asym = [f for f in docs["gain_j2"]["findings"] if f["effect"] == "coulomb_asymmetry"]
-    assert [f["joint"] for f in asym] == [1]  # the default robot's, kept beside the gain
+    assert "reading" not in est  # θ free passed the gate: that reading is the one reported
+    assert not docs["null"]["findings"][2:], docs["null"]["findings"]  # the asymmetry only
+    assert not docs["null"]["not_findings"]  # nothing else was even accepted
+    for name in ("gain_j2", "null"):
+        asym = [f for f in docs[name]["findings"] if f["effect"] == "coulomb_asymmetry"]
+        assert [f["joint"] for f in asym] == [1]  # the default robot's, kept beside the gain
+
+
+@pytest.mark.slow
+def test_closed_loop_gain_on_joint_1_is_found_at_the_reference_reading(runs):
+    """Joint 1's 5 % gain: with θ free the selection reads 2.85 % and that reading simulates
+    joint 1's held-out motion worse than no gain (0.03 % → 0.31 %), so the gate dropped it and
+    the gain was missed. Judged at the reference reading (θ1..θ5 held at the profile's, against
+    the same free model without the gain) it improves both torque and motion, and is reported
+    at that reading with the θ-free one's bias named; joint 1's asymmetry beside it is read in
+    the same model (7.17 / 8.049 Nm; 7.06 / 7.92 with θ free)."""
+    doc = diagnose([read_signals(runs["gain_j1"])], REFERENCE).document
+    gains = [f for f in doc["findings"] if f["effect"] == "torque_gain"]
+    assert [f["joint"] for f in gains] == [1], doc["not_findings"]
+    est = gains[0]["estimate"]
+    assert est["reading"] == AT_REFERENCE
+    assert est[AT_REFERENCE] == pytest.approx(0.05, rel=0.05)
+    assert 0.0 < est["relative"] < 0.8 * est[AT_REFERENCE]  # the θ-free bias, toward zero
+    assert "worsens the simulation" in gains[0]["evidence"]["theta_free_reading"]
+    asym = next(f for f in doc["findings"] if f["effect"] == "coulomb_asymmetry")["estimate"]
+    assert asym["positive_Nm"] == pytest.approx(7.17, rel=0.005)
+    assert asym["negative_Nm"] == pytest.approx(8.049, rel=0.005)
+    assert "+4.99 % (read with the rigid-body parameters" in doc["summary"]
+    assert "with θ free the estimate is +2.85 %, biased toward zero" in doc["summary"]
+    after = doc["fit"]["after"]["position_nrmse"]
+    assert max(after) < 0.001, after  # the reported model simulates the held-out motion
+
+
+@pytest.mark.slow
+def test_closed_loop_gain_on_joint_1_with_a_wrong_reference_is_not_identifiable(runs):
+    """The same run against a reference whose joint-1 rigid-body parameters θ1, θ4 are 3 %
+    off: the reference reading (7.9 %) predicts the held-out torque worse than the free model
+    without a gain, so neither reading holds and the report says so, naming both."""
+    ref = REFERENCE.copy()
+    ref[[0, 3]] *= 1.03
+    doc = diagnose([read_signals(runs["gain_j1"])], ref).document
+    assert not [f for f in doc["findings"] if f["effect"] == "torque_gain"]
+    why = doc["not_findings"]["gain:1"]
+    assert why.startswith("not identifiable from these data"), why
+    assert "read with θ free (+2.85 %)" in why and "at the reference (+7.9 %)" in why, why
+    assert "Not a finding: torque_gain on joint 1: not identifiable" in doc["summary"]
+
+
+def test_the_reading_reported_is_the_one_simulated_and_judged():
+    """A gain read at the reference is simulated at that reading, said first with the θ-free
+    one's bias after it, and holds θ1..θ5 at the reference in the refits; read with θ free it
+    is as before. The gate gives it its second reading only once, and only with a reference."""
+    free = Finding("torque_gain", 1, {"relative": 0.0285, AT_REFERENCE: 0.0499}, {}, term="gain:1")
+    why = "fits the torque but worsens the simulation"
+    at_ref = replace(
+        free,
+        estimate={**free.estimate, "reading": AT_REFERENCE},
+        evidence={"theta_free_reading": why},
+    )
+    prob = SimpleNamespace(model=ArmModel(()))
+    assert simulated_effects([free], 2).gain == [0.0285, 0.0]
+    assert simulated_effects([at_ref], 2).gain == [0.0499, 0.0]
+    assert _phrase(free).startswith("the torque gain is off by +2.85 % (+4.99 % with")
+    words = _phrase(at_ref)
+    assert words.startswith("the torque gain is off by +4.99 % (read with the rigid-body")
+    assert "with θ free the estimate is +2.85 %, biased toward zero" in words and why in words
+    assert report.pinned_rigid_body(prob, [free], REFERENCE) is None
+    assert list(report.pinned_rigid_body(prob, [at_ref], REFERENCE)) == list(REFERENCE[:5])
+    assert report.pinned_rigid_body(prob, [at_ref], None) is None
+    assert report._read_at_reference([free], "gain:1", REFERENCE)
+    assert not report._read_at_reference([at_ref], "gain:1", REFERENCE)  # judged there already
+    assert not report._read_at_reference([free], "gain:1", None)
+    no_ref = replace(free, estimate={"relative": 0.0285, AT_REFERENCE: None})
+    assert not report._read_at_reference([no_ref], "gain:1", REFERENCE)
+    either = replace(free, confounded_with=["torque_gain"])  # simulated on neither joint
+    assert not report._read_at_reference([either], "gain:1", REFERENCE)
+    assert report._free_reading_failed([at_ref], "gain:1").startswith("not identifiable")
+    assert report._free_reading_failed([free], "gain:1") == ""

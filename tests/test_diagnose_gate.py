@@ -38,9 +38,9 @@ def gate_inputs(tmp_path_factory):
     captured = {}
     gate = report.simulation_gate
 
-    def capture(prob, accepted, findings, nominal_theta, say, se=None, shaft=None):
+    def capture(prob, accepted, findings, nominal_theta, say, se=None, shaft=None, **kw):
         captured["args"] = (prob, list(accepted), list(findings), nominal_theta, se, shaft)
-        return gate(prob, accepted, findings, nominal_theta, say, se, shaft)
+        return gate(prob, accepted, findings, nominal_theta, say, se, shaft, **kw)
 
     report.simulation_gate = capture
     try:

@@ -29,7 +29,7 @@ from hil.diagnose.selection import (
     _design,
     _passes,
     evidence,
-    fit_theta,
+    fit_theta_at,
     rigid_body_deviation,
     rigid_count,
     term_width,
@@ -52,6 +52,8 @@ def coulomb_column(model: Any, joint: int) -> int:
 # How far apart two gain hypotheses' rigid-body parameters must be from the reference (ratio of
 # their relative deviations) before the reference decides between them.
 GAIN_REFERENCE_RATIO = 1.5
+# The key of a torque gain's estimate read with the rigid-body parameters at the reference.
+AT_REFERENCE = "relative_at_reference_theta"
 
 
 @dataclass
@@ -295,9 +297,8 @@ def gain_at_reference(
     col = np.zeros((len(y_raw), prob.n_joints, 1))
     col[:, joint, 0] = -y_raw[:, joint] / prob.scale[joint]
     cols = [prob.chosen(a) for k, a in enumerate(accepted) if k != i] + [col]
-    Z = _design(prob, cols)
-    target = prob.y - prob.Psi[:, :, :n] @ np.asarray(reference_rigid, float)[:n]
-    return float(fit_theta(Z[:, :, n:], target, prob.w)[-1])
+    fixed = np.asarray(reference_rigid, float)[:n]
+    return float(fit_theta_at(_design(prob, cols), prob.y, prob.w, fixed, True)[-1])
 
 
 __all__ = [

@@ -29,6 +29,7 @@ from hil.diagnose.columns import (
     stribeck_shape,
 )
 from hil.diagnose.findings import (
+    AT_REFERENCE,
     Finding,
     _r,
     classify_rate,
@@ -53,12 +54,14 @@ from hil.diagnose.selection import (
     check_recording,
     final_fit,
     fit_theta,
+    fit_theta_at,
     jackknife_se,
     model_columns,
     physical_gate,
     physical_theta,
     refused_candidates,
     relinearise_angle,
+    rigid_count,
     select,
     term_width,
     usable_speeds,
@@ -492,7 +495,7 @@ def simulated_effects(findings: Sequence[Finding], n_joints: int) -> SimulatedEf
         if f.effect == "torque_offset":
             fx.offset[j] = e["offset_Nm"]
         elif f.effect == "torque_gain" and not f.confounded_with:
-            fx.gain[j] = e["relative"]
+            fx.gain[j] = e[e.get("reading", "relative")]  # the reading reported (simulation_gate)
         elif f.effect == "actuator_lag":
             fx.lag[j] = max(0.0, e["time_constant_s"])
         elif f.effect == "transport_delay" and not f.confounded_with:
@@ -566,9 +569,10 @@ def _training_findings(
     findings: Sequence[Finding],
     model: Any = None,
 ) -> list[Finding]:
-    """``findings`` with the magnitudes of the linear terms re-estimated from the training part
-    only (``beta``: θ then the accepted terms' coefficients), so that nothing fitted on the
-    held-out data enters the held-out comparison. Lag, delay and the joint of a gain error keep
+    """``findings`` with the magnitudes of the linear terms re-estimated from ``beta`` (θ then
+    the accepted terms' coefficients): fitted on the training part only, so that nothing
+    fitted on the held-out data enters the held-out comparison (:func:`read_at_reference`
+    gives it a fit on all rows). Lag, delay and the joint of a gain error keep
     their whole-data values (a grid search and a choice, not a fit)."""
     out = list(findings)
     p = len(beta) - sum(term_width(a.cand) for a in accepted)  # the nominal model's θ
@@ -768,6 +772,42 @@ def _segment_simulation_n(
     return np.concatenate(sims)
 
 
+def _refit(
+    prob: Problem,
+    cols: Sequence[np.ndarray],
+    target: np.ndarray,
+    w: np.ndarray,
+    rigid_reference: np.ndarray | None = None,
+) -> np.ndarray:
+    """θ and the coefficients of the term columns ``cols`` fitted to ``target`` with row
+    weights ``w``; with ``rigid_reference``, θ's first parameters held at it and the rest
+    fitted (:func:`hil.diagnose.findings.gain_at_reference`'s model). The design is weighted
+    in place by the fit: on a long recording a (K, 2, p) copy fewer at the memory peak."""
+    if rigid_reference is None:
+        return fit_theta(_design(prob, cols), target, w, overwrite_design=True)
+    return fit_theta_at(_design(prob, cols), target, w, rigid_reference, overwrite_design=True)
+
+
+def read_at_reference(
+    prob: Problem,
+    accepted: Sequence[Accepted],
+    findings: Sequence[Finding],
+    shaft: np.ndarray | None,
+    rigid_reference: np.ndarray,
+) -> list[Finding]:
+    """``findings`` with the magnitudes of the linear terms refitted on all rows with the
+    rigid-body parameters at ``rigid_reference``: the model a torque gain read at the
+    reference is judged in (:func:`simulation_gate`), so that the other findings beside it
+    are read in that model too. With θ free a closed-loop gain on joint 1 was 2.9 % of 5 % and
+    joint 1's Coulomb levels 1.6 % low with it (the free θ absorbs the rest of the gain)."""
+    if shaft is not None:
+        accepted = [a for a in accepted if a.cand.kind != "rate"]
+    target = prob.y if shaft is None else shaft / prob.scale
+    cols = [prob.chosen(a) for a in accepted]
+    beta = _refit(prob, cols, target, prob.w, rigid_reference)
+    return _training_findings(accepted, beta, findings, prob.model)
+
+
 def before_after(
     prob: Problem,
     accepted: Sequence[Accepted],
@@ -778,6 +818,7 @@ def before_after(
     shaft: np.ndarray | None = None,
     sensitivity: bool = False,
     memo: dict | None = None,
+    rigid_reference: np.ndarray | None = None,
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Torque NRMSE and open-loop position NRMSE per joint on held-out data, nominal model
     (``nominal_theta`` when given, else fitted on the training part) and with the accepted terms.
@@ -788,7 +829,10 @@ def before_after(
     ``sensitivity``: also the arrays' ``position_sensitivity`` (:func:`simulation_sensitivity`)
     of the model with the accepted terms. ``memo``: a dict kept over the calls of one diagnosis
     (the simulation gate's rounds, then the final comparison), in which the fits and the
-    simulations are kept by what they depend on and reused, not computed again."""
+    simulations are kept by what they depend on and reused, not computed again.
+    ``rigid_reference``: the rigid-body parameters (θ1..θ5) the refit with the accepted terms
+    holds fixed, the rest fitted: the model of a torque gain read at the reference
+    (:func:`simulation_gate`)."""
     memo = {} if memo is None else memo
     train, test, spans = _masks(prob)
     if shaft is not None:
@@ -803,14 +847,15 @@ def before_after(
     else:
         theta0 = np.asarray(nominal_theta, float)
     target = prob.y if shaft is None else shaft / prob.scale
-    # the design is weighted in place by the fit and built again for the prediction: on a long
-    # recording a (K, 2, p) copy fewer at the memory peak
-    # kept by the terms' columns and the shaft rows themselves (a rebuilt column is a new array)
-    key1 = ("refit", tuple(a.cand.key for a in accepted), prob.scale.tobytes())
+    # the design is built again for the prediction (the fit weights its copy in place); the
+    # refit is kept by the terms' columns and the shaft rows themselves (a rebuilt column is a
+    # new array) and by the rigid-body parameters it holds
+    pinned = None if rigid_reference is None else np.asarray(rigid_reference, float).tobytes()
+    key1 = ("refit", tuple(a.cand.key for a in accepted), prob.scale.tobytes(), pinned)
     inputs = (shaft, *(prob.cache[_term_key(a)] for a in accepted))
     kept = memo.get(key1)
     if kept is None or any(x is not y for x, y in zip(kept[0], inputs, strict=True)):
-        beta = fit_theta(_design(prob, cols), target, w_train, overwrite_design=True)
+        beta = _refit(prob, cols, target, w_train, rigid_reference)
         kept = memo[key1] = (inputs, beta)
     beta = kept[1].copy()
     Z = _design(prob, cols)
@@ -934,11 +979,19 @@ def _phrase(f: Finding) -> str:
     if "offset_rad" in e:
         e["deg"] = f"{math.degrees(e['offset_rad']):+.3g}"
     if "relative" in e:
-        e["pct"] = f"{100 * e['relative']:+.3g}"
+        e["pct"] = f"{100 * e[e.get('reading', 'relative')]:+.3g}"
     if "share_of_M22" in e:
         e["share"] = f"{100 * e['share_of_M22']:.3g}"
     words = _WORDS[f.effect].format(**e)
-    if e.get("relative_at_reference_theta") is not None:
+    if e.get("reading") == AT_REFERENCE:
+        # docs/diagnosis.md 4a: the θ-free reading failed the simulation gate, this one passed
+        words += (
+            " (read with the rigid-body parameters (θ1..θ5 of the 2-DOF arm) held at the "
+            f"reference; with θ free the estimate is {100 * e['relative']:+.3g} %, biased toward "
+            "zero because a free θ absorbs part of the gain (most on closed-loop data), and that "
+            f"reading {f.evidence.get('theta_free_reading', 'failed the simulation gate')})"
+        )
+    elif e.get("relative_at_reference_theta") is not None:
         # docs/diagnosis.md 4a: a free θ absorbs part of a gain (most in closed loop)
         words += (
             f" ({100 * e['relative_at_reference_theta']:+.3g} % with the rigid-body parameters "
@@ -1221,6 +1274,46 @@ def _own_gain(fit: dict[str, Any], fit_wo: dict[str, Any], joints: list[int], na
     return sum(b - a for b, a in pairs if None not in (a, b))
 
 
+def pinned_rigid_body(
+    prob: Problem, findings: Sequence[Finding], reference: np.ndarray | None
+) -> np.ndarray | None:
+    """θ1..θ5 of ``reference`` when a torque gain among ``findings`` is read with them held
+    there (:func:`simulation_gate`): the model the held-out refit and
+    simulation of that reading are; None otherwise (θ free)."""
+    if reference is None or not any(
+        f.effect == "torque_gain" and f.estimate.get("reading") == AT_REFERENCE for f in findings
+    ):
+        return None
+    return np.asarray(reference, float)[: rigid_count(prob.model)]
+
+
+def _read_at_reference(findings: Sequence[Finding], term: str, reference: Any) -> bool:
+    """Is ``term`` a torque gain on one joint, read with θ free, that has a reading at the
+    reference? (Confounded across the joints, it is simulated on neither: no reading to judge.)"""
+    gains = [f for f in findings if f.term == term and f.effect == "torque_gain"]
+    return (
+        reference is not None
+        and len(gains) == 1
+        and not gains[0].confounded_with
+        and gains[0].estimate.get(AT_REFERENCE) is not None
+        and not any(f.estimate.get("reading") == AT_REFERENCE for f in gains)
+    )
+
+
+def _free_reading_failed(findings: Sequence[Finding], term: str) -> str:
+    """The words for a gain that failed both readings: what its θ-free reading did first."""
+    f = next((f for f in findings if f.term == term and "theta_free_reading" in f.evidence), None)
+    if f is None:
+        return ""
+    e = f.estimate
+    return (
+        "not identifiable from these data (a free θ absorbs part of a gain, most on "
+        f"closed-loop data): read with θ free ({100 * e['relative']:+.3g} %) it "
+        f"{f.evidence['theta_free_reading']}; read with the rigid-body parameters at the reference "
+        f"({100 * e[AT_REFERENCE]:+.3g} %) it "
+    )
+
+
 def simulation_gate(
     prob: Problem,
     accepted: list[Accepted],
@@ -1230,6 +1323,7 @@ def simulation_gate(
     se: np.ndarray | None = None,
     shaft: np.ndarray | None = None,
     memo: dict | None = None,
+    reference: np.ndarray | None = None,
 ) -> tuple[list[Accepted], list[Finding], dict[str, str], np.ndarray | None]:
     """A finding must improve the held-out simulated motion too, or it is not one: every term
     is taken out in turn and the held-out open-loop simulation rerun; a term without which the
@@ -1244,7 +1338,16 @@ def simulation_gate(
     memo = {} if memo is None else memo
     while accepted:
         fit, arrays = before_after(
-            prob, accepted, findings, nominal_theta, False, se, shaft, sensitivity=True, memo=memo
+            prob,
+            accepted,
+            findings,
+            nominal_theta,
+            False,
+            se,
+            shaft,
+            sensitivity=True,
+            memo=memo,
+            rigid_reference=pinned_rigid_body(prob, findings, reference),
         )
         with_all = fit["after"]["position_nrmse"]
         noise = arrays["simulation"].get("position_sensitivity") or [0.0] * len(with_all)
@@ -1253,8 +1356,17 @@ def simulation_gate(
             # improve the motion, so the last accepted goes (the others stood without it)
             last = accepted[-1].cand.key
             group = "rate" if accepted[-1].cand.kind == "rate" else last
-            why = "its held-out refit is not physical (" + "; ".join(fit["unphysical"]["after"])
-            dropped[group] = why + "), so it cannot be shown to improve the simulated motion"
+            first = _free_reading_failed(findings, group)  # a gain's θ-free reading failed
+            lead = (
+                first + "has a held-out refit that is not physical ("
+                if first
+                else "its held-out refit is not physical ("
+            )
+            dropped[group] = (
+                lead
+                + "; ".join(fit["unphysical"]["after"])
+                + "), so it cannot be shown to improve the simulated motion"
+            )
             say(f"diagnose: dropped {group}: {dropped[group]}")
             accepted = [
                 a
@@ -1278,15 +1390,17 @@ def simulation_gate(
                 for a in accepted
                 if a.cand.key != term and not (term == "rate" and a.cand.kind == "rate")
             ]
+            rest = [f for f in findings if f.term != term]
             fit_wo, _ = before_after(
                 prob,
                 keep,
-                [f for f in findings if f.term != term],
+                rest,
                 nominal_theta,
                 False,
                 se,
                 None if term == "rate" else shaft,
                 memo=memo,
+                rigid_reference=pinned_rigid_body(prob, rest, reference),
             )
             joints = _term_joints(prob, accepted, term)
             # the held-out torque first: a term whose refit predicts it no better is no finding
@@ -1357,8 +1471,24 @@ def simulation_gate(
                 )
         if worst is None:
             break
+        if _read_at_reference(findings, worst, reference):
+            # docs/diagnosis.md 4a: with θ free a gain is biased toward zero (in closed loop θ
+            # absorbs most of it); judged once more read with θ1..θ5 at the reference, against
+            # the same free model without it, before it is dropped
+            say(f"diagnose: {worst} with θ free {worst_text}; judging it at the reference θ")
+            findings = [
+                replace(
+                    f,
+                    estimate={**f.estimate, "reading": AT_REFERENCE},
+                    evidence={**f.evidence, "theta_free_reading": worst_text},
+                )
+                if f.term == worst
+                else f
+                for f in findings
+            ]
+            continue
         say(f"diagnose: dropped {worst}: {worst_text}")
-        dropped[worst] = worst_text
+        dropped[worst] = _free_reading_failed(findings, worst) + worst_text
         accepted = [
             a
             for a in accepted
@@ -1551,13 +1681,31 @@ def diagnose(
         )
         findings += unexplained(prob, accepted, shaft)
         accepted, findings, dropped, shaft = simulation_gate(
-            prob, accepted, findings, nominal_theta, say, nominal_se, shaft, memo
+            prob,
+            accepted,
+            findings,
+            nominal_theta,
+            say,
+            nominal_se,
+            shaft,
+            memo=memo,
+            reference=reference_theta,
         )
         rejected.update(dropped)
+        pinned = pinned_rigid_body(prob, findings, reference_theta)
+        if pinned is not None:
+            findings = read_at_reference(prob, accepted, findings, shaft, pinned)
         kept = {f.effect for f in findings}
         confounded = [pair for pair in confounded if set(pair) <= kept]
     fit, fit_arrays = before_after(
-        prob, accepted, findings, nominal_theta, friction_se=nominal_se, shaft=shaft, memo=memo
+        prob,
+        accepted,
+        findings,
+        nominal_theta,
+        friction_se=nominal_se,
+        shaft=shaft,
+        memo=memo,
+        rigid_reference=pinned_rigid_body(prob, findings, reference_theta),
     )
     refused = refused_candidates(model)
     notes = (

@@ -509,6 +509,21 @@ def fit_theta(
     return np.linalg.lstsq(A, b, rcond=None)[0]
 
 
+def fit_theta_at(
+    Z: np.ndarray,
+    y: np.ndarray,
+    w: np.ndarray,
+    fixed: np.ndarray,
+    overwrite_design: bool = False,
+) -> np.ndarray:
+    """:func:`fit_theta` with the first ``len(fixed)`` parameters held at ``fixed`` and the
+    rest fitted to what they leave of ``y``: a torque gain read with the rigid-body
+    parameters at the reference (docs/diagnosis.md 4, 4a). Returns all of them."""
+    n = len(fixed)
+    rest = y - Z[:, :, :n] @ fixed
+    return np.concatenate([fixed, fit_theta(Z[:, :, n:], rest, w, overwrite_design)])
+
+
 def robust_scale(residual: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Per-joint noise scale: 1.4826 · median absolute residual of the usable rows (1 Nm for a
     joint without any: its rows carry no weight, so the scale only has to be finite)."""

@@ -9,8 +9,10 @@ regression on its own, y ≈ Ψθ + r·(−F[τ_j]), over the whole run: with θ
 selection fits) and with θ1..θ5 held at the reference (the robot profile's Table I; friction
 and r free). For the gain cases also the diagnosis with its simulation gate switched off, to show
 the selection's own estimate (`relative`) next to `relative_at_reference_theta`, and the held-out
-simulated position of the gain read with θ free and with θ1..θ5 at the reference. A few minutes on
-a loaded machine; ``--only gain_j1,gain_j2`` runs some of the cases.
+simulated position of the gain read with θ free and with θ1..θ5 at the reference (the two
+readings the gate judges, in that order), the gate at each reading alone, and for joint 1's
+gain the diagnosis against a reference whose θ1, θ4 are 3 % high (not identifiable, said why).
+A few minutes on a loaded machine; ``--only gain_j1,gain_j2`` runs some of the cases.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from drivers.recording import read_signals
 from hil.diagnose import report
 from hil.diagnose.columns import gain_column, recording_rows
+from hil.diagnose.findings import AT_REFERENCE
 from hil.diagnose.report import diagnose
 from hil.model.params import robot_params
 
@@ -66,63 +69,103 @@ def gain_fits(run: Path, reference: np.ndarray) -> list[tuple[float, float]]:
     return out
 
 
-def ungated_gains(run: Path, reference: np.ndarray) -> list[dict]:
-    """The torque_gain findings with the simulation gate switched off (every accepted term
-    kept): what the selection estimated before the gate judged it."""
-    keep_all = lambda prob, accepted, findings, *rest: (accepted, findings, {}, rest[-1])  # noqa: E731
-    gate = report.simulation_gate
-    report.simulation_gate = keep_all
+def _gate_inputs(run: Path, reference: np.ndarray, gate) -> dict:
+    """Diagnose ``run`` with ``gate`` (called with the simulation gate's arguments) in place of
+    the simulation gate; the document and the gate's inputs."""
+    captured = {}
+    real_gate = report.simulation_gate
+
+    def capture(prob, accepted, findings, nominal, say, se=None, shaft=None, **kw):
+        captured["args"] = (prob, list(accepted), list(findings), nominal, se, shaft)
+        return gate(prob, accepted, findings, nominal, say, se, shaft, **kw)
+
+    report.simulation_gate = capture
     try:
         doc = diagnose([read_signals(run)], reference).document
     finally:
-        report.simulation_gate = gate
-    return [f["estimate"] for f in doc["findings"] if f["effect"] == "torque_gain"]
+        report.simulation_gate = real_gate
+    return {"document": doc, "args": captured["args"]}
+
+
+def _keep_all(prob, accepted, findings, nominal, say, se=None, shaft=None, **_kw):
+    return accepted, findings, {}, shaft
+
+
+def ungated_findings(run: Path, reference: np.ndarray) -> list[str]:
+    """The findings with the simulation gate switched off (every accepted term kept, the gain
+    read with θ free): what the selection estimated before the gate judged it."""
+    doc = _gate_inputs(run, reference, _keep_all)["document"]
+    return [
+        f"{f['effect']} j{f['joint']} {f['estimate']}"
+        for f in doc["findings"]
+        if f["effect"] != "torque_offset"
+    ]
+
+
+def with_reference_off(run: Path, reference: np.ndarray, joint: int) -> dict[str, str]:
+    """The diagnosis against a reference whose θ1 and θ4 (in joint 1's torque only) are 3 %
+    high: the torque_gain finding, or why the gain on ``joint`` is not one."""
+    off = np.array(reference, float)
+    off[[0, 3]] *= 1.03
+    doc = diagnose([read_signals(run)], off).document
+    found = [f["estimate"] for f in doc["findings"] if f["effect"] == "torque_gain"]
+    return (
+        {"found": str(found)}
+        if found
+        else {"not a finding": doc["not_findings"].get(f"gain:{joint}", "-")}
+    )
 
 
 def reference_reading(run: Path, reference: np.ndarray) -> dict[str, list]:
     """Held-out simulated position NRMSE per joint of the accepted model (the gate switched
-    off) read three ways: θ free with the gain (what the gate judges), θ free without the gain,
-    and the gain's reference reading: refitted on the training part with θ1..θ5 held at
-    ``reference`` and r = `relative_at_reference_theta`. Fitting is patched in
-    ``report.before_after`` only here, to measure that reading; the diagnosis does not use it."""
-    captured = {}
-    gate = report.simulation_gate
-
-    def capture(prob, accepted, findings, *rest):
-        captured["args"] = (prob, list(accepted), list(findings), rest[0], rest[2], rest[3])
-        return accepted, findings, {}, rest[-1]
-
-    report.simulation_gate = capture
-    try:
-        diagnose([read_signals(run)], reference)
-    finally:
-        report.simulation_gate = gate
-    prob, accepted, findings, nominal, se, shaft = captured["args"]
+    off) read three ways: θ free with the gain (the gate's first reading), θ free without the
+    gain, and the gain's reference reading (θ1..θ5 held at ``reference``, r =
+    `relative_at_reference_theta`: the gate's second reading, report.pinned_rigid_body)."""
+    prob, accepted, findings, nominal, se, shaft = _gate_inputs(run, reference, _keep_all)["args"]
     no_gain = [a for a in accepted if a.cand.kind != "gain"]
     rest = [f for f in findings if f.effect != "torque_gain"]
     at_ref = [
-        replace(f, estimate={**f.estimate, "relative": f.estimate["relative_at_reference_theta"]})
+        replace(f, estimate={**f.estimate, "reading": AT_REFERENCE})
         if f.effect == "torque_gain"
         else f
         for f in findings
     ]
-    free_fit = report.fit_theta
-
-    def pinned(Z, target, w, overwrite_design=False):
-        if Z.shape[-1] == prob.n_params:  # the nominal fit stays free
-            return free_fit(Z, target, w, overwrite_design=overwrite_design)
-        rest_target = target - Z[:, :, :5] @ reference[:5]
-        return np.concatenate([reference[:5], free_fit(Z[:, :, 5:].copy(), rest_target, w)])
-
     out = {}
-    for name, terms, finds in (("free", accepted, findings), ("no gain", no_gain, rest)):
-        out[name] = report.before_after(prob, terms, finds, nominal, False, se, shaft)[0]
-    report.fit_theta = pinned
-    try:
-        out["reference"] = report.before_after(prob, accepted, at_ref, nominal, False, se, shaft)[0]
-    finally:
-        report.fit_theta = free_fit
-    return {k: v["after"]["position_nrmse"] for k, v in out.items()}
+    for name, terms, finds in (
+        ("free", accepted, findings),
+        ("no gain", no_gain, rest),
+        ("reference", accepted, at_ref),
+    ):
+        pinned = report.pinned_rigid_body(prob, finds, reference)
+        fit = report.before_after(
+            prob, terms, finds, nominal, False, se, shaft, rigid_reference=pinned
+        )[0]
+        out[name] = fit["after"]["position_nrmse"]
+    return out
+
+
+def gate_at_each_reading(run: Path, reference: np.ndarray) -> dict[str, str]:
+    """The simulation gate run on the accepted terms with the gain read only with θ free (its
+    second reading switched off: no reference) and only at the reference: kept, or why not."""
+    prob, accepted, findings, nominal, se, shaft = _gate_inputs(run, reference, _keep_all)["args"]
+    out = {}
+    for name, ref, reading in (
+        ("θ free", None, "relative"),
+        ("reference", reference, AT_REFERENCE),
+    ):
+        finds = [
+            replace(f, estimate={**f.estimate, "reading": reading})
+            if f.effect == "torque_gain"
+            else f
+            for f in findings
+        ]
+        say = lambda _m: None  # noqa: E731
+        _, _, dropped, _ = report.simulation_gate(
+            prob, list(accepted), finds, nominal, say, se, shaft, reference=ref
+        )
+        gain = [k for k in dropped if k.startswith("gain")]
+        out[name] = f"dropped: {dropped[gain[0]]}" if gain else "kept"
+    return out
 
 
 def main() -> int:
@@ -155,7 +198,10 @@ def main() -> int:
         for key, why in doc["not_findings"].items():
             print(f"{'':10s} not a finding: {key}: {why}")
         if name.startswith("gain"):
-            print(f"{'':10s} without the simulation gate: {ungated_gains(base / name, reference)}")
+            print(
+                f"{'':10s} without the simulation gate: "
+                + "; ".join(ungated_findings(base / name, reference))
+            )
             pos = reference_reading(base / name, reference)
             print(
                 f"{'':10s} held-out simulated position (θ free with the gain / without it / "
@@ -165,6 +211,11 @@ def main() -> int:
                     for k in ("free", "no gain", "reference")
                 )
             )
+            for reading, verdict in gate_at_each_reading(base / name, reference).items():
+                print(f"{'':10s} simulation gate, gain read {reading} alone: {verdict}")
+            if name == "gain_j1":
+                for key, what in with_reference_off(base / name, reference, 1).items():
+                    print(f"{'':10s} with θ1, θ4 of the reference 3 % high: {key}: {what}")
         fits = gain_fits(base / name, reference)
         print(
             f"{'':10s} gain regression r (θ free / θ1..θ5 at the reference): "
