@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from drivers.recording import read_signals
-from hil.identify.urdf import TorqueRecording, regression_rows
+from drivers.recording import Recording, read_signals
+from hil.identify.urdf import regression_rows
 from hil.model.regressors import SCHEMES
 from hil.model.urdf import UrdfArmModel
 
@@ -32,13 +32,14 @@ INERTIAL_TOLERANCE = 0.02  # CICESE targets (docs/identification.md)
 FRICTION_TOLERANCE = 0.10
 
 
-def torque_recording(run: Path) -> TorqueRecording:
+def torque_recording(run: Path) -> Recording:
     """The run's recording (drivers.recording.read_signals), its torques held over each period."""
     rec = read_signals(run)
-    return TorqueRecording(rec.t, rec.q, rec.tau, str(run), held=True)
+    assert rec.torque_held, f"{run}: not this bench's recording of commanded torques"
+    return rec
 
 
-def torque_shares(model: UrdfArmModel, rec: TorqueRecording, delta: np.ndarray) -> np.ndarray:
+def torque_shares(model: UrdfArmModel, rec: Recording, delta: np.ndarray) -> np.ndarray:
     """(p, n): RMS over the recording of Y_k δ_k on joint j, over the RMS of τ_j."""
     rows = regression_rows(model, rec)
     per_parameter = np.sqrt(np.mean((rows.Y * delta) ** 2, axis=0)).T  # (p, n)
