@@ -24,6 +24,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 from cli_run import hil
+from PIL import Image
 from ur5e_targets import check_ur5e_identified
 
 from drivers.recording import base_columns, read_signals
@@ -194,7 +195,7 @@ def test_control_compare_on_six_joints(tmp_path, capsys):
     of khosla-kanade-tracking-ur5e, in process: all four complete, CT and FED track every
     joint better than PD, FED by more than 10×."""
     args = ["control", "--compare", "--robot", ROBOT, "--bench", "virtual-inprocess"]
-    status = hil_main([*args, "--duration", "1.75", "--out", str(tmp_path), "--no-plot", "--json"])
+    status = hil_main([*args, "--duration", "1.75", "--out", str(tmp_path), "--json"])
     out = capsys.readouterr()
     assert status == 0, out.err
     doc = json.loads(out.out)
@@ -208,6 +209,10 @@ def test_control_compare_on_six_joints(tmp_path, capsys):
     assert all(r > 10 for r in reduction["fed"]), reduction
     header = (tmp_path / "profile" / "fed" / "signals.csv").open().readline()
     assert header.startswith("t,q1,q2,q3,q4,q5,q6,tau1,tau2,tau3,tau4,tau5,tau6")
+    # the comparison's error plot has a row per joint (more joints than schemes), not one strip
+    # of 12 panels per scheme (4500 × 960 px before)
+    width, height = Image.open(tmp_path / "errors_profile.png").size
+    assert width < 3 * height, (width, height)
 
 
 @pytest.mark.slow

@@ -134,20 +134,29 @@ def plot_comparison(
     paths = []
     n = len(loaded)
     nj = next(iter(loaded.values())).q.shape[1]
+    # a row per scheme (position errors of every joint, then velocity errors); with more
+    # joints than schemes a row per joint instead (each scheme's two errors side by side), so
+    # an arm of 6 joints is not one strip 12 panels wide
+    by_joint = nj > n
+    rows, cols = (nj, 2 * n) if by_joint else (n, 2 * nj)
     fig, axes = plt.subplots(
-        n, 2 * nj, figsize=(3.75 * 2 * nj, 2.2 * n + 0.8), sharex=True, squeeze=False
+        rows, cols, figsize=(3.75 * cols, 2.2 * rows + 0.8), sharex=True, squeeze=False
     )
+
+    def panel(i: int, j: int, velocity: int) -> Any:
+        return axes[j, 2 * i + velocity] if by_joint else axes[i, nj * velocity + j]
+
     for i, (scheme, rec) in enumerate(loaded.items()):
         t, _, _, _, e, ev = _errors(rec, trajectory)
         for j in range(nj):
-            axes[i, j].plot(t, e[:, j], lw=0.9, color="tab:red")
-            axes[i, j].set_title(f"{scheme.upper()}: position error, joint {j + 1}", fontsize=8)
-            axes[i, j].set_ylabel("rad", fontsize=8)
-            axes[i, nj + j].plot(t, ev[:, j], lw=0.7, color="tab:blue")
-            axes[i, nj + j].set_title(
-                f"{scheme.upper()}: velocity error, joint {j + 1}", fontsize=8
-            )
-            axes[i, nj + j].set_ylabel("rad/s", fontsize=8)
+            ax = panel(i, j, 0)
+            ax.plot(t, e[:, j], lw=0.9, color="tab:red")
+            ax.set_title(f"{scheme.upper()}: position error, joint {j + 1}", fontsize=8)
+            ax.set_ylabel("rad", fontsize=8)
+            ax = panel(i, j, 1)
+            ax.plot(t, ev[:, j], lw=0.7, color="tab:blue")
+            ax.set_title(f"{scheme.upper()}: velocity error, joint {j + 1}", fontsize=8)
+            ax.set_ylabel("rad/s", fontsize=8)
     for ax in axes.flat:
         ax.grid(True, alpha=0.3)
         ax.tick_params(labelsize=7)
