@@ -27,6 +27,7 @@ Pure computation plus reading the event log; imports profiles and drivers.record
 from __future__ import annotations
 
 import csv
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -115,6 +116,64 @@ def host_stamp_trace(rec: Recording, compute_s: float, *, bounded: bool = True) 
     return TimingTrace(sample, np.maximum.accumulate(command))
 
 
+class HostStampRows:
+    """:func:`host_stamp_trace` then :func:`on_real_times` as a realtime run goes, for what
+    updates during it (the online RLS, hil.identify.online): each cycle's host stamps and the
+    torque of the cycle before give that row's real time and interval torque.
+
+    Cycle k's feedback brings s_k (its SYNC sent, ``sent_at``) and its receive time; row k − 1's
+    interval [s_{k−1}, s_k) is then closed and every command acting in it known (a_i ≥ s_i: none
+    after row k − 1's), so its torque is the batch's τ̄_{k−1} (:func:`interval_torque` over the
+    rows from the one acting at s_{k−1} on). a_i = received_i + ``compute_s`` + ``late_s``
+    (what the host did in that cycle before its command went out beyond the loop's own, the
+    online update itself: known online, not in signals.csv), never before s_i, nor before
+    a_{i−1} (as :func:`host_stamp_trace`)."""
+
+    def __init__(self, compute_s: float) -> None:
+        self.compute_s = compute_s
+        self.origin: float | None = None
+        self.pending: tuple[float, float] | None = None  # (s, received) of the newest cycle
+        self.sample: list[float] = []  # rows from the one acting at the newest s on
+        self.command: list[float] = []
+        self.tau: list[np.ndarray] = []
+
+    def push(
+        self, sent_at: float, received_at: float, tau_before: Sequence[float], late_s: float = 0.0
+    ) -> tuple[float, np.ndarray] | None:
+        """Cycle k's stamps, row k − 1's torque and cycle k − 1's ``late_s``: row k − 1's real
+        time t_{k−1} = s_{k−1} − s_0 and interval torque τ̄_{k−1} (None at k = 0)."""
+        if not (np.isfinite(sent_at) and np.isfinite(received_at)):
+            raise ValueError("a cycle without host stamps (sent_at, received_at): not realtime")
+        if self.origin is None:
+            self.origin = sent_at
+        s = sent_at - self.origin
+        out = None
+        if self.pending is not None:
+            s_prev, received_prev = self.pending
+            a = max(received_prev + self.compute_s + late_s, s_prev, *self.command[-1:])
+            self.sample.append(s_prev)
+            self.command.append(a)
+            self.tau.append(np.asarray(tau_before, dtype=float))
+            taus = np.array([*self.tau, self.tau[-1]])  # row k (not known yet) acts from s_k on
+            at_s = np.array([*self.sample, s])
+            at_a = np.array([*self.command, s])
+            mean = [interval_torque(taus[:, j], at_s, at_a)[-2] for j in range(taus.shape[1])]
+            out = (s_prev, np.array(mean))
+            # rows before the one acting at s_k are no longer needed
+            drop = int(np.searchsorted(self.command, s, side="right")) - 1
+            if drop > 0:
+                del self.sample[:drop], self.command[:drop], self.tau[:drop]
+        self.pending = (s, received_at - self.origin)
+        return out
+
+    @property
+    def newest_s(self) -> float:
+        """The newest cycle's sample time (the last row's t: its torque is its own command)."""
+        if self.pending is None:
+            raise ValueError("no cycle yet")
+        return self.pending[0]
+
+
 def run_trace(rec: Recording) -> tuple[TimingTrace, str] | None:
     """The trace of a realtime run directory (robot events if there, else the host's stamps)
     and where it came from; None for a recording that is not a realtime run of this bench.
@@ -176,6 +235,7 @@ __all__ = [
     "COMPUTE_S",
     "DEFAULT_COMPUTE_S",
     "ROBOT_EVENTS",
+    "HostStampRows",
     "host_stamp_trace",
     "interval_torque",
     "on_real_times",

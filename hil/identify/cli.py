@@ -4,8 +4,9 @@ the three schemes of Reyes & Kelly (1997), print Table II, validate, write param
 Over a bench, recursive least squares also runs online, one update per control cycle while the
 experiment runs (:class:`hil.identify.online.OnlineIdentifier`); the report checks that its final θ̂
 equals the batch computation on the recording. A realtime run is read as `--from` reads it, on its
-real sample times (drivers/realtime_times.py); the online RLS saw only the deadline grid, and the
-report says so.
+real sample times (drivers/realtime_times.py); the online RLS takes each row on its real interval
+too, from the host's stamps as they come (:class:`drivers.realtime_times.HostStampRows`), and the
+report says which times each used.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from drivers.arm import Sample
+from drivers.realtime_times import COMPUTE_S, ROBOT_EVENTS, HostStampRows
 from drivers.recording import Recording, write_json_atomic
 from hil.cli_options import (
     PROGRESS_EVERY_S,
@@ -158,14 +160,27 @@ def _record(
     """Run ``experiment`` over ``bench`` (with ``robot`` in place of the bench's arm if given)
     into ``out``, feeding ``online`` as it runs; the recording."""
     from hil.bench.run import run_experiment
+    from profiles.bench import load_bench
 
-    last: dict[str, Any] = {}
+    last: dict[str, Any] = {"late_s": 0.0}
+    realtime = (getattr(args, "mode", None) or load_bench(bench).mode) == "realtime"
+    # realtime: the rows on the host's stamps as they come (what is known online; the robot's
+    # own clock, robot-events.csv, is read after the run); lockstep: every interval is h
+    stamps = HostStampRows(COMPUTE_S["hil run"]) if online is not None and realtime else None
 
     def observer(k: int, sample: Sample) -> None:
         # sample k: q_k and the quantized torque of period k − 1, so row k − 1 is complete now
-        if online is not None and k > 0:
+        started = time.perf_counter()
+        if stamps is not None:
+            row = stamps.push(sample.sent_at, sample.received_at, sample.tau_Nm, last["late_s"])
+            if row is not None:
+                assert online is not None
+                online.push(last["q"], row[1], t=row[0])
+        elif online is not None and k > 0:
             online.push(last["q"], sample.tau_Nm)
         last["q"] = sample.q_rad
+        # this cycle's command goes out after the update: it acts that much later
+        last["late_s"] = time.perf_counter() - started
 
     say("identify", f"running {experiment} over {bench} -> {out}")
     run = run_experiment(
@@ -186,8 +201,8 @@ def _record(
     # as `hil identify --from OUT` reads it: a realtime run on its real times
     joints = 2 if robot is None else None  # an arm named by --robot: its own joint count
     rec = read_recording(args, out, command="identify", min_rows=2, joints=joints, allow_gaps=True)
-    if online is not None:
-        online.push(rec.q[-1], rec.tau[-1])  # the last row's torque is only in the recording
+    if online is not None:  # the last row's torque is only in the recording; its own command
+        online.push(rec.q[-1], rec.tau[-1], t=None if stamps is None else stamps.newest_s)
     return rec
 
 
@@ -341,7 +356,8 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         elif times is not None:
             say(
                 "identify",
-                "irregular sample intervals: the paper discretization assumes k·h (its method)",
+                "irregular sample intervals: the paper's filters written over each interval "
+                "(backward difference over Δt_k, a_k = e^{−λΔt_k}, trapezoid over Δt_k)",
             )
         segments = fit.segments()
         if len(segments) > 1 and disc == discretizations[0]:
@@ -349,6 +365,13 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
                 "identify",
                 f"{len(segments)} segments between gaps: each gives its own rows, one fit over "
                 "all of them, no interval across a gap",
+            )
+        if len(segments) > 1 and disc == "paper":
+            say(
+                "identify",
+                "the paper's rows assume each segment starts at rest (ℰ(0) = 0 in eq. (28), "
+                "filters from zero): the rows after a gap start in motion and are biased; "
+                "--discretization exact writes every balance over its interval and is not",
             )
         results = identify(
             fit.q, fit.tau, h, schemes=schemes, discretization=disc, lam=args.lam,
@@ -427,11 +450,19 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             "max_relative_difference_to_batch_rls": diffs,
             "cost_per_cycle_us": online.cost_per_sample_s() * 1e6,
         }
-        if irregular_times(fit) is not None:  # a realtime run, fitted on its real times
-            report["online"]["sample_times"] = (
-                "the deadline grid k·h (all the run knows as it goes); the batch fit uses the "
-                "real sample times, so the two differ by what the timing changed"
+        if online.real_times:  # a realtime run: rows on the host's stamps as they came
+            after = (
+                f"the robot's clock ({ROBOT_EVENTS})"
+                if (Path(fit.path) / ROBOT_EVENTS).is_file()
+                else "the host's stamps (sync_sent_s, feedback_s)"
             )
+            report["online"]["sample_times"] = (
+                "the host's stamps as the run went (SYNC sent; feedback received + compute "
+                "time + the update's own): each row on its real interval, its torque the mean "
+                "acting in it"
+            )
+            report["online"]["batch_sample_times"] = after
+            report["online"]["segments"] = online.segments
 
     params_files = []
     for i, disc in enumerate(discretizations):
@@ -468,8 +499,8 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         compared = (
             f"matches the batch RLS to {worst:.1e} (relative)"
             if "sample_times" not in o
-            else f"differs from the batch RLS by {worst:.1e} (relative): online on the deadline "
-            "grid k·h, the batch on the run's real sample times"
+            else f"differs from the batch RLS by {worst:.1e} (relative): both on real sample "
+            "times, online the host's stamps as they came, the batch " + o["batch_sample_times"]
         )
         lines.append(
             f"\nonline RLS ({o['discretization']}, updated every cycle during the run): "

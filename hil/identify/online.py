@@ -6,6 +6,14 @@ held over period k — and keeps θ̂(k) of each scheme. It uses the same row bu
 filter coefficients as the batch path (:mod:`hil.model.regressors`), with the filter states carried
 from sample to sample, so at the end of a run its θ̂ equals :func:`hil.model.estimators.
 recursive_least_squares` over the recording (a test checks it).
+
+Real sample times (``push(q, tau, t)``, a realtime run: :class:`drivers.realtime_times.
+HostStampRows` gives each row's time and interval torque from the host's stamps as they come):
+the rows are the batch's on real times, ``exact`` over each interval's own length and ``paper``
+with its filters written over each interval (:func:`hil.model.regressors.filter_over_intervals`);
+an interval longer than GAP_FACTOR periods is a gap, where the rows start afresh (window and
+filters; θ̂ and P kept), as the batch fit starts each segment. Without ``t`` every interval is h,
+and the numbers are the ones computed before real times were known.
 """
 
 from __future__ import annotations
@@ -17,6 +25,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.signal import lfilter
 
+from drivers.recording import GAP_FACTOR
 from hil.model.closed_form import N_PARAMS
 from hil.model.estimators import PAPER_P0, RecursiveLeastSquares
 from hil.model.regressors import (
@@ -24,6 +33,7 @@ from hil.model.regressors import (
     SCHEMES,
     Kinematics,
     filter_coefficients,
+    filter_over_intervals,
     kinematics,
     raw_rows,
     stick_memory,
@@ -35,14 +45,20 @@ WINDOW = {"paper": 2, "exact": 4}
 
 
 class _StreamFilter:
-    """One LTI filter run sample by sample (scipy.signal.lfilter with carried state)."""
+    """One filter run sample by sample: the LTI one (scipy.signal.lfilter with carried state),
+    or, given each row's interval, :func:`filter_over_intervals` with its state carried."""
 
     def __init__(self, name: str, lam: float, h: float, shape: tuple[int, ...]) -> None:
+        self.name, self.lam = name, lam
         self.b, self.a = filter_coefficients(name, lam, h)
         order = max(len(self.a), len(self.b)) - 1
         self.zi = np.zeros((order, *shape)) if order else None
+        self.state: tuple[np.ndarray, np.ndarray] | None = None
 
-    def step(self, x: np.ndarray) -> np.ndarray:
+    def step(self, x: np.ndarray, dt: float | None = None) -> np.ndarray:
+        if dt is not None:
+            y, self.state = filter_over_intervals(self.name, self.lam, [dt], x[None], self.state)
+            return y[0]
         if self.zi is None:
             return lfilter(self.b, self.a, x[None], axis=0)[0]
         y, self.zi = lfilter(self.b, self.a, x[None], axis=0, zi=self.zi)
@@ -55,12 +71,20 @@ class _SchemeStream:
         self.lam, self.h = lam, h
         self.m = 2 if scheme == "filtered_dynamic" else 1
         self.rls = RecursiveLeastSquares(N_PARAMS, p0=p0)
-        self.filters: dict[str, _StreamFilter] | None = None
         self.memory = stick_memory(lam, h)
-        self.since_stuck = np.full(self.m, 10**9)
+        self.restart()
         self.rows = 0
 
-    def push_rows(self, q: np.ndarray, tau: np.ndarray, kin: Kinematics) -> None:
+    def restart(self) -> None:
+        """A new segment (after a gap): filters from zero, no stuck interval in memory."""
+        self.filters: dict[str, _StreamFilter] | None = None
+        self.since_stuck = np.full(self.m, 10**9)
+
+    def push_rows(
+        self, q: np.ndarray, tau: np.ndarray, kin: Kinematics, dt: float | None = None
+    ) -> None:
+        """The newest row of the window; ``dt``: its own interval, for filters that follow
+        the clock (``paper`` on real times)."""
         raw = raw_rows(self.scheme, self.discretization, q, tau, self.h, kin)
         if len(raw.index) == 0:
             return
@@ -68,8 +92,8 @@ class _SchemeStream:
             self.filters = {"y": _StreamFilter(raw.y_filter, self.lam, self.h, (self.m,))}
             for i, (name, _x) in enumerate(raw.parts):
                 self.filters[f"part{i}"] = _StreamFilter(name, self.lam, self.h, (self.m, 9))
-        y = self.filters["y"].step(raw.y[-1])
-        psi = sum(self.filters[f"part{i}"].step(x[-1]) for i, (_n, x) in enumerate(raw.parts))
+        y = self.filters["y"].step(raw.y[-1], dt)
+        psi = sum(self.filters[f"part{i}"].step(x[-1], dt) for i, (_n, x) in enumerate(raw.parts))
         stuck = raw.stuck[-1]
         self.since_stuck = np.where(stuck, 0, self.since_stuck + 1)
         weight = (self.since_stuck > self.memory).astype(float)
@@ -96,22 +120,50 @@ class OnlineIdentifier:
                 raise ValueError(f"unknown scheme {s!r}; expected one of {', '.join(SCHEMES)}")
         self.period_s = period_s
         self.discretization = discretization
-        self.window: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=WINDOW[discretization])
+        self.window: deque[tuple[np.ndarray, np.ndarray, float]] = deque(
+            maxlen=WINDOW[discretization]
+        )
         self.streams = {s: _SchemeStream(s, discretization, lam, period_s, p0) for s in schemes}
         self.samples = 0
+        self.segments = 0  # segments begun (after gaps), on real times
+        self.real_times: bool | None = None  # set by the first push: t given or not
         self.update_time_s = 0.0  # CPU spent in push(), for the cost report
 
-    def push(self, q: Sequence[float], tau: Sequence[float]) -> None:
-        """Add sample k: the encoder reading q_k and the torque held over [t_k, t_{k+1})."""
+    def push(self, q: Sequence[float], tau: Sequence[float], t: float | None = None) -> None:
+        """Add sample k: the encoder reading q_k and the torque held over [t_k, t_{k+1}) (on
+        real times: its mean over the interval). ``t``: the sample's real time t_k, for every
+        sample of a run or for none (then t_k = k·h)."""
         started = time.perf_counter()
-        self.window.append((np.asarray(q, dtype=float), np.asarray(tau, dtype=float)))
+        if self.real_times is None:
+            self.real_times = t is not None
+        elif self.real_times != (t is not None):
+            raise ValueError("give every sample its time t, or none of them")
+        if t is not None and self.window:
+            interval = t - self.window[-1][2]
+            if not interval > 0:
+                raise ValueError(f"sample times must increase: {t} after {self.window[-1][2]}")
+            if interval > GAP_FACTOR * self.period_s:  # a gap: rows never span it
+                self.window.clear()
+                for stream in self.streams.values():
+                    stream.restart()
+        if t is not None and not self.window:
+            self.segments += 1
+        self.window.append(
+            (np.asarray(q, dtype=float), np.asarray(tau, dtype=float), float(t or 0.0))
+        )
         self.samples += 1
         if len(self.window) == self.window.maxlen or self.discretization == "paper":
             qw = np.array([w[0] for w in self.window])
             tw = np.array([w[1] for w in self.window])
-            kin = kinematics(self.discretization, qw, self.period_s)
+            times = np.array([w[2] for w in self.window]) if self.real_times else None
+            kin = kinematics(self.discretization, qw, self.period_s, t=times)
+            dt = None
+            if times is not None and self.discretization == "paper":
+                # the row's own interval; a segment's first row: the nominal period (as the
+                # batch's iter_regression)
+                dt = float(times[-1] - times[-2]) if len(times) > 1 else self.period_s
             for stream in self.streams.values():
-                stream.push_rows(qw, tw, kin)
+                stream.push_rows(qw, tw, kin, dt)
         self.update_time_s += time.perf_counter() - started
 
     @property

@@ -107,7 +107,9 @@ def identify(
     """Identify θ with each scheme: regression (eqs. (24), (28), (30)), then recursive least
     squares (eqs. (20)-(22), P(0) = 1000·I, θ̂(0) = 0), batch and weighted least squares.
     ``t``: the samples' real times when they are not k·h (:func:`irregular_times`); the
-    ``exact`` rows then use each interval's own length; ``paper`` keeps the paper's k·h.
+    ``exact`` rows then use each interval's own length, and ``paper`` is the paper's method
+    written over each interval (backward difference over Δt_k, each filter's ZOH equivalent
+    e^{−λΔt_k}: :func:`hil.model.regressors.filter_over_intervals`), never k·h.
     ``segments``: row ranges between gaps (:meth:`drivers.recording.Recording.segments`); the
     rows of each are built on its own (filters started afresh, never an interval across a gap)
     and all of them enter one fit; a segment too short for a row (< 8 samples) is left out.
@@ -130,7 +132,7 @@ def identify(
     samples = sum(len(range(*p.indices(len(q)))) for p in parts)  # ≈ rows, before pass 1 counts
     out = {}
     for scheme in schemes:
-        times = t if discretization == "exact" else None
+        times = t
 
         def rows(scheme: str = scheme, times: np.ndarray | None = times):
             # the regression in chunks, built afresh for each pass: memory O(chunk), not O(rows);

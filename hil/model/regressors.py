@@ -34,8 +34,13 @@ own length h_k = t_{k+1} − t_k (impulse h_k τ_k, Hermite integrals over h_k, 
 samples by the three-point derivative on the unequal grid), so irregular sampling and gaps cost
 nothing but the rows' noise. The row filter stays one LTI low-pass over the row sequence with
 the coefficient of the median interval: any fixed linear filter applied alike to both sides of
-y_k = Ψ_k θ keeps the equation exact, so the filter need not follow the clock. ``paper`` assumes
-equal intervals and refuses irregular ones.
+y_k = Ψ_k θ keeps the equation exact, so the filter need not follow the clock. ``paper`` with
+``t`` is the paper's own method written over each interval, as the paper derives it ("torques,
+positions, and velocities are held constant between sampling instants", Sec. 5.1): backward
+difference over Δt_k = t_k − t_{k−1}, each first-order filter the zero-order-hold equivalent of
+that interval, a_k = e^{−λΔt_k} (exact for the held input, as e^{−λh} is for equal ones), the
+trapezoid rule over Δt_k (:func:`filter_over_intervals`). Equal intervals without ``t`` keep
+the LTI filters, bit for bit.
 
 Every builder takes the model object (:class:`hil.model.closed_form.ArmModel`, default the
 9-parameter
@@ -109,13 +114,46 @@ def filter_coefficients(name: str, lam: float, h: float) -> tuple[list[float], l
     return table[name]
 
 
+def filter_over_intervals(
+    name: str,
+    lam: float,
+    dt: np.ndarray,
+    x: np.ndarray,
+    state: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """The first-order filter ``name`` of :func:`filter_coefficients` run over rows whose
+    intervals differ: row k uses the coefficients of its own interval dt[k] = t_k − t_{k−1},
+    y_k = b0(Δt_k) x_k + b1(Δt_k) x_{k−1} − a1(Δt_k) y_{k−1}. For the paper's filters this is
+    Reyes & Kelly (1997) Sec. 5.1 written per interval: the ZOH equivalent of λ/(s+λ) over
+    [t_{k−1}, t_k] is y_k = e^{−λΔt_k} y_{k−1} + (1 − e^{−λΔt_k}) x_{k−1}, exact for x held over
+    the interval, and λs/(s+λ) is y_k = e^{−λΔt_k} y_{k−1} + λ (x_k − x_{k−1}), exact for x
+    stepping at the samples; the trapezoid rule (Sec. 5.2) is y_k = y_{k−1} + Δt_k (x_k +
+    x_{k−1})/2. ``state`` (x_{−1}, y_{−1}) carries a stream across calls (zeros at the start,
+    as lfilter's zi = 0); returns (y, state). The rows are walked one by one: the coefficients
+    change with every row, so no LTI routine applies."""
+    x = np.asarray(x, dtype=float)
+    dt = np.asarray(dt, dtype=float)
+    if len(dt) != len(x):
+        raise ValueError(f"{len(x)} rows but {len(dt)} intervals")
+    x_prev, y_prev = (np.zeros(x.shape[1:]), np.zeros(x.shape[1:])) if state is None else state
+    y = np.empty_like(x)
+    for k in range(len(x)):
+        b, a = filter_coefficients(name, lam, float(dt[k]))
+        b0, b1 = b[0], (b[1] if len(b) > 1 else 0.0)
+        a1 = a[1] if len(a) > 1 else 0.0
+        y[k] = b0 * x[k] + b1 * x_prev - a1 * y_prev
+        x_prev, y_prev = x[k], y[k]
+    return y, (x_prev, y_prev)
+
+
 # --- velocities and interval integrals ----------------------------------------------------------
 
 
-def backward_difference(q: np.ndarray, h: float) -> np.ndarray:
-    """v_k = (q_k − q_{k−1}) / h, v_0 = 0 (at rest), as in the paper (Section 5)."""
+def backward_difference(q: np.ndarray, h: float | np.ndarray) -> np.ndarray:
+    """v_k = (q_k − q_{k−1}) / h, v_0 = 0 (at rest), as in the paper (Section 5). ``h``: the
+    common period, or every sample's own interval t_k − t_{k−1}, shape (N − 1,)."""
     v = np.zeros_like(q)
-    v[1:] = np.diff(q, axis=0) / h
+    v[1:] = np.diff(q, axis=0) / (h if np.ndim(h) == 0 else np.asarray(h, float)[:, None])
     return v
 
 
@@ -376,14 +414,16 @@ def kinematics(
 ) -> Kinematics:
     """Velocities (backward difference for ``paper``, central for ``exact``) and, for
     ``exact``, the integrals over every interval with both end velocities known. ``t``: the
-    samples' real times (``exact`` only), used instead of k·h; ``half_window`` > 1: velocities
+    samples' real times, used instead of k·h (``paper``: the backward difference over each
+    sample's own interval); ``half_window`` > 1: velocities
     by :func:`local_polynomial_velocity` over 2·half_window + 1 samples (real times only);
     ``keep`` = (i, j): only intervals i..j−1 of the window (chunked building); ``static``
     False: without ∫ R dt (rows of the energy and power schemes only)."""
     if discretization == "paper":
-        if t is not None:
-            raise ValueError("the paper discretization assumes equal intervals; use exact")
-        return Kinematics(backward_difference(q, h), None, model)
+        if t is None:
+            return Kinematics(backward_difference(q, h), None, model)
+        dt = np.diff(np.asarray(t, dtype=float))
+        return Kinematics(backward_difference(q, dt), None, model, dt)
     if t is None:
         v = central_difference(q, h)
         return Kinematics(v, interval_integrals(q, v, h, model, static=static), model)
@@ -506,11 +546,19 @@ class RowFilters:
     def __init__(self, lam: float, h: float) -> None:
         self.lam, self.h = lam, h
         self.states: dict[int, np.ndarray] = {}
+        self.varying: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
-    def apply(self, raw: RawRows) -> tuple[np.ndarray, np.ndarray]:
-        """(y, Psi) of ``raw``'s rows, filtered."""
+    def apply(self, raw: RawRows, dt: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(y, Psi) of ``raw``'s rows, filtered; ``dt``: each row's own interval (the paper's
+        filters on real times, :func:`filter_over_intervals`), else the LTI filters at h."""
         out = []
         for i, (name, x) in enumerate(((raw.y_filter, raw.y), *raw.parts)):
+            if dt is not None:
+                y, self.varying[i] = filter_over_intervals(
+                    name, self.lam, dt, x, self.varying.get(i)
+                )
+                out.append(y)
+                continue
             b, a = filter_coefficients(name, self.lam, self.h)
             zi = self.states.get(i)
             if zi is None:
@@ -545,7 +593,8 @@ def build_regression(
     ``filtered_dynamic``: eq. (24), vector error; ``supplied_energy``: eq. (28), scalar;
     ``filtered_power``: eq. (30), scalar. See the module doc for the two discretizations.
     ``model``: whose columns (default the 9-parameter model); ``t``: the samples' real times
-    (``exact`` only; ``h`` is then the nominal period that sets the row filter's coefficient).
+    (``exact``: ``h`` is then the nominal period that sets the row filter's coefficient;
+    ``paper``: every filter over each row's own interval, :func:`filter_over_intervals`).
     """
     chunks = list(
         iter_regression(
@@ -627,9 +676,15 @@ def iter_regression(
         row_stuck = raw.stuck
         if stuck is not None and scheme == "filtered_dynamic":
             row_stuck = stuck[raw.index - 1 + a]  # row k+1 is about interval k
-        y, Psi = filters.apply(raw)
-        weights = memory.weights(row_stuck)
         index = raw.index + a
+        dt = None
+        if t is not None and discretization == "paper":
+            # each row's own interval t_k − t_{k−1}; a segment's first row has none before it
+            # (its filters' inputs before it are zero, so only the trapezoid's first half-step
+            # uses it): the nominal period there
+            dt = np.where(index > 0, t[index] - t[np.maximum(index - 1, 0)], h)
+        y, Psi = filters.apply(raw, dt)
+        weights = memory.weights(row_stuck)
         yield RowChunk(index * h if t is None else t[index], y, Psi, weights)
 
 
@@ -759,6 +814,7 @@ __all__ = [
     "data_bandwidth",
     "excitation_bandwidth",
     "filter_coefficients",
+    "filter_over_intervals",
     "iter_regression",
     "iter_rows",
 ]
