@@ -29,6 +29,7 @@ from __future__ import annotations
 import csv
 from collections.abc import Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -116,10 +117,21 @@ def host_stamp_trace(rec: Recording, compute_s: float, *, bounded: bool = True) 
     return TimingTrace(sample, np.maximum.accumulate(command))
 
 
+class StampedRow(NamedTuple):
+    """One row on the host's stamps: ``t`` its sample time s_k − s_0 (the SYNC sent), ``tau``
+    the mean torque over [s_k, s_{k+1}), ``uncertainty_s`` how long its SYNC→feedback round
+    trip took: the robot sampled somewhere in it, so s_k is known to within that."""
+
+    t: float
+    tau: np.ndarray
+    uncertainty_s: float
+
+
 class HostStampRows:
     """:func:`host_stamp_trace` then :func:`on_real_times` as a realtime run goes, for what
     updates during it (the online RLS, hil.identify.online): each cycle's host stamps and the
-    torque of the cycle before give that row's real time and interval torque.
+    torque of the cycle before give that row's real time, interval torque and how well its
+    sample time is known (:class:`StampedRow`).
 
     Cycle k's feedback brings s_k (its SYNC sent, ``sent_at``) and its receive time; row k − 1's
     interval [s_{k−1}, s_k) is then closed and every command acting in it known (a_i ≥ s_i: none
@@ -139,9 +151,9 @@ class HostStampRows:
 
     def push(
         self, sent_at: float, received_at: float, tau_before: Sequence[float], late_s: float = 0.0
-    ) -> tuple[float, np.ndarray] | None:
-        """Cycle k's stamps, row k − 1's torque and cycle k − 1's ``late_s``: row k − 1's real
-        time t_{k−1} = s_{k−1} − s_0 and interval torque τ̄_{k−1} (None at k = 0)."""
+    ) -> StampedRow | None:
+        """Cycle k's stamps, row k − 1's torque and cycle k − 1's ``late_s``: row k − 1 on its
+        real time (None at k = 0)."""
         if not (np.isfinite(sent_at) and np.isfinite(received_at)):
             raise ValueError("a cycle without host stamps (sent_at, received_at): not realtime")
         if self.origin is None:
@@ -150,6 +162,7 @@ class HostStampRows:
         out = None
         if self.pending is not None:
             s_prev, received_prev = self.pending
+            uncertainty = received_prev - s_prev
             a = max(received_prev + self.compute_s + late_s, s_prev, *self.command[-1:])
             self.sample.append(s_prev)
             self.command.append(a)
@@ -158,7 +171,7 @@ class HostStampRows:
             at_s = np.array([*self.sample, s])
             at_a = np.array([*self.command, s])
             mean = [interval_torque(taus[:, j], at_s, at_a)[-2] for j in range(taus.shape[1])]
-            out = (s_prev, np.array(mean))
+            out = StampedRow(s_prev, np.array(mean), uncertainty)
             # rows before the one acting at s_k are no longer needed
             drop = int(np.searchsorted(self.command, s, side="right")) - 1
             if drop > 0:
@@ -236,6 +249,7 @@ __all__ = [
     "DEFAULT_COMPUTE_S",
     "ROBOT_EVENTS",
     "HostStampRows",
+    "StampedRow",
     "host_stamp_trace",
     "interval_torque",
     "on_real_times",

@@ -177,6 +177,30 @@ def test_online_rls_on_real_times_is_the_batch_fit_and_unbiased(discretization: 
         assert _worst_error(online) < 2 * _worst_error(uniform.theta_rls) < on_grid
 
 
+def test_online_rows_on_uncertain_stamps_are_left_out() -> None:
+    """A robot that woke late to some SYNCs sampled after the host's stamp (the SYNC sent) says:
+    taken as they are, the few rows around those samples pull θ̂ far off; left out by their
+    SYNC→feedback round trip (the bracket of the robot's sample time), the rest give θ as with
+    exact stamps."""
+    n = 1400
+    t, q, tau = _on_irregular_times(n, ((1.5, 0.015),))
+    rng = np.random.default_rng(7)
+    late = rng.random(n) < 0.05
+    late[:5] = False
+    late_by = np.where(late, rng.uniform(0.5e-3, 1.5e-3, n), 0.0)
+    stamps = t - late_by  # the host sent the SYNC then; the robot sampled at t
+    round_trip = 1.5e-4 + late_by
+    assert np.all(np.diff(stamps) > 0)
+    checked = OnlineIdentifier(H, schemes=("filtered_dynamic",))
+    trusting = OnlineIdentifier(H, schemes=("filtered_dynamic",))
+    for k in range(n):
+        checked.push(q[k], tau[k], stamps[k], uncertainty_s=round_trip[k])
+        trusting.push(q[k], tau[k], stamps[k])
+    assert 0 < checked.rows_uncertain < n / 3 and trusting.rows_uncertain == 0
+    assert _worst_error(checked.theta["filtered_dynamic"]) < 0.01
+    assert _worst_error(trusting.theta["filtered_dynamic"]) > 0.05
+
+
 def test_paper_rows_on_equal_stamps_are_the_lti_ones() -> None:
     """The paper's filters written over each interval are its LTI filters when every interval
     is h (the per-interval form is the same recursion), so given the stamps k·h the estimate
@@ -210,8 +234,9 @@ def test_host_stamp_rows_online_are_the_batch_reading() -> None:
     rows = [stamps.push(sent[0], received[0], ())]
     rows += [stamps.push(sent[k], received[k], tau[k - 1]) for k in range(1, n)]
     assert rows[0] is None
-    assert np.array_equal([r[0] for r in rows[1:]], s[:-1])
-    assert np.allclose([r[1] for r in rows[1:]], whole[:-1], rtol=0, atol=1e-9)
+    assert np.array_equal([r.t for r in rows[1:]], s[:-1])
+    assert np.allclose([r.tau for r in rows[1:]], whole[:-1], rtol=0, atol=1e-9)
+    assert np.allclose([r.uncertainty_s for r in rows[1:]], (received - sent)[:-1])
     assert stamps.newest_s == s[-1]
     assert len(stamps.sample) <= 3  # only the rows still acting are kept
     with pytest.raises(ValueError, match="host stamps"):

@@ -38,7 +38,7 @@ from hil.cli_options import (
     say,
     split_list,
 )
-from hil.identify.online import OnlineIdentifier
+from hil.identify.online import STAMP_UNCERTAINTY_MAX, OnlineIdentifier
 from hil.identify.schemes import (
     ESTIMATORS,
     PAPER_TABLE_II,
@@ -175,7 +175,7 @@ def _record(
             row = stamps.push(sample.sent_at, sample.received_at, sample.tau_Nm, last["late_s"])
             if row is not None:
                 assert online is not None
-                online.push(last["q"], row[1], t=row[0])
+                online.push(last["q"], row.tau, t=row.t, uncertainty_s=row.uncertainty_s)
         elif online is not None and k > 0:
             online.push(last["q"], sample.tau_Nm)
         last["q"] = sample.q_rad
@@ -462,6 +462,8 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
                 "acting in it"
             )
             report["online"]["batch_sample_times"] = after
+            report["online"]["rows_left_out_uncertain_times"] = online.rows_uncertain
+            report["online"]["stamp_uncertainty_max_s"] = STAMP_UNCERTAINTY_MAX * online.period_s
             report["online"]["segments"] = online.segments
 
     params_files = []
@@ -500,7 +502,10 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             f"matches the batch RLS to {worst:.1e} (relative)"
             if "sample_times" not in o
             else f"differs from the batch RLS by {worst:.1e} (relative): both on real sample "
-            "times, online the host's stamps as they came, the batch " + o["batch_sample_times"]
+            "times, online the host's stamps as they came, the batch "
+            + o["batch_sample_times"]
+            + f"; {o['rows_left_out_uncertain_times']} online rows left out, a sample time not "
+            f"known to within {o['stamp_uncertainty_max_s'] * 1e3:.2g} ms"
         )
         lines.append(
             f"\nonline RLS ({o['discretization']}, updated every cycle during the run): "

@@ -14,6 +14,17 @@ with its filters written over each interval (:func:`hil.model.regressors.filter_
 an interval longer than GAP_FACTOR periods is a gap, where the rows start afresh (window and
 filters; θ̂ and P kept), as the batch fit starts each segment. Without ``t`` every interval is h,
 and the numbers are the ones computed before real times were known.
+
+A time stamp off by δ makes the velocities of the samples around it wrong by about δ/Δt, and a
+few such rows dominate a least-squares fit (a host that read one feedback 2 ms late gave
+θ̂ 130 % off). The host's stamps bracket each sample: the robot sampled between the SYNC going
+out and its feedback coming back, so ``uncertainty_s`` (that round trip) bounds the error. An
+``exact`` row enters only when every sample it is built from (velocities at both ends of its
+interval: 4 samples) is known to within STAMP_UNCERTAINTY_MAX periods; the others are left out
+before the filters, not weighted to zero after them. That changes nothing in the equations the
+fit uses: every ``exact`` row is its own interval's balance, so any subset of them, filtered
+alike on both sides (or summed, for supplied energy), holds exactly. ``paper`` rows filter the
+sampled signals themselves, and a row cannot be left out of them: they take every sample.
 """
 
 from __future__ import annotations
@@ -42,6 +53,10 @@ from hil.model.regressors import (
 # Samples a row needs: paper uses q_{k−1}, q_k (backward difference); exact needs
 # q_{k−2}..q_{k+1} to have central velocities at both ends of the interval [t_{k−1}, t_k].
 WINDOW = {"paper": 2, "exact": 4}
+# An ``exact`` row enters the online fit only when the sample times it is built from are known to
+# within this fraction of the period (module docstring): an error δ changes its velocities by
+# about δ/h, so 10 % at most on one row, and the real error is mostly far less than the bound.
+STAMP_UNCERTAINTY_MAX = 0.1
 
 
 class _StreamFilter:
@@ -120,19 +135,27 @@ class OnlineIdentifier:
                 raise ValueError(f"unknown scheme {s!r}; expected one of {', '.join(SCHEMES)}")
         self.period_s = period_s
         self.discretization = discretization
-        self.window: deque[tuple[np.ndarray, np.ndarray, float]] = deque(
+        self.window: deque[tuple[np.ndarray, np.ndarray, float, bool]] = deque(
             maxlen=WINDOW[discretization]
         )
         self.streams = {s: _SchemeStream(s, discretization, lam, period_s, p0) for s in schemes}
         self.samples = 0
         self.segments = 0  # segments begun (after gaps), on real times
+        self.rows_uncertain = 0  # exact rows left out: a sample time not known well enough
         self.real_times: bool | None = None  # set by the first push: t given or not
         self.update_time_s = 0.0  # CPU spent in push(), for the cost report
 
-    def push(self, q: Sequence[float], tau: Sequence[float], t: float | None = None) -> None:
+    def push(
+        self,
+        q: Sequence[float],
+        tau: Sequence[float],
+        t: float | None = None,
+        uncertainty_s: float = 0.0,
+    ) -> None:
         """Add sample k: the encoder reading q_k and the torque held over [t_k, t_{k+1}) (on
         real times: its mean over the interval). ``t``: the sample's real time t_k, for every
-        sample of a run or for none (then t_k = k·h)."""
+        sample of a run or for none (then t_k = k·h); ``uncertainty_s``: how far off t_k may be
+        (module docstring)."""
         started = time.perf_counter()
         if self.real_times is None:
             self.real_times = t is not None
@@ -148,11 +171,15 @@ class OnlineIdentifier:
                     stream.restart()
         if t is not None and not self.window:
             self.segments += 1
+        certain = uncertainty_s <= STAMP_UNCERTAINTY_MAX * self.period_s
         self.window.append(
-            (np.asarray(q, dtype=float), np.asarray(tau, dtype=float), float(t or 0.0))
+            (np.asarray(q, dtype=float), np.asarray(tau, dtype=float), float(t or 0.0), certain)
         )
         self.samples += 1
-        if len(self.window) == self.window.maxlen or self.discretization == "paper":
+        full = len(self.window) == self.window.maxlen
+        if full and self.discretization == "exact" and not all(w[3] for w in self.window):
+            self.rows_uncertain += 1
+        elif full or self.discretization == "paper":
             qw = np.array([w[0] for w in self.window])
             tw = np.array([w[1] for w in self.window])
             times = np.array([w[2] for w in self.window]) if self.real_times else None
