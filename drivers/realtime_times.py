@@ -119,8 +119,11 @@ def host_stamp_trace(rec: Recording, compute_s: float, *, bounded: bool = True) 
 
 class StampedRow(NamedTuple):
     """One row on the host's stamps: ``t`` its sample time s_k − s_0 (the SYNC sent), ``tau``
-    the mean torque over [s_k, s_{k+1}), ``uncertainty_s`` how long its SYNC→feedback round
-    trip took: the robot sampled somewhere in it, so s_k is known to within that."""
+    the mean torque over [s_k, s_{k+1}), ``uncertainty_s`` how much longer its SYNC→feedback
+    round trip took than the shortest so far. The robot sampled somewhere in the round trip;
+    the shortest one is the bus and the device with nobody waiting, which shifts every stamp
+    alike and so no interval: only the waiting beyond it (the robot woke late, or the host
+    read late) leaves the sample time unknown."""
 
     t: float
     tau: np.ndarray
@@ -145,6 +148,7 @@ class HostStampRows:
         self.compute_s = compute_s
         self.origin: float | None = None
         self.pending: tuple[float, float] | None = None  # (s, received) of the newest cycle
+        self.shortest = np.inf  # the shortest SYNC→feedback round trip so far
         self.sample: list[float] = []  # rows from the one acting at the newest s on
         self.command: list[float] = []
         self.tau: list[np.ndarray] = []
@@ -162,7 +166,7 @@ class HostStampRows:
         out = None
         if self.pending is not None:
             s_prev, received_prev = self.pending
-            uncertainty = received_prev - s_prev
+            uncertainty = received_prev - s_prev - self.shortest
             a = max(received_prev + self.compute_s + late_s, s_prev, *self.command[-1:])
             self.sample.append(s_prev)
             self.command.append(a)
@@ -177,6 +181,7 @@ class HostStampRows:
             if drop > 0:
                 del self.sample[:drop], self.command[:drop], self.tau[:drop]
         self.pending = (s, received_at - self.origin)
+        self.shortest = min(self.shortest, received_at - sent_at)
         return out
 
     @property

@@ -189,12 +189,12 @@ def test_online_rows_on_uncertain_stamps_are_left_out() -> None:
     late[:5] = False
     late_by = np.where(late, rng.uniform(0.5e-3, 1.5e-3, n), 0.0)
     stamps = t - late_by  # the host sent the SYNC then; the robot sampled at t
-    round_trip = 1.5e-4 + late_by
+    waited = late_by  # the SYNC→feedback round trip beyond its shortest (StampedRow)
     assert np.all(np.diff(stamps) > 0)
     checked = OnlineIdentifier(H, schemes=("filtered_dynamic",))
     trusting = OnlineIdentifier(H, schemes=("filtered_dynamic",))
     for k in range(n):
-        checked.push(q[k], tau[k], stamps[k], uncertainty_s=round_trip[k])
+        checked.push(q[k], tau[k], stamps[k], uncertainty_s=waited[k])
         trusting.push(q[k], tau[k], stamps[k])
     assert 0 < checked.rows_uncertain < n / 3 and trusting.rows_uncertain == 0
     assert _worst_error(checked.theta["filtered_dynamic"]) < 0.01
@@ -236,7 +236,9 @@ def test_host_stamp_rows_online_are_the_batch_reading() -> None:
     assert rows[0] is None
     assert np.array_equal([r.t for r in rows[1:]], s[:-1])
     assert np.allclose([r.tau for r in rows[1:]], whole[:-1], rtol=0, atol=1e-9)
-    assert np.allclose([r.uncertainty_s for r in rows[1:]], (received - sent)[:-1])
+    round_trip = received - sent
+    beyond = round_trip - np.minimum.accumulate(round_trip)
+    assert np.allclose([r.uncertainty_s for r in rows[1:]], beyond[:-1], rtol=0, atol=1e-9)
     assert stamps.newest_s == s[-1]
     assert len(stamps.sample) <= 3  # only the rows still acting are kept
     with pytest.raises(ValueError, match="host stamps"):

@@ -18,7 +18,8 @@ and the numbers are the ones computed before real times were known.
 A time stamp off by δ makes the velocities of the samples around it wrong by about δ/Δt, and a
 few such rows dominate a least-squares fit (a host that read one feedback 2 ms late gave
 θ̂ 130 % off). The host's stamps bracket each sample: the robot sampled between the SYNC going
-out and its feedback coming back, so ``uncertainty_s`` (that round trip) bounds the error. An
+out and its feedback coming back, so ``uncertainty_s`` (that round trip beyond its shortest,
+:class:`drivers.realtime_times.StampedRow`) bounds the error. An
 ``exact`` row enters only when every sample it is built from (velocities at both ends of its
 interval: 4 samples) is known to within STAMP_UNCERTAINTY_MAX periods; the others are left out
 before the filters, not weighted to zero after them. That changes nothing in the equations the
@@ -55,8 +56,8 @@ from hil.model.regressors import (
 WINDOW = {"paper": 2, "exact": 4}
 # An ``exact`` row enters the online fit only when the sample times it is built from are known to
 # within this fraction of the period (module docstring): an error δ changes its velocities by
-# about δ/h, so 10 % at most on one row, and the real error is mostly far less than the bound.
-STAMP_UNCERTAINTY_MAX = 0.1
+# about δ/h, so 5 % at most on one row, and the real error is mostly far less than the bound.
+STAMP_UNCERTAINTY_MAX = 0.05
 
 
 class _StreamFilter:
