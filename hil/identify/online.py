@@ -16,11 +16,11 @@ filters; θ̂ and P kept), as the batch fit starts each segment. Without ``t`` e
 and the numbers are the ones computed before real times were known.
 
 A time stamp off by δ makes the velocities of the samples around it wrong by about δ/Δt, and a
-few such rows dominate a least-squares fit (the host's stamps of a 20 s realtime run, off by
-up to 2 ms on a few percent of the samples, gave θ̂ 130 % off: docs/identification.md). The
-host's stamps bracket each sample: the robot sampled between the SYNC going out and its
-feedback coming back, so ``uncertainty_s`` (that round trip beyond its shortest,
-:class:`drivers.realtime_times.StampedRow`) bounds the error. An
+few such rows dominate a least-squares fit (every row on the host's stamps of a 20 s realtime
+run, off by up to 2 ms on a few percent of the samples, gave θ̂ 258 % off:
+docs/identification.md). The host's stamps bracket each sample: the robot sampled between the
+SYNC going out and its feedback coming back, so ``uncertainty_s`` (that round trip beyond its
+shortest, :class:`drivers.realtime_times.StampedRow`) bounds the error. An
 ``exact`` row enters only when every sample it is built from (velocities at both ends of its
 interval: 4 samples) is known to within STAMP_UNCERTAINTY_MAX periods; the others are left out
 before the filters, not weighted to zero after them. That changes nothing in the equations the

@@ -13,6 +13,10 @@ profile (the virtual robot's θ) for:
 * online (now): the report's online θ̂, each row on the host's stamps as they came;
 * online on k·h (before): the same run's rows pushed on the deadline grid, as the online RLS
   did before (the recording's q and torque, k·h, every row);
+* online replayed on the host's stamps, every row / with the bracket rule: the recording's
+  stamps (sync_sent_s, feedback_s) through HostStampRows and OnlineIdentifier after the run,
+  without the update's own time (not recorded), taking every row, or leaving out the rows on
+  loosely bracketed stamps as the online RLS does;
 * paper on k·h (before) and paper per interval (now): the batch fit with the paper's
   discretization on the run read on its real times, its formulas on k·h / over each interval.
 
@@ -30,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from drivers.realtime_times import COMPUTE_S, HostStampRows
 from drivers.recording import read_signals
 from hil.cli_options import read_recording
 from hil.identify.online import OnlineIdentifier
@@ -71,6 +76,17 @@ def main() -> int:
     grid = OnlineIdentifier(raw.period_s)
     for q, tau in zip(raw.q, raw.tau, strict=True):
         grid.push(q, tau)
+    replayed = {"every row": OnlineIdentifier(raw.period_s), "bracket rule": OnlineIdentifier(
+        raw.period_s)}  # fmt: skip
+    stamps = HostStampRows(COMPUTE_S["hil run"])
+    sent, received = raw.columns["sync_sent_s"], raw.columns["feedback_s"]
+    for k in range(len(raw)):
+        row = stamps.push(sent[k], received[k], raw.tau[k - 1] if k else raw.tau[0])
+        if row is not None:
+            replayed["every row"].push(raw.q[k - 1], row.tau, row.t)
+            replayed["bracket rule"].push(raw.q[k - 1], row.tau, row.t, row.uncertainty_s)
+    for online_fit in replayed.values():
+        online_fit.push(raw.q[-1], raw.tau[-1], stamps.newest_s)
     rec = read_recording(READER, out / "fit", command="realtime_online", allow_gaps=True)
     times = irregular_times(rec)
     paper = {
@@ -83,21 +99,24 @@ def main() -> int:
         f"run {out / 'fit'}: {online['samples']} samples, {len(rec.segments())} segment(s); "
         f"online rows left out (a sample time not known to within "
         f"{online['stamp_uncertainty_max_s'] * 1e3:.3g} ms): "
-        f"{online['rows_left_out_uncertain_times']}"
+        f"{online['rows_left_out_uncertain_times']} (replayed: "
+        f"{replayed['bracket rule'].rows_uncertain})"
     )
     print("largest |relative error| in %, θ1..θ5 / θ6..θ9, against the cicese profile")
-    print(f"{'':34s}" + "".join(f"{s:>18s}" for s in SCHEMES))
+    print(f"{'':38s}" + "".join(f"{s:>18s}" for s in SCHEMES))
     lines = {
         "offline, robot's clock": {
             s: report["discretizations"]["exact"]["schemes"][s]["theta_rls"] for s in SCHEMES
         },
         "online, host stamps (now)": online["theta"],
         "online, deadline grid (before)": grid.theta,
+        "replayed, host stamps, every row": replayed["every row"].theta,
+        "replayed, host stamps, bracket rule": replayed["bracket rule"].theta,
         "paper, k·h (before)": {s: paper["before"][s].theta_rls for s in SCHEMES},
         "paper, per interval (now)": {s: paper["now"][s].theta_rls for s in SCHEMES},
     }
     for label, thetas in lines.items():
-        print(f"{label:34s}" + "".join(f"{_errors(thetas[s], reference):>18s}" for s in SCHEMES))
+        print(f"{label:38s}" + "".join(f"{_errors(thetas[s], reference):>18s}" for s in SCHEMES))
     return 0
 
 
