@@ -17,7 +17,7 @@ and the numbers are the ones computed before real times were known.
 
 A time stamp off by δ makes the velocities of the samples around it wrong by about δ/Δt, and a
 few such rows dominate a least-squares fit (every row on the host's stamps of a 20 s realtime
-run, off by up to 2 ms on a few percent of the samples, gave θ̂ 258 % off:
+run, off by more than 1 ms on 8 % of the samples, gave θ̂ 258 % off:
 docs/identification.md). The host's stamps bracket each sample: the robot sampled between the
 SYNC going out and its feedback coming back, so ``uncertainty_s`` (that round trip beyond its
 shortest, :class:`drivers.realtime_times.StampedRow`) bounds the error. An
