@@ -6,6 +6,8 @@ one only by its profile (channel, ``virtual = false``); the code path is the sam
 
 from __future__ import annotations
 
+import socket
+import time
 from pathlib import Path
 from typing import Any
 
@@ -74,12 +76,44 @@ def open_socketcan(channel: str) -> Any:
         raise OSError(f"cannot open socketcan channel {channel}: {exc}") from exc
 
 
+# a refused socketcand port is retried this long (a daemon just started), then reported
+SOCKETCAND_CONNECT_S = 1.0
+
+
+def check_socketcand_listens(host: str, port: int, within_s: float = SOCKETCAND_CONNECT_S) -> None:
+    """Return once a server accepts a TCP connection at ``host:port``; a one-line OSError if none
+    does within ``within_s`` (refusals retried 50 ms apart) or the address is bad.
+
+    python-can's socketcand bus retries a refused connection for a fixed 10 s with no pause
+    between attempts (one core busy, some 700,000 attempts, each logged) before its TimeoutError;
+    a dead port is reported here instead. The probe closes its connection at once: socketcand,
+    and the virtual robot's hub, serve each client on its own, so it is one client that left.
+    """
+    deadline = time.monotonic() + within_s
+    while True:
+        try:
+            with socket.create_connection((host, port), timeout=within_s):
+                return
+        except ConnectionRefusedError:
+            if time.monotonic() >= deadline:
+                raise OSError(
+                    f"socketcand at {host}:{port} refused the connection for {within_s:g} s: "
+                    "nothing listens there"
+                ) from None
+            time.sleep(0.05)
+        except OSError as exc:  # unreachable, no such host, no answer within within_s
+            raise OSError(f"socketcand at {host}:{port}: {exc}") from None
+
+
 def make_can_bus(kwargs: dict[str, Any]) -> Any:
-    """``can.Bus(**kwargs)``; slcan goes through :class:`drivers.slcan.SelectSlcanBus`."""
+    """``can.Bus(**kwargs)``; slcan goes through :class:`drivers.slcan.SelectSlcanBus`; a
+    socketcand server is checked to listen first (:func:`check_socketcand_listens`)."""
     import can
 
     if kwargs.get("interface") == "socketcan" and set(kwargs) == {"interface", "channel"}:
         return open_socketcan(kwargs["channel"])
+    if kwargs.get("interface") == "socketcand":
+        check_socketcand_listens(kwargs["host"], kwargs["port"])
     if kwargs.get("interface") == "slcan":
         from drivers.slcan import SelectSlcanBus
 

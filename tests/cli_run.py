@@ -1,4 +1,5 @@
-"""Run the ``hil`` command line in a subprocess, as a user would (shared by the test modules)."""
+"""Run the ``hil`` command line in a subprocess, as a user would, and compare what it recorded
+(shared by the test modules)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,9 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -81,3 +85,12 @@ def run_with_robot_paused(
     finally:
         proc.kill()
     return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
+
+
+def assert_same_recording(rec: Any, reference: Any) -> None:
+    """``rec`` (a :class:`drivers.recording.Recording`, e.g. of a lockstep `hil run`) has the
+    sample times, angles and torques of ``reference`` (e.g. `virtual-robot simulate`'s) bit for
+    bit, not just close; a difference in q is reported by its size."""
+    assert np.array_equal(rec.t, reference.t)
+    assert np.array_equal(rec.q, reference.q), np.max(np.abs(rec.q - reference.q))
+    assert np.array_equal(rec.tau, reference.tau)

@@ -9,6 +9,9 @@ A pure helper for tests and benchmarks (no test functions here):
   joint, plus null cases, each with its effects dict and its truth in the diagnosis vocabulary.
 * :func:`case` builds a case for any magnitudes, :func:`combine` merges effects of several cases
   (tests/benchmarks/make_diagnose_set.py uses them for a blind-like set).
+* :func:`diagnose_capturing_gate` diagnoses a recording and captures its simulation gate's
+  inputs, optionally with another gate in its place (tests/test_diagnose_gate.py,
+  tests/benchmarks/closed_loop_bias.py).
 
 The default robot has a direction-dependent Coulomb friction on joint 1 (7.17 / 8.049 Nm, Table I).
 Every case here starts from a ``coulomb`` table that makes friction symmetric (the mean levels
@@ -35,13 +38,15 @@ import dataclasses
 import json
 import math
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from drivers.recording import META, write_json_atomic
+from drivers.recording import META, Recording, write_json_atomic
+from hil.diagnose import report
 from hil.diagnose.selection import VOCABULARY as DIAGNOSIS_VOCABULARY
 from hil.model.closed_form import TERMS as MODEL_TERMS
 from profiles.effects import load_effects
@@ -366,3 +371,26 @@ def make_recording(
     meta["seed"] = seed
     write_json_atomic(meta_path, meta)
     return out
+
+
+def diagnose_capturing_gate(
+    rec: Recording, reference: np.ndarray, gate: Callable[..., Any] | None = None
+) -> tuple[dict[str, Any], tuple]:
+    """``diagnose([rec], reference)`` with ``gate`` (called with the simulation gate's arguments;
+    None: the gate itself) in place of :func:`hil.diagnose.report.simulation_gate`. The
+    diagnosis document and the gate's inputs ``(prob, accepted, findings, nominal_theta, se,
+    shaft)``."""
+    real_gate = report.simulation_gate
+    use = gate or real_gate
+    captured: dict[str, tuple] = {}
+
+    def capture(prob, accepted, findings, nominal_theta, say, se=None, shaft=None, **kw):
+        captured["args"] = (prob, list(accepted), list(findings), nominal_theta, se, shaft)
+        return use(prob, accepted, findings, nominal_theta, say, se, shaft, **kw)
+
+    report.simulation_gate = capture
+    try:
+        doc = report.diagnose([rec], reference).document
+    finally:
+        report.simulation_gate = real_gate
+    return doc, captured["args"]

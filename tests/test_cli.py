@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from drivers.logsetup import RateLimit, configure
+from drivers.logsetup import BURST, WINDOW_S, RateLimit, configure
 from hil import __version__
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -63,20 +63,41 @@ def _dead_port() -> int:
 
 
 def test_a_dead_socketcand_port_gives_a_handful_of_lines_and_exit_3(tmp_path: Path) -> None:
-    """python-can retries the connection for 10 s, logging every refusal (about 700,000 lines
-    before the logging set-up); even with -v the rate limit leaves a handful, and the link
-    failure has its own exit status."""
+    """A refused port is reported after drivers.links.SOCKETCAND_CONNECT_S, in one line, with
+    the link failure's exit status; python-can's own connect loop (10 s without pause, about
+    700,000 logged refusals, one core busy) never runs: even with -v none of its lines."""
     port = _dead_port()
     argv = ["-m", "hil", "-v", "run", "--bench", "virtual-socketcand", "--out", str(tmp_path)]
     argv += ["--overwrite"]  # the second run writes to the same directory
     proc = _run(*argv, "--attach", f"127.0.0.1:{port}", "--duration", "0.1")
     lines = proc.stderr.splitlines()
     assert proc.returncode == 3, proc.stderr
-    assert 1 < len(lines) <= 8, proc.stderr[:2000]
-    assert lines[-1].startswith("hil run: error: cannot open the CAN bus")
-    assert "repeats shown once per 10 s from here" in proc.stderr
+    assert 1 <= len(lines) <= 8, proc.stderr[:2000]
+    assert lines[-1].startswith("hil run: error: cannot open the CAN bus: socketcand at ")
+    assert f"127.0.0.1:{port} refused the connection" in lines[-1]
+    assert "Failed to connect to server" not in proc.stderr
     quiet = _run(*argv[:2], *argv[3:], "--attach", f"127.0.0.1:{port}", "--duration", "0.1")
     assert quiet.returncode == 3 and len(quiet.stderr.splitlines()) == 1, quiet.stderr
+
+
+def test_a_flood_from_a_library_is_a_handful_of_lines_at_v(capsys) -> None:
+    """The command lines' handler (configure) at -v: 10,000 identical python-can warnings (as
+    its socketcand connect loop logged them) pass BURST times, the last saying so."""
+    configure("hil", 1)
+    try:
+        log = logging.getLogger("can.interfaces.socketcand")
+        for _ in range(10_000):
+            log.warning("Failed to connect to server: <class 'ConnectionRefusedError'>")
+        lines = capsys.readouterr().err.splitlines()
+    finally:
+        configure("hil", 0)  # the default levels back, then no handler, as the other tests
+        for h in list(logging.getLogger().handlers):
+            if getattr(h, "ddbench", False):
+                logging.getLogger().removeHandler(h)
+        logging.getLogger().setLevel(logging.WARNING)
+    assert len(lines) == BURST, lines
+    assert lines[0].startswith("hil: can.interfaces.socketcand: warning: Failed to connect")
+    assert lines[-1].endswith(f"(repeats shown once per {WINDOW_S:g} s from here)")
 
 
 def test_rate_limit_passes_a_burst_then_one_per_window() -> None:

@@ -13,10 +13,9 @@ from __future__ import annotations
 import math
 
 import pytest
-from diagnose_cases import make_recording
+from diagnose_cases import diagnose_capturing_gate, make_recording
 
 from drivers.recording import read_signals
-from hil.diagnose import report
 from hil.diagnose.findings import Finding
 from hil.diagnose.report import (
     SIMULATION_TOLERANCE,
@@ -35,19 +34,8 @@ def gate_inputs(tmp_path_factory):
     """The default robot over `diagnosis` (joint 1's asymmetry), diagnosed; the gate's inputs
     and the with/without fits it compares."""
     rec = make_recording(tmp_path_factory.mktemp("gate") / "rec", "diagnosis", None)
-    captured = {}
-    gate = report.simulation_gate
-
-    def capture(prob, accepted, findings, nominal_theta, say, se=None, shaft=None, **kw):
-        captured["args"] = (prob, list(accepted), list(findings), nominal_theta, se, shaft)
-        return gate(prob, accepted, findings, nominal_theta, say, se, shaft, **kw)
-
-    report.simulation_gate = capture
-    try:
-        doc = diagnose([read_signals(rec)], REFERENCE).document
-    finally:
-        report.simulation_gate = gate
-    prob, accepted, findings, nominal_theta, se, shaft = captured["args"]
+    doc, args = diagnose_capturing_gate(read_signals(rec), REFERENCE)
+    prob, accepted, findings, nominal_theta, se, shaft = args
     fit, arrays = before_after(prob, accepted, findings, nominal_theta, True, se, shaft, True)
     return doc, fit, arrays
 

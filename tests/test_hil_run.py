@@ -13,7 +13,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
-from cli_run import hil
+from cli_run import assert_same_recording, hil
 
 from drivers.process import run_status
 from drivers.recording import read_signals
@@ -54,9 +54,7 @@ def test_lockstep_run_equals_offline_simulation(bench, reference, tmp_path):
     summary = json.loads(proc.stdout)
     assert summary["status"] == "complete" and summary["rows"] == 400
     rec = read_signals(tmp_path)
-    assert np.array_equal(rec.t, reference.t)
-    assert np.array_equal(rec.q, reference.q), np.max(np.abs(rec.q - reference.q))
-    assert np.array_equal(rec.tau, reference.tau)
+    assert_same_recording(rec, reference)
     meta = json.loads((tmp_path / "meta.json").read_text())
     assert meta["status"] == "complete" and meta["bench"] == bench and meta["mode"] == "lockstep"
     log = Path(summary["traffic_log"])

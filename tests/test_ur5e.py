@@ -23,12 +23,14 @@ import can
 import numpy as np
 import pinocchio as pin
 import pytest
-from cli_run import hil
+from cli_run import assert_same_recording, hil
 from PIL import Image
 from ur5e_targets import check_ur5e_identified
 
 from drivers.recording import base_columns, read_signals
 from hil.cli import main as hil_main
+from hil.control.plots import plot_comparison, plot_run
+from hil.control.tracking import prepare
 from hil.model.urdf import UrdfArmModel
 from profiles.drive import load_drive
 from profiles.experiment import load_experiment
@@ -133,9 +135,7 @@ def test_lockstep_run_of_ur5e_equals_offline_simulation(bench, reference, tmp_pa
     assert summary["status"] == "complete" and summary["rows"] == ROWS
     rec = read_signals(tmp_path)
     assert rec.n_joints == 6 and list(rec.columns)[:13] == list(base_columns(6))
-    assert np.array_equal(rec.t, reference.t)
-    assert np.array_equal(rec.q, reference.q), np.max(np.abs(rec.q - reference.q))
-    assert np.array_equal(rec.tau, reference.tau)
+    assert_same_recording(rec, reference)
     assert np.all(np.ptp(rec.q, axis=0) > 1e-3)  # every joint moves
     log = Path(summary["traffic_log"])
     if log.name == "bus.log":  # node 6's RPDO and both TPDOs on the bus
@@ -193,9 +193,11 @@ def test_ur5e_identified_from_its_simulation(tmp_path, capsys):
 def test_control_compare_on_six_joints(tmp_path, capsys):
     """`hil control --compare --robot ur5e` (PD, CT, FED, RFED) over the first move and hold
     of khosla-kanade-tracking-ur5e, in process: all four complete, CT and FED track every
-    joint better than PD, FED by more than 10×."""
+    joint better than PD, FED by more than 10×. The plots of six joints drawn once each, from
+    the runs (matplotlib is most of the command's time: drawing them for all four runs tripled
+    it): a run's three figures and the comparison's two."""
     args = ["control", "--compare", "--robot", ROBOT, "--bench", "virtual-inprocess"]
-    status = hil_main([*args, "--duration", "1.75", "--out", str(tmp_path), "--json"])
+    status = hil_main([*args, "--duration", "1.75", "--out", str(tmp_path), "--json", "--no-plot"])
     out = capsys.readouterr()
     assert status == 0, out.err
     doc = json.loads(out.out)
@@ -209,6 +211,13 @@ def test_control_compare_on_six_joints(tmp_path, capsys):
     assert all(r > 10 for r in reduction["fed"]), reduction
     header = (tmp_path / "profile" / "fed" / "signals.csv").open().readline()
     assert header.startswith("t,q1,q2,q3,q4,q5,q6,tau1,tau2,tau3,tau4,tau5,tau6")
+    assert doc["plots"] == [] and all(r["plots"] == [] for r in results.values())
+    traj = prepare("virtual-inprocess", robot=ROBOT, duration_s=1.75).trajectory
+    run_plots = plot_run(results["ct"]["out_dir"], traj, "ct", "profile")
+    assert [p.name for p in run_plots] == ["tracking.png", "errors.png", "torque_split.png"]
+    compare_plots = plot_comparison(tmp_path, results, traj, "profile", "profile")
+    assert [p.name for p in compare_plots] == ["errors_profile.png", "torques_profile.png"]
+    assert all(p.stat().st_size > 10_000 for p in run_plots + compare_plots)
     # the comparison's error plot has a row per joint (more joints than schemes), not one strip
     # of 12 panels per scheme (4500 × 960 px before)
     width, height = Image.open(tmp_path / "errors_profile.png").size

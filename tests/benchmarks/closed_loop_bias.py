@@ -27,6 +27,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/, for diagnose_cases
+
+from diagnose_cases import diagnose_capturing_gate
 
 from drivers.recording import read_signals
 from hil.diagnose import report
@@ -69,24 +72,6 @@ def gain_fits(run: Path, reference: np.ndarray) -> list[tuple[float, float]]:
     return out
 
 
-def _gate_inputs(run: Path, reference: np.ndarray, gate) -> dict:
-    """Diagnose ``run`` with ``gate`` (called with the simulation gate's arguments) in place of
-    the simulation gate; the document and the gate's inputs."""
-    captured = {}
-    real_gate = report.simulation_gate
-
-    def capture(prob, accepted, findings, nominal, say, se=None, shaft=None, **kw):
-        captured["args"] = (prob, list(accepted), list(findings), nominal, se, shaft)
-        return gate(prob, accepted, findings, nominal, say, se, shaft, **kw)
-
-    report.simulation_gate = capture
-    try:
-        doc = diagnose([read_signals(run)], reference).document
-    finally:
-        report.simulation_gate = real_gate
-    return {"document": doc, "args": captured["args"]}
-
-
 def _keep_all(prob, accepted, findings, nominal, say, se=None, shaft=None, **_kw):
     return accepted, findings, {}, shaft
 
@@ -94,7 +79,7 @@ def _keep_all(prob, accepted, findings, nominal, say, se=None, shaft=None, **_kw
 def ungated_findings(run: Path, reference: np.ndarray) -> list[str]:
     """The findings with the simulation gate switched off (every accepted term kept, the gain
     read with θ free): what the selection estimated before the gate judged it."""
-    doc = _gate_inputs(run, reference, _keep_all)["document"]
+    doc, _ = diagnose_capturing_gate(read_signals(run), reference, _keep_all)
     return [
         f"{f['effect']} j{f['joint']} {f['estimate']}"
         for f in doc["findings"]
@@ -121,7 +106,8 @@ def reference_reading(run: Path, reference: np.ndarray) -> dict[str, list]:
     off) read three ways: θ free with the gain (the gate's first reading), θ free without the
     gain, and the gain's reference reading (θ1..θ5 held at ``reference``, r =
     `relative_at_reference_theta`: the gate's second reading, report.pinned_rigid_body)."""
-    prob, accepted, findings, nominal, se, shaft = _gate_inputs(run, reference, _keep_all)["args"]
+    _, args = diagnose_capturing_gate(read_signals(run), reference, _keep_all)
+    prob, accepted, findings, nominal, se, shaft = args
     no_gain = [a for a in accepted if a.cand.kind != "gain"]
     rest = [f for f in findings if f.effect != "torque_gain"]
     at_ref = [
@@ -147,7 +133,8 @@ def reference_reading(run: Path, reference: np.ndarray) -> dict[str, list]:
 def gate_at_each_reading(run: Path, reference: np.ndarray) -> dict[str, str]:
     """The simulation gate run on the accepted terms with the gain read only with θ free (its
     second reading switched off: no reference) and only at the reference: kept, or why not."""
-    prob, accepted, findings, nominal, se, shaft = _gate_inputs(run, reference, _keep_all)["args"]
+    _, args = diagnose_capturing_gate(read_signals(run), reference, _keep_all)
+    prob, accepted, findings, nominal, se, shaft = args
     out = {}
     for name, ref, reading in (
         ("θ free", None, "relative"),

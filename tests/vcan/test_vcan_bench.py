@@ -19,7 +19,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
-from cli_run import hil
+from cli_run import assert_same_recording, hil
 
 from drivers.recording import read_signals
 from profiles import resolve
@@ -142,9 +142,7 @@ def test_lockstep_run_equals_offline_simulation(lockstep_run, tmp_path):
         plot=False,
     )
     ref, rec = read_signals(tmp_path), read_signals(out)
-    assert np.array_equal(rec.t, ref.t)
-    assert np.array_equal(rec.q, ref.q), np.max(np.abs(rec.q - ref.q))
-    assert np.array_equal(rec.tau, ref.tau)
+    assert_same_recording(rec, ref)
     meta = json.loads((out / "meta.json").read_text())
     assert meta["bench"] == "virtual-vcan" and meta["mode"] == "lockstep"
     assert meta["channel"]["transport"] == "socketcan" and meta["channel"]["channel"] == "vcan0"
