@@ -11,7 +11,8 @@ the other weighted rows; the probe difference is the τ̈ part). Then the first-
 of the joint-2 lag/delay candidate (`rate:2`) and of `rotor_inertia`, with the columns over
 the real intervals and over the median interval (what the diagnosis used before): held-out
 reduction (trimmed), blocks improved, the total held-out error change (drop; < 0: worse in
-total) and each recording's first block. Slow: about a minute on a loaded machine.
+total) and each recording's first block; ``--without-start-up``: with the start-up rows left
+out. Slow: about a minute on a loaded machine.
 """
 
 from __future__ import annotations
@@ -42,6 +43,11 @@ def main() -> int:
     ap.add_argument("--records", type=Path, default=RECORDS)
     ap.add_argument("--fit", default="04")
     ap.add_argument("--held-out", default="05")
+    ap.add_argument(
+        "--without-start-up",
+        action="store_true",
+        help="leave out (weight 0) the rows whose window holds one of the first 8 intervals",
+    )
     args = ap.parse_args()
     options = argparse.Namespace(recording_format="dfki")
     recs = [
@@ -66,6 +72,11 @@ def main() -> int:
             f"{np.abs(diff[start]).max() / np.sqrt(np.mean(diff[rest] ** 2)):.0f}x its RMS "
             "elsewhere"
         )
+    if args.without_start_up:
+        at = 0
+        for rows in prob.rows:
+            prob.w[at : at + rows.rows][rows.k < 8 + rows.window] = 0.0
+            at += rows.rows
     ranges = np.ptp(np.concatenate([r.q for r in recs]), axis=0)
     library = {
         c.key: c for c in selection.candidates(theta, ranges, selection.usable_speeds(prob), model)
