@@ -105,6 +105,41 @@ def test_delayed_rows_by_whole_samples_are_shifted_torques(null_recording):
     np.testing.assert_allclose(delayed_torque_rows(rows, rec.period_s), expected, atol=1e-12)
 
 
+def irregular_stamps(n: int, h: float) -> np.ndarray:
+    """Stamps of a realtime run: intervals of h ± 40 %, a few of 2.5 h (a stall short of a gap)."""
+    rng = np.random.default_rng(3)
+    dt = h * rng.uniform(0.6, 1.4, n - 1)
+    dt[rng.choice(n - 1, 5, replace=False)] = 2.5 * h
+    return np.concatenate([[0.0], np.cumsum(dt)])
+
+
+def test_lagged_and_delayed_rows_use_each_interval_on_irregular_stamps(null_recording):
+    """On a realtime run's stamps every interval has its own length: the lagged and delayed
+    shaft torques are those of the real intervals, not of the median one."""
+    rec = read_signals(null_recording)
+    n, h, tau = 400, rec.period_s, rec.tau[:400]
+    t = irregular_stamps(n, h)
+    rows = recording_rows(rec.q[:n], tau, h, t=t)
+    assert rows.stamps is not None  # the rows are the irregular ones
+    dt = np.diff(t)
+    T, x, lag_means = 0.002, tau[0].copy(), []
+    for k in range(n - 1):
+        pair = [amplifier_lag_step(x[i], tau[k, i], dt[k], T) for i in (0, 1)]
+        lag_means.append([p[0] for p in pair])
+        x = np.array([p[1] for p in pair])
+    expected = moving_average(np.array(lag_means)[rows.k], rows.window)
+    np.testing.assert_allclose(lagged_torque_rows(rows, T), expected, atol=1e-9)
+    # the held torque delayed by d, averaged over [t_k, t_{k+1}): sub-interval by sub-interval
+    d, delay_means = 2.7 * h, []
+    for k in range(n - 1):
+        a, b = t[k] - d, t[k + 1] - d
+        edges = np.concatenate([[a], t[(t > a) & (t < b)], [b]])
+        held = [tau[max(0, int(np.searchsorted(t, lo, side="right")) - 1)] for lo in edges[:-1]]
+        delay_means.append(np.diff(edges) @ np.array(held) / (b - a))
+    expected = moving_average(np.array(delay_means)[rows.k], rows.window)
+    np.testing.assert_allclose(delayed_torque_rows(rows, d), expected, atol=1e-9)
+
+
 def test_offset_column_is_minus_one_once_the_window_is_full(null_recording):
     rec = read_signals(null_recording)
     rows = recording_rows(rec.q[:200], rec.tau[:200], rec.period_s)

@@ -418,36 +418,85 @@ def lagged_torque_rows(rows: RecordingRows, time_constant_s: float) -> np.ndarra
 
     The lag state x_k at t_k obeys x_{k+1} = e^{−h/T} x_k + (1 − e^{−h/T}) τ_k and the average of
     τ_a over [t_k, t_{k+1}) is τ_k + (x_k − τ_k) (T/h)(1 − e^{−h/T}) (the virtual robot's
-    ``amplifier_lag_step``); x_0 = τ_0 (the recording starts settled)."""
+    ``amplifier_lag_step``); x_0 = τ_0 (the recording starts settled). On real stamps each
+    interval has its own h_k."""
     if time_constant_s <= 0:
         return rows.y.copy()
-    return _filtered(rows, lagged_torque_means(rows.tau, rows.h, time_constant_s)[rows.k])
+    means = lagged_torque_means(rows.tau, rows.h, time_constant_s, rows.stamps)
+    return _filtered(rows, means[rows.k])
 
 
-def lagged_torque_means(tau: np.ndarray, h: float, time_constant_s: float) -> np.ndarray:
+def lagged_torque_means(
+    tau: np.ndarray, h: float, time_constant_s: float, t: np.ndarray | None = None
+) -> np.ndarray:
     """The mean over each interval [t_k, t_{k+1}) of the first-order lag of the held torque
-    ``tau`` (N, n), exact under zero-order hold (:func:`lagged_torque_rows`), (N, n)."""
-    decay = np.exp(-h / time_constant_s)
-    free = decay ** np.arange(len(tau))[:, None] * tau[0]  # x_0 = τ_0
-    x = lfilter([0.0, 1.0 - decay], [1.0, -decay], tau, axis=0) + free
-    return tau + (x - tau) * (time_constant_s / h) * (1.0 - decay)
+    ``tau`` (N, n), exact under zero-order hold (:func:`lagged_torque_rows`), (N, n). ``t``: the
+    real sample times, each interval its own h_k (default every interval ``h``)."""
+    if t is None:
+        decay = np.exp(-h / time_constant_s)
+        free = decay ** np.arange(len(tau))[:, None] * tau[0]  # x_0 = τ_0
+        x = lfilter([0.0, 1.0 - decay], [1.0, -decay], tau, axis=0) + free
+        return tau + (x - tau) * (time_constant_s / h) * (1.0 - decay)
+    tau = np.asarray(tau, float)
+    dt = np.diff(np.asarray(t, float))
+    dt = np.append(dt, dt[-1:])  # the last sample starts no interval: any h serves
+    decay = np.exp(-dt / time_constant_s)
+    x = _first_order_states(decay, tau)
+    return tau + (x - tau) * ((time_constant_s / dt) * (1.0 - decay))[:, None]
+
+
+def _first_order_states(decay: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """x_0 = τ_0, x_{k+1} = a_k x_k + (1 − a_k) τ_k for a_k = ``decay[k]``, (N, n): the lag's
+    states over unequal intervals. The steps compose as affine maps, (a, b)∘(a', b') =
+    (a a', a b' + b), so a prefix scan (Hillis & Steele) gives every x_k = A_k x_0 + B_k in
+    log₂ N passes; A only shrinks and B stays within the torques' range (no overflow, whatever
+    h_k/T)."""
+    A = decay[:-1].copy()
+    B = (1.0 - A)[:, None] * tau[:-1]
+    d = 1
+    while d < len(A):
+        B[d:] = A[d:, None] * B[:-d] + B[d:]
+        A[d:] = A[d:] * A[:-d]
+        d *= 2
+    x = np.empty_like(tau)
+    x[0] = tau[0]
+    x[1:] = A[:, None] * tau[0] + B
+    return x
 
 
 def delayed_torque_rows(rows: RecordingRows, delay_s: float) -> np.ndarray:
     """F[τ_a] for τ_a(t) = τ(t − d) of the held torque (exact under zero-order hold), (K, 2):
-    with d = (m + f) h, the average over [t_k, t_{k+1}) is (1 − f) τ_{k−m} + f τ_{k−m−1}."""
-    return _filtered(rows, delayed_torque_means(rows.tau, rows.h, delay_s)[rows.k])
+    with d = (m + f) h, the average over [t_k, t_{k+1}) is (1 − f) τ_{k−m} + f τ_{k−m−1}. On
+    real stamps, the held torque's integral over [t_k − d, t_{k+1} − d) over h_k."""
+    return _filtered(rows, delayed_torque_means(rows.tau, rows.h, delay_s, rows.stamps)[rows.k])
 
 
-def delayed_torque_means(tau: np.ndarray, h: float, delay_s: float) -> np.ndarray:
+def delayed_torque_means(
+    tau: np.ndarray, h: float, delay_s: float, t: np.ndarray | None = None
+) -> np.ndarray:
     """The mean over each interval of the held torque ``tau`` (N, n) delayed by ``delay_s``
-    (:func:`delayed_torque_rows`), (N, n)."""
-    m = int(np.floor(delay_s / h))
-    f = delay_s / h - m
-    idx = np.arange(len(tau))
-    a = tau[np.clip(idx - m, 0, None)]
-    b = tau[np.clip(idx - m - 1, 0, None)]
-    return (1.0 - f) * a + f * b
+    (:func:`delayed_torque_rows`), (N, n). ``t``: the real sample times (default every
+    interval ``h``); before the first sample the torque is τ_0."""
+    if t is None:
+        m = int(np.floor(delay_s / h))
+        f = delay_s / h - m
+        idx = np.arange(len(tau))
+        a = tau[np.clip(idx - m, 0, None)]
+        b = tau[np.clip(idx - m - 1, 0, None)]
+        return (1.0 - f) * a + f * b
+    tau, t = np.asarray(tau, float), np.asarray(t, float)
+    dt = np.diff(t)
+    # the held torque's integral from t_0, piecewise linear between the stamps
+    held = np.vstack([np.zeros((1, tau.shape[1])), np.cumsum(tau[:-1] * dt[:, None], axis=0)])
+
+    def integral(s: np.ndarray) -> np.ndarray:
+        out = np.column_stack([np.interp(s, t, held[:, j]) for j in range(tau.shape[1])])
+        before = s < t[0]
+        out[before] = (s[before] - t[0])[:, None] * tau[0]
+        return out
+
+    means = (integral(t[1:] - delay_s) - integral(t[:-1] - delay_s)) / dt[:, None]
+    return np.vstack([means, means[-1:]])  # the last sample starts no interval
 
 
 # Probe lags for the rate columns: F[τ − τ_a]/T → F[τ̇] as T → 0; a second, longer probe spans

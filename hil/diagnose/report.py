@@ -656,7 +656,7 @@ def _segment_simulation(
     ``model``: the :class:`ArmModel` θ is written in (default the 9-parameter one)."""
     t = np.arange(len(q)) * h if stamps is None else stamps
     if model is not None and not isinstance(model, ArmModel):
-        return _segment_simulation_n(theta, extras, q, tau, h, segments, t, model)
+        return _segment_simulation_n(theta, extras, q, tau, h, segments, t, model, stamps)
     out = []
     for a, b in segments:
         inside = 0 < a < len(q) - 1
@@ -712,12 +712,16 @@ def _torque_spread(tau: np.ndarray) -> np.ndarray:
 
 
 def _shaft_effects(
-    findings: Sequence[Finding] | None, tau: np.ndarray, h: float
+    findings: Sequence[Finding] | None,
+    tau: np.ndarray,
+    h: float,
+    stamps: np.ndarray | None = None,
 ) -> tuple[np.ndarray, Callable[[np.ndarray, np.ndarray], np.ndarray] | None, np.ndarray]:
     """The findings as an n-joint simulation takes them (what :func:`_extras` is for the 2-DOF
     simulator, by the same choices among confounded findings): the shaft torque of the torque
     path (delay or lag, then gain, then offset) for every recorded row, the state-dependent
-    shaft torque (cogging, minus the Stribeck excess of friction) and the angle offsets."""
+    shaft torque (cogging, minus the Stribeck excess of friction) and the angle offsets.
+    ``stamps``: the real sample times (the delay and lag over each true interval)."""
     n = tau.shape[1]
     fx = simulated_effects(findings or (), n)
     cogging = [(j, *c) for j, c in enumerate(fx.cogging) if c[1] != 0]
@@ -727,9 +731,9 @@ def _shaft_effects(
     shaft = tau.astype(float).copy()
     for j in range(n):
         if delay[j] > 0:
-            shaft[:, j] = delayed_torque_means(tau[:, j : j + 1], h, delay[j])[:, 0]
+            shaft[:, j] = delayed_torque_means(tau[:, j : j + 1], h, delay[j], stamps)[:, 0]
         if lag[j] > 0:
-            shaft[:, j] = lagged_torque_means(shaft[:, j : j + 1], h, lag[j])[:, 0]
+            shaft[:, j] = lagged_torque_means(shaft[:, j : j + 1], h, lag[j], stamps)[:, 0]
     shaft = (1.0 + gain) * shaft + off
 
     def state_torque(q: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -752,12 +756,13 @@ def _segment_simulation_n(
     segments: Sequence[tuple[int, int]],
     t: np.ndarray,
     model: Any,
+    stamps: np.ndarray | None = None,
 ) -> np.ndarray:
     """:func:`_segment_simulation` of an n-joint model object (a URDF model): each segment
     from the recorded state, the findings as :func:`_shaft_effects` gives them, integrated by
     :func:`hil.model.openloop.simulate_segments` (the 2-DOF simulation's stick–slip over the
     model object)."""
-    shaft, state_torque, ang = _shaft_effects(findings, tau, h)
+    shaft, state_torque, ang = _shaft_effects(findings, tau, h, stamps)
     dq0 = np.array(
         [
             (q[a + 1] - q[a - 1]) / (t[a + 1] - t[a - 1])

@@ -7,7 +7,8 @@ A truth effect counts as named when a finding has its effect and joint (a truth 
 joint null, also accepts a finding on either joint) and, for the magnitude, when the finding's size
 is within 25 % of the truth's. A null recording passes when it has no findings. Findings that
 match no truth are listed as extra (a confounded partner of a named truth is not extra; a
-partner with no joint, the model term com_offset, is one on either joint).
+partner with no joint, the model term com_offset, is one on either joint, and so are the
+per-joint lags confounded with a delay found on both joints).
 """
 
 from __future__ import annotations
@@ -55,6 +56,13 @@ def _joint_ok(truth_joint, finding_joint) -> bool:
     return truth_joint is None or finding_joint == truth_joint
 
 
+def _same_joints(partner_joint, named_joint) -> bool:
+    """Whether a confounded partner sits where the named finding does: a finding with no joint
+    spans both (a model term such as com_offset, or one transport delay on both joints, whose
+    confounded lags are reported per joint), so it meets a partner on either joint."""
+    return partner_joint is None or named_joint is None or partner_joint == named_joint
+
+
 def score(entry: dict, doc: dict) -> dict:
     findings = doc["findings"]
     named, sized, missed = [], [], []
@@ -75,8 +83,7 @@ def score(entry: dict, doc: dict) -> dict:
                 k
                 for k, g in enumerate(findings)
                 if g["effect"] in findings[i].get("confounded_with", [])
-                # a partner with no joint (a model term such as com_offset) spans both joints
-                and g["joint"] in (findings[i]["joint"], None)
+                and _same_joints(g["joint"], findings[i]["joint"])
             )
         want = SIZE[t["effect"]](t["magnitude"])
         got = [FINDING_SIZE[t["effect"]](findings[i]["estimate"]) for i in hits]
