@@ -41,6 +41,8 @@ from hil.model.regressors import (
     NINE_PARAMETERS,
     _hermite,
     central_difference,
+    has_velocity_reversal,
+    interval_mean_across_reversals,
     kinematics,
     quantized_stick,
     raw_rows,
@@ -186,6 +188,7 @@ class RecordingRows:
     k: np.ndarray
     q_nodes: np.ndarray
     v_nodes: np.ndarray
+    v: np.ndarray  # sample velocities (N, 2): the Hermite end slopes of q_nodes, v_nodes
     stamps: np.ndarray | None = None  # real sample times when the rows use them (else k·h)
     half_window: int = 1  # samples either side of each velocity estimate
     noise: NoiseModel | None = None
@@ -328,6 +331,7 @@ def recording_rows(
         k,
         qs,
         ds / hk,
+        v,
         stamps,
         half,
         noise,
@@ -408,9 +412,24 @@ def stribeck_shape(v: np.ndarray, velocity_rad_s: float, exponent: float = 2.0) 
 def stribeck_column(
     rows: RecordingRows, joint: int, velocity_rad_s: float, exponent: float = 2.0
 ) -> np.ndarray:
-    """Stribeck friction ΔF sgn(q̇) exp(−(|q̇|/v_s)^δ) on ``joint``: X = +F[shape] (K, 2, 1)."""
-    shape = stribeck_shape(rows.v_nodes[:, :, joint], velocity_rad_s, exponent)
-    return _on_joint(_filtered(rows, _node_average(shape)[:, None]), joint, rows.n_joints)
+    """Stribeck friction ΔF sgn(q̇) exp(−(|q̇|/v_s)^δ) on ``joint``: X = +F[shape] (K, 2, 1).
+
+    Each interval's mean of the shape, (1/h_k)∫ sgn(q̇) exp(−(|q̇|/v_s)^δ) dt, is taken on the
+    same cubic Hermite q̇ as the Coulomb column, cut where q̇ changes sign
+    (:func:`hil.model.regressors.interval_mean_across_reversals`): in an interval holding a
+    velocity reversal the shape jumps from +1 to −1, which Gauss–Legendre nodes across the
+    jump would integrate with an error of up to the whole interval's excess."""
+    shape = lambda v: stribeck_shape(v, velocity_rad_s, exponent)  # noqa: E731
+    mean = _node_average(shape(rows.v_nodes[:, :, joint]))
+    k = rows.k
+    hk = rows.h if rows.stamps is None else np.diff(rows.stamps)[k]
+    ends = (rows.q[k, joint], rows.q[k + 1, joint], rows.v[k, joint], rows.v[k + 1, joint])
+    cut = has_velocity_reversal(*ends, hk)
+    if np.any(cut):  # the rest are smooth: the 4 nodes of v_nodes, as every other column
+        mean[cut] = interval_mean_across_reversals(
+            shape, *(e[cut] for e in ends), hk if np.ndim(hk) == 0 else hk[cut]
+        )
+    return _on_joint(_filtered(rows, mean[:, None]), joint, rows.n_joints)
 
 
 def lagged_torque_rows(rows: RecordingRows, time_constant_s: float) -> np.ndarray:
