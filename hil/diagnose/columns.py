@@ -272,6 +272,19 @@ def _momentum_rows(
     return k, y, psi, stuck, v_all
 
 
+def row_weights(still: np.ndarray, h: float, window: int) -> np.ndarray:
+    """Weights (K, n) of the filtered rows: 0 for a row whose window holds an interval that is
+    ``still`` (K, n) or within STICK_GUARD_S of one, and for the first ``window`` − 1 rows
+    (windows not yet full); 1 otherwise."""
+    guarded = still.copy()
+    for shift in range(1, max(1, round(STICK_GUARD_S / h)) + 1):
+        guarded[:-shift] |= still[shift:]
+        guarded[shift:] |= still[:-shift]
+    weights = stick_weights(guarded, window - 1)
+    weights[: window - 1] = 0.0
+    return weights
+
+
 def recording_rows(
     q: np.ndarray,
     tau: np.ndarray,
@@ -312,12 +325,7 @@ def recording_rows(
         still |= (dt[k] > GAP_FACTOR * h)[:, None]
         hk = dt[k][None, :, None]
         stamps = times
-    guarded = still.copy()
-    for shift in range(1, max(1, round(STICK_GUARD_S / h)) + 1):
-        guarded[:-shift] |= still[shift:]
-        guarded[shift:] |= still[:-shift]
-    weights = stick_weights(guarded, window - 1)
-    weights[: window - 1] = 0.0  # windows not yet full
+    weights = row_weights(still, h, window)
     nodes = _GL_NODES[:, None, None]
     qs, ds = _hermite(q[k][None], q[k + 1][None], hk * v[k][None], hk * v[k + 1][None], nodes)
     return RecordingRows(
