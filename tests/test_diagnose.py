@@ -676,6 +676,52 @@ def test_held_out_nrmse_without_spread_is_none_not_nan():
     assert _nrmse_or_none(y, y + 0.01, rows, 1) == pytest.approx(0.01 / np.std(y[:, 1]), rel=1e-9)
 
 
+def test_stribeck_interval_mean_is_exact_across_a_velocity_reversal():
+    """The Stribeck column's interval mean (1/h)∫ sgn(q̇) exp(−(|q̇|/v_s)²) dt on the cubic
+    Hermite q̇, cut at its sign switch, against adaptive quadrature split at the roots of the
+    same q̇ (numpy's), in intervals with one, one, no and two reversals, to 1e-6; Gauss–Legendre
+    nodes across the jump (the column before) are off by over a third of the interval's mean."""
+    from scipy.integrate import quad
+
+    from hil.diagnose.columns import stribeck_shape
+    from hil.model.regressors import (
+        _hermite,
+        has_velocity_reversal,
+        interval_mean_across_reversals,
+    )
+
+    h, vs = 0.0025, 0.1
+    q0 = np.zeros(4)
+    q1 = np.array([-1e-4, 2e-4, 3e-4, 1e-6])
+    v0 = np.array([0.05, -0.1, 0.08, 0.2])
+    v1 = np.array([-0.12, 0.2, 0.15, 0.2])
+    got = interval_mean_across_reversals(lambda v: stribeck_shape(v, vs), q0, q1, v0, v1, h)
+    want, roots = [], []
+    for i in range(4):
+        s = np.linspace(0, 1, 7)
+        dqds = np.polynomial.Polynomial.fit(
+            s, _hermite(q0[i], q1[i], h * v0[i], h * v1[i], s)[1], 2
+        )
+        inside = [r.real for r in dqds.roots() if abs(r.imag) < 1e-12 and 0 < r.real < 1]
+        roots.append(len(inside))
+        want.append(
+            quad(
+                lambda x, p=dqds: stribeck_shape(p(x) / h, vs),
+                0,
+                1,
+                points=inside or None,
+                epsabs=1e-13,
+            )[0]
+        )
+    assert roots == [1, 1, 0, 2]
+    assert list(has_velocity_reversal(q0, q1, v0, v1, h)) == [True, True, False, True]
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)  # 8 nodes a piece
+    nodes, weights = np.polynomial.legendre.leggauss(4)
+    v_nodes = _hermite(q0, q1, h * v0, h * v1, 0.5 * (nodes[:, None] + 1))[1] / h
+    across = 0.5 * weights @ stribeck_shape(v_nodes, vs)
+    assert np.max(np.abs(across - want)[[0, 1]]) > 0.3 * np.max(np.abs(np.array(want)[[0, 1]]))
+
+
 def test_moving_average_is_the_mean_of_the_last_window_rows():
     """F, the filter of every column (issue 12, performance: the lagged sums are subtracted into
     a second array, and a cogging chunk's sums taken in its own place): the mean of the last

@@ -41,6 +41,8 @@ from hil.model.regressors import (
     NINE_PARAMETERS,
     _hermite,
     central_difference,
+    has_velocity_reversal,
+    interval_mean_across_reversals,
     kinematics,
     quantized_stick,
     raw_rows,
@@ -186,6 +188,7 @@ class RecordingRows:
     k: np.ndarray
     q_nodes: np.ndarray
     v_nodes: np.ndarray
+    v: np.ndarray  # sample velocities (N, 2): the Hermite end slopes of q_nodes, v_nodes
     stamps: np.ndarray | None = None  # real sample times when the rows use them (else k·h)
     half_window: int = 1  # samples either side of each velocity estimate
     noise: NoiseModel | None = None
@@ -269,6 +272,19 @@ def _momentum_rows(
     return k, y, psi, stuck, v_all
 
 
+def row_weights(still: np.ndarray, h: float, window: int) -> np.ndarray:
+    """Weights (K, n) of the filtered rows: 0 for a row whose window holds an interval that is
+    ``still`` (K, n) or within STICK_GUARD_S of one, and for the first ``window`` − 1 rows
+    (windows not yet full); 1 otherwise."""
+    guarded = still.copy()
+    for shift in range(1, max(1, round(STICK_GUARD_S / h)) + 1):
+        guarded[:-shift] |= still[shift:]
+        guarded[shift:] |= still[:-shift]
+    weights = stick_weights(guarded, window - 1)
+    weights[: window - 1] = 0.0
+    return weights
+
+
 def recording_rows(
     q: np.ndarray,
     tau: np.ndarray,
@@ -309,12 +325,7 @@ def recording_rows(
         still |= (dt[k] > GAP_FACTOR * h)[:, None]
         hk = dt[k][None, :, None]
         stamps = times
-    guarded = still.copy()
-    for shift in range(1, max(1, round(STICK_GUARD_S / h)) + 1):
-        guarded[:-shift] |= still[shift:]
-        guarded[shift:] |= still[:-shift]
-    weights = stick_weights(guarded, window - 1)
-    weights[: window - 1] = 0.0  # windows not yet full
+    weights = row_weights(still, h, window)
     nodes = _GL_NODES[:, None, None]
     qs, ds = _hermite(q[k][None], q[k + 1][None], hk * v[k][None], hk * v[k + 1][None], nodes)
     return RecordingRows(
@@ -328,6 +339,7 @@ def recording_rows(
         k,
         qs,
         ds / hk,
+        v,
         stamps,
         half,
         noise,
@@ -408,9 +420,24 @@ def stribeck_shape(v: np.ndarray, velocity_rad_s: float, exponent: float = 2.0) 
 def stribeck_column(
     rows: RecordingRows, joint: int, velocity_rad_s: float, exponent: float = 2.0
 ) -> np.ndarray:
-    """Stribeck friction ΔF sgn(q̇) exp(−(|q̇|/v_s)^δ) on ``joint``: X = +F[shape] (K, 2, 1)."""
-    shape = stribeck_shape(rows.v_nodes[:, :, joint], velocity_rad_s, exponent)
-    return _on_joint(_filtered(rows, _node_average(shape)[:, None]), joint, rows.n_joints)
+    """Stribeck friction ΔF sgn(q̇) exp(−(|q̇|/v_s)^δ) on ``joint``: X = +F[shape] (K, 2, 1).
+
+    Each interval's mean of the shape, (1/h_k)∫ sgn(q̇) exp(−(|q̇|/v_s)^δ) dt, is taken on the
+    same cubic Hermite q̇ as the Coulomb column, cut where q̇ changes sign
+    (:func:`hil.model.regressors.interval_mean_across_reversals`): in an interval holding a
+    velocity reversal the shape jumps from +1 to −1, which Gauss–Legendre nodes across the
+    jump would integrate with an error of up to the whole interval's excess."""
+    shape = lambda v: stribeck_shape(v, velocity_rad_s, exponent)  # noqa: E731
+    mean = _node_average(shape(rows.v_nodes[:, :, joint]))
+    k = rows.k
+    hk = rows.h if rows.stamps is None else np.diff(rows.stamps)[k]
+    ends = (rows.q[k, joint], rows.q[k + 1, joint], rows.v[k, joint], rows.v[k + 1, joint])
+    cut = has_velocity_reversal(*ends, hk)
+    if np.any(cut):  # the rest are smooth: the 4 nodes of v_nodes, as every other column
+        mean[cut] = interval_mean_across_reversals(
+            shape, *(e[cut] for e in ends), hk if np.ndim(hk) == 0 else hk[cut]
+        )
+    return _on_joint(_filtered(rows, mean[:, None]), joint, rows.n_joints)
 
 
 def lagged_torque_rows(rows: RecordingRows, time_constant_s: float) -> np.ndarray:

@@ -53,7 +53,9 @@ paper's n-joint equations (eqs. (11)-(13), (25)-(30)); only the 9-parameter clos
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 from scipy.signal import lfilter
@@ -215,6 +217,11 @@ def velocity_half_window(lam: float, t: np.ndarray) -> int:
 _GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(4)
 _GL_NODES = 0.5 * (_GL_NODES + 1.0)  # on [0, 1]
 _GL_WEIGHTS = 0.5 * _GL_WEIGHTS
+# Nodes per smooth piece of an interval cut at a velocity reversal
+# (:func:`interval_mean_across_reversals`), on [0, 1].
+_PIECE_NODES, _PIECE_WEIGHTS = np.polynomial.legendre.leggauss(8)
+_PIECE_NODES = 0.5 * (_PIECE_NODES + 1.0)
+_PIECE_WEIGHTS = 0.5 * _PIECE_WEIGHTS
 
 
 def _hermite(
@@ -227,26 +234,41 @@ def _hermite(
     return h00 * q0 + h10 * d0 + h01 * q1 + h11 * d1, g00 * q0 + g10 * d0 + g01 * q1 + g11 * d1
 
 
-def _sign_and_abs_integrals(
+def _hermite_velocity(
     q0: np.ndarray, q1: np.ndarray, d0: np.ndarray, d1: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """∫₀¹ sgn(dq/ds) ds and ∫₀¹ |dq/ds| ds of the cubic Hermite per element, exactly.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(A, B, C) of the cubic Hermite's velocity dq/ds = A s² + B s + C."""
+    return 6 * (q0 - q1) + 3 * (d0 + d1), -6 * (q0 - q1) - 4 * d0 - 2 * d1, d0
 
-    dq/ds = A s² + B s + C is a quadratic: [0, 1] is cut at its real roots inside (0, 1) and each
-    piece integrated (sgn: piece length × its sign; |q̇|: |q(end) − q(start)|)."""
-    A = 6 * (q0 - q1) + 3 * (d0 + d1)
-    B = -6 * (q0 - q1) - 4 * d0 - 2 * d1
-    C = d0
+
+def hermite_velocity_cuts(
+    q0: np.ndarray, q1: np.ndarray, d0: np.ndarray, d1: np.ndarray
+) -> list[np.ndarray]:
+    """[0, s₁, s₂, 1] per element: the cubic Hermite's velocity dq/ds = A s² + B s + C cut at
+    its real roots inside (0, 1), so that sgn q̇ is constant on each piece. Roots outside
+    (0, 1), or absent, become zero-length pieces at s = 1."""
+    A, B, C = _hermite_velocity(q0, q1, d0, d1)
     with np.errstate(divide="ignore", invalid="ignore"):
         quad = np.abs(A) > 1e-300
         disc = np.where(quad, B * B - 4 * A * C, np.nan)
         r = np.sqrt(np.where(disc > 0, disc, np.nan))
         r1 = np.where(quad, (-B - r) / (2 * A), -C / B)
         r2 = np.where(quad, (-B + r) / (2 * A), np.nan)
-    # Roots outside (0, 1) (or absent) become zero-length pieces at s = 1.
     r1 = np.where((r1 > 0) & (r1 < 1), r1, 1.0)
     r2 = np.where((r2 > 0) & (r2 < 1), r2, 1.0)
-    cuts = [np.zeros_like(q0), np.minimum(r1, r2), np.maximum(r1, r2), np.ones_like(q0)]
+    return [np.zeros_like(q0), np.minimum(r1, r2), np.maximum(r1, r2), np.ones_like(q0)]
+
+
+def _sign_and_abs_integrals(
+    q0: np.ndarray, q1: np.ndarray, d0: np.ndarray, d1: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """∫₀¹ sgn(dq/ds) ds and ∫₀¹ |dq/ds| ds of the cubic Hermite per element, exactly.
+
+    dq/ds is a quadratic: [0, 1] is cut at its real roots inside (0, 1)
+    (:func:`hermite_velocity_cuts`) and each piece integrated (sgn: piece length × its sign;
+    |q̇|: |q(end) − q(start)|)."""
+    A, B, C = _hermite_velocity(q0, q1, d0, d1)
+    cuts = hermite_velocity_cuts(q0, q1, d0, d1)
     sgn_int = np.zeros_like(q0)
     abs_int = np.zeros_like(q0)
     q_at = [_hermite(q0, q1, d0, d1, c)[0] for c in cuts]
@@ -256,6 +278,39 @@ def _sign_and_abs_integrals(
         sgn_int += (hi - lo) * np.sign(A * mid * mid + B * mid + C)
         abs_int += np.abs(q_at[i + 1] - q_at[i])
     return sgn_int, abs_int
+
+
+def interval_mean_across_reversals(
+    f: Callable[[np.ndarray], np.ndarray],
+    q0: np.ndarray,
+    q1: np.ndarray,
+    v0: np.ndarray,
+    v1: np.ndarray,
+    h: float | np.ndarray,
+) -> np.ndarray:
+    """(1/h)∫ f(q̇) dt over each interval, q̇ the derivative of the cubic Hermite interpolant
+    through (q0, v0), (q1, v1) over the interval's length ``h``, for an ``f`` that is smooth
+    except for a jump at q̇ = 0 (a friction law, sgn q̇ · F(|q̇|)): the interval is cut where
+    q̇ changes sign (:func:`hermite_velocity_cuts`, as the Coulomb column's ∫ sgn q̇ dt) and
+    each piece, on which f is smooth, integrated by Gauss–Legendre (PIECE_NODES points: a
+    Stribeck decay over v_s can span a piece). Elementwise over arrays of one shape; ``h``
+    broadcasts against them."""
+    d0, d1 = h * v0, h * v1
+    cuts = hermite_velocity_cuts(q0, q1, d0, d1)
+    out = np.zeros(np.shape(q0))
+    nodes = _PIECE_NODES.reshape((-1,) + (1,) * np.ndim(q0))
+    for lo, hi in pairwise(cuts):
+        s = lo + (hi - lo) * nodes
+        v = _hermite(q0, q1, d0, d1, s)[1] / h
+        out += (hi - lo) * np.tensordot(_PIECE_WEIGHTS, f(v), axes=(0, 0))
+    return out
+
+
+def has_velocity_reversal(
+    q0: np.ndarray, q1: np.ndarray, v0: np.ndarray, v1: np.ndarray, h: float | np.ndarray
+) -> np.ndarray:
+    """Whether the cubic Hermite's q̇ changes sign inside each interval (a root in (0, 1))."""
+    return hermite_velocity_cuts(q0, q1, h * v0, h * v1)[1] < 1.0
 
 
 @dataclass(frozen=True)
