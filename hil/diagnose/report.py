@@ -691,12 +691,17 @@ def _kept_simulation(
 ) -> np.ndarray:
     """:func:`_segment_simulation` of recording ``rec_i``'s rows ``r``, kept in ``memo`` by its
     inputs (:func:`before_after`): the simulation gate's last round and the final comparison
-    simulate the same model. An n-joint model's (it takes the findings) is not kept."""
-    if not isinstance(model, ArmModel) or not (
-        extras is None or isinstance(extras, OpenLoopExtras)
-    ):
-        return _segment_simulation(theta, extras, r.q, r.tau, r.h, segments, r.stamps, model)
-    key = ("simulation", rec_i, tuple(segments), theta.tobytes(), model.terms, extras)
+    simulate the same model, and so do "before" and "after" when nothing is accepted. An
+    n-joint model's simulation takes the findings, and is kept by what it takes of them
+    (:func:`simulated_effects`, as :func:`_shaft_effects` reads them)."""
+    if isinstance(model, ArmModel):
+        if not (extras is None or isinstance(extras, OpenLoopExtras)):
+            return _segment_simulation(theta, extras, r.q, r.tau, r.h, segments, r.stamps, model)
+        how: Any = (model.terms, extras)
+    else:  # one diagnosis's memo: one robot, its model named by its terms
+        effects = simulated_effects(extras or (), r.q.shape[1])
+        how = (model.name, model.terms, model.n_params, repr(effects))
+    key = ("simulation", rec_i, tuple(segments), theta.tobytes(), how)
     if key not in memo:
         simulated = _segment_simulation(theta, extras, r.q, r.tau, r.h, segments, r.stamps, model)
         simulated.flags.writeable = False  # shared by the calls that reuse it
