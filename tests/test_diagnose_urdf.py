@@ -58,6 +58,9 @@ def test_gain_on_joint_3_is_found_on_joint_3_with_its_size(recordings, capsys):
     # error halves, 0.75 → 0.39 %, once the rows' friction columns are joint 3's own)
     assert after["torque_nrmse"][2] < 0.6 * before["torque_nrmse"][2]
     assert after["position_nrmse"][2] < 0.5 * before["position_nrmse"][2]
+    # the words name the arm's own rigid-body base parameters (the first 9 of its 18)
+    assert "(beta1..beta9, the 9 rigid-body base parameters of the cicese3 model)" in doc["summary"]
+    assert "θ1..θ5" not in doc["summary"]
     # what the URDF model cannot take is named with the reason
     assert set(doc["not_tested"]) == {"rotor_inertia", "com_offset", "offset"}
     assert "friction_offset" in doc["not_tested"]["offset"]

@@ -691,12 +691,17 @@ def _kept_simulation(
 ) -> np.ndarray:
     """:func:`_segment_simulation` of recording ``rec_i``'s rows ``r``, kept in ``memo`` by its
     inputs (:func:`before_after`): the simulation gate's last round and the final comparison
-    simulate the same model. An n-joint model's (it takes the findings) is not kept."""
-    if not isinstance(model, ArmModel) or not (
-        extras is None or isinstance(extras, OpenLoopExtras)
-    ):
-        return _segment_simulation(theta, extras, r.q, r.tau, r.h, segments, r.stamps, model)
-    key = ("simulation", rec_i, tuple(segments), theta.tobytes(), model.terms, extras)
+    simulate the same model, and so do "before" and "after" when nothing is accepted. An
+    n-joint model's simulation takes the findings, and is kept by what it takes of them
+    (:func:`simulated_effects`, as :func:`_shaft_effects` reads them)."""
+    if isinstance(model, ArmModel):
+        if not (extras is None or isinstance(extras, OpenLoopExtras)):
+            return _segment_simulation(theta, extras, r.q, r.tau, r.h, segments, r.stamps, model)
+        how: Any = (model.terms, extras)
+    else:  # one diagnosis's memo: one robot, its model named by its terms
+        effects = simulated_effects(extras or (), r.q.shape[1])
+        how = (model.name, model.terms, model.n_params, repr(effects))
+    key = ("simulation", rec_i, tuple(segments), theta.tobytes(), how)
     if key not in memo:
         simulated = _segment_simulation(theta, extras, r.q, r.tau, r.h, segments, r.stamps, model)
         simulated.flags.writeable = False  # shared by the calls that reuse it
@@ -973,7 +978,21 @@ _WORDS = {
 }
 
 
-def _phrase(f: Finding) -> str:
+def rigid_body_words(model: Any) -> str:
+    """How the words name the rigid-body parameters a torque gain is read with at the
+    reference: θ1..θ5 of the 2-DOF arm, an n-joint model's own rigid-body base parameters."""
+    if isinstance(model, ArmModel):
+        return "θ1..θ5 of the 2-DOF arm"
+    n = rigid_count(model)
+    return (
+        f"{model.names[0]}..{model.names[n - 1]}, the {n} rigid-body base parameters of the "
+        f"{model.name or 'URDF'} model"
+    )
+
+
+def _phrase(f: Finding, rigid: str = "θ1..θ5 of the 2-DOF arm") -> str:
+    """One finding in words; ``rigid``: what the rigid-body parameters are called
+    (:func:`rigid_body_words`)."""
     e = dict(f.estimate)
     if f.effect == "coulomb_asymmetry":
         e["neg"] = f"{-e['negative_Nm']:+.2f}"
@@ -991,7 +1010,7 @@ def _phrase(f: Finding) -> str:
     if e.get("reading") == AT_REFERENCE:
         # docs/diagnosis.md 4a: the θ-free reading failed the simulation gate, this one passed
         words += (
-            " (read with the rigid-body parameters (θ1..θ5 of the 2-DOF arm) held at the "
+            f" (read with the rigid-body parameters ({rigid}) held at the "
             f"reference; with θ free the estimate is {100 * e['relative']:+.3g} %, biased toward "
             "zero because a free θ absorbs part of the gain (most on closed-loop data), and that "
             f"reading {f.evidence.get('theta_free_reading', 'failed the simulation gate')})"
@@ -1000,7 +1019,7 @@ def _phrase(f: Finding) -> str:
         # docs/diagnosis.md 4a: a free θ absorbs part of a gain (most in closed loop)
         words += (
             f" ({100 * e['relative_at_reference_theta']:+.3g} % with the rigid-body parameters "
-            "(θ1..θ5 of the 2-DOF arm) held at the reference; with θ free the estimate is "
+            f"({rigid}) held at the reference; with θ free the estimate is "
             "biased toward zero, most on closed-loop data)"
         )
     return words
@@ -1075,8 +1094,8 @@ def _confounded_group(f: Finding, findings: Sequence[Finding]) -> list[Finding]:
     return sorted(group, key=lambda g: (g.joint is None, g.joint or 0))
 
 
-def _who(f: Finding) -> str:
-    return f"Joint {f.joint}" if f.joint else "Both joints"
+def _who(f: Finding, n_joints: int = 2) -> str:
+    return f"Joint {f.joint}" if f.joint else ("Both joints" if n_joints == 2 else "All joints")
 
 
 # Held-out torque NRMSE above which "nothing found" is not called "the model is complete".
@@ -1100,7 +1119,11 @@ def summary_words(
     fit: dict[str, Any],
     notes: Sequence[str],
     nominal: str = "9-parameter",
+    rigid: str = "θ1..θ5 of the 2-DOF arm",
 ) -> str:
+    """The summary in words; ``nominal``: the model's name (:func:`model_name`), ``rigid``: its
+    rigid-body parameters' (:func:`rigid_body_words`)."""
+    n_joints = len(fit["before"]["torque_nrmse"])
     if not findings and any(n.startswith("I cannot tell") for n in notes):
         lines = []  # the note says why, and that is all there is to say
     elif not findings and (
@@ -1133,14 +1156,16 @@ def summary_words(
             if f.effect == "torque_gain" and len(first) == 2:
                 first, others = first[:1], first[1:]
             said = "; ".join(
-                f"{_who(g) if i == 0 else _who(g).lower()}: {_phrase(g)}"
+                f"{_who(g, n_joints) if i == 0 else _who(g, n_joints).lower()}: {_phrase(g, rigid)}"
                 for i, g in enumerate(first)
             )
             if not others:
                 lines.append(f"{said}.")
                 continue
             alt = "; or ".join(
-                _phrase(g) if g.joint == f.joint else f"{_who(g).lower()}: {_phrase(g)}"
+                _phrase(g, rigid)
+                if g.joint == f.joint
+                else f"{_who(g, n_joints).lower()}: {_phrase(g, rigid)}"
                 for g in others
             )
             why = _separate(frozenset(g.effect for g in group))
@@ -1723,7 +1748,7 @@ def diagnose(
         + burst_notes(where.document)
     )
     timing = timing_findings(recordings)
-    summary = summary_words(findings, fit, notes, model_name(model))
+    summary = summary_words(findings, fit, notes, model_name(model), rigid_body_words(model))
     if timing:
         kinds = sorted({t["kind"].replace("_", " ") for t in timing})
         summary += f" Timing, from the time stamps: {', '.join(kinds)} (see timing)."

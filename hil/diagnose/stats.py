@@ -24,7 +24,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import binom
 
-RIDGE = 1e-9  # relative: keeps a fold solvable when a column is (nearly) absent from it
+# Relative to each column's own squared norm over all the data (not to the design's mean
+# diagonal): keeps a fold solvable when a column is (nearly) absent from it. A ridge relative to
+# the mean diagonal is not scale-free: the ur5e's 54 base parameters have columns whose squared
+# norms span 9 decades, and ε = 1e-9 × mean was 4 % of the smallest column's (the least
+# eigenvalue lay below ε), so every cross-validated fit was biased (joint 2's in-sample error
+# 2.3× the noise) and any extra columns (the `unexplained` bins) "explained" that bias: three
+# false structures on an effect-free run (docs/diagnosis.md, "n joints").
+RIDGE = 1e-9
 TRIM_FRACTION = 0.05  # of blocks left out of the relative reduction (largest changes)
 
 
@@ -200,12 +207,20 @@ def extended_stats(
     )
 
 
-def _solve(G: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """β = (G + ε I)⁻¹ r for stacked systems (..., p, p), ε relative to the diagonal."""
-    p = G.shape[-1]
-    scale = np.maximum(np.trace(G, axis1=-2, axis2=-1) / p, 1e-300)
-    eye = np.eye(p) * (RIDGE * scale)[..., None, None]
-    return np.linalg.solve(G + eye, r[..., None])[..., 0]
+def column_scale(G: np.ndarray) -> np.ndarray:
+    """Each column's squared norm, the diagonal of G (..., p, p) → (..., p); a column that is
+    zero on every row takes the mean of the diagonal instead (its coefficient is then 0)."""
+    diag = np.diagonal(G, axis1=-2, axis2=-1)
+    mean = np.maximum(diag.mean(axis=-1, keepdims=True), 1e-300)
+    return np.where(diag > 0, diag, mean)
+
+
+def _solve(G: np.ndarray, r: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """β = (G + ε D)⁻¹ r for stacked systems (..., p, p), D = diag(``scale``) the columns'
+    squared norms over all the data (:func:`column_scale`), ε = RIDGE: the same ridge on the
+    columns scaled to unit norm, so the fit does not depend on the columns' units."""
+    ridge = RIDGE * scale[..., :, None] * np.eye(G.shape[-1])
+    return np.linalg.solve(G + ridge, r[..., None])[..., 0]
 
 
 def _sse(G: np.ndarray, r: np.ndarray, s: np.ndarray, beta: np.ndarray) -> np.ndarray:
@@ -292,13 +307,14 @@ def _folds(stats: BlockStats, offset: int) -> _Folds:
     G_all, r_all, s_all = G_blk.sum(axis=1), r_blk.sum(axis=1), s.sum()
     Gt = G_all[:, None] - G_blk
     rt = r_all[:, None] - r_blk
-    beta = _solve(Gt, rt)  # (V, B, p)
+    scale = column_scale(G_all)  # (V, p): every fold's ridge from the full data's columns
+    beta = _solve(Gt, rt, scale[:, None])  # (V, B, p)
     train = (s_all - s.sum(axis=1))[None] - np.einsum("vbp,vbp->vb", beta, rt)
     v = np.argmin(train, axis=0)  # (B,)
     b = np.arange(n_blocks)
     fold_beta = beta[v, b]  # (B, p)
     held = _sse(G[v, b], r[v, b], s, fold_beta[:, None, :])
-    beta_full = _solve(G_all, r_all)
+    beta_full = _solve(G_all, r_all, scale)
     full_sse = s_all - np.einsum("vp,vp->v", beta_full, r_all)
     vf = int(np.argmin(full_sse))
     sse = _sse(G[vf].sum(axis=0), r[vf].sum(axis=0), s.sum(axis=0), beta_full[vf])
