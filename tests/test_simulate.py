@@ -199,3 +199,68 @@ def test_host_side_never_imports_the_plant(module):
             assert all(d.endswith("virtual_robot.serve") for d in dynamic), dynamic
         else:
             assert not dynamic, path
+
+
+def _held_and_row_by_row(tmp_path, monkeypatch, robot, experiment, duration_s):
+    """The recording with the held rows (virtual_robot.offline._held_rows) and with the drive
+    models row by row, and how many rows the held path wrote."""
+    import virtual_robot.offline as offline
+
+    held_rows = []
+    held = offline._held_rows
+
+    def spy(*args, **kwargs):
+        out = held(*args, **kwargs)
+        held_rows.append(out[0])
+        return out
+
+    monkeypatch.setattr(offline, "_held_rows", spy)
+    simulate(robot, experiment, tmp_path / "held", duration_s=duration_s, plot=False)
+    monkeypatch.setattr(offline, "_rows_can_be_held", lambda *_: False)
+    simulate(robot, experiment, tmp_path / "rows", duration_s=duration_s, plot=False)
+    metas = [json.loads((tmp_path / d / "meta.json").read_text()) for d in ("held", "rows")]
+    return (
+        *((tmp_path / d / "signals.csv").read_bytes() for d in ("held", "rows")),
+        held_rows,
+        metas,
+    )
+
+
+@pytest.mark.parametrize(
+    "case", ["reyes-kelly", "saturated and overspeed", "cicese3", "cicese3 overspeed"]
+)
+def test_held_rows_are_the_drive_models_rows(tmp_path, monkeypatch, case):
+    """The offline simulation's block path (drives' arithmetic on arrays while every drive
+    applies torque) writes the recording the drive models write row by row, byte for byte,
+    the fault and the rows after it included (there it hands over to the drive models)."""
+    from profiles.robot import load_urdf_robot
+
+    robot, duration, fault_row = load_robot("cicese"), 1.0, None
+    if case == "reyes-kelly":
+        experiment = load_experiment("reyes-kelly")
+    elif case == "saturated and overspeed":  # 250 Nm clamps to 200 Nm; the elbow overspeeds
+        experiment = load_experiment(_experiment_file(tmp_path, 250.0, 15.0, duration=3.0))
+        duration, fault_row = 3.0, True
+    else:
+        robot, experiment = load_urdf_robot("cicese3"), load_experiment("cicese3-excitation")
+        if case == "cicese3 overspeed":  # 3 x the torques: joint 3 passes its 25 rad/s
+            from dataclasses import replace
+
+            experiment = replace(experiment, joints=tuple(
+                replace(j, sines=tuple(replace(s, amplitude_Nm=3 * s.amplitude_Nm)
+                                       for s in j.sines)) for j in experiment.joints
+            ))  # fmt: skip
+            duration, fault_row = 3.0, True
+    held, rows, held_rows, (meta_held, meta_rows) = _held_and_row_by_row(
+        tmp_path, monkeypatch, robot, experiment, duration
+    )
+    assert held == rows
+    assert meta_held["faults"] == meta_rows["faults"]
+    assert meta_held["plant_steps"] == meta_rows["plant_steps"]
+    n_rows = round(duration / H)
+    if fault_row is None:
+        assert meta_held["faults"] == [] and held_rows == [n_rows]
+    else:  # held up to the sample where the drive faulted, row by row from there
+        assert meta_held["faults"], case
+        assert held_rows == [round(meta_held["faults"][0]["t"] / H)]
+        assert 0 < held_rows[0] < n_rows

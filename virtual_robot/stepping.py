@@ -108,8 +108,14 @@ class Stepper:
         for i, d in enumerate(self.drives):
             d.update(now, measured[i], rates[i], count_period)
 
-    def apply(self, now: float, from_host: bool = True) -> float | None:
-        """Give the plant the drives' torques and power states, issued at ``now``.
+    def apply(
+        self,
+        now: float,
+        from_host: bool = True,
+        held: tuple[tuple[float, ...], tuple[bool, ...]] | None = None,
+    ) -> float | None:
+        """Give the plant the drives' torques and power states, issued at ``now`` (``held``:
+        those the caller knows the drives hold, (torques, powered), instead of reading them).
 
         ``from_host``: a command the host just sent (timing faults delay it); else the robot's
         own re-issue of what the drives hold (a period tick, a safe stop), which with timing
@@ -118,9 +124,12 @@ class Stepper:
         lockstep delivery under timing faults).
         """
         self.unapplied = False
-        drives = self.drives
-        powered = tuple([d.powered for d in drives])
-        cmd = tuple([d.torque_Nm for d in drives])
+        if held is None:
+            drives = self.drives
+            powered = tuple([d.powered for d in drives])
+            cmd = tuple([d.torque_Nm for d in drives])
+        else:
+            cmd, powered = held
         timing = self.timing
         if timing is None:
             self.plant.command(cmd, issued_at=now, powered=powered)
@@ -136,11 +145,12 @@ class Stepper:
         return None
 
     # ---- lockstep -----------------------------------------------------------------------------
-    def advance(self) -> float:
-        """Lockstep: the plant given the held commands (issued at t_{n−1}) and integrated to the
-        time t_n of the next sample (n = :attr:`syncs`); no sample. Returns t_n."""
+    def advance(self, held: tuple[tuple[float, ...], tuple[bool, ...]] | None = None) -> float:
+        """Lockstep: the plant given the held commands (issued at t_{n−1}; ``held``: as
+        :meth:`apply` takes it) and integrated to the time t_n of the next sample
+        (n = :attr:`syncs`); no sample. Returns t_n."""
         if self.unapplied:
-            self.apply(self.t)
+            self.apply(self.t, held=held)
         n = self.syncs
         timing = self.timing
         if n > 0:
@@ -161,8 +171,14 @@ class Stepper:
         """Lockstep: one SYNC (:meth:`advance`, then every drive samples at t_n, one drive
         period). Until the next SYNC the plant stands still; whatever the drives are commanded
         meanwhile, it is given then. Returns t_n."""
-        t = self.advance()
-        self.sample(t, True)
+        return self.sampled(self.advance())
+
+    def sampled(self, t: float, drives: bool = True) -> float:
+        """Lockstep: the rest of a SYNC after :meth:`advance` to t_n: every drive samples at t_n
+        (``drives`` False: none does; the caller reads the plant itself and brings the drives
+        up to date later, virtual_robot.offline's held rows), one drive period. Returns t_n."""
+        if drives:
+            self.sample(t, True)
         self.unapplied = True
         self.syncs += 1
         return t
