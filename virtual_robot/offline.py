@@ -207,10 +207,11 @@ def _held_rows(
     max_speed = np.array([p.max_velocity_rad_s for p in profiles])
     max_position = np.array([_COUNTS_EXACT * d.profile.rad_per_count for d in drives])
     per_rev = np.array([2.0 * math.pi / p.counts_per_rev for p in profiles])  # counts_to_rad
-    powered = (True,) * n
     counts = np.array([d.position_counts for d in drives], dtype=np.int64)  # unwrapped so far
     raw = counts.copy()  # the last INT32 readings
-    held: tuple[float, ...] | None = None  # the torques the drives hold since the last row
+    held_last: np.ndarray | None = None  # the torques the drives hold since the last row
+    bounds = (max_speed, max_position)
+    h = stepper.period_s
     replay: list[tuple[float, list[float], list[float], list[int]]] = []  # the last two rows
     k, t_stop = 0, None
     while k < n_rows and t_stop is None:
@@ -228,23 +229,28 @@ def _held_rows(
         outputs = [drives[i].enabled_outputs(permille[:, i]) for i in range(n)]
         tau = np.column_stack([o[0] for o in outputs])
         status = np.column_stack([o[1] for o in outputs])
-        tau_rows = [tuple(r) for r in tau.tolist()]
-        times: list[float] = []
         q_rows = np.empty((stop - k, n))
         dq_rows = np.empty((stop - k, n))
+        first = 0  # rows of the block without a period before them (SYNC 0)
         try:
-            for j in range(stop - k):
-                t = stepper.advance(None if held is None else (held, powered))
-                q, dq = stepper.plant.measured_q, stepper.plant.dq
-                if not ((np.abs(dq) <= max_speed).all() and (np.abs(q) <= max_position).all()):
-                    t_stop = t  # a drive may fault or refuse it: row by row from here
+            if stepper.syncs == 0:  # SYNC 0 samples the plant as it starts
+                t = stepper.advance()
+                q_rows[0], dq_rows[0] = stepper.plant.measured_q, stepper.plant.dq
+                if not _inside(q_rows[0], dq_rows[0], bounds):
+                    t_stop = t
                     break
-                q_rows[j], dq_rows[j] = q, dq
                 stepper.sampled(t, drives=False)
-                times.append(t)
-                held = tau_rows[j]
+                first = 1
+            # the period before row r holds row r − 1's torques
+            held = tau[:-1] if held_last is None else np.vstack([held_last, tau[:-1]])
+            _, inside = stepper.advance_held(
+                np.ascontiguousarray(held), bounds, q_rows[first:], dq_rows[first:]
+            )
+            if not inside:
+                t_stop = stepper.t
         finally:  # the rows integrated so far are written, whatever happened after
-            m = len(times)
+            m = stepper.syncs - k
+            times = [r * h for r in range(k, k + m)]  # t_r = r·h, as Stepper.advance takes it
             if m:
                 raw_block = wrap_int32(
                     np.column_stack([d.encoder_counts(q_rows[:m, i]) for i, d in enumerate(drives)])
@@ -262,7 +268,8 @@ def _held_rows(
                     for j in range(max(0, m - 2), m)
                 ])[-2:]  # fmt: skip
                 report(times[-1])
-        k += len(times)
+                held_last = tau[m - 1]
+        k += m
     # the drives as the rows before left them: the last two samples and target writes
     for t_j, q_j, dq_j, permille_j in replay:
         for i, d in enumerate(drives):
@@ -271,6 +278,11 @@ def _held_rows(
     if t_stop is not None:
         stepper.sampled(t_stop)
     return k, t_stop, counts.tolist()
+
+
+def _inside(q: np.ndarray, dq: np.ndarray, bounds: tuple[np.ndarray, np.ndarray]) -> bool:
+    """|q̇| within the overspeed thresholds and |q| within exact counts, joint by joint."""
+    return bool((np.abs(dq) <= bounds[0]).all() and (np.abs(q) <= bounds[1]).all())
 
 
 def run_open_loop(

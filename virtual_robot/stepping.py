@@ -24,13 +24,15 @@ The stepper knows the plant only through :class:`SteppedPlant` and the drives on
 :class:`SteppedDrive`, for any number of joints: the 2-DOF :class:`~virtual_robot.plant.Plant`
 or an n-joint plant with the same methods.
 
-May import: nothing of this project beyond virtual_robot.timing_faults (types only).
+May import: numpy; nothing of this project beyond virtual_robot.timing_faults (types only).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
 
 if TYPE_CHECKING:
     from virtual_robot.timing_faults import RobotTiming
@@ -182,6 +184,45 @@ class Stepper:
         self.unapplied = True
         self.syncs += 1
         return t
+
+    def advance_held(
+        self,
+        torques: np.ndarray,
+        bounds: tuple[np.ndarray, np.ndarray],
+        q_out: np.ndarray,
+        dq_out: np.ndarray,
+    ) -> tuple[int, bool]:
+        """Lockstep without timing faults, the drives bypassed (virtual_robot.offline's held
+        rows): SYNCs one after another, before the j-th the plant given ``torques[j]`` held
+        over its period with every amplifier powered (:meth:`advance`), after it the plant's
+        measured q and q̇ into q_out[j], dq_out[j] and no drive samples (:meth:`sampled`).
+        Stops after the first SYNC where some |q̇_i| > bounds[0]_i or |q_i| > bounds[1]_i (or
+        a NaN): that SYNC is not counted and its drives not sampled; the plant stands at its
+        time, :attr:`t`. Returns (SYNCs advanced, whether the last was inside the bounds). A
+        plant with ``advance_periods`` (the n-joint plant's compiled kernel) takes the periods
+        it can in one call; the rest go one :meth:`advance` at a time."""
+        assert self.timing is None and self.lockstep and self.unapplied
+        m, h = len(torques), self.period_s
+        done, inside = 0, True
+        periods = getattr(self.plant, "advance_periods", None)
+        if periods is not None and m:
+            done, inside = periods(torques, self.syncs, h, bounds, q_out, dq_out)
+            if done:  # as :meth:`advance` and :meth:`sampled` leave it, SYNC by SYNC
+                self.unapplied = inside  # given; after a counted SYNC, the next row's is not
+                self.t = (self.syncs + done - 1) * h
+                self.syncs += done - (0 if inside else 1)
+        if not inside:
+            return done, False
+        powered = (True,) * len(self.drives)
+        max_speed, max_q = bounds
+        for j, row in enumerate(torques[done:].tolist(), start=done):
+            t = self.advance((tuple(row), powered))
+            q, dq = self.plant.measured_q, self.plant.dq
+            q_out[j], dq_out[j] = q, dq
+            if not ((np.abs(dq) <= max_speed).all() and (np.abs(q) <= max_q).all()):
+                return j + 1, False
+            self.sampled(t, drives=False)
+        return m, True
 
     def _deliver_lockstep(
         self,
