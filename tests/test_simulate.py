@@ -226,41 +226,53 @@ def _held_and_row_by_row(tmp_path, monkeypatch, robot, experiment, duration_s):
     )
 
 
-@pytest.mark.parametrize(
-    "case", ["reyes-kelly", "saturated and overspeed", "cicese3", "cicese3 overspeed"]
-)
-def test_held_rows_are_the_drive_models_rows(tmp_path, monkeypatch, case):
+@pytest.mark.parametrize("kernel", ["auto", "python"])
+@pytest.mark.parametrize("case", ["cicese3", "cicese3 overspeed"])
+def test_held_rows_are_the_drive_models_rows(tmp_path, monkeypatch, case, kernel):
     """The offline simulation's block path (drives' arithmetic on arrays while every drive
-    applies torque) writes the recording the drive models write row by row, byte for byte,
-    the fault and the rows after it included (there it hands over to the drive models)."""
+    applies torque; the compiled kernel's periods in one call, ddb_advance_periods, or one
+    period at a time with the Python step) writes the recording the drive models write row by
+    row, byte for byte, the fault and the rows after it included (there it hands over to the
+    drive models)."""
+    from dataclasses import replace
+
     from profiles.robot import load_urdf_robot
+    from virtual_robot.compiled_step import KERNEL_ENV
 
-    robot, duration, fault_row = load_robot("cicese"), 1.0, None
-    if case == "reyes-kelly":
-        experiment = load_experiment("reyes-kelly")
-    elif case == "saturated and overspeed":  # 250 Nm clamps to 200 Nm; the elbow overspeeds
-        experiment = load_experiment(_experiment_file(tmp_path, 250.0, 15.0, duration=3.0))
-        duration, fault_row = 3.0, True
-    else:
-        robot, experiment = load_urdf_robot("cicese3"), load_experiment("cicese3-excitation")
-        if case == "cicese3 overspeed":  # 3 x the torques: joint 3 passes its 25 rad/s
-            from dataclasses import replace
-
-            experiment = replace(experiment, joints=tuple(
-                replace(j, sines=tuple(replace(s, amplitude_Nm=3 * s.amplitude_Nm)
-                                       for s in j.sines)) for j in experiment.joints
-            ))  # fmt: skip
-            duration, fault_row = 3.0, True
+    monkeypatch.setenv(KERNEL_ENV, kernel)
+    robot, experiment = load_urdf_robot("cicese3"), load_experiment("cicese3-excitation")
+    duration, fault = (1.0 if kernel == "auto" else 0.4), False
+    if case == "cicese3 overspeed":  # 3 x the torques: joint 3 passes its 25 rad/s
+        experiment = replace(experiment, joints=tuple(
+            replace(j, sines=tuple(replace(s, amplitude_Nm=3 * s.amplitude_Nm) for s in j.sines))
+            for j in experiment.joints
+        ))  # fmt: skip
+        duration, fault = 3.0, True
     held, rows, held_rows, (meta_held, meta_rows) = _held_and_row_by_row(
         tmp_path, monkeypatch, robot, experiment, duration
     )
     assert held == rows
     assert meta_held["faults"] == meta_rows["faults"]
     assert meta_held["plant_steps"] == meta_rows["plant_steps"]
+    assert meta_held["stick_events"] == meta_rows["stick_events"] > 0
+    assert meta_held["integrator"]["kernel"]["kernel"] == (
+        "compiled" if kernel == "auto" else kernel
+    )
     n_rows = round(duration / H)
-    if fault_row is None:
+    if not fault:
         assert meta_held["faults"] == [] and held_rows == [n_rows]
     else:  # held up to the sample where the drive faulted, row by row from there
         assert meta_held["faults"], case
         assert held_rows == [round(meta_held["faults"][0]["t"] / H)]
         assert 0 < held_rows[0] < n_rows
+
+
+def test_two_dof_rows_stay_row_by_row(tmp_path, monkeypatch):
+    """The 2-DOF plant has no many-period call: its rows go through the drive models."""
+    import virtual_robot.offline as offline
+
+    calls = []
+    monkeypatch.setattr(offline, "_held_rows", lambda *a: calls.append(a))
+    simulate(load_robot("cicese"), load_experiment("reyes-kelly"), tmp_path, duration_s=0.1,
+             plot=False)  # fmt: skip
+    assert calls == [] and len(read_signals(tmp_path)) == 40
