@@ -196,11 +196,13 @@ def _held_rows(
     report: Callable[[float], None],
 ) -> tuple[int, float | None, list[int]]:
     """The rows of :func:`record_open_loop` while every drive applies torque and none faults,
-    a block at a time: the plant integrated row by row under the torques the drives would
-    hold (:meth:`DriveModel.enabled_outputs` of the commanded per-mille), its measured q and
-    q̇ read at each sample; the encoder counts, positions and status words of the block after,
-    by the drives' own arithmetic on arrays (:meth:`DriveModel.encoder_counts`); the rows
-    written as the drive models would have produced them, byte for byte. It stops at the first
+    a block at a time: the plant integrated under the torques the drives would hold
+    (:meth:`DriveModel.enabled_outputs` of the commanded per-mille) by
+    :meth:`Stepper.advance_held` (the n-joint plant's kernel takes the periods between stick
+    events in one call), its measured q and q̇ kept at each sample; the encoder counts,
+    positions and status words of the block after, by the drives' own arithmetic on arrays
+    (:meth:`DriveModel.encoder_counts`); the rows written as the drive models would have
+    produced them, byte for byte. It stops at the first
     sample where a drive might leave that state (|q̇| above its overspeed threshold, a
     non-finite or huge q or q̇, a non-finite command): the drives are brought to the state the
     rows before left them in (their last two samples and writes, replayed), and that row is

@@ -447,9 +447,9 @@ int ddb_advance(
 // Many control periods in a row, each as UrdfPlant.command(τ_j) then advance_to(t_j) would take
 // them: at the start of period j the work since the last booking is booked (scalars[5] +=
 // τ_{j−1}ᵀΔq, scalars[1] += levelᵀΔq, Δq = q − booked; booked = q: UrdfPlant._book_work, with
-// the products summed in joint order; τ_{−1} = `command`, the torque held now), c = τ_j − level and the stuck joints' test torque
-// τ = τ_j; then ddb_advance's substeps in the current stick mode to t_j = (n0 + j) · h. After
-// each period its end state goes to q_out[j], v_out[j] (rows of n) and is checked: |q̇_i| ≤
+// the products summed in joint order; τ_{−1} = `command`, the torque held now), c = τ_j −
+// level and the stuck joints' test torque τ = τ_j; then ddb_advance's substeps in the current
+// stick mode to t_j = (n0 + j) · h. After each period its end state goes to q_out[j], v_out[j] (rows of n) and is checked: |q̇_i| ≤
 // max_speed_i and |q_i| ≤ q_limit_i (a NaN fails). `torques`: m rows of n; `level`, `booked`:
 // n; scalars as ddb_advance's, plus [5] the booked work in/out and [6] out: the period index
 // j where it stopped. Returns ddb_advance's 1 (crossing) or 2 (breakaway) inside period j

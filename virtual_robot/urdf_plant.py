@@ -27,7 +27,10 @@ control period run in C++ when the compiled step builds (:mod:`virtual_robot.com
 test, around Pinocchio's C++ ABA and RNEA, in one call per period and stick mode, returning
 at a velocity crossing or a breakaway, which this module handles as before (its single steps
 and accelerations also come from the kernel then); bit-identical to the Python step, which
-runs when the kernel cannot be built or ``DDBENCH_PLANT_KERNEL=python``.
+runs when the kernel cannot be built or ``DDBENCH_PLANT_KERNEL=python``. The offline
+simulation's held rows (:meth:`UrdfPlant.advance_periods`) give the kernel many control
+periods per call, each with its own torque, until a stick event, a breakaway or a joint
+beyond its drive's overspeed threshold.
 
 Concealed effects (an effects profile, docs/effects.md) per joint, by the 2-DOF plant's equations
 (:mod:`virtual_robot.effects`) and in the same places: the torque path (transport delay, amplifier
