@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 INT16_MIN, INT16_MAX = -(2**15), 2**15 - 1
 INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
 
@@ -34,6 +36,13 @@ def torque_to_permille(torque_Nm: float, rated_torque_Nm: float) -> int:
         raise ValueError(f"torque must be finite, got {torque_Nm}")
     value = round(torque_Nm * 1000.0 / rated_torque_Nm)
     return INT16_MAX if value > INT16_MAX else INT16_MIN if value < INT16_MIN else value
+
+
+def torques_to_permille(torque_Nm: np.ndarray, rated_torque_Nm: float) -> np.ndarray:
+    """:func:`torque_to_permille` of every element (int64; the same arithmetic: round half to
+    even, INT16 clamp); the elements must be finite."""
+    value = np.rint(np.asarray(torque_Nm, dtype=float) * 1000.0 / rated_torque_Nm)
+    return np.clip(value, INT16_MIN, INT16_MAX).astype(np.int64)
 
 
 def permille_to_torque(permille: int, rated_torque_Nm: float) -> float:

@@ -56,6 +56,52 @@ def test_compiled_step_is_the_python_step(monkeypatch):
 
 
 @needs_compiler
+def test_periods_in_one_kernel_call_are_command_and_advance_to(monkeypatch):
+    """UrdfPlant.advance_periods (ddb_advance_periods: many control periods per call, returning
+    at stick events and breakaways, which the plant handles) gives the states of command() +
+    advance_to() per period bit for bit, the same steps and stick events, energy books to
+    round-off (the work products are summed in joint order there), and stops after the first
+    period ending out of its bounds, with that period's row written."""
+    monkeypatch.setenv(KERNEL_ENV, "compiled")
+    robot = load_urdf_robot("panda")
+    h, j, rows = 0.0025, np.arange(7), 400
+    k = np.arange(rows)[:, None]
+    torques = np.ascontiguousarray((2.0 + j) * np.sin((10.0 + 3 * j) * k * h + 0.1 * j))
+    one_by_one = UrdfPlant(UrdfPlantParams.from_profile(robot))
+    q_rows, dq_rows = np.empty((rows, 7)), np.empty((rows, 7))
+    for i in range(rows):
+        one_by_one.command(torques[i])
+        one_by_one.advance_to((i + 1) * h)
+        q_rows[i], dq_rows[i] = one_by_one.q, one_by_one.dq
+    wide = (np.full(7, np.inf), np.full(7, np.inf))
+    batched = UrdfPlant(UrdfPlantParams.from_profile(robot))
+    q_out, dq_out = np.zeros((rows, 7)), np.zeros((rows, 7))
+    half = rows // 2  # two calls, as a recording's blocks
+    assert batched.advance_periods(torques[:half], 1, h, wide, q_out, dq_out) == (half, True)
+    assert batched.advance_periods(
+        torques[half:], half + 1, h, wide, q_out[half:], dq_out[half:]
+    ) == (rows - half, True)
+    a, b = one_by_one, batched
+    assert a.stick_events > 3 and (a.steps, a.stick_events, a.t) == (b.steps, b.stick_events, b.t)
+    assert np.array_equal(q_out, q_rows) and np.array_equal(dq_out, dq_rows)
+    assert np.array_equal(a.q, b.q) and np.array_equal(a.dq, b.dq)
+    assert b.work_in_J == pytest.approx(a.work_in_J, rel=1e-12)
+    assert b.dissipated_J == pytest.approx(a.dissipated_J, rel=1e-12)
+    # bounds: it stops after the first period whose |q̇| passes 3 rad/s on some joint
+    slow = (np.full(7, 3.0), np.full(7, np.inf))
+    first_fast = int(np.argmax((np.abs(dq_rows) > 3.0).any(axis=1)))
+    assert 0 < first_fast < rows
+    bounded = UrdfPlant(UrdfPlantParams.from_profile(robot))
+    q_out[:] = 0.0
+    assert bounded.advance_periods(torques, 1, h, slow, q_out, dq_out) == (first_fast + 1, False)
+    assert np.array_equal(q_out[: first_fast + 1], q_rows[: first_fast + 1])
+    assert bounded.t == (first_fast + 1) * h
+    monkeypatch.setenv(KERNEL_ENV, "python")  # without the kernel: nothing done, says so
+    python_step = UrdfPlant(UrdfPlantParams.from_profile(robot))
+    assert python_step.advance_periods(torques, 1, h, wide, q_out, dq_out) == (0, True)
+
+
+@needs_compiler
 def test_a_recycled_locked_arm_is_a_fresh_one(monkeypatch):
     """A stuck set locked again at other positions reuses a freed locked arm and its Pinocchio
     Data (rk4_aba.cpp, ddb_locked_new): its accelerations and RK4 step equal, bit for bit, those

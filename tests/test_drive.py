@@ -504,3 +504,40 @@ def test_encoder_counts_and_velocity_exact_where_the_float_quotient_overflows() 
     assert d.velocity_counts_s == INT32_MAX
     d.update(2 * DT, -1.7e308, 0.0)
     assert d.velocity_counts_s == INT32_MIN
+
+
+# ----------------------------------------------------------------- many periods at once
+
+
+def test_enabled_outputs_and_encoder_counts_are_the_drives_arithmetic() -> None:
+    """DriveModel.enabled_outputs / encoder_counts and drivers.units.torques_to_permille (the
+    offline simulation's block path) give, element by element, what the scalar path gives:
+    ties of the per-mille rounding (half to even), the INT16 and max-torque clamps, the
+    saturation bit, the floor of negative positions."""
+    import numpy as np
+
+    from drivers.units import torque_to_permille, torques_to_permille
+
+    rated = DM1200A.rated_torque_Nm
+    per_mille = rated / 1000.0
+    torques = [0.0, 0.5 * per_mille, 1.5 * per_mille, -2.5 * per_mille, 0.4 * rated, -0.99 * rated,
+               3.0 * rated, -3.0 * rated, 1e4, -1e4, 40.0 * rated]  # fmt: skip
+    torques += list(np.random.default_rng(1).uniform(-2 * rated, 2 * rated, 200))
+    targets = torques_to_permille(np.array(torques), rated)
+    assert targets.tolist() == [torque_to_permille(x, rated) for x in torques]
+    d = enabled()
+    d.write_max_torque(1500)
+    torque, status = d.enabled_outputs(targets)
+    expected = []
+    for target in targets.tolist():
+        d.write_target_torque(target, 0.0)
+        expected.append((d.torque_Nm, d.statusword))
+    assert list(zip(torque.tolist(), status.tolist(), strict=True)) == expected
+    assert {s & 0x0C00 for s in status.tolist()} == {0x0400, 0x0800}  # both cases met
+    positions = np.random.default_rng(2).uniform(-50.0, 50.0, 300)
+    counts = d.encoder_counts(positions).tolist()
+    rad = DM1200A.rad_per_count
+    assert counts == [math.floor(p / rad) for p in positions.tolist()]
+    d.write_controlword(0x07, 0.0)  # switched on: no torque applied
+    with pytest.raises(ValueError, match="not applying torque"):
+        d.enabled_outputs(targets)

@@ -199,3 +199,80 @@ def test_host_side_never_imports_the_plant(module):
             assert all(d.endswith("virtual_robot.serve") for d in dynamic), dynamic
         else:
             assert not dynamic, path
+
+
+def _held_and_row_by_row(tmp_path, monkeypatch, robot, experiment, duration_s):
+    """The recording with the held rows (virtual_robot.offline._held_rows) and with the drive
+    models row by row, and how many rows the held path wrote."""
+    import virtual_robot.offline as offline
+
+    held_rows = []
+    held = offline._held_rows
+
+    def spy(*args, **kwargs):
+        out = held(*args, **kwargs)
+        held_rows.append(out[0])
+        return out
+
+    monkeypatch.setattr(offline, "_held_rows", spy)
+    simulate(robot, experiment, tmp_path / "held", duration_s=duration_s, plot=False)
+    monkeypatch.setattr(offline, "_rows_can_be_held", lambda *_: False)
+    simulate(robot, experiment, tmp_path / "rows", duration_s=duration_s, plot=False)
+    metas = [json.loads((tmp_path / d / "meta.json").read_text()) for d in ("held", "rows")]
+    return (
+        *((tmp_path / d / "signals.csv").read_bytes() for d in ("held", "rows")),
+        held_rows,
+        metas,
+    )
+
+
+@pytest.mark.parametrize("kernel", ["auto", "python"])
+@pytest.mark.parametrize("case", ["cicese3", "cicese3 overspeed"])
+def test_held_rows_are_the_drive_models_rows(tmp_path, monkeypatch, case, kernel):
+    """The offline simulation's block path (drives' arithmetic on arrays while every drive
+    applies torque; the compiled kernel's periods in one call, ddb_advance_periods, or one
+    period at a time with the Python step) writes the recording the drive models write row by
+    row, byte for byte, the fault and the rows after it included (there it hands over to the
+    drive models)."""
+    from dataclasses import replace
+
+    from profiles.robot import load_urdf_robot
+    from virtual_robot.compiled_step import KERNEL_ENV
+
+    monkeypatch.setenv(KERNEL_ENV, kernel)
+    robot, experiment = load_urdf_robot("cicese3"), load_experiment("cicese3-excitation")
+    duration, fault = (1.0 if kernel == "auto" else 0.4), False
+    if case == "cicese3 overspeed":  # 3 x the torques: joint 3 passes its 25 rad/s
+        experiment = replace(experiment, joints=tuple(
+            replace(j, sines=tuple(replace(s, amplitude_Nm=3 * s.amplitude_Nm) for s in j.sines))
+            for j in experiment.joints
+        ))  # fmt: skip
+        duration, fault = 3.0, True
+    held, rows, held_rows, (meta_held, meta_rows) = _held_and_row_by_row(
+        tmp_path, monkeypatch, robot, experiment, duration
+    )
+    assert held == rows
+    assert meta_held["faults"] == meta_rows["faults"]
+    assert meta_held["plant_steps"] == meta_rows["plant_steps"]
+    assert meta_held["stick_events"] == meta_rows["stick_events"] > 0
+    assert meta_held["integrator"]["kernel"]["kernel"] == (
+        "compiled" if kernel == "auto" else kernel
+    )
+    n_rows = round(duration / H)
+    if not fault:
+        assert meta_held["faults"] == [] and held_rows == [n_rows]
+    else:  # held up to the sample where the drive faulted, row by row from there
+        assert meta_held["faults"], case
+        assert held_rows == [round(meta_held["faults"][0]["t"] / H)]
+        assert 0 < held_rows[0] < n_rows
+
+
+def test_two_dof_rows_stay_row_by_row(tmp_path, monkeypatch):
+    """The 2-DOF plant has no many-period call: its rows go through the drive models."""
+    import virtual_robot.offline as offline
+
+    calls = []
+    monkeypatch.setattr(offline, "_held_rows", lambda *a: calls.append(a))
+    simulate(load_robot("cicese"), load_experiment("reyes-kelly"), tmp_path, duration_s=0.1,
+             plot=False)  # fmt: skip
+    assert calls == [] and len(read_signals(tmp_path)) == 40

@@ -34,6 +34,8 @@ import math
 from dataclasses import dataclass
 from fractions import Fraction
 
+import numpy as np
+
 from drivers.protocol.cia402 import (
     ABORT_NOT_IN_STATE,
     ABORT_VALUE_RANGE,
@@ -314,6 +316,29 @@ class DriveModel:
         """EMCY events since the last call, oldest first."""
         events, self._emcy = self._emcy, []
         return events
+
+    # ----------------------------------------------------------------- many periods at once
+
+    def enabled_outputs(self, targets_permille: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:attr:`torque_Nm` and :attr:`statusword` after each of ``targets_permille`` is
+        written, for a drive that stays OPERATION ENABLED and not halted meanwhile (the same
+        arithmetic, element-wise: the offline simulation's rows, virtual_robot.offline).
+        ValueError if the drive is not applying torque now."""
+        if self._state is not _ENABLED or self._controlword & CW_HALT:
+            raise ValueError(f"drive not applying torque (state {self._state.name})")
+        limit = self._max_torque
+        targets = np.asarray(targets_permille, dtype=np.int64)
+        torque = np.clip(targets, -limit, limit) * self._rated_torque_Nm / 1000.0
+        saturated = np.abs(targets) > limit
+        status = _SW_STATE_BITS[_ENABLED] | np.where(saturated, 0x0800, 0x0400)
+        return torque, status
+
+    def encoder_counts(self, position_rad: np.ndarray) -> np.ndarray:
+        """The unbounded count :meth:`update` takes of each finite position (int64: every
+        |position| must be below 2⁵² counts)."""
+        return np.floor(np.asarray(position_rad, dtype=float) / self._rad_per_count).astype(
+            np.int64
+        )
 
     # ----------------------------------------------------------------- readouts
 

@@ -18,10 +18,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from drivers.recording import RecordingWriter, plot_positions, read_signals
-from drivers.units import counts_to_rad, torque_to_permille, unwrap_int32
+from drivers.units import (
+    counts_to_rad,
+    torque_to_permille,
+    torques_to_permille,
+    unwrap_int32,
+    wrap_int32,
+)
 from profiles.drive import DriveProfile
-from virtual_robot.drive import MODE_CST, DriveModel, State
+from virtual_robot.drive import CW_HALT, MODE_CST, DriveModel, State
 from virtual_robot.stepping import Stepper
 
 ENABLE_SEQUENCE = (0x06, 0x07, 0x0F)  # shutdown, switch on, enable operation (CiA 402)
@@ -108,7 +116,11 @@ def record_open_loop(
     """Row k of ``commanded_Nm`` (torques, Nm) through the drives, open loop, one lockstep SYNC
     a row: the torques written at t_{k-1} are held over [t_{k-1}, t_k), the encoders sampled at
     t_k; each row ``t, q1..qn, tau1..taun, status1..statusn`` is written to ``rec``. Returns the
-    drives' faults (each also said on stderr)."""
+    drives' faults (each also said on stderr).
+
+    While every drive applies torque and none can fault, the rows go by :func:`_held_rows`
+    (the drives' arithmetic on a block of rows at once); from the first row where one might
+    (overspeed, a non-finite value) on, row by row through the drive models."""
     h = stepper.period_s
     joints = tuple(
         (d, p.counts_per_rev, p.rated_torque_Nm, p.model)
@@ -117,9 +129,19 @@ def record_open_loop(
     counts = [d.position_counts for d in drives]
     enabled = State.OPERATION_ENABLED
     faults: list[dict[str, Any]] = []
-    last_report = time.perf_counter()
-    for k in range(n_rows):
-        t = stepper.sync()
+    last_report = [time.perf_counter()]
+
+    def report(t: float) -> None:
+        if progress is not None and time.perf_counter() - last_report[0] > 1.0:
+            last_report[0] = time.perf_counter()
+            progress(t + h, n_rows * h)
+
+    start, t = 0, None
+    if _rows_can_be_held(stepper, drives):
+        start, t, counts = _held_rows(rec, stepper, drives, profiles, commanded_Nm, n_rows, report)
+    for k in range(start, n_rows):
+        if t is None:
+            t = stepper.sync()
         commanded = commanded_Nm[k]
         q: list[float | int] = [t]  # the row: t, q1..qn, then tau1..taun, status1..statusn
         tau, status = [], []
@@ -132,11 +154,141 @@ def record_open_loop(
                 collect_faults(d, model, t, faults)
             status.append(d.statusword)
         rec.write(q + tau + status)
-        if progress is not None and time.perf_counter() - last_report > 1.0:
-            last_report = time.perf_counter()
-            progress(t + h, n_rows * h)
+        report(t)
+        t = None
     stepper.advance()  # the last row's torque held over its period too
     return faults
+
+
+# Rows integrated between two writes of :func:`_held_rows` (1 s at 400 Hz)
+HELD_BLOCK = 400
+# |position| below this many encoder counts: the counts are exact in int64 and float64
+_COUNTS_EXACT = 2.0**52
+
+
+def _rows_can_be_held(stepper: Stepper, drives: Sequence[DriveModel]) -> bool:
+    """Whether :func:`_held_rows` gives the row-by-row result: lockstep without timing faults,
+    every drive applying torque, and its watchdog not tripping between a sample and the write
+    that follows it (more than one period); and whether it pays: only for a plant that takes
+    many periods in one call (``advance_periods``, the n-joint plant). The 2-DOF plant's rows
+    stay row by row: with two drives the drive models cost less than the block's array work
+    (measured: 65-70x against 50-62x real time per CPU second on the loaded VM)."""
+    return (
+        hasattr(stepper.plant, "advance_periods")
+        and stepper.timing is None
+        and stepper.lockstep
+        and all(
+            d.state is State.OPERATION_ENABLED
+            and not d.controlword & CW_HALT
+            and d.watchdog_periods > 1
+            for d in drives
+        )
+    )
+
+
+def _held_rows(
+    rec: RecordingWriter,
+    stepper: Stepper,
+    drives: Sequence[DriveModel],
+    profiles: Sequence[DriveProfile],
+    commanded_Nm: Any,
+    n_rows: int,
+    report: Callable[[float], None],
+) -> tuple[int, float | None, list[int]]:
+    """The rows of :func:`record_open_loop` while every drive applies torque and none faults,
+    a block at a time: the plant integrated under the torques the drives would hold
+    (:meth:`DriveModel.enabled_outputs` of the commanded per-mille) by
+    :meth:`Stepper.advance_held` (the n-joint plant's kernel takes the periods between stick
+    events in one call), its measured q and q̇ kept at each sample; the encoder counts,
+    positions and status words of the block after, by the drives' own arithmetic on arrays
+    (:meth:`DriveModel.encoder_counts`); the rows written as the drive models would have
+    produced them, byte for byte. It stops at the first
+    sample where a drive might leave that state (|q̇| above its overspeed threshold, a
+    non-finite or huge q or q̇, a non-finite command): the drives are brought to the state the
+    rows before left them in (their last two samples and writes, replayed), and that row is
+    the row-by-row path's. Returns (that row or ``n_rows``, its sample time t_k if the plant is
+    already there, else None; the unbounded counts of the last row written)."""
+    n = len(drives)
+    rated = np.array([p.rated_torque_Nm for p in profiles])
+    max_speed = np.array([p.max_velocity_rad_s for p in profiles])
+    max_position = np.array([_COUNTS_EXACT * d.profile.rad_per_count for d in drives])
+    per_rev = np.array([2.0 * math.pi / p.counts_per_rev for p in profiles])  # counts_to_rad
+    counts = np.array([d.position_counts for d in drives], dtype=np.int64)  # unwrapped so far
+    raw = counts.copy()  # the last INT32 readings
+    held_last: np.ndarray | None = None  # the torques the drives hold since the last row
+    bounds = (max_speed, max_position)
+    h = stepper.period_s
+    replay: list[tuple[float, list[float], list[float], list[int]]] = []  # the last two rows
+    k, t_stop = 0, None
+    while k < n_rows and t_stop is None:
+        stop = min(n_rows, k + HELD_BLOCK)
+        commanded = np.array([commanded_Nm[j] for j in range(k, stop)], dtype=float)
+        finite = np.isfinite(commanded).all(axis=1)
+        if not finite.all():  # the row-by-row path says which torque, in one line
+            stop = k + int(np.argmin(finite))
+            commanded = commanded[: stop - k]
+            if stop == k:
+                break
+        permille = np.column_stack(
+            [torques_to_permille(commanded[:, i], rated[i]) for i in range(n)]
+        )
+        outputs = [drives[i].enabled_outputs(permille[:, i]) for i in range(n)]
+        tau = np.column_stack([o[0] for o in outputs])
+        status = np.column_stack([o[1] for o in outputs])
+        q_rows = np.empty((stop - k, n))
+        dq_rows = np.empty((stop - k, n))
+        first = 0  # rows of the block without a period before them (SYNC 0)
+        try:
+            if stepper.syncs == 0:  # SYNC 0 samples the plant as it starts
+                t = stepper.advance()
+                q_rows[0], dq_rows[0] = stepper.plant.measured_q, stepper.plant.dq
+                if not _inside(q_rows[0], dq_rows[0], bounds):
+                    t_stop = t
+                    break
+                stepper.sampled(t, drives=False)
+                first = 1
+            # the period before row r holds row r − 1's torques
+            held = tau[:-1] if held_last is None else np.vstack([held_last, tau[:-1]])
+            _, inside = stepper.advance_held(
+                np.ascontiguousarray(held), bounds, q_rows[first:], dq_rows[first:]
+            )
+            if not inside:
+                t_stop = stepper.t
+        finally:  # the rows integrated so far are written, whatever happened after
+            m = stepper.syncs - k
+            times = [r * h for r in range(k, k + m)]  # t_r = r·h, as Stepper.advance takes it
+            if m:
+                raw_block = wrap_int32(
+                    np.column_stack([d.encoder_counts(q_rows[:m, i]) for i, d in enumerate(drives)])
+                )
+                steps = wrap_int32(np.diff(raw_block, axis=0, prepend=raw[None, :]))
+                unwrapped = counts + np.cumsum(steps, axis=0)  # unwrap_int32, row after row
+                positions = unwrapped * per_rev
+                for row in zip(
+                    times, positions.tolist(), tau[:m].tolist(), status[:m].tolist(), strict=True
+                ):
+                    rec.write([row[0], *row[1], *row[2], *row[3]])
+                counts, raw = unwrapped[-1], raw_block[-1]
+                replay = (replay + [
+                    (times[j], q_rows[j].tolist(), dq_rows[j].tolist(), permille[j].tolist())
+                    for j in range(max(0, m - 2), m)
+                ])[-2:]  # fmt: skip
+                report(times[-1])
+                held_last = tau[m - 1]
+        k += m
+    # the drives as the rows before left them: the last two samples and target writes
+    for t_j, q_j, dq_j, permille_j in replay:
+        for i, d in enumerate(drives):
+            d.update(t_j, q_j[i], dq_j[i], True)
+            d.write_target_torque(permille_j[i], t_j)
+    if t_stop is not None:
+        stepper.sampled(t_stop)
+    return k, t_stop, counts.tolist()
+
+
+def _inside(q: np.ndarray, dq: np.ndarray, bounds: tuple[np.ndarray, np.ndarray]) -> bool:
+    """|q̇| within the overspeed thresholds and |q| within exact counts, joint by joint."""
+    return bool((np.abs(dq) <= bounds[0]).all() and (np.abs(q) <= bounds[1]).all())
 
 
 def run_open_loop(

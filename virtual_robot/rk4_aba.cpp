@@ -20,10 +20,13 @@
 //   ddb_arm_free(handle)
 //   ddb_advance(...) -> 0 reached t_end, 1 stopped at a crossing, 2 stopped before a
 //     breakaway, -1 error
+//   ddb_advance_periods(...) -> ddb_advance's over many control periods, each with its own
+//     held torque, until one ends with a joint too fast or too far (3)
 //   ddb_step(...), ddb_accelerations(...): one RK4 step of the mode, q̈ of the mode (for the
 //     Python code that locates a stick or releases a joint) -> 0, or -1 error
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <exception>
 #include <memory>
@@ -227,6 +230,82 @@ namespace
     scatter(lk.vn, locked->free, arm.vn);
     return work;
   }
+
+  // The mode's watched velocities, and with joints stuck their test torque τ (`command`) and
+  // static bands [lower, upper] (one per stuck joint).
+  void load_watch(
+    Arm & arm, Locked * locked, const double * watch, const double * command,
+    const double * upper, const double * lower)
+  {
+    const Eigen::Index n = arm.model.nv;
+    arm.watch = Eigen::Map<const Vec>(watch, n);
+    arm.command = Eigen::Map<const Vec>(command, n);
+    if (locked)
+    {
+      const Eigen::Index ns = static_cast<Eigen::Index>(locked->stuck.size());
+      arm.upper = Eigen::Map<const Vec>(upper, ns);
+      arm.lower = Eigen::Map<const Vec>(lower, ns);
+    }
+  }
+
+  // Substeps of min(max_step, t_end − t) from (arm.q, arm.v) at scalars[0] (UrdfPlant.advance_to
+  // in one stick mode), as ddb_advance documents them: 0 at t_end, 1 at a crossing (that
+  // substep's result in q_cross, v_cross, its dt and viscous work in scalars[3], [4]), 2 before
+  // a substep where a stuck joint breaks away. Updates scalars[0..2] (t, dissipated, steps).
+  int advance_mode(
+    Arm & arm, Locked * locked, bool viscous, double t_end, double max_step, double * scalars,
+    double * q_cross, double * v_cross)
+  {
+    const Eigen::Index n = arm.model.nv;
+    double t = scalars[0], dissipated = scalars[1], steps = scalars[2];
+    int status = 0;
+    while (t < t_end - 1e-12)
+    {
+      const double dt = std::min(max_step, t_end - t);
+      if (locked)
+      {
+        // Karnopp's breakaway test (UrdfPlant._release_stuck_joints): the holding torques
+        // f_S = (τ − RNEA(q, q̇, q̈))_S, q̈ of the mode, against their static bands
+        mode_accelerations(arm, locked, viscous);
+        const Vec & inverse =
+          pinocchio::rnea(arm.model, arm.data, CRef(arm.q), CRef(arm.v), CRef(arm.a1));
+        bool breaks = false;
+        for (size_t s = 0; s < locked->stuck.size(); ++s)
+        {
+          const Eigen::Index j = locked->stuck[s], k = static_cast<Eigen::Index>(s);
+          const double held = arm.command[j] - inverse[j];
+          breaks = breaks || held > arm.upper[k] || held < arm.lower[k];
+        }
+        if (breaks)
+        {
+          status = 2;
+          break;
+        }
+      }
+      const double work = mode_step(arm, locked, dt, viscous);
+      bool crossed = false;
+      for (Eigen::Index i = 0; i < n; ++i)
+        crossed = crossed || !(arm.vn[i] * arm.watch[i] >= 0.0);
+      if (crossed)
+      {
+        Eigen::Map<Vec>(q_cross, n) = arm.qn;
+        Eigen::Map<Vec>(v_cross, n) = arm.vn;
+        scalars[3] = dt;
+        scalars[4] = work;
+        status = 1;
+        break;
+      }
+      arm.q.swap(arm.qn);
+      arm.v.swap(arm.vn);
+      dissipated += work;
+      t += dt;
+      steps += 1.0;
+    }
+    scalars[0] = t;
+    scalars[1] = dissipated;
+    scalars[2] = steps;
+    return status;
+  }
 } // namespace
 
 extern "C" {
@@ -355,65 +434,101 @@ int ddb_advance(
     Arm & arm = *static_cast<Arm *>(handle);
     Locked * locked = static_cast<Locked *>(locked_handle);
     const Eigen::Index n = arm.model.nv;
-    const bool viscous = b != nullptr;
     load_mode(arm, locked, q, v, c, b);
-    arm.watch = Eigen::Map<const Vec>(watch, n);
-    if (locked)
-    {
-      const Eigen::Index ns = static_cast<Eigen::Index>(locked->stuck.size());
-      arm.command = Eigen::Map<const Vec>(command, n);
-      arm.upper = Eigen::Map<const Vec>(upper, ns);
-      arm.lower = Eigen::Map<const Vec>(lower, ns);
-    }
-    double t = scalars[0], dissipated = scalars[1], steps = scalars[2];
-    int status = 0;
-    while (t < t_end - 1e-12)
-    {
-      const double dt = std::min(max_step, t_end - t);
-      if (locked)
-      {
-        // Karnopp's breakaway test (UrdfPlant._release_stuck_joints): the holding torques
-        // f_S = (τ − RNEA(q, q̇, q̈))_S, q̈ of the mode, against their static bands
-        mode_accelerations(arm, locked, viscous);
-        const Vec & inverse =
-          pinocchio::rnea(arm.model, arm.data, CRef(arm.q), CRef(arm.v), CRef(arm.a1));
-        bool breaks = false;
-        for (size_t s = 0; s < locked->stuck.size(); ++s)
-        {
-          const Eigen::Index j = locked->stuck[s], k = static_cast<Eigen::Index>(s);
-          const double held = arm.command[j] - inverse[j];
-          breaks = breaks || held > arm.upper[k] || held < arm.lower[k];
-        }
-        if (breaks)
-        {
-          status = 2;
-          break;
-        }
-      }
-      const double work = mode_step(arm, locked, dt, viscous);
-      bool crossed = false;
-      for (Eigen::Index i = 0; i < n; ++i)
-        crossed = crossed || !(arm.vn[i] * arm.watch[i] >= 0.0);
-      if (crossed)
-      {
-        Eigen::Map<Vec>(q_cross, n) = arm.qn;
-        Eigen::Map<Vec>(v_cross, n) = arm.vn;
-        scalars[3] = dt;
-        scalars[4] = work;
-        status = 1;
-        break;
-      }
-      arm.q.swap(arm.qn);
-      arm.v.swap(arm.vn);
-      dissipated += work;
-      t += dt;
-      steps += 1.0;
-    }
+    load_watch(arm, locked, watch, command, upper, lower);
+    const int status = advance_mode(arm, locked, b != nullptr, t_end, max_step, scalars, q_cross,
+                                    v_cross);
     Eigen::Map<Vec>(q, n) = arm.q;
     Eigen::Map<Vec>(v, n) = arm.v;
-    scalars[0] = t;
-    scalars[1] = dissipated;
-    scalars[2] = steps;
+    return status;
+  });
+}
+
+// Many control periods in a row, each as UrdfPlant.command(τ_j) then advance_to(t_j) would take
+// them: at the start of period j the work since the last booking is booked (scalars[5] +=
+// τ_{j−1}ᵀΔq, scalars[1] += levelᵀΔq, Δq = q − booked; booked = q: UrdfPlant._book_work, with
+// the products summed in joint order; τ_{−1} = `command`, the torque held now), c = τ_j −
+// level and the stuck joints' test torque τ = τ_j; then ddb_advance's substeps in the current
+// stick mode to t_j = (n0 + j) · h. After each period its end state goes to q_out[j], v_out[j] (rows of n) and is checked: |q̇_i| ≤
+// max_speed_i and |q_i| ≤ q_limit_i (a NaN fails). `torques`: m rows of n; `level`, `booked`:
+// n; scalars as ddb_advance's, plus [5] the booked work in/out and [6] out: the period index
+// j where it stopped. Returns ddb_advance's 1 (crossing) or 2 (breakaway) inside period j
+// (τ_j commanded, booked = q at its start), 3 after period j ended outside the bounds (its
+// row written), 0 after the m periods, −1 on a C++ exception.
+int ddb_advance_periods(
+  void * handle,
+  void * locked_handle,
+  double * q,
+  double * v,
+  const double * b,
+  const double * watch,
+  const double * command,
+  const double * upper,
+  const double * lower,
+  const double * torques,
+  const double * level,
+  double * booked,
+  int m,
+  int n0,
+  double period,
+  double max_step,
+  const double * max_speed,
+  const double * q_limit,
+  double * scalars,
+  double * q_cross,
+  double * v_cross,
+  double * q_out,
+  double * v_out,
+  char * err,
+  int err_len)
+{
+  return guarded(-1, err, err_len, [&]() -> int {
+    Arm & arm = *static_cast<Arm *>(handle);
+    Locked * locked = static_cast<Locked *>(locked_handle);
+    const Eigen::Index n = arm.model.nv;
+    const bool viscous = b != nullptr;
+    load_mode(arm, locked, q, v, torques, b);  // c is set per period below
+    load_watch(arm, locked, watch, command, upper, lower);
+    int status = 0;
+    int j = 0;
+    for (; j < m; ++j)
+    {
+      const double * tau = torques + static_cast<Eigen::Index>(j) * n;
+      double work = 0.0, friction = 0.0;
+      for (Eigen::Index i = 0; i < n; ++i)
+      {
+        const double moved = arm.q[i] - booked[i];
+        work += arm.command[i] * moved;
+        friction += level[i] * moved;
+        booked[i] = arm.q[i];
+      }
+      scalars[5] += work;
+      scalars[1] += friction;
+      for (Eigen::Index i = 0; i < n; ++i)
+      {
+        arm.command[i] = tau[i];
+        arm.c[i] = tau[i] - level[i];
+      }
+      if (locked && !locked->free.empty())
+        gather(arm.c, locked->free, locked->arm.c);
+      const double t_end = static_cast<double>(n0 + j) * period;
+      status = advance_mode(arm, locked, viscous, t_end, max_step, scalars, q_cross, v_cross);
+      if (status != 0)
+        break;
+      Eigen::Map<Vec>(q_out + static_cast<Eigen::Index>(j) * n, n) = arm.q;
+      Eigen::Map<Vec>(v_out + static_cast<Eigen::Index>(j) * n, n) = arm.v;
+      bool inside = true;
+      for (Eigen::Index i = 0; i < n; ++i)
+        inside = inside && std::abs(arm.v[i]) <= max_speed[i] && std::abs(arm.q[i]) <= q_limit[i];
+      if (!inside)
+      {
+        status = 3;
+        break;
+      }
+    }
+    scalars[6] = j;
+    Eigen::Map<Vec>(q, n) = arm.q;
+    Eigen::Map<Vec>(v, n) = arm.v;
     return status;
   });
 }

@@ -24,13 +24,15 @@ The stepper knows the plant only through :class:`SteppedPlant` and the drives on
 :class:`SteppedDrive`, for any number of joints: the 2-DOF :class:`~virtual_robot.plant.Plant`
 or an n-joint plant with the same methods.
 
-May import: nothing of this project beyond virtual_robot.timing_faults (types only).
+May import: numpy; nothing of this project beyond virtual_robot.timing_faults (types only).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
 
 if TYPE_CHECKING:
     from virtual_robot.timing_faults import RobotTiming
@@ -108,8 +110,14 @@ class Stepper:
         for i, d in enumerate(self.drives):
             d.update(now, measured[i], rates[i], count_period)
 
-    def apply(self, now: float, from_host: bool = True) -> float | None:
-        """Give the plant the drives' torques and power states, issued at ``now``.
+    def apply(
+        self,
+        now: float,
+        from_host: bool = True,
+        held: tuple[tuple[float, ...], tuple[bool, ...]] | None = None,
+    ) -> float | None:
+        """Give the plant the drives' torques and power states, issued at ``now`` (``held``:
+        those the caller knows the drives hold, (torques, powered), instead of reading them).
 
         ``from_host``: a command the host just sent (timing faults delay it); else the robot's
         own re-issue of what the drives hold (a period tick, a safe stop), which with timing
@@ -118,9 +126,12 @@ class Stepper:
         lockstep delivery under timing faults).
         """
         self.unapplied = False
-        drives = self.drives
-        powered = tuple([d.powered for d in drives])
-        cmd = tuple([d.torque_Nm for d in drives])
+        if held is None:
+            drives = self.drives
+            powered = tuple([d.powered for d in drives])
+            cmd = tuple([d.torque_Nm for d in drives])
+        else:
+            cmd, powered = held
         timing = self.timing
         if timing is None:
             self.plant.command(cmd, issued_at=now, powered=powered)
@@ -136,11 +147,12 @@ class Stepper:
         return None
 
     # ---- lockstep -----------------------------------------------------------------------------
-    def advance(self) -> float:
-        """Lockstep: the plant given the held commands (issued at t_{n−1}) and integrated to the
-        time t_n of the next sample (n = :attr:`syncs`); no sample. Returns t_n."""
+    def advance(self, held: tuple[tuple[float, ...], tuple[bool, ...]] | None = None) -> float:
+        """Lockstep: the plant given the held commands (issued at t_{n−1}; ``held``: as
+        :meth:`apply` takes it) and integrated to the time t_n of the next sample
+        (n = :attr:`syncs`); no sample. Returns t_n."""
         if self.unapplied:
-            self.apply(self.t)
+            self.apply(self.t, held=held)
         n = self.syncs
         timing = self.timing
         if n > 0:
@@ -161,11 +173,56 @@ class Stepper:
         """Lockstep: one SYNC (:meth:`advance`, then every drive samples at t_n, one drive
         period). Until the next SYNC the plant stands still; whatever the drives are commanded
         meanwhile, it is given then. Returns t_n."""
-        t = self.advance()
-        self.sample(t, True)
+        return self.sampled(self.advance())
+
+    def sampled(self, t: float, drives: bool = True) -> float:
+        """Lockstep: the rest of a SYNC after :meth:`advance` to t_n: every drive samples at t_n
+        (``drives`` False: none does; the caller reads the plant itself and brings the drives
+        up to date later, virtual_robot.offline's held rows), one drive period. Returns t_n."""
+        if drives:
+            self.sample(t, True)
         self.unapplied = True
         self.syncs += 1
         return t
+
+    def advance_held(
+        self,
+        torques: np.ndarray,
+        bounds: tuple[np.ndarray, np.ndarray],
+        q_out: np.ndarray,
+        dq_out: np.ndarray,
+    ) -> tuple[int, bool]:
+        """Lockstep without timing faults, the drives bypassed (virtual_robot.offline's held
+        rows): SYNCs one after another, before the j-th the plant given ``torques[j]`` held
+        over its period with every amplifier powered (:meth:`advance`), after it the plant's
+        measured q and q̇ into q_out[j], dq_out[j] and no drive samples (:meth:`sampled`).
+        Stops after the first SYNC where some |q̇_i| > bounds[0]_i or |q_i| > bounds[1]_i (or
+        a NaN): that SYNC is not counted and its drives not sampled; the plant stands at its
+        time, :attr:`t`. Returns (SYNCs advanced, whether the last was inside the bounds). A
+        plant with ``advance_periods`` (the n-joint plant's compiled kernel) takes the periods
+        it can in one call; the rest go one :meth:`advance` at a time."""
+        assert self.timing is None and self.lockstep and self.unapplied
+        m, h = len(torques), self.period_s
+        done, inside = 0, True
+        periods = getattr(self.plant, "advance_periods", None)
+        if periods is not None and m:
+            done, inside = periods(torques, self.syncs, h, bounds, q_out, dq_out)
+            if done:  # as :meth:`advance` and :meth:`sampled` leave it, SYNC by SYNC
+                self.unapplied = inside  # given; after a counted SYNC, the next row's is not
+                self.t = (self.syncs + done - 1) * h
+                self.syncs += done - (0 if inside else 1)
+        if not inside:
+            return done, False
+        powered = (True,) * len(self.drives)
+        max_speed, max_q = bounds
+        for j, row in enumerate(torques[done:].tolist(), start=done):
+            t = self.advance((tuple(row), powered))
+            q, dq = self.plant.measured_q, self.plant.dq
+            q_out[j], dq_out[j] = q, dq
+            if not ((np.abs(dq) <= max_speed).all() and (np.abs(q) <= max_q).all()):
+                return j + 1, False
+            self.sampled(t, drives=False)
+        return m, True
 
     def _deliver_lockstep(
         self,

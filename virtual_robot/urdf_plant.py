@@ -27,7 +27,10 @@ control period run in C++ when the compiled step builds (:mod:`virtual_robot.com
 test, around Pinocchio's C++ ABA and RNEA, in one call per period and stick mode, returning
 at a velocity crossing or a breakaway, which this module handles as before (its single steps
 and accelerations also come from the kernel then); bit-identical to the Python step, which
-runs when the kernel cannot be built or ``DDBENCH_PLANT_KERNEL=python``.
+runs when the kernel cannot be built or ``DDBENCH_PLANT_KERNEL=python``. The offline
+simulation's held rows (:meth:`UrdfPlant.advance_periods`) give the kernel many control
+periods per call, each with its own torque, until a stick event, a breakaway or a joint
+beyond its drive's overspeed threshold.
 
 Concealed effects (an effects profile, docs/effects.md) per joint, by the 2-DOF plant's equations
 (:mod:`virtual_robot.effects`) and in the same places: the torque path (transport delay, amplifier
@@ -64,6 +67,7 @@ from virtual_robot import __version__
 from virtual_robot.compiled_step import (
     BREAKS,
     CROSSED,
+    REACHED,
     CompiledArm,
     KernelStatus,
     KernelUnavailableError,
@@ -348,6 +352,67 @@ class UrdfPlant:
             self._step_with_events(*crossing)
         elif outcome == BREAKS:
             self._step(min(self.max_step_s, t_end - self.t))
+
+    def advance_periods(
+        self,
+        torques: np.ndarray,
+        n0: int,
+        period_s: float,
+        bounds: tuple[np.ndarray, np.ndarray],
+        q_out: np.ndarray,
+        dq_out: np.ndarray,
+    ) -> tuple[int, bool]:
+        """Control periods one after another, by the compiled kernel: before period j the
+        command ``torques[j]`` (every amplifier powered), then :meth:`advance_to` of
+        (n0 + j) · period_s, its end state into q_out[j], dq_out[j]; the periods between stick
+        events in one kernel call (ddb_advance_periods), a stick event or breakaway handled
+        as :meth:`_advance_compiled` handles it. Stops after the first period that ends with
+        some |q̇_i| > bounds[0]_i or |q_i| > bounds[1]_i (or a NaN). Returns (periods
+        integrated, whether the last ended inside the bounds); (0, True) at once when the
+        kernel is not running or an effect acts on the command or the encoders (the caller
+        then commands each period itself). ``torques``, q_out, dq_out: C-contiguous rows."""
+        if (
+            self._compiled is None
+            or self._delay is not None
+            or self._lag is not None
+            or self._gain_offset is not None
+            or self._encoder_offset is not None
+            or not self._all_powered
+        ):
+            return 0, True
+        max_speed, q_limit = bounds
+        m, j = len(torques), 0
+        while j < m:
+            stuck = (self._compiled_locked(), self._band_s) if self._n_stuck else None
+            outcome, stop, (q, v, booked), totals, crossing = self._compiled.advance_periods(
+                self.q, self.dq, self.b if self._viscous else None, self._watch, stuck,
+                self.command_Nm, self._level, self._booked_q, torques[j:], n0 + j, period_s,
+                self.max_step_s, bounds, self.t, self._dissipated_booked, self._work_booked,
+                q_out[j:], dq_out[j:],
+            )  # fmt: skip
+            self.q, self.dq, self._booked_q = q, v, booked
+            self.t, self._dissipated_booked, self._work_booked, steps = totals
+            self.steps += steps
+            j += stop
+            # the command of the period it stopped in, as command() leaves it
+            tau = torques[min(j, m - 1)].copy()
+            self._held_Nm = self.command_Nm = tau
+            self._tau_minus_level = tau - self._level
+            if outcome == REACHED:
+                return m, True
+            if outcome != CROSSED and outcome != BREAKS:  # the period ended out of bounds
+                return j + 1, False
+            if outcome == CROSSED:
+                self._step_with_events(*crossing)
+            t_end = (n0 + j) * period_s
+            if outcome == BREAKS:
+                self._step(min(self.max_step_s, t_end - self.t))
+            self.advance_to(t_end)
+            q_out[j], dq_out[j] = self.q, self.dq
+            j += 1
+            if not ((np.abs(self.dq) <= max_speed).all() and (np.abs(self.q) <= q_limit).all()):
+                return j, False
+        return m, True
 
     # ---- dynamics -----------------------------------------------------------------------------
     def _mode_changed(self) -> None:

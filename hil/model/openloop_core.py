@@ -570,8 +570,7 @@ def integrate_chunks(
         and type(friction) is Friction
     )
     if plain and compiled():
-        theta = arm.theta
-        fast = Slider(_rigid(theta), torques, stretch, n_sub, h / n_sub, sticky, (*pos, *neg))
+        fast = Slider(_rigid(arm.theta), torques, stretch, n_sub, h / n_sub, sticky, (*pos, *neg))
     for first in range(0, n_rows, chunk):
         rows = min(chunk, n_rows - first)
         if whole is None:

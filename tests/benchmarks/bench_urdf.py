@@ -16,7 +16,7 @@
    real time), and the 2-DOF closed-form plant beside them; best of ``--repeats`` runs (the
    load of a shared machine only ever adds). Beside each URDF arm, the floor: one ABA call's
    CPU cost now, the share of the run that the four ABA calls per RK4 step take, and the
-   factor ABA alone would give.
+   factor ABA alone would give. Every run's factor is listed in order, the first included.
 
 ``--json`` prints one JSON document; exit 1 if the identification target is missed (on CPU
 time: the work is single-threaded; wall time is printed beside it).
@@ -152,13 +152,20 @@ def simulate_speed(tmp: Path, repeats: int = 3) -> dict[str, dict[str, float]]:
     from profiles.robot import load_robot, load_urdf_robot
     from virtual_robot.simulate import simulate
 
-    # The Panda has no drives in its profile: seven DM1200-A models stand in (torque limits
-    # only matter once reached). Open loop it falls from its upright q = 0 and swings: a speed
-    # figure, not a motion anyone would command.
+    # The Panda has no drives in its profile: seven DM1200-A models stand in (12 rad/s
+    # overspeed). Open loop from rest at the minimum of its potential energy (found by BFGS
+    # from hanging down), one sine per joint sized to its inertia: it swings with stick-slip
+    # (about 190 stick events in 5 s), every joint below 8 rad/s, no drive faults (checked:
+    # "faults" below). From upright q = 0 with 10-28 Nm sines the drives faulted on overspeed
+    # at 0.13 s and most of the run was a falling, unpowered arm.
     panda = replace(load_urdf_robot("panda"), drives=("dm1200a",) * 7)
-    sines = [JointExcitation(0.0, 1.0, (Sine(2.0 + j, 10.0 + 3 * j, 0.1 * j),)) for j in range(7)]
+    amplitudes = (1.5, 6.0, 1.5, 4.0, 0.8, 0.8, 0.6)
+    sines = [
+        JointExcitation(0.0, 1.0, (Sine(a, 10.0 + 3 * j, 0.1 * j),))
+        for j, a in enumerate(amplitudes)
+    ]
     panda_exp = ExperimentProfile("bench", "bench", "open_loop_torque", 0.0025, SIMULATE_S,
-                                  (0.0,) * 7, tuple(sines))  # fmt: skip
+                                  panda_rest(panda), tuple(sines))  # fmt: skip
     cases = {
         "closed_form_2 (cicese)": (load_robot("cicese"), load_experiment("reyes-kelly")),
         "urdf_3 (cicese3)": (load_urdf_robot("cicese3"), load_experiment("cicese3-excitation")),
@@ -185,7 +192,10 @@ def simulate_speed(tmp: Path, repeats: int = 3) -> dict[str, dict[str, float]]:
             out[name] = {
                 "realtime_factor_cpu": SIMULATE_S / cpu,
                 "realtime_factor_wall": SIMULATE_S / wall,
+                # every run, the first included (it also loads the arm's kernel and URDF once)
+                "runs_realtime_factor_cpu": [SIMULATE_S / c for c, _ in runs],
                 "plant_steps": result.plant_steps,
+                "faults": len(result.faults),
                 "repeats": repeats,
             }
             if result.plant_kernel:
@@ -204,6 +214,21 @@ def simulate_speed(tmp: Path, repeats: int = 3) -> dict[str, dict[str, float]]:
                 realtime_factor_aba_only=SIMULATE_S / (4 * aba_us * 1e-6 * steps),
             )
     return out
+
+
+def panda_rest(robot) -> tuple[float, ...]:
+    """The Panda's configuration of least potential energy (BFGS from hanging down, q2 = 3):
+    the arm at rest there, so that small torques swing it instead of letting it fall."""
+    import pinocchio as pin
+    from scipy.optimize import minimize
+
+    model = pin.buildModelFromUrdf(robot.urdf)
+    model.gravity.linear = np.array([0.0, 0.0, -robot.gravity_m_s2])
+    data = model.createData()
+    start = np.array([0.0, 3.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    best = minimize(lambda q: pin.computePotentialEnergy(model, data, q), start, method="BFGS",
+                    options={"gtol": 1e-10})  # fmt: skip
+    return tuple(best.x.tolist())
 
 
 def six_dof_arms() -> dict:
@@ -402,9 +427,11 @@ def _speed_lines(speed: dict[str, dict[str, float]]) -> str:
         f"virtual-robot simulate, {SIMULATE_S:g} s at 2.5 ms, 0.5 ms RK4 step (best of {repeats}):"
     ]
     for name, x in speed.items():
+        runs = ", ".join(f"{r:.1f}" for r in x["runs_realtime_factor_cpu"])
         lines.append(
             f"  {name:24s} {x['realtime_factor_cpu']:6.1f}x real time per CPU second "
-            f"({x['realtime_factor_wall']:.1f}x wall), {x['plant_steps']} plant steps"
+            f"({x['realtime_factor_wall']:.1f}x wall), {x['plant_steps']} plant steps, "
+            f"{x['faults']} drive faults; runs in order: {runs}"
         )
         if "plant_kernel" in x:
             kernel = x["plant_kernel"]
