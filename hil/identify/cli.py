@@ -780,16 +780,19 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
                 model, recording, held_out=held_out, consistent=args.consistent, cutoff_hz=cutoff
             )
             theta = torque_res.theta
+            uncertainty = torque_res.uncertainty
+            stuck = 1.0 - torque_res.rows.weights
             entry: dict[str, Any] = {
                 "method": torque_res.method
                 + " on the torque regressor (parallel filtering)"
                 + (" (--consistent: this scheme only)" if args.consistent else ""),
                 "smoothing_cutoff_hz": cutoff,
                 "rows": len(torque_res.rows.t),
+                "rows_left_out_stuck_fraction": stuck.mean(axis=0).tolist(),
             }
         else:
             res = identify_energy(model, recording, scheme, lam=args.lam, held_out=held_out)
-            theta = res.theta
+            theta, uncertainty = res.theta, res.uncertainty
             entry = {
                 "method": "least squares on the exact "
                 + (
@@ -801,6 +804,7 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
                 "rows": res.rows,
             }
         entry["cpu_s"] = time.process_time() - start
+        entry["uncertainty"] = uncertainty.as_json()
         results[scheme] = {"theta": theta, **entry}
     nominal = model.base_theta()
     if val is not None:
@@ -814,8 +818,7 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             if torque_res is not None
             else regression_rows(model, recording, cutoff_hz=cutoff)
         )
-        keep = all_rows.t >= split
-        rows = type(all_rows)(all_rows.t[keep], all_rows.tau[keep], all_rows.Y[keep])
+        rows = all_rows.select(all_rows.t >= split)
         where = f"last 25 % of {fit.path} (t >= {split:.3f} s)"
     for r in results.values():
         r["physical_consistency"] = model.physical_consistency(r["theta"])
@@ -841,9 +844,18 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
                 "name": n,
                 "meaning": m,
                 "unit": u,
-                "identified": float(chosen["theta"][i]),
+                # None when the data do not determine it (issue 12's rule): its estimate and
+                # uncertainty are beside it
+                "identified": float(chosen["theta"][i])
+                if chosen["uncertainty"]["identified"][i]
+                else None,
+                "estimate": float(chosen["theta"][i]),
+                "se_blocked_bootstrap": chosen["uncertainty"]["se_blocked_bootstrap"][i],
                 "nominal": float(nominal[i]),
                 "schemes": {s: float(r["theta"][i]) for s, r in results.items()},
+                "not_identifiable_in": [
+                    s for s, r in results.items() if not r["uncertainty"]["identified"][i]
+                ],
             }
             for i, (n, m, u) in enumerate(
                 zip(model.names, model.meanings, model.units, strict=True)
@@ -877,12 +889,36 @@ def format_urdf_report(report: dict[str, Any]) -> str:
         + "".join(f" {SCHEME_TITLES[s]:>17s}" for s in schemes)
         + "  unit     meaning",
     ]
-    for p in report["parameters"]:
+    for i, p in enumerate(report["parameters"]):
+        cells = []
+        for s in schemes:
+            u = report["schemes"][s]["uncertainty"]
+            se = u["se_blocked_bootstrap"][i]
+            # issue 12's rule: a parameter the data do not determine is no number
+            cells.append(
+                f" {p['schemes'][s]:9.4g} ±{se:<6.2g}"
+                if u["identified"][i]
+                else f" {'n/i ±' + format(se, '.2g'):>17s}"
+            )
         lines.append(
             f"{p['name']:8s} {p['nominal']:11.5g}"
-            + "".join(f" {p['schemes'][s]:17.5g}" for s in schemes)
+            + "".join(cells)
             + f"  {p['unit']:8s} {p['meaning']}"
         )
+    not_identified = {
+        s: [p["name"] for p in report["parameters"] if s in p["not_identifiable_in"]]
+        for s in schemes
+    }
+    lines.append(
+        "± blocked-bootstrap standard error; n/i: not identifiable from these data (standard "
+        "error above half the estimate's size; the estimate is in identify.json)"
+    )
+    for s in schemes:
+        if not_identified[s]:
+            lines.append(
+                f"  {SCHEME_TITLES[s]}: {len(not_identified[s])} not identifiable: "
+                + ", ".join(not_identified[s])
+            )
     for s in schemes:
         r = report["schemes"][s]
         pc = r["physical_consistency"]
@@ -898,5 +934,8 @@ def format_urdf_report(report: dict[str, Any]) -> str:
         nrmse_s = report["schemes"][s]["validation"]["torque_nrmse"]
         lines.append(f"  {SCHEME_TITLES[s]:17s} " + " ".join(f"{x:6.3f}" for x in nrmse_s))
     lines.append(f"  {'nominal':17s} " + " ".join(f"{x:6.3f}" for x in v["torque_nrmse_nominal"]))
-    lines.append(f"parameters: {report['params_scheme']} ('identified' in identify.json)")
+    lines.append(
+        f"parameters: {report['params_scheme']} ('estimate' in identify.json; 'identified' is "
+        "null where not identifiable)"
+    )
     return "\n".join(lines)

@@ -38,9 +38,17 @@ from scipy.interpolate import CubicSpline
 from scipy.signal import butter, sosfiltfilt
 
 from drivers.recording import Recording
-from hil.model.estimators import LeastSquaresRows, weighted_least_squares
+from hil.model.estimators import (
+    BlockNormalEquations,
+    LeastSquaresRows,
+    channel_weights,
+    combine,
+    solve_normal_equations,
+    standard_errors,
+    weighted_least_squares,
+)
 from hil.model.metrics import nrmse
-from hil.model.regressors import data_bandwidth, excitation_bandwidth, iter_rows
+from hil.model.regressors import data_bandwidth, excitation_bandwidth, iter_rows, quantized_stick
 from hil.model.urdf import UrdfArmModel
 
 # Smoothing of positions before differentiation, and of both sides of the regression.
@@ -119,6 +127,7 @@ class Motion:
     ddq: np.ndarray
     tau: np.ndarray
     cutoff_hz: float
+    stuck: np.ndarray | None = None  # (N, n): the sample ends an interval the joint sticks in
 
 
 def _lowpass(x: np.ndarray, cutoff_hz: float, period_s: float) -> np.ndarray:
@@ -143,7 +152,25 @@ def smoothed_motion(rec: Recording, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -> 
     keep = (t >= t[0] + EDGE_S) & (t <= t[-1] - EDGE_S)
     tk = t[keep]
     tau = torque_at_samples(rec)[keep]
-    return Motion(tk, smooth(tk), smooth(tk, 1), smooth(tk, 2), tau, cutoff_hz)
+    stuck = stuck_samples(rec)[keep]
+    return Motion(tk, smooth(tk), smooth(tk, 1), smooth(tk, 2), tau, cutoff_hz, stuck)
+
+
+def stuck_samples(rec: Recording) -> np.ndarray:
+    """(N, n): sample k touches an interval in which joint j sticks
+    (:func:`hil.model.regressors.quantized_stick`, the 2-DOF path's rule, which tells a stuck
+    joint from an encoder count held through a reversal). While a joint sticks, its friction is
+    the static constraint torque, anywhere in the band [f_o − f_c, f_o + f_c], which the model's
+    f_c sgn q̇ cannot give; and the smoothed acceleration cannot follow the step at the stick's
+    start and end. Its torque equation there is left out (:class:`FilteredRows`), as the 2-DOF
+    filtered dynamic rows leave such intervals out (:mod:`hil.model.regressors`)."""
+    out = np.zeros(rec.q.shape, dtype=bool)
+    if len(rec.t) < 2:
+        return out
+    interval = quantized_stick(rec.q, rec.t)
+    out[:-1] |= interval
+    out[1:] |= interval
+    return out
 
 
 def smoothing_cutoff_hz(rec: Recording) -> float:
@@ -166,11 +193,17 @@ def smoothing_cutoff_hz(rec: Recording) -> float:
 @dataclass(frozen=True)
 class FilteredRows:
     """Rows y = Ψ θ after parallel filtering and decimation: ``t`` (K,), ``tau`` (K, n),
-    ``Y`` (K, n, p)."""
+    ``Y`` (K, n, p); ``weights`` (K, n): 0 where the block holds a sample at which that joint
+    sticks (:func:`stuck_samples`: its equation is left out), else 1."""
 
     t: np.ndarray
     tau: np.ndarray
     Y: np.ndarray
+    weights: np.ndarray
+
+    def select(self, keep: np.ndarray) -> FilteredRows:
+        """The rows where ``keep`` (K,) is true."""
+        return FilteredRows(self.t[keep], self.tau[keep], self.Y[keep], self.weights[keep])
 
 
 def filtered_rows(
@@ -185,7 +218,57 @@ def filtered_rows(
     both = np.concatenate([motion.tau[: K * decimate], Y[: K * decimate].reshape(-1, n * p)], 1)
     both = both.reshape(K, decimate, -1).mean(axis=1)
     t = motion.t[: K * decimate].reshape(K, decimate).mean(axis=1)
-    return FilteredRows(t, both[:, :n], both[:, n:].reshape(K, n, p))
+    weights = np.ones((K, n))
+    if motion.stuck is not None:
+        weights[motion.stuck[: K * decimate].reshape(K, decimate, n).any(axis=1)] = 0.0
+    return FilteredRows(t, both[:, :n], both[:, n:].reshape(K, n, p), weights)
+
+
+# A parameter whose blocked-bootstrap standard error exceeds this fraction of its magnitude is
+# not determined by the data: reported with its uncertainty, not as a number (issue 12's rule,
+# the 2-DOF path's hil.identify.schemes.IDENTIFIED_MAX_RELATIVE_SE).
+IDENTIFIED_MAX_RELATIVE_SE = 0.5
+BOOTSTRAP_BLOCK_S = 0.5  # blocks of rows resampled together (a few smoothing windows long)
+BOOTSTRAP_DRAWS = 200
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    """Per base parameter: ``se_white`` (σ² (ΨᵀWΨ)⁻¹, white residuals), ``se_block`` (blocked
+    bootstrap over ``blocks`` blocks of ``block_s``; the residuals of smoothed or filtered
+    rows are correlated), and ``identified``: se_block < IDENTIFIED_MAX_RELATIVE_SE · |θ|."""
+
+    se_white: np.ndarray
+    se_block: np.ndarray
+    identified: np.ndarray
+    block_s: float
+    blocks: int
+
+    def as_json(self) -> dict:
+        return {
+            "se_white": self.se_white.tolist(),
+            "se_blocked_bootstrap": self.se_block.tolist(),
+            "identified": self.identified.tolist(),
+            "rule": f"identified when the blocked-bootstrap SE < {IDENTIFIED_MAX_RELATIVE_SE:.0%}"
+            " of |value|",
+            "block_s": self.block_s,
+            "blocks": self.blocks,
+        }
+
+
+def parameter_uncertainty(
+    blocks: BlockNormalEquations, theta: np.ndarray, *, weighted: bool = True
+) -> Uncertainty:
+    """:class:`Uncertainty` of the least-squares ``theta`` from rows summed per time block
+    (:class:`hil.model.estimators.BlockNormalEquations`); ``weighted``: each output channel
+    weighted by 1/σ² of its residuals, as the weighted least squares was."""
+    H, g, yy, n = blocks.arrays()
+    w = channel_weights(H, g, yy, n, theta) if weighted else np.ones(H.shape[1])
+    Hw, gw, yyw = combine(H, g, yy, w)
+    theta_w = solve_normal_equations(Hw.sum(0), gw.sum(0))
+    se_white, se_block = standard_errors(Hw, gw, yyw, int(n.sum()), theta_w, draws=BOOTSTRAP_DRAWS)
+    identified = se_block < IDENTIFIED_MAX_RELATIVE_SE * np.abs(theta)
+    return Uncertainty(se_white, se_block, identified, blocks.block_s, len(H))
 
 
 @dataclass(frozen=True)
@@ -197,6 +280,7 @@ class TorqueIdentification:
     nrmse_held_out: np.ndarray  # (n,)
     theta_standard: np.ndarray | None = None  # the consistent fit's standard parameters
     method: str = "weighted least squares"
+    uncertainty: Uncertainty | None = None  # of the least-squares fit
 
 
 def fit_split(rec: Recording, held_out: float) -> float:
@@ -226,8 +310,15 @@ def regression_rows(
 
 
 def torque_nrmse(theta: np.ndarray, rows: FilteredRows) -> np.ndarray:
-    """Per-joint NRMSE of the torque θ predicts on ``rows`` (:func:`hil.model.metrics.nrmse`)."""
-    return nrmse(rows.tau, np.einsum("knp,p->kn", rows.Y, theta))
+    """Per-joint NRMSE of the torque θ predicts on ``rows`` (:func:`hil.model.metrics.nrmse`),
+    each joint on its rows of weight > 0 (not stuck); nan for a joint with fewer than 2."""
+    predicted = np.einsum("knp,p->kn", rows.Y, theta)
+    out = np.full(rows.tau.shape[1], np.nan)
+    for j in range(len(out)):
+        use = rows.weights[:, j] > 0
+        if use.sum() >= 2:
+            out[j] = nrmse(rows.tau[use, j], predicted[use, j])
+    return out
 
 
 def identify_torque(
@@ -254,18 +345,24 @@ def identify_torque(
             f"{rec.path}: {len(rows.t)} rows after averaging, too few to fit "
             f"{model.n_params} parameters"
         )
-    theta = weighted_least_squares(rows.Y[fit], rows.tau[fit])
+    weights = rows.weights[fit]
+    theta = weighted_least_squares(rows.Y[fit], rows.tau[fit], weights)
+    blocks = BlockNormalEquations(model.n_params, model.n_joints, BOOTSTRAP_BLOCK_S)
+    blocks.add(rows.t[fit], rows.tau[fit], rows.Y[fit], weights)
+    uncertainty = parameter_uncertainty(blocks, theta)
     theta_standard, method = None, "weighted least squares"
     if consistent:
-        theta_standard = consistent_fit(model, rows.Y[fit], rows.tau[fit], theta)
+        theta_standard = consistent_fit(model, rows.Y[fit], rows.tau[fit], theta, weights)
         theta, method = model.base_theta(theta_standard), "physically consistent least squares"
     predicted = np.einsum("knp,p->kn", rows.Y, theta)
     held = (
-        nrmse(rows.tau[held_out_rows], predicted[held_out_rows])
+        torque_nrmse(theta, rows.select(held_out_rows))
         if held_out > 0
         else np.full(model.n_joints, np.nan)
     )
-    return TorqueIdentification(theta, split, rows, predicted, held, theta_standard, method)
+    return TorqueIdentification(
+        theta, split, rows, predicted, held, theta_standard, method, uncertainty
+    )
 
 
 # --- the energy schemes: supplied energy and filtered power ---------------------------------------
@@ -290,6 +387,7 @@ class EnergyIdentification:
     lam: float  # rad/s, the filtered-power row filter's bandwidth (and the velocity window's)
     rows: int  # rows fitted
     fit_until_s: float
+    uncertainty: Uncertainty | None = None
 
 
 def identify_energy(
@@ -320,6 +418,7 @@ def identify_energy(
     lam = data_bandwidth(rec.q, rec.t) if lam is None else float(lam)
     split = fit_split(rec, held_out)
     ls = LeastSquaresRows(model.n_params)
+    blocks = BlockNormalEquations(model.n_params, 1, BOOTSTRAP_BLOCK_S)
     rows = 0
     tau = torque_over_intervals(rec)
     for c in iter_rows(scheme, rec.q, tau, rec.t, lam, model, half_window=half_window):
@@ -329,12 +428,15 @@ def identify_energy(
             # dropped for a stuck joint, hil.model.regressors)
             y, Psi = _block_mean(c.y[fit], decimate), _block_mean(c.Psi[fit], decimate)
             ls.add(Psi, y)
+            blocks.add(_block_mean(c.t[fit], decimate), y, Psi, np.ones(y.shape))
             rows += len(y)
     if rows < 2 * model.n_params:
         raise ValueError(
             f"{rec.path}: {rows} {scheme} rows to fit, too few for {model.n_params} parameters"
         )
-    return EnergyIdentification(scheme, ls.solve(), lam, rows, float(split))
+    theta = ls.solve()
+    uncertainty = parameter_uncertainty(blocks, theta, weighted=False)
+    return EnergyIdentification(scheme, theta, lam, rows, float(split), uncertainty)
 
 
 def _block_mean(x: np.ndarray, size: int) -> np.ndarray:
@@ -380,7 +482,11 @@ def _cholesky_from_pi(pi: np.ndarray) -> np.ndarray:
 
 
 def consistent_fit(
-    model: UrdfArmModel, Y: np.ndarray, tau: np.ndarray, theta_ls: np.ndarray
+    model: UrdfArmModel,
+    Y: np.ndarray,
+    tau: np.ndarray,
+    theta_ls: np.ndarray,
+    weights: np.ndarray | None = None,
 ) -> np.ndarray:
     """Standard parameters minimizing the same weighted torque error as the least squares,
     constrained to physical consistency: every body's pseudo-inertia positive definite (by the
@@ -390,10 +496,15 @@ def consistent_fit(
     from scipy.optimize import least_squares as nonlinear_least_squares
 
     K, n, p = Y.shape
-    sigma = np.std(tau - np.einsum("knp,p->kn", Y, theta_ls), axis=0)  # per-joint noise level
+    sw = np.ones((K, n)) if weights is None else np.sqrt(weights)  # 0: a stuck joint's row
+    residual = tau - np.einsum("knp,p->kn", Y, theta_ls)
+    sigma = np.zeros(n)  # per-joint noise level, on the rows used
+    for j in range(n):
+        if np.any(sw[:, j] > 0):
+            sigma[j] = np.std(residual[sw[:, j] > 0, j])
     sigma[sigma == 0] = 1.0
-    A = (Y / sigma[None, :, None]).reshape(K * n, p) @ model.base.expand
-    b = (tau / sigma).reshape(K * n)
+    A = (Y * (sw / sigma)[:, :, None]).reshape(K * n, p) @ model.base.expand
+    b = (tau * sw / sigma).reshape(K * n)
     Q, R = np.linalg.qr(A)  # ‖A π − b‖² = ‖R π − Qᵀ b‖² + const
     c = Q.T @ b
     nb, n_pos = model.n_body_params // 10, model.n_rigid_standard - model.n_body_params + 2 * n
@@ -445,13 +556,16 @@ def consistent_fit(
 
 __all__ = [
     "ENERGY_SCHEMES",
+    "IDENTIFIED_MAX_RELATIVE_SE",
     "EnergyIdentification",
     "TorqueIdentification",
+    "Uncertainty",
     "fit_split",
     "identify_energy",
     "identify_torque",
     "read_one_per_line_log",
     "regression_rows",
+    "stuck_samples",
     "torque_at_samples",
     "torque_nrmse",
     "torque_over_intervals",
