@@ -58,6 +58,9 @@ DEFAULT_DECIMATE = 10
 REGULARIZATION = 1e-4
 # Rows dropped at each end: the zero-phase filters' start-up transients.
 EDGE_S = 0.5
+# A joint's torque rows are left out within this many periods of the smoothing cutoff of a
+# friction step (a stick or a reversal, friction_step_samples).
+FRICTION_STEP_MARGIN_PERIODS = 1.0
 
 
 def torque_at_samples(rec: Recording) -> np.ndarray:
@@ -127,7 +130,9 @@ class Motion:
     ddq: np.ndarray
     tau: np.ndarray
     cutoff_hz: float
-    stuck: np.ndarray | None = None  # (N, n): the sample ends an interval the joint sticks in
+    # (N, n): the joint's friction steps near this sample (friction_step_samples): its
+    # equation is left out of the torque rows
+    left_out: np.ndarray | None = None
 
 
 def _lowpass(x: np.ndarray, cutoff_hz: float, period_s: float) -> np.ndarray:
@@ -152,8 +157,37 @@ def smoothed_motion(rec: Recording, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -> 
     keep = (t >= t[0] + EDGE_S) & (t <= t[-1] - EDGE_S)
     tk = t[keep]
     tau = torque_at_samples(rec)[keep]
-    stuck = stuck_samples(rec)[keep]
-    return Motion(tk, smooth(tk), smooth(tk, 1), smooth(tk, 2), tau, cutoff_hz, stuck)
+    left_out = friction_step_samples(
+        t, stuck_samples(rec), smooth(t, 1), FRICTION_STEP_MARGIN_PERIODS / cutoff_hz
+    )[keep]
+    return Motion(tk, smooth(tk), smooth(tk, 1), smooth(tk, 2), tau, cutoff_hz, left_out)
+
+
+def friction_step_samples(
+    t: np.ndarray, stuck: np.ndarray, dq: np.ndarray, margin_s: float
+) -> np.ndarray:
+    """(N, n): sample k lies within ``margin_s`` of a friction step of joint j — a sample where
+    it sticks (``stuck``) or a sign change of its smoothed velocity ``dq`` (a reversal).
+    Coulomb friction steps by 2 f_c there, so the true acceleration steps, and the zero-phase
+    low-pass of :func:`smoothed_motion` spreads that step over about one period of its cutoff
+    either side: the smoothed q̈ and sgn q̇ are wrong there by as much as the step (on the
+    ur5e's wrist, 0.4 Nm of Coulomb friction on 0.0054 kg m²: 150 rad/s² per reversal; with
+    the true parameters the rows near reversals left joint 4's and 5's torques 2.0 % and 2.5 %
+    unexplained, without them 0.2 %: docs/urdf.md). Gautier's parallel filtering assumes a
+    motion smooth within the filter's band; these rows are where it is not."""
+    events = stuck.copy()
+    sign = np.sign(dq)
+    events[1:] |= (sign[1:] * sign[:-1]) < 0
+    out = np.zeros_like(events)
+    for j in range(events.shape[1]):
+        te = t[events[:, j]]
+        if te.size == 0:
+            continue
+        i = np.searchsorted(te, t)
+        before = np.abs(t - te[np.clip(i - 1, 0, te.size - 1)])
+        after = np.abs(te[np.clip(i, 0, te.size - 1)] - t)
+        out[:, j] = np.minimum(before, after) <= margin_s
+    return out
 
 
 def stuck_samples(rec: Recording) -> np.ndarray:
@@ -162,8 +196,8 @@ def stuck_samples(rec: Recording) -> np.ndarray:
     joint from an encoder count held through a reversal). While a joint sticks, its friction is
     the static constraint torque, anywhere in the band [f_o − f_c, f_o + f_c], which the model's
     f_c sgn q̇ cannot give; and the smoothed acceleration cannot follow the step at the stick's
-    start and end. Its torque equation there is left out (:class:`FilteredRows`), as the 2-DOF
-    filtered dynamic rows leave such intervals out (:mod:`hil.model.regressors`)."""
+    start and end. Its torque equation there is left out (:func:`friction_step_samples`), as
+    the 2-DOF filtered dynamic rows leave such intervals out (:mod:`hil.model.regressors`)."""
     out = np.zeros(rec.q.shape, dtype=bool)
     if len(rec.t) < 2:
         return out
@@ -193,8 +227,8 @@ def smoothing_cutoff_hz(rec: Recording) -> float:
 @dataclass(frozen=True)
 class FilteredRows:
     """Rows y = Ψ θ after parallel filtering and decimation: ``t`` (K,), ``tau`` (K, n),
-    ``Y`` (K, n, p); ``weights`` (K, n): 0 where the block holds a sample at which that joint
-    sticks (:func:`stuck_samples`: its equation is left out), else 1."""
+    ``Y`` (K, n, p); ``weights`` (K, n): 0 where the block holds a sample near a friction step
+    of that joint (:func:`friction_step_samples`: its equation is left out), else 1."""
 
     t: np.ndarray
     tau: np.ndarray
@@ -219,8 +253,8 @@ def filtered_rows(
     both = both.reshape(K, decimate, -1).mean(axis=1)
     t = motion.t[: K * decimate].reshape(K, decimate).mean(axis=1)
     weights = np.ones((K, n))
-    if motion.stuck is not None:
-        weights[motion.stuck[: K * decimate].reshape(K, decimate, n).any(axis=1)] = 0.0
+    if motion.left_out is not None:
+        weights[motion.left_out[: K * decimate].reshape(K, decimate, n).any(axis=1)] = 0.0
     return FilteredRows(t, both[:, :n], both[:, n:].reshape(K, n, p), weights)
 
 
@@ -561,6 +595,7 @@ __all__ = [
     "TorqueIdentification",
     "Uncertainty",
     "fit_split",
+    "friction_step_samples",
     "identify_energy",
     "identify_torque",
     "read_one_per_line_log",
