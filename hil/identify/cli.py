@@ -781,14 +781,19 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             )
             theta = torque_res.theta
             uncertainty = torque_res.uncertainty
-            stuck = 1.0 - torque_res.rows.weights
             entry: dict[str, Any] = {
                 "method": torque_res.method
                 + " on the torque regressor (parallel filtering)"
                 + (" (--consistent: this scheme only)" if args.consistent else ""),
                 "smoothing_cutoff_hz": cutoff,
                 "rows": len(torque_res.rows.t),
-                "rows_left_out_stuck_fraction": stuck.mean(axis=0).tolist(),
+                # per joint: rows near its friction steps (sticks, reversals) left out, and
+                # why (hil.identify.urdf.leave_out_friction_steps)
+                "friction_steps_left_out": torque_res.left_out_joints.tolist(),
+                "rows_left_out_fraction": (1.0 - torque_res.rows.weights).mean(axis=0).tolist(),
+                "residual_ratio_near_friction_steps": [
+                    None if not np.isfinite(x) else float(x) for x in torque_res.step_residual_ratio
+                ],
             }
         else:
             res = identify_energy(model, recording, scheme, lam=args.lam, held_out=held_out)
@@ -809,6 +814,8 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     nominal = model.base_theta()
     if val is not None:
         rows = regression_rows(model, val, cutoff_hz=cutoff)
+        if torque_res is not None:  # the same equations left out as in the fit
+            rows = rows.leaving_out(torque_res.left_out_joints)
         where = str(val.path)
     else:
         # the torque rows of the last quarter: the same rows judge every scheme

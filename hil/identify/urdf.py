@@ -61,6 +61,10 @@ EDGE_S = 0.5
 # A joint's torque rows are left out within this many periods of the smoothing cutoff of a
 # friction step (a stick or a reversal, friction_step_samples).
 FRICTION_STEP_MARGIN_PERIODS = 1.0
+# ... when the first fit's residual there is this many times its residual elsewhere
+# (leave_out_friction_steps), and at least this share of the joint's rows is away from steps.
+STEP_RESIDUAL_RATIO = 2.0
+MIN_ROWS_AWAY_FROM_STEPS = 0.05
 
 
 def torque_at_samples(rec: Recording) -> np.ndarray:
@@ -130,9 +134,8 @@ class Motion:
     ddq: np.ndarray
     tau: np.ndarray
     cutoff_hz: float
-    # (N, n): the joint's friction steps near this sample (friction_step_samples): its
-    # equation is left out of the torque rows
-    left_out: np.ndarray | None = None
+    # (N, n): a friction step of the joint near this sample (friction_step_samples)
+    near_step: np.ndarray | None = None
 
 
 def _lowpass(x: np.ndarray, cutoff_hz: float, period_s: float) -> np.ndarray:
@@ -157,10 +160,10 @@ def smoothed_motion(rec: Recording, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -> 
     keep = (t >= t[0] + EDGE_S) & (t <= t[-1] - EDGE_S)
     tk = t[keep]
     tau = torque_at_samples(rec)[keep]
-    left_out = friction_step_samples(
+    near_step = friction_step_samples(
         t, stuck_samples(rec), smooth(t, 1), FRICTION_STEP_MARGIN_PERIODS / cutoff_hz
     )[keep]
-    return Motion(tk, smooth(tk), smooth(tk, 1), smooth(tk, 2), tau, cutoff_hz, left_out)
+    return Motion(tk, smooth(tk), smooth(tk, 1), smooth(tk, 2), tau, cutoff_hz, near_step)
 
 
 def friction_step_samples(
@@ -227,17 +230,26 @@ def smoothing_cutoff_hz(rec: Recording) -> float:
 @dataclass(frozen=True)
 class FilteredRows:
     """Rows y = Ψ θ after parallel filtering and decimation: ``t`` (K,), ``tau`` (K, n),
-    ``Y`` (K, n, p); ``weights`` (K, n): 0 where the block holds a sample near a friction step
-    of that joint (:func:`friction_step_samples`: its equation is left out), else 1."""
+    ``Y`` (K, n, p); ``near_step`` (K, n): the block holds a sample near a friction step of
+    that joint (:func:`friction_step_samples`); ``weights`` (K, n): 0 where the joint's
+    equation is left out (:meth:`leaving_out`), else 1."""
 
     t: np.ndarray
     tau: np.ndarray
     Y: np.ndarray
+    near_step: np.ndarray
     weights: np.ndarray
 
     def select(self, keep: np.ndarray) -> FilteredRows:
         """The rows where ``keep`` (K,) is true."""
-        return FilteredRows(self.t[keep], self.tau[keep], self.Y[keep], self.weights[keep])
+        return FilteredRows(
+            self.t[keep], self.tau[keep], self.Y[keep], self.near_step[keep], self.weights[keep]
+        )
+
+    def leaving_out(self, joints: np.ndarray) -> FilteredRows:
+        """These rows with weight 0 on the equations of ``joints`` (n,) near friction steps."""
+        weights = np.where(self.near_step & np.asarray(joints, dtype=bool), 0.0, 1.0)
+        return FilteredRows(self.t, self.tau, self.Y, self.near_step, weights)
 
 
 def filtered_rows(
@@ -252,10 +264,10 @@ def filtered_rows(
     both = np.concatenate([motion.tau[: K * decimate], Y[: K * decimate].reshape(-1, n * p)], 1)
     both = both.reshape(K, decimate, -1).mean(axis=1)
     t = motion.t[: K * decimate].reshape(K, decimate).mean(axis=1)
-    weights = np.ones((K, n))
-    if motion.left_out is not None:
-        weights[motion.left_out[: K * decimate].reshape(K, decimate, n).any(axis=1)] = 0.0
-    return FilteredRows(t, both[:, :n], both[:, n:].reshape(K, n, p), weights)
+    near = np.zeros((K, n), dtype=bool)
+    if motion.near_step is not None:
+        near = motion.near_step[: K * decimate].reshape(K, decimate, n).any(axis=1)
+    return FilteredRows(t, both[:, :n], both[:, n:].reshape(K, n, p), near, np.ones((K, n)))
 
 
 # A parameter whose blocked-bootstrap standard error exceeds this fraction of its magnitude is
@@ -315,6 +327,10 @@ class TorqueIdentification:
     theta_standard: np.ndarray | None = None  # the consistent fit's standard parameters
     method: str = "weighted least squares"
     uncertainty: Uncertainty | None = None  # of the least-squares fit
+    # (n,): joints whose rows near friction steps were left out (leave_out_friction_steps)
+    left_out_joints: np.ndarray | None = None
+    # (n,): RMS residual of the first fit near friction steps over that away from them
+    step_residual_ratio: np.ndarray | None = None
 
 
 def fit_split(rec: Recording, held_out: float) -> float:
@@ -379,8 +395,12 @@ def identify_torque(
             f"{rec.path}: {len(rows.t)} rows after averaging, too few to fit "
             f"{model.n_params} parameters"
         )
+    theta = weighted_least_squares(rows.Y[fit], rows.tau[fit])
+    left_out, ratio = leave_out_friction_steps(rows.select(fit), theta)
+    if left_out.any():
+        rows = rows.leaving_out(left_out)
+        theta = weighted_least_squares(rows.Y[fit], rows.tau[fit], rows.weights[fit])
     weights = rows.weights[fit]
-    theta = weighted_least_squares(rows.Y[fit], rows.tau[fit], weights)
     blocks = BlockNormalEquations(model.n_params, model.n_joints, BOOTSTRAP_BLOCK_S)
     blocks.add(rows.t[fit], rows.tau[fit], rows.Y[fit], weights)
     uncertainty = parameter_uncertainty(blocks, theta)
@@ -395,8 +415,29 @@ def identify_torque(
         else np.full(model.n_joints, np.nan)
     )
     return TorqueIdentification(
-        theta, split, rows, predicted, held, theta_standard, method, uncertainty
+        theta, split, rows, predicted, held, theta_standard, method, uncertainty, left_out, ratio
     )
+
+
+def leave_out_friction_steps(
+    rows: FilteredRows, theta: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which joints' torque equations to leave out near their friction steps, decided by the
+    data: per joint, the RMS residual of ``theta`` (a fit on every row) on its rows near a
+    friction step over that on the rest. Above :data:`STEP_RESIDUAL_RATIO` the smoothed motion
+    does not follow the steps there (:func:`friction_step_samples`), and those rows are left
+    out; where the residual is no larger near the steps (the Panda of Gaz et al., whose
+    measured torques show no sharp Coulomb step, docs/urdf.md) every row stays. A joint keeps
+    its rows when fewer than :data:`MIN_ROWS_AWAY_FROM_STEPS` of them are away from steps.
+    Returns (left out (n,) bool, the ratio (n,), nan where not measured)."""
+    residual = rows.tau - np.einsum("knp,p->kn", rows.Y, theta)
+    n = rows.tau.shape[1]
+    ratio = np.full(n, np.nan)
+    for j in range(n):
+        near = rows.near_step[:, j]
+        if near.any() and (~near).mean() >= MIN_ROWS_AWAY_FROM_STEPS:
+            ratio[j] = np.sqrt(np.mean(residual[near, j] ** 2) / np.mean(residual[~near, j] ** 2))
+    return np.nan_to_num(ratio) > STEP_RESIDUAL_RATIO, ratio
 
 
 # --- the energy schemes: supplied energy and filtered power ---------------------------------------
@@ -598,6 +639,7 @@ __all__ = [
     "friction_step_samples",
     "identify_energy",
     "identify_torque",
+    "leave_out_friction_steps",
     "read_one_per_line_log",
     "regression_rows",
     "stuck_samples",
