@@ -33,7 +33,8 @@ from ur5e_targets import check_targets, torque_recording, torque_shares
 
 from drivers.recording import read_signals
 from hil.cli import main as hil_main
-from hil.identify.urdf import regression_rows
+from hil.identify.urdf import BOOTSTRAP_BLOCK_S, parameter_uncertainty, regression_rows
+from hil.model.estimators import BlockNormalEquations, weighted_least_squares
 from hil.model.regressors import quantized_stick
 from hil.model.urdf import UrdfArmModel
 from profiles.experiment import load_experiment
@@ -62,12 +63,43 @@ def stick_table(rec, velocity_limit: list[float]) -> list[str]:
 def condition_number(model: UrdfArmModel, rec, report: dict) -> float:
     """κ of the fitted torque rows: weights as fitted, joints by RMS torque, unit columns."""
     rows = regression_rows(model, rec, cutoff_hz=report["smoothing_cutoff_hz"])
+    rows = rows.leaving_out(report["schemes"]["filtered_dynamic"]["friction_steps_left_out"])
     fit = rows.t < float(report["validation"]["on"].split("t >= ")[1].split(" s")[0])
     w = rows.weights[fit]
     rms = np.sqrt(np.sum(w * rows.tau[fit] ** 2, axis=0) / w.sum(axis=0))
     A = (rows.Y[fit] * (np.sqrt(w) / rms)[:, :, None]).reshape(-1, model.n_params)
     sv = np.linalg.svd(A / np.linalg.norm(A, axis=0), compute_uv=False)
     return float(sv[0] / sv[-1])
+
+
+def all_rows_fit(model: UrdfArmModel, rec, report: dict, nominal: np.ndarray, shares) -> list[str]:
+    """The torque scheme as it was before rows near friction steps were left out: weighted
+    least squares on every fitted row; its misses with their errors in white-residual and
+    blocked-bootstrap standard errors, and the parameters whose SE exceeds their value."""
+    rows = regression_rows(model, rec, cutoff_hz=report["smoothing_cutoff_hz"])
+    fit = rows.t < float(report["validation"]["on"].split("t >= ")[1].split(" s")[0])
+    theta = weighted_least_squares(rows.Y[fit], rows.tau[fit])
+    blocks = BlockNormalEquations(model.n_params, model.n_joints, BOOTSTRAP_BLOCK_S)
+    blocks.add(rows.t[fit], rows.tau[fit], rows.Y[fit], np.ones(rows.tau[fit].shape))
+    u = parameter_uncertainty(blocks, theta)
+    meanings = list(model.meanings)
+    lines = ["torque scheme on every row (nothing left out):"]
+    for line in check_targets(report, list(theta), shares, model, rec):
+        k = meanings.index(line.split(":")[0])
+        err = theta[k] - nominal[k]
+        lines.append(
+            f"  {line}  (error {err / u.se_white[k]:+.1f} white SE, {err / u.se_block[k]:+.1f} "
+            "bootstrap SE)"
+        )
+    significant = shares.max(axis=1) >= 0.05  # the parameters judged by a relative target
+    relative = np.where(significant, u.se_white / np.maximum(np.abs(nominal), 1e-300), 0.0)
+    for k in np.argsort(-relative):
+        if relative[k] > 0.02:
+            lines.append(
+                f"  {meanings[k]}: white SE {relative[k]:.0%}, bootstrap SE "
+                f"{u.se_block[k] / abs(nominal[k]):.0%} of its nominal value"
+            )
+    return lines
 
 
 def main() -> int:
@@ -87,6 +119,18 @@ def main() -> int:
     rec = read_signals(out / "sim")
     print(f"experiment {args.experiment}, {len(rec.t)} rows")
     print("\n".join(stick_table(rec, list(robot.limits.velocity_rad_s))))
+    torque = report["schemes"]["filtered_dynamic"]
+    print(
+        "torque scheme: rows near friction steps left out on joints "
+        + str([j + 1 for j, x in enumerate(torque["friction_steps_left_out"]) if x])
+        + " (share of rows: "
+        + ", ".join(f"{x:.2f}" for x in torque["rows_left_out_fraction"])
+        + "; first-fit residual near steps / elsewhere: "
+        + ", ".join(
+            "-" if x is None else f"{x:.1f}" for x in torque["residual_ratio_near_friction_steps"]
+        )
+        + ")"
+    )
     print(f"condition number of the fitted torque rows: {condition_number(model, rec, report):.0f}")
     nominal = np.array([x["nominal"] for x in report["parameters"]])
     shares = torque_shares(model, torque_recording(out / "sim"), nominal)
@@ -94,10 +138,11 @@ def main() -> int:
     print("held-out torque NRMSE per joint:")
     print(
         f"  {'nominal':17s}"
-        + "".join(f"{x:7.3f}" for x in report["validation"]["torque_nrmse_nominal"])
+        + "".join(f"{x:8.4f}" for x in report["validation"]["torque_nrmse_nominal"])
     )
     for scheme, entry in report["schemes"].items():
-        print(f"  {scheme:17s}" + "".join(f"{x:7.3f}" for x in entry["validation"]["torque_nrmse"]))
+        print(f"  {scheme:17s}" + "".join(f"{x:8.4f}" for x in entry["validation"]["torque_nrmse"]))
+    print("\n".join(all_rows_fit(model, rec, report, nominal, shares)))
     for scheme, entry in report["schemes"].items():
         theta = np.array(entry["theta"])
         se = np.array(entry["uncertainty"]["se_blocked_bootstrap"])
