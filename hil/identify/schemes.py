@@ -552,9 +552,7 @@ def identify_model(
             "the bounded fit is still not physical: " + "; ".join(consistency["violations"])
         )
     # uncertainty: white-residual covariance (weights are 1/σ²) and blocked bootstrap
-    se_white, se_block = standard_errors(
-        Hw, gw, yyw, int(n.sum()), theta_ls, draws=BOOTSTRAP_DRAWS
-    )
+    se_white, se_block = standard_errors(Hw, gw, yyw, int(n.sum()), theta_ls, draws=BOOTSTRAP_DRAWS)
     if len(H) < 5:
         notes.append(f"only {len(H)} blocks of {block_s:.3g} s: no bootstrap uncertainty")
     d = np.sqrt(np.diag(H_tot))
