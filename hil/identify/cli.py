@@ -893,7 +893,7 @@ def format_urdf_report(report: dict[str, Any]) -> str:
         f"({len(report['validation']['torque_nrmse_nominal'])} joints, base parameters by "
         f"pivoted QR of the torque regressor; terms: {', '.join(report['terms']) or 'none'})",
         f"{'':8s} {'nominal':>11s}"
-        + "".join(f" {SCHEME_TITLES[s]:>17s}" for s in schemes)
+        + "".join(f" {SCHEME_TITLES[s]:>18s}" for s in schemes)
         + "  unit     meaning",
     ]
     for i, p in enumerate(report["parameters"]):
@@ -903,9 +903,9 @@ def format_urdf_report(report: dict[str, Any]) -> str:
             se = u["se_blocked_bootstrap"][i]
             # issue 12's rule: a parameter the data do not determine is no number
             cells.append(
-                f" {p['schemes'][s]:9.4g} ±{se:<6.2g}"
+                f" {p['schemes'][s]:>9.4g} ±{se:<7.2g}"
                 if u["identified"][i]
-                else f" {'n/i ±' + format(se, '.2g'):>17s}"
+                else f" {'n/i ±' + format(se, '.2g'):>18s}"
             )
         lines.append(
             f"{p['name']:8s} {p['nominal']:11.5g}"
@@ -939,8 +939,8 @@ def format_urdf_report(report: dict[str, Any]) -> str:
     lines.append(f"held-out torque NRMSE per joint on {v['on']}:")
     for s in schemes:
         nrmse_s = report["schemes"][s]["validation"]["torque_nrmse"]
-        lines.append(f"  {SCHEME_TITLES[s]:17s} " + " ".join(f"{x:6.3f}" for x in nrmse_s))
-    lines.append(f"  {'nominal':17s} " + " ".join(f"{x:6.3f}" for x in v["torque_nrmse_nominal"]))
+        lines.append(f"  {SCHEME_TITLES[s]:17s} " + " ".join(f"{x:7.4f}" for x in nrmse_s))
+    lines.append(f"  {'nominal':17s} " + " ".join(f"{x:7.4f}" for x in v["torque_nrmse_nominal"]))
     lines.append(
         f"parameters: {report['params_scheme']} ('estimate' in identify.json; 'identified' is "
         "null where not identifiable)"
