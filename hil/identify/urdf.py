@@ -436,7 +436,9 @@ def leave_out_friction_steps(
     for j in range(n):
         near = rows.near_step[:, j]
         if near.any() and (~near).mean() >= MIN_ROWS_AWAY_FROM_STEPS:
-            ratio[j] = np.sqrt(np.mean(residual[near, j] ** 2) / np.mean(residual[~near, j] ** 2))
+            away = np.mean(residual[~near, j] ** 2)
+            if away > 0:  # an exact fit (noise-free data) has nothing to compare
+                ratio[j] = np.sqrt(np.mean(residual[near, j] ** 2) / away)
     return np.nan_to_num(ratio) > STEP_RESIDUAL_RATIO, ratio
 
 
