@@ -24,7 +24,9 @@ squares (:class:`hil.model.estimators.LeastSquaresRows`).
 The Panda log layout (``rbt_log/exciting_traj_{time,positions,torques}.txt``: one number a
 line, 7 joints of a sample on 7 consecutive lines) is read by :func:`read_one_per_line_log`
 into the standard recording (:class:`drivers.recording.Recording`, the one every analysis
-reads). Imports drivers.recording, hil.model.estimators, hil.model.metrics,
+reads). Per-parameter uncertainty and "not identifiable" (:class:`Uncertainty`) follow the 2-DOF
+path's rule (:mod:`hil.identify.schemes`). Imports drivers.recording, hil.identify.schemes (its
+identifiability constants and bootstrap block rule), hil.model.estimators, hil.model.metrics,
 hil.model.regressors and hil.model.urdf; no plotting.
 """
 
@@ -38,6 +40,7 @@ from scipy.interpolate import CubicSpline
 from scipy.signal import butter, sosfiltfilt
 
 from drivers.recording import Recording
+from hil.identify.schemes import BOOTSTRAP_DRAWS, IDENTIFIED_MAX_RELATIVE_SE, bootstrap_block_s
 from hil.model.estimators import (
     BlockNormalEquations,
     LeastSquaresRows,
@@ -270,12 +273,9 @@ def filtered_rows(
     return FilteredRows(t, both[:, :n], both[:, n:].reshape(K, n, p), near, np.ones((K, n)))
 
 
-# A parameter whose blocked-bootstrap standard error exceeds this fraction of its magnitude is
-# not determined by the data: reported with its uncertainty, not as a number (issue 12's rule,
-# the 2-DOF path's hil.identify.schemes.IDENTIFIED_MAX_RELATIVE_SE).
-IDENTIFIED_MAX_RELATIVE_SE = 0.5
-BOOTSTRAP_BLOCK_S = 0.5  # blocks of rows resampled together (a few smoothing windows long)
-BOOTSTRAP_DRAWS = 200
+# A parameter whose blocked-bootstrap standard error exceeds IDENTIFIED_MAX_RELATIVE_SE of its
+# magnitude is not determined by the data: reported with its uncertainty, not as a number
+# (issue 12's rule, the 2-DOF path's, hil.identify.schemes).
 
 
 @dataclass(frozen=True)
@@ -401,7 +401,9 @@ def identify_torque(
         rows = rows.leaving_out(left_out)
         theta = weighted_least_squares(rows.Y[fit], rows.tau[fit], rows.weights[fit])
     weights = rows.weights[fit]
-    blocks = BlockNormalEquations(model.n_params, model.n_joints, BOOTSTRAP_BLOCK_S)
+    # the smoothing's cutoff plays the row filter's λ in the 2-DOF path's rule for the blocks
+    block_s = bootstrap_block_s(2 * np.pi * cutoff_hz, float(rec.t[-1] - rec.t[0]))
+    blocks = BlockNormalEquations(model.n_params, model.n_joints, block_s)
     blocks.add(rows.t[fit], rows.tau[fit], rows.Y[fit], weights)
     uncertainty = parameter_uncertainty(blocks, theta)
     theta_standard, method = None, "weighted least squares"
@@ -495,7 +497,9 @@ def identify_energy(
     lam = data_bandwidth(rec.q, rec.t) if lam is None else float(lam)
     split = fit_split(rec, held_out)
     ls = LeastSquaresRows(model.n_params)
-    blocks = BlockNormalEquations(model.n_params, 1, BOOTSTRAP_BLOCK_S)
+    blocks = BlockNormalEquations(
+        model.n_params, 1, bootstrap_block_s(lam, float(rec.t[-1] - rec.t[0]))
+    )
     rows = 0
     tau = torque_over_intervals(rec)
     for c in iter_rows(scheme, rec.q, tau, rec.t, lam, model, half_window=half_window):

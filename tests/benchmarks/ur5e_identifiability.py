@@ -33,7 +33,8 @@ from ur5e_targets import check_targets, torque_recording, torque_shares
 
 from drivers.recording import read_signals
 from hil.cli import main as hil_main
-from hil.identify.urdf import BOOTSTRAP_BLOCK_S, parameter_uncertainty, regression_rows
+from hil.identify.schemes import bootstrap_block_s
+from hil.identify.urdf import parameter_uncertainty, regression_rows
 from hil.model.estimators import BlockNormalEquations, weighted_least_squares
 from hil.model.regressors import quantized_stick
 from hil.model.urdf import UrdfArmModel
@@ -79,7 +80,10 @@ def all_rows_fit(model: UrdfArmModel, rec, report: dict, nominal: np.ndarray, sh
     rows = regression_rows(model, rec, cutoff_hz=report["smoothing_cutoff_hz"])
     fit = rows.t < float(report["validation"]["on"].split("t >= ")[1].split(" s")[0])
     theta = weighted_least_squares(rows.Y[fit], rows.tau[fit])
-    blocks = BlockNormalEquations(model.n_params, model.n_joints, BOOTSTRAP_BLOCK_S)
+    block_s = bootstrap_block_s(
+        2 * np.pi * report["smoothing_cutoff_hz"], float(rec.t[-1] - rec.t[0])
+    )
+    blocks = BlockNormalEquations(model.n_params, model.n_joints, block_s)
     blocks.add(rows.t[fit], rows.tau[fit], rows.Y[fit], np.ones(rows.tau[fit].shape))
     u = parameter_uncertainty(blocks, theta)
     meanings = list(model.meanings)
