@@ -19,7 +19,7 @@ def check_cicese3_identified(report: dict[str, Any]) -> None:
     assert sorted(report["schemes"]) == sorted(SCHEMES)
     nominal = [x["nominal"] for x in report["parameters"]]
     true = report["validation"]["torque_nrmse_nominal"]
-    check_targets(report, [x["identified"] for x in report["parameters"]], nominal)
+    check_targets(report, [x["estimate"] for x in report["parameters"]], nominal)
     fit = report["validation"]["torque_nrmse_identified"]
     assert all(a < b + 0.01 for a, b in zip(fit, true, strict=True)), (fit, true)
     for scheme, entry in report["schemes"].items():

@@ -178,7 +178,7 @@ def test_cli_schemes_for_a_urdf_arm(tmp_path, cicese3, capsys):
     report = json.loads(capsys.readouterr().out)
     assert list(report["schemes"]) == ["supplied_energy", "filtered_power"]
     assert report["params_scheme"] == "filtered_power"
-    assert [p["identified"] for p in report["parameters"]] == report["schemes"]["filtered_power"][
+    assert [p["estimate"] for p in report["parameters"]] == report["schemes"]["filtered_power"][
         "theta"
     ]
     for entry in report["schemes"].values():

@@ -3,6 +3,8 @@ base parameters, and the identification of the real Panda excitation of Gaz et a
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import gaz_reference
 import numpy as np
 import pytest
@@ -15,8 +17,8 @@ from hil.identify.urdf import (
     read_one_per_line_log,
     smoothed_motion,
     torque_at_samples,
+    torque_nrmse,
 )
-from hil.model.metrics import nrmse
 from hil.model.urdf import UrdfArmModel, _bilinear_inertia_regressor
 from profiles import ProfileError
 from profiles.robot import load_robot, load_urdf_robot
@@ -269,20 +271,24 @@ def test_panda_identification_against_the_published_model(panda):
     result = identify_torque(panda, rec)
     held = result.rows.t >= result.fit_until_s
     motion = smoothed_motion(rec)
-    keep = motion.t >= result.fit_until_s - 1.0  # their model on the held-out stretch only
+    # their model on the held-out stretch only, on the same blocks of 10 rows as ours
+    start = 10 * (int(np.searchsorted(motion.t, result.fit_until_s - 1.0)) // 10)
     sub = type(motion)(
-        *(x[keep] for x in (motion.t, motion.q, motion.dq, motion.ddq, motion.tau)),
+        *(x[start:] for x in (motion.t, motion.q, motion.dq, motion.ddq, motion.tau)),
         motion.cutoff_hz,
     )
     theirs_tau = gaz_reference.GazModel().torque(sub.q, sub.dq, sub.ddq)
     theirs = filtered_rows(sub, theirs_tau[..., None])
     tail = theirs.t >= result.fit_until_s
+    assert np.array_equal(theirs.t[tail], result.rows.t[held])
+    # every model on the rows ours is judged on: the held-out rows, less those near friction
+    # steps of a joint whose fit left them out (joint 7 here: its residual there is 3 times
+    # the rest's; hil.identify.urdf.leave_out_friction_steps)
+    same_rows = result.rows.select(held)
     ours = result.nrmse_held_out
-    reference = nrmse(theirs.tau[tail], theirs.Y[tail, :, 0])
+    reference = torque_nrmse(np.ones(1), replace(same_rows, Y=theirs.Y[tail]))
     # the URDF's nominal parameters, for scale
-    nominal = nrmse(
-        result.rows.tau[held], np.einsum("knp,p->kn", result.rows.Y[held], panda.base_theta())
-    )
+    nominal = torque_nrmse(panda.base_theta(), same_rows)
     assert np.all(ours < 0.25), ours
     assert ours.mean() < 1.15 * reference.mean(), (ours, reference)
     assert ours.mean() < 0.5 * nominal.mean(), (ours, nominal)

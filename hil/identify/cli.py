@@ -816,16 +816,24 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
                 model, recording, held_out=held_out, consistent=args.consistent, cutoff_hz=cutoff
             )
             theta = torque_res.theta
+            uncertainty = torque_res.uncertainty
             entry: dict[str, Any] = {
                 "method": torque_res.method
                 + " on the torque regressor (parallel filtering)"
                 + (" (--consistent: this scheme only)" if args.consistent else ""),
                 "smoothing_cutoff_hz": cutoff,
                 "rows": len(torque_res.rows.t),
+                # per joint: rows near its friction steps (sticks, reversals) left out, and
+                # why (hil.identify.urdf.leave_out_friction_steps)
+                "friction_steps_left_out": torque_res.left_out_joints.tolist(),
+                "rows_left_out_fraction": (1.0 - torque_res.rows.weights).mean(axis=0).tolist(),
+                "residual_ratio_near_friction_steps": [
+                    None if not np.isfinite(x) else float(x) for x in torque_res.step_residual_ratio
+                ],
             }
         else:
             res = identify_energy(model, recording, scheme, lam=args.lam, held_out=held_out)
-            theta = res.theta
+            theta, uncertainty = res.theta, res.uncertainty
             entry = {
                 "method": "least squares on the exact "
                 + (
@@ -837,10 +845,13 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
                 "rows": res.rows,
             }
         entry["cpu_s"] = time.process_time() - start
+        entry["uncertainty"] = uncertainty.as_json()
         results[scheme] = {"theta": theta, **entry}
     nominal = model.base_theta()
     if val is not None:
         rows = regression_rows(model, val, cutoff_hz=cutoff)
+        if torque_res is not None:  # the same equations left out as in the fit
+            rows = rows.leaving_out(torque_res.left_out_joints)
         where = str(val.path)
     else:
         # the torque rows of the last quarter: the same rows judge every scheme
@@ -850,8 +861,7 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             if torque_res is not None
             else regression_rows(model, recording, cutoff_hz=cutoff)
         )
-        keep = all_rows.t >= split
-        rows = type(all_rows)(all_rows.t[keep], all_rows.tau[keep], all_rows.Y[keep])
+        rows = all_rows.select(all_rows.t >= split)
         where = f"last 25 % of {fit.path} (t >= {split:.3f} s)"
     for r in results.values():
         r["physical_consistency"] = model.physical_consistency(r["theta"])
@@ -877,9 +887,18 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
                 "name": n,
                 "meaning": m,
                 "unit": u,
-                "identified": float(chosen["theta"][i]),
+                # None when the data do not determine it (issue 12's rule): its estimate and
+                # uncertainty are beside it
+                "identified": float(chosen["theta"][i])
+                if chosen["uncertainty"]["identified"][i]
+                else None,
+                "estimate": float(chosen["theta"][i]),
+                "se_blocked_bootstrap": chosen["uncertainty"]["se_blocked_bootstrap"][i],
                 "nominal": float(nominal[i]),
                 "schemes": {s: float(r["theta"][i]) for s, r in results.items()},
+                "not_identifiable_in": [
+                    s for s, r in results.items() if not r["uncertainty"]["identified"][i]
+                ],
             }
             for i, (n, m, u) in enumerate(
                 zip(model.names, model.meanings, model.units, strict=True)
@@ -910,15 +929,39 @@ def format_urdf_report(report: dict[str, Any]) -> str:
         f"({len(report['validation']['torque_nrmse_nominal'])} joints, base parameters by "
         f"pivoted QR of the torque regressor; terms: {', '.join(report['terms']) or 'none'})",
         f"{'':8s} {'nominal':>11s}"
-        + "".join(f" {SCHEME_TITLES[s]:>17s}" for s in schemes)
+        + "".join(f" {SCHEME_TITLES[s]:>18s}" for s in schemes)
         + "  unit     meaning",
     ]
-    for p in report["parameters"]:
+    for i, p in enumerate(report["parameters"]):
+        cells = []
+        for s in schemes:
+            u = report["schemes"][s]["uncertainty"]
+            se = u["se_blocked_bootstrap"][i]
+            # issue 12's rule: a parameter the data do not determine is no number
+            cells.append(
+                f" {p['schemes'][s]:>9.4g} ±{se:<7.2g}"
+                if u["identified"][i]
+                else f" {'n/i ±' + format(se, '.2g'):>18s}"
+            )
         lines.append(
             f"{p['name']:8s} {p['nominal']:11.5g}"
-            + "".join(f" {p['schemes'][s]:17.5g}" for s in schemes)
+            + "".join(cells)
             + f"  {p['unit']:8s} {p['meaning']}"
         )
+    not_identified = {
+        s: [p["name"] for p in report["parameters"] if s in p["not_identifiable_in"]]
+        for s in schemes
+    }
+    lines.append(
+        "± blocked-bootstrap standard error; n/i: not identifiable from these data (standard "
+        "error above half the estimate's size; the estimate is in identify.json)"
+    )
+    for s in schemes:
+        if not_identified[s]:
+            lines.append(
+                f"  {SCHEME_TITLES[s]}: {len(not_identified[s])} not identifiable: "
+                + ", ".join(not_identified[s])
+            )
     for s in schemes:
         r = report["schemes"][s]
         pc = r["physical_consistency"]
@@ -932,7 +975,10 @@ def format_urdf_report(report: dict[str, Any]) -> str:
     lines.append(f"held-out torque NRMSE per joint on {v['on']}:")
     for s in schemes:
         nrmse_s = report["schemes"][s]["validation"]["torque_nrmse"]
-        lines.append(f"  {SCHEME_TITLES[s]:17s} " + " ".join(f"{x:6.3f}" for x in nrmse_s))
-    lines.append(f"  {'nominal':17s} " + " ".join(f"{x:6.3f}" for x in v["torque_nrmse_nominal"]))
-    lines.append(f"parameters: {report['params_scheme']} ('identified' in identify.json)")
+        lines.append(f"  {SCHEME_TITLES[s]:17s} " + " ".join(f"{x:7.4f}" for x in nrmse_s))
+    lines.append(f"  {'nominal':17s} " + " ".join(f"{x:7.4f}" for x in v["torque_nrmse_nominal"]))
+    lines.append(
+        f"parameters: {report['params_scheme']} ('estimate' in identify.json; 'identified' is "
+        "null where not identifiable)"
+    )
     return "\n".join(lines)

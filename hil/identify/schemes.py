@@ -22,11 +22,11 @@ from hil.model.estimators import (
     RecursiveLeastSquaresRows,
     ResidualLevel,
     WeightedRefit,
-    blocked_bootstrap,
     bounded_quadratic_fit,
     channel_weights,
     combine,
     solve_normal_equations,
+    standard_errors,
 )
 from hil.model.metrics import NrmseAccumulator
 from hil.model.openloop import simulate_open_loop_chunks
@@ -457,6 +457,14 @@ class ModelIdentification:
         }
 
 
+def bootstrap_block_s(lam: float, duration_s: float) -> float:
+    """Length of the blocked bootstrap's blocks: they must outlast the residual's correlation
+    (the row filter's 1/λ and the slowest excitation) and still leave enough of them to
+    resample."""
+    block_s = max(10.0 / lam, 0.5)
+    return min(block_s, max(duration_s / 10.0, 10.0 / lam))
+
+
 def mass_matrix_constraints(model: ArmModel, scale: float) -> list[dict[str, Any]]:
     """c(θ) ≥ 0 constraints (scipy form) for M(q) ≻ 0 at every q2, the closed form of
     :meth:`ArmModel.physical_consistency` with a margin of 1e-6·``scale`` (kg m²)."""
@@ -510,10 +518,7 @@ def identify_model(
         notes.append(f"lambda = {lam:.3g} rad/s from the data (twice its excitation bandwidth)")
     duration = float(t[-1] - t[0])
     if block_s is None:
-        # blocks must outlast the residual's correlation (the filter's 1/λ and the slowest
-        # excitation) and still leave enough of them to resample
-        block_s = max(10.0 / lam, 0.5)
-        block_s = min(block_s, max(duration / 10.0, 10.0 / lam))
+        block_s = bootstrap_block_s(lam, duration)
     ne = BlockNormalEquations(model.n_params, 2 if scheme == "filtered_dynamic" else 1, block_s)
     rows = excluded = 0
     for c in iter_rows(scheme, q, tau, t, lam, model, chunk=chunk):
@@ -549,19 +554,8 @@ def identify_model(
             "the bounded fit is still not physical: " + "; ".join(consistency["violations"])
         )
     # uncertainty: white-residual covariance (weights are 1/σ²) and blocked bootstrap
-    dof = max(int(n.sum()) - model.n_params, 1)
-    rss_w = float(yyw.sum() - 2 * theta_ls @ g_tot + theta_ls @ H_tot @ theta_ls)
-    s2 = rss_w / dof  # ≈ 1 when the channel weights are right
-    try:
-        cov = s2 * np.linalg.pinv(H_tot)
-        se_white = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    except np.linalg.LinAlgError:
-        se_white = np.full(model.n_params, np.inf)
-    if len(H) >= 5:
-        boot = blocked_bootstrap(Hw, gw, draws=BOOTSTRAP_DRAWS)
-        se_block = boot.std(axis=0, ddof=1)
-    else:
-        se_block = np.full(model.n_params, np.inf)
+    se_white, se_block = standard_errors(Hw, gw, yyw, int(n.sum()), theta_ls, draws=BOOTSTRAP_DRAWS)
+    if len(H) < 5:
         notes.append(f"only {len(H)} blocks of {block_s:.3g} s: no bootstrap uncertainty")
     d = np.sqrt(np.diag(H_tot))
     d[d == 0] = 1.0

@@ -24,7 +24,9 @@ squares (:class:`hil.model.estimators.LeastSquaresRows`).
 The Panda log layout (``rbt_log/exciting_traj_{time,positions,torques}.txt``: one number a
 line, 7 joints of a sample on 7 consecutive lines) is read by :func:`read_one_per_line_log`
 into the standard recording (:class:`drivers.recording.Recording`, the one every analysis
-reads). Imports drivers.recording, hil.model.estimators, hil.model.metrics,
+reads). Per-parameter uncertainty and "not identifiable" (:class:`Uncertainty`) follow the 2-DOF
+path's rule (:mod:`hil.identify.schemes`). Imports drivers.recording, hil.identify.schemes (its
+identifiability constants and bootstrap block rule), hil.model.estimators, hil.model.metrics,
 hil.model.regressors and hil.model.urdf; no plotting.
 """
 
@@ -38,9 +40,18 @@ from scipy.interpolate import CubicSpline
 from scipy.signal import butter, sosfiltfilt
 
 from drivers.recording import Recording
-from hil.model.estimators import LeastSquaresRows, weighted_least_squares
+from hil.identify.schemes import BOOTSTRAP_DRAWS, IDENTIFIED_MAX_RELATIVE_SE, bootstrap_block_s
+from hil.model.estimators import (
+    BlockNormalEquations,
+    LeastSquaresRows,
+    channel_weights,
+    combine,
+    solve_normal_equations,
+    standard_errors,
+    weighted_least_squares,
+)
 from hil.model.metrics import nrmse
-from hil.model.regressors import data_bandwidth, excitation_bandwidth, iter_rows
+from hil.model.regressors import data_bandwidth, excitation_bandwidth, iter_rows, quantized_stick
 from hil.model.urdf import UrdfArmModel
 
 # Smoothing of positions before differentiation, and of both sides of the regression.
@@ -50,6 +61,13 @@ DEFAULT_DECIMATE = 10
 REGULARIZATION = 1e-4
 # Rows dropped at each end: the zero-phase filters' start-up transients.
 EDGE_S = 0.5
+# A joint's torque rows are left out within this many periods of the smoothing cutoff of a
+# friction step (a stick or a reversal, friction_step_samples).
+FRICTION_STEP_MARGIN_PERIODS = 1.0
+# ... when the first fit's residual there is this many times its residual elsewhere
+# (leave_out_friction_steps), and at least this share of the joint's rows is away from steps.
+STEP_RESIDUAL_RATIO = 2.0
+MIN_ROWS_AWAY_FROM_STEPS = 0.05
 
 
 def torque_at_samples(rec: Recording) -> np.ndarray:
@@ -119,6 +137,8 @@ class Motion:
     ddq: np.ndarray
     tau: np.ndarray
     cutoff_hz: float
+    # (N, n): a friction step of the joint near this sample (friction_step_samples)
+    near_step: np.ndarray | None = None
 
 
 def _lowpass(x: np.ndarray, cutoff_hz: float, period_s: float) -> np.ndarray:
@@ -143,7 +163,54 @@ def smoothed_motion(rec: Recording, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -> 
     keep = (t >= t[0] + EDGE_S) & (t <= t[-1] - EDGE_S)
     tk = t[keep]
     tau = torque_at_samples(rec)[keep]
-    return Motion(tk, smooth(tk), smooth(tk, 1), smooth(tk, 2), tau, cutoff_hz)
+    near_step = friction_step_samples(
+        t, stuck_samples(rec), smooth(t, 1), FRICTION_STEP_MARGIN_PERIODS / cutoff_hz
+    )[keep]
+    return Motion(tk, smooth(tk), smooth(tk, 1), smooth(tk, 2), tau, cutoff_hz, near_step)
+
+
+def friction_step_samples(
+    t: np.ndarray, stuck: np.ndarray, dq: np.ndarray, margin_s: float
+) -> np.ndarray:
+    """(N, n): sample k lies within ``margin_s`` of a friction step of joint j — a sample where
+    it sticks (``stuck``) or a sign change of its smoothed velocity ``dq`` (a reversal).
+    Coulomb friction steps by 2 f_c there, so the true acceleration steps, and the zero-phase
+    low-pass of :func:`smoothed_motion` spreads that step over about one period of its cutoff
+    either side: the smoothed q̈ and sgn q̇ are wrong there by as much as the step (on the
+    ur5e's wrist, 0.4 Nm of Coulomb friction on 0.0054 kg m²: 150 rad/s² per reversal; with
+    the true parameters the rows near reversals left joint 4's and 5's torques 2.0 % and 2.5 %
+    unexplained, without them 0.2 %: docs/urdf.md). Gautier's parallel filtering assumes a
+    motion smooth within the filter's band; these rows are where it is not."""
+    events = stuck.copy()
+    sign = np.sign(dq)
+    events[1:] |= (sign[1:] * sign[:-1]) < 0
+    out = np.zeros_like(events)
+    for j in range(events.shape[1]):
+        te = t[events[:, j]]
+        if te.size == 0:
+            continue
+        i = np.searchsorted(te, t)
+        before = np.abs(t - te[np.clip(i - 1, 0, te.size - 1)])
+        after = np.abs(te[np.clip(i, 0, te.size - 1)] - t)
+        out[:, j] = np.minimum(before, after) <= margin_s
+    return out
+
+
+def stuck_samples(rec: Recording) -> np.ndarray:
+    """(N, n): sample k touches an interval in which joint j sticks
+    (:func:`hil.model.regressors.quantized_stick`, the 2-DOF path's rule, which tells a stuck
+    joint from an encoder count held through a reversal). While a joint sticks, its friction is
+    the static constraint torque, anywhere in the band [f_o − f_c, f_o + f_c], which the model's
+    f_c sgn q̇ cannot give; and the smoothed acceleration cannot follow the step at the stick's
+    start and end. Its torque equation there is left out (:func:`friction_step_samples`), as
+    the 2-DOF filtered dynamic rows leave such intervals out (:mod:`hil.model.regressors`)."""
+    out = np.zeros(rec.q.shape, dtype=bool)
+    if len(rec.t) < 2:
+        return out
+    interval = quantized_stick(rec.q, rec.t)
+    out[:-1] |= interval
+    out[1:] |= interval
+    return out
 
 
 def smoothing_cutoff_hz(rec: Recording) -> float:
@@ -166,11 +233,26 @@ def smoothing_cutoff_hz(rec: Recording) -> float:
 @dataclass(frozen=True)
 class FilteredRows:
     """Rows y = Ψ θ after parallel filtering and decimation: ``t`` (K,), ``tau`` (K, n),
-    ``Y`` (K, n, p)."""
+    ``Y`` (K, n, p); ``near_step`` (K, n): the block holds a sample near a friction step of
+    that joint (:func:`friction_step_samples`); ``weights`` (K, n): 0 where the joint's
+    equation is left out (:meth:`leaving_out`), else 1."""
 
     t: np.ndarray
     tau: np.ndarray
     Y: np.ndarray
+    near_step: np.ndarray
+    weights: np.ndarray
+
+    def select(self, keep: np.ndarray) -> FilteredRows:
+        """The rows where ``keep`` (K,) is true."""
+        return FilteredRows(
+            self.t[keep], self.tau[keep], self.Y[keep], self.near_step[keep], self.weights[keep]
+        )
+
+    def leaving_out(self, joints: np.ndarray) -> FilteredRows:
+        """These rows with weight 0 on the equations of ``joints`` (n,) near friction steps."""
+        weights = np.where(self.near_step & np.asarray(joints, dtype=bool), 0.0, 1.0)
+        return FilteredRows(self.t, self.tau, self.Y, self.near_step, weights)
 
 
 def filtered_rows(
@@ -185,7 +267,54 @@ def filtered_rows(
     both = np.concatenate([motion.tau[: K * decimate], Y[: K * decimate].reshape(-1, n * p)], 1)
     both = both.reshape(K, decimate, -1).mean(axis=1)
     t = motion.t[: K * decimate].reshape(K, decimate).mean(axis=1)
-    return FilteredRows(t, both[:, :n], both[:, n:].reshape(K, n, p))
+    near = np.zeros((K, n), dtype=bool)
+    if motion.near_step is not None:
+        near = motion.near_step[: K * decimate].reshape(K, decimate, n).any(axis=1)
+    return FilteredRows(t, both[:, :n], both[:, n:].reshape(K, n, p), near, np.ones((K, n)))
+
+
+# A parameter whose blocked-bootstrap standard error exceeds IDENTIFIED_MAX_RELATIVE_SE of its
+# magnitude is not determined by the data: reported with its uncertainty, not as a number
+# (issue 12's rule, the 2-DOF path's, hil.identify.schemes).
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    """Per base parameter: ``se_white`` (σ² (ΨᵀWΨ)⁻¹, white residuals), ``se_block`` (blocked
+    bootstrap over ``blocks`` blocks of ``block_s``; the residuals of smoothed or filtered
+    rows are correlated), and ``identified``: se_block < IDENTIFIED_MAX_RELATIVE_SE · |θ|."""
+
+    se_white: np.ndarray
+    se_block: np.ndarray
+    identified: np.ndarray
+    block_s: float
+    blocks: int
+
+    def as_json(self) -> dict:
+        return {
+            "se_white": self.se_white.tolist(),
+            "se_blocked_bootstrap": self.se_block.tolist(),
+            "identified": self.identified.tolist(),
+            "rule": f"identified when the blocked-bootstrap SE < {IDENTIFIED_MAX_RELATIVE_SE:.0%}"
+            " of |value|",
+            "block_s": self.block_s,
+            "blocks": self.blocks,
+        }
+
+
+def parameter_uncertainty(
+    blocks: BlockNormalEquations, theta: np.ndarray, *, weighted: bool = True
+) -> Uncertainty:
+    """:class:`Uncertainty` of the least-squares ``theta`` from rows summed per time block
+    (:class:`hil.model.estimators.BlockNormalEquations`); ``weighted``: each output channel
+    weighted by 1/σ² of its residuals, as the weighted least squares was."""
+    H, g, yy, n = blocks.arrays()
+    w = channel_weights(H, g, yy, n, theta) if weighted else np.ones(H.shape[1])
+    Hw, gw, yyw = combine(H, g, yy, w)
+    theta_w = solve_normal_equations(Hw.sum(0), gw.sum(0))
+    se_white, se_block = standard_errors(Hw, gw, yyw, int(n.sum()), theta_w, draws=BOOTSTRAP_DRAWS)
+    identified = se_block < IDENTIFIED_MAX_RELATIVE_SE * np.abs(theta)
+    return Uncertainty(se_white, se_block, identified, blocks.block_s, len(H))
 
 
 @dataclass(frozen=True)
@@ -197,6 +326,11 @@ class TorqueIdentification:
     nrmse_held_out: np.ndarray  # (n,)
     theta_standard: np.ndarray | None = None  # the consistent fit's standard parameters
     method: str = "weighted least squares"
+    uncertainty: Uncertainty | None = None  # of the least-squares fit
+    # (n,): joints whose rows near friction steps were left out (leave_out_friction_steps)
+    left_out_joints: np.ndarray | None = None
+    # (n,): RMS residual of the first fit near friction steps over that away from them
+    step_residual_ratio: np.ndarray | None = None
 
 
 def fit_split(rec: Recording, held_out: float) -> float:
@@ -226,8 +360,15 @@ def regression_rows(
 
 
 def torque_nrmse(theta: np.ndarray, rows: FilteredRows) -> np.ndarray:
-    """Per-joint NRMSE of the torque θ predicts on ``rows`` (:func:`hil.model.metrics.nrmse`)."""
-    return nrmse(rows.tau, np.einsum("knp,p->kn", rows.Y, theta))
+    """Per-joint NRMSE of the torque θ predicts on ``rows`` (:func:`hil.model.metrics.nrmse`),
+    each joint on its rows of weight > 0 (not stuck); nan for a joint with fewer than 2."""
+    predicted = np.einsum("knp,p->kn", rows.Y, theta)
+    out = np.full(rows.tau.shape[1], np.nan)
+    for j in range(len(out)):
+        use = rows.weights[:, j] > 0
+        if use.sum() >= 2:
+            out[j] = nrmse(rows.tau[use, j], predicted[use, j])
+    return out
 
 
 def identify_torque(
@@ -255,17 +396,52 @@ def identify_torque(
             f"{model.n_params} parameters"
         )
     theta = weighted_least_squares(rows.Y[fit], rows.tau[fit])
+    left_out, ratio = leave_out_friction_steps(rows.select(fit), theta)
+    if left_out.any():
+        rows = rows.leaving_out(left_out)
+        theta = weighted_least_squares(rows.Y[fit], rows.tau[fit], rows.weights[fit])
+    weights = rows.weights[fit]
+    # the smoothing's cutoff plays the row filter's λ in the 2-DOF path's rule for the blocks
+    block_s = bootstrap_block_s(2 * np.pi * cutoff_hz, float(rec.t[-1] - rec.t[0]))
+    blocks = BlockNormalEquations(model.n_params, model.n_joints, block_s)
+    blocks.add(rows.t[fit], rows.tau[fit], rows.Y[fit], weights)
+    uncertainty = parameter_uncertainty(blocks, theta)
     theta_standard, method = None, "weighted least squares"
     if consistent:
-        theta_standard = consistent_fit(model, rows.Y[fit], rows.tau[fit], theta)
+        theta_standard = consistent_fit(model, rows.Y[fit], rows.tau[fit], theta, weights)
         theta, method = model.base_theta(theta_standard), "physically consistent least squares"
     predicted = np.einsum("knp,p->kn", rows.Y, theta)
     held = (
-        nrmse(rows.tau[held_out_rows], predicted[held_out_rows])
+        torque_nrmse(theta, rows.select(held_out_rows))
         if held_out > 0
         else np.full(model.n_joints, np.nan)
     )
-    return TorqueIdentification(theta, split, rows, predicted, held, theta_standard, method)
+    return TorqueIdentification(
+        theta, split, rows, predicted, held, theta_standard, method, uncertainty, left_out, ratio
+    )
+
+
+def leave_out_friction_steps(
+    rows: FilteredRows, theta: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which joints' torque equations to leave out near their friction steps, decided by the
+    data: per joint, the RMS residual of ``theta`` (a fit on every row) on its rows near a
+    friction step over that on the rest. Above :data:`STEP_RESIDUAL_RATIO` the smoothed motion
+    does not follow the steps there (:func:`friction_step_samples`), and those rows are left
+    out; where the residual is no larger near the steps (the Panda of Gaz et al., whose
+    measured torques show no sharp Coulomb step, docs/urdf.md) every row stays. A joint keeps
+    its rows when fewer than :data:`MIN_ROWS_AWAY_FROM_STEPS` of them are away from steps.
+    Returns (left out (n,) bool, the ratio (n,), nan where not measured)."""
+    residual = rows.tau - np.einsum("knp,p->kn", rows.Y, theta)
+    n = rows.tau.shape[1]
+    ratio = np.full(n, np.nan)
+    for j in range(n):
+        near = rows.near_step[:, j]
+        if near.any() and (~near).mean() >= MIN_ROWS_AWAY_FROM_STEPS:
+            away = np.mean(residual[~near, j] ** 2)
+            if away > 0:  # an exact fit (noise-free data) has nothing to compare
+                ratio[j] = np.sqrt(np.mean(residual[near, j] ** 2) / away)
+    return np.nan_to_num(ratio) > STEP_RESIDUAL_RATIO, ratio
 
 
 # --- the energy schemes: supplied energy and filtered power ---------------------------------------
@@ -290,6 +466,7 @@ class EnergyIdentification:
     lam: float  # rad/s, the filtered-power row filter's bandwidth (and the velocity window's)
     rows: int  # rows fitted
     fit_until_s: float
+    uncertainty: Uncertainty | None = None
 
 
 def identify_energy(
@@ -320,6 +497,9 @@ def identify_energy(
     lam = data_bandwidth(rec.q, rec.t) if lam is None else float(lam)
     split = fit_split(rec, held_out)
     ls = LeastSquaresRows(model.n_params)
+    blocks = BlockNormalEquations(
+        model.n_params, 1, bootstrap_block_s(lam, float(rec.t[-1] - rec.t[0]))
+    )
     rows = 0
     tau = torque_over_intervals(rec)
     for c in iter_rows(scheme, rec.q, tau, rec.t, lam, model, half_window=half_window):
@@ -329,12 +509,15 @@ def identify_energy(
             # dropped for a stuck joint, hil.model.regressors)
             y, Psi = _block_mean(c.y[fit], decimate), _block_mean(c.Psi[fit], decimate)
             ls.add(Psi, y)
+            blocks.add(_block_mean(c.t[fit], decimate), y, Psi, np.ones(y.shape))
             rows += len(y)
     if rows < 2 * model.n_params:
         raise ValueError(
             f"{rec.path}: {rows} {scheme} rows to fit, too few for {model.n_params} parameters"
         )
-    return EnergyIdentification(scheme, ls.solve(), lam, rows, float(split))
+    theta = ls.solve()
+    uncertainty = parameter_uncertainty(blocks, theta, weighted=False)
+    return EnergyIdentification(scheme, theta, lam, rows, float(split), uncertainty)
 
 
 def _block_mean(x: np.ndarray, size: int) -> np.ndarray:
@@ -380,7 +563,11 @@ def _cholesky_from_pi(pi: np.ndarray) -> np.ndarray:
 
 
 def consistent_fit(
-    model: UrdfArmModel, Y: np.ndarray, tau: np.ndarray, theta_ls: np.ndarray
+    model: UrdfArmModel,
+    Y: np.ndarray,
+    tau: np.ndarray,
+    theta_ls: np.ndarray,
+    weights: np.ndarray | None = None,
 ) -> np.ndarray:
     """Standard parameters minimizing the same weighted torque error as the least squares,
     constrained to physical consistency: every body's pseudo-inertia positive definite (by the
@@ -390,10 +577,15 @@ def consistent_fit(
     from scipy.optimize import least_squares as nonlinear_least_squares
 
     K, n, p = Y.shape
-    sigma = np.std(tau - np.einsum("knp,p->kn", Y, theta_ls), axis=0)  # per-joint noise level
+    sw = np.ones((K, n)) if weights is None else np.sqrt(weights)  # 0: a stuck joint's row
+    residual = tau - np.einsum("knp,p->kn", Y, theta_ls)
+    sigma = np.zeros(n)  # per-joint noise level, on the rows used
+    for j in range(n):
+        if np.any(sw[:, j] > 0):
+            sigma[j] = np.std(residual[sw[:, j] > 0, j])
     sigma[sigma == 0] = 1.0
-    A = (Y / sigma[None, :, None]).reshape(K * n, p) @ model.base.expand
-    b = (tau / sigma).reshape(K * n)
+    A = (Y * (sw / sigma)[:, :, None]).reshape(K * n, p) @ model.base.expand
+    b = (tau * sw / sigma).reshape(K * n)
     Q, R = np.linalg.qr(A)  # ‖A π − b‖² = ‖R π − Qᵀ b‖² + const
     c = Q.T @ b
     nb, n_pos = model.n_body_params // 10, model.n_rigid_standard - model.n_body_params + 2 * n
@@ -445,13 +637,18 @@ def consistent_fit(
 
 __all__ = [
     "ENERGY_SCHEMES",
+    "IDENTIFIED_MAX_RELATIVE_SE",
     "EnergyIdentification",
     "TorqueIdentification",
+    "Uncertainty",
     "fit_split",
+    "friction_step_samples",
     "identify_energy",
     "identify_torque",
+    "leave_out_friction_steps",
     "read_one_per_line_log",
     "regression_rows",
+    "stuck_samples",
     "torque_at_samples",
     "torque_nrmse",
     "torque_over_intervals",

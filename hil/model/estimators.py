@@ -512,6 +512,38 @@ def blocked_bootstrap(
     return out
 
 
+def standard_errors(
+    Hw: np.ndarray,
+    gw: np.ndarray,
+    yyw: np.ndarray,
+    rows: int,
+    theta: np.ndarray,
+    *,
+    draws: int = 200,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Standard errors of the least-squares θ of per-block weighted normal equations
+    (Hw (B, p, p), gw (B, p), yyw (B,), :func:`combine`; ``rows`` (row, channel) pairs in all):
+    ``se_white``, σ² (Σ Hw)⁻¹ with σ² the weighted residual variance (the rows' covariance if
+    the residuals were white), and ``se_block``, the spread of :func:`blocked_bootstrap`'s θ
+    (rows within a block stay together, so residual correlation shorter than a block is kept;
+    inf with fewer than 5 blocks)."""
+    p = Hw.shape[-1]
+    H_tot, g_tot = Hw.sum(0), gw.sum(0)
+    dof = max(int(rows) - p, 1)
+    rss_w = float(yyw.sum() - 2 * theta @ g_tot + theta @ H_tot @ theta)
+    s2 = rss_w / dof  # ≈ 1 when the channel weights are right
+    try:
+        cov = s2 * np.linalg.pinv(H_tot)
+        se_white = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    except np.linalg.LinAlgError:
+        se_white = np.full(p, np.inf)
+    if len(Hw) >= 5:
+        se_block = blocked_bootstrap(Hw, gw, draws=draws).std(axis=0, ddof=1)
+    else:
+        se_block = np.full(p, np.inf)
+    return se_white, se_block
+
+
 __all__ = [
     "LeastSquaresRows",
     "RecursiveLeastSquares",
@@ -522,5 +554,6 @@ __all__ = [
     "bounded_quadratic_fit",
     "least_squares",
     "recursive_least_squares",
+    "standard_errors",
     "weighted_least_squares",
 ]

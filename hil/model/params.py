@@ -205,7 +205,9 @@ def load_base_params(path: str | Path, model: Any) -> ParamSet:
                 raise ParamsError(
                     f"{where}: {e['name']} is {e['meaning']!r} there, {meaning!r} for this arm"
                 )
-        theta = [e.get("identified") for e in entries]
+        # "estimate": every parameter's number; "identified" is None where the data did not
+        # determine it (hil identify of a URDF arm), and the only number in older files
+        theta = [e["estimate"] if "estimate" in e else e.get("identified") for e in entries]
         doc = {**doc, "theta": theta}
     wanted = len(names)
     theta = doc.get("theta")
