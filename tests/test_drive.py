@@ -143,6 +143,29 @@ def test_halt_bit_zeroes_torque() -> None:
     assert d.torque_Nm == pytest.approx(100.0)
 
 
+def test_halt_target_reached_means_the_axis_has_stopped() -> None:
+    """CiA 402 statusword bit 10 with halt (controlword bit 8) set: 0 while the axis
+    decelerates, 1 once its velocity is 0; the torque is 0 throughout."""
+    d = enabled()
+    rpc = DM1200A.rad_per_count
+    d.write_target_torque(500, 0.0)
+    d.update(0.0, 0.0, 0.0)
+    assert d.statusword & 0x0400  # not halted: the torque target is applied
+    d.write_controlword(0x010F, 0.0)
+    for k, counts in enumerate((3, 5, 6), start=1):  # halted, still coasting
+        d.update(k * DT, (counts + 0.5) * rpc, 1.0)
+        assert d.velocity_counts_s != 0
+        assert d.torque_Nm == 0.0
+        assert d.statusword == 0x0237, k  # enabled, bit 10 clear
+    d.update(4 * DT, 6.5 * rpc, 0.0)  # no count in the last period: stopped
+    assert d.velocity_counts_s == 0
+    assert d.statusword == 0x0637
+    d.update(5 * DT, 7.5 * rpc, 1.0)  # pushed again: moving, not reached
+    assert not d.statusword & 0x0400
+    d.write_controlword(0x000F, 5 * DT)  # halt released: bit 10 follows the torque target
+    assert d.statusword & 0x0400
+
+
 # ----------------------------------------------------------------- torque
 
 
