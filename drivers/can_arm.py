@@ -73,6 +73,7 @@ from drivers.protocol import cia402 as co
 from drivers.units import (
     counts_to_rad,
     permille_to_torque,
+    position_to_rad,
     torque_to_permille,
     unwrap_int32,
 )
@@ -1057,7 +1058,7 @@ class CanArm(Arm):
             velocity, _torque = fb2[j]
             counts = raw if not self._started else unwrap_int32(self._counts[j], raw)
             self._counts[j] = counts
-            q.append(counts_to_rad(counts, self._cpr[j]))
+            q.append(position_to_rad(counts, self._cpr[j]))
             dq.append(counts_to_rad(velocity, self._cpr[j]))
             status.append(sw)
         self._started = True

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from drivers.recording import RecordingWriter, plot_positions, read_signals
-from drivers.units import counts_to_rad, torque_to_permille, unwrap_int32
+from drivers.units import position_to_rad, torque_to_permille, unwrap_int32
 from profiles.drive import DriveProfile
 from virtual_robot.drive import MODE_CST, DriveModel, State
 from virtual_robot.stepping import Stepper
@@ -125,7 +125,7 @@ def record_open_loop(
         tau, status = [], []
         for i, (d, cpr, rated, model) in enumerate(joints):
             counts[i] = unwrap_int32(counts[i], d.position_counts)
-            q.append(counts_to_rad(counts[i], cpr))
+            q.append(position_to_rad(counts[i], cpr))
             d.write_target_torque(torque_to_permille(commanded[i], rated), t)
             tau.append(d.torque_Nm)  # quantized, clamped, zero unless enabled: held over [t, t+h)
             if d.state is not enabled:
