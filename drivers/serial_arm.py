@@ -44,7 +44,7 @@ from drivers.protocol.cia402 import (
     State,
     state_from_statusword,
 )
-from drivers.units import counts_to_rad, permille_to_torque, torque_to_permille, unwrap_int32
+from drivers.units import permille_to_torque, position_to_rad, torque_to_permille, unwrap_int32
 from profiles.drive import DriveProfile
 
 LOG_FLUSH_LINES = 100
@@ -269,7 +269,7 @@ class SerialArm(Arm):
 
     def _q(self) -> tuple[float, ...]:
         return tuple(
-            counts_to_rad(c, d.counts_per_rev)
+            position_to_rad(c, d.counts_per_rev)
             for c, d in zip(self._counts, self.drives, strict=True)
         )
 

@@ -27,7 +27,18 @@ def unwrap_int32(previous_unwrapped: int, raw: int) -> int:
 
 
 def counts_to_rad(counts: int, counts_per_rev: int) -> float:
+    """A number of counts in rad: a velocity (0x606C, counts/s) or a difference of positions."""
     return counts * (2.0 * math.pi / counts_per_rev)
+
+
+def position_to_rad(counts: int, counts_per_rev: int) -> float:
+    """The angle of a position reading 0x6064: the centre of its count's cell.
+
+    An encoder counts edges, so count n means the angle lies in [n, n + 1) counts from its zero
+    (the drive floors, docs/virtual-robot.md "Encoder"). The centre, n + ½ counts, is the
+    reading without bias; n itself would be ½ count low on average.
+    """
+    return (counts + 0.5) * (2.0 * math.pi / counts_per_rev)
 
 
 def torque_to_permille(torque_Nm: float, rated_torque_Nm: float) -> int:

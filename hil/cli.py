@@ -22,9 +22,19 @@ Errors are one line, ``hil <command>: error: ...``. Exit status (docs/interop.md
 
 from __future__ import annotations
 
+import sys
+
+if __name__ == "__main__":
+    # `python -m hil.cli`: the exit signals before this module's imports below (a SIGTERM during
+    # them ends with the one line), then this module imported again, as hil.cli, and run
+    import importlib
+
+    from drivers.process import run_command_line
+
+    sys.exit(run_command_line("hil", lambda: importlib.import_module("hil.cli").main))
+
 import argparse
 import importlib
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -295,9 +305,3 @@ def main(argv: Sequence[str] | None = None) -> int:
         module = COMMANDS[args.command][0]
         return run_command(args.command, lambda a: importlib.import_module(module).main(a), args)
     return EXIT_USAGE
-
-
-if __name__ == "__main__":  # `python -m hil.cli`: the exit signals as the `hil` entry point's
-    from drivers.process import run_command_line
-
-    sys.exit(run_command_line("hil", lambda: main))

@@ -270,6 +270,33 @@ def test_canopen_reads_the_number_of_entries_and_cannot_write_it(rig):
         assert node.sdo[0x1018][0].raw == 3
 
 
+def test_canopen_nmt_reset_communication_restores_the_communication_parameters(rig):
+    """CiA 301: NMT reset communication (0x82) sets the communication profile area (0x1000 to
+    0x1FFF: PDO COB-IDs, transmission types, mappings, 0x1017) back to power-on values and boots
+    the node again; the application (the CiA 402 drive) is left as it was. By the canopen
+    library, as a master sends it."""
+    arm = rig.arm()
+    arm.open()  # PDOs configured
+    arm.enable()
+    node = arm.nodes[0]
+    node.sdo[0x1017].raw = 50  # a producer heartbeat, ms
+    assert not node.sdo[0x1800][1].raw & 0x80000000  # TPDO1 valid
+    assert node.sdo[0x1A00][0].raw > 0
+    node.nmt.send_command(co.NMT_RESET_COMMUNICATION)
+    node.nmt.wait_for_bootup(2.0)
+    power_on = co.power_on_objects(1, 0, 0, 200.0, 1)
+    for index in (0x1400, 0x1800, 0x1801):
+        for sub in (1, 2):
+            assert node.sdo[index][sub].raw == power_on[(index, sub)], (hex(index), sub)
+    for index in (0x1600, 0x1A00, 0x1A01):
+        assert node.sdo[index][0].raw == 0
+        assert node.sdo[index][1].raw == 0
+    assert node.sdo[0x1017].raw == 0
+    assert rig.core.drives[0].state is State.OPERATION_ENABLED  # the application is kept
+    assert rig.server.nmt_state[1] == co.NMT_STATE_PRE_OPERATIONAL
+    assert not arm.nodes[1].sdo[0x1800][1].raw & 0x80000000  # node 2 untouched
+
+
 # ---- state machine, faults ------------------------------------------------------------------
 def test_enable_disable_and_context_manager_exit(rig):
     with rig.arm() as arm:

@@ -178,3 +178,39 @@ def test_run_control_and_compare_schemes_refuse_before_running(tmp_path) -> None
     with pytest.raises(UsageError, match=r"--kp takes 2 finite gains >= 0 \(one per joint\)"):
         compare_schemes("virtual-inprocess", tmp_path / "cmp", kp=[1.0])
     assert not (tmp_path / "one").exists() and not (tmp_path / "cmp").exists()
+
+
+# ---- comma-separated numbers: one parser for both command lines (drivers/options.py) -------
+@pytest.mark.parametrize("text", ["1,x", "1", "1,2,3", "1,", "1,nan", "1,inf", "1,-2", "1,0", ""])
+def test_float_list_refuses_in_one_line(text: str) -> None:
+    from drivers.options import float_list
+
+    with pytest.raises(ValueError) as exc:
+        float_list(text, "--opt", 2, "positive numbers", lambda v: v > 0)
+    assert str(exc.value) == f"--opt takes 2 positive numbers, comma-separated, got {text!r}"
+
+
+def test_float_list_reads_the_numbers() -> None:
+    from drivers.options import float_list
+
+    assert float_list(" 0.5, -1e-3 ,2", "--q", 3, "angles", lambda v: True) == (0.5, -1e-3, 2.0)
+
+
+def test_initial_q_and_position_limit_are_read_by_the_one_parser(capsys) -> None:
+    """`virtual-robot serve --initial-q` and `hil excite --position-limit` refuse bad lists in
+    the one parser's words (drivers.options.float_list; the virtual robot may not import hil)."""
+    from hil import cli
+    from virtual_robot.cli import main as vr_main
+
+    assert vr_main(["serve", "--bench", "virtual-slcan", "--initial-q", "0,x"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith(
+        "--initial-q takes 2 angles in [-2 pi, 2 pi] rad (one per joint), comma-separated, "
+        "got '0,x'"
+    ), err
+    assert cli.main(["excite", "--position-limit", "1,x"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        "hil excite: error: --position-limit takes 2 positive numbers Q1,Q2 in rad, "
+        "comma-separated, got '1,x'"
+    ), err

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from drivers.units import counts_to_rad, torque_to_permille, unwrap_int32
+from drivers.units import position_to_rad, torque_to_permille, unwrap_int32
 from hil.control.controllers import (
     SCHEMES,
     BackwardDifference,
@@ -180,7 +180,7 @@ def track_on_the_plant(
         t = stepper.sync()
         for i, d in enumerate(drives):
             counts[i] = unwrap_int32(counts[i], d.position_counts)
-            q[i] = counts_to_rad(counts[i], drive_profiles[i].counts_per_rev)
+            q[i] = position_to_rad(counts[i], drive_profiles[i].counts_per_rev)
         cmd = controller(t, q, velocity(q), Reference(qd[k], dqd[k], ddqd[k]))
         clipped += cmd.clipped
         for i, d in enumerate(drives):

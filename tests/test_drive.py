@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from drivers.units import counts_to_rad, position_to_rad
 from profiles.drive import load_drive
 from virtual_robot.drive import (
     ABORT_VALUE_RANGE,
@@ -141,6 +143,29 @@ def test_halt_bit_zeroes_torque() -> None:
     assert d.torque_Nm == 0.0
     d.write_controlword(0x000F, 0.0)
     assert d.torque_Nm == pytest.approx(100.0)
+
+
+def test_halt_target_reached_means_the_axis_has_stopped() -> None:
+    """CiA 402 statusword bit 10 with halt (controlword bit 8) set: 0 while the axis
+    decelerates, 1 once its velocity is 0; the torque is 0 throughout."""
+    d = enabled()
+    rpc = DM1200A.rad_per_count
+    d.write_target_torque(500, 0.0)
+    d.update(0.0, 0.0, 0.0)
+    assert d.statusword & 0x0400  # not halted: the torque target is applied
+    d.write_controlword(0x010F, 0.0)
+    for k, counts in enumerate((3, 5, 6), start=1):  # halted, still coasting
+        d.update(k * DT, (counts + 0.5) * rpc, 1.0)
+        assert d.velocity_counts_s != 0
+        assert d.torque_Nm == 0.0
+        assert d.statusword == 0x0237, k  # enabled, bit 10 clear
+    d.update(4 * DT, 6.5 * rpc, 0.0)  # no count in the last period: stopped
+    assert d.velocity_counts_s == 0
+    assert d.statusword == 0x0637
+    d.update(5 * DT, 7.5 * rpc, 1.0)  # pushed again: moving, not reached
+    assert not d.statusword & 0x0400
+    d.write_controlword(0x000F, 5 * DT)  # halt released: bit 10 follows the torque target
+    assert d.statusword & 0x0400
 
 
 # ----------------------------------------------------------------- torque
@@ -349,6 +374,29 @@ def test_encoder_counts(profile) -> None:
     d.update(1.0, 0.5 * profile.rad_per_count, 0.0)  # now <= t_prev: velocity 0
     assert d.position_counts == 0
     assert d.velocity_counts_s == 0
+
+
+@pytest.mark.parametrize("profile", [DM1200A, DM1015B])
+def test_encoder_floors_and_the_host_reads_the_centre_of_the_count(profile) -> None:
+    """The convention, both ends: the drive's count is the floor (an encoder counts edges), the
+    host's angle of a count is the centre of its cell (drivers.units.position_to_rad). Over
+    angles spread across many cells the reading is without bias and within ½ count; the lower
+    edge of the cell (counts · 2π/cpr) would be ½ count low on average."""
+    rpc = profile.rad_per_count
+    d = DriveModel(profile)
+    angles = np.linspace(-3.1, 3.1, 20_001)  # not commensurate with a count: every phase
+    read, edge = [], []
+    for k, angle in enumerate(angles):
+        d.update(k * DT, float(angle), 0.0)
+        read.append(position_to_rad(d.position_counts, profile.counts_per_rev))
+        edge.append(counts_to_rad(d.position_counts, profile.counts_per_rev))
+        assert d.position_counts == math.floor(angle / rpc)
+    error = (np.array(read) - angles) / rpc  # in counts
+    assert np.all(np.abs(error) <= 0.5 + 1e-6)
+    assert abs(error.mean()) < 0.01
+    assert (np.array(edge) - angles).mean() / rpc == pytest.approx(-0.5, abs=0.01)
+    assert position_to_rad(0, profile.counts_per_rev) == 0.5 * rpc
+    assert position_to_rad(-1, profile.counts_per_rev) == -0.5 * rpc  # symmetric about 0
 
 
 def test_encoder_counts_full_turn() -> None:

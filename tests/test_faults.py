@@ -177,6 +177,40 @@ def test_sigterm_and_sighup_stop_the_host_like_ctrl_c(
     assert _gone(robot, timeout=1.0)  # stopped and reaped by the host: no zombie
 
 
+# `python -m hil.cli` as runpy runs it, with SIGTERM sent to itself while hil.cli's own imports
+# run (hil.cli_options is one of them): the signal lands in the middle of the import.
+_SIGTERM_DURING_IMPORT = """
+import os, runpy, signal, sys
+
+class SigtermOnImport:
+    def find_spec(self, name, path=None, target=None):
+        if name == "hil.cli_options":
+            os.kill(os.getpid(), signal.SIGTERM)
+        return None
+
+sys.meta_path.insert(0, SigtermOnImport())
+sys.argv = ["hil", "run", "--bench", "virtual-slcan", "--out", sys.argv[1]]
+runpy.run_module("hil.cli", run_name="__main__", alter_sys=True)
+"""
+
+
+def test_python_m_hil_cli_sigterm_during_its_imports_is_one_line(tmp_path: Path) -> None:
+    """``python -m hil.cli`` installs the exit signals before it imports the command line:
+    a SIGTERM during those imports ends with the one line, 143, no traceback, nothing run."""
+    out = tmp_path / "run"
+    proc = subprocess.run(
+        [sys.executable, "-c", _SIGTERM_DURING_IMPORT, str(out)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+    )
+    assert proc.returncode == 128 + signal.SIGTERM, (proc.returncode, proc.stderr)
+    assert "Traceback" not in proc.stderr, proc.stderr
+    assert proc.stderr.strip() == "hil: stopped by SIGTERM; nothing was running yet", proc.stderr
+    assert not out.exists()
+
+
 def test_ctrl_c_at_any_moment_is_one_line(tmp_path: Path) -> None:
     """Ctrl-C during imports, the robot's launch or the run: one line, no traceback, no robot
     left behind, and meta.json (if written) does not claim to be running."""

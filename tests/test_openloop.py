@@ -69,12 +69,13 @@ def test_host_model_reproduces_the_world_recording(tmp_path_factory, theta, effe
     rec = world_recording(tmp_path_factory, effects)
     sim = simulate_open_loop(theta, rec.tau, H, **levels)
     assert sim.q.shape == rec.q.shape == (round(SECONDS / H), 2)
-    # The recording is an encoder reading, floor(q / count) counts: the simulation must sit in
-    # [0, 1 count) above it. Measured: max Δq = 6.13e-6, 9.58e-6 rad, i.e. just under one count
-    # (6.14e-6, 9.59e-6 rad), over 3 s and over 10 s alike; the model itself is ~1e-12 rad off
-    # (next test).
+    # The recording is an encoder reading, floor(q / count) counts, read at the centre of its
+    # count (drivers.units.position_to_rad): the simulation must sit within ½ count of it.
+    # Measured: max |Δq| = 3.07e-6, 4.79e-6 rad, i.e. ½ count (at t = 0, q = 0 is an edge), over
+    # 3 s and over 10 s alike; the model itself is ~1e-12 rad off (next test).
     delta = sim.q - rec.q
-    assert np.all(delta >= -1e-9) and np.all(delta < COUNT + 1e-9), np.abs(delta).max(axis=0)
+    assert np.all(np.abs(delta) <= COUNT / 2 + 1e-9), np.abs(delta).max(axis=0)
+    assert abs(delta.mean()) < 0.1 * COUNT.min()  # without bias
     assert np.all(nrmse(rec.q, sim.q) < 1e-4)
     assert np.ptp(rec.q, axis=0).min() > 0.2  # the arm moved: the check is not vacuous
     assert sim.stick_events.sum() > 20  # and it stuck and broke away often (stick-slip exercised)
@@ -378,7 +379,8 @@ def measured_world(effects: EffectsProfile, tau: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("name", sorted(EXTRAS_CASES))
 def test_extras_reproduce_the_world_recording(tmp_path, theta, name):
     """Through the drives and encoders (virtual_robot.simulate): the recorded q are floored
-    encoder readings, so the host's q sit in [0, 1 count) above them, as in the plain case."""
+    encoder readings read at the centre of the count, so the host's q sit within ½ count of
+    them, as in the plain case."""
     effects, extras = EXTRAS_CASES[name]
     simulate(
         load_robot("cicese"),
@@ -392,7 +394,7 @@ def test_extras_reproduce_the_world_recording(tmp_path, theta, name):
     q0 = extras.angle_offset_rad  # the arm starts at q = 0: its reading is the offset
     sim = simulate_open_loop(theta, rec.tau, H, q0=q0, extras=extras, **levels_of(effects))
     delta = sim.q - rec.q
-    assert np.all(delta >= -1e-9) and np.all(delta < COUNT + 1e-9), np.abs(delta).max(axis=0)
+    assert np.all(np.abs(delta) <= COUNT / 2 + 1e-9), np.abs(delta).max(axis=0)
     # not vacuous: the model without the extra misses the recording by far more than a count
     plain = simulate_open_loop(theta, rec.tau, H, **levels_of(effects))
     assert np.abs(plain.q - rec.q).max() > 20 * COUNT.max(), name

@@ -62,11 +62,12 @@ def test_cli_simulate_writes_the_recording(tmp_path):
     steps = np.array([200.0 / 1000, 15.0 / 1000])
     assert np.all(np.abs(rec.tau - ideal) <= steps / 2 + 1e-12)
     assert np.allclose(rec.tau / steps, np.round(rec.tau / steps), atol=1e-9)
-    # q is an encoder reading: whole counts of 1,024,000 and 655,360 per rev
-    counts = rec.q / (2 * math.pi / np.array([1_024_000, 655_360]))
+    # q is an encoder reading: whole counts of 1,024,000 and 655,360 per rev, read at the centre
+    # of the count (drivers.units.position_to_rad)
+    counts = rec.q / (2 * math.pi / np.array([1_024_000, 655_360])) - 0.5
     assert np.allclose(counts, np.round(counts), atol=1e-6)
-    # from rest at q = 0, and the arm actually moves
-    assert tuple(rec.q[0]) == (0.0, 0.0)
+    # from rest at q = 0 (count 0, read as ½ count), and the arm actually moves
+    assert tuple(rec.q[0]) == (math.pi / 1_024_000, math.pi / 655_360)
     assert np.ptp(rec.q[:, 0]) > 0.2 and np.ptp(rec.q[:, 1]) > 0.2
     # statusword: operation enabled (x01x 0111) all along
     assert np.all((rec.columns["status1"].astype(int) & 0x6F) == 0x27)

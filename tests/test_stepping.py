@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from drivers.recording import read_signals
-from drivers.units import counts_to_rad, torque_to_permille
+from drivers.units import position_to_rad, torque_to_permille
 from profiles.drive import load_drive
 from profiles.experiment import load_experiment
 from profiles.robot import load_robot
@@ -108,7 +108,7 @@ def test_served_lockstep_is_the_offline_simulation(tmp_path: Path) -> None:
         fb = core.sync()
         q.append(
             [
-                counts_to_rad(f.position_counts, d.counts_per_rev)
+                position_to_rad(f.position_counts, d.counts_per_rev)
                 for f, d in zip(fb, drives, strict=True)
             ]
         )

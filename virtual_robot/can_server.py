@@ -10,9 +10,10 @@ Services (CiA 301 predefined connection set, node id n):
   server starts, each node sends its boot-up message 0x700+n ``[0x00]`` and is PRE-OPERATIONAL.
   0x01 start → OPERATIONAL, 0x02 stop → STOPPED, 0x80 → PRE-OPERATIONAL, 0x81 reset node →
   :meth:`VirtualRobot.reset_node` (drive and object dictionary to power-on values, so the PDOs
-  are unconfigured again) + boot-up + PRE-OPERATIONAL, 0x82 reset communication → boot-up +
-  PRE-OPERATIONAL. Deviation from CiA 301: reset communication keeps the communication
-  parameters (PDO COB-IDs, mappings, 0x1017). Malformed NMT frames are ignored and logged.
+  are unconfigured again) + boot-up + PRE-OPERATIONAL, 0x82 reset communication →
+  :meth:`VirtualRobot.reset_communication` (the communication parameters 0x1000-0x1FFF: PDO
+  COB-IDs, transmission types, mappings and 0x1017 to power-on values, the drive kept as it is)
+  + boot-up + PRE-OPERATIONAL, as CiA 301 has it. Malformed NMT frames are ignored and logged.
 * **SDO** server 0x600+n → 0x580+n, expedited transfers only, in PRE-OPERATIONAL and
   OPERATIONAL. Every failure is answered with an abort frame (CiA 301 codes from the codec, from
   :meth:`VirtualRobot.read`/``write``, or 0x06070010 when the data size does not match the
@@ -320,6 +321,8 @@ class CanDriveServer:
             for node in nodes:
                 if cs == co.NMT_RESET_NODE:
                     self.core.reset_node(node)
+                else:
+                    self.core.reset_communication(node)
                 self._boot_up(node)
         else:
             self._log(f"NMT command specifier 0x{cs:02X} unknown, ignored")

@@ -11,6 +11,7 @@ import threading
 from collections.abc import Sequence
 
 from drivers.logsetup import add_verbosity_options, configure, verbosity
+from drivers.options import float_list
 from drivers.process import limit_blas_threads, reader_gone
 from drivers.recording import RecordingError
 from profiles import ProfileError
@@ -180,16 +181,13 @@ def _initial_q(text: str | None, n_joints: int) -> tuple[float, ...] | None:
     separated."""
     if text is None:
         return None
-    try:
-        q = tuple(float(x) for x in text.split(","))
-    except ValueError:
-        raise ValueError(f"--initial-q takes comma-separated angles in rad, got {text!r}") from None
-    if len(q) != n_joints or not all(math.isfinite(x) and abs(x) <= 2 * math.pi for x in q):
-        raise ValueError(
-            f"--initial-q takes {n_joints} angles in [-2 pi, 2 pi] rad (one per joint), "
-            f"got {text!r}"
-        )
-    return q
+    return float_list(
+        text,
+        "--initial-q",
+        n_joints,
+        "angles in [-2 pi, 2 pi] rad (one per joint)",
+        lambda q: abs(q) <= 2 * math.pi,
+    )
 
 
 def cmd_serve(args: argparse.Namespace) -> int:

@@ -392,16 +392,24 @@ class DriveModel:
     @property
     def statusword(self) -> int:
         """0x6041: state pattern + bit 4 voltage enabled, 5 quick stop (1 = not active),
-        9 remote, 10 target reached (enabled, not saturated), 11 internal limit active."""
+        9 remote, 10 target reached, 11 internal limit active.
+
+        Bit 10 in OPERATION ENABLED, as CiA 402 defines it for the profile modes: with halt
+        (controlword bit 8) clear, the torque target is applied (not saturated); with halt set,
+        the axis has stopped, i.e. velocity actual 0x606C is 0 (no count in the last period).
+        """
         state = self._state
         if state is not self._sw_state:  # the state's bits, looked up when it changed
             self._sw_state, self._sw_state_bits = state, _SW_STATE_BITS[state]
         sw = self._sw_state_bits
-        saturated = self.saturated
-        if state is _ENABLED and not saturated:
-            sw |= 0x0400
-        if saturated:
-            sw |= 0x0800
+        if state is _ENABLED:
+            if self._controlword & CW_HALT:  # halted: torque 0, never saturated
+                if self._velocity == 0:
+                    sw |= 0x0400
+            elif abs(self._target) > self._max_torque:  # saturated
+                sw |= 0x0800
+            else:
+                sw |= 0x0400
         return sw
 
     @property

@@ -22,7 +22,7 @@ import numpy as np
 
 from drivers.recording import RecordingWriter, plot_positions, read_signals
 from drivers.units import (
-    counts_to_rad,
+    position_to_rad,
     torque_to_permille,
     torques_to_permille,
     unwrap_int32,
@@ -147,7 +147,7 @@ def record_open_loop(
         tau, status = [], []
         for i, (d, cpr, rated, model) in enumerate(joints):
             counts[i] = unwrap_int32(counts[i], d.position_counts)
-            q.append(counts_to_rad(counts[i], cpr))
+            q.append(position_to_rad(counts[i], cpr))
             d.write_target_torque(torque_to_permille(commanded[i], rated), t)
             tau.append(d.torque_Nm)  # quantized, clamped, zero unless enabled: held over [t, t+h)
             if d.state is not enabled:
@@ -212,7 +212,7 @@ def _held_rows(
     rated = np.array([p.rated_torque_Nm for p in profiles])
     max_speed = np.array([p.max_velocity_rad_s for p in profiles])
     max_position = np.array([_COUNTS_EXACT * d.profile.rad_per_count for d in drives])
-    per_rev = np.array([2.0 * math.pi / p.counts_per_rev for p in profiles])  # counts_to_rad
+    per_rev = np.array([2.0 * math.pi / p.counts_per_rev for p in profiles])  # position_to_rad
     counts = np.array([d.position_counts for d in drives], dtype=np.int64)  # unwrapped so far
     raw = counts.copy()  # the last INT32 readings
     held_last: np.ndarray | None = None  # the torques the drives hold since the last row
@@ -263,7 +263,7 @@ def _held_rows(
                 )
                 steps = wrap_int32(np.diff(raw_block, axis=0, prepend=raw[None, :]))
                 unwrapped = counts + np.cumsum(steps, axis=0)  # unwrap_int32, row after row
-                positions = unwrapped * per_rev
+                positions = (unwrapped + 0.5) * per_rev  # the count's centre
                 for row in zip(
                     times, positions.tolist(), tau[:m].tolist(), status[:m].tolist(), strict=True
                 ):

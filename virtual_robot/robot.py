@@ -368,6 +368,20 @@ class VirtualRobot:
             self.config_version += 1
             self._apply_torques(now)
 
+    def reset_communication(self, node: int) -> None:
+        """NMT reset communication (CiA 301): the communication profile area (0x1000-0x1FFF:
+        PDO COB-IDs, transmission types and mappings, 0x1017) back to power-on values; the
+        drive (the application) is left as it is."""
+        with self.lock:
+            i = self._drive_index(node, None)
+            power_on = self._initial_objects(self.profiles[i])
+            store = self._store[i]
+            for key, value in power_on.items():
+                if 0x1000 <= key[0] <= 0x1FFF:
+                    store[key] = value
+            self._mapping_cache.clear()
+            self.config_version += 1
+
     def disable_all(self) -> None:
         """Safe stop: every drive to SWITCH ON DISABLED, torque zero (e.g. host lost)."""
         with self.lock:

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.options import float_list
 from drivers.recording import Recording, read_signals
 from hil.cli_options import (
     add_bench_option,
@@ -104,15 +105,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _position_limit(text: str) -> tuple[float, float]:
-    try:
-        values = [float(x) for x in text.split(",")]
-    except ValueError:
-        raise ValueError(
-            f"--position-limit must be two numbers Q1,Q2 in rad, got {text!r}"
-        ) from None
-    if len(values) != 2 or not all(math.isfinite(v) and v > 0 for v in values):
-        raise ValueError(f"--position-limit must be two positive numbers Q1,Q2, got {text!r}")
-    return values[0], values[1]
+    q1, q2 = float_list(
+        text, "--position-limit", 2, "positive numbers Q1,Q2 in rad", lambda q: q > 0
+    )
+    return q1, q2
 
 
 def _check_args(args: argparse.Namespace) -> None:

@@ -33,7 +33,7 @@ import can
 from drivers.arm import SafetyLimits
 from drivers.can_arm import CanArm
 from drivers.protocol import cia402 as co
-from drivers.units import counts_to_rad, torque_to_permille
+from drivers.units import counts_to_rad, position_to_rad, torque_to_permille
 from profiles.drive import load_drive
 from profiles.robot import load_robot
 from virtual_robot.can_server import CanDriveServer
@@ -127,7 +127,7 @@ class CanopenCycle:
         q, status = [], []
         for node, c in zip(self.arm.nodes, self.cpr, strict=True):
             status.append(node.tpdo[1][0x6041].raw)
-            q.append(counts_to_rad(node.tpdo[1][0x6064].raw, c))
+            q.append(position_to_rad(node.tpdo[1][0x6064].raw, c))
             counts_to_rad(node.tpdo[2][0x606C].raw, c)
         return q, status
 
