@@ -84,43 +84,40 @@ def test_closed_loop_gain_is_a_finding_with_its_bias_stated(runs):
 
 
 @pytest.mark.slow
-def test_closed_loop_gain_on_joint_1_is_found_at_the_reference_reading(runs):
-    """Joint 1's 5 % gain: with θ free the selection reads 2.85 % and that reading simulates
-    joint 1's held-out motion worse than no gain (0.03 % → 0.31 %), so the gate dropped it and
-    the gain was missed. Judged at the reference reading (θ1..θ5 held at the profile's, against
-    the same free model without the gain) it improves both torque and motion, and is reported
-    at that reading with the θ-free one's bias named; joint 1's asymmetry beside it is read in
-    the same model (7.17 / 8.049 Nm; 7.06 / 7.92 with θ free)."""
+def test_closed_loop_gain_on_joint_1_is_found_with_both_readings(runs):
+    """Joint 1's 5 % gain in closed loop is found, and reported with both readings: θ free
+    (biased toward zero by the feedback) and θ1..θ5 at the reference (≈ 5 %). The θ-free
+    reading is ill-conditioned: it read 2.85 % (and simulated worse than no gain, so only the
+    reference reading was reported) with the cross-validation's ridge relative to the design's
+    mean diagonal, and reads 3.89 % with the same 1e-9 ridge relative to each column's own norm
+    (hil.diagnose.stats); it now improves both held-out torque and simulated motion, so it is
+    the reported reading, as joint 2's is."""
     doc = diagnose([read_signals(runs["gain_j1"])], REFERENCE).document
     gains = [f for f in doc["findings"] if f["effect"] == "torque_gain"]
     assert [f["joint"] for f in gains] == [1], doc["not_findings"]
     est = gains[0]["estimate"]
-    assert est["reading"] == AT_REFERENCE
     assert est[AT_REFERENCE] == pytest.approx(0.05, rel=0.05)
-    assert 0.0 < est["relative"] < 0.8 * est[AT_REFERENCE]  # the θ-free bias, toward zero
-    assert "worsens the simulation" in gains[0]["evidence"]["theta_free_reading"]
-    asym = next(f for f in doc["findings"] if f["effect"] == "coulomb_asymmetry")["estimate"]
-    assert asym["positive_Nm"] == pytest.approx(7.17, rel=0.005)
-    assert asym["negative_Nm"] == pytest.approx(8.049, rel=0.005)
-    assert "+4.99 % (read with the rigid-body parameters" in doc["summary"]
-    assert "with θ free the estimate is +2.85 %, biased toward zero" in doc["summary"]
+    assert 0.0 < est["relative"] < est[AT_REFERENCE]  # the θ-free bias, toward zero
+    assert "with the rigid-body parameters" in doc["summary"]
+    assert "biased toward zero" in doc["summary"]
     after = doc["fit"]["after"]["position_nrmse"]
     assert max(after) < 0.001, after  # the reported model simulates the held-out motion
 
 
 @pytest.mark.slow
-def test_closed_loop_gain_on_joint_1_with_a_wrong_reference_is_not_identifiable(runs):
+def test_closed_loop_gain_on_joint_1_with_a_wrong_reference_shows_in_its_readings(runs):
     """The same run against a reference whose joint-1 rigid-body parameters θ1, θ4 are 3 %
-    off: the reference reading (7.9 %) predicts the held-out torque worse than the free model
-    without a gain, so neither reading holds and the report says so, naming both."""
+    off: the gain is still found (the θ-free reading does not use the reference), and the
+    reference reading beside it is far off (7.9 % against the θ-free 3.85 %), so the report
+    shows the disagreement instead of hiding it."""
     ref = REFERENCE.copy()
     ref[[0, 3]] *= 1.03
     doc = diagnose([read_signals(runs["gain_j1"])], ref).document
-    assert not [f for f in doc["findings"] if f["effect"] == "torque_gain"]
-    why = doc["not_findings"]["gain:1"]
-    assert why.startswith("not identifiable from these data"), why
-    assert "read with θ free (+2.85 %)" in why and "at the reference (+7.9 %)" in why, why
-    assert "Not a finding: torque_gain on joint 1: not identifiable" in doc["summary"]
+    gains = [f for f in doc["findings"] if f["effect"] == "torque_gain"]
+    assert [f["joint"] for f in gains] == [1], doc["not_findings"]
+    est = gains[0]["estimate"]
+    assert 0.0 < est["relative"] < 0.05
+    assert est[AT_REFERENCE] > 1.5 * est["relative"], est
 
 
 def test_the_reading_reported_is_the_one_simulated_and_judged():
