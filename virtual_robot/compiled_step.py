@@ -211,6 +211,11 @@ class CompiledArm:
     def _message(self) -> str:
         return self._error.value.decode(errors="replace")
 
+    def _crossing(self) -> tuple[float, tuple[np.ndarray, np.ndarray, float]]:
+        """What the kernel left after a CROSSED substep: (dt, (q, q̇, its viscous work))."""
+        s, buf = self._scalars, self._buf
+        return float(s[3]), (buf["q_cross"].copy(), buf["v_cross"].copy(), float(s[4]))
+
     def __del__(self) -> None:
         handle = getattr(self, "_handle", None)
         if handle:
@@ -331,9 +336,7 @@ class CompiledArm:
         )  # fmt: skip
         if outcome < 0:
             raise RuntimeError(f"compiled plant step: {self._message()}")
-        crossing = None
-        if outcome == CROSSED:
-            crossing = (float(s[3]), (buf["q_cross"].copy(), buf["v_cross"].copy(), float(s[4])))
+        crossing = self._crossing() if outcome == CROSSED else None
         return (
             buf["q"].copy(), buf["v"].copy(), float(s[0]), float(s[1]), int(s[2]), outcome,
             crossing,
@@ -395,9 +398,7 @@ class CompiledArm:
         )  # fmt: skip
         if outcome < 0:
             raise RuntimeError(f"compiled plant step: {self._message()}")
-        crossing = None
-        if outcome == CROSSED:
-            crossing = (float(s[3]), (buf["q_cross"].copy(), buf["v_cross"].copy(), float(s[4])))
+        crossing = self._crossing() if outcome == CROSSED else None
         totals = (float(s[0]), float(s[1]), float(s[5]), int(s[2]))
         q_v_booked = (buf["q"].copy(), buf["v"].copy(), buf["booked"].copy())
         return outcome, int(s[6]), q_v_booked, totals, crossing
