@@ -6,7 +6,8 @@
   in the main thread), so every way of stopping a run goes through the same safe path: zero
   torque, drives disabled, meta.json closed. Signals that arrive while that path runs are not
   allowed to cut it short (the third one ends the process at once, for a hung clean-up). A
-  signal that lands in the middle of an import is acted on as soon as the import is done.
+  signal during the command line's own import ends the process at once with one line (nothing
+  runs yet); one that lands in a later import is acted on as soon as that import is done.
 * :func:`process_stamp` / :func:`run_status`: a run's meta.json says ``running`` while its
   writer is at work; if the writer is killed (SIGKILL, power loss) the file keeps saying so.
   The stamp (pid, host, boot id, process start time) lets a reader tell such a run from a live
@@ -29,10 +30,17 @@ from typing import Any
 EXIT_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
 IMPORT_RETRY_S = 0.005  # a signal during an import is acted on once the import is done
 _received: list[int] = []  # exit signals received so far (the first one is what stopped us)
+_loading: list[str] = []  # the program whose command line is being imported (nothing runs yet)
 
 
 def _on_exit_signal(signum: int, frame: FrameType | None) -> None:
     _received.append(signum)
+    if len(_received) == 1 and _loading:
+        # The command line's own import (numpy, scipy, Pinocchio: seconds on a loaded machine)
+        # has started nothing and written nothing: end now, not when the import is done.
+        print(f"{_loading[0]}: {interrupt_reason()}; nothing was running yet", file=sys.stderr)
+        sys.stderr.flush()
+        os._exit(interrupt_exit_code())
     if len(_received) == 1:
         _interrupt_when_safe(frame)
         return
@@ -124,12 +132,16 @@ def run_command_line(
     and its ``main(argv)``. An exit signal during the import ends with one line; an interrupted
     command's 130 becomes 128 + the signal's number, as a shell reports it."""
     install_exit_signals()
+    _loading.append(prog)
     try:
         main = load_main()
+        _loading.clear()
         code = main(argv)
     except KeyboardInterrupt:
         print(f"{prog}: {interrupt_reason()}; nothing was running yet", file=sys.stderr)
         return interrupt_exit_code()
+    finally:
+        _loading.clear()
     return interrupt_exit_code() if code == 130 else code
 
 

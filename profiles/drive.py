@@ -8,7 +8,7 @@ from pathlib import Path
 
 from profiles.loader import Fields, ProfileError, load_toml
 
-WATCHDOG_DEFAULT_S = 0.2  # 2× the benches' default feedback budget (docs/virtual-robot.md)
+WATCHDOG_DEFAULT_S = 0.5  # 2× the benches' default feedback budget (docs/virtual-robot.md)
 
 
 @dataclass(frozen=True)

@@ -398,7 +398,7 @@ def test_realtime_cycles_on_deadlines_and_notices_a_dead_robot(realtime_rig):
         assert all(s.t == s.sent_at and s.received_at >= s.sent_at for s in samples)
         realtime_rig.server.stop()  # silent, not provably dead: the feedback budget runs out
         deadline = samples[-1].deadline + H
-        with pytest.raises(LinkError, match=r"no feedback from node 1 within 100 ms"):
+        with pytest.raises(LinkError, match=r"no feedback from node 1 within 250 ms"):
             arm.cycle((0.0, 0.0), deadline=deadline)
         noticed = arm.now() - deadline
         assert arm.feedback_budget_s - 0.001 < noticed < arm.feedback_budget_s + 0.05

@@ -43,9 +43,9 @@ def _patient_bench(tmp_path: Path, base: str = "virtual-slcan") -> str:
     """``base`` with a 2 s feedback budget: for the tests of signals and exits, which must not
     end early because a loaded machine stalled the link past the shipped 0.1 s."""
     text = resolve("benches", base).read_text()
-    assert "feedback_budget_s = 0.1" in text
+    assert "feedback_budget_s = 0.25" in text
     path = tmp_path / f"{base}-patient.toml"
-    path.write_text(text.replace("feedback_budget_s = 0.1", "feedback_budget_s = 2.0", 1))
+    path.write_text(text.replace("feedback_budget_s = 0.25", "feedback_budget_s = 2.0", 1))
     return str(path)
 
 
@@ -237,6 +237,30 @@ def test_ctrl_c_at_any_moment_is_one_line(tmp_path: Path) -> None:
         while _robots_of(out) and time.monotonic() < deadline:
             time.sleep(0.05)
         assert not _robots_of(out), (delay, "virtual robot left behind")
+
+
+def test_ctrl_c_during_the_command_lines_import_ends_at_once(tmp_path: Path) -> None:
+    """A Ctrl-C while the command line is still being imported does not wait for the import
+    (seconds of numpy, scipy and Pinocchio on a loaded machine, minutes here): nothing runs yet,
+    so the process ends with its one line. The import below never finishes by itself."""
+    (tmp_path / "slow_cli.py").write_text("import time\ntime.sleep(600)\n")
+    code = (
+        "import importlib, sys\n"
+        "from drivers.process import run_command_line\n"
+        f"sys.path.insert(0, {str(tmp_path)!r})\n"
+        "sys.exit(run_command_line('hil', lambda: importlib.import_module('slow_cli').main))\n"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code], stderr=subprocess.PIPE, text=True, cwd=ROOT
+    )
+    try:
+        _wait_handlers(proc.pid)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, err
+    assert err.strip() == "hil: interrupted by the user (Ctrl-C); nothing was running yet", err
 
 
 def test_lockstep_host_killed_robot_disables_at_once(tmp_path: Path) -> None:
@@ -558,9 +582,9 @@ def test_bench_timing_fields_are_bounded(tmp_path: Path, period, budget) -> None
     text = resolve("benches", "virtual-slcan").read_text()
     text = text.replace("period_s = 0.0025", f"period_s = {json.dumps(period)}", 1)
     if budget is None:
-        text = text.replace("feedback_budget_s = 0.1", "", 1)
+        text = text.replace("feedback_budget_s = 0.25", "", 1)
     else:
-        text = text.replace("feedback_budget_s = 0.1", f"feedback_budget_s = {budget!r}", 1)
+        text = text.replace("feedback_budget_s = 0.25", f"feedback_budget_s = {budget!r}", 1)
     text = text.replace("Infinity", "inf")
     path = tmp_path / "b.toml"
     path.write_text(text)
@@ -588,12 +612,12 @@ def test_drive_watchdog_is_in_time_at_any_rate() -> None:
 def test_feedback_budget_alias_in_periods(tmp_path: Path) -> None:
     text = resolve("benches", "virtual-slcan").read_text()
     alias = tmp_path / "alias.toml"
-    alias.write_text(text.replace("feedback_budget_s = 0.1", "feedback_timeout_periods = 20"))
+    alias.write_text(text.replace("feedback_budget_s = 0.25", "feedback_timeout_periods = 20"))
     assert load_bench(alias).feedback_budget_s == pytest.approx(20 * 0.0025)
     both = tmp_path / "both.toml"
     both.write_text(
         text.replace(
-            "feedback_budget_s = 0.1", "feedback_budget_s = 0.1\nfeedback_timeout_periods = 2"
+            "feedback_budget_s = 0.25", "feedback_budget_s = 0.25\nfeedback_timeout_periods = 2"
         )
     )
     with pytest.raises(ProfileError, match="not both"):

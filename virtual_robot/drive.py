@@ -19,7 +19,7 @@ OPERATION_ENABLED increments a counter; write_target_torque() and entering OPERA
 reset it to 0. The profile gives the watchdog in time (``watchdog_s``); the drive counts it in
 periods of its own timer, N = ceil(watchdog_s / period). The update() that brings the counter to
 N faults the drive: a write followed by N - 1 updates is still enabled, the N-th update faults
-(the shipped profiles: 0.2 s, N = 80 at 400 Hz, 200 at 1 kHz; docs/virtual-robot.md says why).
+(the shipped profiles: 0.5 s, N = 200 at 400 Hz, 500 at 1 kHz; docs/virtual-robot.md says why).
 In realtime a stall of the robot process itself counts one period (its timer re-aligns), so
 only the host's silence trips it.
 

@@ -112,7 +112,7 @@ supervised over this dialect (``DRIVE``, ``DMODE``, ``DMTLIM``, ``TPE``, ``TAS``
 not streamed at 400 Hz, and has no ``XTQ``.
 
 Supervision by the emulated drives: in realtime the drive's command watchdog faults (error
-0x8250, TAS bit 14) when an enabled drive gets no XTQ for ``watchdog_s`` (0.2 s); in
+0x8250, TAS bit 14) when an enabled drive gets no XTQ for ``watchdog_s`` (0.5 s); in
 lockstep the robot only moves on XTQ, and the server disables every drive if the host sends
 nothing for the bench's timeout_s (2 s), or closes the port.
 
