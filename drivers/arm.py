@@ -24,8 +24,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from profiles.bench import DEFAULT_FEEDBACK_BUDGET_S  # realtime: later feedback = link dead
+
 DEFAULT_SPIN_S = 0.0002  # realtime wait without a scheduler: spin the last 0.2 ms
-DEFAULT_FEEDBACK_BUDGET_S = 0.1  # realtime: feedback later than this = link dead (bench profile)
 LIVENESS_POLL_S = 0.005  # a late wait checks every 5 ms whether the link or peer died
 
 
