@@ -146,10 +146,14 @@ def load() -> ctypes.CDLL:
         lib.ddb_arm_new.argtypes = [ctypes.c_char_p, ctypes.c_double, ctypes.c_void_p,
                                     ctypes.c_int, ctypes.c_char_p, ctypes.c_int]  # fmt: skip
         lib.ddb_arm_free.argtypes = [ctypes.c_void_p]
-        lib.ddb_locked_new.restype = ctypes.c_void_p
-        lib.ddb_locked_new.argtypes = [ctypes.c_void_p, ctypes.c_int, ctypes.c_void_p,
-                                       ctypes.c_void_p, ctypes.c_char_p, ctypes.c_int]  # fmt: skip
-        lib.ddb_locked_free.argtypes = [ctypes.c_void_p]
+        lib.ddb_locked.restype = ctypes.c_void_p
+        lib.ddb_locked.argtypes = [ctypes.c_void_p, ctypes.c_int, ctypes.c_void_p,
+                                   ctypes.c_void_p, ctypes.c_char_p, ctypes.c_int]  # fmt: skip
+        lib.ddb_locked_params.restype = ctypes.c_int
+        lib.ddb_locked_params.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+        lib.ddb_locate.restype = ctypes.c_int
+        lib.ddb_locate.argtypes = [ctypes.c_void_p] * 9 + [ctypes.c_double] + [
+            ctypes.c_void_p] * 4 + [ctypes.c_int]  # fmt: skip
         lib.ddb_step.restype = ctypes.c_int
         lib.ddb_step.argtypes = [ctypes.c_void_p] * 6 + [ctypes.c_double] + [
             ctypes.c_void_p] * 4 + [ctypes.c_int]  # fmt: skip
@@ -172,10 +176,8 @@ def kernel_status() -> KernelStatus:
 
 # ddb_advance's outcomes, and ddb_advance_periods' after a period out of bounds
 REACHED, CROSSED, BREAKS, OUT_OF_BOUNDS = 0, 1, 2, 3
-# Locked-joint models kept in the kernel (as UrdfPlant keeps its own: LOCKED_ARMS_KEPT)
-LOCKED_KEPT = 16
 _ROWS = ("q", "v", "c", "b", "watch", "q_cross", "v_cross", "command", "upper", "lower", "a",
-         "level", "booked", "max_speed", "q_limit")  # fmt: skip
+         "level", "booked", "max_speed", "q_limit", "direction", "crossed", "v_end")  # fmt: skip
 
 
 class CompiledArm:
@@ -194,7 +196,6 @@ class CompiledArm:
         if not handle:
             raise KernelUnavailableError(f"{urdf}: {self._message()}")
         self._handle = handle
-        self._locked: dict[tuple[bytes, bytes], int] = {}
         # the n-vectors of a call (_ROWS), rows of one buffer; then the scalars [t,
         # dissipated, steps, dt of the crossing step, its viscous work]
         self._rows = np.zeros((len(_ROWS), n))
@@ -219,30 +220,32 @@ class CompiledArm:
     def __del__(self) -> None:
         handle = getattr(self, "_handle", None)
         if handle:
-            for locked in self._locked.values():
-                self._lib.ddb_locked_free(locked)
-            self._lib.ddb_arm_free(handle)
+            self._lib.ddb_arm_free(handle)  # with its locked arms
             self._handle = None
 
     def locked(self, stuck: np.ndarray, q: np.ndarray) -> int:
         """The kernel's arm with the joints ``stuck`` (indices) locked at ``q`` (Pinocchio's
-        reduced model, as UrdfPlant._locked_arm), kept for the last few stuck sets and
-        positions."""
-        key = (stuck.tobytes(), q[stuck].tobytes())
-        handle = self._locked.get(key)
-        if handle is None:
-            idx = np.ascontiguousarray(stuck, dtype=np.intc)
-            q_ref = np.ascontiguousarray(q, dtype=float)
-            handle = self._lib.ddb_locked_new(
-                self._handle, idx.size, idx.ctypes.data, q_ref.ctypes.data, self._error,
-                ERROR_CHARS,
-            )  # fmt: skip
-            if not handle:
-                raise RuntimeError(f"compiled plant step: {self._message()}")
-            if len(self._locked) >= LOCKED_KEPT:
-                self._lib.ddb_locked_free(self._locked.pop(next(iter(self._locked))))
-            self._locked[key] = handle
+        reduced model, as UrdfPlant._locked_arm): one per stuck set, built the first time that
+        set sticks and refreshed in place for other positions (rk4_aba.cpp, ddb_locked: only
+        the placements and inertias q_S enters, by buildReducedModel's own expressions). The
+        handle is valid until the same set is locked at other positions (the plant asks once
+        per stick mode)."""
+        idx = np.ascontiguousarray(stuck, dtype=np.intc)
+        q_ref = np.ascontiguousarray(q, dtype=float)
+        handle = self._lib.ddb_locked(
+            self._handle, idx.size, idx.ctypes.data, q_ref.ctypes.data, self._error, ERROR_CHARS
+        )
+        if not handle:
+            raise RuntimeError(f"compiled plant step: {self._message()}")
         return handle
+
+    def locked_params(self, locked: int) -> np.ndarray:
+        """The locked arm's joint placements and inertias, one row of 22 per sliding joint
+        (rotation row major, translation, mass, lever, inertia xx, xy, yy, xz, yz, zz): what
+        the tests compare with Pinocchio's buildReducedModel."""
+        out = np.zeros((self.n, 22))
+        rows = self._lib.ddb_locked_params(locked, out.ctypes.data)
+        return out[:rows]
 
     def _load(self, q: np.ndarray, v: np.ndarray, c: np.ndarray, b: np.ndarray | None) -> int:
         buf = self._buf
@@ -276,6 +279,39 @@ class CompiledArm:
         ):  # fmt: skip
             raise RuntimeError(f"compiled plant step: {self._message()}")
         return buf["q_cross"].copy(), buf["v_cross"].copy(), float(self._scalars[4])
+
+    def locate(
+        self,
+        locked: int | None,
+        q: np.ndarray,
+        v: np.ndarray,
+        tau_minus_level: np.ndarray,
+        b: np.ndarray | None,
+        direction: np.ndarray,
+        crossed: np.ndarray,
+        v_end: np.ndarray,
+        dt: float,
+    ) -> tuple[float, int, tuple[np.ndarray, np.ndarray, float]]:
+        """UrdfPlant._locate_stick in the kernel (ddb_locate: scipy's Brent's method on the
+        mode's RK4 flow map, the same iterates): the first of the ``crossed`` joints whose
+        velocity times ``direction`` reaches zero within [0, dt] from (q, q̇), ``v_end`` the
+        flow's q̇ at dt. Returns (s, joint, (q, q̇, ∫bᵀq̇² dt) at s)."""
+        a, buf = self._addr, self._buf
+        b_addr = self._load(q, v, tau_minus_level, b)
+        buf["direction"][:] = direction
+        buf["crossed"][:] = crossed
+        buf["v_end"][:] = v_end
+        status = self._lib.ddb_locate(
+            self._handle, locked, a["q"], a["v"], a["c"], b_addr or None, a["direction"],
+            a["crossed"], a["v_end"], dt, self._scalars_addr, a["q_cross"], a["v_cross"],
+            self._error, ERROR_CHARS,
+        )  # fmt: skip
+        if status == -2:  # where scipy's brentq raises
+            raise ValueError(f"locating a stick: {self._message()}")
+        if status:
+            raise RuntimeError(f"compiled plant step: {self._message()}")
+        s = self._scalars
+        return float(s[0]), int(s[1]), (buf["q_cross"].copy(), buf["v_cross"].copy(), float(s[2]))
 
     def accelerations(
         self,

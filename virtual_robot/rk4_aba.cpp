@@ -15,19 +15,23 @@
 //
 // C interface (every function catches C++ exceptions; errors come back as text):
 //   ddb_arm_new(urdf, gravity, armature, n, err, err_len) -> handle or NULL
-//   ddb_locked_new(arm, n_stuck, stuck, q, err, err_len) -> handle of the arm with the stuck
-//     joints locked at q, or NULL; ddb_locked_free(handle)
+//   ddb_locked(arm, n_stuck, stuck, q, err, err_len) -> handle of the arm with the stuck
+//     joints locked at q (one per stuck set, owned by the arm: valid until the same set is
+//     locked at other positions), or NULL; ddb_locked_params(locked, out) (for the tests)
 //   ddb_arm_free(handle)
 //   ddb_advance(...) -> 0 reached t_end, 1 stopped at a crossing, 2 stopped before a
 //     breakaway, -1 error
 //   ddb_advance_periods(...) -> ddb_advance's over many control periods, each with its own
 //     held torque, until one ends with a joint too fast or too far (3)
 //   ddb_step(...), ddb_accelerations(...): one RK4 step of the mode, q̈ of the mode (for the
-//     Python code that locates a stick or releases a joint) -> 0, or -1 error
+//     Python code that releases a joint) -> 0, or -1 error
+//   ddb_locate(...): where a crossed velocity reaches zero within a step (Brent's method on
+//     the RK4 flow map, as UrdfPlant._locate_stick) -> 0, -1 error, -2 Brent's method failed
 
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <exception>
 #include <memory>
 #include <string>
@@ -50,9 +54,9 @@ namespace
     // scratch of one RK4 step (allocated once)
     Vec q, v, c, b, watch, tau, qs, a1, a2, a3, a4, y, z, u, qn, vn, w;
     Vec command, upper, lower;  // τ, and the stuck joints' static bands [lower, upper]
-    // a full arm's freed locked arms (Locked *), kept for their Data: a stuck set locked again
-    // at other positions reuses one (ddb_locked_new), its Data sized for that reduced model
-    std::vector<void *> spares;
+    // a full arm's locked arms (Locked *), one per stuck set, built once (ddb_locked) and
+    // refreshed in place for the positions where that set is locked again
+    std::vector<void *> locked_sets;
 
     void allocate(Eigen::Index n)
     {
@@ -65,15 +69,14 @@ namespace
 
   // The arm with its stuck joints locked where they stand (UrdfPlant._locked_arm): the reduced
   // model, its armature the sliding joints', and which coordinates are free and stuck. With
-  // every joint stuck there is no reduced model and no motion.
+  // every joint stuck there is no reduced model and no motion. `placed` holds the positions
+  // q_S it is locked at now (NaN before the first).
   struct Locked
   {
     Arm arm;
     std::vector<Eigen::Index> free, stuck;
-    Arm * full = nullptr;  // the arm it was built from (its spares take it back when freed)
+    Vec placed;
   };
-  // Freed locked arms a full arm keeps (as many as compiled_step.LOCKED_KEPT keeps in use)
-  constexpr size_t kSpares = 16;
 
   void gather(const Vec & from, const std::vector<Eigen::Index> & idx, Vec & to)
   {
@@ -306,6 +309,155 @@ namespace
     scalars[2] = steps;
     return status;
   }
+  // The numbers of pinocchio::buildReducedModel(full, stuck joints, q_ref) that depend on q_ref,
+  // computed into `reduced` (a reduced model of the same stuck set) by the same expressions in
+  // the same order (pinocchio/src/algorithm/model.hxx, buildReducedModel): a stuck joint k is a
+  // fixed frame liMi = (parent frame) · jointPlacements[k] · M_k(q_ref) on its closest sliding
+  // ancestor r, whose inertia gains liMi.act(I_k); a sliding joint's placement is its parent
+  // frame's times its own (the identity unless its parent is stuck), its inertia I_k added to
+  // zero. Only these enter ABA (with the armature, set once); rebuilding the whole model for
+  // each stick event cost 30-115 µs, this a few. tests/test_compiled_step.py compares them with
+  // buildReducedModel bit for bit.
+  void refresh_locked(
+    const pinocchio::Model & full, const std::vector<bool> & is_stuck, const Vec & q_ref,
+    pinocchio::Model & reduced)
+  {
+    using pinocchio::Inertia;
+    using pinocchio::JointIndex;
+    using pinocchio::SE3;
+    const size_t njoints = static_cast<size_t>(full.njoints);
+    std::vector<SE3> frame(njoints, SE3::Identity());  // a stuck joint's liMi
+    std::vector<JointIndex> in_reduced(njoints, 0);    // its joint, or its closest sliding one
+    std::vector<bool> fixed(njoints, false);
+    reduced.inertias[0] = full.inertias[0];
+    JointIndex next = 1;
+    for (JointIndex k = 1; k < njoints; ++k)
+    {
+      const JointIndex parent = full.parents[k];
+      const SE3 parent_frame_placement = fixed[parent] ? frame[parent] : SE3::Identity();
+      const JointIndex reduced_parent = in_reduced[parent];
+      if (is_stuck[k - 1])  // joint k + 1 moves coordinate k (UrdfPlant checks it)
+      {
+        pinocchio::Model::JointData joint_data = full.joints[k].createData();
+        full.joints[k].calc(joint_data, q_ref);
+        const SE3 liMi = parent_frame_placement * full.jointPlacements[k] * joint_data.M();
+        frame[k] = liMi;
+        fixed[k] = true;
+        in_reduced[k] = reduced_parent;
+        reduced.inertias[reduced_parent] += liMi.act(full.inertias[k]);  // Model::addFrame
+      }
+      else
+      {
+        const JointIndex r = next++;
+        in_reduced[k] = r;
+        reduced.jointPlacements[r] = parent_frame_placement * full.jointPlacements[k];
+        reduced.inertias[r] = Inertia::Zero();  // Model::addJoint, then appendBodyToJoint
+        const Inertia & iYf = full.inertias[k].se3Action(SE3::Identity());
+        reduced.inertias[r] += iYf;
+      }
+    }
+  }
+  // urdf_plant.ZERO_VELOCITY, and numpy's float64 eps
+  constexpr double kZeroVelocity = 1e-12;
+  constexpr double kEps = 2.220446049250313e-16;
+
+  // Brent's method as scipy.optimize.brentq runs it (scipy/optimize/Zeros/brentq.c, C. Harris;
+  // BSD-3-Clause, the same operations in the same order, so the same iterates and root): the
+  // zero of f in [xa, xb], f(xa) f(xb) ≤ 0, to xtol + rtol |x|; at most `iter` iterations.
+  // `failed` is set (and the last iterate returned) where scipy would raise, as on a NaN.
+  template<typename G>
+  double brentq(G && g, double xa, double xb, double xtol, double rtol, int iter,
+                const char *& failed)
+  {
+    auto f = [&](double x) -> double {
+      const double fx = g(x);
+      if (std::isnan(fx))
+        failed = "the function value is NaN: Brent's method cannot continue";
+      return fx;
+    };
+    double xpre = xa, xcur = xb;
+    double xblk = 0., fpre, fcur, fblk = 0., spre = 0., scur = 0., sbis;
+    double delta;  // the tolerance is 2 delta
+    double stry, dpre, dblk;
+    fpre = f(xpre);
+    if (failed)
+      return 0.;
+    fcur = f(xcur);
+    if (failed)
+      return 0.;
+    if (fpre * fcur > 0)
+    {
+      failed = "f(a) and f(b) must have different signs";
+      return 0.;
+    }
+    if (fpre == 0)
+      return xpre;
+    if (fcur == 0)
+      return xcur;
+    for (int i = 0; i < iter; i++)
+    {
+      if (fpre * fcur < 0)
+      {
+        xblk = xpre;
+        fblk = fpre;
+        spre = scur = xcur - xpre;
+      }
+      if (std::fabs(fblk) < std::fabs(fcur))
+      {
+        xpre = xcur;
+        xcur = xblk;
+        xblk = xpre;
+        fpre = fcur;
+        fcur = fblk;
+        fblk = fpre;
+      }
+      delta = (xtol + rtol * std::fabs(xcur)) / 2;
+      sbis = (xblk - xcur) / 2;
+      if (fcur == 0 || std::fabs(sbis) < delta)
+        return xcur;
+      if (std::fabs(spre) > delta && std::fabs(fcur) < std::fabs(fpre))
+      {
+        if (xpre == xblk)
+          stry = -fcur * (xcur - xpre) / (fcur - fpre);  // interpolate
+        else
+        {
+          // extrapolate
+          dpre = (fpre - fcur) / (xpre - xcur);
+          dblk = (fblk - fcur) / (xblk - xcur);
+          stry = -fcur * (fblk * dblk - fpre * dpre) / (dblk * dpre * (fblk - fpre));
+        }
+        const double bound = std::fabs(spre) < 3 * std::fabs(sbis) - delta
+                                ? std::fabs(spre)
+                                : 3 * std::fabs(sbis) - delta;  // scipy's MIN
+        if (2 * std::fabs(stry) < bound)
+        {
+          spre = scur;  // good short step
+          scur = stry;
+        }
+        else
+        {
+          spre = sbis;  // bisect
+          scur = sbis;
+        }
+      }
+      else
+      {
+        spre = sbis;  // bisect
+        scur = sbis;
+      }
+      xpre = xcur;
+      fpre = fcur;
+      if (std::fabs(scur) > delta)
+        xcur += scur;
+      else
+        xcur += (sbis > 0 ? delta : -delta);
+      fcur = f(xcur);
+      if (failed)
+        return xcur;
+    }
+    failed = "Brent's method did not converge in 100 iterations";
+    return xcur;
+  }
 } // namespace
 
 extern "C" {
@@ -331,12 +483,12 @@ void * ddb_arm_new(
 void ddb_arm_free(void * handle)
 {
   Arm * arm = static_cast<Arm *>(handle);
-  for (void * spare : arm->spares)
-    delete static_cast<Locked *>(spare);
+  for (void * locked : arm->locked_sets)
+    delete static_cast<Locked *>(locked);
   delete arm;
 }
 
-void * ddb_locked_new(
+void * ddb_locked(
   void * handle, int n_stuck, const int * stuck, const double * q, char * err, int err_len)
 {
   return guarded(static_cast<void *>(nullptr), err, err_len, [&]() -> void * {
@@ -345,66 +497,86 @@ void * ddb_locked_new(
     std::vector<bool> is_stuck(static_cast<size_t>(n), false);
     for (int i = 0; i < n_stuck; ++i)
       is_stuck[static_cast<size_t>(stuck[i])] = true;
-    std::vector<pinocchio::JointIndex> joints;  // joint i + 1 moves coordinate i
     std::vector<Eigen::Index> stuck_idx, free_idx;
     for (Eigen::Index i = 0; i < n; ++i)
+      (is_stuck[static_cast<size_t>(i)] ? stuck_idx : free_idx).push_back(i);
+    Locked * locked = nullptr;
+    for (void * kept : full.locked_sets)
+      if (static_cast<Locked *>(kept)->stuck == stuck_idx)
+        locked = static_cast<Locked *>(kept);
+    const Vec q_ref = Eigen::Map<const Vec>(q, n);
+    if (!locked)
     {
-      if (is_stuck[static_cast<size_t>(i)])
+      // the first time this set sticks: Pinocchio's reduced model gives the structure (and
+      // the placements at q, which refresh_locked computes again the same way)
+      auto built = std::make_unique<Locked>();
+      built->stuck = stuck_idx;
+      built->free = free_idx;
+      built->placed = Vec::Constant(static_cast<Eigen::Index>(stuck_idx.size()), std::nan(""));
+      const Eigen::Index nf = static_cast<Eigen::Index>(free_idx.size());
+      if (nf > 0)
       {
-        stuck_idx.push_back(i);
-        joints.push_back(static_cast<pinocchio::JointIndex>(i + 1));
+        std::vector<pinocchio::JointIndex> joints;  // joint i + 1 moves coordinate i
+        for (Eigen::Index i : stuck_idx)
+          joints.push_back(static_cast<pinocchio::JointIndex>(i + 1));
+        built->arm.model = pinocchio::buildReducedModel(full.model, joints, q_ref);
+        Vec armature(nf);
+        gather(full.model.armature, free_idx, armature);
+        built->arm.model.armature = armature;
+        built->arm.allocate(nf);
       }
-      else
-        free_idx.push_back(i);
+      locked = built.get();
+      full.locked_sets.push_back(built.release());
     }
-    // A spare of the same stuck set has the Data of this reduced model's structure (Data
-    // depends on the joint tree, not on q_S or the inertias; ABA writes every field it reads):
-    // reused, only the model is built again. Else a new one.
-    std::unique_ptr<Locked> locked;
-    for (auto it = full.spares.begin(); it != full.spares.end(); ++it)
-      if (static_cast<Locked *>(*it)->stuck == stuck_idx)
-      {
-        locked.reset(static_cast<Locked *>(*it));
-        full.spares.erase(it);
-        break;
-      }
-    const bool reused = locked != nullptr;
-    if (!reused)
+    // locked again at other positions: only the placements and inertias that q_S enters
+    bool same = true;
+    for (size_t s = 0; s < stuck_idx.size(); ++s)
     {
-      locked = std::make_unique<Locked>();
-      locked->stuck = stuck_idx;
-      locked->free = free_idx;
+      const double now = q_ref[stuck_idx[s]], was = locked->placed[static_cast<Eigen::Index>(s)];
+      same = same && std::memcmp(&now, &was, sizeof(double)) == 0;
     }
-    locked->full = &full;
-    const Eigen::Index nf = static_cast<Eigen::Index>(locked->free.size());
-    if (nf > 0)
-    {
-      const Vec q_ref = Eigen::Map<const Vec>(q, n);
-      locked->arm.model = pinocchio::buildReducedModel(full.model, joints, q_ref);
-      Vec armature(nf);
-      gather(full.model.armature, locked->free, armature);
-      locked->arm.model.armature = armature;
-      if (!reused)
-        locked->arm.allocate(nf);
-    }
-    return locked.release();
+    if (!same && !free_idx.empty())
+      refresh_locked(full.model, is_stuck, q_ref, locked->arm.model);
+    for (size_t s = 0; s < stuck_idx.size(); ++s)
+      locked->placed[static_cast<Eigen::Index>(s)] = q_ref[stuck_idx[s]];
+    return locked;
   });
 }
 
-void ddb_locked_free(void * handle)
+// The reduced model's placements and inertias (22 numbers per joint after the universe: the
+// joint placement's rotation, row major, and translation; the inertia's mass, lever and
+// rotational inertia (xx, xy, yy, xz, yz, zz)) into out: for tests/test_compiled_step.py, which
+// compares them with Pinocchio's buildReducedModel. Returns the number of joints written.
+int ddb_locked_params(void * locked_handle, double * out)
 {
-  Locked * locked = static_cast<Locked *>(handle);
-  Arm * full = locked->full;
-  if (full && full->spares.size() < kSpares)
-    full->spares.push_back(locked);  // kept for its Data (ddb_locked_new)
-  else
-    delete locked;
+  const Locked & locked = *static_cast<Locked *>(locked_handle);
+  if (locked.free.empty())
+    return 0;
+  const pinocchio::Model & m = locked.arm.model;
+  int written = 0;
+  for (pinocchio::JointIndex r = 1; r < static_cast<pinocchio::JointIndex>(m.njoints); ++r)
+  {
+    const pinocchio::SE3 & placement = m.jointPlacements[r];
+    const pinocchio::Inertia & inertia = m.inertias[r];
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j)
+        *out++ = placement.rotation()(i, j);
+    for (int i = 0; i < 3; ++i)
+      *out++ = placement.translation()[i];
+    *out++ = inertia.mass();
+    for (int i = 0; i < 3; ++i)
+      *out++ = inertia.lever()[i];
+    for (int i = 0; i < 6; ++i)
+      *out++ = inertia.inertia().data()[i];
+    ++written;
+  }
+  return written;
 }
 
 // Integrate from scalars[0] (t) to t_end in steps of min(max_step, t_end − t), as
 // UrdfPlant.advance_to, in the current stick mode under the held τ − level `c` (viscous `b`, or
 // NULL for none): `locked` NULL, every joint sliding; else the arm with its stuck joints locked
-// (ddb_locked_new), whose holding torques τ_S − RNEA(q, q̇, q̈)_S are tested against the bands
+// (ddb_locked), whose holding torques τ_S − RNEA(q, q̇, q̈)_S are tested against the bands
 // [lower, upper] (n_stuck each) before each substep, with τ = `command`. q, v: in/out.
 // scalars: [t, dissipated, steps] in/out (t and the booked dissipation advance per accepted
 // step, in the same order of additions as Python), then out: [3] the dt and [4] the viscous
@@ -547,6 +719,88 @@ int ddb_step(
     work[0] = mode_step(arm, locked, dt, b != nullptr);
     Eigen::Map<Vec>(q_out, arm.model.nv) = arm.qn;
     Eigen::Map<Vec>(v_out, arm.model.nv) = arm.vn;
+    return 0;
+  });
+}
+
+// Where the first of the `crossed` joints' velocities reaches zero within [0, dt] of the mode's
+// RK4 flow map from (q, v) (UrdfPlant._locate_stick, the Python step's code path, to the last
+// bit): per crossed joint j in order, the zero of s -> q̇_j(s) · direction_j by Brent's method
+// (brentq below, scipy's), bracketed as there; the earliest wins, the first on a tie. v_end:
+// q̇ of the flow at s = dt (already taken). Out: scalars [s, joint, ∫bᵀq̇² dt to s], and the
+// state at s in q_out, v_out (at s = 0, (q, v) itself). 0, −1 on an exception, −2 when Brent's
+// method fails (scipy raises then: the text in err).
+int ddb_locate(
+  void * handle, void * locked_handle, const double * q, const double * v, const double * c,
+  const double * b, const double * direction, const double * crossed, const double * v_end,
+  double dt, double * scalars, double * q_out, double * v_out, char * err, int err_len)
+{
+  return guarded(-1, err, err_len, [&]() -> int {
+    Arm & arm = *static_cast<Arm *>(handle);
+    Locked * locked = static_cast<Locked *>(locked_handle);
+    const Eigen::Index n = arm.model.nv;
+    const bool viscous = b != nullptr;
+    load_mode(arm, locked, q, v, c, b);
+    Eigen::Index j = 0;
+    const char * failed = nullptr;
+    auto velocity = [&](double s) -> double {
+      const double at = s == dt ? v_end[j] : (mode_step(arm, locked, s, viscous), arm.vn[j]);
+      return at * direction[j];
+    };
+    double best = dt;
+    Eigen::Index joint = -1;
+    for (j = 0; j < n; ++j)
+    {
+      if (crossed[j] == 0.0)
+        continue;
+      double lo = 0.0;
+      if (v[j] == 0.0)
+      {
+        // it broke away at the step start: bracket the later zero, not the one at s = 0
+        lo = dt;
+        int i = 0;
+        for (; i < 60; ++i)
+        {
+          lo *= 0.5;
+          if (velocity(lo) > 0)
+            break;
+        }
+        if (i == 60)
+          lo = -1.0;
+      }
+      double s;
+      if (lo < 0)
+        s = 0.0;  // no motion at all: it sticks at once
+      else if (velocity(dt) >= 0)
+        s = dt;  // |q̇_j| at the step's end is at round-off: the crossing is the end
+      else
+        s = brentq(velocity, lo, dt, kZeroVelocity * dt, 4 * kEps, 100, failed);
+      if (failed)
+      {
+        set_error(err, err_len, failed);
+        return -2;
+      }
+      if (s < best || joint < 0)
+      {
+        best = s;
+        joint = j;
+      }
+    }
+    double work = 0.0;
+    if (best > 0)
+    {
+      work = mode_step(arm, locked, best, viscous);
+      Eigen::Map<Vec>(q_out, n) = arm.qn;
+      Eigen::Map<Vec>(v_out, n) = arm.vn;
+    }
+    else
+    {
+      Eigen::Map<Vec>(q_out, n) = arm.q;
+      Eigen::Map<Vec>(v_out, n) = arm.v;
+    }
+    scalars[0] = best;
+    scalars[1] = static_cast<double>(joint);
+    scalars[2] = work;
     return 0;
   });
 }

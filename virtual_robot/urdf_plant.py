@@ -614,8 +614,15 @@ class UrdfPlant:
     ) -> tuple[float, int, tuple[np.ndarray, np.ndarray, float]]:
         """The first joint whose velocity reaches zero within [0, dt], the time it does and the
         state there: Brent's method on that joint's velocity along the RK4 flow map of the
-        current mode (:meth:`_rk4_mode` over s); ``end``: that map at s = dt, already taken."""
+        current mode (:meth:`_rk4_mode` over s); ``end``: that map at s = dt, already taken.
+        With the compiled step, the same in the kernel (rk4_aba.cpp, ddb_locate: scipy's
+        brentq ported operation for operation, so the same root to the last bit)."""
         q0, v0, d = self.q, self.dq, self.slip_dir
+        if self._compiled is not None:
+            b = self.b if self._viscous else None
+            return self._compiled.locate(
+                self._compiled_locked(), q0, v0, self._tau_minus_level, b, d, crossed, end[1], dt
+            )
         best = (dt, -1, None)
         # The flow map at each s evaluated, shared by the crossed joints: brentq evaluates the
         # ends of its bracket again, and the root it returns last. Without an amplifier lag the
