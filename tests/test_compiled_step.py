@@ -57,11 +57,11 @@ def test_compiled_step_is_the_python_step(monkeypatch):
 
 @needs_compiler
 def test_periods_in_one_kernel_call_are_command_and_advance_to(monkeypatch):
-    """UrdfPlant.advance_periods (ddb_advance_periods: many control periods per call, returning
-    at stick events and breakaways, which the plant handles) gives the states of command() +
-    advance_to() per period bit for bit, the same steps and stick events, energy books to
-    round-off (the work products are summed in joint order there), and stops after the first
-    period ending out of its bounds, with that period's row written."""
+    """UrdfPlant.advance_periods (ddb_run_periods: many control periods per call, the stick
+    events and breakaways handled in the kernel) gives the states of command() + advance_to()
+    per period bit for bit, the same steps and stick events, energy books to round-off (the
+    work products are summed in joint order there), and stops after the first period ending
+    out of its bounds, with that period's row written."""
     monkeypatch.setenv(KERNEL_ENV, "compiled")
     robot = load_urdf_robot("panda")
     h, j, rows = 0.0025, np.arange(7), 400
@@ -101,6 +101,44 @@ def test_periods_in_one_kernel_call_are_command_and_advance_to(monkeypatch):
     assert python_step.advance_periods(torques, 1, h, wide, q_out, dq_out) == (0, True)
 
 
+@needs_compiler
+def test_stick_events_in_the_kernel_are_the_python_steps(monkeypatch):
+    """1.5 s of the shipped ur5e excitation (joints stuck while others stick, break away and
+    stick again): the kernel's periods with their stick events in one call (ddb_run_periods)
+    give every period's state of the Python step (command() + advance_to(), scipy's brentq,
+    Pinocchio's reduced models) bit for bit, the same steps, stick events and final stick
+    mode, and the energy books to round-off."""
+    from profiles.experiment import load_experiment
+
+    experiment = load_experiment("ur5e-excitation")
+    robot, h, rows = load_urdf_robot("ur5e"), experiment.period_s, 600
+    torques = np.ascontiguousarray(experiment.torque_rows(h, rows), dtype=float)
+    monkeypatch.setenv(KERNEL_ENV, "python")
+    python = UrdfPlant(UrdfPlantParams.from_profile(robot), q0=experiment.initial_q_rad)
+    q_rows, dq_rows = np.empty((rows, 6)), np.empty((rows, 6))
+    stuck_while_another_sticks = 0
+    for i in range(rows):
+        python.command(torques[i])
+        events = python.stick_events
+        stuck_before = python._n_stuck
+        python.advance_to((i + 1) * h)
+        stuck_while_another_sticks += python.stick_events > events and stuck_before > 0
+        q_rows[i], dq_rows[i] = python.q, python.dq
+    monkeypatch.setenv(KERNEL_ENV, "compiled")
+    kernel = UrdfPlant(UrdfPlantParams.from_profile(robot), q0=experiment.initial_q_rad)
+    wide = (np.full(6, np.inf), np.full(6, np.inf))
+    q_out, dq_out = np.zeros((rows, 6)), np.zeros((rows, 6))
+    assert kernel.advance_periods(torques, 1, h, wide, q_out, dq_out) == (rows, True)
+    assert python.stick_events > 30 and stuck_while_another_sticks > 5
+    assert (kernel.steps, kernel.stick_events, kernel.t) == (python.steps, python.stick_events,
+                                                             python.t)  # fmt: skip
+    assert np.array_equal(q_out, q_rows) and np.array_equal(dq_out, dq_rows)
+    assert np.array_equal(kernel.stuck, python.stuck)
+    assert np.array_equal(kernel.slip_dir, python.slip_dir)
+    assert kernel.work_in_J == pytest.approx(python.work_in_J, rel=1e-12)
+    assert kernel.dissipated_J == pytest.approx(python.dissipated_J, rel=1e-12)
+
+
 def reduced_params(model, stuck: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Pinocchio's own reduced model (the Python step's locked arm) as rows of
     CompiledArm.locked_params: joint placement (rotation row major, translation), mass,
@@ -111,8 +149,11 @@ def reduced_params(model, stuck: np.ndarray, q: np.ndarray) -> np.ndarray:
     rows = []
     for placement, inertia in zip(reduced.jointPlacements[1:], reduced.inertias[1:], strict=True):
         i = inertia.inertia
-        rows.append([*placement.rotation.ravel(), *placement.translation, inertia.mass,
-                     *inertia.lever, i[0, 0], i[0, 1], i[1, 1], i[0, 2], i[1, 2], i[2, 2]])  # fmt: skip
+        symmetric = (i[0, 0], i[0, 1], i[1, 1], i[0, 2], i[1, 2], i[2, 2])
+        rows.append(
+            [*placement.rotation.ravel(), *placement.translation, inertia.mass, *inertia.lever,
+             *symmetric]
+        )  # fmt: skip
     return np.array(rows).reshape(-1, 22)
 
 
@@ -171,8 +212,10 @@ def test_a_locked_arm_refreshed_in_place_is_pinocchios_reduced_model(monkeypatch
 def test_stick_located_in_the_kernel_as_by_scipys_brent(monkeypatch):
     """The kernel's stick location (ddb_locate: scipy's brentq ported, on the kernel's RK4 flow
     map) gives the time, the joint and the state of the Python step's (scipy's brentq on the
-    Python RK4), bit for bit (the viscous work to round-off), at every stick event of a fast Panda run and of 1.5 s of the
-    shipped ur5e excitation (joints stuck while others stick)."""
+    Python RK4), bit for bit (the viscous work to round-off), at every stick event of a fast
+    Panda run and of 1.5 s of the shipped ur5e excitation (joints stuck while others stick).
+    The offline simulation's periods locate in the kernel too (ddb_run_periods); this is the
+    path of command() + advance_to()."""
     monkeypatch.setenv(KERNEL_ENV, "compiled")
     located = UrdfPlant._locate_stick
     compared = []

@@ -6,12 +6,14 @@
 // trees, no FMA contraction, no fast-math; the same library ABA, RNEA and reduced models), on a
 // model built from the same URDF with the same gravity and armature, so its trajectory equals
 // the Python path's to round-off (tests/test_urdf_plant.py runs both against the frozen
-// reference). The stick mode is fixed over a call: every joint sliding (the arm's ABA), or some
-// stuck (the ABA of the arm with those locked, Pinocchio's reduced model, and before each
-// substep Karnopp's breakaway test of UrdfPlant._release_stuck_joints). It returns at the first
-// substep where a watched (sliding, sticky) joint's velocity changes sign, with that substep's
-// RK4 result, or before the first substep where a stuck joint's holding torque leaves its
-// static band; Python then locates the stick or releases the joint exactly as before.
+// reference). In one stick mode: every joint sliding (the arm's ABA), or some stuck (the ABA of
+// the arm with those locked, Pinocchio's reduced model, and before each substep Karnopp's
+// breakaway test of UrdfPlant._release_stuck_joints). ddb_advance returns at the first substep
+// where a watched (sliding, sticky) joint's velocity changes sign, with that substep's RK4
+// result, or before the first substep where a stuck joint's holding torque leaves its static
+// band, and Python locates the stick or releases the joint; ddb_run_periods (the offline
+// simulation's held rows) handles those events itself, by the plant's own sequence of
+// operations (advance_events), and runs on across them.
 //
 // C interface (every function catches C++ exceptions; errors come back as text):
 //   ddb_arm_new(urdf, gravity, armature, n, err, err_len) -> handle or NULL
@@ -21,8 +23,10 @@
 //   ddb_arm_free(handle)
 //   ddb_advance(...) -> 0 reached t_end, 1 stopped at a crossing, 2 stopped before a
 //     breakaway, -1 error
-//   ddb_advance_periods(...) -> ddb_advance's over many control periods, each with its own
-//     held torque, until one ends with a joint too fast or too far (3)
+//   ddb_arm_friction(arm, ...): the joints' Coulomb levels and static bands, once
+//   ddb_run_periods(...) -> many control periods, each with its own held torque, the stick
+//     events and breakaways handled in the kernel as the plant handles them, until one ends
+//     with a joint too fast or too far (3), 0 after them all
 //   ddb_step(...), ddb_accelerations(...): one RK4 step of the mode, q̈ of the mode (for the
 //     Python code that releases a joint) -> 0, or -1 error
 //   ddb_locate(...): where a crossed velocity reaches zero within a step (Brent's method on
@@ -33,11 +37,14 @@
 #include <cstdio>
 #include <cstring>
 #include <exception>
+#include <limits>
+#include <stdexcept>
 #include <memory>
 #include <string>
 #include <vector>
 
 #include "pinocchio/algorithm/aba.hpp"
+#include "pinocchio/algorithm/energy.hpp"
 #include "pinocchio/algorithm/model.hpp"
 #include "pinocchio/algorithm/rnea.hpp"
 #include "pinocchio/parsers/urdf.hpp"
@@ -54,6 +61,11 @@ namespace
     // scratch of one RK4 step (allocated once)
     Vec q, v, c, b, watch, tau, qs, a1, a2, a3, a4, y, z, u, qn, vn, w;
     Vec command, upper, lower;  // τ, and the stuck joints' static bands [lower, upper]
+    // per joint: sticky (0/1), Coulomb levels and static bands by direction
+    // (ddb_arm_friction); the stick mode of a run (ddb_run_periods): stuck (0/1), slip
+    // direction, signed Coulomb level; scratch of the stick events
+    Vec sticky, coulomb_pos, coulomb_neg, band_pos, band_neg, stuck_mask, slip, level;
+    Vec q_end, v_end, q_at, v_at, cross;
     // a full arm's locked arms (Locked *), one per stuck set, built once (ddb_locked) and
     // refreshed in place for the positions where that set is locked again
     std::vector<void *> locked_sets;
@@ -62,7 +74,9 @@ namespace
     {
       data = pinocchio::Data(model);
       for (Vec * x : {&q, &v, &c, &b, &watch, &tau, &qs, &a1, &a2, &a3, &a4, &y, &z, &u, &qn,
-                      &vn, &w, &command})
+                      &vn, &w, &command, &sticky, &coulomb_pos, &coulomb_neg, &band_pos,
+                      &band_neg, &stuck_mask, &slip, &level, &q_end, &v_end, &q_at, &v_at, &cross,
+                      &upper, &lower})
         x->setZero(n);
     }
   };
@@ -357,6 +371,56 @@ namespace
       }
     }
   }
+  // The arm with the joints is_stuck locked at q_ref (UrdfPlant._locked_arm): one Locked per
+  // stuck set, owned by `full`, built by Pinocchio's buildReducedModel the first time that set
+  // sticks and refreshed in place (refresh_locked) when it sticks again at other positions.
+  Locked * lock(Arm & full, const std::vector<bool> & is_stuck, const Vec & q_ref)
+  {
+    const Eigen::Index n = full.model.nv;
+    std::vector<Eigen::Index> stuck_idx, free_idx;
+    for (Eigen::Index i = 0; i < n; ++i)
+      (is_stuck[static_cast<size_t>(i)] ? stuck_idx : free_idx).push_back(i);
+    Locked * locked = nullptr;
+    for (void * kept : full.locked_sets)
+      if (static_cast<Locked *>(kept)->stuck == stuck_idx)
+        locked = static_cast<Locked *>(kept);
+    if (!locked)
+    {
+      // the first time this set sticks: Pinocchio's reduced model gives the structure (and
+      // the placements at q, which refresh_locked computes again the same way)
+      auto built = std::make_unique<Locked>();
+      built->stuck = stuck_idx;
+      built->free = free_idx;
+      built->placed = Vec::Constant(static_cast<Eigen::Index>(stuck_idx.size()), std::nan(""));
+      const Eigen::Index nf = static_cast<Eigen::Index>(free_idx.size());
+      if (nf > 0)
+      {
+        std::vector<pinocchio::JointIndex> joints;  // joint i + 1 moves coordinate i
+        for (Eigen::Index i : stuck_idx)
+          joints.push_back(static_cast<pinocchio::JointIndex>(i + 1));
+        built->arm.model = pinocchio::buildReducedModel(full.model, joints, q_ref);
+        Vec armature(nf);
+        gather(full.model.armature, free_idx, armature);
+        built->arm.model.armature = armature;
+        built->arm.allocate(nf);
+      }
+      locked = built.get();
+      full.locked_sets.push_back(built.release());
+    }
+    // locked again at other positions: only the placements and inertias that q_S enters
+    bool same = true;
+    for (size_t s = 0; s < stuck_idx.size(); ++s)
+    {
+      const double now = q_ref[stuck_idx[s]], was = locked->placed[static_cast<Eigen::Index>(s)];
+      same = same && std::memcmp(&now, &was, sizeof(double)) == 0;
+    }
+    if (!same && !free_idx.empty())
+      refresh_locked(full.model, is_stuck, q_ref, locked->arm.model);
+    for (size_t s = 0; s < stuck_idx.size(); ++s)
+      locked->placed[static_cast<Eigen::Index>(s)] = q_ref[stuck_idx[s]];
+    return locked;
+  }
+
   // urdf_plant.ZERO_VELOCITY, and numpy's float64 eps
   constexpr double kZeroVelocity = 1e-12;
   constexpr double kEps = 2.220446049250313e-16;
@@ -458,6 +522,292 @@ namespace
     failed = "Brent's method did not converge in 100 iterations";
     return xcur;
   }
+  // Where the first of the `crossed` joints' (crossed[j] != 0) velocities reaches zero within
+  // [0, dt] of the mode's RK4 flow map from (arm.q, arm.v) (UrdfPlant._locate_stick, the Python
+  // step's code path, to the last bit): per crossed joint j in order, the zero of
+  // s -> q̇_j(s) · direction_j by Brent's method (brentq above), bracketed as there; the
+  // earliest wins, the first on a tie. arm.v_end: q̇ of the flow at s = dt (already taken).
+  // Returns the joint (−1: none); s and ∫bᵀq̇² dt to s in s_out, work_out, the state at s in
+  // arm.q_at, arm.v_at ((arm.q, arm.v) at s = 0). `failed` set where scipy would raise.
+  Eigen::Index locate(
+    Arm & arm, Locked * locked, bool viscous, const double * direction, const double * crossed,
+    double dt, double & s_out, double & work_out, const char *& failed)
+  {
+    const Eigen::Index n = arm.model.nv;
+    Eigen::Index j = 0;
+    auto velocity = [&](double s) -> double {
+      const double at = s == dt ? arm.v_end[j] : (mode_step(arm, locked, s, viscous), arm.vn[j]);
+      return at * direction[j];
+    };
+    double best = dt;
+    Eigen::Index joint = -1;
+    for (j = 0; j < n; ++j)
+    {
+      if (crossed[j] == 0.0)
+        continue;
+      double lo = 0.0;
+      if (arm.v[j] == 0.0)
+      {
+        // it broke away at the step start: bracket the later zero, not the one at s = 0
+        lo = dt;
+        int i = 0;
+        for (; i < 60; ++i)
+        {
+          lo *= 0.5;
+          if (velocity(lo) > 0)
+            break;
+        }
+        if (i == 60)
+          lo = -1.0;
+      }
+      double s;
+      if (lo < 0)
+        s = 0.0;  // no motion at all: it sticks at once
+      else if (velocity(dt) >= 0)
+        s = dt;  // |q̇_j| at the step's end is at round-off: the crossing is the end
+      else
+        s = brentq(velocity, lo, dt, kZeroVelocity * dt, 4 * kEps, 100, failed);
+      if (failed)
+        return -1;
+      if (s < best || joint < 0)
+      {
+        best = s;
+        joint = j;
+      }
+    }
+    work_out = 0.0;
+    if (best > 0)
+    {
+      work_out = mode_step(arm, locked, best, viscous);
+      arm.q_at = arm.qn;
+      arm.v_at = arm.vn;
+    }
+    else
+    {
+      arm.q_at = arm.q;
+      arm.v_at = arm.v;
+    }
+    s_out = best;
+    return joint;
+  }
+
+  // Stick events at most per integration step (urdf_plant.MAX_EVENTS_PER_STEP)
+  constexpr int kMaxEventsPerStep = 8;
+
+  // One run of control periods with its stick events (ddb_run_periods): the arm, the locked
+  // arm of the current stick mode, and the running totals (t, the booked dissipation and work,
+  // accepted steps, stick events, mode changes), `booked` the q of the last booking.
+  struct Run
+  {
+    Arm & arm;
+    bool viscous;
+    double * booked;
+    Locked * locked = nullptr;
+    double t = 0.0, dissipated = 0.0, steps = 0.0, work = 0.0, events = 0.0, modes = 0.0;
+  };
+
+  // UrdfPlant._book_work: τᵀΔq and levelᵀΔq since the last booking (summed in joint order)
+  void book(Run & r)
+  {
+    Arm & arm = r.arm;
+    double work = 0.0, friction = 0.0;
+    for (Eigen::Index i = 0; i < arm.model.nv; ++i)
+    {
+      const double moved = arm.q[i] - r.booked[i];
+      work += arm.command[i] * moved;
+      friction += arm.level[i] * moved;
+      r.booked[i] = arm.q[i];
+    }
+    r.work += work;
+    r.dissipated += friction;
+  }
+
+  // UrdfPlant._mode_changed after its booking: from the stuck joints and slip directions, the
+  // signed Coulomb levels, τ − level, the watched velocities, the stuck joints' static bands
+  // [−band_neg, band_pos] and the arm with them locked where they stand.
+  void set_mode(Run & r)
+  {
+    Arm & arm = r.arm;
+    const Eigen::Index n = arm.model.nv;
+    std::vector<bool> is_stuck(static_cast<size_t>(n), false);
+    Eigen::Index n_stuck = 0;
+    for (Eigen::Index i = 0; i < n; ++i)
+    {
+      const bool stuck = arm.stuck_mask[i] != 0.0;
+      is_stuck[static_cast<size_t>(i)] = stuck;
+      arm.level[i] = arm.slip[i] * (arm.slip[i] > 0 ? arm.coulomb_pos[i] : arm.coulomb_neg[i]);
+      arm.c[i] = arm.command[i] - arm.level[i];
+      arm.watch[i] = arm.sticky[i] != 0.0 && !stuck ? arm.slip[i] : 0.0;
+      if (stuck)
+      {
+        arm.upper[n_stuck] = arm.band_pos[i];
+        arm.lower[n_stuck] = -arm.band_neg[i];
+        ++n_stuck;
+      }
+    }
+    r.locked = n_stuck ? lock(arm, is_stuck, arm.q) : nullptr;
+    if (r.locked && !r.locked->free.empty())
+    {
+      gather(arm.c, r.locked->free, r.locked->arm.c);
+      if (r.viscous)
+        gather(arm.b, r.locked->free, r.locked->arm.b);
+    }
+  }
+
+  // A mode change: booked first, as UrdfPlant._mode_changed does
+  void change_mode(Run & r)
+  {
+    book(r);
+    set_mode(r);
+    r.modes += 1.0;
+  }
+
+  // UrdfPlant._release_stuck_joints: Karnopp's test on the stuck joints, their holding torques
+  // f_S = (τ − RNEA(q, q̇, q̈))_S with q̈ of the mode against their static bands; the one
+  // furthest outside relative to its band slides (virtual_robot.plant.breakaway_joint), in the
+  // direction of its holding torque, and the others are tested again in the new mode.
+  void release(Run & r)
+  {
+    Arm & arm = r.arm;
+    const Eigen::Index n = arm.model.nv;
+    for (Eigen::Index round = 0; round < n; ++round)
+    {
+      if (!r.locked)
+        return;
+      mode_accelerations(arm, r.locked, r.viscous);
+      const Vec & inverse =
+        pinocchio::rnea(arm.model, arm.data, CRef(arm.q), CRef(arm.v), CRef(arm.a1));
+      const std::vector<Eigen::Index> & stuck = r.locked->stuck;
+      bool breaks = false;
+      for (size_t s = 0; s < stuck.size(); ++s)
+      {
+        const double held = arm.command[stuck[s]] - inverse[stuck[s]];
+        const Eigen::Index k = static_cast<Eigen::Index>(s);
+        breaks = breaks || held > arm.upper[k] || held < arm.lower[k];
+      }
+      if (!breaks)
+        return;
+      Eigen::Index worst = -1;
+      double worst_ratio = 1.0, worst_held = 0.0;
+      for (Eigen::Index i : stuck)  // breakaway_joint, over the stuck joints in order
+      {
+        const double f = arm.command[i] - inverse[i];
+        const double band = f > 0 ? arm.band_pos[i] : arm.band_neg[i];
+        const double ratio =
+          band > 0 ? std::fabs(f) / band : (f != 0 ? std::numeric_limits<double>::infinity() : 0.0);
+        if (ratio > worst_ratio)
+        {
+          worst = i;
+          worst_ratio = ratio;
+          worst_held = f;
+        }
+      }
+      if (worst < 0)
+        return;
+      arm.stuck_mask[worst] = 0.0;
+      arm.slip[worst] = worst_held > 0 ? 1.0 : -1.0;
+      change_mode(r);
+    }
+  }
+
+  // Kinetic plus potential energy at (arm.q, arm.v) (UrdfPlant.energy_J)
+  double energy(Arm & arm)
+  {
+    const double kinetic = pinocchio::computeKineticEnergy(arm.model, arm.data, arm.q, arm.v);
+    const double potential = pinocchio::computePotentialEnergy(arm.model, arm.data, arm.q);
+    return kinetic + potential;
+  }
+
+  // UrdfPlant._step_with_events: the step of dt from (arm.q, arm.v) whose RK4 result (q_end,
+  // v_end, work_end) has a watched velocity changed in sign: cut where the first one reaches
+  // zero, that joint clamped to rest (the kinetic energy lost booked as dissipated) and stuck,
+  // the rest of the step in the new mode, at most kMaxEventsPerStep times.
+  void step_with_events(Run & r, double dt, double work_end)
+  {
+    Arm & arm = r.arm;
+    const Eigen::Index n = arm.model.nv;
+    double remaining = dt;
+    bool first = true;
+    for (int e = 0; e < kMaxEventsPerStep; ++e)
+    {
+      if (remaining <= 1e-15)
+        return;
+      double work = work_end;
+      if (!first)
+      {
+        release(r);
+        work = mode_step(arm, r.locked, remaining, r.viscous);
+        arm.q_end = arm.qn;
+        arm.v_end = arm.vn;
+      }
+      first = false;
+      double used = remaining;
+      Eigen::Index joint = -1;
+      bool any = false;
+      for (Eigen::Index i = 0; i < n; ++i)
+      {
+        arm.cross[i] = arm.v_end[i] * arm.watch[i] < 0.0 ? 1.0 : 0.0;
+        any = any || arm.cross[i] != 0.0;
+      }
+      if (any)
+      {
+        const char * failed = nullptr;
+        joint = locate(arm, r.locked, r.viscous, arm.slip.data(), arm.cross.data(), remaining,
+                       used, work, failed);
+        if (failed)
+          throw std::runtime_error(std::string("locating a stick: ") + failed);
+        arm.q = arm.q_at;
+        arm.v = arm.v_at;
+      }
+      else
+      {
+        arm.q = arm.q_end;
+        arm.v = arm.v_end;
+      }
+      r.dissipated += work;
+      r.t += used;
+      r.steps += 1.0;
+      remaining -= used;
+      if (joint < 0)
+        return;
+      const double before = energy(arm);
+      arm.v[joint] = 0.0;
+      r.dissipated += before - energy(arm);
+      arm.stuck_mask[joint] = 1.0;
+      change_mode(r);
+      r.events += 1.0;
+    }
+    r.t += remaining;  // degenerate chattering: keep the clock honest
+  }
+
+  // UrdfPlant.advance_to with every event handled here: substeps of min(max_step, t_end − t),
+  // Karnopp's test before each, a step with a crossing cut at its stick events.
+  void advance_events(Run & r, double t_end, double max_step)
+  {
+    Arm & arm = r.arm;
+    const Eigen::Index n = arm.model.nv;
+    while (r.t < t_end - 1e-12)
+    {
+      const double dt = std::min(max_step, t_end - r.t);
+      release(r);
+      const double work = mode_step(arm, r.locked, dt, r.viscous);
+      bool crossed = false;
+      for (Eigen::Index i = 0; i < n; ++i)
+        crossed = crossed || !(arm.vn[i] * arm.watch[i] >= 0.0);
+      if (!crossed)
+      {
+        arm.q.swap(arm.qn);
+        arm.v.swap(arm.vn);
+        r.dissipated += work;
+        r.t += dt;
+        r.steps += 1.0;
+        continue;
+      }
+      arm.q_end = arm.qn;
+      arm.v_end = arm.vn;
+      step_with_events(r, dt, work);
+    }
+  }
 } // namespace
 
 extern "C" {
@@ -497,49 +847,7 @@ void * ddb_locked(
     std::vector<bool> is_stuck(static_cast<size_t>(n), false);
     for (int i = 0; i < n_stuck; ++i)
       is_stuck[static_cast<size_t>(stuck[i])] = true;
-    std::vector<Eigen::Index> stuck_idx, free_idx;
-    for (Eigen::Index i = 0; i < n; ++i)
-      (is_stuck[static_cast<size_t>(i)] ? stuck_idx : free_idx).push_back(i);
-    Locked * locked = nullptr;
-    for (void * kept : full.locked_sets)
-      if (static_cast<Locked *>(kept)->stuck == stuck_idx)
-        locked = static_cast<Locked *>(kept);
-    const Vec q_ref = Eigen::Map<const Vec>(q, n);
-    if (!locked)
-    {
-      // the first time this set sticks: Pinocchio's reduced model gives the structure (and
-      // the placements at q, which refresh_locked computes again the same way)
-      auto built = std::make_unique<Locked>();
-      built->stuck = stuck_idx;
-      built->free = free_idx;
-      built->placed = Vec::Constant(static_cast<Eigen::Index>(stuck_idx.size()), std::nan(""));
-      const Eigen::Index nf = static_cast<Eigen::Index>(free_idx.size());
-      if (nf > 0)
-      {
-        std::vector<pinocchio::JointIndex> joints;  // joint i + 1 moves coordinate i
-        for (Eigen::Index i : stuck_idx)
-          joints.push_back(static_cast<pinocchio::JointIndex>(i + 1));
-        built->arm.model = pinocchio::buildReducedModel(full.model, joints, q_ref);
-        Vec armature(nf);
-        gather(full.model.armature, free_idx, armature);
-        built->arm.model.armature = armature;
-        built->arm.allocate(nf);
-      }
-      locked = built.get();
-      full.locked_sets.push_back(built.release());
-    }
-    // locked again at other positions: only the placements and inertias that q_S enters
-    bool same = true;
-    for (size_t s = 0; s < stuck_idx.size(); ++s)
-    {
-      const double now = q_ref[stuck_idx[s]], was = locked->placed[static_cast<Eigen::Index>(s)];
-      same = same && std::memcmp(&now, &was, sizeof(double)) == 0;
-    }
-    if (!same && !free_idx.empty())
-      refresh_locked(full.model, is_stuck, q_ref, locked->arm.model);
-    for (size_t s = 0; s < stuck_idx.size(); ++s)
-      locked->placed[static_cast<Eigen::Index>(s)] = q_ref[stuck_idx[s]];
-    return locked;
+    return lock(full, is_stuck, Eigen::Map<const Vec>(q, n));
   });
 }
 
@@ -616,29 +924,46 @@ int ddb_advance(
   });
 }
 
-// Many control periods in a row, each as UrdfPlant.command(τ_j) then advance_to(t_j) would take
-// them: at the start of period j the work since the last booking is booked (scalars[5] +=
+// The arm's friction per joint, once (UrdfPlant's): sticky (0/1: a joint without Coulomb
+// friction never sticks), Coulomb levels and static bands by direction (n each). 0, or −1.
+int ddb_arm_friction(
+  void * handle, const double * sticky, const double * coulomb_pos, const double * coulomb_neg,
+  const double * band_pos, const double * band_neg, char * err, int err_len)
+{
+  return guarded(-1, err, err_len, [&]() -> int {
+    Arm & arm = *static_cast<Arm *>(handle);
+    const Eigen::Index n = arm.model.nv;
+    arm.sticky = Eigen::Map<const Vec>(sticky, n);
+    arm.coulomb_pos = Eigen::Map<const Vec>(coulomb_pos, n);
+    arm.coulomb_neg = Eigen::Map<const Vec>(coulomb_neg, n);
+    arm.band_pos = Eigen::Map<const Vec>(band_pos, n);
+    arm.band_neg = Eigen::Map<const Vec>(band_neg, n);
+    return 0;
+  });
+}
+
+// Many control periods in a row, each as UrdfPlant.command(τ_j) then advance_to(t_j) take them,
+// stick events and breakaways included (advance_events: UrdfPlant._step, _step_with_events,
+// _release_stuck_joints, _locate_stick, _mode_changed, the same operations in the same order).
+// At the start of period j the work since the last booking is booked (scalars[5] +=
 // τ_{j−1}ᵀΔq, scalars[1] += levelᵀΔq, Δq = q − booked; booked = q: UrdfPlant._book_work, with
-// the products summed in joint order; τ_{−1} = `command`, the torque held now), c = τ_j −
-// level and the stuck joints' test torque τ = τ_j; then ddb_advance's substeps in the current
-// stick mode to t_j = (n0 + j) · h. After each period its end state goes to q_out[j], v_out[j] (rows of n) and is checked: |q̇_i| ≤
-// max_speed_i and |q_i| ≤ q_limit_i (a NaN fails). `torques`: m rows of n; `level`, `booked`:
-// n; scalars as ddb_advance's, plus [5] the booked work in/out and [6] out: the period index
-// j where it stopped. Returns ddb_advance's 1 (crossing) or 2 (breakaway) inside period j
-// (τ_j commanded, booked = q at its start), 3 after period j ended outside the bounds (its
-// row written), 0 after the m periods, −1 on a C++ exception.
-int ddb_advance_periods(
+// the products summed in joint order; τ_{−1} = `command`, the torque held now), then the
+// substeps to t_j = (n0 + j) · h under τ_j. After each period its end state goes to q_out[j],
+// v_out[j] (rows of n) and is checked: |q̇_i| ≤ max_speed_i and |q_i| ≤ q_limit_i (a NaN
+// fails). In/out: q, v; stuck (0/1) and slip (±1) per joint, the stick mode; booked (n);
+// scalars [t, dissipated, steps (out: accepted), -, -, work] and out: [6] the period index j
+// where it stopped, [7] stick events, [8] mode changes. `torques`: m rows of n; `b`: viscous
+// friction or NULL. Needs ddb_arm_friction first. Returns 3 after period j ended outside the
+// bounds (its row written), 0 after the m periods, −1 on a C++ exception.
+int ddb_run_periods(
   void * handle,
-  void * locked_handle,
   double * q,
   double * v,
   const double * b,
-  const double * watch,
+  double * stuck,
+  double * slip,
   const double * command,
-  const double * upper,
-  const double * lower,
   const double * torques,
-  const double * level,
   double * booked,
   int m,
   int n0,
@@ -647,8 +972,6 @@ int ddb_advance_periods(
   const double * max_speed,
   const double * q_limit,
   double * scalars,
-  double * q_cross,
-  double * v_cross,
   double * q_out,
   double * v_out,
   char * err,
@@ -656,37 +979,33 @@ int ddb_advance_periods(
 {
   return guarded(-1, err, err_len, [&]() -> int {
     Arm & arm = *static_cast<Arm *>(handle);
-    Locked * locked = static_cast<Locked *>(locked_handle);
     const Eigen::Index n = arm.model.nv;
-    const bool viscous = b != nullptr;
-    load_mode(arm, locked, q, v, torques, b);  // c is set per period below
-    load_watch(arm, locked, watch, command, upper, lower);
+    Run r{arm, b != nullptr, booked};
+    arm.q = Eigen::Map<const Vec>(q, n);
+    arm.v = Eigen::Map<const Vec>(v, n);
+    if (b)
+      arm.b = Eigen::Map<const Vec>(b, n);
+    arm.stuck_mask = Eigen::Map<const Vec>(stuck, n);
+    arm.slip = Eigen::Map<const Vec>(slip, n);
+    arm.command = Eigen::Map<const Vec>(command, n);
+    set_mode(r);  // the plant's current mode, already booked
+    r.t = scalars[0];
+    r.dissipated = scalars[1];
+    r.work = scalars[5];
     int status = 0;
     int j = 0;
     for (; j < m; ++j)
     {
+      book(r);
       const double * tau = torques + static_cast<Eigen::Index>(j) * n;
-      double work = 0.0, friction = 0.0;
-      for (Eigen::Index i = 0; i < n; ++i)
-      {
-        const double moved = arm.q[i] - booked[i];
-        work += arm.command[i] * moved;
-        friction += level[i] * moved;
-        booked[i] = arm.q[i];
-      }
-      scalars[5] += work;
-      scalars[1] += friction;
       for (Eigen::Index i = 0; i < n; ++i)
       {
         arm.command[i] = tau[i];
-        arm.c[i] = tau[i] - level[i];
+        arm.c[i] = tau[i] - arm.level[i];
       }
-      if (locked && !locked->free.empty())
-        gather(arm.c, locked->free, locked->arm.c);
-      const double t_end = static_cast<double>(n0 + j) * period;
-      status = advance_mode(arm, locked, viscous, t_end, max_step, scalars, q_cross, v_cross);
-      if (status != 0)
-        break;
+      if (r.locked && !r.locked->free.empty())
+        gather(arm.c, r.locked->free, r.locked->arm.c);
+      advance_events(r, static_cast<double>(n0 + j) * period, max_step);
       Eigen::Map<Vec>(q_out + static_cast<Eigen::Index>(j) * n, n) = arm.q;
       Eigen::Map<Vec>(v_out + static_cast<Eigen::Index>(j) * n, n) = arm.v;
       bool inside = true;
@@ -698,9 +1017,17 @@ int ddb_advance_periods(
         break;
       }
     }
-    scalars[6] = j;
     Eigen::Map<Vec>(q, n) = arm.q;
     Eigen::Map<Vec>(v, n) = arm.v;
+    Eigen::Map<Vec>(stuck, n) = arm.stuck_mask;
+    Eigen::Map<Vec>(slip, n) = arm.slip;
+    scalars[0] = r.t;
+    scalars[1] = r.dissipated;
+    scalars[2] = r.steps;
+    scalars[5] = r.work;
+    scalars[6] = j;
+    scalars[7] = r.events;
+    scalars[8] = r.modes;
     return status;
   });
 }
@@ -724,11 +1051,8 @@ int ddb_step(
 }
 
 // Where the first of the `crossed` joints' velocities reaches zero within [0, dt] of the mode's
-// RK4 flow map from (q, v) (UrdfPlant._locate_stick, the Python step's code path, to the last
-// bit): per crossed joint j in order, the zero of s -> q̇_j(s) · direction_j by Brent's method
-// (brentq below, scipy's), bracketed as there; the earliest wins, the first on a tie. v_end:
-// q̇ of the flow at s = dt (already taken). Out: scalars [s, joint, ∫bᵀq̇² dt to s], and the
-// state at s in q_out, v_out (at s = 0, (q, v) itself). 0, −1 on an exception, −2 when Brent's
+// RK4 flow map from (q, v) (locate above, UrdfPlant._locate_stick). Out: scalars [s, joint,
+// ∫bᵀq̇² dt to s], the state at s in q_out, v_out. 0, −1 on an exception, −2 when Brent's
 // method fails (scipy raises then: the text in err).
 int ddb_locate(
   void * handle, void * locked_handle, const double * q, const double * v, const double * c,
@@ -739,66 +1063,20 @@ int ddb_locate(
     Arm & arm = *static_cast<Arm *>(handle);
     Locked * locked = static_cast<Locked *>(locked_handle);
     const Eigen::Index n = arm.model.nv;
-    const bool viscous = b != nullptr;
     load_mode(arm, locked, q, v, c, b);
-    Eigen::Index j = 0;
+    arm.v_end = Eigen::Map<const Vec>(v_end, n);
+    double s = dt, work = 0.0;
     const char * failed = nullptr;
-    auto velocity = [&](double s) -> double {
-      const double at = s == dt ? v_end[j] : (mode_step(arm, locked, s, viscous), arm.vn[j]);
-      return at * direction[j];
-    };
-    double best = dt;
-    Eigen::Index joint = -1;
-    for (j = 0; j < n; ++j)
+    const Eigen::Index joint =
+      locate(arm, locked, b != nullptr, direction, crossed, dt, s, work, failed);
+    if (failed)
     {
-      if (crossed[j] == 0.0)
-        continue;
-      double lo = 0.0;
-      if (v[j] == 0.0)
-      {
-        // it broke away at the step start: bracket the later zero, not the one at s = 0
-        lo = dt;
-        int i = 0;
-        for (; i < 60; ++i)
-        {
-          lo *= 0.5;
-          if (velocity(lo) > 0)
-            break;
-        }
-        if (i == 60)
-          lo = -1.0;
-      }
-      double s;
-      if (lo < 0)
-        s = 0.0;  // no motion at all: it sticks at once
-      else if (velocity(dt) >= 0)
-        s = dt;  // |q̇_j| at the step's end is at round-off: the crossing is the end
-      else
-        s = brentq(velocity, lo, dt, kZeroVelocity * dt, 4 * kEps, 100, failed);
-      if (failed)
-      {
-        set_error(err, err_len, failed);
-        return -2;
-      }
-      if (s < best || joint < 0)
-      {
-        best = s;
-        joint = j;
-      }
+      set_error(err, err_len, failed);
+      return -2;
     }
-    double work = 0.0;
-    if (best > 0)
-    {
-      work = mode_step(arm, locked, best, viscous);
-      Eigen::Map<Vec>(q_out, n) = arm.qn;
-      Eigen::Map<Vec>(v_out, n) = arm.vn;
-    }
-    else
-    {
-      Eigen::Map<Vec>(q_out, n) = arm.q;
-      Eigen::Map<Vec>(v_out, n) = arm.v;
-    }
-    scalars[0] = best;
+    Eigen::Map<Vec>(q_out, n) = arm.q_at;
+    Eigen::Map<Vec>(v_out, n) = arm.v_at;
+    scalars[0] = s;
     scalars[1] = static_cast<double>(joint);
     scalars[2] = work;
     return 0;
