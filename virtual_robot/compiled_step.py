@@ -1,7 +1,8 @@
 """The compiled RK4 step of the n-joint plant (issue 14's speed target): builds
 ``rk4_aba.cpp`` against the Pinocchio C++ library that the ``pin`` wheel installs, loads it
 through ctypes, and gives :class:`CompiledArm`, which :class:`virtual_robot.urdf_plant.UrdfPlant`
-calls for the RK4 substeps of a control period in one stick mode.
+calls for the RK4 substeps of a control period in one stick mode, to locate a stick, and for
+the offline simulation's control periods with their stick events and breakaways.
 
 The shared library is built once per source and toolchain, lazily on first use (or by
 ``make`` setup: ``python -m virtual_robot.compiled_step``), into a cache directory

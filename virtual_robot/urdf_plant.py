@@ -23,14 +23,17 @@ q̇_S = 0 do not change while they stick), and the holding torques f_S from one 
 
 Speed (issue 14; ``python tests/benchmarks/bench_urdf.py --only-simulate``): the steps of a
 control period run in C++ when the compiled step builds (:mod:`virtual_robot.compiled_step`,
-``rk4_aba.cpp``): the same RK4 (:func:`_rk4_aba`), the same locked-joint models and breakaway
-test, around Pinocchio's C++ ABA and RNEA, in one call per period and stick mode, returning
-at a velocity crossing or a breakaway, which this module handles as before (its single steps
-and accelerations also come from the kernel then); bit-identical to the Python step, which
-runs when the kernel cannot be built or ``DDBENCH_PLANT_KERNEL=python``. The offline
-simulation's held rows (:meth:`UrdfPlant.advance_periods`) give the kernel many control
-periods per call, each with its own torque, until a stick event, a breakaway or a joint
-beyond its drive's overspeed threshold.
+``rk4_aba.cpp``): the same RK4 (:func:`_rk4_aba`), the same locked-joint models (one per
+stuck set, its placements and inertias recomputed for a new q_S by buildReducedModel's own
+expressions) and breakaway test, around Pinocchio's C++ ABA and RNEA, in one call per period
+and stick mode, returning at a velocity crossing or a breakaway, which this module handles
+as before (its single steps, accelerations and the located stick, by scipy's brentq ported,
+also come from the kernel then); bit-identical to the Python step, which runs when the
+kernel cannot be built or ``DDBENCH_PLANT_KERNEL=python``. The offline simulation's held
+rows (:meth:`UrdfPlant.advance_periods`) give the kernel many control periods per call, each
+with its own torque, and the kernel handles their stick events and breakaways itself, by
+this module's sequence of operations, until a joint is beyond its drive's overspeed
+threshold.
 
 Concealed effects (an effects profile, docs/effects.md) per joint, by the 2-DOF plant's equations
 (:mod:`virtual_robot.effects`) and in the same places: the torque path (transport delay, amplifier
