@@ -57,11 +57,11 @@ def test_compiled_step_is_the_python_step(monkeypatch):
 
 @needs_compiler
 def test_periods_in_one_kernel_call_are_command_and_advance_to(monkeypatch):
-    """UrdfPlant.advance_periods (ddb_advance_periods: many control periods per call, returning
-    at stick events and breakaways, which the plant handles) gives the states of command() +
-    advance_to() per period bit for bit, the same steps and stick events, energy books to
-    round-off (the work products are summed in joint order there), and stops after the first
-    period ending out of its bounds, with that period's row written."""
+    """UrdfPlant.advance_periods (ddb_run_periods: many control periods per call, the stick
+    events and breakaways handled in the kernel) gives the states of command() + advance_to()
+    per period bit for bit, the same steps and stick events, energy books to round-off (the
+    work products are summed in joint order there), and stops after the first period ending
+    out of its bounds, with that period's row written."""
     monkeypatch.setenv(KERNEL_ENV, "compiled")
     robot = load_urdf_robot("panda")
     h, j, rows = 0.0025, np.arange(7), 400
@@ -102,46 +102,155 @@ def test_periods_in_one_kernel_call_are_command_and_advance_to(monkeypatch):
 
 
 @needs_compiler
-def test_a_recycled_locked_arm_is_a_fresh_one(monkeypatch):
-    """A stuck set locked again at other positions reuses a freed locked arm and its Pinocchio
-    Data (rk4_aba.cpp, ddb_locked_new): its accelerations and RK4 step equal, bit for bit, those
-    of a locked arm built fresh in a new CompiledArm, and those of the Python step's reduced
-    model; a different stuck set is not given the spare."""
+def test_stick_events_in_the_kernel_are_the_python_steps(monkeypatch):
+    """1.5 s of the shipped ur5e excitation (joints stuck while others stick, break away and
+    stick again): the kernel's periods with their stick events in one call (ddb_run_periods)
+    give every period's state of the Python step (command() + advance_to(), scipy's brentq,
+    Pinocchio's reduced models) bit for bit, the same steps, stick events and final stick
+    mode, and the energy books to round-off."""
+    from profiles.experiment import load_experiment
+
+    experiment = load_experiment("ur5e-excitation")
+    robot, h, rows = load_urdf_robot("ur5e"), experiment.period_s, 600
+    torques = np.ascontiguousarray(experiment.torque_rows(h, rows), dtype=float)
+    monkeypatch.setenv(KERNEL_ENV, "python")
+    python = UrdfPlant(UrdfPlantParams.from_profile(robot), q0=experiment.initial_q_rad)
+    q_rows, dq_rows = np.empty((rows, 6)), np.empty((rows, 6))
+    stuck_while_another_sticks = 0
+    for i in range(rows):
+        python.command(torques[i])
+        events = python.stick_events
+        stuck_before = python._n_stuck
+        python.advance_to((i + 1) * h)
+        stuck_while_another_sticks += python.stick_events > events and stuck_before > 0
+        q_rows[i], dq_rows[i] = python.q, python.dq
     monkeypatch.setenv(KERNEL_ENV, "compiled")
+    kernel = UrdfPlant(UrdfPlantParams.from_profile(robot), q0=experiment.initial_q_rad)
+    wide = (np.full(6, np.inf), np.full(6, np.inf))
+    q_out, dq_out = np.zeros((rows, 6)), np.zeros((rows, 6))
+    assert kernel.advance_periods(torques, 1, h, wide, q_out, dq_out) == (rows, True)
+    assert python.stick_events > 30 and stuck_while_another_sticks > 5
+    assert (kernel.steps, kernel.stick_events, kernel.t) == (python.steps, python.stick_events,
+                                                             python.t)  # fmt: skip
+    assert np.array_equal(q_out, q_rows) and np.array_equal(dq_out, dq_rows)
+    assert np.array_equal(kernel.stuck, python.stuck)
+    assert np.array_equal(kernel.slip_dir, python.slip_dir)
+    assert kernel.work_in_J == pytest.approx(python.work_in_J, rel=1e-12)
+    assert kernel.dissipated_J == pytest.approx(python.dissipated_J, rel=1e-12)
+
+
+def reduced_params(model, stuck: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Pinocchio's own reduced model (the Python step's locked arm) as rows of
+    CompiledArm.locked_params: joint placement (rotation row major, translation), mass,
+    lever, rotational inertia (xx, xy, yy, xz, yz, zz)."""
+    import pinocchio as pin
+
+    reduced = pin.buildReducedModel(model, [int(j) + 1 for j in stuck], q)
+    rows = []
+    for placement, inertia in zip(reduced.jointPlacements[1:], reduced.inertias[1:], strict=True):
+        i = inertia.inertia
+        symmetric = (i[0, 0], i[0, 1], i[1, 1], i[0, 2], i[1, 2], i[2, 2])
+        rows.append(
+            [*placement.rotation.ravel(), *placement.translation, inertia.mass, *inertia.lever,
+             *symmetric]
+        )  # fmt: skip
+    return np.array(rows).reshape(-1, 22)
+
+
+@needs_compiler
+@pytest.mark.parametrize("robot_name", ["panda", "ur5e"])
+def test_a_locked_arm_refreshed_in_place_is_pinocchios_reduced_model(monkeypatch, robot_name):
+    """The kernel builds one locked arm per stuck set and, when that set sticks again at other
+    positions, recomputes only what q_S enters (rk4_aba.cpp, refresh_locked): its placements
+    and inertias equal Pinocchio's buildReducedModel at those positions bit for bit, for stuck
+    sets with neighbouring, separated and end joints and every joint; its accelerations and
+    RK4 step equal those of a locked arm built fresh, and the Python step's ABA on the
+    reduced model."""
+    monkeypatch.setenv(KERNEL_ENV, "compiled")
+    import pinocchio as pin
+
     from virtual_robot.compiled_step import CompiledArm
 
-    panda = UrdfPlant(UrdfPlantParams.from_profile(load_urdf_robot("panda")))
-    p = panda.params
+    plant = UrdfPlant(UrdfPlantParams.from_profile(load_urdf_robot(robot_name)))
+    p, n = plant.params, plant.n_joints
+    b = np.asarray(p.viscous_Nms)
     rng = np.random.default_rng(3)
-    q_a, q_b, v, c = rng.uniform(-1.0, 1.0, (4, 7))
-    stuck, other = np.array([1, 3]), np.array([2])
-    v[stuck] = 0.0
-    reused = CompiledArm(p.urdf, p.gravity_m_s2, p.armature_kgm2)
-    for q in (q_a, q_b, q_a):  # keep more than one spare, and take them back in turn
-        for s in (stuck, other):
-            handle = reused.locked(s, q)
-            reused._lib.ddb_locked_free(reused._locked.pop(next(iter(reused._locked))))
-            assert handle not in reused._locked.values()
-    for q in (q_b, q_a):
-        fresh = CompiledArm(p.urdf, p.gravity_m_s2, p.armature_kgm2)
-        locked_r, locked_f = reused.locked(stuck, q), fresh.locked(stuck, q)
-        b = np.asarray(p.viscous_Nms)
-        a_r = reused.accelerations(locked_r, q, v, c, b)
-        a_f = fresh.accelerations(locked_f, q, v, c, b)
-        assert np.array_equal(a_r, a_f) and np.all(a_r[stuck] == 0.0)
-        step_r, step_f = (
-            reused.step(locked_r, q, v, c, b, 5e-4),
-            fresh.step(locked_f, q, v, c, b, 5e-4),
-        )
-        assert all(np.array_equal(x, y) for x, y in zip(step_r, step_f, strict=True))
-        # the Python step's locked arm: Pinocchio's reduced model, fresh Data
-        import pinocchio as pin
+    kept = CompiledArm(p.urdf, p.gravity_m_s2, p.armature_kgm2)
+    sets = [np.array(s) for s in ([1, 3], [2], [1, 2], [0], [n - 1], [0, 2, 4], [1, 2, n - 1])]
+    sets.append(np.arange(n))  # all stuck: nothing moves
+    refreshed = 0
+    for _ in range(4):  # each set locked again at new positions three times
+        for stuck in sets:
+            q, v, c = rng.uniform(-3.0, 3.0, (3, n))
+            v[stuck] = 0.0
+            locked = kept.locked(stuck, q)
+            free = np.setdiff1d(np.arange(n), stuck)
+            if free.size == 0:
+                assert kept.locked_params(locked).size == 0
+                assert np.array_equal(kept.accelerations(locked, q, v, c, b), np.zeros(n))
+                continue
+            assert np.array_equal(kept.locked_params(locked), reduced_params(plant.model, stuck, q))
+            refreshed += 1
+            fresh = CompiledArm(p.urdf, p.gravity_m_s2, p.armature_kgm2)
+            built = fresh.locked(stuck, q)
+            a_k = kept.accelerations(locked, q, v, c, b)
+            assert np.array_equal(a_k, fresh.accelerations(built, q, v, c, b))
+            assert np.all(a_k[stuck] == 0.0)
+            step_k, step_f = (
+                kept.step(locked, q, v, c, b, 5e-4),
+                fresh.step(built, q, v, c, b, 5e-4),
+            )
+            assert all(np.array_equal(x, y) for x, y in zip(step_k, step_f, strict=True))
+            reduced = pin.buildReducedModel(plant.model, [int(j) + 1 for j in stuck], q)
+            reduced.armature = plant.model.armature[free]
+            a_py = pin.aba(reduced, reduced.createData(), q[free], v[free], (c - b * v)[free])
+            assert np.array_equal(a_k[free], a_py)
+    assert refreshed == 4 * (len(sets) - 1)
 
-        reduced = pin.buildReducedModel(panda.model, [int(j) + 1 for j in stuck], q)
-        free = np.setdiff1d(np.arange(7), stuck)
-        reduced.armature = panda.model.armature[free]
-        a_py = pin.aba(reduced, reduced.createData(), q[free], v[free], (c - b * v)[free])
-        assert np.array_equal(a_r[free], a_py)
+
+@needs_compiler
+def test_stick_located_in_the_kernel_as_by_scipys_brent(monkeypatch):
+    """The kernel's stick location (ddb_locate: scipy's brentq ported, on the kernel's RK4 flow
+    map) gives the time, the joint and the state of the Python step's (scipy's brentq on the
+    Python RK4), bit for bit (the viscous work to round-off), at every stick event of a fast
+    Panda run and of 1.5 s of the shipped ur5e excitation (joints stuck while others stick).
+    The offline simulation's periods locate in the kernel too (ddb_run_periods); this is the
+    path of command() + advance_to()."""
+    monkeypatch.setenv(KERNEL_ENV, "compiled")
+    located = UrdfPlant._locate_stick
+    compared = []
+
+    def both(plant, dt, crossed, end):
+        kernel = located(plant, dt, crossed, end)
+        compiled, plant._compiled = plant._compiled, None  # the Python step's
+        try:
+            python = located(plant, dt, crossed, end)
+        finally:
+            plant._compiled = compiled
+        (s_k, joint_k, (q_k, v_k, work_k)), (s_p, joint_p, (q_p, v_p, work_p)) = kernel, python
+        assert (s_k, joint_k) == (s_p, joint_p)
+        assert np.array_equal(q_k, q_p) and np.array_equal(v_k, v_p)
+        # ∫bᵀq̇² dt: Eigen's dot product beside numpy's, which may sum in another order (the
+        # energy books only; the compiled step's work was the kernel's before too)
+        assert work_k == pytest.approx(work_p, rel=1e-14, abs=1e-300)
+        compared.append((kernel[0] < dt, int(crossed.sum()), plant._n_stuck))
+        return kernel
+
+    monkeypatch.setattr(UrdfPlant, "_locate_stick", both)
+    falling_panda()
+    from profiles.experiment import load_experiment
+
+    experiment = load_experiment("ur5e-excitation")
+    ur5e = UrdfPlant(
+        UrdfPlantParams.from_profile(load_urdf_robot("ur5e")), q0=experiment.initial_q_rad
+    )
+    h = experiment.period_s
+    for k, row in enumerate(experiment.torque_rows(h, 600)):
+        ur5e.command(row)
+        ur5e.advance_to((k + 1) * h)
+    assert len(compared) > 20
+    assert any(inside for inside, _, _ in compared)  # zeros inside the step, not only at ends
+    assert any(stuck for _, _, stuck in compared)  # and with joints locked
 
 
 def test_python_step_forced(monkeypatch, tmp_path, capsys):

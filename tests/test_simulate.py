@@ -231,7 +231,7 @@ def _held_and_row_by_row(tmp_path, monkeypatch, robot, experiment, duration_s):
 @pytest.mark.parametrize("case", ["cicese3", "cicese3 overspeed"])
 def test_held_rows_are_the_drive_models_rows(tmp_path, monkeypatch, case, kernel):
     """The offline simulation's block path (drives' arithmetic on arrays while every drive
-    applies torque; the compiled kernel's periods in one call, ddb_advance_periods, or one
+    applies torque; the compiled kernel's periods in one call, ddb_run_periods, or one
     period at a time with the Python step) writes the recording the drive models write row by
     row, byte for byte, the fault and the rows after it included (there it hands over to the
     drive models)."""

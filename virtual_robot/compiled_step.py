@@ -1,7 +1,8 @@
 """The compiled RK4 step of the n-joint plant (issue 14's speed target): builds
 ``rk4_aba.cpp`` against the Pinocchio C++ library that the ``pin`` wheel installs, loads it
 through ctypes, and gives :class:`CompiledArm`, which :class:`virtual_robot.urdf_plant.UrdfPlant`
-calls for the RK4 substeps of a control period in one stick mode.
+calls for the RK4 substeps of a control period in one stick mode, to locate a stick, and for
+the offline simulation's control periods with their stick events and breakaways.
 
 The shared library is built once per source and toolchain, lazily on first use (or by
 ``make`` setup: ``python -m virtual_robot.compiled_step``), into a cache directory
@@ -146,10 +147,14 @@ def load() -> ctypes.CDLL:
         lib.ddb_arm_new.argtypes = [ctypes.c_char_p, ctypes.c_double, ctypes.c_void_p,
                                     ctypes.c_int, ctypes.c_char_p, ctypes.c_int]  # fmt: skip
         lib.ddb_arm_free.argtypes = [ctypes.c_void_p]
-        lib.ddb_locked_new.restype = ctypes.c_void_p
-        lib.ddb_locked_new.argtypes = [ctypes.c_void_p, ctypes.c_int, ctypes.c_void_p,
-                                       ctypes.c_void_p, ctypes.c_char_p, ctypes.c_int]  # fmt: skip
-        lib.ddb_locked_free.argtypes = [ctypes.c_void_p]
+        lib.ddb_locked.restype = ctypes.c_void_p
+        lib.ddb_locked.argtypes = [ctypes.c_void_p, ctypes.c_int, ctypes.c_void_p,
+                                   ctypes.c_void_p, ctypes.c_char_p, ctypes.c_int]  # fmt: skip
+        lib.ddb_locked_params.restype = ctypes.c_int
+        lib.ddb_locked_params.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+        lib.ddb_locate.restype = ctypes.c_int
+        lib.ddb_locate.argtypes = [ctypes.c_void_p] * 9 + [ctypes.c_double] + [
+            ctypes.c_void_p] * 4 + [ctypes.c_int]  # fmt: skip
         lib.ddb_step.restype = ctypes.c_int
         lib.ddb_step.argtypes = [ctypes.c_void_p] * 6 + [ctypes.c_double] + [
             ctypes.c_void_p] * 4 + [ctypes.c_int]  # fmt: skip
@@ -158,9 +163,11 @@ def load() -> ctypes.CDLL:
         lib.ddb_advance.restype = ctypes.c_int
         lib.ddb_advance.argtypes = [ctypes.c_void_p] * 10 + [ctypes.c_double] * 2 + [
             ctypes.c_void_p] * 4 + [ctypes.c_int]  # fmt: skip
-        lib.ddb_advance_periods.restype = ctypes.c_int
-        lib.ddb_advance_periods.argtypes = [ctypes.c_void_p] * 12 + [ctypes.c_int] * 2 + [
-            ctypes.c_double] * 2 + [ctypes.c_void_p] * 8 + [ctypes.c_int]  # fmt: skip
+        lib.ddb_arm_friction.restype = ctypes.c_int
+        lib.ddb_arm_friction.argtypes = [ctypes.c_void_p] * 7 + [ctypes.c_int]
+        lib.ddb_run_periods.restype = ctypes.c_int
+        lib.ddb_run_periods.argtypes = [ctypes.c_void_p] * 9 + [ctypes.c_int] * 2 + [
+            ctypes.c_double] * 2 + [ctypes.c_void_p] * 6 + [ctypes.c_int]  # fmt: skip
         _LIBRARIES[path] = lib
     return _LIBRARIES[path]
 
@@ -170,12 +177,11 @@ def kernel_status() -> KernelStatus:
     return native_build.kernel_status(KERNEL_ENV, load, library_path, "compiled plant step")
 
 
-# ddb_advance's outcomes, and ddb_advance_periods' after a period out of bounds
+# ddb_advance's outcomes, and ddb_run_periods' after a period out of bounds
 REACHED, CROSSED, BREAKS, OUT_OF_BOUNDS = 0, 1, 2, 3
-# Locked-joint models kept in the kernel (as UrdfPlant keeps its own: LOCKED_ARMS_KEPT)
-LOCKED_KEPT = 16
 _ROWS = ("q", "v", "c", "b", "watch", "q_cross", "v_cross", "command", "upper", "lower", "a",
-         "level", "booked", "max_speed", "q_limit")  # fmt: skip
+         "booked", "max_speed", "q_limit", "direction", "crossed", "v_end", "stuck",
+         "slip")  # fmt: skip
 
 
 class CompiledArm:
@@ -194,11 +200,10 @@ class CompiledArm:
         if not handle:
             raise KernelUnavailableError(f"{urdf}: {self._message()}")
         self._handle = handle
-        self._locked: dict[tuple[bytes, bytes], int] = {}
         # the n-vectors of a call (_ROWS), rows of one buffer; then the scalars [t,
         # dissipated, steps, dt of the crossing step, its viscous work]
         self._rows = np.zeros((len(_ROWS), n))
-        self._scalars = np.zeros(7)  # also ddb_step's work in [4]; ddb_advance_periods' [5], [6]
+        self._scalars = np.zeros(9)  # also ddb_step's work in [4]; ddb_run_periods' [5]..[8]
         self._buf = dict(zip(_ROWS, self._rows, strict=True))
         addr, stride = self._rows.ctypes.data, self._rows.strides[0]
         self._addr = {name: addr + i * stride for i, name in enumerate(_ROWS)}
@@ -219,30 +224,32 @@ class CompiledArm:
     def __del__(self) -> None:
         handle = getattr(self, "_handle", None)
         if handle:
-            for locked in self._locked.values():
-                self._lib.ddb_locked_free(locked)
-            self._lib.ddb_arm_free(handle)
+            self._lib.ddb_arm_free(handle)  # with its locked arms
             self._handle = None
 
     def locked(self, stuck: np.ndarray, q: np.ndarray) -> int:
         """The kernel's arm with the joints ``stuck`` (indices) locked at ``q`` (Pinocchio's
-        reduced model, as UrdfPlant._locked_arm), kept for the last few stuck sets and
-        positions."""
-        key = (stuck.tobytes(), q[stuck].tobytes())
-        handle = self._locked.get(key)
-        if handle is None:
-            idx = np.ascontiguousarray(stuck, dtype=np.intc)
-            q_ref = np.ascontiguousarray(q, dtype=float)
-            handle = self._lib.ddb_locked_new(
-                self._handle, idx.size, idx.ctypes.data, q_ref.ctypes.data, self._error,
-                ERROR_CHARS,
-            )  # fmt: skip
-            if not handle:
-                raise RuntimeError(f"compiled plant step: {self._message()}")
-            if len(self._locked) >= LOCKED_KEPT:
-                self._lib.ddb_locked_free(self._locked.pop(next(iter(self._locked))))
-            self._locked[key] = handle
+        reduced model, as UrdfPlant._locked_arm): one per stuck set, built the first time that
+        set sticks and refreshed in place for other positions (rk4_aba.cpp, ddb_locked: only
+        the placements and inertias q_S enters, by buildReducedModel's own expressions). The
+        handle is valid until the same set is locked at other positions (the plant asks once
+        per stick mode)."""
+        idx = np.ascontiguousarray(stuck, dtype=np.intc)
+        q_ref = np.ascontiguousarray(q, dtype=float)
+        handle = self._lib.ddb_locked(
+            self._handle, idx.size, idx.ctypes.data, q_ref.ctypes.data, self._error, ERROR_CHARS
+        )
+        if not handle:
+            raise RuntimeError(f"compiled plant step: {self._message()}")
         return handle
+
+    def locked_params(self, locked: int) -> np.ndarray:
+        """The locked arm's joint placements and inertias, one row of 22 per sliding joint
+        (rotation row major, translation, mass, lever, inertia xx, xy, yy, xz, yz, zz): what
+        the tests compare with Pinocchio's buildReducedModel."""
+        out = np.zeros((self.n, 22))
+        rows = self._lib.ddb_locked_params(locked, out.ctypes.data)
+        return out[:rows]
 
     def _load(self, q: np.ndarray, v: np.ndarray, c: np.ndarray, b: np.ndarray | None) -> int:
         buf = self._buf
@@ -276,6 +283,39 @@ class CompiledArm:
         ):  # fmt: skip
             raise RuntimeError(f"compiled plant step: {self._message()}")
         return buf["q_cross"].copy(), buf["v_cross"].copy(), float(self._scalars[4])
+
+    def locate(
+        self,
+        locked: int | None,
+        q: np.ndarray,
+        v: np.ndarray,
+        tau_minus_level: np.ndarray,
+        b: np.ndarray | None,
+        direction: np.ndarray,
+        crossed: np.ndarray,
+        v_end: np.ndarray,
+        dt: float,
+    ) -> tuple[float, int, tuple[np.ndarray, np.ndarray, float]]:
+        """UrdfPlant._locate_stick in the kernel (ddb_locate: scipy's Brent's method on the
+        mode's RK4 flow map, the same iterates): the first of the ``crossed`` joints whose
+        velocity times ``direction`` reaches zero within [0, dt] from (q, q̇), ``v_end`` the
+        flow's q̇ at dt. Returns (s, joint, (q, q̇, ∫bᵀq̇² dt) at s)."""
+        a, buf = self._addr, self._buf
+        b_addr = self._load(q, v, tau_minus_level, b)
+        buf["direction"][:] = direction
+        buf["crossed"][:] = crossed
+        buf["v_end"][:] = v_end
+        status = self._lib.ddb_locate(
+            self._handle, locked, a["q"], a["v"], a["c"], b_addr or None, a["direction"],
+            a["crossed"], a["v_end"], dt, self._scalars_addr, a["q_cross"], a["v_cross"],
+            self._error, ERROR_CHARS,
+        )  # fmt: skip
+        if status == -2:  # where scipy's brentq raises
+            raise ValueError(f"locating a stick: {self._message()}")
+        if status:
+            raise RuntimeError(f"compiled plant step: {self._message()}")
+        s = self._scalars
+        return float(s[0]), int(s[1]), (buf["q_cross"].copy(), buf["v_cross"].copy(), float(s[2]))
 
     def accelerations(
         self,
@@ -342,66 +382,68 @@ class CompiledArm:
             crossing,
         )  # fmt: skip
 
-    def advance_periods(
+    def set_friction(
+        self,
+        sticky: np.ndarray,
+        coulomb: tuple[np.ndarray, np.ndarray],
+        band: tuple[np.ndarray, np.ndarray],
+    ) -> None:
+        """The plant's friction per joint for :meth:`run_periods`: which joints can stick,
+        their Coulomb levels and static bands (positive, negative direction)."""
+        arrays = [np.ascontiguousarray(a, dtype=float) for a in (sticky, *coulomb, *band)]
+        if self._lib.ddb_arm_friction(
+            self._handle, *(a.ctypes.data for a in arrays), self._error, ERROR_CHARS
+        ):
+            raise RuntimeError(f"compiled plant step: {self._message()}")
+
+    def run_periods(
         self,
         q: np.ndarray,
         v: np.ndarray,
         b: np.ndarray | None,
-        watch: np.ndarray,
-        stuck: tuple[int, tuple[np.ndarray, np.ndarray]] | None,
+        stuck: np.ndarray,
+        slip_dir: np.ndarray,
         command: np.ndarray,
-        level: np.ndarray,
         booked: np.ndarray,
         torques: np.ndarray,
         n0: int,
         period_s: float,
         max_step_s: float,
         bounds: tuple[np.ndarray, np.ndarray],
-        t: float,
-        dissipated: float,
-        work: float,
+        totals: tuple[float, float, float],
         q_out: np.ndarray,
         v_out: np.ndarray,
-    ) -> tuple[int, int, tuple[np.ndarray, ...], tuple[float, float, float, int], tuple | None]:
+    ) -> tuple[bool, int, tuple[np.ndarray, ...], tuple[float, float, float, int, int, int]]:
         """The control periods of ``torques`` (rows, C-contiguous) one after another from (q,
-        q̇) at t, period j ending at (n0 + j) · period_s, each as UrdfPlant.command then
-        advance_to take it (the work since the last booking, from ``booked`` under ``command``
-        and the Coulomb ``level``, booked at its start), in one stick mode (``stuck``: None,
-        or (handle, (upper, lower)) as :meth:`advance`), each period's end state into the rows
-        of q_out, v_out. Until the periods end, a velocity crossing or a breakaway inside one,
-        or a period that ends outside ``bounds`` (max |q̇|, max |q| per joint). Returns
-        (outcome REACHED, CROSSED, BREAKS or OUT_OF_BOUNDS; the period index where it stopped;
-        (q, q̇, the q of the last booking); (t, dissipated, work, accepted steps); crossing as
-        :meth:`advance`'s)."""
+        q̇) in the stick mode (``stuck``, ``slip_dir``) at t, period j ending at (n0 + j) ·
+        period_s, each as UrdfPlant.command then advance_to take it, stick events and
+        breakaways included (ddb_run_periods, after :meth:`set_friction`); the work since
+        the last booking (from ``booked`` under ``command``) booked at each start; each
+        period's end state into the rows of q_out, v_out. Until the periods end or one ends
+        outside ``bounds`` (max |q̇|, max |q| per joint). ``totals``: (t, dissipated, work).
+        Returns (whether every period ended inside the bounds; the period index where it
+        stopped; (q, q̇, stuck, slip direction, the q of the last booking); (t, dissipated,
+        work, accepted steps, stick events, mode changes))."""
         buf, a = self._buf, self._addr
-        b_addr = self._load(q, v, level, b)  # (c is set per period by the kernel)
-        if watch is not self._watch_loaded:
-            buf["watch"][:] = watch
-            self._watch_loaded = watch
-        locked = None
-        if stuck is not None:
-            locked, (upper, lower) = stuck
-            buf["upper"][: upper.size] = upper
-            buf["lower"][: lower.size] = lower
+        b_addr = self._load(q, v, command, b)  # (c is set per period by the kernel)
+        buf["stuck"][:] = stuck
+        buf["slip"][:] = slip_dir
         buf["command"][:] = command
-        buf["level"][:] = level
         buf["booked"][:] = booked
         buf["max_speed"][:], buf["q_limit"][:] = bounds
         s = self._scalars
-        s[0], s[1], s[2], s[5] = t, dissipated, 0.0, work
-        outcome = self._lib.ddb_advance_periods(
-            self._handle, locked, a["q"], a["v"], b_addr or None, a["watch"], a["command"],
-            a["upper"], a["lower"], torques.ctypes.data, a["level"], a["booked"],
-            torques.shape[0], n0, period_s, max_step_s, a["max_speed"], a["q_limit"],
-            self._scalars_addr, a["q_cross"], a["v_cross"], q_out.ctypes.data,
+        s[0], s[1], s[2], s[5] = totals[0], totals[1], 0.0, totals[2]
+        outcome = self._lib.ddb_run_periods(
+            self._handle, a["q"], a["v"], b_addr or None, a["stuck"], a["slip"], a["command"],
+            torques.ctypes.data, a["booked"], torques.shape[0], n0, period_s, max_step_s,
+            a["max_speed"], a["q_limit"], self._scalars_addr, q_out.ctypes.data,
             v_out.ctypes.data, self._error, ERROR_CHARS,
         )  # fmt: skip
         if outcome < 0:
             raise RuntimeError(f"compiled plant step: {self._message()}")
-        crossing = self._crossing() if outcome == CROSSED else None
-        totals = (float(s[0]), float(s[1]), float(s[5]), int(s[2]))
-        q_v_booked = (buf["q"].copy(), buf["v"].copy(), buf["booked"].copy())
-        return outcome, int(s[6]), q_v_booked, totals, crossing
+        state = tuple(buf[k].copy() for k in ("q", "v", "stuck", "slip", "booked"))
+        counts = (float(s[0]), float(s[1]), float(s[5]), int(s[2]), int(s[7]), int(s[8]))
+        return outcome == REACHED, int(s[6]), state, counts
 
 
 def main() -> int:

@@ -6,34 +6,45 @@
 // trees, no FMA contraction, no fast-math; the same library ABA, RNEA and reduced models), on a
 // model built from the same URDF with the same gravity and armature, so its trajectory equals
 // the Python path's to round-off (tests/test_urdf_plant.py runs both against the frozen
-// reference). The stick mode is fixed over a call: every joint sliding (the arm's ABA), or some
-// stuck (the ABA of the arm with those locked, Pinocchio's reduced model, and before each
-// substep Karnopp's breakaway test of UrdfPlant._release_stuck_joints). It returns at the first
-// substep where a watched (sliding, sticky) joint's velocity changes sign, with that substep's
-// RK4 result, or before the first substep where a stuck joint's holding torque leaves its
-// static band; Python then locates the stick or releases the joint exactly as before.
+// reference). In one stick mode: every joint sliding (the arm's ABA), or some stuck (the ABA of
+// the arm with those locked, Pinocchio's reduced model, and before each substep Karnopp's
+// breakaway test of UrdfPlant._release_stuck_joints). ddb_advance returns at the first substep
+// where a watched (sliding, sticky) joint's velocity changes sign, with that substep's RK4
+// result, or before the first substep where a stuck joint's holding torque leaves its static
+// band, and Python locates the stick or releases the joint; ddb_run_periods (the offline
+// simulation's held rows) handles those events itself, by the plant's own sequence of
+// operations (advance_events), and runs on across them.
 //
 // C interface (every function catches C++ exceptions; errors come back as text):
 //   ddb_arm_new(urdf, gravity, armature, n, err, err_len) -> handle or NULL
-//   ddb_locked_new(arm, n_stuck, stuck, q, err, err_len) -> handle of the arm with the stuck
-//     joints locked at q, or NULL; ddb_locked_free(handle)
+//   ddb_locked(arm, n_stuck, stuck, q, err, err_len) -> handle of the arm with the stuck
+//     joints locked at q (one per stuck set, owned by the arm: valid until the same set is
+//     locked at other positions), or NULL; ddb_locked_params(locked, out) (for the tests)
 //   ddb_arm_free(handle)
 //   ddb_advance(...) -> 0 reached t_end, 1 stopped at a crossing, 2 stopped before a
 //     breakaway, -1 error
-//   ddb_advance_periods(...) -> ddb_advance's over many control periods, each with its own
-//     held torque, until one ends with a joint too fast or too far (3)
+//   ddb_arm_friction(arm, ...): the joints' Coulomb levels and static bands, once
+//   ddb_run_periods(...) -> many control periods, each with its own held torque, the stick
+//     events and breakaways handled in the kernel as the plant handles them, until one ends
+//     with a joint too fast or too far (3), 0 after them all
 //   ddb_step(...), ddb_accelerations(...): one RK4 step of the mode, q̈ of the mode (for the
-//     Python code that locates a stick or releases a joint) -> 0, or -1 error
+//     Python code that releases a joint) -> 0, or -1 error
+//   ddb_locate(...): where a crossed velocity reaches zero within a step (Brent's method on
+//     the RK4 flow map, as UrdfPlant._locate_stick) -> 0, -1 error, -2 Brent's method failed
 
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <exception>
+#include <limits>
+#include <stdexcept>
 #include <memory>
 #include <string>
 #include <vector>
 
 #include "pinocchio/algorithm/aba.hpp"
+#include "pinocchio/algorithm/energy.hpp"
 #include "pinocchio/algorithm/model.hpp"
 #include "pinocchio/algorithm/rnea.hpp"
 #include "pinocchio/parsers/urdf.hpp"
@@ -50,30 +61,36 @@ namespace
     // scratch of one RK4 step (allocated once)
     Vec q, v, c, b, watch, tau, qs, a1, a2, a3, a4, y, z, u, qn, vn, w;
     Vec command, upper, lower;  // τ, and the stuck joints' static bands [lower, upper]
-    // a full arm's freed locked arms (Locked *), kept for their Data: a stuck set locked again
-    // at other positions reuses one (ddb_locked_new), its Data sized for that reduced model
-    std::vector<void *> spares;
+    // per joint: sticky (0/1), Coulomb levels and static bands by direction
+    // (ddb_arm_friction); the stick mode of a run (ddb_run_periods): stuck (0/1), slip
+    // direction, signed Coulomb level; scratch of the stick events
+    Vec sticky, coulomb_pos, coulomb_neg, band_pos, band_neg, stuck_mask, slip, level;
+    Vec q_end, v_end, q_at, v_at, cross;
+    // a full arm's locked arms (Locked *), one per stuck set, built once (ddb_locked) and
+    // refreshed in place for the positions where that set is locked again
+    std::vector<void *> locked_sets;
 
     void allocate(Eigen::Index n)
     {
       data = pinocchio::Data(model);
       for (Vec * x : {&q, &v, &c, &b, &watch, &tau, &qs, &a1, &a2, &a3, &a4, &y, &z, &u, &qn,
-                      &vn, &w, &command})
+                      &vn, &w, &command, &sticky, &coulomb_pos, &coulomb_neg, &band_pos,
+                      &band_neg, &stuck_mask, &slip, &level, &q_end, &v_end, &q_at, &v_at, &cross,
+                      &upper, &lower})
         x->setZero(n);
     }
   };
 
   // The arm with its stuck joints locked where they stand (UrdfPlant._locked_arm): the reduced
   // model, its armature the sliding joints', and which coordinates are free and stuck. With
-  // every joint stuck there is no reduced model and no motion.
+  // every joint stuck there is no reduced model and no motion. `placed` holds the positions
+  // q_S it is locked at now (NaN before the first).
   struct Locked
   {
     Arm arm;
     std::vector<Eigen::Index> free, stuck;
-    Arm * full = nullptr;  // the arm it was built from (its spares take it back when freed)
+    Vec placed;
   };
-  // Freed locked arms a full arm keeps (as many as compiled_step.LOCKED_KEPT keeps in use)
-  constexpr size_t kSpares = 16;
 
   void gather(const Vec & from, const std::vector<Eigen::Index> & idx, Vec & to)
   {
@@ -306,6 +323,491 @@ namespace
     scalars[2] = steps;
     return status;
   }
+  // The numbers of pinocchio::buildReducedModel(full, stuck joints, q_ref) that depend on q_ref,
+  // computed into `reduced` (a reduced model of the same stuck set) by the same expressions in
+  // the same order (pinocchio/src/algorithm/model.hxx, buildReducedModel): a stuck joint k is a
+  // fixed frame liMi = (parent frame) · jointPlacements[k] · M_k(q_ref) on its closest sliding
+  // ancestor r, whose inertia gains liMi.act(I_k); a sliding joint's placement is its parent
+  // frame's times its own (the identity unless its parent is stuck), its inertia I_k added to
+  // zero. Only these enter ABA (with the armature, set once); rebuilding the whole model for
+  // each stick event cost 30-115 µs, this a few. tests/test_compiled_step.py compares them with
+  // buildReducedModel bit for bit.
+  void refresh_locked(
+    const pinocchio::Model & full, const std::vector<bool> & is_stuck, const Vec & q_ref,
+    pinocchio::Model & reduced)
+  {
+    using pinocchio::Inertia;
+    using pinocchio::JointIndex;
+    using pinocchio::SE3;
+    const size_t njoints = static_cast<size_t>(full.njoints);
+    std::vector<SE3> frame(njoints, SE3::Identity());  // a stuck joint's liMi
+    std::vector<JointIndex> in_reduced(njoints, 0);    // its joint, or its closest sliding one
+    std::vector<bool> fixed(njoints, false);
+    reduced.inertias[0] = full.inertias[0];
+    JointIndex next = 1;
+    for (JointIndex k = 1; k < njoints; ++k)
+    {
+      const JointIndex parent = full.parents[k];
+      const SE3 parent_frame_placement = fixed[parent] ? frame[parent] : SE3::Identity();
+      const JointIndex reduced_parent = in_reduced[parent];
+      if (is_stuck[k - 1])  // joint k + 1 moves coordinate k (UrdfPlant checks it)
+      {
+        pinocchio::Model::JointData joint_data = full.joints[k].createData();
+        full.joints[k].calc(joint_data, q_ref);
+        const SE3 liMi = parent_frame_placement * full.jointPlacements[k] * joint_data.M();
+        frame[k] = liMi;
+        fixed[k] = true;
+        in_reduced[k] = reduced_parent;
+        reduced.inertias[reduced_parent] += liMi.act(full.inertias[k]);  // Model::addFrame
+      }
+      else
+      {
+        const JointIndex r = next++;
+        in_reduced[k] = r;
+        reduced.jointPlacements[r] = parent_frame_placement * full.jointPlacements[k];
+        reduced.inertias[r] = Inertia::Zero();  // Model::addJoint, then appendBodyToJoint
+        const Inertia & iYf = full.inertias[k].se3Action(SE3::Identity());
+        reduced.inertias[r] += iYf;
+      }
+    }
+  }
+  // The arm with the joints is_stuck locked at q_ref (UrdfPlant._locked_arm): one Locked per
+  // stuck set, owned by `full`, built by Pinocchio's buildReducedModel the first time that set
+  // sticks and refreshed in place (refresh_locked) when it sticks again at other positions.
+  Locked * lock(Arm & full, const std::vector<bool> & is_stuck, const Vec & q_ref)
+  {
+    const Eigen::Index n = full.model.nv;
+    std::vector<Eigen::Index> stuck_idx, free_idx;
+    for (Eigen::Index i = 0; i < n; ++i)
+      (is_stuck[static_cast<size_t>(i)] ? stuck_idx : free_idx).push_back(i);
+    Locked * locked = nullptr;
+    for (void * kept : full.locked_sets)
+      if (static_cast<Locked *>(kept)->stuck == stuck_idx)
+        locked = static_cast<Locked *>(kept);
+    if (!locked)
+    {
+      // the first time this set sticks: Pinocchio's reduced model gives the structure (and
+      // the placements at q, which refresh_locked computes again the same way)
+      auto built = std::make_unique<Locked>();
+      built->stuck = stuck_idx;
+      built->free = free_idx;
+      built->placed = Vec::Constant(static_cast<Eigen::Index>(stuck_idx.size()), std::nan(""));
+      const Eigen::Index nf = static_cast<Eigen::Index>(free_idx.size());
+      if (nf > 0)
+      {
+        std::vector<pinocchio::JointIndex> joints;  // joint i + 1 moves coordinate i
+        for (Eigen::Index i : stuck_idx)
+          joints.push_back(static_cast<pinocchio::JointIndex>(i + 1));
+        built->arm.model = pinocchio::buildReducedModel(full.model, joints, q_ref);
+        Vec armature(nf);
+        gather(full.model.armature, free_idx, armature);
+        built->arm.model.armature = armature;
+        built->arm.allocate(nf);
+      }
+      locked = built.get();
+      full.locked_sets.push_back(built.release());
+    }
+    // locked again at other positions: only the placements and inertias that q_S enters
+    bool same = true;
+    for (size_t s = 0; s < stuck_idx.size(); ++s)
+    {
+      const double now = q_ref[stuck_idx[s]], was = locked->placed[static_cast<Eigen::Index>(s)];
+      same = same && std::memcmp(&now, &was, sizeof(double)) == 0;
+    }
+    if (!same && !free_idx.empty())
+      refresh_locked(full.model, is_stuck, q_ref, locked->arm.model);
+    for (size_t s = 0; s < stuck_idx.size(); ++s)
+      locked->placed[static_cast<Eigen::Index>(s)] = q_ref[stuck_idx[s]];
+    return locked;
+  }
+
+  // urdf_plant.ZERO_VELOCITY, and numpy's float64 eps
+  constexpr double kZeroVelocity = 1e-12;
+  constexpr double kEps = 2.220446049250313e-16;
+
+  // Brent's method as scipy.optimize.brentq runs it (scipy/optimize/Zeros/brentq.c, C. Harris;
+  // BSD-3-Clause, the same operations in the same order, so the same iterates and root): the
+  // zero of f in [xa, xb], f(xa) f(xb) ≤ 0, to xtol + rtol |x|; at most `iter` iterations.
+  // `failed` is set (and the last iterate returned) where scipy would raise, as on a NaN.
+  template<typename G>
+  double brentq(G && g, double xa, double xb, double xtol, double rtol, int iter,
+                const char *& failed)
+  {
+    auto f = [&](double x) -> double {
+      const double fx = g(x);
+      if (std::isnan(fx))
+        failed = "the function value is NaN: Brent's method cannot continue";
+      return fx;
+    };
+    double xpre = xa, xcur = xb;
+    double xblk = 0., fpre, fcur, fblk = 0., spre = 0., scur = 0., sbis;
+    double delta;  // the tolerance is 2 delta
+    double stry, dpre, dblk;
+    fpre = f(xpre);
+    if (failed)
+      return 0.;
+    fcur = f(xcur);
+    if (failed)
+      return 0.;
+    if (fpre * fcur > 0)
+    {
+      failed = "f(a) and f(b) must have different signs";
+      return 0.;
+    }
+    if (fpre == 0)
+      return xpre;
+    if (fcur == 0)
+      return xcur;
+    for (int i = 0; i < iter; i++)
+    {
+      if (fpre * fcur < 0)
+      {
+        xblk = xpre;
+        fblk = fpre;
+        spre = scur = xcur - xpre;
+      }
+      if (std::fabs(fblk) < std::fabs(fcur))
+      {
+        xpre = xcur;
+        xcur = xblk;
+        xblk = xpre;
+        fpre = fcur;
+        fcur = fblk;
+        fblk = fpre;
+      }
+      delta = (xtol + rtol * std::fabs(xcur)) / 2;
+      sbis = (xblk - xcur) / 2;
+      if (fcur == 0 || std::fabs(sbis) < delta)
+        return xcur;
+      if (std::fabs(spre) > delta && std::fabs(fcur) < std::fabs(fpre))
+      {
+        if (xpre == xblk)
+          stry = -fcur * (xcur - xpre) / (fcur - fpre);  // interpolate
+        else
+        {
+          // extrapolate
+          dpre = (fpre - fcur) / (xpre - xcur);
+          dblk = (fblk - fcur) / (xblk - xcur);
+          stry = -fcur * (fblk * dblk - fpre * dpre) / (dblk * dpre * (fblk - fpre));
+        }
+        const double bound = std::fabs(spre) < 3 * std::fabs(sbis) - delta
+                                ? std::fabs(spre)
+                                : 3 * std::fabs(sbis) - delta;  // scipy's MIN
+        if (2 * std::fabs(stry) < bound)
+        {
+          spre = scur;  // good short step
+          scur = stry;
+        }
+        else
+        {
+          spre = sbis;  // bisect
+          scur = sbis;
+        }
+      }
+      else
+      {
+        spre = sbis;  // bisect
+        scur = sbis;
+      }
+      xpre = xcur;
+      fpre = fcur;
+      if (std::fabs(scur) > delta)
+        xcur += scur;
+      else
+        xcur += (sbis > 0 ? delta : -delta);
+      fcur = f(xcur);
+      if (failed)
+        return xcur;
+    }
+    failed = "Brent's method did not converge in 100 iterations";
+    return xcur;
+  }
+  // Where the first of the `crossed` joints' (crossed[j] != 0) velocities reaches zero within
+  // [0, dt] of the mode's RK4 flow map from (arm.q, arm.v) (UrdfPlant._locate_stick, the Python
+  // step's code path, to the last bit): per crossed joint j in order, the zero of
+  // s -> q̇_j(s) · direction_j by Brent's method (brentq above), bracketed as there; the
+  // earliest wins, the first on a tie. arm.v_end: q̇ of the flow at s = dt (already taken).
+  // Returns the joint (−1: none); s and ∫bᵀq̇² dt to s in s_out, work_out, the state at s in
+  // arm.q_at, arm.v_at ((arm.q, arm.v) at s = 0). `failed` set where scipy would raise.
+  Eigen::Index locate(
+    Arm & arm, Locked * locked, bool viscous, const double * direction, const double * crossed,
+    double dt, double & s_out, double & work_out, const char *& failed)
+  {
+    const Eigen::Index n = arm.model.nv;
+    Eigen::Index j = 0;
+    auto velocity = [&](double s) -> double {
+      const double at = s == dt ? arm.v_end[j] : (mode_step(arm, locked, s, viscous), arm.vn[j]);
+      return at * direction[j];
+    };
+    double best = dt;
+    Eigen::Index joint = -1;
+    for (j = 0; j < n; ++j)
+    {
+      if (crossed[j] == 0.0)
+        continue;
+      double lo = 0.0;
+      if (arm.v[j] == 0.0)
+      {
+        // it broke away at the step start: bracket the later zero, not the one at s = 0
+        lo = dt;
+        int i = 0;
+        for (; i < 60; ++i)
+        {
+          lo *= 0.5;
+          if (velocity(lo) > 0)
+            break;
+        }
+        if (i == 60)
+          lo = -1.0;
+      }
+      double s;
+      if (lo < 0)
+        s = 0.0;  // no motion at all: it sticks at once
+      else if (velocity(dt) >= 0)
+        s = dt;  // |q̇_j| at the step's end is at round-off: the crossing is the end
+      else
+        s = brentq(velocity, lo, dt, kZeroVelocity * dt, 4 * kEps, 100, failed);
+      if (failed)
+        return -1;
+      if (s < best || joint < 0)
+      {
+        best = s;
+        joint = j;
+      }
+    }
+    work_out = 0.0;
+    if (best > 0)
+    {
+      work_out = mode_step(arm, locked, best, viscous);
+      arm.q_at = arm.qn;
+      arm.v_at = arm.vn;
+    }
+    else
+    {
+      arm.q_at = arm.q;
+      arm.v_at = arm.v;
+    }
+    s_out = best;
+    return joint;
+  }
+
+  // Stick events at most per integration step (urdf_plant.MAX_EVENTS_PER_STEP)
+  constexpr int kMaxEventsPerStep = 8;
+
+  // One run of control periods with its stick events (ddb_run_periods): the arm, the locked
+  // arm of the current stick mode, and the running totals (t, the booked dissipation and work,
+  // accepted steps, stick events, mode changes), `booked` the q of the last booking.
+  struct Run
+  {
+    Arm & arm;
+    bool viscous;
+    double * booked;
+    Locked * locked = nullptr;
+    double t = 0.0, dissipated = 0.0, steps = 0.0, work = 0.0, events = 0.0, modes = 0.0;
+  };
+
+  // UrdfPlant._book_work: τᵀΔq and levelᵀΔq since the last booking (summed in joint order)
+  void book(Run & r)
+  {
+    Arm & arm = r.arm;
+    double work = 0.0, friction = 0.0;
+    for (Eigen::Index i = 0; i < arm.model.nv; ++i)
+    {
+      const double moved = arm.q[i] - r.booked[i];
+      work += arm.command[i] * moved;
+      friction += arm.level[i] * moved;
+      r.booked[i] = arm.q[i];
+    }
+    r.work += work;
+    r.dissipated += friction;
+  }
+
+  // UrdfPlant._mode_changed after its booking: from the stuck joints and slip directions, the
+  // signed Coulomb levels, τ − level, the watched velocities, the stuck joints' static bands
+  // [−band_neg, band_pos] and the arm with them locked where they stand.
+  void set_mode(Run & r)
+  {
+    Arm & arm = r.arm;
+    const Eigen::Index n = arm.model.nv;
+    std::vector<bool> is_stuck(static_cast<size_t>(n), false);
+    Eigen::Index n_stuck = 0;
+    for (Eigen::Index i = 0; i < n; ++i)
+    {
+      const bool stuck = arm.stuck_mask[i] != 0.0;
+      is_stuck[static_cast<size_t>(i)] = stuck;
+      arm.level[i] = arm.slip[i] * (arm.slip[i] > 0 ? arm.coulomb_pos[i] : arm.coulomb_neg[i]);
+      arm.c[i] = arm.command[i] - arm.level[i];
+      arm.watch[i] = arm.sticky[i] != 0.0 && !stuck ? arm.slip[i] : 0.0;
+      if (stuck)
+      {
+        arm.upper[n_stuck] = arm.band_pos[i];
+        arm.lower[n_stuck] = -arm.band_neg[i];
+        ++n_stuck;
+      }
+    }
+    r.locked = n_stuck ? lock(arm, is_stuck, arm.q) : nullptr;
+    if (r.locked && !r.locked->free.empty())
+    {
+      gather(arm.c, r.locked->free, r.locked->arm.c);
+      if (r.viscous)
+        gather(arm.b, r.locked->free, r.locked->arm.b);
+    }
+  }
+
+  // A mode change: booked first, as UrdfPlant._mode_changed does
+  void change_mode(Run & r)
+  {
+    book(r);
+    set_mode(r);
+    r.modes += 1.0;
+  }
+
+  // UrdfPlant._release_stuck_joints: Karnopp's test on the stuck joints, their holding torques
+  // f_S = (τ − RNEA(q, q̇, q̈))_S with q̈ of the mode against their static bands; the one
+  // furthest outside relative to its band slides (virtual_robot.plant.breakaway_joint), in the
+  // direction of its holding torque, and the others are tested again in the new mode.
+  void release(Run & r)
+  {
+    Arm & arm = r.arm;
+    const Eigen::Index n = arm.model.nv;
+    for (Eigen::Index round = 0; round < n; ++round)
+    {
+      if (!r.locked)
+        return;
+      mode_accelerations(arm, r.locked, r.viscous);
+      const Vec & inverse =
+        pinocchio::rnea(arm.model, arm.data, CRef(arm.q), CRef(arm.v), CRef(arm.a1));
+      const std::vector<Eigen::Index> & stuck = r.locked->stuck;
+      bool breaks = false;
+      for (size_t s = 0; s < stuck.size(); ++s)
+      {
+        const double held = arm.command[stuck[s]] - inverse[stuck[s]];
+        const Eigen::Index k = static_cast<Eigen::Index>(s);
+        breaks = breaks || held > arm.upper[k] || held < arm.lower[k];
+      }
+      if (!breaks)
+        return;
+      Eigen::Index worst = -1;
+      double worst_ratio = 1.0, worst_held = 0.0;
+      for (Eigen::Index i : stuck)  // breakaway_joint, over the stuck joints in order
+      {
+        const double f = arm.command[i] - inverse[i];
+        const double band = f > 0 ? arm.band_pos[i] : arm.band_neg[i];
+        const double ratio =
+          band > 0 ? std::fabs(f) / band : (f != 0 ? std::numeric_limits<double>::infinity() : 0.0);
+        if (ratio > worst_ratio)
+        {
+          worst = i;
+          worst_ratio = ratio;
+          worst_held = f;
+        }
+      }
+      if (worst < 0)
+        return;
+      arm.stuck_mask[worst] = 0.0;
+      arm.slip[worst] = worst_held > 0 ? 1.0 : -1.0;
+      change_mode(r);
+    }
+  }
+
+  // Kinetic plus potential energy at (arm.q, arm.v) (UrdfPlant.energy_J)
+  double energy(Arm & arm)
+  {
+    const double kinetic = pinocchio::computeKineticEnergy(arm.model, arm.data, arm.q, arm.v);
+    const double potential = pinocchio::computePotentialEnergy(arm.model, arm.data, arm.q);
+    return kinetic + potential;
+  }
+
+  // UrdfPlant._step_with_events: the step of dt from (arm.q, arm.v) whose RK4 result (q_end,
+  // v_end, work_end) has a watched velocity changed in sign: cut where the first one reaches
+  // zero, that joint clamped to rest (the kinetic energy lost booked as dissipated) and stuck,
+  // the rest of the step in the new mode, at most kMaxEventsPerStep times.
+  void step_with_events(Run & r, double dt, double work_end)
+  {
+    Arm & arm = r.arm;
+    const Eigen::Index n = arm.model.nv;
+    double remaining = dt;
+    bool first = true;
+    for (int e = 0; e < kMaxEventsPerStep; ++e)
+    {
+      if (remaining <= 1e-15)
+        return;
+      double work = work_end;
+      if (!first)
+      {
+        release(r);
+        work = mode_step(arm, r.locked, remaining, r.viscous);
+        arm.q_end = arm.qn;
+        arm.v_end = arm.vn;
+      }
+      first = false;
+      double used = remaining;
+      Eigen::Index joint = -1;
+      bool any = false;
+      for (Eigen::Index i = 0; i < n; ++i)
+      {
+        arm.cross[i] = arm.v_end[i] * arm.watch[i] < 0.0 ? 1.0 : 0.0;
+        any = any || arm.cross[i] != 0.0;
+      }
+      if (any)
+      {
+        const char * failed = nullptr;
+        joint = locate(arm, r.locked, r.viscous, arm.slip.data(), arm.cross.data(), remaining,
+                       used, work, failed);
+        if (failed)
+          throw std::runtime_error(std::string("locating a stick: ") + failed);
+        arm.q = arm.q_at;
+        arm.v = arm.v_at;
+      }
+      else
+      {
+        arm.q = arm.q_end;
+        arm.v = arm.v_end;
+      }
+      r.dissipated += work;
+      r.t += used;
+      r.steps += 1.0;
+      remaining -= used;
+      if (joint < 0)
+        return;
+      const double before = energy(arm);
+      arm.v[joint] = 0.0;
+      r.dissipated += before - energy(arm);
+      arm.stuck_mask[joint] = 1.0;
+      change_mode(r);
+      r.events += 1.0;
+    }
+    r.t += remaining;  // degenerate chattering: keep the clock honest
+  }
+
+  // UrdfPlant.advance_to with every event handled here: substeps of min(max_step, t_end − t),
+  // Karnopp's test before each, a step with a crossing cut at its stick events.
+  void advance_events(Run & r, double t_end, double max_step)
+  {
+    Arm & arm = r.arm;
+    const Eigen::Index n = arm.model.nv;
+    while (r.t < t_end - 1e-12)
+    {
+      const double dt = std::min(max_step, t_end - r.t);
+      release(r);
+      const double work = mode_step(arm, r.locked, dt, r.viscous);
+      bool crossed = false;
+      for (Eigen::Index i = 0; i < n; ++i)
+        crossed = crossed || !(arm.vn[i] * arm.watch[i] >= 0.0);
+      if (!crossed)
+      {
+        arm.q.swap(arm.qn);
+        arm.v.swap(arm.vn);
+        r.dissipated += work;
+        r.t += dt;
+        r.steps += 1.0;
+        continue;
+      }
+      arm.q_end = arm.qn;
+      arm.v_end = arm.vn;
+      step_with_events(r, dt, work);
+    }
+  }
 } // namespace
 
 extern "C" {
@@ -331,12 +833,12 @@ void * ddb_arm_new(
 void ddb_arm_free(void * handle)
 {
   Arm * arm = static_cast<Arm *>(handle);
-  for (void * spare : arm->spares)
-    delete static_cast<Locked *>(spare);
+  for (void * locked : arm->locked_sets)
+    delete static_cast<Locked *>(locked);
   delete arm;
 }
 
-void * ddb_locked_new(
+void * ddb_locked(
   void * handle, int n_stuck, const int * stuck, const double * q, char * err, int err_len)
 {
   return guarded(static_cast<void *>(nullptr), err, err_len, [&]() -> void * {
@@ -345,66 +847,44 @@ void * ddb_locked_new(
     std::vector<bool> is_stuck(static_cast<size_t>(n), false);
     for (int i = 0; i < n_stuck; ++i)
       is_stuck[static_cast<size_t>(stuck[i])] = true;
-    std::vector<pinocchio::JointIndex> joints;  // joint i + 1 moves coordinate i
-    std::vector<Eigen::Index> stuck_idx, free_idx;
-    for (Eigen::Index i = 0; i < n; ++i)
-    {
-      if (is_stuck[static_cast<size_t>(i)])
-      {
-        stuck_idx.push_back(i);
-        joints.push_back(static_cast<pinocchio::JointIndex>(i + 1));
-      }
-      else
-        free_idx.push_back(i);
-    }
-    // A spare of the same stuck set has the Data of this reduced model's structure (Data
-    // depends on the joint tree, not on q_S or the inertias; ABA writes every field it reads):
-    // reused, only the model is built again. Else a new one.
-    std::unique_ptr<Locked> locked;
-    for (auto it = full.spares.begin(); it != full.spares.end(); ++it)
-      if (static_cast<Locked *>(*it)->stuck == stuck_idx)
-      {
-        locked.reset(static_cast<Locked *>(*it));
-        full.spares.erase(it);
-        break;
-      }
-    const bool reused = locked != nullptr;
-    if (!reused)
-    {
-      locked = std::make_unique<Locked>();
-      locked->stuck = stuck_idx;
-      locked->free = free_idx;
-    }
-    locked->full = &full;
-    const Eigen::Index nf = static_cast<Eigen::Index>(locked->free.size());
-    if (nf > 0)
-    {
-      const Vec q_ref = Eigen::Map<const Vec>(q, n);
-      locked->arm.model = pinocchio::buildReducedModel(full.model, joints, q_ref);
-      Vec armature(nf);
-      gather(full.model.armature, locked->free, armature);
-      locked->arm.model.armature = armature;
-      if (!reused)
-        locked->arm.allocate(nf);
-    }
-    return locked.release();
+    return lock(full, is_stuck, Eigen::Map<const Vec>(q, n));
   });
 }
 
-void ddb_locked_free(void * handle)
+// The reduced model's placements and inertias (22 numbers per joint after the universe: the
+// joint placement's rotation, row major, and translation; the inertia's mass, lever and
+// rotational inertia (xx, xy, yy, xz, yz, zz)) into out: for tests/test_compiled_step.py, which
+// compares them with Pinocchio's buildReducedModel. Returns the number of joints written.
+int ddb_locked_params(void * locked_handle, double * out)
 {
-  Locked * locked = static_cast<Locked *>(handle);
-  Arm * full = locked->full;
-  if (full && full->spares.size() < kSpares)
-    full->spares.push_back(locked);  // kept for its Data (ddb_locked_new)
-  else
-    delete locked;
+  const Locked & locked = *static_cast<Locked *>(locked_handle);
+  if (locked.free.empty())
+    return 0;
+  const pinocchio::Model & m = locked.arm.model;
+  int written = 0;
+  for (pinocchio::JointIndex r = 1; r < static_cast<pinocchio::JointIndex>(m.njoints); ++r)
+  {
+    const pinocchio::SE3 & placement = m.jointPlacements[r];
+    const pinocchio::Inertia & inertia = m.inertias[r];
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j)
+        *out++ = placement.rotation()(i, j);
+    for (int i = 0; i < 3; ++i)
+      *out++ = placement.translation()[i];
+    *out++ = inertia.mass();
+    for (int i = 0; i < 3; ++i)
+      *out++ = inertia.lever()[i];
+    for (int i = 0; i < 6; ++i)
+      *out++ = inertia.inertia().data()[i];
+    ++written;
+  }
+  return written;
 }
 
 // Integrate from scalars[0] (t) to t_end in steps of min(max_step, t_end − t), as
 // UrdfPlant.advance_to, in the current stick mode under the held τ − level `c` (viscous `b`, or
 // NULL for none): `locked` NULL, every joint sliding; else the arm with its stuck joints locked
-// (ddb_locked_new), whose holding torques τ_S − RNEA(q, q̇, q̈)_S are tested against the bands
+// (ddb_locked), whose holding torques τ_S − RNEA(q, q̇, q̈)_S are tested against the bands
 // [lower, upper] (n_stuck each) before each substep, with τ = `command`. q, v: in/out.
 // scalars: [t, dissipated, steps] in/out (t and the booked dissipation advance per accepted
 // step, in the same order of additions as Python), then out: [3] the dt and [4] the viscous
@@ -444,29 +924,46 @@ int ddb_advance(
   });
 }
 
-// Many control periods in a row, each as UrdfPlant.command(τ_j) then advance_to(t_j) would take
-// them: at the start of period j the work since the last booking is booked (scalars[5] +=
+// The arm's friction per joint, once (UrdfPlant's): sticky (0/1: a joint without Coulomb
+// friction never sticks), Coulomb levels and static bands by direction (n each). 0, or −1.
+int ddb_arm_friction(
+  void * handle, const double * sticky, const double * coulomb_pos, const double * coulomb_neg,
+  const double * band_pos, const double * band_neg, char * err, int err_len)
+{
+  return guarded(-1, err, err_len, [&]() -> int {
+    Arm & arm = *static_cast<Arm *>(handle);
+    const Eigen::Index n = arm.model.nv;
+    arm.sticky = Eigen::Map<const Vec>(sticky, n);
+    arm.coulomb_pos = Eigen::Map<const Vec>(coulomb_pos, n);
+    arm.coulomb_neg = Eigen::Map<const Vec>(coulomb_neg, n);
+    arm.band_pos = Eigen::Map<const Vec>(band_pos, n);
+    arm.band_neg = Eigen::Map<const Vec>(band_neg, n);
+    return 0;
+  });
+}
+
+// Many control periods in a row, each as UrdfPlant.command(τ_j) then advance_to(t_j) take them,
+// stick events and breakaways included (advance_events: UrdfPlant._step, _step_with_events,
+// _release_stuck_joints, _locate_stick, _mode_changed, the same operations in the same order).
+// At the start of period j the work since the last booking is booked (scalars[5] +=
 // τ_{j−1}ᵀΔq, scalars[1] += levelᵀΔq, Δq = q − booked; booked = q: UrdfPlant._book_work, with
-// the products summed in joint order; τ_{−1} = `command`, the torque held now), c = τ_j −
-// level and the stuck joints' test torque τ = τ_j; then ddb_advance's substeps in the current
-// stick mode to t_j = (n0 + j) · h. After each period its end state goes to q_out[j], v_out[j] (rows of n) and is checked: |q̇_i| ≤
-// max_speed_i and |q_i| ≤ q_limit_i (a NaN fails). `torques`: m rows of n; `level`, `booked`:
-// n; scalars as ddb_advance's, plus [5] the booked work in/out and [6] out: the period index
-// j where it stopped. Returns ddb_advance's 1 (crossing) or 2 (breakaway) inside period j
-// (τ_j commanded, booked = q at its start), 3 after period j ended outside the bounds (its
-// row written), 0 after the m periods, −1 on a C++ exception.
-int ddb_advance_periods(
+// the products summed in joint order; τ_{−1} = `command`, the torque held now), then the
+// substeps to t_j = (n0 + j) · h under τ_j. After each period its end state goes to q_out[j],
+// v_out[j] (rows of n) and is checked: |q̇_i| ≤ max_speed_i and |q_i| ≤ q_limit_i (a NaN
+// fails). In/out: q, v; stuck (0/1) and slip (±1) per joint, the stick mode; booked (n);
+// scalars [t, dissipated, steps (out: accepted), -, -, work] and out: [6] the period index j
+// where it stopped, [7] stick events, [8] mode changes. `torques`: m rows of n; `b`: viscous
+// friction or NULL. Needs ddb_arm_friction first. Returns 3 after period j ended outside the
+// bounds (its row written), 0 after the m periods, −1 on a C++ exception.
+int ddb_run_periods(
   void * handle,
-  void * locked_handle,
   double * q,
   double * v,
   const double * b,
-  const double * watch,
+  double * stuck,
+  double * slip,
   const double * command,
-  const double * upper,
-  const double * lower,
   const double * torques,
-  const double * level,
   double * booked,
   int m,
   int n0,
@@ -475,8 +972,6 @@ int ddb_advance_periods(
   const double * max_speed,
   const double * q_limit,
   double * scalars,
-  double * q_cross,
-  double * v_cross,
   double * q_out,
   double * v_out,
   char * err,
@@ -484,37 +979,33 @@ int ddb_advance_periods(
 {
   return guarded(-1, err, err_len, [&]() -> int {
     Arm & arm = *static_cast<Arm *>(handle);
-    Locked * locked = static_cast<Locked *>(locked_handle);
     const Eigen::Index n = arm.model.nv;
-    const bool viscous = b != nullptr;
-    load_mode(arm, locked, q, v, torques, b);  // c is set per period below
-    load_watch(arm, locked, watch, command, upper, lower);
+    Run r{arm, b != nullptr, booked};
+    arm.q = Eigen::Map<const Vec>(q, n);
+    arm.v = Eigen::Map<const Vec>(v, n);
+    if (b)
+      arm.b = Eigen::Map<const Vec>(b, n);
+    arm.stuck_mask = Eigen::Map<const Vec>(stuck, n);
+    arm.slip = Eigen::Map<const Vec>(slip, n);
+    arm.command = Eigen::Map<const Vec>(command, n);
+    set_mode(r);  // the plant's current mode, already booked
+    r.t = scalars[0];
+    r.dissipated = scalars[1];
+    r.work = scalars[5];
     int status = 0;
     int j = 0;
     for (; j < m; ++j)
     {
+      book(r);
       const double * tau = torques + static_cast<Eigen::Index>(j) * n;
-      double work = 0.0, friction = 0.0;
-      for (Eigen::Index i = 0; i < n; ++i)
-      {
-        const double moved = arm.q[i] - booked[i];
-        work += arm.command[i] * moved;
-        friction += level[i] * moved;
-        booked[i] = arm.q[i];
-      }
-      scalars[5] += work;
-      scalars[1] += friction;
       for (Eigen::Index i = 0; i < n; ++i)
       {
         arm.command[i] = tau[i];
-        arm.c[i] = tau[i] - level[i];
+        arm.c[i] = tau[i] - arm.level[i];
       }
-      if (locked && !locked->free.empty())
-        gather(arm.c, locked->free, locked->arm.c);
-      const double t_end = static_cast<double>(n0 + j) * period;
-      status = advance_mode(arm, locked, viscous, t_end, max_step, scalars, q_cross, v_cross);
-      if (status != 0)
-        break;
+      if (r.locked && !r.locked->free.empty())
+        gather(arm.c, r.locked->free, r.locked->arm.c);
+      advance_events(r, static_cast<double>(n0 + j) * period, max_step);
       Eigen::Map<Vec>(q_out + static_cast<Eigen::Index>(j) * n, n) = arm.q;
       Eigen::Map<Vec>(v_out + static_cast<Eigen::Index>(j) * n, n) = arm.v;
       bool inside = true;
@@ -526,9 +1017,17 @@ int ddb_advance_periods(
         break;
       }
     }
-    scalars[6] = j;
     Eigen::Map<Vec>(q, n) = arm.q;
     Eigen::Map<Vec>(v, n) = arm.v;
+    Eigen::Map<Vec>(stuck, n) = arm.stuck_mask;
+    Eigen::Map<Vec>(slip, n) = arm.slip;
+    scalars[0] = r.t;
+    scalars[1] = r.dissipated;
+    scalars[2] = r.steps;
+    scalars[5] = r.work;
+    scalars[6] = j;
+    scalars[7] = r.events;
+    scalars[8] = r.modes;
     return status;
   });
 }
@@ -547,6 +1046,39 @@ int ddb_step(
     work[0] = mode_step(arm, locked, dt, b != nullptr);
     Eigen::Map<Vec>(q_out, arm.model.nv) = arm.qn;
     Eigen::Map<Vec>(v_out, arm.model.nv) = arm.vn;
+    return 0;
+  });
+}
+
+// Where the first of the `crossed` joints' velocities reaches zero within [0, dt] of the mode's
+// RK4 flow map from (q, v) (locate above, UrdfPlant._locate_stick). Out: scalars [s, joint,
+// ∫bᵀq̇² dt to s], the state at s in q_out, v_out. 0, −1 on an exception, −2 when Brent's
+// method fails (scipy raises then: the text in err).
+int ddb_locate(
+  void * handle, void * locked_handle, const double * q, const double * v, const double * c,
+  const double * b, const double * direction, const double * crossed, const double * v_end,
+  double dt, double * scalars, double * q_out, double * v_out, char * err, int err_len)
+{
+  return guarded(-1, err, err_len, [&]() -> int {
+    Arm & arm = *static_cast<Arm *>(handle);
+    Locked * locked = static_cast<Locked *>(locked_handle);
+    const Eigen::Index n = arm.model.nv;
+    load_mode(arm, locked, q, v, c, b);
+    arm.v_end = Eigen::Map<const Vec>(v_end, n);
+    double s = dt, work = 0.0;
+    const char * failed = nullptr;
+    const Eigen::Index joint =
+      locate(arm, locked, b != nullptr, direction, crossed, dt, s, work, failed);
+    if (failed)
+    {
+      set_error(err, err_len, failed);
+      return -2;
+    }
+    Eigen::Map<Vec>(q_out, n) = arm.q_at;
+    Eigen::Map<Vec>(v_out, n) = arm.v_at;
+    scalars[0] = s;
+    scalars[1] = static_cast<double>(joint);
+    scalars[2] = work;
     return 0;
   });
 }

@@ -23,14 +23,17 @@ q̇_S = 0 do not change while they stick), and the holding torques f_S from one 
 
 Speed (issue 14; ``python tests/benchmarks/bench_urdf.py --only-simulate``): the steps of a
 control period run in C++ when the compiled step builds (:mod:`virtual_robot.compiled_step`,
-``rk4_aba.cpp``): the same RK4 (:func:`_rk4_aba`), the same locked-joint models and breakaway
-test, around Pinocchio's C++ ABA and RNEA, in one call per period and stick mode, returning
-at a velocity crossing or a breakaway, which this module handles as before (its single steps
-and accelerations also come from the kernel then); bit-identical to the Python step, which
-runs when the kernel cannot be built or ``DDBENCH_PLANT_KERNEL=python``. The offline
-simulation's held rows (:meth:`UrdfPlant.advance_periods`) give the kernel many control
-periods per call, each with its own torque, until a stick event, a breakaway or a joint
-beyond its drive's overspeed threshold.
+``rk4_aba.cpp``): the same RK4 (:func:`_rk4_aba`), the same locked-joint models (one per
+stuck set, its placements and inertias recomputed for a new q_S by buildReducedModel's own
+expressions) and breakaway test, around Pinocchio's C++ ABA and RNEA, in one call per period
+and stick mode, returning at a velocity crossing or a breakaway, which this module handles
+as before (its single steps, accelerations and the located stick, by scipy's brentq ported,
+also come from the kernel then); bit-identical to the Python step, which runs when the
+kernel cannot be built or ``DDBENCH_PLANT_KERNEL=python``. The offline simulation's held
+rows (:meth:`UrdfPlant.advance_periods`) give the kernel many control periods per call, each
+with its own torque, and the kernel handles their stick events and breakaways itself, by
+this module's sequence of operations, until a joint is beyond its drive's overspeed
+threshold.
 
 Concealed effects (an effects profile, docs/effects.md) per joint, by the 2-DOF plant's equations
 (:mod:`virtual_robot.effects`) and in the same places: the torque path (transport delay, amplifier
@@ -67,7 +70,6 @@ from virtual_robot import __version__
 from virtual_robot.compiled_step import (
     BREAKS,
     CROSSED,
-    REACHED,
     CompiledArm,
     KernelStatus,
     KernelUnavailableError,
@@ -225,6 +227,12 @@ class UrdfPlant:
                 self._compiled = CompiledArm(params.urdf, params.gravity_m_s2, params.armature_kgm2)
             except KernelUnavailableError as exc:
                 self.kernel = KernelStatus("python", str(exc))
+            else:  # for the stick events of advance_periods, which the kernel handles itself
+                self._compiled.set_friction(
+                    self.sticky,
+                    (self.coulomb_pos, self.coulomb_neg),
+                    (self.band_pos, self.band_neg),
+                )
 
     # ---- inputs and outputs -----------------------------------------------------------------
     def command(
@@ -364,13 +372,15 @@ class UrdfPlant:
     ) -> tuple[int, bool]:
         """Control periods one after another, by the compiled kernel: before period j the
         command ``torques[j]`` (every amplifier powered), then :meth:`advance_to` of
-        (n0 + j) · period_s, its end state into q_out[j], dq_out[j]; the periods between stick
-        events in one kernel call (ddb_advance_periods), a stick event or breakaway handled
-        as :meth:`_advance_compiled` handles it. Stops after the first period that ends with
-        some |q̇_i| > bounds[0]_i or |q_i| > bounds[1]_i (or a NaN). Returns (periods
-        integrated, whether the last ended inside the bounds); (0, True) at once when the
-        kernel is not running or an effect acts on the command or the encoders (the caller
-        then commands each period itself). ``torques``, q_out, dq_out: C-contiguous rows."""
+        (n0 + j) · period_s, its end state into q_out[j], dq_out[j]; all of them in one kernel
+        call (ddb_run_periods), which handles the stick events and breakaways as
+        :meth:`_step`, :meth:`_step_with_events` and :meth:`_release_stuck_joints` do, by the
+        same operations (the energy books to round-off: its sums run in joint order). Stops
+        after the first period that ends with some |q̇_i| > bounds[0]_i or |q_i| > bounds[1]_i
+        (or a NaN). Returns (periods integrated, whether the last ended inside the bounds);
+        (0, True) at once when the kernel is not running or an effect acts on the command or
+        the encoders (the caller then commands each period itself). ``torques``, q_out,
+        dq_out: C-contiguous rows."""
         if (
             self._compiled is None
             or self._delay is not None
@@ -378,41 +388,27 @@ class UrdfPlant:
             or self._gain_offset is not None
             or self._encoder_offset is not None
             or not self._all_powered
+            or not len(torques)
         ):
             return 0, True
-        max_speed, q_limit = bounds
-        m, j = len(torques), 0
-        while j < m:
-            stuck = (self._compiled_locked(), self._band_s) if self._n_stuck else None
-            outcome, stop, (q, v, booked), totals, crossing = self._compiled.advance_periods(
-                self.q, self.dq, self.b if self._viscous else None, self._watch, stuck,
-                self.command_Nm, self._level, self._booked_q, torques[j:], n0 + j, period_s,
-                self.max_step_s, bounds, self.t, self._dissipated_booked, self._work_booked,
-                q_out[j:], dq_out[j:],
-            )  # fmt: skip
-            self.q, self.dq, self._booked_q = q, v, booked
-            self.t, self._dissipated_booked, self._work_booked, steps = totals
-            self.steps += steps
-            j += stop
-            # the command of the period it stopped in, as command() leaves it
-            tau = torques[min(j, m - 1)].copy()
-            self._held_Nm = self.command_Nm = tau
+        inside, stop, state, counts = self._compiled.run_periods(
+            self.q, self.dq, self.b if self._viscous else None, self.stuck, self.slip_dir,
+            self.command_Nm, self._booked_q, torques, n0, period_s, self.max_step_s, bounds,
+            (self.t, self._dissipated_booked, self._work_booked), q_out, dq_out,
+        )  # fmt: skip
+        self.q, self.dq, stuck, slip_dir, self._booked_q = state
+        self.t, self._dissipated_booked, self._work_booked, steps, events, modes = counts
+        self.steps += steps
+        self.stick_events += events
+        # the command of the period it stopped in, as command() leaves it
+        tau = torques[stop if stop < len(torques) else -1].copy()
+        self._held_Nm = self.command_Nm = tau
+        if modes:  # the kernel's stick mode, already booked there
+            self.stuck, self.slip_dir = stuck != 0.0, slip_dir
+            self._set_mode()
+        else:
             self._tau_minus_level = tau - self._level
-            if outcome == REACHED:
-                return m, True
-            if outcome != CROSSED and outcome != BREAKS:  # the period ended out of bounds
-                return j + 1, False
-            if outcome == CROSSED:
-                self._step_with_events(*crossing)
-            t_end = (n0 + j) * period_s
-            if outcome == BREAKS:
-                self._step(min(self.max_step_s, t_end - self.t))
-            self.advance_to(t_end)
-            q_out[j], dq_out[j] = self.q, self.dq
-            j += 1
-            if not ((np.abs(self.dq) <= max_speed).all() and (np.abs(self.q) <= q_limit).all()):
-                return j, False
-        return m, True
+        return (len(torques), True) if inside else (stop + 1, False)
 
     # ---- dynamics -----------------------------------------------------------------------------
     def _mode_changed(self) -> None:
@@ -420,6 +416,10 @@ class UrdfPlant:
         frozen until the next change), which velocities to watch for a sign change, and the
         index sets of the constrained dynamics (sliding F, stuck S)."""
         self._book_work()
+        self._set_mode()
+
+    def _set_mode(self) -> None:
+        """:meth:`_mode_changed` after its booking."""
         self._level = self.slip_dir * np.where(
             self.slip_dir > 0, self.coulomb_pos, self.coulomb_neg
         )
@@ -614,8 +614,15 @@ class UrdfPlant:
     ) -> tuple[float, int, tuple[np.ndarray, np.ndarray, float]]:
         """The first joint whose velocity reaches zero within [0, dt], the time it does and the
         state there: Brent's method on that joint's velocity along the RK4 flow map of the
-        current mode (:meth:`_rk4_mode` over s); ``end``: that map at s = dt, already taken."""
+        current mode (:meth:`_rk4_mode` over s); ``end``: that map at s = dt, already taken.
+        With the compiled step, the same in the kernel (rk4_aba.cpp, ddb_locate: scipy's
+        brentq ported operation for operation, so the same root to the last bit)."""
         q0, v0, d = self.q, self.dq, self.slip_dir
+        if self._compiled is not None:
+            b = self.b if self._viscous else None
+            return self._compiled.locate(
+                self._compiled_locked(), q0, v0, self._tau_minus_level, b, d, crossed, end[1], dt
+            )
         best = (dt, -1, None)
         # The flow map at each s evaluated, shared by the crossed joints: brentq evaluates the
         # ends of its bracket again, and the root it returns last. Without an amplifier lag the
