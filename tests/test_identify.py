@@ -201,6 +201,20 @@ def test_cli_identify_both_keeps_the_schemes_it_can_simulate(tmp_path):
     assert (out / "params.json").is_file() and (out / "params-paper.json").is_file()
 
 
+def test_cli_identify_on_rows_all_near_a_stick_gives_no_torque_error_for_that_joint(tmp_path):
+    """0.08 s from rest at λ = 50 rad/s: every torque row of joint 2 holds its stuck start
+    within the filter's memory, so there is nothing to compare it on. That stopped the
+    command (exit 2, "nrmse: no samples"); now its torque NRMSE is null, printed –."""
+    run = tmp_path / "run"
+    simulate(load_robot("cicese"), load_experiment("reyes-kelly"), run, duration_s=0.08, plot=False)
+    out = tmp_path / "id"
+    proc = _hil("identify", "--from", str(run), "--out", str(out), "--lambda", "50",
+                "--no-plot", "--json")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    torque = json.loads(proc.stdout)["profile_validation"]["fit"]["torque_nrmse"]
+    assert torque[1] is None and 0 < torque[0] < 1, torque
+
+
 def test_table_ii_text_has_every_parameter(recordings):
     rec = recordings["default"]
     res = identify(rec.q, rec.tau, rec.period_s)

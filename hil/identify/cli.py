@@ -532,10 +532,12 @@ def _validation_text(
         head += f"{'held-out position':>22s}{'held-out torque':>20s}"
     lines.append(head)
 
-    def cells(values: list[float] | None, widths: tuple[int, int]) -> str:
-        if values is None:  # not simulated
-            return "".join(f"{'–':>{w}s}" for w in widths)
-        return "".join(f"{100 * x:>{w}.2f}" for x, w in zip(values, widths, strict=True))
+    def cells(values: list[float | None] | None, widths: tuple[int, int]) -> str:
+        values = values or [None] * len(widths)  # not simulated
+        return "".join(
+            f"{'–':>{w}s}" if x is None else f"{100 * x:>{w}.2f}"
+            for x, w in zip(values, widths, strict=True)
+        )
 
     def row(label: str, val: dict[str, Any]) -> str:
         refused = val["fit"].get("simulation_not_possible")  # θ the simulator cannot take

@@ -269,6 +269,8 @@ def validate(
     positive definite, a negative Coulomb level — a least-squares fit on short or quantized
     data) is not simulated: ``position_nrmse``, ``position_max_error_rad`` and ``simulated_q``
     are None and ``simulation_not_possible`` says why; its torque prediction is still given.
+    A joint with no torque row to compare (every row holds a stuck interval within the
+    filter's memory: a short recording from rest) has ``torque_nrmse`` None.
     """
     return validate_many([theta], rec, lam=lam, chunk=chunk, progress=progress, stages=[stage])[0]
 
@@ -339,7 +341,8 @@ def validate_many(
             "recording": str(rec.path),
             "position_nrmse": [float(x) for x in position[i].result()] if simulated else None,
             "position_max_error_rad": [float(x) for x in worst[i]] if simulated else None,
-            "torque_nrmse": [float(acc.result()) for acc in torque[i]],
+            # None: no row of that joint free of a stuck interval in the filter's memory
+            "torque_nrmse": [float(acc.result()) if acc.n else None for acc in torque[i]],
             # for plots; dropped from JSON
             "simulated_q": np.concatenate(shown[i]) if simulated else None,
             "simulated_rows": np.arange(0, n, every),
