@@ -590,6 +590,11 @@ def run_identify_model(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     from hil.model.openloop import simulate_windows
     from profiles.robot import load_robot
 
+    if args.discretization != "exact":  # it was ignored: the rows below are the exact ones
+        raise ValueError(
+            "--discretization: a model with terms or a foreign recording (--format) is fitted "
+            "on the exact rows only; the paper's are the 9-parameter reproduction's"
+        )
     robot, terms = _robot_terms(args)
     profile = load_robot(robot)
     model = ArmModel(terms)
