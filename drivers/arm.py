@@ -22,12 +22,13 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NoReturn
 
 from profiles.bench import DEFAULT_FEEDBACK_BUDGET_S  # realtime: later feedback = link dead
 
 DEFAULT_SPIN_S = 0.0002  # realtime wait without a scheduler: spin the last 0.2 ms
 LIVENESS_POLL_S = 0.005  # a late wait checks every 5 ms whether the link or peer died
+MAX_ERRORS_KEPT = 100  # LinkStats.errors: a link that fails every frame must not grow it forever
 
 
 class LinkError(RuntimeError):
@@ -109,6 +110,14 @@ class LinkStats:
     max_feedback_wait_s: float = 0.0
     errors: list[str] = field(default_factory=list)
 
+    def note_error(self, text: str) -> None:
+        """Keep ``text`` in :attr:`errors`, up to MAX_ERRORS_KEPT of them."""
+        errors = self.errors
+        if len(errors) < MAX_ERRORS_KEPT:
+            errors.append(text)
+        elif len(errors) == MAX_ERRORS_KEPT:
+            errors.append("(further errors not kept)")
+
     def waited(self, wait_s: float, period_s: float) -> None:
         """Count one feedback wait (realtime): late if longer than one period."""
         if wait_s > period_s:
@@ -118,7 +127,10 @@ class LinkStats:
 
 
 class Arm(abc.ABC):
-    """A link to the drives of one arm. Subclasses: one per protocol (CAN 402, serial)."""
+    """A link to the drives of one arm. Subclasses: one per protocol (CAN 402, serial). What
+    their lifecycle shares is here: the settings (:meth:`_init_link`), the safe stop on every
+    exit path, and in a cycle the command check, the limits and the safety stop
+    (:meth:`_command`, :meth:`_check_limits`, :meth:`_safety_stop`)."""
 
     n_joints: int = 2
     period_s: float
@@ -248,6 +260,36 @@ class Arm(abc.ABC):
         # a dead link must not mask the error that brought us here
         with contextlib.suppress(Exception):
             self.disable()
+
+    # ---- what every link's cycle shares: the command check and the safety stop ---------------
+    def _note_error(self, text: str) -> None:
+        """Keep ``text`` in :attr:`stats` (a link with a traffic log writes it there too)."""
+        self.stats.note_error(text)
+
+    def _safety_stop(self, reason: str) -> NoReturn:
+        """Stop the arm (:meth:`safe_stop`: zero torque, drives disabled), keep the reason,
+        raise :class:`SafetyStop`."""
+        self.safe_stop()
+        self._note_error(f"safety stop: {reason}")
+        raise SafetyStop(reason)
+
+    def _command(self, tau_Nm: Sequence[float], started: bool) -> tuple[float, ...]:
+        """The torque of a :meth:`cycle`, clamped to the limits. RuntimeError before
+        :meth:`start` (``started`` False); a command that is not one finite value per joint is a
+        safety stop."""
+        if not started:
+            raise RuntimeError(f"{type(self).__name__}.cycle() before start()")
+        if len(tau_Nm) != self.n_joints or not all(math.isfinite(float(t)) for t in tau_Nm):
+            self._safety_stop(
+                f"torque command {tuple(tau_Nm)} is not {self.n_joints} finite values"
+            )
+        return self.limits.clamp_torque(tau_Nm)
+
+    def _check_limits(self, q: Sequence[float], dq: Sequence[float] | None) -> None:
+        """A safety stop if the feedback ``q`` (and ``dq`` where known) is outside the limits."""
+        reason = self.limits.check(q, dq)
+        if reason is not None:
+            self._safety_stop(reason)
 
     def __enter__(self) -> Arm:
         self.open()

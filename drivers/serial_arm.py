@@ -36,7 +36,7 @@ from typing import TextIO
 
 import serial
 
-from drivers.arm import LIVENESS_POLL_S, Arm, Fault, LinkError, SafetyLimits, SafetyStop, Sample
+from drivers.arm import LIVENESS_POLL_S, Arm, Fault, LinkError, SafetyLimits, Sample
 from drivers.protocol import gemini as gm
 from drivers.protocol.cia402 import (
     ERR_OVERSPEED,
@@ -185,12 +185,7 @@ class SerialArm(Arm):
         return Sample(t, q, status, zeros, sent, received, math.nan)
 
     def cycle(self, tau_Nm: Sequence[float], deadline: float | None = None) -> Sample:
-        if self._k is None:
-            raise RuntimeError("SerialArm.cycle() before start()")
-        if len(tau_Nm) != self.n_joints or not all(math.isfinite(float(t)) for t in tau_Nm):
-            self.safe_stop()
-            raise SafetyStop(f"torque command {tuple(tau_Nm)} is not {self.n_joints} finite values")
-        tau = self.limits.clamp_torque(tau_Nm)
+        tau = self._command(tau_Nm, self._k is not None)
         permille = [
             torque_to_permille(t, d.rated_torque_Nm) for t, d in zip(tau, self.drives, strict=True)
         ]
@@ -272,12 +267,6 @@ class SerialArm(Arm):
             position_to_rad(c, d.counts_per_rev)
             for c, d in zip(self._counts, self.drives, strict=True)
         )
-
-    def _check_limits(self, q: tuple[float, ...], dq: tuple[float, ...] | None) -> None:
-        reason = self.limits.check(q, dq)
-        if reason is not None:
-            self.safe_stop()
-            raise SafetyStop(reason)
 
     def _echo_off(self) -> None:
         """ECHO0, tolerating the echo of this very line and junk left on the line before it."""
@@ -367,12 +356,18 @@ class SerialArm(Arm):
                 ) from None
 
     def _error(self, message: str) -> LinkError:
-        self.stats.errors.append(message)
+        """The LinkError to raise for ``message``, kept as the link's errors are."""
+        self._note_error(message)
+        return LinkError(message)
+
+    def _note_error(self, text: str) -> None:
+        """Kept in the stats and written to serial.log as a ``!`` line (flushed: the run may
+        end with it)."""
+        super()._note_error(text)
         if self._log is not None:
-            self._log_line("!", message)
+            self._log_line("!", text)
             with contextlib.suppress(Exception):
                 self._log.flush()
-        return LinkError(message)
 
     def _log_line(self, arrow: str, text: str) -> None:
         if self._log is None:

@@ -379,6 +379,12 @@ def test_non_finite_torque_is_a_safety_stop(rig):
         with pytest.raises(SafetyStop, match="not 2 finite values"):
             arm.cycle((math.nan, 0.0))
         assert [d.state for d in rig.core.drives] == [State.SWITCH_ON_DISABLED] * 2
+        assert arm.stats.errors[-1].startswith("safety stop: torque command (nan, 0.0)")
+
+
+def test_cycle_before_start_is_refused(rig):
+    with rig.arm() as arm, pytest.raises(RuntimeError, match=r"CanArm.cycle\(\) before start"):
+        arm.cycle((0.0, 0.0))
 
 
 # ---- realtime -------------------------------------------------------------------------------
@@ -451,20 +457,29 @@ def test_parse_frame_returns_a_frame_none_or_value_error(can_id, data, extended,
     )
 )
 def test_listener_never_raises_on_random_frames(frames):
-    arm = CanArm(
-        lambda: can.Bus(interface="virtual", channel="unused"),
-        [load_drive("dm1200a"), load_drive("dm1015b")],
-        period_s=H,
-        mode="lockstep",
-        timeout_s=0.1,
-        limits=LIMITS,
-    )
-    arm._collect_since = 0.0  # as if a SYNC were in flight
-    arm._missing = 4
+    """Neither receive path (a Message at a time, or a batch of standard frames) raises on
+    any frame, and both keep the same errors for the same frames."""
+
+    def listening() -> CanArm:
+        arm = CanArm(
+            lambda: can.Bus(interface="virtual", channel="unused"),
+            [load_drive("dm1200a"), load_drive("dm1015b")],
+            period_s=H,
+            mode="lockstep",
+            timeout_s=0.1,
+            limits=LIMITS,
+        )
+        arm._collect_since = 0.0  # as if a SYNC were in flight
+        arm._missing = 4
+        return arm
+
+    one, batch = listening(), listening()
     for can_id, data in frames:
-        arm._on_frame(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
-    assert arm.stats.frames_received == len(frames)
-    assert len(arm.stats.errors) <= 101
+        one._on_frame(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
+    batch._on_standard_frames(frames, time.time(), time.monotonic())
+    assert one.stats.frames_received == batch.stats.frames_received == len(frames)
+    assert len(one.stats.errors) <= 101
+    assert one.stats.errors == batch.stats.errors
 
 
 def test_parse_frame_decodes_feedback_and_emcy():

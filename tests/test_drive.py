@@ -183,10 +183,10 @@ def test_torque_scaling() -> None:
     assert e.torque_Nm == pytest.approx(0.015)
 
 
-def test_torque_clamp_sets_saturated() -> None:
+def test_torque_clamp_sets_internal_limit_bit() -> None:
+    """A clamped target shows on the bus: statusword bit 11 set, bit 10 (reached) clear."""
     d = enabled()
     d.write_target_torque(1500, 0.0)
-    assert d.saturated
     assert d.torque_actual_permille == 1000
     assert d.torque_Nm == pytest.approx(200.0)
     assert d.statusword & 0x0800
@@ -194,9 +194,8 @@ def test_torque_clamp_sets_saturated() -> None:
     d.write_max_torque(250)
     d.write_target_torque(-300, 0.0)
     assert d.torque_actual_permille == -250
-    assert d.saturated
+    assert d.statusword & 0x0800
     d.write_target_torque(200, 0.0)
-    assert not d.saturated
     assert not d.statusword & 0x0800
     assert d.statusword & 0x0400
 
@@ -208,7 +207,7 @@ def test_torque_zero_when_not_enabled() -> None:
         d.write_controlword(cw, 0.0)
         assert d.torque_Nm == 0.0
         assert d.torque_actual_permille == 0
-        assert not d.saturated
+        assert not d.statusword & 0x0800
     assert d.target_torque_permille == 500
 
 
@@ -524,7 +523,10 @@ def test_invariants(profile, boot: float, steps: list) -> None:
         assert INT32_MIN <= d.position_counts <= INT32_MAX
         assert INT32_MIN <= d.velocity_counts_s <= INT32_MAX
         assert 0 <= d.statusword <= 0xFFFF
-        assert bool(d.statusword & 0x0800) == d.saturated
+        # bit 11 (internal limit) exactly when the applied torque is not the target: clamped
+        applying = d.state is State.OPERATION_ENABLED and not d.controlword & 0x0100
+        clamped = applying and d.torque_actual_permille != d.target_torque_permille
+        assert bool(d.statusword & 0x0800) == clamped
         assert d.mode in (MODE_CST, MODE_TQ)
         for ev in d.pop_emcy():
             assert ev.error_code in (ERR_NONE, ERR_RPDO_TIMEOUT, ERR_OVERSPEED)

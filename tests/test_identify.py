@@ -16,7 +16,7 @@ import pytest
 
 from drivers.recording import read_signals
 from hil.identify.online import OnlineIdentifier
-from hil.identify.schemes import format_table_ii, identify, validate
+from hil.identify.schemes import format_table_ii, identify, validate, validate_many
 from hil.model.estimators import (
     RecursiveLeastSquares,
     least_squares,
@@ -154,6 +154,65 @@ def test_validation_prefers_identified_over_wrong_parameters(recordings):
     assert bad["position_nrmse"][0] > 10 * good["position_nrmse"][0]
     assert bad["torque_nrmse"][0] > 5 * good["torque_nrmse"][0]
     assert set(validate(REFERENCE, held)) >= {"position_nrmse", "torque_nrmse"}
+
+
+def test_a_theta_the_simulator_refuses_is_validated_by_torque_only(recordings):
+    """A least-squares θ may not be simulable (M(q) not positive definite, a negative Coulomb
+    level): validated beside others, it gets no position error and one line saying why, its
+    torque prediction still; the other θ get the numbers they get alone."""
+    rec = recordings["default"]
+    not_pd, negative_coulomb = REFERENCE.copy(), REFERENCE.copy()
+    not_pd[2] = -0.01  # θ3 = M22 < 0
+    negative_coulomb[8] = -0.5
+    good, bad_m, bad_f = validate_many([REFERENCE, not_pd, negative_coulomb], rec)
+    alone = validate(REFERENCE, rec)
+    assert good["position_nrmse"] == alone["position_nrmse"]
+    assert "simulation_not_possible" not in good
+    for bad, why in ((bad_m, "not positive definite"), (bad_f, "Coulomb")):
+        assert bad["position_nrmse"] is None and bad["simulated_q"] is None
+        assert why in bad["simulation_not_possible"] and "\n" not in bad["simulation_not_possible"]
+        assert all(np.isfinite(bad["torque_nrmse"]))
+
+
+def test_cli_identify_both_keeps_the_schemes_it_can_simulate(tmp_path):
+    """0.2 s of excitation at λ = 2000 rad/s: some schemes' θ have a negative Coulomb level or
+    an indefinite M(q), which made `--discretization both` exit 2 with nothing written. Now
+    exit 0: those schemes' validation says in one line why it was not simulated, every other
+    result is kept."""
+    run = tmp_path / "run"
+    simulate(load_robot("cicese"), load_experiment("reyes-kelly"), run, duration_s=0.2, plot=False)
+    out = tmp_path / "id"
+    proc = _hil("identify", "--from", str(run), "--out", str(out), "--discretization", "both",
+                "--lambda", "2000", "--no-plot")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads((out / "identify.json").read_text())
+    validations = {
+        (disc, s): v["validation"]["fit"]
+        for disc, entry in doc["discretizations"].items()
+        for s, v in entry["schemes"].items()
+    }
+    refused = {k for k, v in validations.items() if "simulation_not_possible" in v}
+    assert refused and refused != set(validations), validations
+    for key, v in validations.items():
+        assert (v["position_nrmse"] is None) == (key in refused)
+        assert all(np.isfinite(v["torque_nrmse"]))
+    said = [line for line in proc.stdout.splitlines() if "simulation not possible:" in line]
+    assert len(said) == len(refused)
+    assert (out / "params.json").is_file() and (out / "params-paper.json").is_file()
+
+
+def test_cli_identify_on_rows_all_near_a_stick_gives_no_torque_error_for_that_joint(tmp_path):
+    """0.08 s from rest at λ = 50 rad/s: every torque row of joint 2 holds its stuck start
+    within the filter's memory, so there is nothing to compare it on. That stopped the
+    command (exit 2, "nrmse: no samples"); now its torque NRMSE is null, printed –."""
+    run = tmp_path / "run"
+    simulate(load_robot("cicese"), load_experiment("reyes-kelly"), run, duration_s=0.08, plot=False)
+    out = tmp_path / "id"
+    proc = _hil("identify", "--from", str(run), "--out", str(out), "--lambda", "50",
+                "--no-plot", "--json")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    torque = json.loads(proc.stdout)["profile_validation"]["fit"]["torque_nrmse"]
+    assert torque[1] is None and 0 < torque[0] < 1, torque
 
 
 def test_table_ii_text_has_every_parameter(recordings):

@@ -254,6 +254,18 @@ def test_robot_profile_term_errors(tmp_path):
         load_robot(bad)
 
 
+def test_identify_model_path_refuses_the_paper_discretization(tmp_path, capsys):
+    """The model path fits the exact rows only: --discretization paper or both was silently
+    ignored there; now it is a one-line usage error (exit 2) before anything is read."""
+    for disc in ("paper", "both"):
+        code = hil_main(
+            ["identify", "--from", str(tmp_path / "missing.csv"), "--robot", "dfki-a0",
+             "--discretization", disc, "--out", str(tmp_path / "out")]
+        )  # fmt: skip
+        err = capsys.readouterr().err
+        assert code == 2 and "exact rows only" in err and err.count("\n") == 1, err
+
+
 def test_identify_cli_on_the_committed_dfki_file(tmp_path, capsys):
     """`hil identify --format dfki --robot dfki-a0`: no traceback, physical estimates, the
     rotor inertia estimated, and on held-out data (the file's last 40 %) the rotor model

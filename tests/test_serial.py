@@ -511,8 +511,20 @@ def test_safety_stop_disables_the_drives():
             for _ in range(50):
                 arm.cycle((100.0, 0.0))
         assert states(core) == [co.State.SWITCH_ON_DISABLED] * 2
+        assert arm.stats.errors[-1].startswith("safety stop: joint 1 position")
         with pytest.raises(SafetyStop, match="finite"):
             arm.cycle((float("nan"), 0.0))
+        assert arm.stats.errors[-1].startswith("safety stop: torque command (nan, 0.0)")
+
+
+def test_cycle_before_start_is_refused():
+    core = VirtualRobot(ROBOT)
+    with (
+        serving(core) as (port, _, _),
+        make_arm(port) as arm,
+        pytest.raises(RuntimeError, match=r"SerialArm.cycle\(\) before start"),
+    ):
+        arm.cycle((0.0, 0.0))
 
 
 def test_realtime_watchdog_faults_when_the_host_stops_streaming():

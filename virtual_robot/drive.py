@@ -365,20 +365,12 @@ class DriveModel:
     @property
     def torque_actual_permille(self) -> int:
         """0x6077: the clamped target while applying torque, else 0."""
-        # applying torque: enabled, not halted (saturated tests the same; both are read every
+        # applying torque: enabled, not halted (statusword tests the same; both are read every
         # period, inline rather than through a shared property)
         if self._state is not _ENABLED or self._controlword & CW_HALT:
             return 0
         target, limit = self._target, self._max_torque  # clamped to ±limit (comparisons:
         return limit if target > limit else -limit if target < -limit else target  # no calls)
-
-    @property
-    def saturated(self) -> bool:
-        """The applied torque is the clamped target (statusword bit 11, internal limit)."""
-        # applying torque, as torque_actual_permille tests it
-        if self._state is not _ENABLED or self._controlword & CW_HALT:
-            return False
-        return abs(self._target) > self._max_torque
 
     @property
     def powered(self) -> bool:

@@ -1,7 +1,7 @@
 """The control cycle of :class:`~drivers.can_arm.CanArm`: RPDOs and SYNC (one write in
 lockstep, the SYNC at the deadline in realtime), the wait for every drive's TPDO1 + TPDO2
 within the feedback budget (a dead link or robot ends it at once), counts to rad, and the
-safety limits (a safety stop on a violation).
+safety limits (:meth:`drivers.arm.Arm._check_limits`: a safety stop on a violation).
 
 :class:`SyncCycle` is a mixin of :class:`~drivers.can_arm.CanArm`.
 
@@ -16,7 +16,7 @@ from collections.abc import Sequence
 
 import can
 
-from drivers.arm import LIVENESS_POLL_S, LinkError, SafetyStop, Sample
+from drivers.arm import LIVENESS_POLL_S, LinkError, Sample
 from drivers.can_arm.objects import LOCKSTEP, REALTIME, one_line
 from drivers.protocol import cia402 as co
 from drivers.units import (
@@ -78,7 +78,7 @@ class SyncCycle:
                     f"no feedback from node {self.node_ids[j]} within {timeout * 1000:g} ms "
                     "(the feedback budget): virtual robot, drive or bus stalled or gone"
                 )
-                self._error(message)
+                self._note_error(message)
                 raise LinkError(message)
         with self._fb_lock:
             fb1 = list(self._fb1)
@@ -129,7 +129,7 @@ class SyncCycle:
                 self._read_frames(min(left, LOCKSTEP_LIVENESS_POLL_S))
             except (can.CanError, OSError, RuntimeError) as exc:
                 self._link_lost = f"CAN link lost: {one_line(exc)}"
-                self._error(f"CAN receive failed: {one_line(exc)}")
+                self._note_error(f"CAN receive failed: {one_line(exc)}")
                 return False
         return True
 
@@ -147,13 +147,6 @@ class SyncCycle:
             status.append(sw)
         self._started = True
         return tuple(q), tuple(dq), tuple(status)
-
-    def _check_limits(self, q: tuple[float, ...], dq: tuple[float, ...]) -> None:
-        reason = self.limits.check(q, dq)
-        if reason is not None:
-            self.safe_stop()
-            self._error(f"safety stop: {reason}")
-            raise SafetyStop(reason)
 
     def start(self) -> Sample:
         """First feedback q(t_0): keep-alive RPDO (torque 0), SYNC, TPDOs of every drive."""
@@ -180,11 +173,7 @@ class SyncCycle:
 
     def cycle(self, tau_Nm: Sequence[float], deadline: float | None = None) -> Sample:
         """Command ``tau_Nm`` (clamped, quantized) for one period; the feedback at its end."""
-        if not self._started:
-            raise LinkError("cycle() before start()")
-        if len(tau_Nm) != self.n_joints or not all(math.isfinite(float(t)) for t in tau_Nm):
-            self.safe_stop()
-            raise SafetyStop(f"torque command {tuple(tau_Nm)} is not {self.n_joints} finite values")
+        tau = self._command(tau_Nm, self._started)
         if self.mode == REALTIME and deadline is not None:
             ahead = deadline - self.now()
             if not ahead <= MAX_DEADLINE_AHEAD_S + 10 * self.period_s:
@@ -192,7 +181,6 @@ class SyncCycle:
                     f"deadline {deadline!r} is {ahead:.3f} s ahead: not host seconds since "
                     "open() (Arm.now())"
                 )
-        tau = self.limits.clamp_torque(tau_Nm)
         permille = tuple(torque_to_permille(t, r) for t, r in zip(tau, self._rated, strict=True))
         rpdos = self._rpdo_frames(co.CW_ENABLE_OPERATION, permille)
         if self.mode == LOCKSTEP:  # RPDOs and SYNC in one write; the robot steps on the SYNC

@@ -34,7 +34,6 @@ from drivers.can_arm.objects import (
 from drivers.protocol import cia402 as co
 
 LOG_FLUSH_EVERY = 50  # frames
-MAX_ERRORS_KEPT = 100
 RECEIVER_POLL_S = 0.01  # receive thread wake-up: bounds close() and pausing it
 PAUSE_TIMEOUT_S = 1.0  # the receive thread did not stop reading: keep it (threaded cycle)
 
@@ -271,17 +270,17 @@ class BusLink:
                 frame = parse_frame(routes, cob_id, data)
                 if frame is not None:
                     self._handle(frame, now)
-            except ValueError as exc:
-                self._error(f"0x{cob_id:03X}: {exc}")
             except Exception as exc:  # never kill the receive thread
-                self._error(f"listener: {type(exc).__name__}: {exc}")
+                self._dispatch_failed(cob_id, exc)
 
     def _on_frame(self, msg: can.Message) -> None:
-        """Receive-side callback for a Message: log, count, collect feedback, record EMCY."""
+        """A received Message (extended, remote, error or FD frame, or any frame of a bus
+        without batches): log, count, then as :meth:`_on_standard_frames` (canopen has had it
+        from its listeners)."""
         now = time.monotonic()
+        self._log(msg)
+        self.stats.frames_received += 1
         try:
-            self.stats.frames_received += 1
-            self._log(msg)
             frame = parse_frame(
                 self._routes,
                 msg.arbitration_id,
@@ -292,10 +291,16 @@ class BusLink:
             )
             if frame is not None:
                 self._handle(frame, now)
-        except ValueError as exc:
-            self._error(f"0x{msg.arbitration_id:03X}: {exc}")
         except Exception as exc:  # never kill the receive thread
-            self._error(f"listener: {type(exc).__name__}: {exc}")
+            self._dispatch_failed(msg.arbitration_id, exc)
+
+    def _dispatch_failed(self, cob_id: int, exc: Exception) -> None:
+        """A received frame the host could not use, kept in the link's errors (both receive
+        paths): a ValueError is a frame that does not parse, anything else a handler's bug."""
+        if isinstance(exc, ValueError):
+            self._note_error(f"0x{cob_id:03X}: {exc}")
+        else:
+            self._note_error(f"listener: {type(exc).__name__}: {exc}")
 
     def _handle(self, frame: Frame, now: float) -> None:
         kind, j, values = frame
@@ -325,13 +330,6 @@ class BusLink:
                 self._fb_last_at = now
                 self._collect_since = None
                 self._fb_event.set()
-
-    def _error(self, text: str) -> None:
-        errors = self.stats.errors
-        if len(errors) < MAX_ERRORS_KEPT:
-            errors.append(text)
-        elif len(errors) == MAX_ERRORS_KEPT:
-            errors.append("(further errors not kept)")
 
     # ---- who reads the bus ---------------------------------------------------------------------
     def _threaded_receive(self) -> None:

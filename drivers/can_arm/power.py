@@ -72,7 +72,7 @@ class PowerStates:
                 try:
                     self._send_rpdos(co.CW_ENABLE_OPERATION, zero)
                 except Exception as exc:  # the main thread's SDO will fail and say why
-                    self._error(f"keep-alive RPDO: {one_line(exc)}")
+                    self._note_error(f"keep-alive RPDO: {one_line(exc)}")
                     return
 
         thread = threading.Thread(target=run, name="can-arm-keep-alive", daemon=True)

@@ -208,7 +208,7 @@ class NodeSetup:
         else:
             reason = f"failed: {type(exc).__name__}: {one_line(exc)}"
         message = f"node {n}: SDO {op} {what} {reason}"
-        self._error(message)
+        self._note_error(message)
         return LinkError(message)
 
     @contextlib.contextmanager

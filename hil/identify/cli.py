@@ -419,6 +419,9 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             from hil.identify.plots import plot_estimates, plot_validation
 
             p1 = plot_estimates(res, reference.theta, out / f"theta-{disc}-{scheme}.png")
+            report["plots"].append(str(p1))
+            if "simulation_not_possible" in validation["fit"]:
+                continue  # nothing simulated to plot: the text and JSON say why
             panels = [
                 (name, rec, validation[name]["simulated_rows"],
                  validation[name]["simulated_q"], validation[name]["position_nrmse"])
@@ -426,7 +429,7 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
                 if rec is not None
             ]  # fmt: skip
             p2 = plot_validation(scheme, disc, panels, out / f"validation-{disc}-{scheme}.png")
-            report["plots"] += [str(p1), str(p2)]
+            report["plots"].append(str(p2))
     profile_validation = validations[f"{robot} profile"]
     report["profile_validation"] = {
         name: {k: v for k, v in val.items() if k not in PLOT_ONLY}
@@ -529,14 +532,21 @@ def _validation_text(
         head += f"{'held-out position':>22s}{'held-out torque':>20s}"
     lines.append(head)
 
+    def cells(values: list[float | None] | None, widths: tuple[int, int]) -> str:
+        values = values or [None] * len(widths)  # not simulated
+        return "".join(
+            f"{'–':>{w}s}" if x is None else f"{100 * x:>{w}.2f}"
+            for x, w in zip(values, widths, strict=True)
+        )
+
     def row(label: str, val: dict[str, Any]) -> str:
-        fp = val["fit"]["position_nrmse"]
-        text = f"{label:28s}{100 * fp[0]:>8.2f}{100 * fp[1]:>10.2f}"
+        refused = val["fit"].get("simulation_not_possible")  # θ the simulator cannot take
+        text = f"{label:28s}" + cells(val["fit"]["position_nrmse"], (8, 10))
         if held:
-            hp, ht = val["held_out"]["position_nrmse"], val["held_out"]["torque_nrmse"]
-            text += (
-                f"{100 * hp[0]:>11.2f}{100 * hp[1]:>11.2f}{100 * ht[0]:>10.2f}{100 * ht[1]:>10.2f}"
-            )
+            text += cells(val["held_out"]["position_nrmse"], (11, 11))
+            text += cells(val["held_out"]["torque_nrmse"], (10, 10))
+        if refused:
+            text += f"  simulation not possible: {refused}"
         return text
 
     lines.append(row("profile parameters", report["profile_validation"]))
@@ -580,6 +590,11 @@ def run_identify_model(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     from hil.model.openloop import simulate_windows
     from profiles.robot import load_robot
 
+    if args.discretization != "exact":  # it was ignored: the rows below are the exact ones
+        raise ValueError(
+            "--discretization: a model with terms or a foreign recording (--format) is fitted "
+            "on the exact rows only; the paper's are the 9-parameter reproduction's"
+        )
     robot, terms = _robot_terms(args)
     profile = load_robot(robot)
     model = ArmModel(terms)

@@ -29,7 +29,7 @@ from hil.model.estimators import (
     standard_errors,
 )
 from hil.model.metrics import NrmseAccumulator
-from hil.model.openloop import simulate_open_loop_chunks
+from hil.model.openloop import simulate_open_loop_chunks, simulation_refusal
 from hil.model.regressors import (
     ROW_CHUNK,
     SCHEMES,
@@ -264,6 +264,13 @@ def validate(
     (issue 13). ``simulated_q`` (for plots) holds the simulated
     positions at the rows ``simulated_rows``: all of them up to PLOT_POINTS, else every n-th.
     ``progress`` is told the rows simulated, then the torque rows, as ``stage``: ...
+
+    A θ the simulator refuses (:func:`hil.model.openloop.simulation_refusal`: M(q) not
+    positive definite, a negative Coulomb level — a least-squares fit on short or quantized
+    data) is not simulated: ``position_nrmse``, ``position_max_error_rad`` and ``simulated_q``
+    are None and ``simulation_not_possible`` says why; its torque prediction is still given.
+    A joint with no torque row to compare (every row holds a stuck interval within the
+    filter's memory: a short recording from rest) has ``torque_nrmse`` None.
     """
     return validate_many([theta], rec, lam=lam, chunk=chunk, progress=progress, stages=[stage])[0]
 
@@ -295,11 +302,14 @@ def validate_many(
     worst = [np.zeros(2) for _ in thetas]
     shown: list[list[np.ndarray]] = [[] for _ in thetas]
     torque = [[NrmseAccumulator(), NrmseAccumulator()] for _ in thetas]
+    refused = [simulation_refusal(theta) for theta in thetas]  # not simulated: why
     for part in rec.segments():  # a gap is never bridged: each segment from its own start
         a, b = part.indices(n)[:2]
         dq0 = initial_velocity(rec.segment(slice(a, min(a + 2, b))))
         intervals = None if times is None else np.diff(times[a:b])
         for i, theta in enumerate(thetas):
+            if refused[i]:
+                continue
             first = a
             for c in simulate_open_loop_chunks(
                 theta, tau[a:b], rec.period_s, q0=q[a], dq0=dq0, chunk=chunk,
@@ -324,17 +334,23 @@ def validate_many(
                     used = c.weights[:, j] > 0
                     acc[j].add(c.y[used, j], predicted[used, j])
             report(f"{stage}: torque prediction", a + round(c.t[-1] / rec.period_s) + 1, n)
-    return [
-        {
+    out = []
+    for i in range(len(thetas)):
+        simulated = refused[i] is None
+        result: dict[str, Any] = {
             "recording": str(rec.path),
-            "position_nrmse": [float(x) for x in position[i].result()],
-            "position_max_error_rad": [float(x) for x in worst[i]],
-            "torque_nrmse": [float(acc.result()) for acc in torque[i]],
-            "simulated_q": np.concatenate(shown[i]),  # for plots; dropped from JSON
+            "position_nrmse": [float(x) for x in position[i].result()] if simulated else None,
+            "position_max_error_rad": [float(x) for x in worst[i]] if simulated else None,
+            # None: no row of that joint free of a stuck interval in the filter's memory
+            "torque_nrmse": [float(acc.result()) if acc.n else None for acc in torque[i]],
+            # for plots; dropped from JSON
+            "simulated_q": np.concatenate(shown[i]) if simulated else None,
             "simulated_rows": np.arange(0, n, every),
         }
-        for i in range(len(thetas))
-    ]
+        if not simulated:
+            result["simulation_not_possible"] = refused[i]
+        out.append(result)
+    return out
 
 
 def table_ii_rows(reference: np.ndarray, results: dict[str, SchemeResult]) -> list[dict[str, Any]]:

@@ -76,6 +76,7 @@ __all__ = [
     "simulate_open_loop_chunks",
     "simulate_segments",
     "simulate_windows",
+    "simulation_refusal",
 ]
 
 
@@ -156,6 +157,19 @@ def simulate_open_loop_chunks(
     intervals = _intervals(intervals_s, len(torques))
     arm = ClosedFormArm(th, Friction(pos, neg))
     return integrate_chunks(arm, torques, h, n_sub, start, intervals=intervals, chunk=chunk)
+
+
+def simulation_refusal(theta: ArrayLike) -> str | None:
+    """Why the rigid model θ (9 numbers) cannot be simulated, in one line, or None if it can:
+    the checks :func:`simulate_open_loop` makes of θ (finite, M(q) positive definite for every
+    q2, Coulomb levels θ8, θ9 ≥ 0). A least-squares θ may fail them (a fit on short or
+    quantized data); a caller validating several θ reports this one as not simulated."""
+    try:
+        th = _theta(theta)
+        _non_negative("theta8, theta9 (Coulomb)", (float(th[7]), float(th[8])))
+    except ValueError as exc:
+        return str(exc)
+    return None
 
 
 def _intervals(intervals_s: ArrayLike | None, rows: int) -> np.ndarray | None:
