@@ -22,6 +22,7 @@ from drivers.arm import Sample
 from drivers.realtime_times import COMPUTE_S, ROBOT_EVENTS, HostStampRows
 from drivers.recording import Recording, write_json_atomic
 from hil.cli_options import (
+    EXIT_FAILED,
     PROGRESS_EVERY_S,
     StageProgress,
     add_bench_option,
@@ -31,6 +32,7 @@ from hil.cli_options import (
     add_report_options,
     add_schemes_option,
     drive_kwargs,
+    error,
     prepare_out_dir,
     print_document,
     read_recording,
@@ -252,9 +254,21 @@ def _validations(
 
 
 def main(args: argparse.Namespace) -> int:
+    """Exit status 0; 1 when the scheme selected by --params-scheme failed its held-out
+    validation (a URDF arm: its report and identify.json are written, its θ marked failed)."""
     prepare_out_dir(args.out, args.overwrite, inputs=(args.from_recording, args.validate))
     report, text = run_identify(args)
     print_document(args, report, text)
+    validation = report.get("validation")
+    if isinstance(validation, dict) and validation.get("passed") is False:
+        passed = validation["schemes_passed"]
+        error(
+            "identify",
+            f"--params-scheme {report['params_scheme']} failed held-out validation "
+            f"({validation['reason']}): no identified parameters"
+            + (f"; schemes that passed: {', '.join(passed)}" if passed else ""),
+        )
+        return EXIT_FAILED
     return 0
 
 
@@ -760,6 +774,7 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     nominal parameters on those rows. The top-level ``parameters`` hold ``--params-scheme``'s."""
     from hil.identify.urdf import (
         fit_split,
+        held_out_verdict,
         identify_energy,
         identify_torque,
         regression_rows,
@@ -865,8 +880,11 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         where = f"last 25 % of {fit.path} (t >= {split:.3f} s)"
     for r in results.values():
         r["physical_consistency"] = model.physical_consistency(r["theta"])
-        r["validation"] = {"torque_nrmse": torque_nrmse(r["theta"], rows).tolist()}
+        # the held-out check decides what is reported: a scheme that does not predict every
+        # joint's torque better than its mean is shown, marked failed, not offered as θ
+        r["validation"] = held_out_verdict(r["theta"], rows, cutoff).as_json()
     chosen = results[args.params_scheme]
+    chosen_passed = chosen["validation"]["passed"]
     report: dict[str, Any] = {
         "recording": str(fit.path),
         "robot": args.robot,
@@ -890,7 +908,7 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
                 # None when the data do not determine it (issue 12's rule): its estimate and
                 # uncertainty are beside it
                 "identified": float(chosen["theta"][i])
-                if chosen["uncertainty"]["identified"][i]
+                if chosen_passed and chosen["uncertainty"]["identified"][i]
                 else None,
                 "estimate": float(chosen["theta"][i]),
                 "se_blocked_bootstrap": chosen["uncertainty"]["se_blocked_bootstrap"][i],
@@ -909,6 +927,11 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             "on": where,
             "torque_nrmse_identified": chosen["validation"]["torque_nrmse"],
             "torque_nrmse_nominal": torque_nrmse(nominal, rows).tolist(),
+            # false: the top-level parameters failed it and are not the identified ones
+            # (hil control --params refuses them; `hil identify` exits 1)
+            "passed": chosen_passed,
+            "reason": chosen["validation"]["reason"],
+            "schemes_passed": [s for s, r in results.items() if r["validation"]["passed"]],
         },
         "schemes": {
             s: {**{k: v for k, v in r.items() if k != "theta"}, "theta": r["theta"].tolist()}
@@ -924,12 +947,17 @@ def format_urdf_report(report: dict[str, Any]) -> str:
     """The text of :func:`run_identify_urdf`: per base parameter the nominal value and each
     scheme's estimate, then each scheme's physical consistency and held-out torque NRMSE."""
     schemes = list(report["schemes"])
+    failed = [s for s in schemes if not report["schemes"][s]["validation"]["passed"]]
+
+    def title(s: str) -> str:  # a scheme that failed held-out validation is marked everywhere
+        return SCHEME_TITLES[s] + (" (FAILED)" if s in failed else "")
+
     lines = [
         f"Identification of {report['robot']} from {report['recording']} "
         f"({len(report['validation']['torque_nrmse_nominal'])} joints, base parameters by "
         f"pivoted QR of the torque regressor; terms: {', '.join(report['terms']) or 'none'})",
         f"{'':8s} {'nominal':>11s}"
-        + "".join(f" {SCHEME_TITLES[s]:>18s}" for s in schemes)
+        + "".join(f" {title(s):>18s}" for s in schemes)
         + "  unit     meaning",
     ]
     for i, p in enumerate(report["parameters"]):
@@ -970,15 +998,23 @@ def format_urdf_report(report: dict[str, Any]) -> str:
             if pc["consistent"]
             else "NOT physically consistent: " + "; ".join(pc["violations"])
         )
-        lines.append(f"{SCHEME_TITLES[s]} ({r['method']}, {r['cpu_s']:.2f} s CPU): {verdict}")
+        lines.append(f"{title(s)} ({r['method']}, {r['cpu_s']:.2f} s CPU): {verdict}")
     v = report["validation"]
     lines.append(f"held-out torque NRMSE per joint on {v['on']}:")
     for s in schemes:
         nrmse_s = report["schemes"][s]["validation"]["torque_nrmse"]
-        lines.append(f"  {SCHEME_TITLES[s]:17s} " + " ".join(f"{x:7.4f}" for x in nrmse_s))
-    lines.append(f"  {'nominal':17s} " + " ".join(f"{x:7.4f}" for x in v["torque_nrmse_nominal"]))
+        lines.append(f"  {title(s):26s} " + " ".join(f"{x:7.4f}" for x in nrmse_s))
+    lines.append(f"  {'nominal':26s} " + " ".join(f"{x:7.4f}" for x in v["torque_nrmse_nominal"]))
+    for s in failed:
+        lines.append(
+            f"{SCHEME_TITLES[s]} FAILED held-out validation: "
+            f"{report['schemes'][s]['validation']['reason']}; its θ is not identified parameters"
+        )
     lines.append(
         f"parameters: {report['params_scheme']} ('estimate' in identify.json; 'identified' is "
         "null where not identifiable)"
+        if v["passed"]
+        else f"parameters: none ({report['params_scheme']} failed held-out validation; "
+        f"schemes that passed: {', '.join(v['schemes_passed']) or 'none'})"
     )
     return "\n".join(lines)

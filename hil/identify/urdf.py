@@ -50,7 +50,7 @@ from hil.model.estimators import (
     standard_errors,
     weighted_least_squares,
 )
-from hil.model.metrics import nrmse
+from hil.model.metrics import nrmse, nrmse_upper_bound
 from hil.model.regressors import data_bandwidth, excitation_bandwidth, iter_rows, quantized_stick
 from hil.model.urdf import UrdfArmModel
 
@@ -371,6 +371,73 @@ def torque_nrmse(theta: np.ndarray, rows: FilteredRows) -> np.ndarray:
     return out
 
 
+# Confidence with which a scheme's held-out torque prediction must beat the trivial predictor
+# (the held-out torque's own mean) on every joint before its θ is reported as identified.
+VALIDATION_CONFIDENCE = 0.95
+
+
+@dataclass(frozen=True)
+class HeldOutVerdict:
+    """Whether θ's held-out torque prediction is better than predicting each joint's mean:
+    per joint the NRMSE (:func:`torque_nrmse`) and its one-sided upper confidence bound
+    (:func:`hil.model.metrics.nrmse_upper_bound`); ``passed`` when every bound is below 1;
+    ``reason`` one line naming the joints that fail, None when it passed."""
+
+    nrmse: np.ndarray
+    nrmse_upper: np.ndarray
+    passed: bool
+    reason: str | None
+    block_s: float
+
+    def as_json(self) -> dict:
+        return {
+            "torque_nrmse": self.nrmse.tolist(),
+            "torque_nrmse_upper_bound": [
+                None if not np.isfinite(x) else float(x) for x in self.nrmse_upper
+            ],
+            "passed": self.passed,
+            "reason": self.reason,
+            "criterion": f"every joint's held-out torque NRMSE below 1 (better than predicting "
+            f"its mean) with {VALIDATION_CONFIDENCE:.0%} one-sided confidence (the error "
+            f"sum's scatter by batch means over {self.block_s:.3g} s blocks)",
+        }
+
+
+def held_out_verdict(theta: np.ndarray, rows: FilteredRows, cutoff_hz: float) -> HeldOutVerdict:
+    """:class:`HeldOutVerdict` of ``theta`` on the held-out ``rows`` (each joint on its rows of
+    weight > 0, as :func:`torque_nrmse`). The rows are smoothed at ``cutoff_hz``, so their
+    residuals are correlated; the test's blocks are the bootstrap's
+    (:func:`hil.identify.schemes.bootstrap_block_s`, as for the fit's uncertainty). A joint
+    with too few rows or blocks to judge fails too: "I cannot tell" is not a pass."""
+    error = torque_nrmse(theta, rows)
+    span = float(rows.t[-1] - rows.t[0]) if len(rows.t) else 0.0
+    block_s = bootstrap_block_s(2 * np.pi * cutoff_hz, span)
+    labels = np.floor((rows.t - (rows.t[0] if len(rows.t) else 0.0)) / block_s).astype(int)
+    predicted = np.einsum("knp,p->kn", rows.Y, theta)
+    upper = np.full(len(error), np.nan)
+    for j in range(len(error)):
+        use = rows.weights[:, j] > 0
+        if use.sum() >= 2:
+            upper[j] = nrmse_upper_bound(
+                rows.tau[use, j], predicted[use, j], labels[use], confidence=VALIDATION_CONFIDENCE
+            )
+    worse = [j for j in range(len(error)) if np.isfinite(upper[j]) and upper[j] >= 1.0]
+    unjudged = [j for j in range(len(error)) if not np.isfinite(upper[j])]
+    parts = []
+    if worse:
+        parts.append(
+            "no better than the held-out mean on joint "
+            + ", ".join(f"{j + 1} (NRMSE {error[j]:.3g}, bound {upper[j]:.3g})" for j in worse)
+        )
+    if unjudged:
+        parts.append(
+            "too few held-out rows or blocks to judge joint "
+            + ", ".join(str(j + 1) for j in unjudged)
+        )
+    reason = "; ".join(parts) if parts else None
+    return HeldOutVerdict(error, upper, reason is None, reason, block_s)
+
+
 def identify_torque(
     model: UrdfArmModel,
     rec: Recording,
@@ -638,11 +705,14 @@ def consistent_fit(
 __all__ = [
     "ENERGY_SCHEMES",
     "IDENTIFIED_MAX_RELATIVE_SE",
+    "VALIDATION_CONFIDENCE",
     "EnergyIdentification",
+    "HeldOutVerdict",
     "TorqueIdentification",
     "Uncertainty",
     "fit_split",
     "friction_step_samples",
+    "held_out_verdict",
     "identify_energy",
     "identify_torque",
     "leave_out_friction_steps",
