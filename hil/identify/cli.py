@@ -128,7 +128,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--consistent",
         action="store_true",
-        help="URDF arms (docs/urdf.md): constrain the fit to physically consistent parameters",
+        help="URDF arms (docs/urdf.md): constrain every scheme's fit to physically consistent "
+        "parameters",
     )
     add_out_options(p, "output directory", default="runs/identify")
     add_recording_options(p)
@@ -773,6 +774,7 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     of B, or of the last quarter of A's time when no B is given; beside the URDF's and profile's
     nominal parameters on those rows. The top-level ``parameters`` hold ``--params-scheme``'s."""
     from hil.identify.urdf import (
+        energy_rows_cutoff,
         fit_split,
         held_out_verdict,
         identify_energy,
@@ -823,6 +825,8 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     recording = fit
     cutoff = smoothing_cutoff_hz(recording)
     results: dict[str, dict[str, Any]] = {}
+    standards: dict[str, np.ndarray | None] = {}  # per scheme, the consistent fit's
+    energy_cutoff: float | bool | None = False  # decided once, for both energy schemes
     torque_res = None
     for scheme in schemes:
         start = time.process_time()
@@ -832,10 +836,9 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             )
             theta = torque_res.theta
             uncertainty = torque_res.uncertainty
+            standards[scheme] = torque_res.theta_standard
             entry: dict[str, Any] = {
-                "method": torque_res.method
-                + " on the torque regressor (parallel filtering)"
-                + (" (--consistent: this scheme only)" if args.consistent else ""),
+                "method": torque_res.method + " on the torque regressor (parallel filtering)",
                 "smoothing_cutoff_hz": cutoff,
                 "rows": len(torque_res.rows.t),
                 # per joint: rows near its friction steps (sticks, reversals) left out, and
@@ -847,16 +850,30 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
                 ],
             }
         else:
-            res = identify_energy(model, recording, scheme, lam=args.lam, held_out=held_out)
+            # on the torque scheme's smoothed positions when the raw velocity is noisy: the
+            # rows are quadratic in q̇, and its noise biases them (energy_rows_cutoff)
+            if energy_cutoff is False:
+                energy_cutoff = energy_rows_cutoff(recording, cutoff)
+            res = identify_energy(
+                model, recording, scheme, lam=args.lam, held_out=held_out,
+                cutoff_hz=energy_cutoff, consistent=args.consistent,
+            )  # fmt: skip
             theta, uncertainty = res.theta, res.uncertainty
+            standards[scheme] = res.theta_standard
             entry = {
-                "method": "least squares on the exact "
+                "method": (
+                    "physically consistent least squares" if args.consistent else "least squares"
+                )
+                + " on the exact "
                 + (
                     "energy rows, eq. (28)"
                     if scheme == "supplied_energy"
                     else "power rows, eq. (30)"
-                ),
+                )
+                + (" (smoothed positions)" if res.cutoff_hz is not None else ""),
                 "lambda_rad_s": res.lam,
+                # None: the raw positions (their velocity noise below the rule's level)
+                "smoothing_cutoff_hz": res.cutoff_hz,
                 "rows": res.rows,
             }
         entry["cpu_s"] = time.process_time() - start
@@ -897,9 +914,10 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         "torque": "held over each period (averaged onto the samples)"
         if recording.torque_held
         else "sampled with the positions",
+        # --consistent: the selected scheme's physically consistent standard parameters
         "standard_parameters": None
-        if torque_res is None or torque_res.theta_standard is None
-        else dict(zip(model.standard_names, torque_res.theta_standard.tolist(), strict=True)),
+        if standards.get(args.params_scheme) is None
+        else dict(zip(model.standard_names, standards[args.params_scheme].tolist(), strict=True)),
         "parameters": [
             {
                 "name": n,
