@@ -37,6 +37,7 @@ import hil.model.closed_form as closed_form
 from drivers.process import limit_blas_threads
 from drivers.recording import Recording
 from hil.identify.urdf import (
+    DEFAULT_CUTOFF_HZ,
     ENERGY_SCHEMES,
     energy_rows_cutoff,
     filtered_rows,
@@ -116,8 +117,8 @@ def panda_table(model: UrdfArmModel) -> dict | None:
     if not gaz_reference.available():
         return None
     rec = read_one_per_line_log(gaz_reference.LOG_DIR)
-    cutoff = smoothing_cutoff_hz(rec)  # as `hil identify` runs (4 Hz here, the floor)
-    result = identify_torque(model, rec, cutoff_hz=cutoff)
+    result = identify_torque(model, rec)  # the 4 Hz default cutoff
+    cutoff = DEFAULT_CUTOFF_HZ
     held = result.rows.t >= result.fit_until_s
     motion = smoothed_motion(rec)
     theirs = filtered_rows(
@@ -128,7 +129,8 @@ def panda_table(model: UrdfArmModel) -> dict | None:
     feasible = identify_torque(model, rec, consistent=True)
     feasible_cpu = time.process_time() - start
     energy = {}
-    energy_cutoff = energy_rows_cutoff(rec, cutoff)  # as `hil identify` decides
+    # as `hil identify` decides (its cutoff from the data, 4.28 Hz here)
+    energy_cutoff = energy_rows_cutoff(rec, smoothing_cutoff_hz(rec))
     for scheme in ENERGY_SCHEMES:  # on the same held-out rows
         for consistent in (False, True):
             res = identify_energy(
