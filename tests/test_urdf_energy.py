@@ -214,3 +214,46 @@ def test_cli_identifies_a_urdf_arm_over_the_bench(tmp_path, capsys):
         check_targets(report, entry["theta"], nominal, scheme)
         fit = entry["validation"]["torque_nrmse"]
         assert all(a < b + 0.01 for a, b in zip(fit, true, strict=True)), (scheme, fit, true)
+
+
+def test_consistent_energy_fit_constrains_every_joint(cicese3):
+    """`identify_energy(..., consistent=True)`: the energy rows have one equation per row, and
+    the constraint still holds every joint's friction ≥ 0 and every body consistent. Torques of
+    an impossible arm (negative viscous friction on joint 3): least squares finds it, the
+    consistent fit keeps it at the bound."""
+    fv3 = cicese3.meanings.index("fv3")
+    theta = cicese3.base_theta()
+    theta[fv3] = -0.5 * abs(theta[fv3]) - 0.05
+    t, q, dq, ddq = multisine(cicese3, 12.0, np.random.default_rng(6))
+    rec = Recording.from_arrays(t, q, cicese3.torque(theta, q, dq, ddq))
+    free = identify_energy(cicese3, rec, "filtered_power")
+    assert free.theta[fv3] < 0 and free.theta_standard is None
+    bounded = identify_energy(cicese3, rec, "filtered_power", consistent=True, cutoff_hz=5.0)
+    assert cicese3.physical_consistency(bounded.theta_standard)["consistent"]
+    assert cicese3.physical_consistency(bounded.theta)["consistent"]
+    assert bounded.theta[fv3] >= 0 and bounded.cutoff_hz == 5.0
+
+
+def test_energy_rows_smooth_the_positions_only_when_the_velocity_is_noisy(cicese3):
+    """The energy rows are quadratic in q̇: a noisy velocity biases them, so they take the
+    smoothed positions when the raw velocity departs from the smoothed one by more than 10 %
+    of its RMS on some joint (the real Panda: 21-24 %); a clean recording keeps its raw
+    positions (its results unchanged)."""
+    from hil.identify.urdf import (
+        ENERGY_VELOCITY_NOISE_MAX,
+        energy_rows_cutoff,
+        velocity_noise_ratio,
+    )
+
+    t, q, dq, ddq = multisine(cicese3, 12.0, np.random.default_rng(6))
+    tau = cicese3.torque(cicese3.base_theta(), q, dq, ddq)
+    clean = Recording.from_arrays(t, q, tau)
+    assert velocity_noise_ratio(clean, 8.0).max() < 0.1 * ENERGY_VELOCITY_NOISE_MAX
+    assert energy_rows_cutoff(clean, 8.0) is None
+    # noise of 2 mrad on joint 2 only, at 2 ms: about 90 % of its velocity's RMS
+    noisy_q = q.copy()
+    noisy_q[:, 1] += 2e-3 * np.random.default_rng(1).normal(size=len(t))
+    noisy = Recording.from_arrays(t, noisy_q, tau)
+    ratio = velocity_noise_ratio(noisy, 8.0)
+    assert ratio[1] > ENERGY_VELOCITY_NOISE_MAX > max(ratio[0], ratio[2]), ratio
+    assert energy_rows_cutoff(noisy, 8.0) == 8.0

@@ -22,6 +22,7 @@ from drivers.arm import Sample
 from drivers.realtime_times import COMPUTE_S, ROBOT_EVENTS, HostStampRows
 from drivers.recording import Recording, write_json_atomic
 from hil.cli_options import (
+    EXIT_FAILED,
     PROGRESS_EVERY_S,
     StageProgress,
     add_bench_option,
@@ -31,6 +32,7 @@ from hil.cli_options import (
     add_report_options,
     add_schemes_option,
     drive_kwargs,
+    error,
     prepare_out_dir,
     print_document,
     read_recording,
@@ -121,12 +123,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--params-scheme",
         default="filtered_dynamic",
-        help="scheme selected in params.json (hil control/diagnose read that one by default)",
+        help="scheme selected in params.json (hil control/diagnose read that one by default); "
+        "a URDF arm's scheme that fails its held-out validation is not offered (exit 1)",
     )
     p.add_argument(
         "--consistent",
         action="store_true",
-        help="URDF arms (docs/urdf.md): constrain the fit to physically consistent parameters",
+        help="URDF arms (docs/urdf.md): constrain every scheme's fit to physically consistent "
+        "parameters",
     )
     add_out_options(p, "output directory", default="runs/identify")
     add_recording_options(p)
@@ -252,9 +256,21 @@ def _validations(
 
 
 def main(args: argparse.Namespace) -> int:
+    """Exit status 0; 1 when the scheme selected by --params-scheme failed its held-out
+    validation (a URDF arm: its report and identify.json are written, its θ marked failed)."""
     prepare_out_dir(args.out, args.overwrite, inputs=(args.from_recording, args.validate))
     report, text = run_identify(args)
     print_document(args, report, text)
+    validation = report.get("validation")
+    if isinstance(validation, dict) and validation.get("passed") is False:
+        passed = validation["schemes_passed"]
+        error(
+            "identify",
+            f"--params-scheme {report['params_scheme']} failed held-out validation "
+            f"({validation['reason']}): no identified parameters"
+            + (f"; schemes that passed: {', '.join(passed)}" if passed else ""),
+        )
+        return EXIT_FAILED
     return 0
 
 
@@ -774,7 +790,9 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     of B, or of the last quarter of A's time when no B is given; beside the URDF's and profile's
     nominal parameters on those rows. The top-level ``parameters`` hold ``--params-scheme``'s."""
     from hil.identify.urdf import (
+        energy_rows_cutoff,
         fit_split,
+        held_out_verdict,
         identify_energy,
         identify_torque,
         regression_rows,
@@ -823,6 +841,8 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     recording = fit
     cutoff = smoothing_cutoff_hz(recording)
     results: dict[str, dict[str, Any]] = {}
+    standards: dict[str, np.ndarray | None] = {}  # per scheme, the consistent fit's
+    energy_cutoff: float | bool | None = False  # decided once, for both energy schemes
     torque_res = None
     for scheme in schemes:
         start = time.process_time()
@@ -832,10 +852,9 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             )
             theta = torque_res.theta
             uncertainty = torque_res.uncertainty
+            standards[scheme] = torque_res.theta_standard
             entry: dict[str, Any] = {
-                "method": torque_res.method
-                + " on the torque regressor (parallel filtering)"
-                + (" (--consistent: this scheme only)" if args.consistent else ""),
+                "method": torque_res.method + " on the torque regressor (parallel filtering)",
                 "smoothing_cutoff_hz": cutoff,
                 "rows": len(torque_res.rows.t),
                 # per joint: rows near its friction steps (sticks, reversals) left out, and
@@ -847,16 +866,30 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
                 ],
             }
         else:
-            res = identify_energy(model, recording, scheme, lam=args.lam, held_out=held_out)
+            # on the torque scheme's smoothed positions when the raw velocity is noisy: the
+            # rows are quadratic in q̇, and its noise biases them (energy_rows_cutoff)
+            if energy_cutoff is False:
+                energy_cutoff = energy_rows_cutoff(recording, cutoff)
+            res = identify_energy(
+                model, recording, scheme, lam=args.lam, held_out=held_out,
+                cutoff_hz=energy_cutoff, consistent=args.consistent,
+            )  # fmt: skip
             theta, uncertainty = res.theta, res.uncertainty
+            standards[scheme] = res.theta_standard
             entry = {
-                "method": "least squares on the exact "
+                "method": (
+                    "physically consistent least squares" if args.consistent else "least squares"
+                )
+                + " on the exact "
                 + (
                     "energy rows, eq. (28)"
                     if scheme == "supplied_energy"
                     else "power rows, eq. (30)"
-                ),
+                )
+                + (" (smoothed positions)" if res.cutoff_hz is not None else ""),
                 "lambda_rad_s": res.lam,
+                # None: the raw positions (their velocity noise below the rule's level)
+                "smoothing_cutoff_hz": res.cutoff_hz,
                 "rows": res.rows,
             }
         entry["cpu_s"] = time.process_time() - start
@@ -880,8 +913,11 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         where = f"last 25 % of {fit.path} (t >= {split:.3f} s)"
     for r in results.values():
         r["physical_consistency"] = model.physical_consistency(r["theta"])
-        r["validation"] = {"torque_nrmse": torque_nrmse(r["theta"], rows).tolist()}
+        # the held-out check decides what is reported: a scheme that does not predict every
+        # joint's torque better than its mean is shown, marked failed, not offered as θ
+        r["validation"] = held_out_verdict(r["theta"], rows, cutoff).as_json()
     chosen = results[args.params_scheme]
+    chosen_passed = chosen["validation"]["passed"]
     report: dict[str, Any] = {
         "recording": str(fit.path),
         "robot": args.robot,
@@ -894,9 +930,10 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         "torque": "held over each period (averaged onto the samples)"
         if recording.torque_held
         else "sampled with the positions",
+        # --consistent: the selected scheme's physically consistent standard parameters
         "standard_parameters": None
-        if torque_res is None or torque_res.theta_standard is None
-        else dict(zip(model.standard_names, torque_res.theta_standard.tolist(), strict=True)),
+        if standards.get(args.params_scheme) is None
+        else dict(zip(model.standard_names, standards[args.params_scheme].tolist(), strict=True)),
         "parameters": [
             {
                 "name": n,
@@ -905,7 +942,7 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
                 # None when the data do not determine it (issue 12's rule): its estimate and
                 # uncertainty are beside it
                 "identified": float(chosen["theta"][i])
-                if chosen["uncertainty"]["identified"][i]
+                if chosen_passed and chosen["uncertainty"]["identified"][i]
                 else None,
                 "estimate": float(chosen["theta"][i]),
                 "se_blocked_bootstrap": chosen["uncertainty"]["se_blocked_bootstrap"][i],
@@ -924,6 +961,11 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             "on": where,
             "torque_nrmse_identified": chosen["validation"]["torque_nrmse"],
             "torque_nrmse_nominal": torque_nrmse(nominal, rows).tolist(),
+            # false: the top-level parameters failed it and are not the identified ones
+            # (hil control --params refuses them; `hil identify` exits 1)
+            "passed": chosen_passed,
+            "reason": chosen["validation"]["reason"],
+            "schemes_passed": [s for s, r in results.items() if r["validation"]["passed"]],
         },
         "schemes": {
             s: {**{k: v for k, v in r.items() if k != "theta"}, "theta": r["theta"].tolist()}
@@ -939,12 +981,17 @@ def format_urdf_report(report: dict[str, Any]) -> str:
     """The text of :func:`run_identify_urdf`: per base parameter the nominal value and each
     scheme's estimate, then each scheme's physical consistency and held-out torque NRMSE."""
     schemes = list(report["schemes"])
+    failed = [s for s in schemes if not report["schemes"][s]["validation"]["passed"]]
+
+    def title(s: str) -> str:  # a scheme that failed held-out validation is marked everywhere
+        return SCHEME_TITLES[s] + (" (FAILED)" if s in failed else "")
+
     lines = [
         f"Identification of {report['robot']} from {report['recording']} "
         f"({len(report['validation']['torque_nrmse_nominal'])} joints, base parameters by "
         f"pivoted QR of the torque regressor; terms: {', '.join(report['terms']) or 'none'})",
         f"{'':8s} {'nominal':>11s}"
-        + "".join(f" {SCHEME_TITLES[s]:>18s}" for s in schemes)
+        + "".join(f" {title(s):>18s}" for s in schemes)
         + "  unit     meaning",
     ]
     for i, p in enumerate(report["parameters"]):
@@ -985,15 +1032,23 @@ def format_urdf_report(report: dict[str, Any]) -> str:
             if pc["consistent"]
             else "NOT physically consistent: " + "; ".join(pc["violations"])
         )
-        lines.append(f"{SCHEME_TITLES[s]} ({r['method']}, {r['cpu_s']:.2f} s CPU): {verdict}")
+        lines.append(f"{title(s)} ({r['method']}, {r['cpu_s']:.2f} s CPU): {verdict}")
     v = report["validation"]
     lines.append(f"held-out torque NRMSE per joint on {v['on']}:")
     for s in schemes:
         nrmse_s = report["schemes"][s]["validation"]["torque_nrmse"]
-        lines.append(f"  {SCHEME_TITLES[s]:17s} " + " ".join(f"{x:7.4f}" for x in nrmse_s))
-    lines.append(f"  {'nominal':17s} " + " ".join(f"{x:7.4f}" for x in v["torque_nrmse_nominal"]))
+        lines.append(f"  {title(s):26s} " + " ".join(f"{x:7.4f}" for x in nrmse_s))
+    lines.append(f"  {'nominal':26s} " + " ".join(f"{x:7.4f}" for x in v["torque_nrmse_nominal"]))
+    for s in failed:
+        lines.append(
+            f"{SCHEME_TITLES[s]} FAILED held-out validation: "
+            f"{report['schemes'][s]['validation']['reason']}; its θ is not identified parameters"
+        )
     lines.append(
         f"parameters: {report['params_scheme']} ('estimate' in identify.json; 'identified' is "
         "null where not identifiable)"
+        if v["passed"]
+        else f"parameters: none ({report['params_scheme']} failed held-out validation; "
+        f"schemes that passed: {', '.join(v['schemes_passed']) or 'none'})"
     )
     return "\n".join(lines)

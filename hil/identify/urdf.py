@@ -50,8 +50,14 @@ from hil.model.estimators import (
     standard_errors,
     weighted_least_squares,
 )
-from hil.model.metrics import nrmse
-from hil.model.regressors import data_bandwidth, excitation_bandwidth, iter_rows, quantized_stick
+from hil.model.metrics import nrmse, nrmse_upper_bound
+from hil.model.regressors import (
+    data_bandwidth,
+    excitation_bandwidth,
+    iter_rows,
+    local_polynomial_velocity,
+    quantized_stick,
+)
 from hil.model.urdf import UrdfArmModel
 
 # Smoothing of positions before differentiation, and of both sides of the regression.
@@ -155,11 +161,7 @@ def smoothed_motion(rec: Recording, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -> 
     the real stamps. A filter run over the raw rows as if they were equally spaced would turn
     time-stamp jitter into velocity and acceleration errors. Ends (EDGE_S) are dropped."""
     t = rec.t
-    period = float(np.median(np.diff(t)))
-    if not 0 < cutoff_hz < 0.5 / period:
-        raise ValueError(f"cutoff {cutoff_hz} Hz must be in (0, {0.5 / period:.4g}) Hz")
-    grid = np.arange(t[0], t[-1], period)
-    smooth = CubicSpline(grid, _lowpass(CubicSpline(t, rec.q)(grid), cutoff_hz, period))
+    smooth = smoothed_positions(rec, cutoff_hz)
     keep = (t >= t[0] + EDGE_S) & (t <= t[-1] - EDGE_S)
     tk = t[keep]
     tau = torque_at_samples(rec)[keep]
@@ -167,6 +169,18 @@ def smoothed_motion(rec: Recording, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -> 
         t, stuck_samples(rec), smooth(t, 1), FRICTION_STEP_MARGIN_PERIODS / cutoff_hz
     )[keep]
     return Motion(tk, smooth(tk), smooth(tk, 1), smooth(tk, 2), tau, cutoff_hz, near_step)
+
+
+def smoothed_positions(rec: Recording, cutoff_hz: float) -> CubicSpline:
+    """The smoothed positions of :func:`smoothed_motion` as a cubic spline of time (its
+    derivatives are q̇ and q̈): q interpolated onto a uniform grid at the median interval,
+    low-passed there at ``cutoff_hz`` (zero phase)."""
+    t = rec.t
+    period = float(np.median(np.diff(t)))
+    if not 0 < cutoff_hz < 0.5 / period:
+        raise ValueError(f"cutoff {cutoff_hz} Hz must be in (0, {0.5 / period:.4g}) Hz")
+    grid = np.arange(t[0], t[-1], period)
+    return CubicSpline(grid, _lowpass(CubicSpline(t, rec.q)(grid), cutoff_hz, period))
 
 
 def friction_step_samples(
@@ -371,6 +385,73 @@ def torque_nrmse(theta: np.ndarray, rows: FilteredRows) -> np.ndarray:
     return out
 
 
+# Confidence with which a scheme's held-out torque prediction must beat the trivial predictor
+# (the held-out torque's own mean) on every joint before its θ is reported as identified.
+VALIDATION_CONFIDENCE = 0.95
+
+
+@dataclass(frozen=True)
+class HeldOutVerdict:
+    """Whether θ's held-out torque prediction is better than predicting each joint's mean:
+    per joint the NRMSE (:func:`torque_nrmse`) and its one-sided upper confidence bound
+    (:func:`hil.model.metrics.nrmse_upper_bound`); ``passed`` when every bound is below 1;
+    ``reason`` one line naming the joints that fail, None when it passed."""
+
+    nrmse: np.ndarray
+    nrmse_upper: np.ndarray
+    passed: bool
+    reason: str | None
+    block_s: float
+
+    def as_json(self) -> dict:
+        return {
+            "torque_nrmse": self.nrmse.tolist(),
+            "torque_nrmse_upper_bound": [
+                None if not np.isfinite(x) else float(x) for x in self.nrmse_upper
+            ],
+            "passed": self.passed,
+            "reason": self.reason,
+            "criterion": f"every joint's held-out torque NRMSE below 1 (better than predicting "
+            f"its mean) with {VALIDATION_CONFIDENCE:.0%} one-sided confidence (the error "
+            f"sum's scatter by batch means over {self.block_s:.3g} s blocks)",
+        }
+
+
+def held_out_verdict(theta: np.ndarray, rows: FilteredRows, cutoff_hz: float) -> HeldOutVerdict:
+    """:class:`HeldOutVerdict` of ``theta`` on the held-out ``rows`` (each joint on its rows of
+    weight > 0, as :func:`torque_nrmse`). The rows are smoothed at ``cutoff_hz``, so their
+    residuals are correlated; the test's blocks are the bootstrap's
+    (:func:`hil.identify.schemes.bootstrap_block_s`, as for the fit's uncertainty). A joint
+    with too few rows or blocks to judge fails too: "I cannot tell" is not a pass."""
+    error = torque_nrmse(theta, rows)
+    span = float(rows.t[-1] - rows.t[0]) if len(rows.t) else 0.0
+    block_s = bootstrap_block_s(2 * np.pi * cutoff_hz, span)
+    labels = np.floor((rows.t - (rows.t[0] if len(rows.t) else 0.0)) / block_s).astype(int)
+    predicted = np.einsum("knp,p->kn", rows.Y, theta)
+    upper = np.full(len(error), np.nan)
+    for j in range(len(error)):
+        use = rows.weights[:, j] > 0
+        if use.sum() >= 2:
+            upper[j] = nrmse_upper_bound(
+                rows.tau[use, j], predicted[use, j], labels[use], confidence=VALIDATION_CONFIDENCE
+            )
+    worse = [j for j in range(len(error)) if np.isfinite(upper[j]) and upper[j] >= 1.0]
+    unjudged = [j for j in range(len(error)) if not np.isfinite(upper[j])]
+    parts = []
+    if worse:
+        parts.append(
+            "no better than the held-out mean on joint "
+            + ", ".join(f"{j + 1} (NRMSE {error[j]:.3g}, bound {upper[j]:.3g})" for j in worse)
+        )
+    if unjudged:
+        parts.append(
+            "too few held-out rows or blocks to judge joint "
+            + ", ".join(str(j + 1) for j in unjudged)
+        )
+    reason = "; ".join(parts) if parts else None
+    return HeldOutVerdict(error, upper, reason is None, reason, block_s)
+
+
 def identify_torque(
     model: UrdfArmModel,
     rec: Recording,
@@ -457,6 +538,35 @@ ENERGY_SCHEMES = ("supplied_energy", "filtered_power")
 ENERGY_VELOCITY_HALF_WINDOW = 1
 
 
+# The energy rows take the smoothed positions when the raw velocity (the rows' three-point
+# derivative) departs from the smoothed one by more than this share of its RMS on some joint.
+ENERGY_VELOCITY_NOISE_MAX = 0.1
+
+
+def velocity_noise_ratio(rec: Recording, cutoff_hz: float) -> np.ndarray:
+    """(n,): RMS of (the energy rows' raw velocity − the smoothed one, :func:`smoothed_positions`)
+    over the RMS of the smoothed velocity, per joint, ends (EDGE_S) dropped."""
+    t = rec.t
+    keep = (t >= t[0] + EDGE_S) & (t <= t[-1] - EDGE_S)
+    raw = local_polynomial_velocity(rec.q, t, ENERGY_VELOCITY_HALF_WINDOW)[keep]
+    smooth = smoothed_positions(rec, cutoff_hz)(t[keep], 1)
+    scale = np.sqrt(np.mean(smooth**2, axis=0))
+    return np.sqrt(np.mean((raw - smooth) ** 2, axis=0)) / np.where(scale > 0, scale, np.inf)
+
+
+def energy_rows_cutoff(rec: Recording, cutoff_hz: float) -> float | None:
+    """The cutoff for :func:`identify_energy`'s positions, decided by the data: ``cutoff_hz``
+    when the raw velocity's noise (:func:`velocity_noise_ratio`) exceeds
+    :data:`ENERGY_VELOCITY_NOISE_MAX` on some joint, else None (raw positions). The rows are
+    quadratic in q̇ (½ q̇ᵀM q̇, ∫q̇² dt), so a noise of r times the velocity's RMS biases them by
+    about r² (E[(v + n)²] = v² + σ²): above 1 % at r = 0.1. Below, smoothing costs more than it
+    saves: it rounds the true velocity at each friction step, and on the simulated ur5e (r ≤ 1.3 %)
+    it moved the weakly determined Izz4 − Ixx4 + Iyy4 of the filtered-power fit by 8 %. The real
+    Panda of Gaz et al. has r = 0.21 to 0.24 on every joint (docs/urdf.md)."""
+    noisy = velocity_noise_ratio(rec, cutoff_hz).max() > ENERGY_VELOCITY_NOISE_MAX
+    return float(cutoff_hz) if noisy else None
+
+
 @dataclass(frozen=True)
 class EnergyIdentification:
     """θ (base parameters) of one energy scheme, fitted on rows with t < ``fit_until_s``."""
@@ -466,7 +576,9 @@ class EnergyIdentification:
     lam: float  # rad/s, the filtered-power row filter's bandwidth (and the velocity window's)
     rows: int  # rows fitted
     fit_until_s: float
-    uncertainty: Uncertainty | None = None
+    uncertainty: Uncertainty | None = None  # of the least-squares fit
+    theta_standard: np.ndarray | None = None  # the consistent fit's standard parameters
+    cutoff_hz: float | None = None  # positions smoothed at this cutoff; None: raw
 
 
 def identify_energy(
@@ -478,6 +590,8 @@ def identify_energy(
     held_out: float = 0.25,
     half_window: int = ENERGY_VELOCITY_HALF_WINDOW,
     decimate: int = DEFAULT_DECIMATE,
+    cutoff_hz: float | None = None,
+    consistent: bool = False,
 ) -> EnergyIdentification:
     """Batch least squares of the base parameters from the rows of ``scheme``
     (``supplied_energy``: eq. (28), ``filtered_power``: eq. (30), in the ``exact`` form of
@@ -490,7 +604,18 @@ def identify_energy(
     Rows are averaged over blocks of ``decimate`` consecutive ones before the solve, as the
     torque scheme's are (:func:`filtered_rows`): a mean of exact equations is exact, and the
     QR of the least squares, most of the cost at 1 kHz, shrinks by as much. Streams the rows
-    in chunks: memory O(chunk · p) whatever the recording's length."""
+    in chunks: memory O(chunk · p) whatever the recording's length.
+
+    ``cutoff_hz``: the rows are built on the positions smoothed as the torque scheme's
+    (:func:`smoothed_positions`, Gautier's parallel filtering; ends EDGE_S dropped) instead of
+    the raw ones. The energy rows are quadratic in q̇ (½ q̇ᵀM q̇, ∫q̇² dt), so velocity noise
+    biases them rather than averaging out: on the real Panda of Gaz et al. the torque scheme's
+    θ leaves 32 % of the raw filtered-power rows unexplained and under 1 % of the smoothed ones
+    (docs/urdf.md). `hil identify` decides by :func:`energy_rows_cutoff`.
+    ``consistent``: the fit is constrained to physically consistent standard parameters
+    (:func:`consistent_fit` on the block-averaged rows, one equation each): the scalar balance
+    leaves directions of θ that the torque rows fix undetermined, and the constraint with its
+    weak pull towards the URDF's bodies fixes them where least squares drifts."""
     if scheme not in ENERGY_SCHEMES:
         raise ValueError(f"unknown energy scheme {scheme!r}; one of {', '.join(ENERGY_SCHEMES)}")
     _check_joints(model, rec)
@@ -501,8 +626,12 @@ def identify_energy(
         model.n_params, 1, bootstrap_block_s(lam, float(rec.t[-1] - rec.t[0]))
     )
     rows = 0
-    tau = torque_over_intervals(rec)
-    for c in iter_rows(scheme, rec.q, tau, rec.t, lam, model, half_window=half_window):
+    t, q, tau = rec.t, rec.q, torque_over_intervals(rec)
+    if cutoff_hz is not None:
+        keep = (t >= t[0] + EDGE_S) & (t <= t[-1] - EDGE_S)
+        t, q, tau = t[keep], smoothed_positions(rec, cutoff_hz)(t[keep]), tau[keep]
+    kept_y, kept_psi = [], []  # the fitted rows, for the consistent fit
+    for c in iter_rows(scheme, q, tau, t, lam, model, half_window=half_window):
         fit = c.t < split if held_out > 0 else np.ones(len(c.t), dtype=bool)
         if fit.any():
             # energy rows all have weight 1 (static friction does no work, so no row is
@@ -511,13 +640,24 @@ def identify_energy(
             ls.add(Psi, y)
             blocks.add(_block_mean(c.t[fit], decimate), y, Psi, np.ones(y.shape))
             rows += len(y)
+            if consistent:
+                kept_y.append(y)
+                kept_psi.append(Psi)
     if rows < 2 * model.n_params:
         raise ValueError(
             f"{rec.path}: {rows} {scheme} rows to fit, too few for {model.n_params} parameters"
         )
     theta = ls.solve()
     uncertainty = parameter_uncertainty(blocks, theta, weighted=False)
-    return EnergyIdentification(scheme, theta, lam, rows, float(split), uncertainty)
+    theta_standard = None
+    if consistent:
+        theta_standard = consistent_fit(
+            model, np.concatenate(kept_psi), np.concatenate(kept_y), theta
+        )
+        theta = model.base_theta(theta_standard)
+    return EnergyIdentification(
+        scheme, theta, lam, rows, float(split), uncertainty, theta_standard, cutoff_hz
+    )
 
 
 def _block_mean(x: np.ndarray, size: int) -> np.ndarray:
@@ -569,7 +709,8 @@ def consistent_fit(
     theta_ls: np.ndarray,
     weights: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Standard parameters minimizing the same weighted torque error as the least squares,
+    """Standard parameters minimizing the same weighted error of the rows ``Y`` θ ≈ ``tau``
+    ((K, m, p), (K, m): m = n joints for torque rows, 1 for energy rows) as the least squares,
     constrained to physical consistency: every body's pseudo-inertia positive definite (by the
     log-Cholesky parametrization), armature, viscous and Coulomb coefficients ≥ 0 (as squares);
     offsets free. Started from the URDF's bodies and the least-squares friction; solved by
@@ -588,7 +729,9 @@ def consistent_fit(
     b = (tau * sw / sigma).reshape(K * n)
     Q, R = np.linalg.qr(A)  # ‖A π − b‖² = ‖R π − Qᵀ b‖² + const
     c = Q.T @ b
-    nb, n_pos = model.n_body_params // 10, model.n_rigid_standard - model.n_body_params + 2 * n
+    # the model's joints, not the rows' equations (one per energy row)
+    nb = model.n_body_params // 10
+    n_pos = model.n_rigid_standard - model.n_body_params + 2 * model.n_joints
     std0 = model.standard_theta.copy()
     # friction from the least squares, clipped to the physical side
     fr = model.term_columns("friction")
@@ -637,19 +780,26 @@ def consistent_fit(
 
 __all__ = [
     "ENERGY_SCHEMES",
+    "ENERGY_VELOCITY_NOISE_MAX",
     "IDENTIFIED_MAX_RELATIVE_SE",
+    "VALIDATION_CONFIDENCE",
     "EnergyIdentification",
+    "HeldOutVerdict",
     "TorqueIdentification",
     "Uncertainty",
+    "energy_rows_cutoff",
     "fit_split",
     "friction_step_samples",
+    "held_out_verdict",
     "identify_energy",
     "identify_torque",
     "leave_out_friction_steps",
     "read_one_per_line_log",
     "regression_rows",
+    "smoothed_positions",
     "stuck_samples",
     "torque_at_samples",
     "torque_nrmse",
     "torque_over_intervals",
+    "velocity_noise_ratio",
 ]

@@ -80,7 +80,49 @@ class NrmseAccumulator:
         return np.asarray(ratio)
 
 
+def nrmse_upper_bound(
+    reference: ArrayLike, estimate: ArrayLike, blocks: ArrayLike, *, confidence: float = 0.95
+) -> float:
+    """A one-sided upper confidence bound on the :func:`nrmse` of one column whose errors are
+    correlated within ``blocks`` (one label per sample; each block longer than the error's
+    correlation, so the blocks' sums are about independent).
+
+    NRMSE² = SSE/SST with SSE = Σ(y − ŷ)² and SST = Σ(y − ȳ)². The held-out motion is the
+    experiment's design, as the regressors are in regression inference: SST is its spread, held
+    fixed; what is uncertain is the prediction's error. SSE is the sum of the B blocks' sums
+    s_b, whose variance is estimated by batch means, B·var(s_b); the bound is NRMSE at
+    SSE + t_{confidence, B−1} √(B var(s_b)) (Student t). Below 1, ŷ predicts y better than
+    y's own mean (the trivial predictor, NRMSE 1) beyond the error's own scatter; at or above,
+    the data cannot tell it from the mean. nan for a constant column or fewer than 2 blocks.
+
+    Not a resampling of whole blocks (the bootstrap) nor the t-test of Diebold & Mariano (1995)
+    on (y − ŷ)² − (y − ȳ)²: both let SST vary, so where the torque's variance sits in a few
+    blocks they measure the motion, not the prediction (on the real Panda's joint 7, one block
+    of four carries 87 % of the held-out variance: the bootstrap bounded an NRMSE of 0.19 by
+    1.4; the t-test could not tell joint 4's 0.11 from 1; docs/urdf.md)."""
+    from scipy.stats import t as student_t
+
+    y = np.asarray(reference, dtype=float)
+    y_hat = np.asarray(estimate, dtype=float)
+    labels = np.asarray(blocks)
+    if not (y.shape == y_hat.shape == labels.shape) or y.ndim != 1:
+        raise ValueError(
+            f"nrmse_upper_bound: shapes {y.shape}, {y_hat.shape}, {labels.shape}; one column each"
+        )
+    _, index = np.unique(labels, return_inverse=True)
+    n_blocks = int(index.max()) + 1 if index.size else 0
+    if n_blocks < 2 or not np.isfinite(nrmse(y, y_hat)):
+        return float("nan")
+    block_sse = np.bincount(index, weights=(y - y_hat) ** 2)
+    spread = float(np.sum((y - y.mean()) ** 2))
+    margin = float(student_t.ppf(confidence, n_blocks - 1)) * np.sqrt(
+        n_blocks * np.var(block_sse, ddof=1)
+    )
+    return float(np.sqrt((block_sse.sum() + margin) / spread))
+
+
 __all__ = [
     "NrmseAccumulator",
     "nrmse",
+    "nrmse_upper_bound",
 ]

@@ -195,6 +195,13 @@ def load_base_params(path: str | Path, model: Any) -> ParamSet:
             raise ParamsError(
                 f"{where}: model terms {terms}, robot {model.name} has {list(model.terms)}"
             )
+        validation = doc.get("validation")
+        if isinstance(validation, dict) and validation.get("passed") is False:
+            raise ParamsError(
+                f"{where}: its parameters ({doc.get('params_scheme')}) failed held-out "
+                f"validation ({validation.get('reason')}); identify with a scheme that passed: "
+                f"{', '.join(validation.get('schemes_passed') or []) or 'none did'}"
+            )
         entries = doc["parameters"]
         if not isinstance(entries, list) or [
             e.get("name") if isinstance(e, dict) else None for e in entries
