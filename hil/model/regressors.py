@@ -225,6 +225,14 @@ def held_torque_momentum_bias(
             tau[lo:hi], h, None if stamps is None else stamps[lo:hi], half_window
         )
         out[a:b] = piece[a - lo : b - lo]
+    # Exactly 0 where no step lies strictly inside the estimator's window (a torque that
+    # stays put has no corner, and an unchanged held-out torque keeps no spread to scale by)
+    step = np.zeros(tau.shape, bool)
+    step[1:] = tau[1:] != tau[:-1]
+    counts = np.vstack([np.zeros((1, tau.shape[1])), np.cumsum(step, axis=0)])
+    k = np.arange(n)
+    inside = counts[np.minimum(k + margin, n)] - counts[np.maximum(k - margin + 1, 0)]
+    out[(inside == 0) & np.isfinite(out)] = 0.0
     return out
 
 
