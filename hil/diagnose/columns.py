@@ -3,7 +3,8 @@
 The nominal model (an :class:`hil.model.closed_form.ArmModel`, default the 9-parameter one) is
 the momentum balance of Reyes & Kelly (1997) eq. (24) written over sample intervals as the
 ``exact`` regressions of :mod:`hil.model.regressors` do: y(k) = F[τ](k) ≈ Ψ(k) θ, one row per
-joint, F a moving average over a short window (:func:`recording_rows`). Every candidate
+joint, F a moving average over a short window (:func:`recording_rows`), τ_k with the held
+torque's bias of the estimated momenta added (:func:`_momentum_rows`). Every candidate
 below adds columns X so that y ≈ Ψ θ + X β with β its physical parameters, built over the same
 intervals and through the same filter as Ψ, so the extended regression is as consistent as the
 nominal one. Equations (τ the
