@@ -3,7 +3,8 @@
 The nominal model (an :class:`hil.model.closed_form.ArmModel`, default the 9-parameter one) is
 the momentum balance of Reyes & Kelly (1997) eq. (24) written over sample intervals as the
 ``exact`` regressions of :mod:`hil.model.regressors` do: y(k) = F[τ](k) ≈ Ψ(k) θ, one row per
-joint, F a moving average over a short window (:func:`recording_rows`). Every candidate
+joint, F a moving average over a short window (:func:`recording_rows`), τ_k with the held
+torque's bias of the estimated momenta added (:func:`_momentum_rows`). Every candidate
 below adds columns X so that y ≈ Ψ θ + X β with β its physical parameters, built over the same
 intervals and through the same filter as Ψ, so the extended regression is as consistent as the
 nominal one. Equations (τ the
@@ -42,6 +43,7 @@ from hil.model.regressors import (
     _hermite,
     central_difference,
     has_velocity_reversal,
+    held_torque_momentum_bias,
     interval_mean_across_reversals,
     kinematics,
     quantized_stick,
@@ -248,7 +250,9 @@ def _momentum_rows(
     half_window: int = 1,
     model: ArmModel = NINE_PARAMETERS,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Unfiltered interval rows: k, τ_k (K, 2), [ΔP + ∫R dt]/h_k (K, 2, p) of ``model``'s p
+    """Unfiltered interval rows: k, τ_k + (b_{k+1} − b_k)/h_k (K, 2) (b the held torque's bias
+    of the estimated momentum, :func:`hil.model.regressors.held_torque_momentum_bias`),
+    [ΔP + ∫R dt]/h_k (K, 2, p) of ``model``'s p
     parameters, interval stuck (K, 2), sample velocities (N, 2). ``t``: real time stamps (each
     interval its own h_k). Built ROW_CHUNK samples at a time, each piece with enough neighbours
     either side for its velocities (an interval's row depends only on the samples around it),
@@ -257,6 +261,9 @@ def _momentum_rows(
     margin = half_window + 2
     parts = []
     v_all = np.full(q.shape, np.nan)
+    # The held torque's corners in q̈ bias M v̂ by b_k (hil.model.regressors): moved to the
+    # torque side, y_k = τ_k + (b_{k+1} − b_k)/h_k, so Ψ keeps the velocities it had.
+    bias = held_torque_momentum_bias(tau, h, t, half_window)
     for a in range(0, n, ROW_CHUNK):
         b = min(a + ROW_CHUNK, n)
         lo, hi = max(0, a - margin), min(n, b + margin)
@@ -266,7 +273,9 @@ def _momentum_rows(
         assert kin.intervals is not None
         k = kin.intervals.k + lo
         keep = (k >= a) & (k < b)
-        parts.append((k[keep], raw.y[keep], raw.parts[0][1][keep], kin.intervals.stuck[keep]))
+        hk = h if t is None else (t[k + 1] - t[k])[:, None]
+        y = raw.y + (bias[k + 1] - bias[k]) / hk
+        parts.append((k[keep], y[keep], raw.parts[0][1][keep], kin.intervals.stuck[keep]))
         v_all[a:b] = kin.v[a - lo : b - lo]
     k, y, psi, stuck = (np.concatenate([p[i] for p in parts]) for i in range(4))
     return k, y, psi, stuck, v_all

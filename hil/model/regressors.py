@@ -180,6 +180,76 @@ def central_difference_unequal(q: np.ndarray, t: np.ndarray) -> np.ndarray:
     return v
 
 
+def sample_velocities(
+    q: np.ndarray, h: float, t: np.ndarray | None = None, half_window: int = 1
+) -> np.ndarray:
+    """The ``exact`` discretization's velocities at the samples: central difference on equal
+    intervals k·h (``t`` None), the three-point derivative on the real times ``t``, or the local
+    quadratic over 2·half_window + 1 of them. Linear in q, exact on a quadratic."""
+    if t is None:
+        return central_difference(q, h)
+    if half_window <= 1:
+        return central_difference_unequal(q, t)
+    return local_polynomial_velocity(q, t, half_window)
+
+
+# Samples per piece of :func:`held_torque_momentum_bias` (fixed, so that the result does not
+# depend on how a caller chunks a recording; short, so that the double integral stays small)
+BIAS_PIECE = 4096
+
+
+def held_torque_momentum_bias(
+    tau: np.ndarray, h: float, t: np.ndarray | None = None, half_window: int = 1
+) -> np.ndarray:
+    """b_k (N, n) [N m s]: what the velocity estimate (:func:`sample_velocities`) adds to a
+    sliding joint's momentum at sample k because the torque is held over each interval, i.e.
+    M(q_k) v̂_k = P(t_k) + b_k. At every sample the held torque steps, so q̈ has a corner there
+    with M (q̈⁺ − q̈⁻) = τ_k − τ_{k−1} (friction, gravity and Coriolis torques are continuous;
+    for a sliding joint this holds with other joints stuck too); a corner inside a velocity
+    estimate's window is not a quadratic, and the three-point derivative is off by
+    h (q̈⁺ − q̈⁻)/4 (the docstring of :func:`central_difference`). Linear in q, the estimator's
+    error is the same on the torque's own double integral: with S(t) = ∫τ dt, Z(t) = ∫S dt
+    (exact at the samples for a held τ), b = v̂[Z] − S, whatever the estimator (h/4 (τ_k − τ_{k−1})
+    on equal intervals). The momentum balance over [t_k, t_{k+1}] then reads
+    h_k τ_k + b_{k+1} − b_k = [M v̂]_{k+1} − [M v̂]_k + ∫R dt. Integrated over fixed pieces of
+    BIAS_PIECE samples (each with its estimator's margin), the torque's mean taken out in each
+    (the estimators are exact on the quadratic it adds to Z), so Z stays small."""
+    tau = np.asarray(tau, dtype=float)
+    stamps = None if t is None else np.asarray(t, dtype=float)
+    n, margin = len(tau), max(1, half_window)
+    out = np.full(tau.shape, np.nan)
+    for a in range(0, n, BIAS_PIECE):
+        b = min(n, a + BIAS_PIECE)
+        lo, hi = max(0, a - margin), min(n, b + margin)
+        piece = _held_torque_bias_piece(
+            tau[lo:hi], h, None if stamps is None else stamps[lo:hi], half_window
+        )
+        out[a:b] = piece[a - lo : b - lo]
+    # Exactly 0 where no step lies strictly inside the estimator's window (a torque that
+    # stays put has no corner, and an unchanged held-out torque keeps no spread to scale by)
+    step = np.zeros(tau.shape, bool)
+    step[1:] = tau[1:] != tau[:-1]
+    counts = np.vstack([np.zeros((1, tau.shape[1])), np.cumsum(step, axis=0)])
+    k = np.arange(n)
+    inside = counts[np.minimum(k + margin, n)] - counts[np.maximum(k - margin + 1, 0)]
+    out[(inside == 0) & np.isfinite(out)] = 0.0
+    return out
+
+
+def _held_torque_bias_piece(
+    tau: np.ndarray, h: float, t: np.ndarray | None, half_window: int
+) -> np.ndarray:
+    """:func:`held_torque_momentum_bias` of one piece (S and Z from its first sample)."""
+    if len(tau) < 2:
+        return np.full(tau.shape, np.nan)
+    dt = (np.full(len(tau) - 1, h) if t is None else np.diff(t))[:, None]
+    held = tau[:-1] - tau[:-1].mean(axis=0)
+    start = np.zeros((1, tau.shape[1]))
+    impulse = np.vstack([start, np.cumsum(held * dt, axis=0)])
+    position = np.vstack([start, np.cumsum(impulse[:-1] * dt + held * dt**2 / 2, axis=0)])
+    return sample_velocities(position, h, t, half_window) - impulse
+
+
 def local_polynomial_velocity(q: np.ndarray, t: np.ndarray, half_window: int) -> np.ndarray:
     """v_k = slope at t_k of the least-squares quadratic through the samples k−m..k+m (real
     times; m = ``half_window`` ≥ 1; m = 1 is the three-point derivative). Quantized positions
@@ -484,10 +554,7 @@ def kinematics(
         return Kinematics(v, interval_integrals(q, v, h, model, static=static), model)
     t = np.asarray(t, dtype=float)
     dt = np.diff(t)
-    if half_window <= 1:
-        v = central_difference_unequal(q, t)
-    else:
-        v = local_polynomial_velocity(q, t, half_window)
+    v = sample_velocities(q, h, t, half_window)
     if keep is not None:  # intervals outside keep lose an end velocity, hence their rows
         v[: keep[0]] = np.nan
         v[keep[1] + 1 :] = np.nan
@@ -870,6 +937,8 @@ __all__ = [
     "excitation_bandwidth",
     "filter_coefficients",
     "filter_over_intervals",
+    "held_torque_momentum_bias",
     "iter_regression",
     "iter_rows",
+    "sample_velocities",
 ]
