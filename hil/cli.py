@@ -35,7 +35,7 @@ if __name__ == "__main__":
 
 import argparse
 import importlib
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -101,7 +101,10 @@ DEMO_FULL = DemoLengths(excitation_s=10.0, tracking_s=6.0, diagnosis_s=20.0)
 DEMO_QUICK = DemoLengths(excitation_s=4.0, tracking_s=3.0, diagnosis_s=14.0)
 
 
-def _parser() -> argparse.ArgumentParser:
+def _parser(with_arguments: Collection[str] = COMMANDS) -> argparse.ArgumentParser:
+    """The command line; the arguments of the ``COMMANDS`` in ``with_arguments`` (their modules
+    imported), the others listed by name and help only: a command's start does not pay for the
+    imports of the other commands (scipy.signal alone is about 1 s of CPU)."""
     p = argparse.ArgumentParser(prog="hil", description="Hardware-in-the-loop bench host.")
     p.add_argument("--version", action="version", version=f"hil {__version__}")
     add_verbosity_options(p)
@@ -143,10 +146,17 @@ def _parser() -> argparse.ArgumentParser:
     )
     add_report_options(d, plot=None, json_help=JSON_SUMMARY)
     for name, (module, help_text) in COMMANDS.items():
-        importlib.import_module(module).add_arguments(
-            sub.add_parser(name, help=help_text, parents=[common])
-        )
+        parser = sub.add_parser(name, help=help_text, parents=[common])
+        if name in with_arguments:
+            importlib.import_module(module).add_arguments(parser)
     return p
+
+
+def _command_of(argv: Sequence[str]) -> str | None:
+    """The subcommand ``argv`` names: its first word that is not an option (the top-level
+    options take no value); None when that is no command of ours."""
+    first = next((a for a in argv if not a.startswith("-")), None)
+    return first if first in (*COMMANDS, "run", "demo") else None
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -327,7 +337,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     """Parse; an unknown option is reported by its subcommand's parser (its usage, its name)."""
-    parser = _parser()
+    command = _command_of(sys.argv[1:] if argv is None else argv)
+    parser = _parser(() if command is None else (command,))
     args, extras = parser.parse_known_args(argv)
     if extras:
         sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
