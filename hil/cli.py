@@ -35,7 +35,8 @@ if __name__ == "__main__":
 
 import argparse
 import importlib
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 from drivers.logsetup import add_verbosity_options, configure, verbosity
@@ -81,7 +82,29 @@ COMMANDS: dict[str, tuple[str, str]] = {
 JSON_SUMMARY = "print one JSON summary on stdout"
 
 
-def _parser() -> argparse.ArgumentParser:
+@dataclass(frozen=True)
+class DemoLengths:
+    """How long each of the demo's recordings runs [s]: the Reyes & Kelly fit run and its
+    held-out multisine, each Khosla & Kanade tracking run, the diagnosis run."""
+
+    excitation_s: float
+    tracking_s: float
+    diagnosis_s: float
+
+
+# the profiles' own lengths (reyes-kelly, validation-multisine, khosla-kanade-tracking, diagnosis)
+DEMO_FULL = DemoLengths(excitation_s=10.0, tracking_s=6.0, diagnosis_s=20.0)
+# `hil demo --quick`: the same steps and outputs on shorter runs. 4 s of excitation still fits
+# θ1..θ3 within 2 %; 3 s of tracking is the first move out and back to 0 (with its holds); 14 s of
+# diagnosis keeps the fast part and joint 1's first slow move with the holds around it, where
+# the direction-dependent Coulomb friction shows.
+DEMO_QUICK = DemoLengths(excitation_s=4.0, tracking_s=3.0, diagnosis_s=14.0)
+
+
+def _parser(with_arguments: Collection[str] = COMMANDS) -> argparse.ArgumentParser:
+    """The command line; the arguments of the ``COMMANDS`` in ``with_arguments`` (their modules
+    imported), the others listed by name and help only: a command's start does not pay for the
+    imports of the other commands (scipy.signal alone is about 1 s of CPU)."""
     p = argparse.ArgumentParser(prog="hil", description="Hardware-in-the-loop bench host.")
     p.add_argument("--version", action="version", version=f"hil {__version__}")
     add_verbosity_options(p)
@@ -113,12 +136,27 @@ def _parser() -> argparse.ArgumentParser:
         "demo", help="the main job end to end on the default virtual robot", parents=[common]
     )
     add_out_options(d, "directory for the demo's runs", default="runs/demo")
+    d.add_argument(
+        "--quick",
+        action="store_true",
+        help=f"the same steps and outputs on shorter runs: {DEMO_QUICK.excitation_s:g} s of "
+        f"excitation (not {DEMO_FULL.excitation_s:g}), {DEMO_QUICK.tracking_s:g} s of tracking "
+        f"(not {DEMO_FULL.tracking_s:g}), {DEMO_QUICK.diagnosis_s:g} s of diagnosis excitation "
+        f"(not {DEMO_FULL.diagnosis_s:g})",
+    )
     add_report_options(d, plot=None, json_help=JSON_SUMMARY)
     for name, (module, help_text) in COMMANDS.items():
-        importlib.import_module(module).add_arguments(
-            sub.add_parser(name, help=help_text, parents=[common])
-        )
+        parser = sub.add_parser(name, help=help_text, parents=[common])
+        if name in with_arguments:
+            importlib.import_module(module).add_arguments(parser)
     return p
+
+
+def _command_of(argv: Sequence[str]) -> str | None:
+    """The subcommand ``argv`` names: its first word that is not an option (the top-level
+    options take no value); None when that is no command of ours."""
+    first = next((a for a in argv if not a.startswith("-")), None)
+    return first if first in (*COMMANDS, "run", "demo") else None
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -132,32 +170,38 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from drivers.recording import read_signals
     from hil.bench.run import run_experiment
 
+    lengths = DEMO_QUICK if args.quick else DEMO_FULL
     out = prepare_out_dir(args.out, args.overwrite)
     run_dir, sim_dir = out / "hil-run-virtual-slcan", out / "simulate-reyes-kelly"
     say(
         "demo",
-        "10 s of the Reyes & Kelly (1997) excitation, eqs. (31)-(32), over the "
-        f"virtual-slcan bench (CiA 402 over slcan on a pty) -> {run_dir}",
+        f"{lengths.excitation_s:g} s of the Reyes & Kelly (1997) excitation, eqs. (31)-(32), "
+        f"over the virtual-slcan bench (CiA 402 over slcan on a pty) -> {run_dir}",
     )
-    run = run_experiment("virtual-slcan", "reyes-kelly", run_dir, duration_s=10.0, progress=False)
+    run = run_experiment(
+        "virtual-slcan", "reyes-kelly", run_dir, duration_s=lengths.excitation_s, progress=False
+    )
     if run["status"] != "complete":
         error("demo", f"demo run {run['status']}: {run['reason']}")
         return 1
     say("demo", f"the same experiment offline (virtual-robot simulate) -> {sim_dir}")
-    sim = simulate_offline("cicese", "reyes-kelly", 10.0, sim_dir)  # RuntimeError: exit 1
+    sim = simulate_offline("cicese", "reyes-kelly", lengths.excitation_s, sim_dir)  # else exit 1
     a, b = read_signals(run_dir), read_signals(sim_dir)
     identical = bool(np.array_equal(a.q, b.q) and np.array_equal(a.tau, b.tau))
     summary = {
+        "quick": bool(args.quick),
         "hil_run": run,
         "simulate": sim,
         "hil_run_equals_simulate": identical,
         "max_abs_q_difference_rad": float(np.max(np.abs(a.q - b.q))),
     }
-    identification, id_text = _demo_identify(out, run_dir)
+    identification, id_text = _demo_identify(out, run_dir, lengths.excitation_s)
     summary["identify"] = identification
-    control, control_text = _demo_control(out, Path(identification["params_files"][0]))
+    control, control_text = _demo_control(
+        out, Path(identification["params_files"][0]), lengths.tracking_s
+    )
     summary["control"] = control
-    diagnosis, diagnosis_text = _demo_diagnose(out)
+    diagnosis, diagnosis_text = _demo_diagnose(out, lengths.diagnosis_s)
     summary["diagnose"] = diagnosis
     check = (
         "bit-identical to the offline simulation"
@@ -178,7 +222,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0 if identical else 1
 
 
-def _demo_diagnose(out: Path) -> tuple[dict, str]:
+def _demo_diagnose(out: Path, duration_s: float) -> tuple[dict, str]:
     """Record the diagnosis excitation (fast multisine, then slow moves with holds) over the
     bench and diagnose it: the default robot's joint-1 Coulomb friction depends on direction."""
     from drivers.recording import read_signals, write_json_atomic
@@ -191,10 +235,12 @@ def _demo_diagnose(out: Path) -> tuple[dict, str]:
     run_dir, diag_dir = out / "hil-run-diagnosis", out / "diagnose"
     say(
         "demo",
-        f"20 s of the diagnosis excitation over virtual-slcan -> {run_dir}; "
+        f"{duration_s:g} s of the diagnosis excitation over virtual-slcan -> {run_dir}; "
         f"hil diagnose -> {diag_dir}",
     )
-    run = run_experiment("virtual-slcan", "diagnosis", run_dir, progress=False)
+    run = run_experiment(
+        "virtual-slcan", "diagnosis", run_dir, duration_s=duration_s, progress=False
+    )
     if run["status"] != "complete":
         raise RuntimeError(f"diagnosis run {run['status']}: {run['reason']}")
     result = diagnose([read_signals(run_dir)], robot_params("cicese").theta)
@@ -204,7 +250,7 @@ def _demo_diagnose(out: Path) -> tuple[dict, str]:
     return result.document, format_report(result.document)
 
 
-def _demo_control(out: Path, params: Path) -> tuple[dict, str]:
+def _demo_control(out: Path, params: Path, duration_s: float) -> tuple[dict, str]:
     """Control step of the demo: PD, CT, FED and RFED (Khosla & Kanade 1987) tracking the
     Section 4.2 trajectory over virtual-slcan, with the profile's θ and the identified θ."""
     from hil.control.tracking import compare_schemes, format_table
@@ -215,12 +261,16 @@ def _demo_control(out: Path, params: Path) -> tuple[dict, str]:
         f"control comparison (PD, CT, FED, RFED; profile and identified θ) -> {control_dir}",
     )
     doc = compare_schemes(
-        "virtual-slcan", control_dir, params=[f"identified={params}"], progress=False
+        "virtual-slcan",
+        control_dir,
+        params=[f"identified={params}"],
+        progress=False,
+        duration_s=duration_s,
     )
     return doc, format_table(doc)
 
 
-def _demo_identify(out: Path, fit_dir: Path) -> tuple[dict, str]:
+def _demo_identify(out: Path, fit_dir: Path, duration_s: float) -> tuple[dict, str]:
     """Identification step of the demo: the recording above is the fit; a held-out multisine
     runs over the same bench; exact and paper discretizations side by side."""
     from hil.bench.run import run_experiment
@@ -228,7 +278,9 @@ def _demo_identify(out: Path, fit_dir: Path) -> tuple[dict, str]:
 
     held_dir = out / "hil-run-validation-multisine"
     say("demo", f"held-out excitation (validation-multisine) over virtual-slcan -> {held_dir}")
-    held = run_experiment("virtual-slcan", "validation-multisine", held_dir, progress=False)
+    held = run_experiment(
+        "virtual-slcan", "validation-multisine", held_dir, duration_s=duration_s, progress=False
+    )
     if held["status"] != "complete":
         raise RuntimeError(f"demo validation run {held['status']}: {held['reason']}")
     id_dir = out / "identify"
@@ -285,7 +337,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     """Parse; an unknown option is reported by its subcommand's parser (its usage, its name)."""
-    parser = _parser()
+    command = _command_of(sys.argv[1:] if argv is None else argv)
+    parser = _parser(() if command is None else (command,))
     args, extras = parser.parse_known_args(argv)
     if extras:
         sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))

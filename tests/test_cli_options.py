@@ -48,6 +48,33 @@ def test_every_command_is_wired_and_a_shared_option_says_one_thing() -> None:
     }
 
 
+def test_a_command_imports_only_its_own_module() -> None:
+    """`hil run` (and `hil --version`) start without importing the other commands' modules
+    (scipy.signal through `hil identify`: about 1 s of every start); `hil -v identify` gets
+    identify's arguments, and only its module."""
+    import subprocess
+    import sys
+
+    script = """
+import sys
+from hil.cli import COMMANDS, _parse
+args = _parse(sys.argv[1:])
+print(args.command, sorted(m for m, _ in COMMANDS.values() if m in sys.modules),
+      "scipy.signal" in sys.modules)
+"""
+
+    def loaded(*argv: str) -> str:
+        proc = subprocess.run([sys.executable, "-c", script, *argv], capture_output=True,
+                              text=True, timeout=120, check=False)  # fmt: skip
+        assert proc.returncode == 0, proc.stderr
+        return proc.stdout.strip()
+
+    assert loaded("run", "--out", "x", "--no-plot") == "run [] False"
+    assert loaded("-v", "identify", "--from", "x", "--no-plot") == (
+        "identify ['hil.identify.cli'] True"
+    )
+
+
 def test_drive_kwargs_are_what_run_experiment_takes() -> None:
     args = _parser().parse_args(
         ["run", "--out", "x", "--mode", "lockstep", "--effects", "payload", "--seed", "3",

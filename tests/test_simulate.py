@@ -163,7 +163,58 @@ def test_duration_is_validated():
     assert proc.stderr.strip().count("\n") == 0 and "duration" in proc.stderr
 
 
+def _check_demo_summary(summary: dict, excitation_s: float, tracking_s: float) -> None:
+    """What every `hil demo` does, full or --quick: the HIL run bit-identical to the offline
+    simulation, θ identified and validated, the four controllers with both parameter sets, and
+    joint 1's direction-dependent Coulomb friction found."""
+    rows = round(excitation_s / H)
+    assert summary["hil_run_equals_simulate"] is True
+    assert len(read_signals(summary["simulate"]["out_dir"])) == rows
+    assert len(read_signals(summary["hil_run"]["out_dir"])) == rows
+    assert Path(summary["hil_run"]["traffic_log"]).name == "bus.log"
+    assert Path(summary["hil_run"]["plot"]).is_file()
+    # identification (issue 4) and the control comparison (issue 5) are part of the demo
+    exact = summary["identify"]["discretizations"]["exact"]["schemes"]
+    assert abs(exact["filtered_dynamic"]["relative_error"][0]) < 0.02
+    assert set(exact["filtered_dynamic"]["validation"]) == {"fit", "held_out"}
+    assert Path(summary["identify"]["params_files"][0]).is_file()
+    labels = [ps["label"] for ps in summary["control"]["parameter_sets"]]
+    assert labels[-1] == "identified" and len(labels) == 2
+    for label in labels:
+        runs = summary["control"]["results"][label]
+        assert sorted(runs) == ["ct", "fed", "pd", "rfed"]
+        assert all(r["status"] == "complete" for r in runs.values())
+        assert all(len(read_signals(r["out_dir"])) == round(tracking_s / H) for r in runs.values())
+    # ... and the mismatch diagnosis (issue 7): joint 1's direction-dependent Coulomb friction
+    found = {(f["effect"], f["joint"]) for f in summary["diagnose"]["findings"]}
+    assert ("coulomb_asymmetry", 1) in found
+    assert summary["diagnose"]["plots"] and all(
+        Path(p).is_file() for p in summary["diagnose"]["plots"]
+    )
+
+
+def test_hil_demo_quick_runs_every_step_of_the_main_job(tmp_path, capsys):
+    """`hil demo --quick`, in process: every step of the demo and its outputs on shorter runs
+    (4 s of excitation, 3 s of tracking, 14 s of diagnosis; hil.cli.DEMO_QUICK). The full
+    demo: test_hil_demo_runs_the_main_job_end_to_end (slow)."""
+    from hil.cli import DEMO_QUICK
+    from hil.cli import main as hil_main
+
+    status = hil_main(["demo", "--quick", "--out", str(tmp_path), "--json"])
+    out = capsys.readouterr()
+    assert status == 0, out.err
+    summary = json.loads(out.out)
+    assert summary["quick"] is True
+    _check_demo_summary(summary, DEMO_QUICK.excitation_s, DEMO_QUICK.tracking_s)
+    assert "4 s of the Reyes & Kelly" in out.err and "14 s of the diagnosis" in out.err
+
+
+@pytest.mark.slow
 def test_hil_demo_runs_the_main_job_end_to_end(tmp_path):
+    """`make demo` as a user runs it (its own process, the profiles' full lengths). The same
+    steps are checked in `make test` by test_hil_demo_quick_runs_every_step_of_the_main_job."""
+    from hil.cli import DEMO_FULL
+
     proc = subprocess.run(
         [sys.executable, "-m", "hil.cli", "demo", "--out", str(tmp_path), "--json"],
         capture_output=True,
@@ -173,19 +224,9 @@ def test_hil_demo_runs_the_main_job_end_to_end(tmp_path):
     )
     assert proc.returncode == 0, proc.stderr
     summary = json.loads(proc.stdout)
-    assert summary["hil_run_equals_simulate"] is True
-    assert len(read_signals(summary["simulate"]["out_dir"])) == 4000
-    assert len(read_signals(summary["hil_run"]["out_dir"])) == 4000
-    assert Path(summary["hil_run"]["traffic_log"]).name == "bus.log"
-    # identification (issue 4) and the control comparison (issue 5) are part of the demo
-    exact = summary["identify"]["discretizations"]["exact"]["schemes"]
-    assert abs(exact["filtered_dynamic"]["relative_error"][0]) < 0.02
-    assert Path(summary["identify"]["params_files"][0]).is_file()
-    labels = [ps["label"] for ps in summary["control"]["parameter_sets"]]
-    assert labels[-1] == "identified" and len(labels) == 2
-    # ... and the mismatch diagnosis (issue 7): joint 1's direction-dependent Coulomb friction
-    found = {(f["effect"], f["joint"]) for f in summary["diagnose"]["findings"]}
-    assert ("coulomb_asymmetry", 1) in found
+    assert summary["quick"] is False
+    assert DEMO_FULL.excitation_s == 10.0  # the 4000 rows of eqs. (31)-(32) at h = 2.5 ms
+    _check_demo_summary(summary, DEMO_FULL.excitation_s, DEMO_FULL.tracking_s)
 
 
 @pytest.mark.parametrize("module", ["hil", "drivers"])
