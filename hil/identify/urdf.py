@@ -235,8 +235,8 @@ def smoothing_cutoff_hz(rec: Recording) -> float:
     reaches well above the positions' band: friction steps at each reversal and a held torque's
     steps. A 4th-order Butterworth passes |H|² = 0.93 at 0.71 of its cutoff, a 7 % error on
     the accelerations there (on the simulated cicese3 arm, 4× the bandwidth put the viscous
-    coefficients 17 to 26 % off, 8× within 3 %; on the Panda of Gaz et al. both give the
-    4 Hz floor)."""
+    coefficients 17 to 26 % off, 8× within 3 %; on the Panda of Gaz et al. 8× gives 4.28 Hz,
+    4× the 4 Hz floor)."""
     period = float(np.median(np.diff(rec.t)))
     bandwidth_hz = excitation_bandwidth(rec.q, rec.t) / (2 * np.pi)
     if not np.isfinite(bandwidth_hz):
