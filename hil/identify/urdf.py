@@ -67,6 +67,13 @@ DEFAULT_DECIMATE = 10
 REGULARIZATION = 1e-4
 # Rows dropped at each end: the zero-phase filters' start-up transients.
 EDGE_S = 0.5
+
+
+def inside_edges(t: np.ndarray) -> np.ndarray:
+    """Which stamps of ``t`` lie EDGE_S or more from both ends (the smoothed rows kept)."""
+    return (t >= t[0] + EDGE_S) & (t <= t[-1] - EDGE_S)
+
+
 # A joint's torque rows are left out within this many periods of the smoothing cutoff of a
 # friction step (a stick or a reversal, friction_step_samples).
 FRICTION_STEP_MARGIN_PERIODS = 1.0
@@ -162,7 +169,7 @@ def smoothed_motion(rec: Recording, *, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -> 
     time-stamp jitter into velocity and acceleration errors. Ends (EDGE_S) are dropped."""
     t = rec.t
     smooth = smoothed_positions(rec, cutoff_hz)
-    keep = (t >= t[0] + EDGE_S) & (t <= t[-1] - EDGE_S)
+    keep = inside_edges(t)
     tk = t[keep]
     tau = torque_at_samples(rec)[keep]
     near_step = friction_step_samples(
@@ -547,7 +554,7 @@ def velocity_noise_ratio(rec: Recording, cutoff_hz: float) -> np.ndarray:
     """(n,): RMS of (the energy rows' raw velocity − the smoothed one, :func:`smoothed_positions`)
     over the RMS of the smoothed velocity, per joint, ends (EDGE_S) dropped."""
     t = rec.t
-    keep = (t >= t[0] + EDGE_S) & (t <= t[-1] - EDGE_S)
+    keep = inside_edges(t)
     raw = local_polynomial_velocity(rec.q, t, ENERGY_VELOCITY_HALF_WINDOW)[keep]
     smooth = smoothed_positions(rec, cutoff_hz)(t[keep], 1)
     scale = np.sqrt(np.mean(smooth**2, axis=0))
@@ -628,7 +635,7 @@ def identify_energy(
     rows = 0
     t, q, tau = rec.t, rec.q, torque_over_intervals(rec)
     if cutoff_hz is not None:
-        keep = (t >= t[0] + EDGE_S) & (t <= t[-1] - EDGE_S)
+        keep = inside_edges(t)
         t, q, tau = t[keep], smoothed_positions(rec, cutoff_hz)(t[keep]), tau[keep]
     kept_y, kept_psi = [], []  # the fitted rows, for the consistent fit
     for c in iter_rows(scheme, q, tau, t, lam, model, half_window=half_window):
@@ -793,6 +800,7 @@ __all__ = [
     "held_out_verdict",
     "identify_energy",
     "identify_torque",
+    "inside_edges",
     "leave_out_friction_steps",
     "read_one_per_line_log",
     "regression_rows",

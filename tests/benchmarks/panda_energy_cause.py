@@ -27,10 +27,10 @@ import numpy as np
 from drivers.process import limit_blas_threads
 from drivers.recording import Recording
 from hil.identify.urdf import (
-    EDGE_S,
     ENERGY_VELOCITY_HALF_WINDOW,
     identify_energy,
     identify_torque,
+    inside_edges,
     read_one_per_line_log,
     smoothed_positions,
     smoothing_cutoff_hz,
@@ -61,7 +61,7 @@ def main() -> int:
     print(f"1. raw velocity noise / RMS per joint: {np.round(ratio, 3).tolist()}")
 
     t = rec.t
-    keep = (t >= t[0] + EDGE_S) & (t <= t[-1] - EDGE_S)
+    keep = inside_edges(t)
     positions = {"raw": rec.q[keep], "smoothed": smoothed_positions(rec, cutoff)(t[keep])}
     tau = torque_over_intervals(rec)[keep]
 
