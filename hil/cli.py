@@ -127,6 +127,12 @@ def _parser(with_arguments: Collection[str] = COMMANDS) -> argparse.ArgumentPars
         help="robot profile or file in place of the bench's, e.g. cicese3 (its drives on the "
         "bus; host limits from its [limits] unless it is the bench's own robot; docs/urdf.md)",
     )
+    r.add_argument(
+        "--clear-faults",
+        action="store_true",
+        help="clear a fault the drives hold (from an earlier run, e.g. a second SYNC producer) "
+        "before enabling them; each cleared fault is logged",
+    )
     r.add_argument("--experiment", default="reyes-kelly", help="experiment profile or file")
     r.add_argument("--duration", type=float, default=None, help="seconds (default: experiment's)")
     add_out_options(r, "run directory to write", required=True)
@@ -318,6 +324,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         args.out,
         duration_s=args.duration,
         robot=args.robot,
+        clear_faults=args.clear_faults,
         **drive_kwargs(args),
     )
     if args.json or summary["status"] == "complete":

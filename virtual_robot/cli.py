@@ -191,7 +191,8 @@ def _initial_q(text: str | None, n_joints: int) -> tuple[float, ...] | None:
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    """Serve until SIGTERM/SIGINT; the first stdout line is the JSON announcement."""
+    """Serve until SIGTERM/SIGINT (SIGUSR1: reset the drives' faults); the first stdout line is
+    the JSON announcement."""
     import signal
 
     from virtual_robot.serve import serve
@@ -218,6 +219,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
+    reset = threading.Event()  # SIGUSR1: reset the drives' faults (docs/faults.md)
+    signal.signal(signal.SIGUSR1, lambda _signum, _frame: reset.set())
     if args.exit_with_parent:
         _watch_parent(stop)
 
@@ -233,6 +236,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         stop=stop,
         event_log=args.event_log,
         initial_q=initial_q,
+        reset=reset,
     )
     print("virtual-robot: stopped", file=sys.stderr)
     return code

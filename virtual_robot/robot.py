@@ -390,6 +390,21 @@ class VirtualRobot:
                 d.write_controlword(co.CW_DISABLE_VOLTAGE, now)
             self._apply_torques(now, from_host=False)
 
+    def reset_faults(self) -> list[int]:
+        """Fault reset (CiA 402 transition 15) of every drive in FAULT, as a host's controlword
+        0x80 then 0 would do; the error codes cleared, one per drive that held one."""
+        with self.lock:
+            now = self._catch_up()
+            cleared = []
+            for d in self.drives:
+                if d.state is co.State.FAULT:
+                    cleared.append(d.error_code)
+                    d.write_controlword(co.CW_DISABLE_VOLTAGE, now)  # bit 7 low first: an edge
+                    d.write_controlword(co.CW_FAULT_RESET, now)
+                    d.write_controlword(co.CW_DISABLE_VOLTAGE, now)
+            self._apply_torques(now, from_host=False)
+            return cleared
+
     def fault_all(self, error_code: int) -> None:
         """Every drive to FAULT with ``error_code`` (a communication error), torque zero."""
         with self.lock:

@@ -107,6 +107,23 @@ def _finish(core: VirtualRobot, log: Callable[[str], None]) -> None:
         log(f"timing faults: {json.dumps(core.timing.describe())}")
 
 
+def _watch_resets(
+    core: VirtualRobot, reset: threading.Event, stop: threading.Event, log: Callable[[str], None]
+) -> None:
+    """A daemon thread: on every ``reset``, :meth:`VirtualRobot.reset_faults` and one line."""
+
+    def watch() -> None:
+        while not stop.is_set():
+            if not reset.wait(0.1):
+                continue
+            reset.clear()
+            cleared = core.reset_faults()
+            codes = ", ".join(f"0x{code:04X}" for code in cleared)
+            log(f"drive faults reset ({codes})" if cleared else "reset asked: no drive in FAULT")
+
+    threading.Thread(target=watch, name="fault-reset", daemon=True).start()
+
+
 def serve(
     bench: BenchProfile,
     *,
@@ -118,6 +135,7 @@ def serve(
     log: Callable[[str], None] | None = None,
     event_log: str | Path | None = None,
     initial_q: Sequence[float] | None = None,
+    reset: threading.Event | None = None,
 ) -> int:
     """Serve the bench's virtual robot until ``stop`` is set; returns the exit status (0).
 
@@ -126,10 +144,13 @@ def serve(
     announcement and seeds the injected timing faults, if any. ``event_log``: realtime, a file
     for the robot's own times of its samples and of the host's commands (``hil replay``).
     ``initial_q``: the arm's position at rest when serving starts (an experiment's
-    ``initial_q_rad``; default 0 on every joint).
+    ``initial_q_rad``; default 0 on every joint). ``reset``: each time it is set (SIGUSR1 in
+    the CLI), the drives' faults are reset and logged, as a host's fault reset would.
     """
     log = log or _stderr
     core = build_core(bench, effects=effects, mode=mode, seed=seed, initial_q=initial_q)
+    if reset is not None:
+        _watch_resets(core, reset, stop, log)
     if event_log is not None and core.mode == REALTIME:  # robot times, for `hil replay`
         core.event_log = EventLog(event_log)
     if core.mode == REALTIME:

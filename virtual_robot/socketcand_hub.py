@@ -31,10 +31,15 @@ Robustness: one slow or stopped client cannot hold up the robot or the other cli
 non-blocking into a bounded per-client queue; a client whose queue overflows is dropped, with
 the reason logged); at most :attr:`SocketcandHub.MAX_CLIENTS` clients; the accept thread
 survives running out of descriptors (EMFILE) and keeps listening; non-ASCII and malformed
-elements are dropped, counted and logged at a bounded rate. The bus has one SYNC producer (the
-first participant to send a SYNC, the host): a SYNC from anyone else is not forwarded and
+elements are dropped, counted and logged at a bounded rate; a client that has not entered raw
+mode :attr:`SocketcandHub.HANDSHAKE_TIMEOUT_S` after connecting is dropped, and TCP keepalive
+finds peers gone without a FIN (half-open). The bus has one SYNC producer (the first
+participant to send a SYNC, the host; the role is free again once its SYNCs stop for
+:attr:`SocketcandHub.SYNC_LEASE_S`): a SYNC from anyone else meanwhile is not forwarded and
 ``on_sync_conflict`` is told (serve.py faults the drives: a lockstep robot stepped by two SYNC
 sources would record garbage). ``on_sync_source_gone``: the producer disconnected (host gone).
+A host (drivers.can_arm) listens for SYNCs before its set-up and refuses to attach beside a
+producer, so a second `hil run --attach` does not reach this point.
 """
 
 from __future__ import annotations
@@ -97,6 +102,17 @@ def parse_send(element: str) -> can.Message | None:
     return can.Message(
         timestamp=time.time(), arbitration_id=cob, is_extended_id=extended, data=data
     )
+
+
+def _keepalive(sock: socket.socket, idle_s: int, interval_s: int, count: int) -> None:
+    """TCP keepalive: the kernel probes a silent peer and resets a half-open connection."""
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
+    for name, value in (("TCP_KEEPIDLE", idle_s), ("TCP_KEEPINTVL", interval_s),
+                        ("TCP_KEEPCNT", count)):  # fmt: skip
+        option = getattr(socket, name, None)  # Linux names; other systems keep their defaults
+        if option is not None:
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.IPPROTO_TCP, option, value)
 
 
 def _quickack(sock: socket.socket) -> None:
@@ -223,7 +239,15 @@ class _Client:
         fd = self.sock.fileno()
         try:
             self.reply("< hi >")
+            handshake_until = time.monotonic() + self.hub.HANDSHAKE_TIMEOUT_S
             while self.alive and not self.hub._closed.is_set():
+                if self.state != "raw" and time.monotonic() > handshake_until:
+                    self.hub._say(
+                        "drop",
+                        f"socketcand client {self.peer} dropped: no raw mode within "
+                        f"{self.hub.HANDSHAKE_TIMEOUT_S:g} s of connecting",
+                    )
+                    break
                 wait = 0.05
                 if self.pending:
                     wait = max(0.0, min(wait, self.ready_at - time.monotonic()))
@@ -323,6 +347,16 @@ class SocketcandHub:
     # a client that does not read: about 2 s of a 400 Hz cycle's 7 frames, then it is dropped
     MAX_QUEUED_BYTES = 256 * 1024
     MAX_CLIENTS = 64  # more are refused (a bus of a host, a few monitors)
+    # a SYNC producer silent this long gives up the role (2x the feedback budget of the virtual
+    # benches: a host silent longer has ended its own run; a lockstep host sends hundreds a
+    # second, a realtime one one a period; stalls of an ordinary desktop stay well below)
+    SYNC_LEASE_S = 0.5
+    # a client that has not entered raw mode this long after connecting is dropped (a
+    # half-open or idle connection must not hold one of MAX_CLIENTS forever)
+    HANDSHAKE_TIMEOUT_S = 10.0
+    # TCP keepalive on every client: a peer gone without a FIN (half-open) is found and
+    # dropped within about KEEPALIVE_IDLE_S + KEEPALIVE_COUNT * KEEPALIVE_INTERVAL_S
+    KEEPALIVE_IDLE_S, KEEPALIVE_INTERVAL_S, KEEPALIVE_COUNT = 10, 2, 3
     LOG_BURST = 5  # log lines of one kind before they are rate-limited
     LOG_EVERY_S = 10.0  # then one line per kind per this, with the count of those left out
 
@@ -353,6 +387,8 @@ class SocketcandHub:
         # CANopen has one SYNC producer: the first participant to send one; a SYNC from anyone
         # else would step a lockstep robot twice and corrupt the run, so it is refused
         self._sync_source: object | None = None
+        self._sync_last = 0.0  # monotonic time of the producer's last SYNC
+        self._conflict_source: object | None = None  # the last second producer reported
         self._on_sync_conflict = on_sync_conflict
         self._on_sync_source_gone = on_sync_source_gone
         self._said: dict[
@@ -444,6 +480,8 @@ class SocketcandHub:
             peer = f"{addr[0]}:{addr[1]}"
             try:
                 sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                _keepalive(sock, self.KEEPALIVE_IDLE_S, self.KEEPALIVE_INTERVAL_S,
+                           self.KEEPALIVE_COUNT)  # fmt: skip
                 _quickack(sock)
                 sock.setblocking(False)  # sends never wait (_Client._send_locked)
                 with self._lock:
@@ -487,11 +525,17 @@ class SocketcandHub:
         conflict = None
         with self._lock:
             if self._is_sync(msg):
-                if self._sync_source is None:
+                now = time.monotonic()
+                if self._sync_source is None or (now - self._sync_last > self.SYNC_LEASE_S):
+                    # the first producer, or one after the last fell silent (a raw client's
+                    # stray SYNC does not lock the bus for the host that attaches later)
                     self._sync_source = source
-                elif source is not self._sync_source:
+                if source is self._sync_source:
+                    self._sync_last = now
+                else:
                     self.foreign_syncs += 1
-                    if self.foreign_syncs == 1:
+                    if source is not self._conflict_source:  # said once per intruder
+                        self._conflict_source = source
                         conflict = (
                             f"a second SYNC producer ({_name(source)}) on the bus besides "
                             f"{_name(self._sync_source)}: its SYNCs are not forwarded"

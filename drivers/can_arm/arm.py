@@ -103,6 +103,9 @@ class CanArm(NodeSetup, PowerStates, SyncCycle, BusLink, Arm):
         self._link_lost: str | None = None  # a receive error in the cycle's own thread
 
         self._emcy: dict[int, Fault] = {}  # joint → last active fault from EMCY
+        # SYNC frames received: never our own (a CAN controller does not receive its own
+        # frames), so each is from another SYNC producer (CiA 301 allows one per bus)
+        self._foreign_syncs = 0
         self._booted: set[int] = set()
         self._counts: list[int] = [0] * self.n_joints
         self._k = 0

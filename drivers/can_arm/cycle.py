@@ -74,9 +74,13 @@ class SyncCycle:
             if fb1.count(None) + fb2.count(None) > 0:
                 self.stats.timeouts += 1
                 j = next(j for j in range(self.n_joints) if fb1[j] is None or fb2[j] is None)
-                message = self._gone_reason() or (
-                    f"no feedback from node {self.node_ids[j]} within {timeout * 1000:g} ms "
-                    "(the feedback budget): virtual robot, drive or bus stalled or gone"
+                message = (
+                    self._gone_reason()
+                    or self._fault_reason(j)
+                    or (
+                        f"no feedback from node {self.node_ids[j]} within {timeout * 1000:g} "
+                        "ms (the feedback budget): virtual robot, drive or bus stalled or gone"
+                    )
                 )
                 self._note_error(message)
                 raise LinkError(message)
@@ -104,6 +108,22 @@ class SyncCycle:
                 return event.is_set()
             if event.wait(min(left, LIVENESS_POLL_S)):
                 return True
+
+    def _fault_reason(self, j: int) -> str | None:
+        """Why feedback stopped when a drive said so first (an EMCY fault), or None."""
+        faults = dict(self._emcy)
+        if not faults:
+            return None
+        others = self._foreign_syncs
+        described = "; ".join(
+            f"node {self.node_ids[f.joint]} FAULT 0x{f.error_code:04X} ({f.text})"
+            for f in sorted(faults.values(), key=lambda f: f.joint)
+        )
+        seen = f"; {others} SYNC frames of another producer seen" if others else ""
+        return (
+            f"no feedback from node {self.node_ids[j]}: the drives faulted ({described}{seen}); "
+            "clear it with hil run --clear-faults once the cause is gone"
+        )
 
     def _gone_reason(self) -> str | None:
         """Why the other end is certainly gone (not merely late), or None."""

@@ -254,6 +254,8 @@ class BusLink:
         notify = network.notify if network is not None else None
         routes = self._routes
         for cob_id, data in frames:
+            if cob_id == co.SYNC_ID:
+                self._foreign_syncs += 1  # another SYNC producer (see CanArm.__init__)
             if notify is not None:
                 try:  # what canopen's MessageListener does with a Message
                     notify(cob_id, bytearray(data), stamp)
@@ -280,6 +282,8 @@ class BusLink:
         now = time.monotonic()
         self._log(msg)
         self.stats.frames_received += 1
+        if msg.arbitration_id == co.SYNC_ID and not (msg.is_extended_id or msg.is_remote_frame):
+            self._foreign_syncs += 1  # another SYNC producer (see CanArm.__init__)
         try:
             frame = parse_frame(
                 self._routes,

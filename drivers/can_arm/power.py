@@ -96,7 +96,8 @@ class PowerStates:
                     code = self._sdo_read(j, 0x603F, 0)
                     raise LinkError(
                         f"node {self.node_ids[j]} in FAULT, error code 0x{code:04X} "
-                        f"({fault_text(code)}): clear_faults() first"
+                        f"({fault_text(code)}): clear it with hil run --clear-faults (logged) "
+                        "once its cause is gone"
                     )
             if not pending:
                 return

@@ -30,6 +30,10 @@ from drivers.protocol import cia402 as co
 from profiles.drive import DriveProfile
 
 SHORT_SDO_TIMEOUT_S = 0.2  # disable() and fault queries: best effort, do not hang on a dead link
+# Before it sends anything the host listens this long for SYNCs of another producer: a host
+# already cycling sends one every period (2.5 ms at 400 Hz; faster in lockstep), so 0.1 s sees
+# dozens; a bus with its SYNC producer is another host's run, which NMT and SDO set-up would ruin
+SYNC_LISTEN_S = 0.1
 
 
 def profile_name(p: DriveProfile) -> str:
@@ -46,6 +50,7 @@ class NodeSetup:
             return
         try:
             self._connect()
+            self._refuse_second_producer()
             self.opened_at = self._t0 = time.monotonic()  # the clock of Sample times, deadlines
             for j in range(self.n_joints):
                 self._confirm(j)
@@ -86,6 +91,19 @@ class NodeSetup:
         self._listeners = list(network.listeners)
         self._receiver = Receiver(self._read_frames, name="can-arm-receiver")
         network.notifier = self._receiver  # type: ignore[assignment]  # check() reads .exception
+
+    def _refuse_second_producer(self) -> None:
+        """Listen :data:`SYNC_LISTEN_S` before sending anything; SYNCs on the bus mean
+        another host is driving these drives (CiA 301: one SYNC producer per bus): refuse in one
+        line rather than reset its drives under it."""
+        deadline = time.monotonic() + SYNC_LISTEN_S
+        while time.monotonic() < deadline and not self._foreign_syncs:
+            time.sleep(0.005)
+        if self._foreign_syncs:
+            raise LinkError(
+                f"another SYNC producer is on the bus ({channel_name(self.bus)}): another host "
+                "is driving these drives; not attaching (stop that run first; one host per bus)"
+            )
 
     def _confirm(self, j: int) -> None:
         """Presence (0x1000), identity (0x1018), rated torque (0x6076), encoder (0x608F:1)."""

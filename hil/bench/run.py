@@ -111,6 +111,7 @@ def record_over_bench(
     realtime_policy: str = "auto",
     spin: bool = True,
     initial_q: Sequence[float] | None = None,
+    clear_faults: bool = False,
 ) -> BenchRun:
     """Start the bench's virtual robot (if virtual), open the arm, run ``command`` for
     ``n_periods`` through the loop runner and record it in ``out``.
@@ -120,6 +121,8 @@ def record_over_bench(
     ``realtime_policy`` "auto" tries SCHED_FIFO and a memory lock (hil.bench.scheduler) before the
     link opens, "off" does not; ``spin=False``: the deadline wait sleeps, never spins.
     ``initial_q``: where a virtual robot's arm starts at rest (default 0 on every joint).
+    ``clear_faults``: fault-reset drives that hold a fault before enabling them, each logged
+    (a fault is otherwise refused: the run ends before any torque is commanded).
     """
     realtime = mode == "realtime"
     h = bench.period_s
@@ -160,6 +163,8 @@ def record_over_bench(
             ) as writer,
         ):
             with arm:
+                if clear_faults:
+                    clear_drive_faults(arm)
                 arm.enable()
                 result = run_loop(
                     arm,
@@ -188,6 +193,20 @@ def record_over_bench(
                 **timing_fault_meta(arm, bench, effects, seed),
             )
     return BenchRun(result, reason, factor, arm.traffic_log())
+
+
+def clear_drive_faults(arm: Arm) -> None:
+    """Fault reset of every drive in FAULT, each fault said on stderr first (``--clear-faults``)."""
+    faults = arm.faults()
+    for f in faults:
+        print(
+            f"hil run: clearing joint {f.joint + 1}'s fault 0x{f.error_code:04X} ({f.text}) "
+            "(--clear-faults)",
+            file=sys.stderr,
+            flush=True,
+        )
+    if faults:
+        arm.clear_faults()
 
 
 # the pty transports: every write crosses a kernel worker (tty flip buffer) at normal priority
@@ -253,13 +272,14 @@ def run_experiment(
     progress: bool = True,
     observer: Callable[[int, Sample], None] | None = None,
     robot: str | None = None,
+    clear_faults: bool = False,
 ) -> dict[str, Any]:
     """Run an open-loop experiment over a bench; returns the summary that `--json` prints.
 
     ``robot``: a robot profile in place of the bench's (its drives on the bus, the virtual
-    robot launched with it). ``observer(k, sample)``, if given, sees every period's feedback as
-    it arrives (e.g. online identification); sample k carries q_k and the quantized torque of
-    period k − 1."""
+    robot launched with it). ``clear_faults``: as :func:`record_over_bench`.
+    ``observer(k, sample)``, if given, sees every period's feedback as it arrives (e.g. online
+    identification); sample k carries q_k and the quantized torque of period k − 1."""
     bench = check_bench(bench_name, confirm_real=confirm_real, effects=effects, robot=robot)
     experiment = load_experiment(experiment_name)
     experiment.check_joints(_joints_of(bench), bench.robot)
@@ -303,6 +323,7 @@ def run_experiment(
         # the arm starts where `virtual-robot simulate` starts it; a robot at rest at 0 is
         # the default, so the flag is left out for it (the 2-DOF benches' launch unchanged)
         initial_q=experiment.initial_q_rad if any(experiment.initial_q_rad) else None,
+        clear_faults=clear_faults,
     )
     result, reason, factor = run.result, run.reason, run.realtime_factor
     summary = {
