@@ -1,0 +1,516 @@
+"""Recordings in other containers than one CSV: numpy ``.npz`` archives, MCAP files (ROS 2 bags,
+Foxglove), and one CSV per quantity in a directory, joined on time (docs/recordings.md).
+
+Each is turned into a :class:`Table`: column names (an array ``A`` of shape (N, k) gives the
+columns ``A[0]`` .. ``A[k-1]``, a 1-D array the column ``A``; an MCAP message's fields by their
+dotted path, ``header.stamp`` a time in s, ``position[0]`` ...), and a loader of the columns a
+reading needs. :func:`drivers.recording.read_signals` then applies the format profile and the
+checks every recording gets (t increasing, duplicates, gaps, NaN) to it, so that there is one
+reader path whatever the container. A recording split over several streams (CSV files or MCAP
+topics) has its columns named ``STREAM.COLUMN`` and is joined on the time of one of them by the
+layout's rule (:class:`profiles.recording_format.Join`); rows that no sample of a stream is
+close enough to are refused, never guessed.
+
+:func:`write_mcap` writes a recording as ``sensor_msgs/JointState``-shaped JSON messages
+(``hil run --mcap``).
+
+Imports :mod:`profiles` (the format profiles) and the ``mcap`` library; the CSV parser is
+passed in by :mod:`drivers.recording`, which imports this module.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import zipfile
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from profiles.recording_format import Join, Layout, RecordingFormat, Stream
+
+JOINT_STATE_TOPIC = "/joint_states"
+MCAP_META = "ddbench"  # the MCAP metadata record holding meta.json (written by write_mcap)
+
+
+class ContainerError(ValueError):
+    """A container that cannot be read; one line naming the file (and the row or message)."""
+
+
+@dataclass
+class Table:
+    """Named float columns of one recording, loaded on demand.
+
+    ``load(names, required)`` returns the columns ``names`` that are read (a (rows, k) array and
+    their names): every ``required`` one, and the others when they have the rows of the time
+    column (an npz may hold arrays of other lengths beside the recording)."""
+
+    label: Path  # the file (or directory) errors name
+    names: list[str]
+    load: Callable[[list[str], set[str]], tuple[np.ndarray, list[str]]]
+    locate: Callable[[int], str]  # data row i -> "FILE: row i", for errors
+    meta: dict[str, Any] = field(default_factory=dict)
+    torque_source: str | None = None  # what the writer said the torque is (our own MCAP)
+
+
+# --- numpy .npz ----------------------------------------------------------------------------------
+
+
+def npz_table(path: Path) -> Table:
+    """An ``.npz`` archive's numeric arrays of one or two dimensions, read from their headers;
+    only the arrays a reading uses are loaded (``np.load`` holds an array whole: memory is the
+    arrays used, not the archive)."""
+    shapes = _npz_shapes(path)
+    names: list[str] = []
+    of: dict[str, tuple[str, int | None]] = {}  # column -> (array, index or None)
+    for array, shape in shapes.items():
+        if len(shape) == 1:
+            names.append(array)
+            of[array] = (array, None)
+        elif len(shape) == 2:
+            for k in range(shape[1]):
+                names.append(f"{array}[{k}]")
+                of[f"{array}[{k}]"] = (array, k)
+
+    def load(cols: list[str], required: set[str]) -> tuple[np.ndarray, list[str]]:
+        rows_of = {of[c][0]: shapes[of[c][0]][0] for c in required}
+        if len(set(rows_of.values())) > 1:
+            (a, na), (b, nb) = _two_lengths(rows_of)
+            raise ContainerError(
+                f"{path}: array {a} has {na} rows, {b} {nb} (arrays of one recording must "
+                "have one row per sample)"
+            )
+        n = next(iter(rows_of.values()), 0)
+        kept = [c for c in cols if c in required or shapes[of[c][0]][0] == n]
+        out = np.empty((n, len(kept)))
+        arrays: dict[str, np.ndarray] = {}
+        with np.load(path, allow_pickle=False) as archive:
+            for j, c in enumerate(kept):
+                array, k = of[c]
+                if array not in arrays:
+                    arrays[array] = np.asarray(archive[array], dtype=float)
+                out[:, j] = arrays[array] if k is None else arrays[array][:, k]
+        return out, kept
+
+    return Table(path, names, load, lambda i: f"{path}: row {i}")
+
+
+def _npz_shapes(path: Path) -> dict[str, tuple[int, ...]]:
+    """Array name -> shape of every numeric array in the archive, from the .npy headers."""
+    out: dict[str, tuple[int, ...]] = {}
+    try:
+        with zipfile.ZipFile(path) as z:
+            for info in z.infolist():
+                if not info.filename.endswith(".npy"):
+                    continue
+                with z.open(info) as f:
+                    version = np.lib.format.read_magic(f)
+                    header = (
+                        np.lib.format.read_array_header_1_0
+                        if version == (1, 0)
+                        else np.lib.format.read_array_header_2_0
+                    )
+                    shape, _, dtype = header(f)
+                if dtype.kind in "biuf":
+                    out[info.filename.removesuffix(".npy")] = tuple(shape)
+    except (zipfile.BadZipFile, ValueError) as exc:
+        raise ContainerError(f"{path}: not a numpy .npz archive ({exc})") from None
+    except OSError as exc:
+        raise ContainerError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if not out:
+        raise ContainerError(f"{path}: no numeric arrays in the archive")
+    return out
+
+
+def _two_lengths(rows_of: dict[str, int]) -> tuple[tuple[str, int], tuple[str, int]]:
+    items = sorted(rows_of.items())
+    first = items[0]
+    other = next(item for item in items if item[1] != first[1])
+    return first, other
+
+
+# --- streams joined on time ----------------------------------------------------------------------
+
+
+@dataclass
+class _StreamData:
+    stream: Stream
+    label: str  # the file or "FILE topic" for errors
+    names: list[str]
+    data: np.ndarray
+    locate: Callable[[int], str]
+
+
+def layout_with_streams(form: RecordingFormat, available: Callable[[Stream], bool]) -> Layout:
+    """The first layout of ``form`` with streams all of which are ``available`` (files in the
+    directory, topics in the MCAP file)."""
+    tried = []
+    for layout in form.layouts:
+        if not layout.streams:
+            continue
+        missing = [s for s in layout.streams.values() if not available(s)]
+        if not missing:
+            return layout
+        tried.append(
+            f"{layout.name or 'layout'}: " + ", ".join(s.file or s.topic or "" for s in missing)
+        )
+    if not tried:
+        raise ContainerError(f"format {form.name} names no streams (files or topics) to read")
+    raise ContainerError(f"not a {form.name} recording (missing {'; '.join(tried)})")
+
+
+def csv_streams_table(
+    directory: Path,
+    form: RecordingFormat,
+    read_csv: Callable[[Path], tuple[list[str], np.ndarray, Callable[[int], str]]],
+) -> Table:
+    """A directory holding one CSV per quantity (the layout's streams' files), joined on time."""
+    try:
+        layout = layout_with_streams(form, lambda s: (directory / (s.file or "")).is_file())
+    except ContainerError as exc:
+        raise ContainerError(f"{directory}: {exc}") from None
+    parts = []
+    for stream in layout.streams.values():
+        path = directory / (stream.file or "")
+        header, data, locate = read_csv(path)
+        parts.append(_StreamData(stream, str(path), header, data, locate))
+    return _joined(directory, parts, layout.join)
+
+
+def _joined(label: Path, parts: list[_StreamData], join: Join | None) -> Table:
+    """One table of the streams' columns (``STREAM.COLUMN``) on the rows of ``join.on``."""
+    by_name = {p.stream.name: p for p in parts}
+    on = by_name[join.on] if join is not None else parts[0]
+    names = [f"{p.stream.name}.{c}" for p in parts for c in p.names]
+    where = {f"{p.stream.name}.{c}": (p, j) for p in parts for j, c in enumerate(p.names)}
+
+    def load(cols: list[str], required: set[str]) -> tuple[np.ndarray, list[str]]:
+        t_on = _stream_time(on)
+        out = np.empty((len(t_on), len(cols)))
+        picks: dict[str, Callable[[np.ndarray], np.ndarray]] = {}
+        for j, c in enumerate(cols):
+            part, k = where[c]
+            if part is on:
+                out[:, j] = part.data[:, k]
+                continue
+            if part.stream.name not in picks:
+                picks[part.stream.name] = _resampler(part, on, t_on, join)
+            column = part.data[:, k]
+            if c in required:
+                bad = ~np.isfinite(column)
+                if bad.any():
+                    i = int(np.argmax(bad))
+                    raise ContainerError(
+                        f"{part.locate(i)}: {c} = {float(column[i])!r} is not a finite number"
+                    )
+            out[:, j] = picks[part.stream.name](column)
+        return out, cols
+
+    return Table(label, names, load, on.locate)
+
+
+def _stream_time(part: _StreamData) -> np.ndarray:
+    """The stream's time column, checked finite and strictly increasing (a join needs order)."""
+    k = part.names.index(part.stream.time)
+    t = part.data[:, k]
+    bad = ~np.isfinite(t)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise ContainerError(f"{part.locate(i)}: {part.stream.time} = {t[i]!r} is not finite")
+    back = np.diff(t) <= 0
+    if back.any():
+        i = int(np.argmax(back)) + 1
+        raise ContainerError(
+            f"{part.locate(i)}: {part.stream.time} goes from {float(t[i - 1])!r} to "
+            f"{float(t[i])!r} s (a stream joined on time must increase)"
+        )
+    return t
+
+
+def _resampler(
+    part: _StreamData, on: _StreamData, t_on: np.ndarray, join: Join | None
+) -> Callable[[np.ndarray], np.ndarray]:
+    """Values of ``part`` at the times ``t_on``: every row needs a sample of ``part`` within
+    ``join.tolerance_s``; ``nearest`` takes it, ``linear`` interpolates between the samples
+    around the row's time (the nearest one within the tolerance). Refused in one line otherwise."""
+    assert join is not None
+    t = _stream_time(part)
+    if len(t) == 0:
+        raise ContainerError(f"{part.label}: no rows to join")
+    i = np.clip(np.searchsorted(t, t_on), 1, max(len(t) - 1, 1))
+    lo = np.maximum(i - 1, 0)
+    near = np.where(np.abs(t_on - t[lo]) <= np.abs(t[i] - t_on), lo, i) if len(t) > 1 else lo
+    dist = np.abs(t[near] - t_on)
+    far = dist > join.tolerance_s * (1 + 1e-9) + 4 * np.spacing(np.abs(t_on))
+    if far.any():
+        r = int(np.argmax(far))
+        raise ContainerError(
+            f"{part.label}: no sample within {join.tolerance_s * 1e3:g} ms of "
+            f"{on.stream.time} = {float(t_on[r])!r} s ({on.locate(r)}); the nearest is "
+            f"{float(dist[r]) * 1e3:.3g} ms away: the streams' times do not match (another "
+            "clock, rate or span?)"
+        )
+    if join.rule == "nearest" or len(t) < 2:
+        return lambda column: column[near]
+    return lambda column: np.interp(t_on, t, column)
+
+
+# --- MCAP ----------------------------------------------------------------------------------------
+
+
+def mcap_table(path: Path, form: RecordingFormat) -> Table:
+    """An MCAP file's topics named by the format's streams: JSON-encoded messages, or ROS 2 CDR
+    when ``mcap-ros2-support`` is installed; each message a row of its numeric fields."""
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
+    try:
+        with open(path, "rb") as f:
+            reader = make_reader(f)
+            summary = reader.get_summary()
+            topics = (
+                {c.topic: c for c in summary.channels.values()} if summary is not None else None
+            )
+            if topics is None:  # no summary section (a file cut short): read the channels
+                topics = {c.topic: c for _, c, _ in reader.iter_messages()}
+                f.seek(0)
+                reader = make_reader(f)
+            try:
+                layout = layout_with_streams(form, lambda s: s.topic in topics)
+            except ContainerError as exc:
+                have = ", ".join(sorted(topics)) or "none"
+                raise ContainerError(f"{path}: {exc}; topics in the file: {have}") from None
+            meta, torque_source = _mcap_meta(reader)
+            f.seek(0)
+            reader = make_reader(f)
+            want = {s.topic: s for s in layout.streams.values()}
+            rows: dict[str, _Rows] = {
+                topic: _Rows(path, topic, s.time) for topic, s in want.items()
+            }
+            for schema, channel, message in reader.iter_messages(topics=list(want)):
+                rows[channel.topic].add(_decode(path, schema, channel, message), message)
+    except McapError as exc:
+        raise ContainerError(f"{path}: not a readable MCAP file ({exc})") from None
+    except OSError as exc:
+        raise ContainerError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    parts = [rows[s.topic].part(s) for s in layout.streams.values()]
+    table = _joined(path, parts, layout.join)
+    table.meta, table.torque_source = meta, torque_source
+    return table
+
+
+class _Rows:
+    """One topic's messages flattened to rows of floats, every message with the same fields."""
+
+    def __init__(self, path: Path, topic: str, time: str) -> None:
+        self.path, self.topic, self.time = path, topic, time
+        self.names: list[str] | None = None
+        self.strings: dict[str, Any] = {}
+        self.values: list[list[float]] = []
+
+    def add(self, obj: Any, message: Any) -> None:
+        numbers: dict[str, float] = {}
+        strings: dict[str, Any] = {}
+        _flatten(obj, "", numbers, strings)
+        numbers["log_time"] = message.log_time * 1e-9
+        numbers["publish_time"] = message.publish_time * 1e-9
+        k = len(self.values) + 1
+        if self.names is None:
+            self.names, self.strings = list(numbers), strings
+        elif list(numbers) != self.names:
+            extra = [n for n in numbers if n not in self.names]
+            gone = [n for n in self.names if n not in numbers]
+            raise ContainerError(
+                f"{self.path}: {self.topic} message {k} has other fields than message 1 "
+                f"({'new ' + ', '.join(extra[:3]) if extra else 'no ' + ', '.join(gone[:3])}; "
+                "an array changed length?)"
+            )
+        elif strings != self.strings:
+            key = next(s for s in strings if strings[s] != self.strings.get(s))
+            raise ContainerError(
+                f"{self.path}: {self.topic} message {k}: {key} changes from "
+                f"{self.strings.get(key)!r} to {strings[key]!r} (joints renamed or reordered "
+                "within the recording)"
+            )
+        self.values.append(list(numbers.values()))
+
+    def part(self, stream: Stream) -> _StreamData:
+        if not self.values or self.names is None:
+            raise ContainerError(f"{self.path}: topic {self.topic} has no messages")
+        if stream.time not in self.names:
+            raise ContainerError(
+                f"{self.path}: topic {self.topic} has no field {stream.time} "
+                f"(fields: {', '.join(self.names[:8])}{', ...' if len(self.names) > 8 else ''})"
+            )
+        topic = self.topic
+        return _StreamData(
+            stream,
+            f"{self.path} topic {topic}",
+            self.names,
+            np.asarray(self.values, dtype=float),
+            lambda i: f"{self.path}: {topic} message {i + 1}",
+        )
+
+
+_STAMPS = (("sec", "nanosec"), ("sec", "nsec"), ("secs", "nsecs"))  # ROS 2, Foxglove, ROS 1
+
+
+def _flatten(obj: Any, prefix: str, numbers: dict[str, float], strings: dict[str, Any]) -> None:
+    """Numeric leaves by dotted path (``a.b[2]``); a {sec, nanosec} time as one value in s;
+    strings (and lists of them, e.g. JointState's ``name``) kept aside, to check they stay."""
+    if isinstance(obj, dict):
+        keys = set(obj)
+        for sec, frac in _STAMPS:
+            if keys == {sec, frac}:
+                numbers[prefix] = float(obj[sec]) + float(obj[frac]) * 1e-9
+                return
+        for key, value in obj.items():
+            _flatten(value, f"{prefix}.{key}" if prefix else str(key), numbers, strings)
+    elif isinstance(obj, list | tuple):
+        if obj and all(isinstance(v, str) for v in obj):
+            strings[prefix] = tuple(obj)
+            return
+        for i, value in enumerate(obj):
+            _flatten(value, f"{prefix}[{i}]", numbers, strings)
+    elif isinstance(obj, bool | int | float):
+        numbers[prefix] = float(obj)
+    elif isinstance(obj, str):
+        strings[prefix] = obj
+    elif isinstance(obj, np.ndarray):
+        _flatten(obj.tolist(), prefix, numbers, strings)
+    elif hasattr(obj, "__slots__"):  # a decoded ROS 2 message
+        _flatten({k: getattr(obj, k) for k in obj.__slots__}, prefix, numbers, strings)
+
+
+_ros2_decoders: dict[int, Any] = {}
+
+
+def _decode(path: Path, schema: Any, channel: Any, message: Any) -> Any:
+    encoding = channel.message_encoding
+    if encoding == "json":
+        try:
+            return json.loads(message.data)
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ContainerError(
+                f"{path}: {channel.topic} message at log time {message.log_time} ns is not "
+                f"JSON ({exc})"
+            ) from None
+    if encoding == "cdr" and schema is not None:
+        try:
+            from mcap_ros2.decoder import DecoderFactory
+        except ImportError:
+            raise ContainerError(
+                f"{path}: topic {channel.topic} is ROS 2 CDR; reading it needs the "
+                "mcap-ros2-support package (pip install mcap-ros2-support)"
+            ) from None
+        if schema.id not in _ros2_decoders:
+            _ros2_decoders[schema.id] = DecoderFactory().decoder_for(encoding, schema)
+        return _ros2_decoders[schema.id](message.data)
+    raise ContainerError(
+        f"{path}: topic {channel.topic} is encoded as {encoding!r}; read are json and ROS 2 cdr"
+    )
+
+
+def _mcap_meta(reader: Any) -> tuple[dict[str, Any], str | None]:
+    for record in reader.iter_metadata():
+        if record.name == MCAP_META:
+            meta = json.loads(record.metadata.get("meta", "{}"))
+            return (meta if isinstance(meta, dict) else {}), record.metadata.get("torque_source")
+    return {}, None
+
+
+# JSON Schema of the messages write_mcap writes (sensor_msgs/JointState's fields)
+JOINT_STATE_SCHEMA = {
+    "title": "sensor_msgs/JointState",
+    "type": "object",
+    "properties": {
+        "header": {
+            "type": "object",
+            "properties": {
+                "stamp": {
+                    "type": "object",
+                    "properties": {"sec": {"type": "integer"}, "nanosec": {"type": "integer"}},
+                },
+                "frame_id": {"type": "string"},
+            },
+        },
+        "name": {"type": "array", "items": {"type": "string"}},
+        "position": {"type": "array", "items": {"type": "number"}},
+        "velocity": {"type": "array", "items": {"type": "number"}},
+        "effort": {"type": "array", "items": {"type": "number"}},
+    },
+}
+
+
+def write_mcap(
+    path: Path,
+    t: np.ndarray,
+    q: np.ndarray,
+    tau: np.ndarray,
+    meta: dict[str, Any],
+    *,
+    torque_source: str = "commanded",
+    joint_names: Iterable[str] | None = None,
+) -> int:
+    """Write rows (t, q, tau) as ``sensor_msgs/JointState``-shaped JSON messages on
+    ``/joint_states`` (stamp = t, position = q, effort = tau; JSON numbers round-trip floats
+    exactly, the stamp to the nanosecond), with ``meta`` (meta.json) as MCAP metadata. Returns
+    the number of messages. Read back by the shipped format ``ros2-joint-state``."""
+    from mcap.writer import Writer
+
+    n = q.shape[1]
+    names = list(joint_names) if joint_names is not None else [f"joint{j + 1}" for j in range(n)]
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    with open(tmp, "wb") as f:
+        writer = Writer(f)
+        writer.start(profile="", library="ddbench")
+        schema = writer.register_schema(
+            name="sensor_msgs/JointState",
+            encoding="jsonschema",
+            data=json.dumps(JOINT_STATE_SCHEMA).encode(),
+        )
+        channel = writer.register_channel(JOINT_STATE_TOPIC, "json", schema)
+        for k in range(len(t)):
+            sec = math.floor(t[k])
+            nanosec = round((float(t[k]) - sec) * 1e9)
+            if nanosec >= 1_000_000_000:
+                sec, nanosec = sec + 1, nanosec - 1_000_000_000
+            stamp_ns = sec * 1_000_000_000 + nanosec
+            body = {
+                "header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": ""},
+                "name": names,
+                "position": [float(x) for x in q[k]],
+                "velocity": [],
+                "effort": [float(x) for x in tau[k]],
+            }
+            writer.add_message(
+                channel,
+                log_time=max(stamp_ns, 0),
+                publish_time=max(stamp_ns, 0),
+                data=json.dumps(body).encode(),
+                sequence=k,
+            )
+        writer.add_metadata(
+            MCAP_META,
+            {"meta": json.dumps(meta, default=str), "torque_source": torque_source},
+        )
+        writer.finish()
+    tmp.replace(path)
+    return len(t)
+
+
+__all__ = [
+    "JOINT_STATE_SCHEMA",
+    "JOINT_STATE_TOPIC",
+    "MCAP_META",
+    "ContainerError",
+    "Table",
+    "csv_streams_table",
+    "layout_with_streams",
+    "mcap_table",
+    "npz_table",
+    "write_mcap",
+]
