@@ -492,6 +492,21 @@ def _read_container(
     return _enough(rec, table.label, min_rows)
 
 
+MCAP = "run.mcap"  # hil run --mcap: the run as JointState messages beside signals.csv
+
+
+def write_run_mcap(run_dir: str | Path) -> Path:
+    """Write ``run_dir/run.mcap`` from the run's signals.csv and meta.json: one JSON
+    ``sensor_msgs/JointState`` per row (stamp t, position q, effort tau) and meta.json as
+    metadata (:func:`drivers.containers.write_mcap`); ``read_signals`` reads it back, equal to
+    signals.csv (t to the nanosecond of a ROS stamp, q and tau exactly)."""
+    run_dir = Path(run_dir)
+    rec = read_signals(run_dir, extra_columns=False)
+    out = run_dir / MCAP
+    containers.write_mcap(out, rec.t, rec.q, rec.tau, rec.meta, torque_source=rec.torque_source)
+    return out
+
+
 def _csv_table(csv_path: Path) -> tuple[list[str], np.ndarray, Callable[[int], str]]:
     """Header and every column of one CSV (a stream of a joined recording), as floats."""
     try:
@@ -1178,4 +1193,5 @@ __all__ = [
     "read_signals",
     "reassemble",
     "write_json_atomic",
+    "write_run_mcap",
 ]

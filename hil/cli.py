@@ -130,6 +130,12 @@ def _parser(with_arguments: Collection[str] = COMMANDS) -> argparse.ArgumentPars
     r.add_argument("--experiment", default="reyes-kelly", help="experiment profile or file")
     r.add_argument("--duration", type=float, default=None, help="seconds (default: experiment's)")
     add_out_options(r, "run directory to write", required=True)
+    r.add_argument(
+        "--mcap",
+        action="store_true",
+        help="also write run.mcap beside signals.csv (ROS 2 sensor_msgs/JointState as JSON; "
+        "Foxglove opens it; hil identify --from OUT/run.mcap reads it)",
+    )
     add_drive_options(r)
     add_report_options(r, plot="skip positions.png", json_help=JSON_SUMMARY)
     d = sub.add_parser(
@@ -318,6 +324,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         args.out,
         duration_s=args.duration,
         robot=args.robot,
+        mcap=args.mcap,
         **drive_kwargs(args),
     )
     if args.json or summary["status"] == "complete":
