@@ -45,12 +45,12 @@ class Table:
     """Named float columns of one recording, loaded on demand.
 
     ``load(names, required)`` returns the columns ``names`` that are read (a (rows, k) array and
-    their names): every ``required`` one, and the others when they have the rows of the time
-    column (an npz may hold arrays of other lengths beside the recording)."""
+    their names): every ``required`` one (the time column first), and the others when they have
+    the rows of the time column (an npz may hold arrays of other lengths beside the recording)."""
 
     label: Path  # the file (or directory) errors name
     names: list[str]
-    load: Callable[[list[str], set[str]], tuple[np.ndarray, list[str]]]
+    load: Callable[[list[str], list[str]], tuple[np.ndarray, list[str]]]
     locate: Callable[[int], str]  # data row i -> "FILE: row i", for errors
     meta: dict[str, Any] = field(default_factory=dict)
     torque_source: str | None = None  # what the writer said the torque is (our own MCAP)
@@ -75,15 +75,15 @@ def npz_table(path: Path) -> Table:
                 names.append(f"{array}[{k}]")
                 of[f"{array}[{k}]"] = (array, k)
 
-    def load(cols: list[str], required: set[str]) -> tuple[np.ndarray, list[str]]:
-        rows_of = {of[c][0]: shapes[of[c][0]][0] for c in required}
-        if len(set(rows_of.values())) > 1:
-            (a, na), (b, nb) = _two_lengths(rows_of)
-            raise ContainerError(
-                f"{path}: array {a} has {na} rows, {b} {nb} (arrays of one recording must "
-                "have one row per sample)"
-            )
-        n = next(iter(rows_of.values()), 0)
+    def load(cols: list[str], required: list[str]) -> tuple[np.ndarray, list[str]]:
+        time = of[required[0]][0]
+        n = shapes[time][0]
+        for c in required:
+            if shapes[of[c][0]][0] != n:
+                raise ContainerError(
+                    f"{path}: array {of[c][0]} has {shapes[of[c][0]][0]} rows, the time "
+                    f"{time} {n} (arrays of one recording have one row per sample)"
+                )
         kept = [c for c in cols if c in required or shapes[of[c][0]][0] == n]
         out = np.empty((n, len(kept)))
         arrays: dict[str, np.ndarray] = {}
@@ -123,13 +123,6 @@ def _npz_shapes(path: Path) -> dict[str, tuple[int, ...]]:
     if not out:
         raise ContainerError(f"{path}: no numeric arrays in the archive")
     return out
-
-
-def _two_lengths(rows_of: dict[str, int]) -> tuple[tuple[str, int], tuple[str, int]]:
-    items = sorted(rows_of.items())
-    first = items[0]
-    other = next(item for item in items if item[1] != first[1])
-    return first, other
 
 
 # --- streams joined on time ----------------------------------------------------------------------
@@ -187,7 +180,7 @@ def _joined(label: Path, parts: list[_StreamData], join: Join | None) -> Table:
     names = [f"{p.stream.name}.{c}" for p in parts for c in p.names]
     where = {f"{p.stream.name}.{c}": (p, j) for p in parts for j, c in enumerate(p.names)}
 
-    def load(cols: list[str], required: set[str]) -> tuple[np.ndarray, list[str]]:
+    def load(cols: list[str], required: list[str]) -> tuple[np.ndarray, list[str]]:
         t_on = _stream_time(on)
         out = np.empty((len(t_on), len(cols)))
         picks: dict[str, Callable[[np.ndarray], np.ndarray]] = {}
@@ -249,9 +242,9 @@ def _resampler(
         r = int(np.argmax(far))
         raise ContainerError(
             f"{part.label}: no sample within {join.tolerance_s * 1e3:g} ms of "
-            f"{on.stream.time} = {float(t_on[r])!r} s ({on.locate(r)}); the nearest is "
-            f"{float(dist[r]) * 1e3:.3g} ms away: the streams' times do not match (another "
-            "clock, rate or span?)"
+            f"{on.stream.name}.{on.stream.time} = {float(t_on[r])!r} s ({on.locate(r)}); the "
+            f"nearest is {float(dist[r]) * 1e3:.3g} ms away: the streams' times do not match "
+            "(another clock, rate or span?)"
         )
     if join.rule == "nearest" or len(t) < 2:
         return lambda column: column[near]

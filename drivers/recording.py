@@ -483,7 +483,7 @@ def _read_container(
     plan.own_grid = False  # a container's t is its own stamps, never this bench's grid
     keep = _kept(table.label, table.names, plan, extra_columns, _ignored(form, path, ignore))
     try:
-        data, keep = table.load(keep, set(plan.sources.values()))
+        data, keep = table.load(keep, list(dict.fromkeys(plan.sources.values())))
     except containers.ContainerError as exc:
         raise RecordingError(str(exc)) from None
     rec = _assemble(path, table.label, data, keep, plan, table.meta, False, table.locate)
