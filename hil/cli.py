@@ -332,7 +332,8 @@ def cmd_run(args: argparse.Namespace) -> int:
             args,
             summary,
             f"recorded {summary['rows']} rows to {summary['signals']} "
-            f"({summary['realtime_factor']}x real time, {summary['mode']})",
+            f"({summary['realtime_factor']}x real time, {summary['mode']})"
+            + (f" and {summary['mcap']}" if summary.get("mcap") else ""),
         )
     return run_exit(
         "run",

@@ -260,7 +260,7 @@ def _layout(f: Fields) -> Layout:
                 raise tg.error(kind, f"must name {n} columns (one per joint)")
             target_sets[kind] = cset
     ignore = ()
-    if f.has("ignore"):
+    if f.data.get("ignore", []) != []:
         ignore = _names(f, "ignore")
     leave_out = ()
     if f.has("leave_out"):
