@@ -407,16 +407,9 @@ def read_signals(
     csv_path = path / SIGNALS if path.is_dir() else path
     meta = _read_meta(path / META) if path.is_dir() and (path / META).is_file() else {}
     ignored = _ignored(fmt, csv_path, ignore)
-    try:
-        f = open(csv_path, encoding="utf-8", newline=None)  # noqa: SIM115 (closed below)
-    except OSError as exc:
-        raise RecordingError(f"{csv_path}: cannot read ({exc.strerror})") from None
-    with f:
+    with _open_csv(csv_path) as f:
         try:
-            first = f.readline()
-            if not first:
-                raise RecordingError(f"{csv_path}: empty file, no header")
-            header = [h.strip() for h in next(csv.reader(io.StringIO(first)), [])]
+            header = _read_header(f, csv_path)
             plan = _plan(
                 csv_path, header, meta, fmt, columns, torque, loop_delay, effort_scale, leave_out
             )
@@ -509,16 +502,9 @@ def write_run_mcap(run_dir: str | Path) -> Path:
 
 def _csv_table(csv_path: Path) -> tuple[list[str], np.ndarray, Callable[[int], str]]:
     """Header and every column of one CSV (a stream of a joined recording), as floats."""
-    try:
-        f = open(csv_path, encoding="utf-8", newline=None)  # noqa: SIM115 (closed below)
-    except OSError as exc:
-        raise containers.ContainerError(f"{csv_path}: cannot read ({exc.strerror})") from None
-    with f:
+    with _open_csv(csv_path) as f:
         try:
-            first = f.readline()
-            if not first:
-                raise RecordingError(f"{csv_path}: empty file, no header")
-            header = [h.strip() for h in next(csv.reader(io.StringIO(first)), [])]
+            header = _read_header(f, csv_path)
             if len(set(header)) != len(header):
                 dup = next(h for h in header if header.count(h) > 1)
                 raise RecordingError(f"{csv_path}: column {dup!r} appears twice in the header")
@@ -526,6 +512,22 @@ def _csv_table(csv_path: Path) -> tuple[list[str], np.ndarray, Callable[[int], s
         except UnicodeDecodeError as exc:
             raise RecordingError(f"{csv_path}: not UTF-8 text ({exc})") from None
     return header, data, lambda i: f"{csv_path}:{i + 2}"
+
+
+def _open_csv(csv_path: Path) -> io.TextIOWrapper:
+    """The CSV opened as text (a one-line error if it cannot be)."""
+    try:
+        return open(csv_path, encoding="utf-8", newline=None)
+    except OSError as exc:
+        raise RecordingError(f"{csv_path}: cannot read ({exc.strerror})") from None
+
+
+def _read_header(f: io.TextIOBase, csv_path: Path) -> list[str]:
+    """The first line's column names, stripped."""
+    first = f.readline()
+    if not first:
+        raise RecordingError(f"{csv_path}: empty file, no header")
+    return [h.strip() for h in next(csv.reader(io.StringIO(first)), [])]
 
 
 def _ignored(
