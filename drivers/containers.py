@@ -226,25 +226,37 @@ def _stream_time(part: _StreamData) -> np.ndarray:
 def _resampler(
     part: _StreamData, on: _StreamData, t_on: np.ndarray, join: Join | None
 ) -> Callable[[np.ndarray], np.ndarray]:
-    """Values of ``part`` at the times ``t_on``: every row needs a sample of ``part`` within
-    ``join.tolerance_s``; ``nearest`` takes it, ``linear`` interpolates between the samples
-    around the row's time (the nearest one within the tolerance). Refused in one line otherwise."""
+    """Values of ``part`` at the times ``t_on``. ``nearest``: the stream's sample nearest to the
+    row's time, which must lie within ``join.tolerance_s`` of it. ``linear``: interpolated
+    between the stream's samples before and after the row's time, which may be at most
+    ``tolerance_s`` apart (a longer interval is a gap the interpolation would bridge); before
+    the first or after the last sample, the end sample within ``tolerance_s``. A row no rule
+    fills refuses the join in one line."""
     assert join is not None
     t = _stream_time(part)
     if len(t) == 0:
         raise ContainerError(f"{part.label}: no rows to join")
+    tol = join.tolerance_s * (1 + 1e-9) + 4 * np.spacing(np.abs(t_on))
     i = np.clip(np.searchsorted(t, t_on), 1, max(len(t) - 1, 1))
     lo = np.maximum(i - 1, 0)
     near = np.where(np.abs(t_on - t[lo]) <= np.abs(t[i] - t_on), lo, i) if len(t) > 1 else lo
     dist = np.abs(t[near] - t_on)
-    far = dist > join.tolerance_s * (1 + 1e-9) + 4 * np.spacing(np.abs(t_on))
+    inside = np.zeros(len(t_on), dtype=bool)
+    if join.rule == "linear" and len(t) > 1:
+        inside = (t_on > t[0]) & (t_on < t[-1]) & (dist > 0)
+        dist = np.where(inside, t[i] - t[lo], dist)  # the interval interpolated across
+    far = dist > tol
     if far.any():
         r = int(np.argmax(far))
+        at = f"{on.stream.name}.{on.stream.time} = {float(t_on[r])!r} s ({on.locate(r)})"
+        ms, d = f"{join.tolerance_s * 1e3:g} ms", f"{float(dist[r]) * 1e3:.3g} ms"
+        what = (
+            f"the samples around {at} are {d} apart, over the {ms} the join interpolates across"
+            if inside[r]
+            else f"no sample within {ms} of {at}; the nearest is {d} away"
+        )
         raise ContainerError(
-            f"{part.label}: no sample within {join.tolerance_s * 1e3:g} ms of "
-            f"{on.stream.name}.{on.stream.time} = {float(t_on[r])!r} s ({on.locate(r)}); the "
-            f"nearest is {float(dist[r]) * 1e3:.3g} ms away: the streams' times do not match "
-            "(another clock, rate or span?)"
+            f"{part.label}: {what}: the streams' times do not match (another clock, rate or span?)"
         )
     if join.rule == "nearest" or len(t) < 2:
         return lambda column: column[near]

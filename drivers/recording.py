@@ -401,7 +401,10 @@ def read_signals(
         raise ValueError(f"min_rows must be an integer >= 0, got {min_rows!r}")
     options = (columns, torque, loop_delay, effort_scale, leave_out, ignore)
     if path.suffix.lower() in (".npz", ".mcap") or (
-        fmt is not None and path.is_dir() and not (path / SIGNALS).exists()
+        fmt is not None
+        and path.is_dir()
+        and not (path / SIGNALS).exists()
+        and any(layout.streams for layout in load_format(fmt).layouts)
     ):
         return _read_container(path, fmt, options, extra_columns, min_rows)
     csv_path = path / SIGNALS if path.is_dir() else path

@@ -83,9 +83,10 @@ class Stream:
 @dataclass(frozen=True)
 class Join:
     """How streams are joined on time: the rows are those of stream ``on``; each other stream's
-    value at a row is its nearest sample within ``tolerance_s`` (``nearest``), or interpolated
-    linearly between its samples around the row's time, neither more than ``tolerance_s`` away
-    (``linear``). A row no rule can fill is an error, not a guess."""
+    value at a row is its nearest sample, within ``tolerance_s`` (``nearest``), or interpolated
+    linearly between its samples before and after the row's time, at most ``tolerance_s`` apart
+    (``linear``; an end sample within ``tolerance_s`` outside the stream's span). A row the
+    rule cannot fill is an error, not a guess."""
 
     on: str
     rule: str

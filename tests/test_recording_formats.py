@@ -230,7 +230,11 @@ def write_split(tmp_path: Path, rule: str = "nearest", shift: float = 0.0004) ->
     te = t + shift  # another logger: its own clock, a little later
     np.savetxt(d / "efforts.csv", np.column_stack([te, tau, te * 0]), delimiter=",",
                comments="", header="stamp,tau_a,tau_b,status", fmt="%.17g")  # fmt: skip
-    (tmp_path / "split.toml").write_text(SPLIT_FORMAT.replace("RULE", rule))
+    # linear: the samples around each row at most 6 ms apart (the 5 ms of the efforts' logger)
+    tolerance = "0.006" if rule == "linear" else "0.001"
+    (tmp_path / "split.toml").write_text(
+        SPLIT_FORMAT.replace("RULE", rule).replace("0.001", tolerance)
+    )
     return d
 
 
@@ -435,3 +439,67 @@ def test_kuka_lwr4_reaches_identify(tmp_path, capsys):
                       "--robot", "panda", "--json"))  # fmt: skip
     err = capsys.readouterr().err
     assert "Traceback" not in err and "cannot read" not in err and "not a kuka" not in err, err
+
+
+TWO_TOPICS = """
+name = "ros2-with-reference"
+[[layouts]]
+time = "state.header.stamp"
+positions = "state.position"
+[layouts.torques.effort]
+columns = "state.effort"
+loop_delay = 0
+[layouts.targets]
+positions = "ref.q"
+[layouts.streams.state]
+topic = "/joint_states"
+time = "header.stamp"
+[layouts.streams.ref]
+topic = "/controller/reference"
+time = "stamp"
+[layouts.join]
+on = "state"
+rule = "linear"
+tolerance_s = 0.004
+"""
+
+
+def test_mcap_two_topics_joined_with_the_reference_as_targets(tmp_path):
+    """The controller's reference on its own topic at half the rate, interpolated onto the
+    joint states' stamps and kept as q_target."""
+    from mcap.writer import Writer
+
+    path = tmp_path / "two.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        schema = w.register_schema("any", "jsonschema", b"{}")
+        js = w.register_channel("/joint_states", "json", schema)
+        ref = w.register_channel("/controller/reference", "json", schema)
+        for k in range(100):
+            w.add_message(js, log_time=k, publish_time=k, data=json.dumps(joint_state(k)).encode())
+            if k % 2 == 0:
+                t = 5.0 + 0.002 * k
+                msg = {"stamp": {"sec": 5, "nanosec": round((t - 5) * 1e9)}, "q": [t, -t]}
+                w.add_message(ref, log_time=k, publish_time=k, data=json.dumps(msg).encode())
+        w.finish()
+    fmt = tmp_path / "two.toml"
+    fmt.write_text(TWO_TOPICS)
+    rec = read_signals(path, fmt=str(fmt))
+    t = 5.0 + 0.002 * np.arange(100)
+    assert len(rec) == 100 and rec.q_target is not None
+    inside = rec.t <= t[98]  # past the reference's last sample: held (within the tolerance)
+    np.testing.assert_allclose(rec.q_target[inside, 0], rec.t[inside], atol=1e-9)
+    np.testing.assert_allclose(rec.q_target[:, 1], -rec.q_target[:, 0], atol=1e-12)
+    fmt.write_text(TWO_TOPICS.replace("0.004", "0.0039"))  # the reference's 4 ms interval
+    with pytest.raises(
+        RecordingError,
+        match=r"topic /controller/reference: the samples around state.header.stamp = 5.002 s "
+        r"\(.*/joint_states message 2\) are 4 ms apart, over the 3.9 ms the join",
+    ):
+        read_signals(path, fmt=str(fmt))
+    fmt.write_text(TWO_TOPICS.replace('"linear"', '"nearest"'))  # 2 ms from the nearest: read
+    np.testing.assert_array_equal(read_signals(path, fmt=str(fmt)).q_target[:2, 0], [5.0, 5.0])
+    fmt.write_text(TWO_TOPICS.replace('"linear"', '"nearest"').replace("0.004", "0.0015"))
+    with pytest.raises(RecordingError, match=r"no sample within 1.5 ms of state.header.stamp"):
+        read_signals(path, fmt=str(fmt))
