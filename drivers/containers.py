@@ -22,8 +22,10 @@ from __future__ import annotations
 
 import json
 import math
+import struct
 import zipfile
-from collections.abc import Callable, Iterable
+from array import array
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,6 +35,7 @@ import numpy as np
 from profiles.recording_format import Join, Layout, RecordingFormat, Stream
 
 JOINT_STATE_TOPIC = "/joint_states"
+MCAP_MAGIC = b"\x89MCAP0\r\n"  # the first 8 bytes of every MCAP file (mcap.dev spec)
 MCAP_META = "ddbench"  # the MCAP metadata record holding meta.json (written by write_mcap)
 
 
@@ -54,6 +57,7 @@ class Table:
     locate: Callable[[int], str]  # data row i -> "FILE: row i", for errors
     meta: dict[str, Any] = field(default_factory=dict)
     torque_source: str | None = None  # what the writer said the torque is (our own MCAP)
+    notes: list[str] = field(default_factory=list)  # what reading it noticed (a torn end)
 
 
 # --- numpy .npz ----------------------------------------------------------------------------------
@@ -66,14 +70,14 @@ def npz_table(path: Path) -> Table:
     shapes = _npz_shapes(path)
     names: list[str] = []
     of: dict[str, tuple[str, int | None]] = {}  # column -> (array, index or None)
-    for array, shape in shapes.items():
+    for name, shape in shapes.items():
         if len(shape) == 1:
-            names.append(array)
-            of[array] = (array, None)
+            names.append(name)
+            of[name] = (name, None)
         elif len(shape) == 2:
             for k in range(shape[1]):
-                names.append(f"{array}[{k}]")
-                of[f"{array}[{k}]"] = (array, k)
+                names.append(f"{name}[{k}]")
+                of[f"{name}[{k}]"] = (name, k)
 
     def load(cols: list[str], required: list[str]) -> tuple[np.ndarray, list[str]]:
         time = of[required[0]][0]
@@ -268,43 +272,102 @@ def _resampler(
 
 def mcap_table(path: Path, form: RecordingFormat) -> Table:
     """An MCAP file's topics named by the format's streams: JSON-encoded messages, or ROS 2 CDR
-    when ``mcap-ros2-support`` is installed; each message a row of its numeric fields."""
-    from mcap.exceptions import McapError
+    when ``mcap-ros2-support`` is installed; each message a row of its numeric fields. A file
+    without its summary (a recorder killed mid-write) is read up to its last whole record, and
+    the recording says so (``Table.notes``)."""
     from mcap.reader import make_reader
 
+    notes: list[str] = []
     try:
         with open(path, "rb") as f:
-            reader = make_reader(f)
-            summary = reader.get_summary()
-            topics = (
-                {c.topic: c for c in summary.channels.values()} if summary is not None else None
-            )
-            if topics is None:  # no summary section (a file cut short): read the channels
-                topics = {c.topic: c for _, c, _ in reader.iter_messages()}
+            if f.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+                raise ContainerError(f"{path}: not an MCAP file (no MCAP magic at its start)")
+            f.seek(0)
+            try:
+                summary = make_reader(f).get_summary()
+            except _MCAP_ERRORS:
+                summary = None
+            if summary is not None:
+                topics = {c.topic for c in summary.channels.values()}
+            else:  # no summary (cut short): the channels of the records up to where it ends
                 f.seek(0)
-                reader = make_reader(f)
+                torn: list[str] = []
+                topics = {c.topic for _, c, _ in _records(f, None, torn)}
+                if torn and not topics:
+                    raise ContainerError(f"{path}: not a readable MCAP file ({torn[0]})")
             try:
                 layout = layout_with_streams(form, lambda s: s.topic in topics)
             except ContainerError as exc:
                 have = ", ".join(sorted(topics)) or "none"
                 raise ContainerError(f"{path}: {exc}; topics in the file: {have}") from None
-            meta, torque_source = _mcap_meta(reader)
             f.seek(0)
-            reader = make_reader(f)
+            meta, torque_source = _mcap_meta(make_reader(f)) if summary else ({}, None)
             want = {s.topic: s for s in layout.streams.values()}
             rows: dict[str, _Rows] = {
                 topic: _Rows(path, topic, s.time) for topic, s in want.items()
             }
-            for schema, channel, message in reader.iter_messages(topics=list(want)):
+            f.seek(0)
+            torn = []
+            if summary is not None:
+                messages = make_reader(f).iter_messages(topics=list(want))
+            else:
+                messages = _records(f, set(want), torn)
+            for schema, channel, message in messages:
                 rows[channel.topic].add(_decode(path, schema, channel, message), message)
-    except McapError as exc:
+            if torn:
+                notes.append(
+                    f"the file ends without its summary ({torn[0]}): a recorder stopped "
+                    f"mid-write? read the {sum(len(r) for r in rows.values())} whole messages "
+                    "before it"
+                )
+    except ContainerError:
+        raise
+    except _MCAP_ERRORS as exc:
         raise ContainerError(f"{path}: not a readable MCAP file ({exc})") from None
     except OSError as exc:
         raise ContainerError(f"{path}: cannot read ({exc.strerror or exc})") from None
     parts = [rows[s.topic].part(s) for s in layout.streams.values()]
     table = _joined(path, parts, layout.join)
-    table.meta, table.torque_source = meta, torque_source
+    table.meta, table.torque_source, table.notes = meta, torque_source, notes
     return table
+
+
+def _mcap_errors() -> tuple[type[BaseException], ...]:
+    from mcap.exceptions import McapError
+
+    # the mcap library raises struct.error and EOFError too on a file that is not MCAP at all
+    return (McapError, struct.error, EOFError, ValueError)
+
+
+_MCAP_ERRORS = _mcap_errors()
+
+
+def _records(f: Any, topics: set[str] | None, torn: list[str]) -> Iterator[tuple[Any, Any, Any]]:
+    """(schema, channel, message) of the file's records in order, read as a stream (no summary
+    needed; a chunk's messages once the chunk is whole), up to the first record that does not
+    read (its error appended to ``torn``)."""
+    from mcap.records import Channel, Message, Schema
+    from mcap.stream_reader import StreamReader
+
+    schemas: dict[int, Any] = {}
+    channels: dict[int, Any] = {}
+    records = iter(StreamReader(f).records)
+    while True:
+        try:
+            record = next(records)
+        except StopIteration:
+            return
+        except _MCAP_ERRORS as exc:
+            torn.append(f"{type(exc).__name__}: {exc}".rstrip(": ")[:120])
+            return
+        if isinstance(record, Schema):
+            schemas[record.id] = record
+        elif isinstance(record, Channel):
+            channels[record.id] = record
+        elif isinstance(record, Message) and record.channel_id in channels:
+            channel = channels[record.channel_id]
+            if topics is None or channel.topic in topics:
+                yield schemas.get(channel.schema_id), channel, record
 
 
 class _Rows:
@@ -314,7 +377,8 @@ class _Rows:
         self.path, self.topic, self.time = path, topic, time
         self.names: list[str] | None = None
         self.strings: dict[str, Any] = {}
-        self.values: list[list[float]] = []
+        self.values = array("d")  # 8 bytes a number while the messages are read
+        self.count = 0
 
     def add(self, obj: Any, message: Any) -> None:
         numbers: dict[str, float] = {}
@@ -322,7 +386,7 @@ class _Rows:
         _flatten(obj, "", numbers, strings)
         numbers["log_time"] = message.log_time * 1e-9
         numbers["publish_time"] = message.publish_time * 1e-9
-        k = len(self.values) + 1
+        k = self.count + 1
         if self.names is None:
             self.names, self.strings = list(numbers), strings
         elif list(numbers) != self.names:
@@ -340,10 +404,14 @@ class _Rows:
                 f"{self.strings.get(key)!r} to {strings[key]!r} (joints renamed or reordered "
                 "within the recording)"
             )
-        self.values.append(list(numbers.values()))
+        self.values.extend(numbers.values())
+        self.count += 1
+
+    def __len__(self) -> int:
+        return self.count
 
     def part(self, stream: Stream) -> _StreamData:
-        if not self.values or self.names is None:
+        if not self.count or self.names is None:
             raise ContainerError(f"{self.path}: topic {self.topic} has no messages")
         if stream.time not in self.names:
             raise ContainerError(
@@ -355,7 +423,7 @@ class _Rows:
             stream,
             f"{self.path} topic {topic}",
             self.names,
-            np.asarray(self.values, dtype=float),
+            np.frombuffer(self.values, dtype=float).reshape(self.count, len(self.names)),
             lambda i: f"{self.path}: {topic} message {i + 1}",
         )
 

@@ -483,6 +483,7 @@ def _read_container(
     except containers.ContainerError as exc:
         raise RecordingError(str(exc)) from None
     rec = _assemble(path, table.label, data, keep, plan, table.meta, False, table.locate)
+    rec.findings_on_read[:0] = table.notes
     if table.torque_source is not None and torque is None and plan.torque_source != "columns":
         rec.torque_source = table.torque_source  # our own MCAP: the commanded, held torque
     return _enough(rec, table.label, min_rows)

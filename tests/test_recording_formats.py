@@ -503,3 +503,31 @@ def test_mcap_two_topics_joined_with_the_reference_as_targets(tmp_path):
     fmt.write_text(TWO_TOPICS.replace('"linear"', '"nearest"').replace("0.004", "0.0015"))
     with pytest.raises(RecordingError, match=r"no sample within 1.5 ms of state.header.stamp"):
         read_signals(path, fmt=str(fmt))
+
+
+def test_mcap_cut_short_reads_its_whole_chunks_and_says_so(tmp_path, capsys):
+    from mcap.writer import Writer
+
+    path = tmp_path / "whole.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f, chunk_size=4000)  # several chunks, as a long bag has
+        w.start()
+        schema = w.register_schema("any", "jsonschema", b"{}")
+        channel = w.register_channel("/joint_states", "json", schema)
+        for k in range(300):
+            w.add_message(
+                channel, log_time=k, publish_time=k, data=json.dumps(joint_state(k)).encode()
+            )
+        w.finish()
+    whole = read_signals(path)
+    torn = tmp_path / "torn.mcap"
+    torn.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    rec = read_signals(torn)
+    assert 0 < len(rec) < len(whole) and "ends without its summary" in rec.findings_on_read[0]
+    np.testing.assert_array_equal(rec.q, whole.q[: len(rec)])
+    (tmp_path / "text.mcap").write_text("t,q1,q2,tau1,tau2\n")
+    code, err = run_hil(identify(tmp_path / "text.mcap", tmp_path), capsys)
+    assert_one_line(code, err, "not an MCAP file")
+    torn.write_bytes(path.read_bytes()[:200])  # not one whole chunk
+    code, err = run_hil(identify(torn, tmp_path), capsys)
+    assert_one_line(code, err, "not a readable MCAP file")
