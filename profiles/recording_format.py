@@ -114,16 +114,6 @@ class Layout:
     def n_joints(self) -> int:
         return len(self.positions)
 
-    def required(self) -> set[str]:
-        """The columns a file must have to be of this layout (time, positions, every torque,
-        the targets); for a layout with groups, the group names as written."""
-        cols = {self.time, *self.positions}
-        for source in self.torques.values():
-            cols.update(source.columns)
-        for target in self.targets.values():
-            cols.update(target)
-        return cols
-
     def missing(self, header: list[str] | tuple[str, ...]) -> list[str]:
         """What of this layout ``header`` lacks (columns, or groups as ``NAME[...]``)."""
         have = set(header)
@@ -153,7 +143,7 @@ class Layout:
         torques = {}
         for name, src in self.torques.items():
             cols = src.column_set.resolve(header) if src.column_set else src.columns
-            if cols is None:
+            if cols is None or not set(cols) <= set(header):
                 return None
             if len(cols) != len(pos):
                 raise ValueError(

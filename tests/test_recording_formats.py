@@ -265,6 +265,9 @@ def test_split_csvs_refused_when_times_do_not_match(tmp_path, capsys):
     (d / "efforts.csv").write_text("\n".join(lines) + "\n")
     with pytest.raises(RecordingError, match=r"efforts.csv:2: stamp"):
         read_signals(d, fmt=fmt)
+    (d / "efforts.csv").write_text("stamp,tau_a\n100.0,1.0\n")  # a column missing
+    code, err = run_hil(identify(d, tmp_path, "--format", fmt), capsys)
+    assert_one_line(code, err, "not a split file (missing layout: eff.tau_b)")
     (d / "efforts.csv").unlink()
     code, err = run_hil(identify(d, tmp_path, "--format", fmt), capsys)
     assert_one_line(code, err, "missing", "efforts.csv")
@@ -334,6 +337,7 @@ def test_foreign_json_mcap_reads_with_the_shipped_format(tmp_path):
         ("names", "message 51: name changes from ('a', 'b') to ('b', 'a')"),
         ("length", "message 51 has other fields than message 1"),
         ("nan", "/joint_states message 51: state.effort[0] = nan"),
+        ("no-effort", "not a ros2-joint-state file (missing /joint_states: state.effort[...])"),
     ],
 )
 def test_bad_mcap_is_one_line(tmp_path, capsys, change, expect):
@@ -345,6 +349,9 @@ def test_bad_mcap_is_one_line(tmp_path, capsys, change, expect):
         msgs[50]["position"].append(0.0)
     elif change == "nan":
         msgs[50]["effort"][0] = float("nan")
+    elif change == "no-effort":
+        for m in msgs:
+            del m["effort"]
     path = tmp_path / "bag.mcap"
     write_foreign_mcap(path, msgs, topic)
     with pytest.raises(RecordingError) as info:
