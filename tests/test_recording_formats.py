@@ -538,3 +538,24 @@ def test_mcap_cut_short_reads_its_whole_chunks_and_says_so(tmp_path, capsys):
     torn.write_bytes(path.read_bytes()[:200])  # not one whole chunk
     code, err = run_hil(identify(torn, tmp_path), capsys)
     assert_one_line(code, err, "not a readable MCAP file")
+
+
+def test_recording_options_reach_the_reader(tmp_path, capsys):
+    import argparse
+
+    from hil.cli_options import add_recording_options, read_recording
+
+    parser = argparse.ArgumentParser()
+    add_recording_options(parser)
+    path, fmt = write_npz(tmp_path)
+    args = parser.parse_args(
+        ["--format", str(fmt), "--effort-scale", "1", "--leave-out-joints", "3"]
+    )
+    rec = read_recording(args, path, command="identify")
+    tau = motion()[2]
+    assert rec.n_joints == 2 and rec.q_target is not None
+    np.testing.assert_allclose(rec.tau, tau[:, :2] / 10.0)
+    assert "left out joint(s) 3" in capsys.readouterr().err
+    args = parser.parse_args(["--format", str(fmt), "--ignore-columns", "qd_ref"])
+    with pytest.raises(RecordingError, match=r"qd_ref\[0\] is both read and ignored"):
+        read_recording(args, path, command="identify")
