@@ -1025,8 +1025,9 @@ def _mostly_zero(columns: dict[str, np.ndarray], plan: _Plan) -> list[str]:
             file_joint = plan.joints[j] if plan.joints else j + 1
             notes.append(
                 f"joint {j + 1} ({plan.sources[f'tau{j + 1}']}): torque exactly 0 in "
-                f"{share:.0%} of rows; a joint without a drive or sensor? (leave it out: "
-                f"--leave-out-joints {file_joint} or the format's leave_out)"
+                f"{share:.0%} of rows: a passive joint (keep it: its torque is 0), or one "
+                f"whose drive or sensor was not logged (leave it out: --leave-out-joints "
+                f"{file_joint} or the format's leave_out)?"
             )
     return notes
 
