@@ -936,7 +936,8 @@ def _assemble(
         # An exact copy of the row before carries no information; kept, it would count the
         # same sample twice (with period_s from meta.json: time stretched, θ1 off by 4×).
         findings.append(
-            f"dropped {len(same_t)} exact duplicate row(s) (first at {locate(int(same_t[0]))})"
+            f"dropped {len(same_t)} exact duplicate row(s) (first at "
+            f"{_within(locate(int(same_t[0])), csv_path)})"
         )
         rows = np.delete(rows, same_t)
         t = t[rows]
@@ -1010,6 +1011,13 @@ def _assemble(
         segment_starts=tuple(int(s) for s in starts),
         file_joints=plan.joints,
     )
+
+
+def _within(where: str, label: Path) -> str:
+    """A row's place without the file's name: ``line 5`` for ``FILE:5``, ``row 7`` for
+    ``FILE: row 7``."""
+    rest = where.removeprefix(f"{label}:").strip()
+    return f"line {rest}" if rest.isdigit() else rest
 
 
 MOSTLY_ZERO = 0.5  # a joint whose torque is exactly 0 in more than this share of rows is noted
