@@ -409,7 +409,7 @@ def read_signals(
         return _read_container(path, fmt, options, extra_columns, min_rows)
     csv_path = path / SIGNALS if path.is_dir() else path
     meta = _read_meta(path / META) if path.is_dir() and (path / META).is_file() else {}
-    ignored = _ignored(fmt, csv_path, ignore)
+    ignored = _ignored(fmt, ignore)
     with _open_csv(csv_path) as f:
         try:
             header = _read_header(f, csv_path)
@@ -477,7 +477,7 @@ def _read_container(
         leave_out,
     )
     plan.own_grid = False  # a container's t is its own stamps, never this bench's grid
-    keep = _kept(table.label, table.names, plan, extra_columns, _ignored(form, path, ignore))
+    keep = _kept(table.label, table.names, plan, extra_columns, _ignored(form, ignore))
     try:
         data, keep = table.load(keep, list(dict.fromkeys(plan.sources.values())))
     except containers.ContainerError as exc:
@@ -535,7 +535,7 @@ def _read_header(f: io.TextIOBase, csv_path: Path) -> list[str]:
 
 
 def _ignored(
-    fmt: str | Path | RecordingFormat | None, where: Path, ignore: Sequence[str] | None
+    fmt: str | Path | RecordingFormat | None, ignore: Sequence[str] | None
 ) -> tuple[str, ...]:
     """The columns (or groups) not to read: ``ignore`` and the format's layouts' (all of them:
     the layout is chosen afterwards, by the columns used)."""
@@ -714,6 +714,7 @@ def _plan(
         sources[name] = column
     if any(name.startswith("tau") for name in overrides):
         source_name = "columns"
+        scale = None  # a torque named by --columns is in N·m unless --effort-scale says not
     if n < 1:
         raise RecordingError(f"{csv_path}: no joints (map q1 and tau1 at least)")
     missing = sorted({c for c in sources.values() if c not in have})
