@@ -181,11 +181,15 @@ def _joined(label: Path, parts: list[_StreamData], join: Join | None) -> Table:
     """One table of the streams' columns (``STREAM.COLUMN``) on the rows of ``join.on``."""
     by_name = {p.stream.name: p for p in parts}
     on = by_name[join.on] if join is not None else parts[0]
+    for p in parts:
+        if p.stream.time not in p.names:
+            shown = ", ".join(p.names[:8]) + (", ..." if len(p.names) > 8 else "")
+            raise ContainerError(f"{p.label}: no time column {p.stream.time} ({shown})")
     names = [f"{p.stream.name}.{c}" for p in parts for c in p.names]
     where = {f"{p.stream.name}.{c}": (p, j) for p in parts for j, c in enumerate(p.names)}
 
     def load(cols: list[str], required: list[str]) -> tuple[np.ndarray, list[str]]:
-        t_on = _stream_time(on)
+        t_on = _stream_time(on, strict=False)  # the rows' own checks follow on read
         out = np.empty((len(t_on), len(cols)))
         picks: dict[str, Callable[[np.ndarray], np.ndarray]] = {}
         for j, c in enumerate(cols):
@@ -209,14 +213,20 @@ def _joined(label: Path, parts: list[_StreamData], join: Join | None) -> Table:
     return Table(label, names, load, on.locate)
 
 
-def _stream_time(part: _StreamData) -> np.ndarray:
-    """The stream's time column, checked finite and strictly increasing (a join needs order)."""
+def _stream_time(part: _StreamData, strict: bool = True) -> np.ndarray:
+    """The stream's time column, checked finite and (``strict``: a stream joined onto another's
+    rows) strictly increasing: the join needs its order."""
     k = part.names.index(part.stream.time)
     t = part.data[:, k]
     bad = ~np.isfinite(t)
     if bad.any():
         i = int(np.argmax(bad))
-        raise ContainerError(f"{part.locate(i)}: {part.stream.time} = {t[i]!r} is not finite")
+        raise ContainerError(
+            f"{part.locate(i)}: {part.stream.name}.{part.stream.time} = {float(t[i])!r} is not "
+            "a finite number"
+        )
+    if not strict:
+        return t
     back = np.diff(t) <= 0
     if back.any():
         i = int(np.argmax(back)) + 1

@@ -263,7 +263,10 @@ def test_split_csvs_refused_when_times_do_not_match(tmp_path, capsys):
     lines = (d / "efforts.csv").read_text().splitlines()
     lines[1] = "nan," + lines[1].split(",", 1)[1]
     (d / "efforts.csv").write_text("\n".join(lines) + "\n")
-    with pytest.raises(RecordingError, match=r"efforts.csv:2: stamp"):
+    with pytest.raises(RecordingError, match=r"efforts.csv:2: eff.stamp = nan is not a finite"):
+        read_signals(d, fmt=fmt)
+    (d / "efforts.csv").write_text("when,tau_a,tau_b\n100.0,1.0,2.0\n")
+    with pytest.raises(RecordingError, match=r"efforts.csv: no time column stamp \(when, tau_a"):
         read_signals(d, fmt=fmt)
     (d / "efforts.csv").write_text("stamp,tau_a\n100.0,1.0\n")  # a column missing
     code, err = run_hil(identify(d, tmp_path, "--format", fmt), capsys)
@@ -328,6 +331,13 @@ def test_foreign_json_mcap_reads_with_the_shipped_format(tmp_path):
     np.testing.assert_allclose(rec.t, 5.0 + 0.002 * np.arange(100), atol=1e-9)
     np.testing.assert_array_equal(rec.tau[:, 0], 0.3 * np.arange(100))
     assert not rec.torque_held
+    msgs = [joint_state(k) for k in range(100)]
+    write_foreign_mcap(path, [*msgs[:11], msgs[10], *msgs[11:]])  # a message logged twice
+    twice = read_signals(path)
+    np.testing.assert_array_equal(twice.tau, rec.tau)
+    assert "dropped 1 exact duplicate row(s) (first at /joint_states message 12)" in (
+        twice.findings_on_read
+    )
 
 
 @pytest.mark.parametrize(
