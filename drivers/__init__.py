@@ -2,7 +2,8 @@
 
 What lives here: shared by both ends, the protocol codecs (:mod:`.protocol`: CiA 402 and the
 Gemini serial dialect), units (:mod:`.units`), the recording format and reader
-(:mod:`.recording`), a realtime run's real sample and command times (:mod:`.realtime_times`),
+(:mod:`.recording`), recordings in other containers (.npz, MCAP, CSVs joined on time:
+:mod:`.containers`), a realtime run's real sample and command times (:mod:`.realtime_times`),
 exit signals and run status (:mod:`.process`), logging (:mod:`.logsetup`), option values
 both command lines parse (:mod:`.options`),
 the candump writer (:mod:`.candump`); on the host side, the drive API and safety limits

@@ -20,15 +20,21 @@ import math
 import os
 import re
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from drivers import containers
 from drivers.process import process_stamp
-from profiles.recording_format import LOOP_DELAY_MAX, load_format
+from profiles.recording_format import (
+    LOOP_DELAY_MAX,
+    TARGET_KINDS,
+    RecordingFormat,
+    load_format,
+)
 
 BASE_COLUMNS = ("t", "q1", "q2", "tau1", "tau2")
 
@@ -206,6 +212,7 @@ class Recording:
     time_column: str = "t"  # the file's column the times came from
     findings_on_read: list[str] = field(default_factory=list)
     segment_starts: tuple[int, ...] = ()  # rows where a segment begins after a gap (not 0)
+    file_joints: tuple[int, ...] = ()  # the file's joint number of q1..qN when some were left out
     # q and tau stacked once, by prefix, with the column arrays they were stacked from (not
     # copied by dataclasses.replace: a segment stacks its own)
     _stacked: dict[str, tuple[list[np.ndarray], np.ndarray]] = field(
@@ -292,6 +299,22 @@ class Recording:
         return stacked
 
     @property
+    def q_target(self) -> np.ndarray | None:
+        """The controller's target positions (N, n_joints), rad, sampled with q (a format's
+        ``[layouts.targets]``), or None when the recording has none."""
+        return self._targets("q_target")
+
+    @property
+    def qd_target(self) -> np.ndarray | None:
+        """The controller's target velocities (N, n_joints), rad/s, or None."""
+        return self._targets("qd_target")
+
+    def _targets(self, prefix: str) -> np.ndarray | None:
+        if f"{prefix}1" not in self.columns:
+            return None
+        return self._joint_stack(prefix)
+
+    @property
     def period_s(self) -> float:
         """Nominal period: meta.json's (checked against t on read), else the median interval.
         For display and defaults only; the real intervals are :attr:`dt`."""
@@ -330,6 +353,9 @@ class _Plan:
     loop_delay: int
     own_grid: bool  # t is this bench's k·period_s (checked exactly against meta.json)
     identity: bool  # the file is already in this project's convention, names and rows
+    scale: dict[str, float] = field(default_factory=dict)  # tauJ -> N·m per file unit
+    joints: tuple[int, ...] = ()  # the file's joint number of q1..qN (() : 1..N)
+    notes: list[str] = field(default_factory=list)  # what the plan did, for findings_on_read
 
 
 def read_signals(
@@ -341,6 +367,9 @@ def read_signals(
     loop_delay: int | None = None,
     extra_columns: bool = True,
     min_rows: int = 0,
+    effort_scale: Sequence[float] | None = None,
+    leave_out: Sequence[int] | None = None,
+    ignore: Sequence[str] | None = None,
 ) -> Recording:
     """Read a run directory, a bare CSV with the columns t,q1..qN,tau1..tauN, or a foreign CSV.
 
@@ -352,7 +381,14 @@ def read_signals(
     the reader shifts tau so row k's is held over [t_k, t_{k+1}) and drops the rows left without
     a torque (default: the torque source's, 0 for this project's files). ``extra_columns``:
     keep the file's other columns (False: only t, q, tau; less memory). ``min_rows``: fewer rows
-    is an error.
+    is an error. ``effort_scale``: N·m per file unit of the torque, one factor or one per joint of
+    the file (gear ratio × motor torque constant; over the format's). ``leave_out``: the file's
+    joint numbers (1-based) not to read; the others become q1..qM. ``ignore``: columns (or groups,
+    ``NAME`` for ``NAME[k]``) not to read, over the format's ``ignore``.
+
+    The container follows from the path: an ``.npz`` archive, an ``.mcap`` file (default format
+    ``ros2-joint-state``), a directory a format names one CSV per quantity in (joined on time),
+    else a CSV or a run directory (:mod:`drivers.containers`); every one gets the checks below.
 
     Checked on read, each failure a one-line :class:`RecordingError` naming the file and line:
     a malformed row, NaN/inf in t, q or tau, t not strictly increasing, t inconsistent with
@@ -361,36 +397,173 @@ def read_signals(
     A torn last line (a crash mid-write) is dropped and flagged.
     """
     path = Path(path)
-    csv_path = path / SIGNALS if path.is_dir() else path
-    meta = _read_meta(path / META) if path.is_dir() and (path / META).is_file() else {}
     if isinstance(min_rows, bool) or not isinstance(min_rows, int) or min_rows < 0:
         raise ValueError(f"min_rows must be an integer >= 0, got {min_rows!r}")
-    try:
-        f = open(csv_path, encoding="utf-8", newline=None)  # noqa: SIM115 (closed below)
-    except OSError as exc:
-        raise RecordingError(f"{csv_path}: cannot read ({exc.strerror})") from None
-    with f:
+    options = (columns, torque, loop_delay, effort_scale, leave_out, ignore)
+    if path.suffix.lower() in (".npz", ".mcap") or (
+        fmt is not None
+        and path.is_dir()
+        and not (path / SIGNALS).exists()
+        and any(layout.streams for layout in load_format(fmt).layouts)
+    ):
+        return _read_container(path, fmt, options, extra_columns, min_rows)
+    csv_path = path / SIGNALS if path.is_dir() else path
+    meta = _read_meta(path / META) if path.is_dir() and (path / META).is_file() else {}
+    ignored = _ignored(fmt, ignore)
+    with _open_csv(csv_path) as f:
         try:
-            first = f.readline()
-            if not first:
-                raise RecordingError(f"{csv_path}: empty file, no header")
-            header = [h.strip() for h in next(csv.reader(io.StringIO(first)), [])]
-            plan = _plan(csv_path, header, meta, fmt, columns, torque, loop_delay)
-            keep = list(header) if extra_columns else list(dict.fromkeys(plan.sources.values()))
+            header = _read_header(f, csv_path)
+            plan = _plan(
+                csv_path, header, meta, fmt, columns, torque, loop_delay, effort_scale, leave_out
+            )
+            keep = _kept(csv_path, header, plan, extra_columns, ignored)
             if len(set(header)) != len(header) and extra_columns:
                 dup = next(h for h in header if header.count(h) > 1)
                 raise RecordingError(f"{csv_path}: column {dup!r} appears twice in the header")
-            data, dropped = _parse_body(f, csv_path, header, [header.index(c) for c in keep])
+            skip = {i for i, c in enumerate(header) if c not in keep and _is_ignored(c, ignored)}
+            data, dropped = _parse_body(f, csv_path, header, [header.index(c) for c in keep], skip)
         except UnicodeDecodeError as exc:
             raise RecordingError(f"{csv_path}: not UTF-8 text ({exc})") from None
         except OSError as exc:
             raise RecordingError(f"{csv_path}: cannot read ({exc.strerror})") from None
     where = csv_path.parent if path.is_dir() else csv_path
     rec = _assemble(where, csv_path, data, keep, plan, meta, dropped)
+    return _enough(rec, csv_path, min_rows)
+
+
+def _enough(rec: Recording, label: Path, min_rows: int) -> Recording:
     if len(rec) < min_rows:
         what = "no rows (header only)" if len(rec) == 0 else f"only {len(rec)} row(s)"
-        raise RecordingError(f"{csv_path}: {what}; need at least {min_rows}")
+        raise RecordingError(f"{label}: {what}; need at least {min_rows}")
     return rec
+
+
+DEFAULT_MCAP_FORMAT = "ros2-joint-state"  # an .mcap read without --format (hil run --mcap)
+
+
+def _read_container(
+    path: Path,
+    fmt: str | Path | None,
+    options: tuple[Any, ...],
+    extra_columns: bool,
+    min_rows: int,
+) -> Recording:
+    """An .npz, .mcap or a directory of one CSV per quantity: a :class:`containers.Table`, then
+    the plan and the checks of every recording (:func:`_plan`, :func:`_assemble`)."""
+    columns, torque, loop_delay, effort_scale, leave_out, ignore = options
+    if not path.exists():
+        raise RecordingError(f"{path}: cannot read (No such file or directory)")
+    is_mcap = path.suffix.lower() == ".mcap"
+    name = fmt if fmt is not None else (DEFAULT_MCAP_FORMAT if is_mcap else None)
+    form = load_format(name) if name is not None else None
+    try:
+        if is_mcap:
+            table = containers.mcap_table(path, form)
+        elif path.is_dir():
+            table = containers.csv_streams_table(path, form, _csv_table)
+        else:
+            table = containers.npz_table(path)
+    except containers.ContainerError as exc:
+        raise RecordingError(str(exc)) from None
+    plan = _plan(
+        table.label,
+        table.names,
+        table.meta,
+        form,
+        columns,
+        torque,
+        loop_delay,
+        effort_scale,
+        leave_out,
+    )
+    plan.own_grid = False  # a container's t is its own stamps, never this bench's grid
+    keep = _kept(table.label, table.names, plan, extra_columns, _ignored(form, ignore))
+    try:
+        data, keep = table.load(keep, list(dict.fromkeys(plan.sources.values())))
+    except containers.ContainerError as exc:
+        raise RecordingError(str(exc)) from None
+    rec = _assemble(path, table.label, data, keep, plan, table.meta, False, table.locate)
+    rec.findings_on_read[:0] = table.notes
+    if table.torque_source is not None and torque is None and plan.torque_source != "columns":
+        rec.torque_source = table.torque_source  # our own MCAP: the commanded, held torque
+    return _enough(rec, table.label, min_rows)
+
+
+MCAP = "run.mcap"  # hil run --mcap: the run as JointState messages beside signals.csv
+
+
+def write_run_mcap(run_dir: str | Path) -> Path:
+    """Write ``run_dir/run.mcap`` from the run's signals.csv and meta.json: one JSON
+    ``sensor_msgs/JointState`` per row (stamp t, position q, effort tau) and meta.json as
+    metadata (:func:`drivers.containers.write_mcap`); ``read_signals`` reads it back, equal to
+    signals.csv (t to the nanosecond of a ROS stamp, q and tau exactly)."""
+    run_dir = Path(run_dir)
+    rec = read_signals(run_dir, extra_columns=False)
+    out = run_dir / MCAP
+    containers.write_mcap(out, rec.t, rec.q, rec.tau, rec.meta, torque_source=rec.torque_source)
+    return out
+
+
+def _csv_table(csv_path: Path) -> tuple[list[str], np.ndarray, Callable[[int], str]]:
+    """Header and every column of one CSV (a stream of a joined recording), as floats."""
+    with _open_csv(csv_path) as f:
+        try:
+            header = _read_header(f, csv_path)
+            if len(set(header)) != len(header):
+                dup = next(h for h in header if header.count(h) > 1)
+                raise RecordingError(f"{csv_path}: column {dup!r} appears twice in the header")
+            data, _ = _parse_body(f, csv_path, header, list(range(len(header))))
+        except UnicodeDecodeError as exc:
+            raise RecordingError(f"{csv_path}: not UTF-8 text ({exc})") from None
+    return header, data, lambda i: f"{csv_path}:{i + 2}"
+
+
+def _open_csv(csv_path: Path) -> io.TextIOWrapper:
+    """The CSV opened as text (a one-line error if it cannot be)."""
+    try:
+        return open(csv_path, encoding="utf-8", newline=None)
+    except OSError as exc:
+        raise RecordingError(f"{csv_path}: cannot read ({exc.strerror})") from None
+
+
+def _read_header(f: io.TextIOBase, csv_path: Path) -> list[str]:
+    """The first line's column names, stripped."""
+    first = f.readline()
+    if not first:
+        raise RecordingError(f"{csv_path}: empty file, no header")
+    return [h.strip() for h in next(csv.reader(io.StringIO(first)), [])]
+
+
+def _ignored(
+    fmt: str | Path | RecordingFormat | None, ignore: Sequence[str] | None
+) -> tuple[str, ...]:
+    """The columns (or groups) not to read: ``ignore`` and the format's layouts' (all of them:
+    the layout is chosen afterwards, by the columns used)."""
+    names = list(ignore or ())
+    if fmt is not None:
+        form = fmt if isinstance(fmt, RecordingFormat) else load_format(fmt)
+        for layout in form.layouts:
+            names.extend(layout.ignore)
+    return tuple(names)
+
+
+def _kept(
+    label: Path, header: list[str], plan: _Plan, extra_columns: bool, ignored: tuple[str, ...]
+) -> list[str]:
+    """The file's columns to read: the plan's, and the others unless ``extra_columns`` is off or
+    they are ignored (a column the plan uses may not be ignored)."""
+    used = list(dict.fromkeys(plan.sources.values()))
+    clash = [c for c in used if _is_ignored(c, ignored)]
+    if clash:
+        raise RecordingError(f"{label}: column {clash[0]} is both read and ignored")
+    if not extra_columns:
+        return used
+    return [c for c in header if c in used or not _is_ignored(c, ignored)]
+
+
+def _is_ignored(column: str, ignored: tuple[str, ...]) -> bool:
+    """``column`` is named in ``ignored``, itself or as its group (``A`` for ``A[k]``)."""
+    return any(column == g or column.startswith(g + "[") for g in ignored)
 
 
 def _read_meta(meta_path: Path) -> dict[str, Any]:
@@ -459,10 +632,12 @@ def _plan(
     csv_path: Path,
     header: list[str],
     meta: dict[str, Any],
-    fmt: str | None,
+    fmt: str | Path | RecordingFormat | None,
     columns: str | Mapping[str, str] | None,
     torque: str | None,
     loop_delay: int | None,
+    effort_scale: Sequence[float] | None = None,
+    leave_out: Sequence[int] | None = None,
 ) -> _Plan:
     try:
         overrides = parse_column_map(columns) if columns is not None else {}
@@ -479,13 +654,18 @@ def _plan(
         )
     have = set(header)
     sources: dict[str, str] = {}
+    scale: tuple[float, ...] | None = None
+    targets: dict[str, tuple[str, ...]] = {}
+    out_joints: set[int] = set(leave_out or ())
     if fmt is not None:
-        form = load_format(fmt)
-        layout = form.layout_for(header)
+        form = fmt if isinstance(fmt, RecordingFormat) else load_format(fmt)
+        try:
+            layout = form.layout_for(header)
+        except ValueError as exc:
+            raise RecordingError(f"{csv_path}: format {form.name}: {exc}") from None
         if layout is None:
             need = "; ".join(
-                f"{lay.name or 'layout'}: {', '.join(sorted(lay.required() - have))}"
-                for lay in form.layouts
+                f"{lay.name or 'layout'}: {', '.join(lay.missing(header))}" for lay in form.layouts
             )
             raise RecordingError(f"{csv_path}: not a {form.name} file (missing {need})")
         source_name = torque if torque is not None else layout.default_torque
@@ -495,6 +675,9 @@ def _plan(
                 f"(offers {', '.join(layout.torques)})"
             )
         src = layout.torques[source_name]
+        scale = src.scale
+        targets = layout.targets
+        out_joints |= set(layout.leave_out)
         n = layout.n_joints
         sources["t"] = layout.time
         for j in range(n):
@@ -531,6 +714,7 @@ def _plan(
         sources[name] = column
     if any(name.startswith("tau") for name in overrides):
         source_name = "columns"
+        scale = None  # a torque named by --columns is in N·m unless --effort-scale says not
     if n < 1:
         raise RecordingError(f"{csv_path}: no joints (map q1 and tau1 at least)")
     missing = sorted({c for c in sources.values() if c not in have})
@@ -539,24 +723,72 @@ def _plan(
             f"{csv_path}: no column(s) {', '.join(missing)} in the header "
             f"({', '.join(header[:12])}{', ...' if len(header) > 12 else ''})"
         )
+    if effort_scale is not None:
+        scale = tuple(float(x) for x in effort_scale)
+        if len(scale) not in (1, n) or not all(math.isfinite(x) and x != 0 for x in scale):
+            raise RecordingError(
+                f"{csv_path}: the effort conversion must be 1 or {n} nonzero factors (one per "
+                f"joint of the file), got {len(scale)}"
+            )
+    notes: list[str] = []
+    if scale is not None:
+        factors = scale * n if len(scale) == 1 else scale
+        shown = ", ".join(f"{x:g}" for x in factors)
+        notes.append(f"torque converted from the file's unit to N·m: × [{shown}] per joint")
+    for kind, cols in targets.items():
+        prefix = TARGET_KINDS[kind]
+        for j, column in enumerate(cols):
+            sources[f"{prefix}{j + 1}"] = column
+    joints = tuple(range(1, n + 1))
+    if out_joints:
+        bad = sorted(j for j in out_joints if not 1 <= j <= n)
+        if bad:
+            raise RecordingError(
+                f"{csv_path}: cannot leave out joint {bad[0]}: the file has joints 1..{n}"
+            )
+        joints = tuple(j for j in joints if j not in out_joints)
+        if not joints:
+            raise RecordingError(f"{csv_path}: every joint left out; nothing to read")
+        renamed = {"t": sources["t"]}
+        for name, column in sources.items():
+            m = re.match(r"^([a-z_]+?)([1-9][0-9]*)$", name)
+            if m and int(m.group(2)) in joints:
+                renamed[f"{m.group(1)}{joints.index(int(m.group(2))) + 1}"] = column
+        sources = renamed
+        notes.append(
+            f"left out joint(s) {', '.join(map(str, sorted(out_joints)))} of the file's {n}: "
+            f"q1..q{len(joints)} are its joints {', '.join(map(str, joints))}"
+        )
+    by_joint = {}
+    if scale is not None:
+        factors = scale * n if len(scale) == 1 else scale
+        by_joint = {f"tau{k + 1}": factors[j - 1] for k, j in enumerate(joints)}
     delay = int(loop_delay) if loop_delay is not None else default_delay
     own = fmt is None and sources["t"] == "t"
-    identity = fmt is None and delay == 0 and all(k == v for k, v in sources.items())
+    identity = fmt is None and delay == 0 and not notes and all(k == v for k, v in sources.items())
     return _Plan(
         sources=sources,
-        n_joints=n,
+        n_joints=len(joints),
         torque_source=source_name,
         loop_delay=delay,
         own_grid=own and "period_s" in meta,
         identity=identity,
+        scale=by_joint,
+        joints=joints if out_joints else (),
+        notes=notes,
     )
 
 
 def _parse_body(
-    f: io.TextIOBase, csv_path: Path, header: list[str], keep: list[int]
+    f: io.TextIOBase,
+    csv_path: Path,
+    header: list[str],
+    keep: list[int],
+    skip: set[int] | None = None,
 ) -> tuple[np.ndarray, bool]:
     """Parse the rows after the header into a (rows, len(keep)) float array, chunk by chunk:
-    the text of at most :data:`CHUNK_LINES` lines is held at once; the array grows in place."""
+    the text of at most :data:`CHUNK_LINES` lines is held at once; the array grows in place.
+    The fields ``skip`` (ignored columns, e.g. text) are not parsed; they read as NaN."""
     ncols = len(header)
     cap = 0
     out = np.empty((0, len(keep)))
@@ -573,7 +805,7 @@ def _parse_body(
             dropped = True
         if not lines:
             break
-        block = _parse_chunk(lines, csv_path, ncols, line_no)
+        block = _parse_chunk(lines, csv_path, ncols, line_no, skip)
         if rows + len(block) > cap:
             if cap == 0:  # size the array from the first chunk's bytes per row
                 per_row = max(1.0, sum(len(s) for s in lines) / len(lines))
@@ -590,9 +822,14 @@ def _parse_body(
     return out, dropped
 
 
-def _parse_chunk(lines: list[str], csv_path: Path, ncols: int, line_no: int) -> np.ndarray:
+def _parse_chunk(
+    lines: list[str], csv_path: Path, ncols: int, line_no: int, skip: set[int] | None = None
+) -> np.ndarray:
     """Rows of text → floats: numpy's C parser first; where it refuses (or skips a blank line),
-    line by line, for the exact error or for what Python's float() accepts and it does not."""
+    line by line, for the exact error or for what Python's float() accepts and it does not.
+    Fields ``skip`` are not parsed (NaN)."""
+    if skip:
+        return _parse_chunk_skipping(lines, csv_path, ncols, line_no, skip)
     try:
         block = np.loadtxt(lines, delimiter=",", comments=None, dtype=float, ndmin=2)
         if block.shape == (len(lines), ncols):
@@ -616,6 +853,35 @@ def _parse_chunk(lines: list[str], csv_path: Path, ncols: int, line_no: int) -> 
     return block
 
 
+def _parse_chunk_skipping(
+    lines: list[str], csv_path: Path, ncols: int, line_no: int, skip: set[int]
+) -> np.ndarray:
+    """:func:`_parse_chunk` of a file with ignored columns: numpy's parser on the others, after
+    every line's field count is checked (its ``usecols`` would not)."""
+    for i, line in enumerate(lines):
+        if line.count(",") != ncols - 1:
+            n = line.count(",") + 1
+            raise RecordingError(f"{csv_path}:{line_no + i}: {n} fields, header has {ncols}")
+    use = [j for j in range(ncols) if j not in skip]
+    block = np.full((len(lines), ncols), np.nan)
+    try:
+        block[:, use] = np.loadtxt(
+            lines, delimiter=",", comments=None, dtype=float, ndmin=2, usecols=use
+        )
+        return block
+    except Exception:  # the line that refused, below
+        pass
+    for i, line in enumerate(lines):
+        cells = line.rstrip("\n").split(",")
+        try:
+            block[i, use] = [float(cells[j]) for j in use]
+        except ValueError:
+            raise RecordingError(
+                f"{csv_path}:{line_no + i}: not a number in {line.rstrip()[:60]!r}"
+            ) from None
+    return block
+
+
 def _assemble(
     where: Path,
     csv_path: Path,
@@ -624,8 +890,16 @@ def _assemble(
     plan: _Plan,
     meta: dict[str, Any],
     dropped: bool,
+    locate: Callable[[int], str] | None = None,
 ) -> Recording:
-    """Check t, drop exact duplicates, find gaps, apply the loop delay: the :class:`Recording`."""
+    """Check t, drop exact duplicates, find gaps, apply the loop delay, the torque's conversion
+    and the joints left out: the :class:`Recording`. ``locate(i)`` names data row i in an error
+    (default: ``csv_path`` and its line, i + 2)."""
+    if locate is None:
+
+        def locate(i: int) -> str:
+            return f"{csv_path}:{i + 2}"
+
     col = {name: j for j, name in enumerate(keep)}
     used = [col[plan.sources[name]] for name in plan.sources]
     findings: list[str] = []
@@ -638,8 +912,7 @@ def _assemble(
         if bad.any():
             i = int(np.argmax(bad))
             raise RecordingError(
-                f"{csv_path}:{i + 2}: {plan.sources[name]} = {float(data[i, j])!r} is not a "
-                "finite number"
+                f"{locate(i)}: {plan.sources[name]} = {float(data[i, j])!r} is not a finite number"
             )
     t = data[:, col[plan.sources["t"]]]
     dt = np.diff(t)
@@ -647,7 +920,7 @@ def _assemble(
     if back.any():
         i = int(np.argmax(back)) + 1
         raise RecordingError(
-            f"{csv_path}:{i + 2}: t steps back from {float(t[i - 1])!r} to {float(t[i])!r} s "
+            f"{locate(i)}: t steps back from {float(t[i - 1])!r} to {float(t[i])!r} s "
             "(rows out of order? t must increase)"
         )
     rows = np.arange(n_rows)
@@ -658,13 +931,14 @@ def _assemble(
         if differs.any():
             i = int(same_t[np.argmax(differs)])
             raise RecordingError(
-                f"{csv_path}:{i + 2}: t = {float(t[i])!r} s again with other values (two "
+                f"{locate(i)}: t = {float(t[i])!r} s again with other values (two "
                 "samples at one time)"
             )
         # An exact copy of the row before carries no information; kept, it would count the
         # same sample twice (with period_s from meta.json: time stretched, θ1 off by 4×).
         findings.append(
-            f"dropped {len(same_t)} exact duplicate row(s) (first at line {int(same_t[0]) + 2})"
+            f"dropped {len(same_t)} exact duplicate row(s) (first at "
+            f"{_within(locate(int(same_t[0])), csv_path)})"
         )
         rows = np.delete(rows, same_t)
         t = t[rows]
@@ -711,10 +985,19 @@ def _assemble(
         for j in range(plan.n_joints):
             columns[f"q{j + 1}"] = data[rows, col[plan.sources[f"q{j + 1}"]]]
         for j in range(plan.n_joints):
-            columns[f"tau{j + 1}"] = data[tau_rows, col[plan.sources[f"tau{j + 1}"]]]
+            tau = data[tau_rows, col[plan.sources[f"tau{j + 1}"]]]
+            scale = plan.scale.get(f"tau{j + 1}")
+            columns[f"tau{j + 1}"] = tau * scale if scale is not None else tau
+        for name, source in plan.sources.items():
+            if name not in columns:  # the controller's targets: sampled with q
+                columns[name] = data[rows, col[source]]
+        taken = set(plan.sources.values())
         for name in keep:
-            if name not in columns:
+            if name not in columns and name not in taken:
                 columns[name] = data[rows, col[name]]
+    findings.extend(plan.notes)
+    if not plan.own_grid and len(rows):
+        findings.extend(_mostly_zero(columns, plan))
     return Recording(
         where,
         columns,
@@ -727,7 +1010,35 @@ def _assemble(
         time_column=plan.sources["t"],
         findings_on_read=findings,
         segment_starts=tuple(int(s) for s in starts),
+        file_joints=plan.joints,
     )
+
+
+def _within(where: str, label: Path) -> str:
+    """A row's place without the file's name: ``line 5`` for ``FILE:5``, ``row 7`` for
+    ``FILE: row 7``."""
+    rest = where.removeprefix(f"{label}:").strip()
+    return f"line {rest}" if rest.isdigit() else rest
+
+
+MOSTLY_ZERO = 0.5  # a joint whose torque is exactly 0 in more than this share of rows is noted
+
+
+def _mostly_zero(columns: dict[str, np.ndarray], plan: _Plan) -> list[str]:
+    """A note naming the joints whose torque is exactly zero in most rows (a joint without a
+    drive or sensor, a logger writing 0 for 'no value'): to leave out, or to look at."""
+    notes = []
+    for j in range(plan.n_joints):
+        share = float(np.mean(columns[f"tau{j + 1}"] == 0.0))
+        if share > MOSTLY_ZERO:
+            file_joint = plan.joints[j] if plan.joints else j + 1
+            notes.append(
+                f"joint {j + 1} ({plan.sources[f'tau{j + 1}']}): torque exactly 0 in "
+                f"{share:.0%} of rows: a passive joint (keep it: its torque is 0), or one "
+                f"whose drive or sensor was not logged (leave it out: --leave-out-joints "
+                f"{file_joint} or the format's leave_out)?"
+            )
+    return notes
 
 
 def reassemble(rec: Recording, columns: dict[str, np.ndarray], note: str) -> Recording:
@@ -898,4 +1209,5 @@ __all__ = [
     "read_signals",
     "reassemble",
     "write_json_atomic",
+    "write_run_mcap",
 ]

@@ -136,6 +136,12 @@ def _parser(with_arguments: Collection[str] = COMMANDS) -> argparse.ArgumentPars
     r.add_argument("--experiment", default="reyes-kelly", help="experiment profile or file")
     r.add_argument("--duration", type=float, default=None, help="seconds (default: experiment's)")
     add_out_options(r, "run directory to write", required=True)
+    r.add_argument(
+        "--mcap",
+        action="store_true",
+        help="also write run.mcap beside signals.csv (ROS 2 sensor_msgs/JointState as JSON; "
+        "Foxglove opens it; hil identify --from OUT/run.mcap reads it)",
+    )
     add_drive_options(r)
     add_report_options(r, plot="skip positions.png", json_help=JSON_SUMMARY)
     d = sub.add_parser(
@@ -325,6 +331,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         duration_s=args.duration,
         robot=args.robot,
         clear_faults=args.clear_faults,
+        mcap=args.mcap,
         **drive_kwargs(args),
     )
     if args.json or summary["status"] == "complete":
@@ -332,7 +339,8 @@ def cmd_run(args: argparse.Namespace) -> int:
             args,
             summary,
             f"recorded {summary['rows']} rows to {summary['signals']} "
-            f"({summary['realtime_factor']}x real time, {summary['mode']})",
+            f"({summary['realtime_factor']}x real time, {summary['mode']})"
+            + (f" and {summary['mcap']}" if summary.get("mcap") else ""),
         )
     return run_exit(
         "run",

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import shutil
 import subprocess
 import sys
@@ -278,8 +279,9 @@ def add_recording_options(p: argparse.ArgumentParser) -> None:
         dest="recording_format",
         default=None,
         metavar="NAME|FILE",
-        help="recording-format profile of foreign CSVs (profiles/formats: dfki); default: this "
-        "bench's t,q1,q2,tau1,tau2",
+        help="recording-format profile of foreign files (profiles/formats: dfki, kuka-lwr4, "
+        "ros2-joint-state, or a TOML file); default: this bench's t,q1,q2,tau1,tau2 (an .mcap: "
+        "ros2-joint-state)",
     )
     g.add_argument(
         "--columns",
@@ -296,6 +298,25 @@ def add_recording_options(p: argparse.ArgumentParser) -> None:
         metavar="ROWS",
         help="the file's tau of row i acts between the q of rows i+d and i+d+1 (default: the "
         "format's; 0 for this bench's recordings)",
+    )
+    g.add_argument(
+        "--effort-scale",
+        default=None,
+        metavar="F[,F...]",
+        help="N·m per unit of the file's torque (gear ratio × motor torque constant), one "
+        "factor or one per joint of the file; over the format's conversion",
+    )
+    g.add_argument(
+        "--leave-out-joints",
+        default=None,
+        metavar="J[,J...]",
+        help="the file's joints (1, 2, ...) not to read, e.g. one whose effort is mostly zero",
+    )
+    g.add_argument(
+        "--ignore-columns",
+        default=None,
+        metavar="C[,C...]",
+        help="columns (or an array's name for all of its columns) not to read, e.g. text",
     )
 
 
@@ -320,7 +341,30 @@ def recording_kwargs(args: argparse.Namespace) -> dict[str, Any]:
         "columns": columns,
         "torque": torque,
         "loop_delay": delay,
+        "effort_scale": _number_list(args, "effort_scale", float),
+        "leave_out": _number_list(args, "leave_out_joints", int),
+        "ignore": split_list(getattr(args, "ignore_columns", None) or "") or None,
     }
+
+
+def _number_list(args: argparse.Namespace, key: str, kind: type) -> list[Any] | None:
+    """``--effort-scale 1.5,2`` / ``--leave-out-joints 7``: the numbers, or a one-line error."""
+    text = getattr(args, key, None)
+    if text is None:
+        return None
+    option = "--" + key.replace("_", "-")
+    items = split_list(text)
+    try:
+        values = [kind(item) for item in items]
+    except ValueError:
+        raise ValueError(f"{option}: {text!r} is not a list of {kind.__name__}s") from None
+    if not values:
+        raise ValueError(f"{option}: names nothing")
+    if kind is float and not all(math.isfinite(v) and v != 0 for v in values):
+        raise ValueError(f"{option}: factors must be finite and nonzero, got {text!r}")
+    if kind is int and any(v < 1 for v in values):
+        raise ValueError(f"{option}: joints are numbered from 1, got {text!r}")
+    return values
 
 
 LARGE_RECORDING_BYTES = 50_000_000  # from here on, reading says what it does (~10 s per 100 MB)

@@ -15,7 +15,7 @@ from drivers.fault_injection import TimingFaultArm, with_host_faults
 from drivers.links import open_arm
 from drivers.protocol.cia402 import ERR_RPDO_TIMEOUT
 from drivers.realtime_times import ROBOT_EVENTS
-from drivers.recording import RecordingWriter, plot_positions, read_signals
+from drivers.recording import RecordingWriter, plot_positions, read_signals, write_run_mcap
 from hil import __version__
 from hil.bench.launch import VirtualRobotProcess
 from hil.bench.loop import Command, LoopResult, extra_columns, run_loop
@@ -273,8 +273,11 @@ def run_experiment(
     observer: Callable[[int, Sample], None] | None = None,
     robot: str | None = None,
     clear_faults: bool = False,
+    mcap: bool = False,
 ) -> dict[str, Any]:
     """Run an open-loop experiment over a bench; returns the summary that `--json` prints.
+    ``mcap``: also write the recording as ``run.mcap`` beside signals.csv (ROS 2 JointState
+    messages, JSON; :func:`drivers.recording.write_run_mcap`).
 
     ``robot``: a robot profile in place of the bench's (its drives on the bus, the virtual
     robot launched with it). ``clear_faults``: as :func:`record_over_bench`.
@@ -340,6 +343,8 @@ def run_experiment(
         "traffic_log": run.traffic_log,
         "plot": None,
     }
+    if mcap:
+        summary["mcap"] = str(write_run_mcap(out)) if result.rows > 0 else None
     if plot and result.rows > 1:
         summary["plot"] = str(
             plot_positions(
