@@ -40,6 +40,7 @@ from profiles.drive import DriveProfile, load_drive
 from profiles.effects import EffectsProfile
 from profiles.robot import RobotProfile, UrdfRobotProfile
 from virtual_robot.drive import DriveError, DriveModel, Emcy
+from virtual_robot.mit_drive import MitDrive
 from virtual_robot.plant import DEFAULT_STEP_S, Plant, PlantParams
 from virtual_robot.stepping import SteppedPlant, Stepper
 from virtual_robot.timing_faults import RobotTiming
@@ -109,7 +110,23 @@ class VirtualRobot:
                 f"{robot.source}: [joints] drives: the virtual robot needs one per joint"
             )
         self.profiles: tuple[DriveProfile, ...] = tuple(load_drive(n) for n in robot.drives)
-        self.drives = [DriveModel(p, period_s=period_s) for p in self.profiles]
+        kinds = {p.protocol for p in self.profiles}
+        if len(kinds) > 1:
+            raise ValueError(f"{robot.source}: its drives speak different protocols ({kinds})")
+        self.protocol = kinds.pop()  # "cia402" or "mit" (profiles.drive.PROTOCOLS)
+        # the drive period: the bench's period for CiA 402; the PD loop's for MIT mode, which
+        # divides the host's period into mit_substeps (one lockstep host period = that many)
+        self.mit_substeps = 1
+        if self.protocol == "mit":
+            rate = max(p.mit.pd_rate_hz for p in self.profiles if p.mit is not None)
+            self.mit_substeps = max(1, round(period_s * rate))
+            period_s = period_s / self.mit_substeps
+            self.period_s = period_s
+        self.drives: list[DriveModel] | list[MitDrive] = (
+            [MitDrive(p, period_s) for p in self.profiles]
+            if self.protocol == "mit"
+            else [DriveModel(p, period_s=period_s) for p in self.profiles]
+        )
         self.by_node = {p.node_id: i for i, p in enumerate(self.profiles)}
         self._node_drives = tuple(
             (p.node_id, d) for p, d in zip(self.profiles, self.drives, strict=True)
@@ -191,6 +208,19 @@ class VirtualRobot:
             stepper = self.stepper
             stepper.t = max(stepper.t, now)
         return self.stepper.t
+
+    def catch_up(self) -> float:
+        """Realtime: integrate to now with the torques held so far (a server's frame arrived);
+        lockstep: nothing. Returns robot time. Call with :attr:`lock` held."""
+        return self._catch_up()
+
+    def apply_now(self, now: float) -> None:
+        """The drives' present commands reach the plant: at once in realtime, at the next
+        step in lockstep (robot time stands still until then). Call with :attr:`lock` held."""
+        if self.mode == LOCKSTEP:
+            self.stepper.unapplied = True
+        else:
+            self._apply_torques(now)
 
     def _apply_torques(self, now: float, from_host: bool = True) -> None:
         """Give the plant the drives' torques and power states (Stepper.apply); a host's
@@ -387,7 +417,10 @@ class VirtualRobot:
         with self.lock:
             now = self._catch_up()
             for d in self.drives:
-                d.write_controlword(co.CW_DISABLE_VOLTAGE, now)
+                if isinstance(d, MitDrive):
+                    d.exit_motor_mode(now)
+                else:
+                    d.write_controlword(co.CW_DISABLE_VOLTAGE, now)
             self._apply_torques(now, from_host=False)
 
     def fault_all(self, error_code: int) -> None:
