@@ -297,3 +297,53 @@ def test_tmotorcancontrol_impedance_and_current_modes(monkeypatch, tmp_path) -> 
     replies = [data for can_id, data in frames if can_id == mit.MASTER_ID]
     assert len(replies) == len(frames) - len(replies) and all(len(r) == 8 for r in replies)
     assert math.isfinite(mit.unpack_reply(replies[-1], ranges)[1])
+
+
+# ---- our host over MIT mode ---------------------------------------------------------------------
+GENTLE_STEPS = """
+name = "gentle-steps"
+kind = "open_loop_torque"
+period_s = 0.01
+duration_s = 1.0
+[[joints]]
+step_Nm = -0.4
+[[joints]]
+step_Nm = 3.0
+"""
+
+
+def test_hil_run_over_mit_mode_realtime(tmp_path) -> None:
+    """`hil run --bench virtual-mit-slcan --mode realtime`: MitArm (two exchanges a period) on the
+    virtual pendulum; the recording has every period, the joint moves the way its torque
+    pushes it, and the elbow's command beyond the bench's 6 Nm is held at the limit,
+    quantized toward zero. A copy of the bench with 0.3 Nm on the elbow, at 100 Hz with a 2 s
+    feedback budget: it checks the path, not the timing, on a loaded machine."""
+    from cli_run import hil
+
+    from drivers.recording import read_signals
+
+    experiment = tmp_path / "steps.toml"
+    experiment.write_text(GENTLE_STEPS)
+    out = tmp_path / "run"
+    bench = tmp_path / "bench.toml"
+    text = Path(load_bench("virtual-mit-slcan").source).read_text()
+    for old, new in (
+        ("torque_Nm = [6.0, 6.0]", "torque_Nm = [6.0, 0.3]"),
+        ("period_s = 0.002", "period_s = 0.01"),
+        ("feedback_budget_s = 0.25", "feedback_budget_s = 2.0"),
+    ):
+        assert old in text
+        text = text.replace(old, new)
+    bench.write_text(text)
+    args = ("run", "--bench", str(bench), "--experiment", str(experiment))
+    proc = hil(*args, "--mode", "realtime", "--out", str(out), "--no-plot", "--json", timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    signals = read_signals(out).columns
+    assert len(signals["t"]) == 100
+    assert signals["q1"][-1] < -0.01  # -0.4 Nm on the shoulder: it swings negative
+    tau2 = np.asarray(signals["tau2"])
+    assert tau2.max() <= 0.3 and tau2.max() > 0.3 - 24 / 4095  # clamped, one quantum at most
+    # lockstep is refused with one line: the robot counts a period per set of commands
+    proc = hil(*args, "--mode", "lockstep", "--out", str(tmp_path / "ls"), "--no-plot")
+    assert proc.returncode == 2 and "realtime only" in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1

@@ -117,6 +117,7 @@ class VirtualRobot:
         # the drive period: the bench's period for CiA 402; the PD loop's for MIT mode, which
         # divides the host's period into mit_substeps (one lockstep host period = that many)
         self.mit_substeps = 1
+        self.host_period_s = period_s  # the bench's period: the realtime period timer's
         if self.protocol == "mit":
             rate = max(p.mit.pd_rate_hz for p in self.profiles if p.mit is not None)
             self.mit_substeps = max(1, round(period_s * rate))
@@ -201,6 +202,8 @@ class VirtualRobot:
         """Realtime: integrate to now with the torques held so far. Returns robot time."""
         if self.mode == REALTIME:
             now = self.now()
+            if self.protocol == "mit":
+                self._pd_steps(now)
             if now > self.plant.t:
                 self.plant.advance_to(now)
                 if self.event_log is not None:  # the integration grid, for `hil replay`
@@ -208,6 +211,18 @@ class VirtualRobot:
             stepper = self.stepper
             stepper.t = max(stepper.t, now)
         return self.stepper.t
+
+    def _pd_steps(self, now: float) -> None:
+        """Realtime, MIT-mode drives: the plant integrated to ``now`` in drive periods, each
+        ending with every drive's sample (its PD and watchdog) and its new torque applied, as
+        the drives' own loop runs (virtual_robot.mit_drive)."""
+        h, plant, stepper = self.period_s, self.plant, self.stepper
+        while now - plant.t >= h:
+            t = plant.t + h
+            plant.advance_to(t)
+            stepper.sample(t, True)
+            stepper.apply(t, from_host=False)
+            stepper.t = max(stepper.t, t)
 
     def catch_up(self) -> float:
         """Realtime: integrate to now with the torques held so far (a server's frame arrived);
@@ -274,8 +289,8 @@ class VirtualRobot:
         with self.lock:
             if self.mode != REALTIME:
                 return
-            now = self._catch_up()
-            self._sample_realtime(now, count_period=True)
+            now = self._catch_up()  # MIT mode: the drives' periods run in there
+            self._sample_realtime(now, count_period=self.protocol != "mit")
 
     def start_period_timer(self, stop: threading.Event) -> threading.Thread | None:
         """Realtime: a daemon thread calling :meth:`tick` every period until ``stop`` is set.
@@ -292,11 +307,11 @@ class VirtualRobot:
             k = 1
             start = clock()
             while not stop.is_set():
-                delay = start + k * self.period_s - clock()
+                delay = start + k * self.host_period_s - clock()
                 if delay > 0 and stop.wait(delay):
                     return
                 self.tick()
-                k = max(k + 1, int((clock() - start) / self.period_s) + 1)
+                k = max(k + 1, int((clock() - start) / self.host_period_s) + 1)
 
         thread = threading.Thread(target=run, name="drive-period-timer", daemon=True)
         thread.start()

@@ -159,7 +159,7 @@ def serve(
         "channel": "",
         "bench": bench.name,
         "mode": core.mode,
-        "period_s": core.period_s,
+        "period_s": core.host_period_s,
         "seed": seed,
         "pid": os.getpid(),
     }

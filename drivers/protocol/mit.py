@@ -93,11 +93,27 @@ def uint_to_float(u: int, lo: float, hi: float, bits: int) -> float:
 
 def pack_command(cmd: MitCommand, r: MitRanges) -> bytes:
     """The 8-byte command frame of ``cmd`` (each field saturated to its range)."""
-    p = float_to_uint(cmd.p_des, -r.p_max, r.p_max, 16)
-    v = float_to_uint(cmd.v_des, -r.v_max, r.v_max, 12)
-    kp = float_to_uint(cmd.kp, 0.0, r.kp_max, 12)
-    kd = float_to_uint(cmd.kd, 0.0, r.kd_max, 12)
-    t = float_to_uint(cmd.t_ff, -r.t_max, r.t_max, 12)
+    return pack_command_raw(
+        float_to_uint(cmd.p_des, -r.p_max, r.p_max, 16),
+        float_to_uint(cmd.v_des, -r.v_max, r.v_max, 12),
+        float_to_uint(cmd.kp, 0.0, r.kp_max, 12),
+        float_to_uint(cmd.kd, 0.0, r.kd_max, 12),
+        float_to_uint(cmd.t_ff, -r.t_max, r.t_max, 12),
+    )
+
+
+def torque_toward_zero(t_ff: float, r: MitRanges) -> int:
+    """The 12-bit τ field nearest ``t_ff`` on the side of zero: the firmware's scaling floors,
+    which for a negative torque lands up to one step beyond it (a host limit would be
+    exceeded); this takes the step back."""
+    u = float_to_uint(t_ff, -r.t_max, r.t_max, 12)
+    if t_ff < 0 and uint_to_float(u, -r.t_max, r.t_max, 12) < t_ff and u < 4095:
+        u += 1
+    return u
+
+
+def pack_command_raw(p: int, v: int, kp: int, kd: int, t: int) -> bytes:
+    """The 8-byte command frame of the unsigned fields (p 16 bits, the others 12)."""
     fields = (p >> 8, p & 0xFF, v >> 4, (v & 0xF) << 4 | kp >> 8, kp & 0xFF, kd >> 4)
     return bytes((*fields, (kd & 0xF) << 4 | t >> 8, t & 0xFF))
 
@@ -180,7 +196,9 @@ __all__ = [
     "MitRanges",
     "float_to_uint",
     "pack_command",
+    "pack_command_raw",
     "pack_reply",
+    "torque_toward_zero",
     "uint_to_float",
     "unpack_command",
     "unpack_command_raw",
