@@ -9,6 +9,8 @@ its library is absent.
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -201,18 +203,17 @@ def _dfki_commands(n: int) -> np.ndarray:
     return np.clip(np.column_stack([data["tau_con1"], data["tau_con2"]]), -6.0, 6.0)
 
 
-def test_dfki_driver_drives_the_virtual_pendulum_in_lockstep(monkeypatch, capsys) -> None:
+def _dfki_run(monkeypatch, channel: str, tau: np.ndarray) -> tuple[np.ndarray, RawCanSocket]:
     """mini-cheetah-motor-driver-socketcan, as the DFKI lab's run_experiment uses it (zero,
-    enable, torque commands with kp = kd = 0 read back position, velocity and torque, disable),
-    with the commands of their recording: what it reads equals the offline stepping of the
-    same commands, reply field for reply field."""
+    enable, one torque command per period with kp = kd = 0 on each motor, reading back
+    position, velocity and torque; disable), against the `dfki-a0` pendulum served in lockstep:
+    (rows × (p1, v1, t1, p2, v2, t2) as the driver returns them, the socket with what it sent)."""
     canmotorlib = pytest.importorskip("motor_driver.canmotorlib")
-    sock = RawCanSocket("dfki-can0")
+    sock = RawCanSocket(channel)
     monkeypatch.setattr(canmotorlib, "socket", raw_can_module(sock))
     monkeypatch.setattr(canmotorlib, "set_zero_sleep", 0.0)  # its 1.5 s wait for a real motor
     monkeypatch.setattr(canmotorlib.CanMotorController, "can_socket_declared", False)
-    tau = _dfki_commands(600)
-    with served("virtual-mit-inprocess", "dfki-can0") as server:
+    with served("virtual-mit-inprocess", channel) as server:
         shoulder = canmotorlib.CanMotorController("can0", 1, "AK80_6_V1p1")
         elbow = canmotorlib.CanMotorController("can0", 2, "AK80_6_V1p1")
         assert shoulder.enable_motor() is not None and elbow.enable_motor() is not None
@@ -230,6 +231,14 @@ def test_dfki_driver_drives_the_virtual_pendulum_in_lockstep(monkeypatch, capsys
         assert not any(d.motor_mode for d in server.drives)
         assert server.ignored == 0 and server.errors == 0
     sock.close()
+    return got, sock
+
+
+def test_dfki_driver_drives_the_virtual_pendulum_in_lockstep(monkeypatch, capsys) -> None:
+    """The DFKI driver with the commands of their recording: what it reads equals the offline
+    stepping of the commands the drives decoded, reply field for reply field."""
+    tau = _dfki_commands(600)
+    got, sock = _dfki_run(monkeypatch, "dfki-can0", tau)
     assert "Error" not in capsys.readouterr().out
     # the commands as the drives decoded them, in the order sent
     commands = [
@@ -243,6 +252,47 @@ def test_dfki_driver_drives_the_virtual_pendulum_in_lockstep(monkeypatch, capsys
         expected = [-_reply_p(p) for p in off["p"][:, j]]
         assert got[:, 3 * j] == pytest.approx(expected, abs=1e-12)
     assert np.ptp(got[:, 0]) > 0.05  # the pendulum moved
+
+
+PENDULUM_MULTISINE = """
+name = "pendulum-multisine"
+kind = "open_loop_torque"
+period_s = 0.002
+duration_s = 0.8
+[[joints]]
+sines = [{ amplitude_Nm = 1.5, omega_rad_s = 9.0, phase_rad = 0.3 }]
+[[joints]]
+sines = [{ amplitude_Nm = 0.6, omega_rad_s = 14.0, phase_rad = 1.0 }]
+"""
+
+
+def test_dfki_driver_recording_equals_virtual_robot_simulate(monkeypatch, tmp_path) -> None:
+    """The DFKI driver commanding an experiment's torques reads, period for period, the q
+    `virtual-robot simulate` writes for that experiment on the same robot (the 16-bit reply
+    field: the protocol's resolution)."""
+    from drivers.recording import read_signals
+    from profiles.experiment import load_experiment
+
+    experiment = tmp_path / "multisine.toml"
+    experiment.write_text(PENDULUM_MULTISINE)
+    out = tmp_path / "sim"
+    args = ["simulate", "--robot", "dfki-a0", "--experiment", str(experiment), "--out", str(out)]
+    proc = subprocess.run(
+        [sys.executable, "-m", "virtual_robot.cli", *args, "--no-plot"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+    sim = read_signals(out).columns
+    exp = load_experiment(experiment)
+    n = len(sim["t"])
+    tau = np.array([exp.torque_rows(exp.period_s, n)[k] for k in range(n)])
+    got, _ = _dfki_run(monkeypatch, "dfki-sim", tau)
+    assert got[:, 0] == pytest.approx(sim["q1"], abs=1e-12)
+    assert got[:, 3] == pytest.approx(sim["q2"], abs=1e-12)
+    assert np.ptp(sim["q1"]) > 0.05
 
 
 def test_tmotorcancontrol_impedance_and_current_modes(monkeypatch, tmp_path) -> None:
