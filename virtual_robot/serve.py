@@ -135,7 +135,9 @@ def serve(
     """
     log = log or _stderr
     core = build_core(bench, effects=effects, mode=mode, seed=seed, initial_q=initial_q)
-    if event_log is not None and core.mode == REALTIME:  # robot times, for `hil replay`
+    # robot times, for `hil replay`; not over MIT mode, whose drives sample at every frame (the
+    # host's stamps then give the sample and command times, drivers.realtime_times)
+    if event_log is not None and core.mode == REALTIME and core.protocol != "mit":
         core.event_log = EventLog(event_log)
     if core.mode == REALTIME:
         # no cyclic-GC pauses between deadlines: everything built so far is frozen out of the
