@@ -24,6 +24,7 @@ from profiles.bench import load_bench
 from profiles.drive import load_drive
 from profiles.loader import ProfileError
 from profiles.robot import load_robot
+from virtual_robot.mit_server import MitDriveServer
 from virtual_robot.mit_simulate import run_commands
 from virtual_robot.serve import build_core
 
@@ -193,6 +194,28 @@ def test_set_zero_moves_the_reported_position_and_a_silent_drive_leaves_motor_mo
             assert d1.motor_mode and d2.torque_Nm == 0.0
         finally:
             host.close()
+
+
+def test_a_silent_host_in_lockstep_makes_every_drive_leave_motor_mode() -> None:
+    """Lockstep: robot time stands still without commands, so the drives' watchdog cannot see
+    a hung host; the server's wall-clock host-silence check (the bench's timeout_s) does."""
+    core = build_core(load_bench("virtual-mit-inprocess"), effects=None, mode=None)
+    bus = can.Bus(interface="virtual", channel="mit-idle")
+    lines: list[str] = []
+    server = MitDriveServer(core, bus, idle_timeout_s=0.5, log=lines.append)
+    try:
+        for can_id in (1, 2):
+            server.handle(
+                can.Message(arbitration_id=can_id, data=mit.ENTER_MOTOR_MODE, is_extended_id=False)
+            )
+        assert all(d.motor_mode for d in server.drives)
+        server.poll(now=time.monotonic() + 0.2)
+        assert all(d.motor_mode for d in server.drives)
+        server.poll(now=time.monotonic() + 0.6)
+        assert not any(d.motor_mode for d in server.drives)
+        assert any("host silent" in line for line in lines)
+    finally:
+        bus.shutdown()
 
 
 # ---- the client libraries, unmodified -----------------------------------------------------------
