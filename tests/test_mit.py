@@ -385,6 +385,44 @@ step_Nm = 3.0
 """
 
 
+def _slow_mit_bench(tmp_path: Path, elbow_limit_Nm: float = 6.0) -> Path:
+    """virtual-mit-slcan at 100 Hz with a 2 s feedback budget (and the elbow's torque limit):
+    the tests check the path, not the timing, on a loaded machine."""
+    bench = tmp_path / "bench.toml"
+    text = Path(load_bench("virtual-mit-slcan").source).read_text()
+    for old, new in (
+        ("torque_Nm = [6.0, 6.0]", f"torque_Nm = [6.0, {elbow_limit_Nm}]"),
+        ("period_s = 0.002", "period_s = 0.01"),
+        ("feedback_budget_s = 0.25", "feedback_budget_s = 2.0"),
+    ):
+        assert old in text
+        text = text.replace(old, new)
+    bench.write_text(text)
+    return bench
+
+
+def test_hil_identify_over_mit_mode(tmp_path) -> None:
+    """`hil identify --bench` on the MIT-mode pendulum: dfki-a0 has model terms (rotor
+    inertia), so the excitation and validation runs are identified with its model object, as
+    `--from`/`--validate` would."""
+    from cli_run import hil
+
+    experiment = tmp_path / "steps.toml"
+    experiment.write_text(GENTLE_STEPS.replace("step_Nm = 3.0", "step_Nm = 0.2"))
+    bench = _slow_mit_bench(tmp_path)
+    out = tmp_path / "id"
+    proc = hil(
+        "identify", "--bench", str(bench), "--experiment", str(experiment),
+        "--validation-experiment", str(experiment), "--out", str(out), "--no-plot",
+        timeout=300,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert (out / "fit" / "signals.csv").is_file() and (
+        out / "validation" / "signals.csv"
+    ).is_file()
+    assert "theta_rotor" in (out / "params.json").read_text()
+
+
 def test_hil_run_over_mit_mode_realtime(tmp_path) -> None:
     """`hil run --bench virtual-mit-slcan --mode realtime`: MitArm (two exchanges a period) on the
     virtual pendulum; the recording has every period, the joint moves the way its torque
@@ -398,16 +436,7 @@ def test_hil_run_over_mit_mode_realtime(tmp_path) -> None:
     experiment = tmp_path / "steps.toml"
     experiment.write_text(GENTLE_STEPS)
     out = tmp_path / "run"
-    bench = tmp_path / "bench.toml"
-    text = Path(load_bench("virtual-mit-slcan").source).read_text()
-    for old, new in (
-        ("torque_Nm = [6.0, 6.0]", "torque_Nm = [6.0, 0.3]"),
-        ("period_s = 0.002", "period_s = 0.01"),
-        ("feedback_budget_s = 0.25", "feedback_budget_s = 2.0"),
-    ):
-        assert old in text
-        text = text.replace(old, new)
-    bench.write_text(text)
+    bench = _slow_mit_bench(tmp_path, elbow_limit_Nm=0.3)
     args = ("run", "--bench", str(bench), "--experiment", str(experiment))
     proc = hil(*args, "--mode", "realtime", "--out", str(out), "--no-plot", "--json", timeout=120)
     assert proc.returncode == 0, proc.stderr
