@@ -154,6 +154,11 @@ def open_arm(
             log_path=log_dir / "bus.log" if log_dir else None,
             **common,
         )
+    if bench.protocol == "mit":
+        from drivers.mit_arm import MitArm
+
+        kwargs = can_bus_kwargs(bench, channel)
+        return MitArm(lambda: make_can_bus(kwargs), drives, **common)
     from drivers.serial_arm import SerialArm
 
     port = channel.get("channel") or bench.channel

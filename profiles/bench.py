@@ -16,8 +16,12 @@ from profiles.limits import parse_limits
 from profiles.loader import Fields, ProfileError, load_toml
 from profiles.timing_faults import MAX_FEEDBACK_BUDGET_S, TimingFaults, parse_timing_faults
 
-PROTOCOLS = ("can", "serial")
-TRANSPORTS = {"can": ("slcan", "socketcan", "socketcand", "virtual"), "serial": ("serial",)}
+PROTOCOLS = ("can", "mit", "serial")  # can: CiA 402; mit: T-Motor/CubeMars MIT mode
+TRANSPORTS = {
+    "can": ("slcan", "socketcan", "socketcand", "virtual"),
+    "mit": ("slcan", "socketcan", "virtual"),
+    "serial": ("serial",),
+}
 MODES = ("lockstep", "realtime")
 MIN_PERIOD_S = 1e-4  # 10 kHz: below this no Python loop over any link holds its period
 DEFAULT_FEEDBACK_BUDGET_S = (
@@ -30,7 +34,7 @@ class BenchProfile:
     name: str
     source: str
     virtual: bool
-    protocol: str  # can | serial
+    protocol: str  # can | mit | serial
     transport: str  # slcan | socketcan | socketcand | virtual | serial
     channel: str  # "" for a virtual bench: the virtual robot announces it
     bitrate: int
@@ -163,6 +167,7 @@ def bench_for_robot(bench: BenchProfile, robot: str | None = None) -> BenchProfi
     n = arm.n_joints
     if not arm.drives:  # a profile for identification only (e.g. dfki-a0, panda) names none
         raise ProfileError(arm.source, "joints.drives", "names no drives: it cannot run on a bench")
+    check_drive_protocol(bench, arm.drives, arm.source)
     own = getattr(arm, "limits", None)  # only a URDF arm's profile may hold [limits]
     if own is not None and name != bench.robot:
         return replace(
@@ -180,6 +185,23 @@ def bench_for_robot(bench: BenchProfile, robot: str | None = None) -> BenchProfi
             f"its profile ({arm.source}) has no [limits] of its own: add one",
         )
     return replace(bench, robot=name)
+
+
+def check_drive_protocol(bench: BenchProfile, drives: tuple[str, ...], source: str) -> None:
+    """A one-line ProfileError unless the robot's drives speak the bench's protocol (MIT-mode
+    drives on an ``mit`` bench, CiA 402 drives on a ``can`` or ``serial`` one)."""
+    from profiles.drive import load_drive
+
+    want = "mit" if bench.protocol == "mit" else "cia402"
+    for name in drives:
+        drive = load_drive(name)
+        if drive.protocol != want:
+            raise ProfileError(
+                source,
+                "joints.drives",
+                f"drive {name} speaks {drive.protocol} and bench {bench.name} protocol "
+                f"{bench.protocol!r} needs {want} drives",
+            )
 
 
 def attached_bench_text(bench: BenchProfile, channel: str) -> str:

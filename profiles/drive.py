@@ -11,6 +11,27 @@ from profiles.loader import Fields, ProfileError, load_toml
 WATCHDOG_DEFAULT_S = 0.5  # 2× the benches' default feedback budget (docs/virtual-robot.md)
 
 
+PROTOCOLS = ("cia402", "mit")
+
+
+@dataclass(frozen=True)
+class MitProfile:
+    """An MIT-mode drive's [mit] table: the ranges its firmware packs the fields over
+    (drivers.protocol.mit.MitRanges.of), the reply's length, its axis direction and its PD loop."""
+
+    p_max: float  # rad: positions in commands and replies span ±p_max (16 bits)
+    v_max: float  # rad/s (12 bits)
+    kp_max: float  # Nm/rad, kp spans [0, kp_max] (12 bits)
+    kd_max: float  # Nm s/rad (12 bits)
+    t_max: float  # Nm: feed-forward and reply torque span ±t_max (12 bits); the torque limit
+    reply_length: int  # 6 (Mini Cheetah firmware, AK80-6 V1.1) or 8 (+ temperature, error)
+    # +1, or -1: the drive counts positive the other way round from the joint (the DFKI driver's
+    # AXIS_DIRECTION of the AK80-6 V1.1 firmware flips p, v and t back)
+    axis_direction: int
+    pd_rate_hz: float  # how often the drive computes τ = kp(p_des − p) + kd(v_des − v) + τ_ff
+    velocity_window_s: float  # the drive's velocity: encoder counts over this window
+
+
 @dataclass(frozen=True)
 class DriveProfile:
     model: str
@@ -26,6 +47,10 @@ class DriveProfile:
     watchdog_s: float
     vendor_id: int = 0
     product_code: int = 0
+    # the drive's CAN protocol: "cia402" (docs/protocol.md) or "mit" (T-Motor/CubeMars MIT
+    # mode, the [mit] table: MitProfile)
+    protocol: str = "cia402"
+    mit: MitProfile | None = None
 
     @property
     def rad_per_count(self) -> float:
@@ -67,8 +92,18 @@ def load_drive(name_or_path: str | Path) -> DriveProfile:
             "watchdog_periods",
             "vendor_id",
             "product_code",
+            "protocol",
+            "mit",
         }
     )
+    protocol = f.string("protocol", "cia402") if f.has("protocol") else "cia402"
+    if protocol not in PROTOCOLS:
+        raise f.error("protocol", f"must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
+    if (protocol == "mit") != f.has("mit"):
+        raise f.error(
+            "mit", "an MIT-mode drive (protocol = 'mit') needs a [mit] table, and only it"
+        )
+    mit = _mit(f.table("mit")) if protocol == "mit" else None
     if f.has("vendor"):
         f.string("vendor")
     if f.has("watchdog_periods"):
@@ -88,10 +123,47 @@ def load_drive(name_or_path: str | Path) -> DriveProfile:
         watchdog_s=f.number("watchdog_s", WATCHDOG_DEFAULT_S, lo=1e-4, hi=10.0),
         vendor_id=f.integer("vendor_id", 0, lo=0, hi=0xFFFFFFFF),
         product_code=f.integer("product_code", 0, lo=0, hi=0xFFFFFFFF),
+        protocol=protocol,
+        mit=mit,
+    )
+
+
+def _mit(f: Fields) -> MitProfile:
+    f.only(
+        {
+            "p_max",
+            "v_max",
+            "kp_max",
+            "kd_max",
+            "t_max",
+            "reply_length",
+            "axis_direction",
+            "pd_rate_hz",
+            "velocity_window_s",
+        }
+    )
+    reply_length = f.integer("reply_length", 6, lo=6, hi=8)
+    if reply_length == 7:
+        raise f.error("reply_length", "must be 6 or 8")
+    axis = f.integer("axis_direction", 1, lo=-1, hi=1)
+    if axis == 0:
+        raise f.error("axis_direction", "must be 1 or -1")
+    return MitProfile(
+        p_max=f.number("p_max", positive=True),
+        v_max=f.number("v_max", positive=True),
+        kp_max=f.number("kp_max", positive=True),
+        kd_max=f.number("kd_max", positive=True),
+        t_max=f.number("t_max", positive=True),
+        reply_length=reply_length,
+        axis_direction=axis,
+        pd_rate_hz=f.number("pd_rate_hz", 4000.0, lo=100.0, hi=100000.0),
+        velocity_window_s=f.number("velocity_window_s", 0.001, lo=0.0, hi=0.1),
     )
 
 
 __all__ = [
+    "PROTOCOLS",
     "DriveProfile",
+    "MitProfile",
     "load_drive",
 ]

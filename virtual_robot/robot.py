@@ -40,6 +40,7 @@ from profiles.drive import DriveProfile, load_drive
 from profiles.effects import EffectsProfile
 from profiles.robot import RobotProfile, UrdfRobotProfile
 from virtual_robot.drive import DriveError, DriveModel, Emcy
+from virtual_robot.mit_drive import MitDrive
 from virtual_robot.plant import DEFAULT_STEP_S, Plant, PlantParams
 from virtual_robot.stepping import SteppedPlant, Stepper
 from virtual_robot.timing_faults import RobotTiming
@@ -109,7 +110,24 @@ class VirtualRobot:
                 f"{robot.source}: [joints] drives: the virtual robot needs one per joint"
             )
         self.profiles: tuple[DriveProfile, ...] = tuple(load_drive(n) for n in robot.drives)
-        self.drives = [DriveModel(p, period_s=period_s) for p in self.profiles]
+        kinds = {p.protocol for p in self.profiles}
+        if len(kinds) > 1:
+            raise ValueError(f"{robot.source}: its drives speak different protocols ({kinds})")
+        self.protocol = kinds.pop()  # "cia402" or "mit" (profiles.drive.PROTOCOLS)
+        # the drive period: the bench's period for CiA 402; the PD loop's for MIT mode, which
+        # divides the host's period into mit_substeps (one lockstep host period = that many)
+        self.mit_substeps = 1
+        self.host_period_s = period_s  # the bench's period: the realtime period timer's
+        if self.protocol == "mit":
+            rate = max(p.mit.pd_rate_hz for p in self.profiles if p.mit is not None)
+            self.mit_substeps = max(1, round(period_s * rate))
+            period_s = period_s / self.mit_substeps
+            self.period_s = period_s
+        self.drives: list[DriveModel] | list[MitDrive] = (
+            [MitDrive(p, period_s) for p in self.profiles]
+            if self.protocol == "mit"
+            else [DriveModel(p, period_s=period_s) for p in self.profiles]
+        )
         self.by_node = {p.node_id: i for i, p in enumerate(self.profiles)}
         self._node_drives = tuple(
             (p.node_id, d) for p, d in zip(self.profiles, self.drives, strict=True)
@@ -184,6 +202,8 @@ class VirtualRobot:
         """Realtime: integrate to now with the torques held so far. Returns robot time."""
         if self.mode == REALTIME:
             now = self.now()
+            if self.protocol == "mit":
+                self._pd_steps(now)
             if now > self.plant.t:
                 self.plant.advance_to(now)
                 if self.event_log is not None:  # the integration grid, for `hil replay`
@@ -191,6 +211,31 @@ class VirtualRobot:
             stepper = self.stepper
             stepper.t = max(stepper.t, now)
         return self.stepper.t
+
+    def _pd_steps(self, now: float) -> None:
+        """Realtime, MIT-mode drives: the plant integrated to ``now`` in drive periods, each
+        ending with every drive's sample (its PD and watchdog) and its new torque applied, as
+        the drives' own loop runs (virtual_robot.mit_drive)."""
+        h, plant, stepper = self.period_s, self.plant, self.stepper
+        while now - plant.t >= h:
+            t = plant.t + h
+            plant.advance_to(t)
+            stepper.sample(t, True)
+            stepper.apply(t, from_host=False)
+            stepper.t = max(stepper.t, t)
+
+    def catch_up(self) -> float:
+        """Realtime: integrate to now with the torques held so far (a server's frame arrived);
+        lockstep: nothing. Returns robot time. Call with :attr:`lock` held."""
+        return self._catch_up()
+
+    def apply_now(self, now: float) -> None:
+        """The drives' present commands reach the plant: at once in realtime, at the next
+        step in lockstep (robot time stands still until then). Call with :attr:`lock` held."""
+        if self.mode == LOCKSTEP:
+            self.stepper.unapplied = True
+        else:
+            self._apply_torques(now)
 
     def _apply_torques(self, now: float, from_host: bool = True) -> None:
         """Give the plant the drives' torques and power states (Stepper.apply); a host's
@@ -244,8 +289,8 @@ class VirtualRobot:
         with self.lock:
             if self.mode != REALTIME:
                 return
-            now = self._catch_up()
-            self._sample_realtime(now, count_period=True)
+            now = self._catch_up()  # MIT mode: the drives' periods run in there
+            self._sample_realtime(now, count_period=self.protocol != "mit")
 
     def start_period_timer(self, stop: threading.Event) -> threading.Thread | None:
         """Realtime: a daemon thread calling :meth:`tick` every period until ``stop`` is set.
@@ -262,11 +307,11 @@ class VirtualRobot:
             k = 1
             start = clock()
             while not stop.is_set():
-                delay = start + k * self.period_s - clock()
+                delay = start + k * self.host_period_s - clock()
                 if delay > 0 and stop.wait(delay):
                     return
                 self.tick()
-                k = max(k + 1, int((clock() - start) / self.period_s) + 1)
+                k = max(k + 1, int((clock() - start) / self.host_period_s) + 1)
 
         thread = threading.Thread(target=run, name="drive-period-timer", daemon=True)
         thread.start()
@@ -387,7 +432,10 @@ class VirtualRobot:
         with self.lock:
             now = self._catch_up()
             for d in self.drives:
-                d.write_controlword(co.CW_DISABLE_VOLTAGE, now)
+                if isinstance(d, MitDrive):
+                    d.exit_motor_mode(now)
+                else:
+                    d.write_controlword(co.CW_DISABLE_VOLTAGE, now)
             self._apply_torques(now, from_host=False)
 
     def reset_faults(self) -> list[int]:
@@ -397,7 +445,7 @@ class VirtualRobot:
             now = self._catch_up()
             cleared = []
             for d in self.drives:
-                if d.state is co.State.FAULT:
+                if getattr(d, "state", None) is co.State.FAULT:  # CiA 402 drives only
                     cleared.append(d.error_code)
                     d.write_controlword(co.CW_DISABLE_VOLTAGE, now)  # bit 7 low first: an edge
                     d.write_controlword(co.CW_FAULT_RESET, now)

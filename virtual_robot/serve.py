@@ -15,7 +15,9 @@ The announcement (one dict, the CLI prints it as one JSON line) for CAN links:
 ``{"event": "ready", "protocol": "can", "transport", "channel", "bench", "mode", "period_s",
 "seed", "pid", "nodes", "bitrate"}`` plus ``interface_channel``, ``host``, ``port`` for socketcand.
 
-The CAN links are served by :class:`CanDriveServer` (CiA 301/402, see can_server.py). In
+The CAN links are served by :class:`CanDriveServer` (CiA 301/402, see can_server.py), or by
+:class:`~virtual_robot.mit_server.MitDriveServer` on a bench with ``protocol = "mit"``
+(T-Motor/CubeMars MIT mode, mit_server.py; the same transports but socketcand). In
 lockstep the drives' command watchdog counts SYNCs (robot time stands still without them), so
 a wall-clock host-silence watchdog of the bench's ``timeout_s`` (the time the host itself waits
 for the robot in lockstep) disables the drives when the host hangs; in realtime the drives'
@@ -41,12 +43,13 @@ from typing import Any
 import can
 
 from drivers.protocol import cia402 as co
-from profiles.bench import BenchProfile
+from profiles.bench import BenchProfile, check_drive_protocol
 from profiles.effects import load_effects
 from profiles.robot import load_any_robot
 from profiles.timing_faults import combine
 from virtual_robot.bus_pacing import BusPacer
 from virtual_robot.can_server import CanDriveServer
+from virtual_robot.mit_server import MitDriveServer
 from virtual_robot.robot import LOCKSTEP, REALTIME, VirtualRobot
 from virtual_robot.timing_faults import EventLog, RobotTiming
 
@@ -80,8 +83,10 @@ def build_core(
             timing = RobotTiming(
                 faults, lockstep=mode == LOCKSTEP, period_s=bench.period_s, seed=seed
             )
+    robot = load_any_robot(bench.robot)
+    check_drive_protocol(bench, robot.drives, robot.source)
     return VirtualRobot(
-        load_any_robot(bench.robot),
+        robot,
         effects_profile,
         mode=mode,
         period_s=bench.period_s,
@@ -151,7 +156,9 @@ def serve(
     core = build_core(bench, effects=effects, mode=mode, seed=seed, initial_q=initial_q)
     if reset is not None:
         _watch_resets(core, reset, stop, log)
-    if event_log is not None and core.mode == REALTIME:  # robot times, for `hil replay`
+    # robot times, for `hil replay`; not over MIT mode, whose drives sample at every frame (the
+    # host's stamps then give the sample and command times, drivers.realtime_times)
+    if event_log is not None and core.mode == REALTIME and core.protocol != "mit":
         core.event_log = EventLog(event_log)
     if core.mode == REALTIME:
         # no cyclic-GC pauses between deadlines: everything built so far is frozen out of the
@@ -175,7 +182,7 @@ def serve(
         "channel": "",
         "bench": bench.name,
         "mode": core.mode,
-        "period_s": core.period_s,
+        "period_s": core.host_period_s,
         "seed": seed,
         "pid": os.getpid(),
     }
@@ -189,7 +196,7 @@ def serve(
 
             bus: can.BusABC = SlcanPtyBus()
             info["channel"] = bus.channel_path
-        elif bench.transport == "socketcand":
+        elif bench.transport == "socketcand" and bench.protocol == "can":
             from virtual_robot.socketcand_hub import SocketcandHub
 
             def sync_conflict(reason: str) -> None:  # the run is corrupt: stop it, say why
@@ -229,13 +236,18 @@ def serve(
         else:
             raise ValueError(f"unknown CAN transport {bench.transport!r}")
         closers.insert(0, bus.shutdown)
-        server = CanDriveServer(
-            core,
-            bus,
-            idle_timeout_s=bench.timeout_s if core.mode == LOCKSTEP else None,
-            log=log,
-            pacer=BusPacer(bench.bitrate) if bench.pace_bus else None,
-        )
+        idle = bench.timeout_s if core.mode == LOCKSTEP else None
+        server: CanDriveServer | MitDriveServer
+        if bench.protocol == "mit":
+            server = MitDriveServer(core, bus, idle_timeout_s=idle, log=log)
+        else:
+            server = CanDriveServer(
+                core,
+                bus,
+                idle_timeout_s=idle,
+                log=log,
+                pacer=BusPacer(bench.bitrate) if bench.pace_bus else None,
+            )
         announce(info)
         server.serve_forever(stop)
         return 0

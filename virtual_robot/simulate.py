@@ -56,6 +56,10 @@ def simulate(
     experiment.check_joints(2, robot.name)
     effects = effects or EffectsProfile()
     drives_p = drive_profiles(robot)
+    if drives_p[0].protocol == "mit":  # MIT-mode drives: their commands, their replies
+        from virtual_robot.mit_simulate import simulate_mit
+
+        return simulate_mit(robot, experiment, out_dir, effects=effects, duration_s=duration_s)
     h = experiment.period_s
     duration = experiment.duration_s if duration_s is None else duration_s
     n_rows = max(1, round(duration / h))

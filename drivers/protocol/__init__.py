@@ -1,5 +1,6 @@
 """Drive protocol codecs shared by the host drivers and the virtual robot's servers.
 
 Pure functions and data: no buses, no ports, no clocks. ``cia402`` is the CAN side (CiA 301
-framing + CiA 402 objects); ``gemini`` is the serial ASCII dialect.
+framing + CiA 402 objects); ``gemini`` is the serial ASCII dialect; ``mit`` the MIT mode of
+T-Motor/CubeMars AK actuators (Mini Cheetah protocol).
 """

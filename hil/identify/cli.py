@@ -296,6 +296,8 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         )
     if args.from_recording and _model_path(args):
         return run_identify_model(args)
+    if not args.from_recording and _bench_model_path(args):
+        return _record_then_identify_model(args)
     if args.lam is None:
         args.lam = 50.0
     args.experiment = args.experiment or "reyes-kelly"
@@ -596,6 +598,32 @@ def _model_path(args: argparse.Namespace) -> bool:
     if args.terms is not None or getattr(args, "recording_format", None):
         return True
     return bool(_robot_terms(args)[1])
+
+
+def _bench_model_path(args: argparse.Namespace) -> bool:
+    """Over a bench: whether its arm (or --robot) identifies with a model object (its profile
+    has terms, or --terms is given), as :func:`_model_path` says for a recording."""
+    from profiles.bench import load_bench
+
+    robot = args.robot or load_bench(args.bench or "virtual-slcan").robot
+    return _model_path(argparse.Namespace(**{**vars(args), "robot": robot}))
+
+
+def _record_then_identify_model(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
+    """`hil identify --bench B` for an arm with model terms (e.g. dfki-a0 on the MIT-mode
+    bench): record the excitation (and the validation experiment unless --validate is given)
+    over the bench, then identify from them as `--from`/`--validate` do."""
+    from profiles.bench import load_bench
+
+    bench = args.bench or "virtual-slcan"
+    args.robot = args.robot or load_bench(bench).robot
+    out = Path(args.out)
+    fit = _record(args, bench, args.experiment or "reyes-kelly", out / "fit", None)
+    if not args.validate and (args.validation_experiment or "validation-multisine") != "none":
+        experiment = args.validation_experiment or "validation-multisine"
+        args.validate = str(_record(args, bench, experiment, out / "validation", None).path)
+    args.from_recording = str(fit.path)
+    return run_identify_model(args)
 
 
 def run_identify_model(args: argparse.Namespace) -> tuple[dict[str, Any], str]:

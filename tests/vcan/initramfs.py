@@ -25,8 +25,9 @@ from collections.abc import Iterable
 from pathlib import Path
 
 # Modules the guest needs: the PCI transport for virtio, 9p over it (the root file system and the
-# results share), and the CAN stack with the virtual CAN driver.
-GUEST_MODULES = ("virtio_pci", "9pnet_virtio", "9p", "vcan", "can_raw")
+# results share), and the CAN stack with the virtual CAN drivers: vcan, and vxcan (a tunnel pair
+# that carries the frames of sockets with loopback off, tests/vcan/test_vcan_mit.py).
+GUEST_MODULES = ("virtio_pci", "9pnet_virtio", "9p", "vcan", "vxcan", "can_raw")
 
 _DEPENDS = re.compile(rb"(?:^|\x00)depends=([^\x00]*)\x00")
 

@@ -1,0 +1,114 @@
+"""What the MIT-mode client-library tests need around the unmodified libraries: a served
+virtual robot in a thread, and the link each library opens by name, pointed at it.
+
+- The DFKI driver (``mini-cheetah-motor-driver-socketcan``) opens a raw SocketCAN socket
+  (``socket.socket(AF_CAN, SOCK_RAW, CAN_RAW)``, ``struct can_frame`` bytes). Where the kernel has
+  no CAN (the machines this is built on, docs/vcan.md), :class:`RawCanSocket` is that socket over
+  a python-can bus: the same calls, the same 16-byte frames, a receive truncated to the size
+  asked for as the kernel truncates a datagram. In the vcan guest the driver uses the real one
+  (tests/vcan/test_vcan_mit.py).
+- TMotorCANControl opens ``can.interface.Bus(channel="can0", bustype="socketcan")`` and runs
+  ``sudo /sbin/ip link set can0 …``: :func:`socketcan_as_virtual` maps python-can's
+  ``socketcan`` name onto its in-process ``virtual`` bus for the test, and a ``sudo`` that does
+  nothing goes first on PATH.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import socket
+import stat
+import struct
+import threading
+import types
+from collections.abc import Iterator
+from pathlib import Path
+
+import can
+
+from profiles.bench import load_bench
+from virtual_robot.mit_server import MitDriveServer
+from virtual_robot.serve import build_core
+
+CAN_FRAME = struct.Struct("=IB3x8s")  # struct can_frame of <linux/can.h>
+
+
+class RawCanSocket:
+    """A CAN_RAW socket's calls the DFKI driver makes, over a python-can bus."""
+
+    def __init__(self, channel: str) -> None:
+        self._bus = can.Bus(interface="virtual", channel=channel)
+        self._timeout: float | None = None
+        self.sent: list[tuple[int, bytes]] = []  # what the library put on the bus
+
+    def setsockopt(self, *args: object) -> None:
+        pass
+
+    def bind(self, address: tuple[str]) -> None:
+        pass
+
+    def settimeout(self, timeout: float | None) -> None:
+        self._timeout = timeout
+
+    def send(self, frame: bytes) -> int:
+        can_id, dlc, data = CAN_FRAME.unpack(frame)
+        self.sent.append((can_id, data[:dlc]))
+        self._bus.send(can.Message(arbitration_id=can_id, data=data[:dlc], is_extended_id=False))
+        return len(frame)
+
+    def recvfrom(self, size: int) -> tuple[bytes, tuple[str]]:
+        msg = self._bus.recv(self._timeout)
+        if msg is None:
+            raise TimeoutError("timed out")
+        frame = CAN_FRAME.pack(msg.arbitration_id, msg.dlc, bytes(msg.data).ljust(8, b"\0"))
+        return frame[:size], ("can0",)
+
+    def close(self) -> None:
+        self._bus.shutdown()
+
+
+def raw_can_module(sock: RawCanSocket) -> types.SimpleNamespace:
+    """A stand-in for the ``socket`` module as the DFKI driver uses it: its ``socket()`` hands
+    out ``sock``."""
+    return types.SimpleNamespace(
+        socket=lambda *args: sock,
+        AF_CAN=getattr(socket, "AF_CAN", 29),
+        SOCK_RAW=socket.SOCK_RAW,
+        CAN_RAW=getattr(socket, "CAN_RAW", 1),
+        SOL_CAN_RAW=getattr(socket, "SOL_CAN_RAW", 101),
+        CAN_RAW_LOOPBACK=getattr(socket, "CAN_RAW_LOOPBACK", 3),
+    )
+
+
+@contextlib.contextmanager
+def served(bench: str, channel: str, **build: object) -> Iterator[MitDriveServer]:
+    """The bench's virtual robot served by :class:`MitDriveServer` on python-can's virtual bus
+    ``channel``, in a thread, until the block ends."""
+    profile = load_bench(bench)
+    core = build_core(profile, effects=None, mode=None, **build)  # type: ignore[arg-type]
+    bus = can.Bus(interface="virtual", channel=channel)
+    server = MitDriveServer(core, bus, idle_timeout_s=None, log=lambda line: None)
+    stop = threading.Event()
+    thread = threading.Thread(target=server.serve_forever, args=(stop,), daemon=True)
+    thread.start()
+    try:
+        yield server
+    finally:
+        stop.set()
+        thread.join()
+        bus.shutdown()
+
+
+def socketcan_as_virtual(monkeypatch: object, tmp_path: Path) -> None:
+    """python-can's ``socketcan`` interface name → its ``virtual`` bus, and a no-op ``sudo`` first
+    on PATH (TMotorCANControl runs ``sudo /sbin/ip link set can0 …`` when it opens its bus)."""
+    from can.interfaces import BACKENDS
+
+    monkeypatch.setitem(BACKENDS, "socketcan", ("can.interfaces.virtual", "VirtualBus"))  # type: ignore[attr-defined]
+    shim = tmp_path / "bin"
+    shim.mkdir()
+    sudo = shim / "sudo"
+    sudo.write_text("#!/bin/sh\nexit 0\n")
+    sudo.chmod(sudo.stat().st_mode | stat.S_IXUSR)
+    monkeypatch.setenv("PATH", f"{shim}{os.pathsep}{os.environ['PATH']}")  # type: ignore[attr-defined]

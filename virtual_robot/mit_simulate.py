@@ -1,0 +1,144 @@
+"""Offline stepping of an MIT-mode arm: a table of p/v/kp/kd/τ commands through the drives'
+PD loop into the plant, no transport and no clock.
+
+The lockstep sequence of :class:`~virtual_robot.mit_server.MitDriveServer`, written against the
+drives and the stepper directly: every drive in motor mode from t = 0, its zero at the rest
+position; in period k each drive is commanded ``commands[k][j]`` and reports its state sampled
+at t_k (p, v, τ, the drive's frame), then the plant runs one period h in ``mit_substeps`` PD
+updates (virtual_robot.stepping.Stepper). A client library driving the served robot in
+lockstep with the same commands reads the same replies (tests/test_mit.py).
+
+:func:`simulate_mit` is ``virtual-robot simulate`` for an arm on MIT-mode drives: an
+experiment's torque of each period sent as τ_ff (kp = kd = 0) in each drive's frame, packed as
+the firmware and the client libraries pack it, and the recording's q the joint-frame position
+of each reply (its 16-bit field).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from drivers.protocol import mit
+from drivers.protocol.mit import MitCommand
+from drivers.recording import RecordingWriter
+from profiles.drive import load_drive
+from profiles.effects import EffectsProfile
+from profiles.experiment import ExperimentProfile
+from profiles.robot import RobotProfile, UrdfRobotProfile
+from virtual_robot import __version__
+from virtual_robot.mit_drive import MitDrive
+from virtual_robot.offline import SimulationResult
+from virtual_robot.robot import LOCKSTEP, VirtualRobot
+
+SW_ENABLED = 0x0637  # what a drive that answers is recorded as (drivers.mit_arm)
+
+
+def run_commands(
+    robot: RobotProfile | UrdfRobotProfile,
+    period_s: float,
+    commands: Sequence[Sequence[MitCommand]],
+    *,
+    effects: EffectsProfile | None = None,
+    q0: Sequence[float] | None = None,
+) -> dict[str, np.ndarray]:
+    """Each period's commands (one per joint) stepped through the MIT-mode drives and the plant;
+    returns ``p``, ``v``, ``tau`` (rows × joints, the drives' frame: what their replies carry,
+    sampled at t_k before the period's step), ``t`` (t_k) and ``plant_steps`` (one value)."""
+    core = VirtualRobot(robot, effects, mode=LOCKSTEP, period_s=period_s, q0=q0)
+    if core.protocol != "mit":
+        raise ValueError(f"robot {robot.name}: its drives do not speak MIT mode")
+    drives: list[MitDrive] = list(core.drives)  # type: ignore[arg-type]
+    stepper = core.stepper
+    stepper.sync()  # sample 0 at t = 0
+    for d in drives:
+        d.set_zero(0.0)
+        d.enter_motor_mode(0.0)
+    n, m = len(commands), len(drives)
+    out = {k: np.zeros((n, m)) for k in ("p", "v", "tau")}
+    out["t"] = np.zeros(n)
+    out["plant_steps"] = np.zeros(1)
+    for k, row in enumerate(commands):
+        if len(row) != m:
+            raise ValueError(f"commands row {k}: {len(row)} commands for {m} joints")
+        out["t"][k] = stepper.t
+        for j, (d, cmd) in enumerate(zip(drives, row, strict=True)):
+            d.write_command(cmd, stepper.t)
+            out["p"][k, j] = d.position_rad
+            out["v"][k, j] = d.velocity_rad_s
+            out["tau"][k, j] = d.drive_torque_Nm
+        stepper.unapplied = True
+        for _ in range(core.mit_substeps):
+            stepper.sync()
+    out["plant_steps"][0] = getattr(core.plant, "steps", 0)
+    return out
+
+
+def simulate_mit(
+    robot: RobotProfile | UrdfRobotProfile,
+    experiment: ExperimentProfile,
+    out_dir: str | Path,
+    *,
+    effects: EffectsProfile | None = None,
+    duration_s: float | None = None,
+) -> SimulationResult:
+    """The experiment's torques through the robot's MIT-mode drives (module docstring), written
+    to ``out_dir`` as a recording (t, q, tau, status: the torque each drive applied, in the
+    joint's frame)."""
+    drives = [load_drive(name) for name in robot.drives]
+    experiment.check_joints(len(drives), robot.name)
+    ranges = [mit.MitRanges.of(p.mit) for p in drives]  # type: ignore[arg-type]
+    sign = [p.mit.axis_direction for p in drives]  # type: ignore[union-attr]
+    h = experiment.period_s
+    duration = experiment.duration_s if duration_s is None else duration_s
+    n_rows = max(1, round(duration / h))
+    torque = experiment.torque_rows(h, n_rows)
+    commands = [
+        [
+            mit.unpack_command(mit.pack_command(MitCommand(0.0, 0.0, 0.0, 0.0, d * t), r), r)
+            for t, d, r in zip(torque[k], sign, ranges, strict=True)
+        ]
+        for k in range(n_rows)
+    ]
+    started = time.perf_counter()
+    out = run_commands(robot, h, commands, effects=effects, q0=experiment.initial_q_rad)
+    wall = time.perf_counter() - started
+    meta = {
+        "kind": "simulate",
+        "version": __version__,
+        "robot": robot.name,
+        "robot_profile": robot.source,
+        "effects": (effects or EffectsProfile()).name,
+        "experiment": experiment.name,
+        "experiment_profile": experiment.source,
+        "mode": "offline",
+        "protocol": "mit",
+        "period_s": h,
+        "duration_s": n_rows * h,
+        "seed": None,
+        "drives": [
+            {"model": p.model, "protocol": "mit", "t_max_Nm": r.t_max}
+            for p, r in zip(drives, ranges, strict=True)
+        ],
+    }
+    n = len(drives)
+    status = tuple(f"status{j}" for j in range(1, n + 1))
+    with RecordingWriter(out_dir, meta, extra_columns=status, n_joints=n) as rec:
+        for k in range(n_rows):
+            q = [d * _reply_p(p, r) for p, d, r in zip(out["p"][k], sign, ranges, strict=True)]
+            tau = [d * c.t_ff for c, d in zip(commands[k], sign, strict=True)]
+            rec.write([k * h, *q, *tau, *([SW_ENABLED] * n)])
+        rec.meta.update(wall_time_s=wall, realtime_factor=n_rows * h / wall if wall else None)
+    steps = int(out["plant_steps"][0])
+    return SimulationResult(Path(out_dir), n_rows, wall, n_rows * h, steps)
+
+
+def _reply_p(p: float, r: mit.MitRanges) -> float:
+    """p as a reply's 16-bit field carries it."""
+    return mit.uint_to_float(mit.float_to_uint(p, -r.p_max, r.p_max, 16), -r.p_max, r.p_max, 16)
+
+
+__all__ = ["run_commands", "simulate_mit"]
