@@ -121,43 +121,53 @@ def take_out_dir(
     """Lock ``out`` (created if absent) for this process until :func:`release_out_dirs`, then
     make sure it is empty: refuse a non-empty one (files of an earlier run would mix with this
     one's) unless ``overwrite``, which empties it first, and never one that holds one of the
-    command's ``inputs``, the working or the home directory. Taking a directory this process
-    already holds returns it as it is."""
+    command's ``inputs``, the working or the home directory. A directory this process holds
+    already is checked the same way, without a second lock."""
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"{label} {out}: exists and is not a directory")
+    key = None
     with contextlib.suppress(OSError):
         st = os.stat(out)
-        if (st.st_dev, st.st_ino) in _held:
-            return out
-    fd, created, st = _lock(out, label)
-    held = _Held(out, fd, fresh=True, created=created, group=group)
-    _held[(st.st_dev, st.st_ino)] = held
+        key = (st.st_dev, st.st_ino)
+    held = _held.get(key) if key is not None else None
+    if held is None:
+        fd, created, st = _lock(out, label)
+        key = (st.st_dev, st.st_ino)
+        held = _held[key] = _Held(out, fd, fresh=True, created=created, group=group)
+        taken_now = True
+    else:
+        created, taken_now = False, False
     try:
         if not created and any(out.iterdir()):
-            if not overwrite:
-                raise ValueError(
-                    f"{label} {out}: directory is not empty (files of another run would mix "
-                    "with this one's); pass --overwrite to empty it, or choose another directory"
-                )
-            here = Path.cwd().resolve()
-            target = out.resolve()
-            for item in inputs:
-                if item is not None and (
-                    Path(item).resolve() == target or target in Path(item).resolve().parents
-                ):
-                    raise ValueError(
-                        f"{label} {out}: holds the input {item}; choose another directory"
-                    )
-            if target == here or target in here.parents or target == Path.home().resolve():
-                raise ValueError(f"{label} {out}: refusing to empty the current or home directory")
-            _empty(target)
+            _refuse_or_empty(out, overwrite, inputs, label)
     except BaseException:
-        held.fresh = not any(out.iterdir()) if out.is_dir() else True
-        _release(held, started=False)
-        del _held[(st.st_dev, st.st_ino)]
+        if taken_now:  # refused: what was there stays, and so does a directory we made
+            held.fresh = held.created and not any(out.iterdir())
+            _release(held, started=False)
+            del _held[key]
         raise
     return out
+
+
+def _refuse_or_empty(
+    out: Path, overwrite: bool, inputs: Sequence[str | Path | None], label: str
+) -> None:
+    if not overwrite:
+        raise ValueError(
+            f"{label} {out}: directory is not empty (files of another run would mix with this "
+            "one's); pass --overwrite to empty it, or choose another directory"
+        )
+    here = Path.cwd().resolve()
+    target = out.resolve()
+    for item in inputs:
+        if item is not None and (
+            Path(item).resolve() == target or target in Path(item).resolve().parents
+        ):
+            raise ValueError(f"{label} {out}: holds the input {item}; choose another directory")
+    if target == here or target in here.parents or target == Path.home().resolve():
+        raise ValueError(f"{label} {out}: refusing to empty the current or home directory")
+    _empty(target)
 
 
 def new_run_dir(group: str | Path, *, runs: Path = RUNS) -> Path:
