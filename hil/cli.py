@@ -11,13 +11,17 @@ shares (common options, ``--json``, ``--out``, progress and error lines, exit st
 
 Errors are one line, ``hil <command>: error: ...``. Exit status (docs/interop.md):
 
-====  ==========================================================================================
-0     done
-1     the run or check failed (an incomplete recording, a failed comparison, an internal error)
-2     usage: bad arguments, or a profile, parameter file or recording that cannot be used
-3     link failure: the robot could not be reached or started (lost mid-run: 1, see meta.json)
-130   interrupted (Ctrl-C); the drives were commanded to zero torque and disabled
-====  ==========================================================================================
+=====  =========================================================================================
+0      done
+1      the run or check failed (an incomplete recording, a failed comparison, an internal error)
+2      usage: bad arguments, or a profile, parameter file or recording that cannot be used; an
+       --out another live run holds; a closed standard output (the result would be lost)
+3      link failure: the robot could not be reached or started (lost mid-run: 1, see meta.json)
+128+N  stopped by signal N, the same for every command (``hil`` and ``virtual-robot``): 130
+       Ctrl-C (SIGINT), 143 SIGTERM, 129 SIGHUP; drives driven were commanded to zero torque
+       and disabled (drivers.process)
+141    stdout's reader left (``| head``): quietly, as SIGPIPE ends a Unix tool
+=====  =========================================================================================
 """
 
 from __future__ import annotations
