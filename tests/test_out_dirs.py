@@ -212,6 +212,7 @@ def test_sigterm_before_the_recording_begins_leaves_a_rerunnable_directory(
 
 
 # ---- runs without --out --------------------------------------------------------------------
+@pytest.mark.slow  # eight commands, each a process of its own: ~40 s on the loaded VM
 def test_every_command_twice_with_defaults_keeps_both_runs(tmp_path: Path) -> None:
     """Issue 30: each command run twice without --out writes a new directory each time (both
     kept, no error) and runs/latest points to the newest; --out stays exact."""
