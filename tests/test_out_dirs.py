@@ -286,6 +286,7 @@ def test_simulate_ends_on_a_signal_with_its_line_and_meta(tmp_path: Path, sig: i
     assert len(lines) == 1 and want in lines[0], err
     meta = _meta(out)
     assert meta["status"] == "interrupted" and run_status(meta) == "interrupted"
+    assert meta["reason"] == (f"stopped by {name}" if sig != signal.SIGINT else want + " (Ctrl-C)")
 
 
 @pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGTERM])
