@@ -24,6 +24,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, NoReturn
 
+from drivers.process import note_drives_opened
 from profiles.bench import DEFAULT_FEEDBACK_BUDGET_S  # realtime: later feedback = link dead
 
 DEFAULT_SPIN_S = 0.0002  # realtime wait without a scheduler: spin the last 0.2 ms
@@ -292,6 +293,7 @@ class Arm(abc.ABC):
             self._safety_stop(reason)
 
     def __enter__(self) -> Arm:
+        note_drives_opened()  # an interruption from here on ends with the drives disabled
         self.open()
         return self
 

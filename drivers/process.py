@@ -31,6 +31,7 @@ EXIT_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
 IMPORT_RETRY_S = 0.005  # a signal during an import is acted on once the import is done
 _received: list[int] = []  # exit signals received so far (the first one is what stopped us)
 _loading: list[str] = []  # the program whose command line is being imported (nothing runs yet)
+_drives: list[bool] = []  # a link to drives was opened in this process (drivers.arm.Arm)
 
 
 def _on_exit_signal(signum: int, frame: FrameType | None) -> None:
@@ -158,6 +159,19 @@ def interrupt_reason() -> str:
     return f"stopped by {signal.Signals(signum).name}"
 
 
+def note_drives_opened() -> None:
+    """A link to drives is being opened in this process (every way out disables them)."""
+    _drives[:] = [True]
+
+
+def stopped_line() -> str:
+    """What an interrupted command says: what stopped it, and that the drives are at zero
+    torque and disabled where this process drove any (an offline analysis drives none)."""
+    if _drives:
+        return f"{interrupt_reason()}; drives at zero torque and disabled"
+    return interrupt_reason()
+
+
 def interrupt_exit_code() -> int:
     """128 + the signal number, as a shell reports a process a signal ended (130 for Ctrl-C)."""
     return 128 + (exit_signal() or signal.SIGINT)
@@ -231,6 +245,29 @@ def run_status(meta: Mapping[str, Any]) -> str:
     if isinstance(ticks, int) and _start_ticks(pid) not in (None, ticks):
         return "died"  # the pid belongs to another process now
     return status
+
+
+STDOUT_CLOSED = (
+    "standard output is closed, so the result would be lost; give it somewhere to go "
+    "(> FILE, or > /dev/null to discard it)"
+)
+
+
+def stdout_closed() -> bool:
+    """Whether this process was started with its standard output closed (``>&-``): what a
+    command prints there would be lost without a word (Python's ``print`` then writes
+    nowhere), so a command refuses to start (exit status 2, :data:`STDOUT_CLOSED`)."""
+    if sys.stdout is None:
+        return True
+    try:
+        fd = sys.stdout.fileno()
+    except (OSError, ValueError):  # a stream in memory (a test's capture): nothing is lost
+        return False
+    try:
+        os.fstat(fd)
+    except OSError:
+        return True
+    return False
 
 
 def reader_gone() -> int:

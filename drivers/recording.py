@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from drivers import containers
-from drivers.process import process_stamp
+from drivers.process import interrupt_reason, process_stamp
 from profiles.recording_format import (
     LOOP_DELAY_MAX,
     TARGET_KINDS,
@@ -135,8 +135,8 @@ class RecordingWriter:
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
         if exc_type is None:
             self.close("complete")
-        elif issubclass(exc_type, KeyboardInterrupt):
-            self.close("interrupted")
+        elif issubclass(exc_type, KeyboardInterrupt):  # Ctrl-C, SIGTERM, SIGHUP: say which
+            self.close("interrupted", reason=interrupt_reason())
         else:
             self.close("failed", error=f"{exc_type.__name__}: {exc}")
 

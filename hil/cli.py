@@ -11,13 +11,17 @@ shares (common options, ``--json``, ``--out``, progress and error lines, exit st
 
 Errors are one line, ``hil <command>: error: ...``. Exit status (docs/interop.md):
 
-====  ==========================================================================================
-0     done
-1     the run or check failed (an incomplete recording, a failed comparison, an internal error)
-2     usage: bad arguments, or a profile, parameter file or recording that cannot be used
-3     link failure: the robot could not be reached or started (lost mid-run: 1, see meta.json)
-130   interrupted (Ctrl-C); the drives were commanded to zero torque and disabled
-====  ==========================================================================================
+=====  =========================================================================================
+0      done
+1      the run or check failed (an incomplete recording, a failed comparison, an internal error)
+2      usage: bad arguments, or a profile, parameter file or recording that cannot be used; an
+       --out another live run holds; a closed standard output (the result would be lost)
+3      link failure: the robot could not be reached or started (lost mid-run: 1, see meta.json)
+128+N  stopped by signal N, the same for every command (``hil`` and ``virtual-robot``): 130
+       Ctrl-C (SIGINT), 143 SIGTERM, 129 SIGHUP; drives driven were commanded to zero torque
+       and disabled (drivers.process)
+141    stdout's reader left (``| head``): quietly, as SIGPIPE ends a Unix tool
+=====  =========================================================================================
 """
 
 from __future__ import annotations
@@ -44,14 +48,15 @@ from drivers.process import limit_blas_threads
 from hil import __version__
 from hil.cli_options import (
     EXIT_USAGE,
+    RunInterrupted,
     add_bench_option,
     add_drive_options,
     add_out_options,
     add_report_options,
     drive_kwargs,
-    error,
     prepare_out_dir,
     print_document,
+    require_complete,
     run_command,
     run_exit,
     say,
@@ -147,7 +152,7 @@ def _parser(with_arguments: Collection[str] = COMMANDS) -> argparse.ArgumentPars
     d = sub.add_parser(
         "demo", help="the main job end to end on the default virtual robot", parents=[common]
     )
-    add_out_options(d, "directory for the demo's runs", default="runs/demo")
+    add_out_options(d, "directory for the demo's runs (default: a new runs/demo/<date>T<time>)")
     d.add_argument(
         "--quick",
         action="store_true",
@@ -183,7 +188,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from hil.bench.run import run_experiment
 
     lengths = DEMO_QUICK if args.quick else DEMO_FULL
-    out = prepare_out_dir(args.out, args.overwrite)
+    out = prepare_out_dir(args.out, args.overwrite, default="demo", command="demo")
     run_dir, sim_dir = out / "hil-run-virtual-slcan", out / "simulate-reyes-kelly"
     say(
         "demo",
@@ -193,9 +198,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     run = run_experiment(
         "virtual-slcan", "reyes-kelly", run_dir, duration_s=lengths.excitation_s, progress=False
     )
-    if run["status"] != "complete":
-        error("demo", f"demo run {run['status']}: {run['reason']}")
-        return 1
+    require_complete("demo run", run)
     say("demo", f"the same experiment offline (virtual-robot simulate) -> {sim_dir}")
     sim = simulate_offline("cicese", "reyes-kelly", lengths.excitation_s, sim_dir)  # else exit 1
     a, b = read_signals(run_dir), read_signals(sim_dir)
@@ -253,8 +256,7 @@ def _demo_diagnose(out: Path, duration_s: float) -> tuple[dict, str]:
     run = run_experiment(
         "virtual-slcan", "diagnosis", run_dir, duration_s=duration_s, progress=False
     )
-    if run["status"] != "complete":
-        raise RuntimeError(f"diagnosis run {run['status']}: {run['reason']}")
+    require_complete("diagnosis run", run)
     result = diagnose([read_signals(run_dir)], robot_params("cicese").theta)
     diag_dir.mkdir(parents=True, exist_ok=True)
     result.document["plots"] = [str(p) for p in plot_diagnosis(result, diag_dir)]
@@ -279,6 +281,8 @@ def _demo_control(out: Path, params: Path, duration_s: float) -> tuple[dict, str
         progress=False,
         duration_s=duration_s,
     )
+    if doc["status"] == "interrupted":  # the comparison stops, and the demo with it
+        raise RunInterrupted(f"control comparison interrupted ({control_dir} keeps its runs)")
     return doc, format_table(doc)
 
 
@@ -293,8 +297,7 @@ def _demo_identify(out: Path, fit_dir: Path, duration_s: float) -> tuple[dict, s
     held = run_experiment(
         "virtual-slcan", "validation-multisine", held_dir, duration_s=duration_s, progress=False
     )
-    if held["status"] != "complete":
-        raise RuntimeError(f"demo validation run {held['status']}: {held['reason']}")
+    require_complete("demo validation run", held)
     id_dir = out / "identify"
     say("demo", f"identification (Reyes & Kelly 1997 Table II) -> {id_dir}")
     args = parse_args(

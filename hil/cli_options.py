@@ -33,7 +33,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import shutil
 import subprocess
 import sys
 import time
@@ -43,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.outdir import new_run_dir, release_out_dirs, take_out_dir
 from drivers.realtime_times import ROBOT_EVENTS, on_real_times, run_trace
 from drivers.recording import (
     SIGNALS,
@@ -130,20 +130,39 @@ def exit_status(exc: BaseException) -> int:
 
 def run_command(command: str, main: Callable[[argparse.Namespace], int], args: Any) -> int:
     """``main(args)``, its errors as one line and an exit status: a bad input, a link or an
-    interruption never ends in a traceback."""
+    interruption never ends in a traceback. The output directories the command took are
+    released as it ends (:func:`drivers.outdir.release_out_dirs`: a start that failed before
+    any recording leaves nothing behind)."""
+    status = EXIT_FAILED
+    try:
+        status = _run_main(command, main, args)
+        return status
+    finally:
+        release_out_dirs(status)
+
+
+def _run_main(command: str, main: Callable[[argparse.Namespace], int], args: Any) -> int:
     import can
 
     from drivers.arm import LinkError
+    from drivers.process import STDOUT_CLOSED, stdout_closed
     from hil.bench.launch import LaunchError
     from hil.model.params import ParamsError
     from profiles import ProfileError
 
+    if stdout_closed():
+        error(command, STDOUT_CLOSED)
+        return EXIT_USAGE
     try:
         return int(main(args))
-    except KeyboardInterrupt:  # Ctrl-C, SIGTERM or SIGHUP (drivers.process)
-        from drivers.process import interrupt_exit_code, interrupt_reason
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM or SIGHUP (drivers.process)
+        from drivers.process import interrupt_exit_code, stopped_line
 
-        say(command, f"{interrupt_reason()}; drives at zero torque and disabled")
+        line = stopped_line()
+        say(
+            command,
+            f"{exc}; {line.split('; ', 1)[-1]}" if isinstance(exc, RunInterrupted) else line,
+        )
         return interrupt_exit_code()
     except BrokenPipeError:  # stdout's reader left (`| head`): nothing is lost, nothing to say
         from drivers.process import reader_gone
@@ -162,6 +181,25 @@ def run_command(command: str, main: Callable[[argparse.Namespace], int], args: A
     ) as exc:
         error(command, str(exc))
         return exit_status(exc)
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """A run a command made ended interrupted (its loop caught the signal and kept the rows):
+    the command ends as the signal ends any command (:func:`run_command`), its line this
+    message."""
+
+
+def require_complete(what: str, run: dict[str, Any]) -> None:
+    """Go on only after a complete run (a :func:`hil.bench.run.run_experiment` summary): an
+    interrupted one ends the command as its signal would (:class:`RunInterrupted`, exit
+    128 + N), a failed one with RuntimeError (exit 1); both say where its rows are kept."""
+    status = run["status"]
+    if status == "complete":
+        return
+    message = f"{what} {status}: {run['reason']} ({run['rows']} rows kept in {run['signals']})"
+    if status == "interrupted":
+        raise RunInterrupted(message)
+    raise RuntimeError(message)
 
 
 def run_exit(command: str, status: str, problem: str) -> int:
@@ -452,40 +490,35 @@ def add_out_options(
     p.add_argument(
         "--overwrite",
         action="store_true",
-        help="empty a non-empty --out directory first (without it, such a --out is refused)",
+        help="empty a non-empty --out directory first (without it, such a --out is refused; "
+        "a directory another live run holds is refused either way)",
     )
 
 
 def prepare_out_dir(
-    out: str | Path, overwrite: bool, inputs: Sequence[str | Path | None] = ()
+    out: str | Path | None,
+    overwrite: bool,
+    inputs: Sequence[str | Path | None] = (),
+    *,
+    default: str | None = None,
+    command: str | None = None,
 ) -> Path:
-    """Make sure ``out`` is absent or an empty directory to write into: refuse a non-empty one
-    (files of an earlier run would mix with this one's) unless ``overwrite``, which empties it
-    first, and never one that holds one of the command's ``inputs``."""
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out}: exists and is not a directory")
-    if out.is_dir() and any(out.iterdir()):
-        if not overwrite:
-            raise ValueError(
-                f"--out {out}: directory is not empty (files of another run would mix with "
-                "this one's); pass --overwrite to empty it, or choose another directory"
-            )
-        here = Path.cwd().resolve()
-        target = out.resolve()
-        for item in inputs:
-            if item is not None and (
-                Path(item).resolve() == target or target in Path(item).resolve().parents
-            ):
-                raise ValueError(f"--out {out}: holds the input {item}; choose another directory")
-        if target == here or target in here.parents or target == Path.home().resolve():
-            raise ValueError(f"--out {out}: refusing to empty the current or home directory")
-        for child in target.iterdir():
-            if child.is_dir() and not child.is_symlink():
-                shutil.rmtree(child)
-            else:
-                child.unlink()
-    return out  # created by the command when it writes (a refused run leaves nothing)
+    """The command's output directory, locked for this run until the command ends
+    (:func:`drivers.outdir.take_out_dir`): ``out`` exactly (refused while another live run
+    holds it, ``--overwrite`` or not; a non-empty one refused unless ``overwrite``, which empties
+    it first; never one that holds one of ``inputs``), or, when ``out`` is None, a new
+    directory for this run, ``runs/<default>/<stamp>`` (:func:`drivers.outdir.new_run_dir`;
+    ``runs/latest`` points to it once the command ends; ``command``: say so on stderr). A
+    start that fails before any recording began leaves nothing in it
+    (:func:`drivers.outdir.release_out_dirs`, called by :func:`run_command`)."""
+    if out is None:
+        if default is None:
+            raise ValueError("--out is required")
+        run_dir = new_run_dir(default)
+        if command is not None:
+            say(command, f"writing to {run_dir} (a new directory for this run; runs/latest)")
+        return run_dir
+    return take_out_dir(out, overwrite, inputs)
 
 
 def recorded_urdf_robot(recording: str | Path) -> str | None:

@@ -14,6 +14,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from realdata import realdata
 
+from drivers.outdir import held_out_dirs, release_out_dirs
 from drivers.recording import (
     BASE_COLUMNS,
     META,
@@ -481,17 +482,23 @@ def test_meta_fields_of_any_type_read_or_fail_in_one_line(tmp_path, field, value
 
 
 def test_out_dir_refused_when_not_empty_unless_overwrite(tmp_path):
+    """Each prepare_out_dir is one command's start; release_out_dirs its end (run_command)."""
     out = tmp_path / "out"
-    assert prepare_out_dir(out, False) == out and not out.exists()
+    assert prepare_out_dir(out, False) == out and out.is_dir()  # taken: locked, so it exists
+    release_out_dirs(2)  # a start refused before anything was recorded: nothing left behind
+    assert not out.exists()
     out.mkdir()
     prepare_out_dir(out, False)  # empty: fine
+    release_out_dirs(0)
     (out / "bus.log").write_text("old run")
     (out / "sub").mkdir()
     with pytest.raises(ValueError) as exc:
         prepare_out_dir(out, False)
     assert str(out) in one_line_error(exc) and "--overwrite" in str(exc.value)
+    assert (out / "bus.log").is_file()  # the refused start removed nothing
     prepare_out_dir(out, True)
     assert out.is_dir() and not any(out.iterdir())
+    release_out_dirs(0)
     (out / "rec").mkdir()
     with pytest.raises(ValueError, match="holds the input"):
         prepare_out_dir(out, True, inputs=[out / "rec"])
@@ -499,6 +506,7 @@ def test_out_dir_refused_when_not_empty_unless_overwrite(tmp_path):
     (tmp_path / "file").write_text("x")
     with pytest.raises(ValueError, match="not a directory"):
         prepare_out_dir(tmp_path / "file", True)
+    assert held_out_dirs() == []
 
 
 def test_realtime_run_read_on_its_host_stamps(tmp_path):

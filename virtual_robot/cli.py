@@ -12,7 +12,16 @@ from collections.abc import Sequence
 
 from drivers.logsetup import add_verbosity_options, configure, verbosity
 from drivers.options import float_list
-from drivers.process import limit_blas_threads, reader_gone
+from drivers.outdir import new_run_dir, release_out_dirs, take_out_dir
+from drivers.process import (
+    STDOUT_CLOSED,
+    interrupt_exit_code,
+    interrupt_reason,
+    limit_blas_threads,
+    reader_gone,
+    run_command_line,
+    stdout_closed,
+)
 from drivers.recording import RecordingError
 from profiles import ProfileError
 from profiles.bench import BenchProfile, load_bench
@@ -52,7 +61,17 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--duration", type=float, default=None, help="seconds (default: the experiment's)"
     )
-    s.add_argument("--out", required=True, help="run directory to write")
+    s.add_argument(
+        "--out",
+        default=None,
+        help="run directory to write (default: a new runs/simulate/<date>T<time>)",
+    )
+    s.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="empty a non-empty --out directory first (without it, such a --out is refused; "
+        "a directory another live run holds is refused either way)",
+    )
     s.add_argument(
         "--step",
         type=float,
@@ -149,6 +168,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     check_duration(duration, h)  # one-line errors before anything is allocated
     check_step(args.step, h, duration)
     effects = load_effects(args.effects)
+    # this run's alone until it ends (drivers/outdir.py); without --out, a new one for it
+    args.out = str(
+        new_run_dir("simulate") if args.out is None else take_out_dir(args.out, args.overwrite)
+    )
     result = simulate(
         robot,
         experiment,
@@ -213,12 +236,14 @@ def cmd_serve(args: argparse.Namespace) -> int:
         load_effects(args.effects)  # fail fast, with the one-line error, before announcing
     initial_q = _initial_q(args.initial_q, load_any_robot(bench.robot).n_joints)
     stop = threading.Event()
+    stopped_by: list[int] = []
 
     def on_signal(signum: int, _frame: object) -> None:
+        stopped_by.append(signum)
         stop.set()
 
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    for name in ("SIGTERM", "SIGINT", "SIGHUP"):  # the exit signals (drivers.process)
+        signal.signal(getattr(signal, name), on_signal)
     reset = threading.Event()  # SIGUSR1: reset the drives' faults (docs/faults.md)
     signal.signal(signal.SIGUSR1, lambda _signum, _frame: reset.set())
     if args.exit_with_parent:
@@ -238,11 +263,33 @@ def cmd_serve(args: argparse.Namespace) -> int:
         initial_q=initial_q,
         reset=reset,
     )
+    if stopped_by:  # the drives were disabled on the way out (serve.py)
+        name = signal.Signals(stopped_by[0]).name
+        print(f"virtual-robot: stopped by {name}; drives disabled", file=sys.stderr)
+        return 128 + stopped_by[0]
     print("virtual-robot: stopped", file=sys.stderr)
     return code
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """The ``virtual-robot`` command line: the exit signals first (SIGTERM and SIGHUP as
+    Ctrl-C, :func:`drivers.process.run_command_line`), then :func:`run`; exit status 128 + the
+    signal's number when one stopped it."""
+    return run_command_line("virtual-robot", lambda: run, argv)
+
+
+def run(argv: Sequence[str] | None = None) -> int:
+    """Parse and run one subcommand; the output directories it took released as it ends
+    (drivers.outdir: a start that failed before recording leaves nothing behind)."""
+    status = 1
+    try:
+        status = _run(argv)
+        return status
+    finally:
+        release_out_dirs(status)
+
+
+def _run(argv: Sequence[str] | None) -> int:
     parser = _parser()
     args, extras = parser.parse_known_args(argv)
     if extras:  # reported by the subcommand's parser: its usage, its name
@@ -250,6 +297,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         sub.choices[args.command].error(f"unrecognized arguments: {' '.join(extras)}")
     configure("virtual-robot", verbosity(args))
     limit_blas_threads()
+    if stdout_closed():
+        print(
+            f"virtual-robot {args.command}: error: {STDOUT_CLOSED}",
+            file=sys.stderr,
+        )
+        return 2
     try:
         if args.command == "simulate":
             return cmd_simulate(args)
@@ -260,9 +313,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ProfileError, RecordingError, ValueError, OSError) as exc:
         print(f"virtual-robot {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("virtual-robot: interrupted; the recording so far is kept", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt:  # Ctrl-C, SIGTERM or SIGHUP: meta.json says "interrupted"
+        print(
+            f"virtual-robot {args.command}: {interrupt_reason()}; the recording so far is kept",
+            file=sys.stderr,
+        )
+        return interrupt_exit_code()
     return 2
 
 

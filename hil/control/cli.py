@@ -61,7 +61,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--kv", type=float, nargs="+", metavar="KV", help="velocity gains, one per joint"
     )
-    opts.add_out_options(p, "directory (default: runs/control-SCHEME|compare)")
+    opts.add_out_options(p, "directory (default: a new runs/control-SCHEME|compare/<date>T<time>)")
     opts.add_drive_options(p)
     opts.add_report_options(p)
 
@@ -83,8 +83,7 @@ def main(args: argparse.Namespace) -> int:
             raise UsageError("give --scheme pd|ct|fed|rfed, or --compare")
         if len(args.params) > 1:
             raise UsageError("one --params file per run; several need --compare")
-        out = args.out or f"runs/control-{args.scheme}"
-        opts.prepare_out_dir(out, args.overwrite)
+        out = opts.prepare_out_dir(args.out, args.overwrite, default=f"control-{args.scheme}")
         opts.say("control", f"{SCHEME_TITLES[args.scheme]} over {args.bench} -> {out}")
         doc = run_control(
             args.bench, args.scheme, out, params=args.params[0] if args.params else None, **common
@@ -98,8 +97,7 @@ def main(args: argparse.Namespace) -> int:
         )
 
     schemes = opts.split_list(args.schemes)
-    out = args.out or "runs/control-compare"
-    opts.prepare_out_dir(out, args.overwrite)
+    out = opts.prepare_out_dir(args.out, args.overwrite, default="control-compare")
     opts.say(
         "control", f"comparing {', '.join(s.upper() for s in schemes)} over {args.bench} -> {out}"
     )

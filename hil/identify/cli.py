@@ -37,6 +37,7 @@ from hil.cli_options import (
     print_document,
     read_recording,
     recorded_urdf_robot,
+    require_complete,
     say,
     split_list,
 )
@@ -132,7 +133,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="URDF arms (docs/urdf.md): constrain every scheme's fit to physically consistent "
         "parameters",
     )
-    add_out_options(p, "output directory", default="runs/identify")
+    add_out_options(p, "output directory (default: a new runs/identify/<date>T<time>)")
     add_recording_options(p)
     add_report_options(p)
     p.add_argument(
@@ -197,11 +198,7 @@ def _record(
         observer=observer,
         robot=robot,
     )
-    if run["status"] != "complete":
-        raise RuntimeError(
-            f"{experiment} over {bench} {run['status']}: {run['reason']} "
-            f"({run['rows']} rows kept in {run['signals']})"
-        )
+    require_complete(f"{experiment} over {bench}", run)
     # as `hil identify --from OUT` reads it: a realtime run on its real times
     joints = 2 if robot is None else None  # an arm named by --robot: its own joint count
     rec = read_recording(args, out, command="identify", min_rows=2, joints=joints, allow_gaps=True)
@@ -258,7 +255,15 @@ def _validations(
 def main(args: argparse.Namespace) -> int:
     """Exit status 0; 1 when the scheme selected by --params-scheme failed its held-out
     validation (a URDF arm: its report and identify.json are written, its θ marked failed)."""
-    prepare_out_dir(args.out, args.overwrite, inputs=(args.from_recording, args.validate))
+    args.out = str(
+        prepare_out_dir(
+            args.out,
+            args.overwrite,
+            (args.from_recording, args.validate),
+            default="identify",
+            command="identify",
+        )
+    )
     report, text = run_identify(args)
     print_document(args, report, text)
     validation = report.get("validation")

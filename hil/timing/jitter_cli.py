@@ -65,7 +65,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=DEFAULT_DURATION_S,
         help=f"seconds of loop (default {DEFAULT_DURATION_S:g})",
     )
-    add_out_options(p, "run directory (default runs/jitter-BENCH-RATEhz)")
+    add_out_options(p, "run directory (default: a new runs/jitter-BENCH-RATEhz/<date>T<time>)")
     p.add_argument(
         "--experiment",
         default=None,
@@ -109,8 +109,7 @@ def main(args: argparse.Namespace) -> int:
     if getattr(args, "sweep", None):
         return int(importlib.import_module(SWEEP_MODULE).run_sweep(args))
     rate = args.rate
-    out = args.out or _default_out(args.bench, rate)
-    prepare_out_dir(out, args.overwrite)
+    out = prepare_out_dir(args.out, args.overwrite, default=_default_group(args.bench, rate))
     overrides: dict[str, Any] = {}
     if args.pace_bus:
         overrides["pace_bus"] = True
@@ -137,9 +136,10 @@ def main(args: argparse.Namespace) -> int:
     )
 
 
-def _default_out(bench: str, rate: float | None) -> str:
+def _default_group(bench: str, rate: float | None) -> str:
+    """The runs/ group of a run without --out: jitter-BENCH[-RATEhz]."""
     name = Path(bench).stem
-    return f"runs/jitter-{name}" + (f"-{rate:g}hz" if rate else "")
+    return f"jitter-{name}" + (f"-{rate:g}hz" if rate else "")
 
 
 # ---- the machine ----------------------------------------------------------------------------

@@ -19,7 +19,7 @@ from hil.timing.replay import COMPUTE_S, format_replay, replay_run
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("run_dir", help="a realtime run directory (hil run / hil control)")
     add_bench_option(p, default=None, help="virtual bench to replay on (default: the recorded one)")
-    add_out_options(p, "output directory (default: RUN_DIR-replay)")
+    add_out_options(p, "output directory (default: a new runs/replay/<date>T<time>)")
     p.add_argument(
         "--trace-source",
         choices=("auto", "robot", "host"),
@@ -42,8 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     if args.compute is not None and not args.compute >= 0:
         raise ValueError(f"--compute must be >= 0 s, got {args.compute}")
-    out = args.out or f"{str(args.run_dir).rstrip('/')}-replay"
-    prepare_out_dir(out, args.overwrite, inputs=(args.run_dir,))
+    out = prepare_out_dir(args.out, args.overwrite, (args.run_dir,), default="replay")
     say("replay", f"{args.run_dir} in lockstep with its timing -> {out}")
     doc = replay_run(
         args.run_dir,

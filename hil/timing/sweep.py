@@ -615,6 +615,9 @@ def format_sweep(doc: dict[str, Any]) -> str:
 def run_sweep(args: argparse.Namespace) -> int:
     """`hil jitter --sweep`: exit status 0 when every point completed. An executor that cannot
     run here (:class:`hil.bench.jobs.ExecutorUnavailableError`) is a usage error (exit status 2)."""
+    if getattr(args, "out", None) is None:  # a new runs/sweep-VARIABLE/<stamp> for this sweep
+        variable = parse_sweep(args.sweep)[0]
+        args.out = str(prepare_out_dir(None, False, default=f"sweep-{variable}", command="jitter"))
     doc = sweep(args, executor_from_args(args), progress=True)
     print_document(args, doc, lambda: format_sweep(doc))
     return EXIT_OK if doc["status"] == "complete" else EXIT_FAILED
