@@ -297,7 +297,7 @@ def split_list(text: str) -> list[str]:
 def simulate_offline(
     robot: str, experiment: str, duration_s: float, out_dir: Path, *, plot: bool = True
 ) -> dict[str, Any]:
-    """``virtual-robot simulate`` as its own process (DESIGN.md: the host never imports the
+    """``virtual-robot simulate`` as its own process (docs/design.md: the host never imports the
     plant): the experiment's open-loop response in lockstep, recorded in ``out_dir``; its JSON
     summary. A failed simulation raises RuntimeError with the simulator's last line."""
     cmd = [sys.executable, "-m", "virtual_robot.cli", "simulate", "--robot", robot,
