@@ -22,7 +22,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from realdata import realdata  # tests/realdata.py  # noqa: E402
+from realdata import realdata  # tests/realdata.py
 
 RECORDS = realdata("dfki-double-pendulum") / "records"
 

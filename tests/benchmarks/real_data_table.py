@@ -34,7 +34,7 @@ from hil.model.openloop import simulate_windows
 from profiles.robot import load_robot
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from realdata import realdata  # tests/realdata.py  # noqa: E402
+from realdata import realdata  # tests/realdata.py
 
 RECORDS = realdata("dfki-double-pendulum") / "records"
 DESIGNS = {
