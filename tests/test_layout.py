@@ -1,6 +1,6 @@
 """The package layering (issue 15), checked statically: every import statement in the tree,
 including those inside functions, walked with ``ast``. The table below is what each package's
-docstring and README.md's Layout section say it may import."""
+docstring and docs/layout.md say it may import."""
 
 from __future__ import annotations
 
@@ -97,7 +97,7 @@ def unit(module: str) -> str:
     if (ROOT / "hil" / parts[1]).is_dir():
         raise AssertionError(
             f"hil/{parts[1]}/ is a package the layering does not know: add it to MAY_IMPORT "
-            "here, to its docstring and to README.md's Layout section"
+            "here, to its docstring and to docs/layout.md"
         )
     return SHARED
 
