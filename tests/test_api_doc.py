@@ -24,6 +24,7 @@ HIL_PACKAGES = (
     "hil.control",
     "hil.bench",
     "hil.timing",
+    "hil.report",
 )
 PACKAGES = (*HIL_PACKAGES, "profiles")
 HEAVY = ("numpy", "scipy", "pinocchio", "matplotlib")

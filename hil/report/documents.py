@@ -17,6 +17,8 @@ from typing import Any
 from drivers.recording import Recording, RecordingError, read_signals
 from hil.report.page import Page
 
+__all__ = ["COMMANDS", "build_report", "write_report"]
+
 COMMANDS = ("identify", "diagnose", "compare")
 
 

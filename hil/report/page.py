@@ -14,6 +14,8 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+__all__ = ["MAX_POINTS", "Page", "decimate"]
+
 # At most this many points a series is drawn with: a long recording is cut into buckets and
 # each keeps its minimum and maximum, so peaks survive (the page stays small).
 MAX_POINTS = 2000
