@@ -8,6 +8,7 @@ import json
 import re
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -77,6 +78,25 @@ def test_identify_report_on_the_dfki_recording(tmp_path):
     for p in doc["identification"]["parameters"]:
         assert f">{p['parameter']}<" in dom
     assert "Validation (NRMSE per joint)" in dom and "As printed" in dom
+
+
+def test_identify_report_of_a_urdf_arm(tmp_path):
+    """The n-joint identification document (base parameters, the held-out verdict) too."""
+    sim = tmp_path / "c3"
+    done = subprocess.run(
+        [sys.executable, "-m", "virtual_robot.cli", "simulate", "--robot", "cicese3",
+         "--experiment", "cicese3-excitation", "--duration", "4", "--out", str(sim), "--no-plot"],
+        capture_output=True, text=True, timeout=300, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    report = tmp_path / "c3.html"
+    done = hil(
+        "identify", "--from", str(sim), "--robot", "cicese3", "--out", str(tmp_path / "id"),
+        "--no-plot", "--report", str(report),
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    dom = check_renders(report, tmp_path, plots=2)
+    assert "Base parameters" in dom and "Held-out validation" in dom and ">beta18<" in dom
 
 
 def test_control_compare_report(tmp_path):

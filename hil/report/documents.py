@@ -123,8 +123,13 @@ def _identify(page: Page, doc: dict[str, Any]) -> None:
                 for k, p in enumerate(ident["parameters"])
             ],
         )  # fmt: skip
+    params = doc.get("parameters")
+    if isinstance(params, list) and params and isinstance(params[0], dict) and "name" in params[0]:
+        _urdf_parameters(page, doc, params)
     validation = doc.get("validation")
-    if isinstance(validation, dict):
+    if isinstance(validation, dict) and "torque_nrmse_identified" in validation:
+        _held_out_verdict(page, validation)
+    elif isinstance(validation, dict):
         rows = [
             [f"{who}, {where}", " / ".join(_pct(x) for x in v["torque_nrmse"]),
              " / ".join(_pct(x) for x in (v.get("simulation") or {}).get("position_nrmse", []))
@@ -135,6 +140,42 @@ def _identify(page: Page, doc: dict[str, Any]) -> None:
         if rows:
             page.heading("Validation (NRMSE per joint)")
             page.table(["θ, recording", "torque", "simulated position (windows)"], rows)
+
+
+def _urdf_parameters(page: Page, doc: dict[str, Any], params: list[dict[str, Any]]) -> None:
+    """A URDF arm's base parameters: each scheme's estimate, the reported one and its SE ("n/i"
+    where the data do not determine it)."""
+    schemes = list(params[0].get("schemes", {}))
+    page.heading(f"Base parameters ({doc.get('params_scheme', '')} reported)")
+    page.table(
+        ["parameter", "meaning", "unit", "reported", "SE (blocked bootstrap)", "nominal",
+         *schemes],
+        [
+            [p["name"], p.get("meaning"), p.get("unit"),
+             "n/i" if p.get("identified") is None else p["identified"],
+             p.get("se_blocked_bootstrap"), p.get("nominal"),
+             *(p.get("schemes", {}).get(sc) for sc in schemes)]
+            for p in params
+        ],
+    )  # fmt: skip
+
+
+def _held_out_verdict(page: Page, v: dict[str, Any]) -> None:
+    """The held-out check that decides what a URDF arm's identification reports."""
+    page.heading("Held-out validation")
+    verdict = "passed" if v.get("passed") else f"failed ({v.get('reason')})"
+    page.paragraph(
+        f"On {v.get('on')}: the reported scheme {verdict}; schemes shown better than each "
+        f"joint's mean: {', '.join(v.get('schemes_passed') or []) or 'none'}."
+    )
+    page.table(
+        ["θ", "torque NRMSE per joint"],
+        [
+            [who, " / ".join(_pct(x) for x in v[f"torque_nrmse_{who}"])]
+            for who in ("identified", "nominal")
+            if v.get(f"torque_nrmse_{who}")
+        ],
+    )
 
 
 # ---- hil diagnose ---------------------------------------------------------------------------

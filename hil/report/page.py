@@ -11,6 +11,7 @@ from __future__ import annotations
 import html
 import json
 import math
+import re
 from collections.abc import Sequence
 from typing import Any
 
@@ -19,6 +20,8 @@ __all__ = ["MAX_POINTS", "Page", "decimate"]
 # At most this many points a series is drawn with: a long recording is cut into buckets and
 # each keeps its minimum and maximum, so peaks survive (the page stays small).
 MAX_POINTS = 2000
+# A table cell that reads as a number (or numbers: "0.26 % / 0.57 %", "n/i") is right-aligned.
+NUMBER = re.compile(r"^(n/i|–|[-+]?[\d.]+)")
 
 STYLE = """
 body{font:15px/1.45 system-ui,sans-serif;margin:0 auto;max-width:1100px;padding:1em 2em;
@@ -177,13 +180,14 @@ class Page:
     def table(self, headers: Sequence[str], rows: Sequence[Sequence[Any]]) -> None:
         """A table; the first column left-aligned (a name), the others right (numbers)."""
 
-        def cls(k: int) -> str:
-            return ' class="t"' if k == 0 else ""
+        def cls(k: int, value: Any = None) -> str:
+            words = isinstance(value, str) and not NUMBER.match(value)
+            return ' class="t"' if k == 0 or words else ""
 
         head = "".join(f"<th{cls(k)}>{html.escape(str(h))}</th>" for k, h in enumerate(headers))
         body = "".join(
             "<tr>"
-            + "".join(f"<td{cls(k)}>{html.escape(_cell(v))}</td>" for k, v in enumerate(row))
+            + "".join(f"<td{cls(k, v)}>{html.escape(_cell(v))}</td>" for k, v in enumerate(row))
             + "</tr>"
             for row in rows
         )
