@@ -244,11 +244,19 @@ def print_document(
         print(text() if callable(text) else text)
 
 
+def _report_file(text: str) -> str:
+    """``--report``'s value: a file to (over)write, refused at once if it is a directory."""
+    if Path(text).is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a directory; give the HTML file's name")
+    return text
+
+
 def add_html_report_option(p: argparse.ArgumentParser) -> None:
     """``--report FILE``: one self-contained HTML report of the command's document."""
     p.add_argument(
         "--report",
         metavar="FILE",
+        type=_report_file,
         help="also write one self-contained HTML report (tables, results in words, interactive "
         "plots; opens offline in any browser; docs/reports.md)",
     )

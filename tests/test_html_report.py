@@ -118,6 +118,13 @@ def test_control_report_is_for_compare_only(tmp_path):
     assert not (tmp_path / "r.html").exists()
 
 
+def test_a_directory_as_report_is_refused_before_the_work(tmp_path):
+    done = hil("diagnose", str(DFKI), "--format", "dfki", "--report", str(tmp_path))
+    assert done.returncode == 2
+    assert "is a directory; give the HTML file's name" in done.stderr
+    assert "diagnose:" not in done.stderr.replace("hil diagnose:", "")  # nothing ran
+
+
 def test_the_page_is_self_contained_and_escapes_its_data():
     page = Page("a </script> title")
     page.paragraph("<b>not bold</b>")
