@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: demo test test-slow test-vcan bench bench-big lint format clean eds
+.PHONY: demo test test-slow test-vcan bench bench-big lint format clean eds docs
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -56,9 +56,18 @@ format: $(STAMP)
 	$(BIN)/ruff format hil drivers virtual_robot profiles tests
 	$(BIN)/ruff check --fix hil drivers virtual_robot profiles tests
 
+# the docs site (mkdocs.yml) into site/, strict: a broken link, anchor or missing page fails
+DOCS_STAMP := $(VENV)/.docs-stamp
+$(DOCS_STAMP): $(STAMP) pyproject.toml
+	$(BIN)/python -m pip install --quiet -e '.[docs]'
+	touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
 # EDS and DBC from the object map (drivers/protocol/export.py); tests/test_interop.py checks them
 eds: $(STAMP)
 	$(BIN)/python -m drivers.protocol.export
 
 clean:
-	rm -rf $(VENV) runs build *.egg-info
+	rm -rf $(VENV) runs build site *.egg-info

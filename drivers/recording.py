@@ -1,4 +1,4 @@
-"""The recording format (DESIGN.md): a run directory with signals.csv, meta.json, plots.
+"""The recording format (docs/design.md): a run directory with signals.csv, meta.json, plots.
 
 Row k of signals.csv: t = k·h; q = encoder reading sampled at t; tau = torque commanded at t and
 held over [t, t + h) (zero-order hold), after quantization. Base columns t,q1,q2,tau1,tau2 in

@@ -2,7 +2,7 @@
 
 `hil run` records an experiment over a bench; `hil demo` runs the main job end to end on the
 embedded default (the virtual robot, no hardware, no root). The host never imports the plant's
-physics (DESIGN.md: the plant is the world, the host only knows its model): the virtual robot
+physics (docs/design.md: the plant is the world, the host only knows its model): the virtual robot
 runs as its own process behind a real transport.
 
 The other subcommands live with their capability (``COMMANDS``); the plumbing every command

@@ -11,6 +11,8 @@ reports through these, so an option means and says the same everywhere:
 * :func:`add_out_options` / :func:`prepare_out_dir`: ``--out`` and ``--overwrite``; a command
   refuses to write into a non-empty output directory without it, so two runs never mix their
   files.
+* :func:`add_html_report_option` / :func:`write_html_report`: ``--report FILE``, one
+  self-contained HTML page of the command's document (:mod:`hil.report`, loaded only then).
 * :func:`add_recording_options` / :func:`read_recording`: ``--format``, ``--columns``,
   ``--torque``, ``--loop-delay`` for every command that reads a recording (identify --from and
   --validate, diagnose, replay), turned into :func:`drivers.recording.read_signals` arguments
@@ -25,7 +27,8 @@ reports through these, so an option means and says the same everywhere:
 Bad values raise ``ValueError`` / :class:`~drivers.recording.RecordingError` with a one-line
 message; :func:`run_command` turns them into ``hil <command>: error: ...`` and exit status 2.
 Imports drivers and profiles; :mod:`hil.bench` and :mod:`hil.model` only inside
-:func:`exit_status` (their error classes), so any command module may import this one.
+:func:`exit_status` (their error classes), :mod:`hil.report` only inside
+:func:`write_html_report`, so any command module may import this one.
 """
 
 from __future__ import annotations
@@ -280,6 +283,54 @@ def print_document(
         print(text() if callable(text) else text)
 
 
+def _report_file(text: str) -> str:
+    """``--report``'s value: a file to (over)write, refused at once if it is a directory."""
+    if Path(text).is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a directory; give the HTML file's name")
+    return text
+
+
+def add_html_report_option(p: argparse.ArgumentParser) -> None:
+    """``--report FILE``: one self-contained HTML report of the command's document."""
+    p.add_argument(
+        "--report",
+        metavar="FILE",
+        type=_report_file,
+        help="also write one self-contained HTML report (tables, results in words, interactive "
+        "plots; opens offline in any browser; docs/reports.md)",
+    )
+
+
+def write_html_report(
+    args: argparse.Namespace,
+    command: str,
+    doc: dict[str, Any],
+    text: str | Callable[[], str],
+    *,
+    recordings: Sequence[Recording] | None = None,
+    paths: Sequence[str | Path | None] = (),
+    name: str | None = None,
+) -> None:
+    """With ``--report FILE``, write :func:`hil.report.write_report` of ``doc`` (``text``: what
+    the command prints) to FILE and say so; the recordings plotted are ``recordings``, or else
+    ``paths`` read again with the command's recording options. :mod:`hil.report` is loaded only
+    here, so a command without ``--report`` never imports it."""
+    if not getattr(args, "report", None):
+        return
+    from hil.report.documents import write_report
+
+    if recordings is None:
+        recordings = [read_signals(p, **recording_kwargs(args)) for p in paths if p is not None]
+    path = write_report(
+        args.report,
+        name or command,
+        doc,
+        text=text() if callable(text) else text,
+        recordings=recordings,
+    )
+    say(command, f"report: {path}")
+
+
 def add_schemes_option(p: argparse.ArgumentParser, schemes: Sequence[str], help: str) -> None:
     """``--schemes``, a comma list (default: all of ``schemes``); :func:`split_list` reads it."""
     p.add_argument("--schemes", default=",".join(schemes), help=help)
@@ -293,7 +344,7 @@ def split_list(text: str) -> list[str]:
 def simulate_offline(
     robot: str, experiment: str, duration_s: float, out_dir: Path, *, plot: bool = True
 ) -> dict[str, Any]:
-    """``virtual-robot simulate`` as its own process (DESIGN.md: the host never imports the
+    """``virtual-robot simulate`` as its own process (docs/design.md: the host never imports the
     plant): the experiment's open-loop response in lockstep, recorded in ``out_dir``; its JSON
     summary. A failed simulation raises RuntimeError with the simulator's last line."""
     cmd = [sys.executable, "-m", "virtual_robot.cli", "simulate", "--robot", robot,

@@ -24,6 +24,7 @@ HIL_PACKAGES = (
     "hil.control",
     "hil.bench",
     "hil.timing",
+    "hil.report",
 )
 PACKAGES = (*HIL_PACKAGES, "profiles")
 HEAVY = ("numpy", "scipy", "pinocchio", "matplotlib")
@@ -41,7 +42,7 @@ def test_api_doc_example_runs_and_identifies(tmp_path, monkeypatch, capsys):
     printed = capsys.readouterr().out
     assert ns["run"]["status"] == "complete"
     assert len(ns["rec"]) == 4000  # 10 s at h = 2.5 ms
-    # README's identification targets for the exact discretization on this excitation:
+    # the identification targets (docs/benchmarks.md), exact discretization, this excitation:
     # θ1,2,3,5 ≤ 2 %, θ4 ≤ 3 %, θ6..θ9 ≤ 10 % (filtered dynamic meets all of them)
     rel = np.abs(ns["theta"] - ns["reference"]) / np.abs(ns["reference"])
     assert np.all(rel[[0, 1, 2, 4]] <= 0.02), rel

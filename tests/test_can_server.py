@@ -80,7 +80,7 @@ class Host:
         self.send(co.NMT_ID, bytes([cs, node]))
 
     def configure(self, node: int) -> None:
-        """DESIGN.md PDO layout, CiA 301 order: invalidate, unmap, map, count, validate."""
+        """docs/design.md PDO layout, CiA 301 order: invalidate, unmap, map, count, validate."""
         for comm, mapping_index, base, entries in (
             (0x1400, 0x1600, co.RPDO1_BASE, co.RPDO1_MAP),
             (0x1800, 0x1A00, co.TPDO1_BASE, co.TPDO1_MAP),

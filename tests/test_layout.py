@@ -1,6 +1,6 @@
 """The package layering (issue 15), checked statically: every import statement in the tree,
 including those inside functions, walked with ``ast``. The table below is what each package's
-docstring and README.md's Layout section say it may import."""
+docstring and docs/layout.md say it may import."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 TOP = ("hil", "drivers", "virtual_robot", "profiles")
-HIL_PACKAGES = ("model", "bench", "identify", "diagnose", "control", "timing")
+HIL_PACKAGES = ("model", "bench", "identify", "diagnose", "control", "timing", "report")
 SHARED = "hil.<shared>"  # top-level hil modules the commands share (hil/cli_options.py):
 # above model and bench, below the capability packages that build commands on it
 ENTRY = ("hil.cli", "hil.entry", "hil.__main__")
@@ -23,7 +23,9 @@ MAY_IMPORT: dict[str, set[str]] = {
     "drivers": {"profiles"},
     "virtual_robot": {"drivers", "profiles"},
     "hil": set(),  # hil/__init__.py: the version and lazy_exports, standard library only
-    SHARED: BASE | {"hil.model", "hil.bench"},  # their error types, for exit statuses
+    # hil.model, hil.bench: their error types, for exit statuses; hil.report: --report
+    SHARED: BASE | {"hil.model", "hil.bench", "hil.report"},
+    "hil.report": BASE,  # HTML reports from the commands' documents (docs/reports.md)
     "hil.model": BASE,
     "hil.bench": BASE,
     "hil.identify": BASE | {SHARED, "hil.model", "hil.bench"},
@@ -95,7 +97,7 @@ def unit(module: str) -> str:
     if (ROOT / "hil" / parts[1]).is_dir():
         raise AssertionError(
             f"hil/{parts[1]}/ is a package the layering does not know: add it to MAY_IMPORT "
-            "here, to its docstring and to README.md's Layout section"
+            "here, to its docstring and to docs/layout.md"
         )
     return SHARED
 
@@ -156,6 +158,21 @@ def test_each_package_imports_only_the_layers_below_it(layer):
         if unit(target) != layer and unit(target) not in MAY_IMPORT[layer]
     ]
     assert not wrong, f"{layer} may import only {sorted(MAY_IMPORT[layer])}:\n" + "\n".join(wrong)
+
+
+def test_the_html_report_is_loaded_only_when_asked():
+    """Plots depend on results, not the reverse: no module outside hil.report imports it at
+    its top (hil.cli_options loads it inside write_html_report, when --report is given)."""
+    top = [
+        f"{MODULES[m].relative_to(ROOT)}:{line}"
+        for m in MODULES
+        if unit(m) != "hil.report"
+        for target, line in module_imports(m, True)
+        if unit(target) == "hil.report"
+    ]
+    assert not top, "hil.report imported at module level:\n" + "\n".join(top)
+    inside = {m for m in MODULES for t, _ in module_imports(m, False) if unit(t) == "hil.report"}
+    assert {unit(m) for m in inside} <= {"hil.report", SHARED}
 
 
 def test_every_module_is_in_a_known_layer():

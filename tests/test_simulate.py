@@ -231,7 +231,7 @@ def test_hil_demo_runs_the_main_job_end_to_end(tmp_path):
 
 @pytest.mark.parametrize("module", ["hil", "drivers"])
 def test_host_side_never_imports_the_plant(module):
-    """DESIGN.md: hil and drivers never import virtual_robot (the plant is the world)."""
+    """docs/design.md: hil and drivers never import virtual_robot (the plant is the world)."""
     root = Path(__file__).resolve().parent.parent / module
     for path in root.rglob("*.py"):
         text = path.read_text()

@@ -10,7 +10,7 @@ the one :class:`~virtual_robot.stepping.Stepper` decides when a command takes ef
 takes it then (``command(..., deliver_at=...)``).
 
 Protocol servers (CAN, serial) decode what arrives and call this core; it never does I/O.
-Time has two modes (DESIGN.md "Time"):
+Time has two modes (docs/design.md "Time"):
 
 * **lockstep**: robot time stands still between SYNCs. The first SYNC samples at t = 0; every
   later SYNC first advances the plant one period with the torques held since the previous one,

@@ -6,7 +6,7 @@ a USB serial adapter. Each received line is decoded by the codec and mapped onto
 objects of :class:`~virtual_robot.robot.VirtualRobot` (``core.write``/``core.read`` with
 ``unit=n``); the command table and reply formats are in the codec's docstring.
 
-Time (DESIGN.md "Time"):
+Time (docs/design.md "Time"):
 
 * lockstep: the server calls ``core.sync()`` once at start-up (sample at t = 0). An ``n_XTQ``
   writes the target torque at the current robot time; when every unit has received its XTQ for

@@ -3,7 +3,7 @@
 No transport and no wall clock: each period k the drives sample the encoders at t = k·h, the
 experiment's torque is quantized by the drive (0x6071 per-mille, clamped to 0x6072) and held over
 [t, t + h) while the plant integrates. The stepping is the served robot's lockstep sequence
-(virtual_robot.stepping.Stepper), without its lock. The recording follows DESIGN.md
+(virtual_robot.stepping.Stepper), without its lock. The recording follows docs/design.md
 (drivers.recording); it and the run's ending are the n-joint arm's too
 (:func:`virtual_robot.offline.run_open_loop`).
 """

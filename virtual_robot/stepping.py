@@ -4,7 +4,7 @@
 integrated and the encoders are sampled. :class:`~virtual_robot.robot.VirtualRobot` (behind every
 transport) and :func:`~virtual_robot.simulate.simulate` (``virtual-robot simulate``) both step
 through it, so a lockstep run over any bench and an offline simulation of the same torques are
-one computation (DESIGN.md "Time").
+one computation (docs/design.md "Time").
 
 **Lockstep** (:meth:`Stepper.sync`, one SYNC or serial step): robot time stands still between
 SYNCs. SYNC 0 samples at t_0 = 0. SYNC n > 0 first gives the plant the torques the drives hold

@@ -44,7 +44,7 @@ cycle):
 The server thread costs another 185-190 µs per cycle either way. The raw path costs the host
 about 35 % less CPU and the cycle about 80 µs less wall time, and it also does more (clamp,
 limits). The cycle uses the raw path; canopen does NMT, SDO and the 402 set-up. Over slcan to
-the virtual robot process see README.md (Numbers).
+the virtual robot process see docs/benchmarks.md.
 
 Time: ``Sample`` times are host seconds since :meth:`open` connected (``Arm.now()``). Lockstep:
 ``t`` = k·h and ``sent_at`` = ``received_at`` = ``deadline`` = ``t`` (the link's clock);

@@ -148,7 +148,7 @@ class NodeSetup:
             )
 
     def _configure(self, j: int) -> None:
-        """PDO map by SDO (DESIGN.md), synchronous; mode 10 (cyclic synchronous torque)."""
+        """PDO map by SDO (docs/design.md), synchronous; mode 10 (cyclic synchronous torque)."""
         n = self.node_ids[j]
         self.nodes[j].nmt.send_command(co.NMT_PRE_OPERATIONAL)
         for comm, mapping_index, base, mapping in PDO_LAYOUT:

@@ -247,7 +247,7 @@ def mapping_entry(index: int, subindex: int) -> int:
     return index << 16 | subindex << 8 | OBJECT_MAP[(index, subindex)].size * 8
 
 
-# The PDO layout the host configures by SDO at start-up (DESIGN.md), synchronous (type 1).
+# The PDO layout the host configures by SDO at start-up (docs/design.md), synchronous (type 1).
 RPDO1_MAP = ((0x6040, 0), (0x6071, 0))  # controlword, target torque: 4 bytes
 TPDO1_MAP = ((0x6041, 0), (0x6064, 0))  # statusword, position actual: 6 bytes
 TPDO2_MAP = ((0x606C, 0), (0x6077, 0))  # velocity actual, torque actual: 6 bytes

@@ -9,7 +9,7 @@ the OS policy (SCHED_FIFO, memory lock) is acquired by the caller before the lin
 (:func:`hil.bench.scheduler.realtime_scheduling`) and reported with the timing statistics
 (:mod:`hil.bench.timing_stats`).
 
-Row k of the recording (DESIGN.md): t = k·h, q = the sample taken at the start of period k,
+Row k of the recording (docs/design.md): t = k·h, q = the sample taken at the start of period k,
 tau = the torque commanded for period k (as the driver quantized it), held until the next row.
 """
 

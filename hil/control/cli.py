@@ -64,6 +64,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     opts.add_out_options(p, "directory (default: a new runs/control-SCHEME|compare/<date>T<time>)")
     opts.add_drive_options(p)
     opts.add_report_options(p)
+    opts.add_html_report_option(p)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -83,6 +84,8 @@ def main(args: argparse.Namespace) -> int:
             raise UsageError("give --scheme pd|ct|fed|rfed, or --compare")
         if len(args.params) > 1:
             raise UsageError("one --params file per run; several need --compare")
+        if args.report:
+            raise UsageError("--report: an HTML report is written for --compare")
         out = opts.prepare_out_dir(args.out, args.overwrite, default=f"control-{args.scheme}")
         opts.say("control", f"{SCHEME_TITLES[args.scheme]} over {args.bench} -> {out}")
         doc = run_control(
@@ -120,6 +123,7 @@ def main(args: argparse.Namespace) -> int:
     plots = [f"plots: {', '.join(doc['plots'])}"] if doc["plots"] else []
     text = [format_table(doc), *plots, f"runs and compare.json: {doc['out_dir']}"]
     opts.print_document(args, doc, "\n".join(text))
+    opts.write_html_report(args, "control", doc, "\n".join(text), recordings=[], name="compare")
     return opts.run_exit("control", doc["status"], f"{doc['status']}: {'; '.join(doc['failures'])}")
 
 

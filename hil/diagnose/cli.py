@@ -17,6 +17,7 @@ from typing import Any
 
 from drivers.recording import write_json_atomic
 from hil.cli_options import (
+    add_html_report_option,
     add_out_options,
     add_recording_options,
     add_report_options,
@@ -25,6 +26,7 @@ from hil.cli_options import (
     read_recording,
     recorded_urdf_robot,
     say,
+    write_html_report,
 )
 from hil.diagnose.report import diagnose, percent
 from hil.model.closed_form import ArmModel
@@ -55,6 +57,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_out_options(p, "write diagnosis.json and plots here")
     add_recording_options(p)
     add_report_options(p, plot="skip the PNG plots", plot_flag="--no-plots")
+    add_html_report_option(p)
 
 
 def _progress(message: str) -> None:
@@ -116,6 +119,7 @@ def main(args: argparse.Namespace) -> int:
             doc["plots"] = [str(p) for p in plot_diagnosis(result, out)]
             write_json_atomic(out / "diagnosis.json", doc)
     print_document(args, doc, lambda: format_report(doc))
+    write_html_report(args, "diagnose", doc, lambda: format_report(doc), recordings=recs)
     return 0
 
 

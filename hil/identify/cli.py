@@ -27,6 +27,7 @@ from hil.cli_options import (
     StageProgress,
     add_bench_option,
     add_drive_options,
+    add_html_report_option,
     add_out_options,
     add_recording_options,
     add_report_options,
@@ -40,6 +41,7 @@ from hil.cli_options import (
     require_complete,
     say,
     split_list,
+    write_html_report,
 )
 from hil.identify.online import STAMP_UNCERTAINTY_MAX, OnlineIdentifier
 from hil.identify.schemes import (
@@ -136,6 +138,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_out_options(p, "output directory (default: a new runs/identify/<date>T<time>)")
     add_recording_options(p)
     add_report_options(p)
+    add_html_report_option(p)
     p.add_argument(
         "--progress-every",
         type=float,
@@ -266,6 +269,13 @@ def main(args: argparse.Namespace) -> int:
     )
     report, text = run_identify(args)
     print_document(args, report, text)
+    write_html_report(
+        args,
+        "identify",
+        report,
+        text,
+        paths=(report.get("recording"), report.get("validation_recording")),
+    )
     validation = report.get("validation")
     if isinstance(validation, dict) and validation.get("passed") is False:
         passed = validation["schemes_passed"]

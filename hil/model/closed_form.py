@@ -1,7 +1,7 @@
 """The host's parametric model of the 2-DOF arm, linear in θ = [θ1..θ9] (Reyes & Kelly 1997).
 
 This is the *model* the host identifies and controls with; the virtual robot's plant is the
-*world* and is separate code on purpose (DESIGN.md). Pure functions over numpy arrays: every
+*world* and is separate code on purpose (docs/design.md). Pure functions over numpy arrays: every
 function takes samples along the first axis, ``q``, ``dq``, ``ddq`` of shape (N, 2) (or (2,)
 for one sample), and returns arrays with the same leading shape.
 

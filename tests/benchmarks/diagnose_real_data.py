@@ -21,7 +21,10 @@ import sys
 import tempfile
 from pathlib import Path
 
-RECORDS = Path("/work/shared/realdata/dfki-double-pendulum/records")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from realdata import realdata  # tests/realdata.py
+
+RECORDS = realdata("dfki-double-pendulum") / "records"
 
 
 def _pct(x: float | None) -> str:

@@ -33,7 +33,10 @@ from hil.model.closed_form import ArmModel
 from hil.model.openloop import simulate_windows
 from profiles.robot import load_robot
 
-RECORDS = Path("/work/shared/realdata/dfki-double-pendulum/records")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from realdata import realdata  # tests/realdata.py
+
+RECORDS = realdata("dfki-double-pendulum") / "records"
 DESIGNS = {
     "A.0": ("dfki-a0", "design_A.0__20220815__sys_id__trajectory_0*.csv"),
     "C.0": ("dfki-c0", "design_C.0__20220914__sys_id__trajectory_0*.csv"),

@@ -139,6 +139,6 @@ if [ ! -f "$WORK/results/status" ]; then
     skip "the guest's tests did not finish within ${TIMEOUT} s under $ACCEL emulation (too slow on this machine; DDBENCH_VCAN_TIMEOUT raises the bound)"
 fi
 status=$(cat "$WORK/results/status")
-say "README.md's vcan block in the guest: exit status $(cat "$WORK/results/readme-status" 2>/dev/null || echo '?')"
+say "docs/usage.md's vcan block in the guest: exit status $(cat "$WORK/results/readme-status" 2>/dev/null || echo '?')"
 say "guest kernel $(cat "$WORK/results/booted"), pytest exit status $status, ${elapsed} s in all"
 exit "$status"
