@@ -1110,7 +1110,8 @@ def model_name(model: Any) -> str:
     if not isinstance(model, ArmModel):
         terms = f", {' and '.join(model.terms)}" if model.terms else ""
         robot = model.name or "URDF"
-        return f"{model.n_params}-base-parameter {robot} ({model.n_joints} joints{terms})"
+        joints = f"{model.n_joints} joint{'s' if model.n_joints != 1 else ''}"
+        return f"{model.n_params}-base-parameter {robot} ({joints}{terms})"
     if not model.terms:
         return "9-parameter"
     return f"{model.n_params}-parameter ({' and '.join(model.terms)})"
