@@ -47,13 +47,14 @@ def _diagnose(paths: list[Path], robot: str, capsys, *extra: str) -> dict:
 
 def test_profiles_of_the_two_arms():
     """The pendulum's base parameters are the owners' CAD body (m·cx = 0.2930 kg m,
-    J = 0.1304 kg m² about the axis) and friction (Fv, Fc·π/2, offset); the KUKA has 7 joints;
-    each URDF ships with its licence beside it."""
+    J = 0.1304 kg m² about the axis, plus the rotor 36 Ir = 0.0022 kg m² merged with it: one
+    joint) and friction (Fv, Fc·π/2, offset); the KUKA has 7 joints; each URDF ships with its
+    licence beside it."""
     pendulum = UrdfArmModel.from_profile("dfki-pendulum")
     assert pendulum.n_joints == 1 and pendulum.n_params == 6
     theta = pendulum.base_theta()
-    assert np.allclose(theta, [0.2930, 0.0, 0.1304, 0.04707, 0.1839 * np.pi / 2, -0.07586],
-                       atol=6e-4), theta  # fmt: skip
+    expected = [0.2930, 0.0, 0.1304 + 0.0021859, 0.04707, 0.1839 * np.pi / 2, -0.07586]
+    assert np.allclose(theta, expected, atol=6e-4), theta
     kuka = UrdfArmModel.from_profile("kuka-lwr4")
     assert kuka.n_joints == 7
     for name in ("dfki-pendulum", "kuka-lwr4"):
