@@ -90,16 +90,24 @@ def _pendulum_records() -> list[Path]:
 @pytest.mark.slow
 def test_every_pendulum_recording_ends_in_reports(tmp_path, capsys):
     """`hil identify` and `hil diagnose` on each of the five controllers' recordings (1-20 ms
-    samples): no traceback, a report each. The gravity-compensation run's torque is its
+    samples): no traceback, a report each; DDP and PD diagnosed together (either held out): no
+    finding. The gravity-compensation run's torque is its
     controller's m·l·g·sin q: its gravity moment is 0.338 kg m, three times the owners'
     identified 0.1022 (docs/real-data.md). About 40 s."""
-    for path in _pendulum_records():
+    records = _pendulum_records()
+    for path in records:
         _, report = _identify(
             ["--from", str(path), "--robot", "dfki-pendulum", "--columns", COLUMNS,
              "--out", str(tmp_path / "id"), "--overwrite"], capsys)  # fmt: skip
         if "gravity_compensation" in path.name:
             assert abs(report["parameters"][0]["estimate"] - 0.338) < 0.01
         _diagnose([path], "dfki-pendulum", capsys, "--columns", COLUMNS)
+    # two runs of the unchanged pendulum, fit on one and held out on the other: no finding
+    pair = [p for p in records if "ddp" in p.name or "_pd_" in p.name]
+    assert len(pair) == 2, records
+    for paths in (pair, pair[::-1]):
+        doc = _diagnose(paths, "dfki-pendulum", capsys, "--columns", COLUMNS)
+        assert doc["findings"] == [], doc["summary"]
 
 
 @pytest.mark.slow
@@ -122,3 +130,24 @@ def test_kuka_runs_identified_against_each_other_and_diagnosed(tmp_path, capsys)
     for paths in ([runs[0]], [runs[1]], runs):
         doc = _diagnose(paths, "kuka-lwr4", capsys)
         assert len(doc["fit"]["before"]["torque_nrmse"]) == 7
+    assert doc["findings"] == [], doc["summary"]  # two runs, nothing changed: no finding
+
+
+def test_a_one_joint_recording_in_the_standard_columns(tmp_path, capsys):
+    """t,q1,tau1 is a recording (one joint): `hil identify --robot dfki-pendulum` reads it
+    without a column map and gives the same parameters as the original file through one; a
+    2-DOF command refuses it in one line naming "1 joint (q1)"."""
+    data = np.loadtxt(PENDULUM_FILE, delimiter=",", skiprows=1)
+    bare = tmp_path / "one.csv"
+    np.savetxt(bare, data[:, [0, 1, 3]], delimiter=",", header="t,q1,tau1", comments="",
+               fmt="%.17g")  # fmt: skip
+    common = ["--robot", "dfki-pendulum", "--schemes", "filtered_dynamic"]
+    _, plain = _identify(["--from", str(bare), *common, "--out", str(tmp_path / "a")], capsys)
+    _, mapped = _identify(["--from", str(PENDULUM_FILE), *common, "--columns", COLUMNS,
+                           "--out", str(tmp_path / "b")], capsys)  # fmt: skip
+    assert [p["estimate"] for p in plain["parameters"]] == [
+        p["estimate"] for p in mapped["parameters"]
+    ]
+    assert hil_main(["diagnose", str(bare), "--no-plots"]) == 2
+    err = capsys.readouterr().err
+    assert "one.csv: 1 joint (q1); hil diagnose takes 2" in err and err.count("\n") == 1, err
