@@ -1,7 +1,7 @@
 """The KUKA LWR4+ (FloBaRoID, LGPL-3; issue 27): identified from one run, validated on the other,
 side by side with the owners' identified model on the same held-out rows and filter.
 
-    python tests/benchmarks/kuka_identify.py            # about 1 minute CPU
+    python tests/benchmarks/kuka_identify.py            # about 30 s
 
 Converts measurements_1.npz and measurements_3.npz of ../shared/realdata/kuka-lwr4-flobaroid to
 the standard CSV in a temporary directory (tests/realdata.py: the data never enters the tree),

@@ -2,7 +2,7 @@
 recording, validated on every other one, side by side with the owners' identified model on the
 same held-out rows and filter; the identified J, m·cx, Fv, Fc next to the owners'.
 
-    python tests/benchmarks/pendulum_identify.py        # about 2 minutes
+    python tests/benchmarks/pendulum_identify.py        # about 10 s
 
 For each fit recording A and held-out recording B of ../shared/realdata/dfki-simple-pendulum/
 records: ``hil identify --from A --validate B --robot dfki-pendulum --columns
