@@ -78,6 +78,9 @@ def test_pendulum_file_in_the_tree_is_identified_and_diagnosed(tmp_path, capsys)
     assert "1 joints" not in doc["summary"]
     # the profile's rotor_inertia term is in the model: not offered as a missing candidate
     assert doc["not_tested"]["rotor_inertia"].startswith("the nominal model has an armature")
+    # one joint: a torque gain is not told from the parameters' scale, and the report says so
+    assert doc["not_tested"]["gain"].startswith("one joint moves")
+    assert "Not tested: torque_gain: one joint moves" in doc["summary"]
 
 
 def _pendulum_records() -> list[Path]:
