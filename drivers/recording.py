@@ -227,6 +227,12 @@ class Recording:
             ):
                 self.n_joints += 1
 
+    @property
+    def joints_text(self) -> str:
+        """The joints in words for messages: "1 joint (q1)", "7 joints (q1..q7)"."""
+        n = self.n_joints
+        return "1 joint (q1)" if n == 1 else f"{n} joints (q1..q{n})"
+
     @classmethod
     def from_arrays(
         cls,
@@ -696,11 +702,15 @@ def _plan(
         while {f"q{n + 1}", f"tau{n + 1}"} <= have | set(overrides):
             n += 1
         if not overrides:
-            missing = [c for c in BASE_COLUMNS if c not in have]
+            # one q and one tau per joint, at least one joint (a pendulum has one); a q or tau
+            # beyond the last pair is a joint with half its columns, not to be dropped quietly
+            unpaired = {f"q{n + 1}": f"tau{n + 1}", f"tau{n + 1}": f"q{n + 1}"}
+            missing = [c for c in base_columns(max(n, 1)) if c not in have]
+            missing += [o for c, o in unpaired.items() if c in have and o not in missing]
             if missing:
                 raise RecordingError(
                     f"{csv_path}: missing column(s) {', '.join(missing)} "
-                    f"(need {','.join(BASE_COLUMNS)})"
+                    f"(need t,q1..qN,tau1..tauN: a q and a tau per joint)"
                 )
         for name in ("t", *(f"{p}{j + 1}" for p in ("q", "tau") for j in range(n))):
             sources[name] = name

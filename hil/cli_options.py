@@ -494,7 +494,7 @@ def read_recording(
         say(command, f"note: {rec.path}: {note}")
     if joints is not None and rec.n_joints != joints:
         raise RecordingError(
-            f"{rec.path}: {rec.n_joints} joints (q1..q{rec.n_joints}); hil {command} takes "
+            f"{rec.path}: {rec.joints_text}; hil {command} takes "
             f"{joints} here (an n-joint arm described by a URDF: docs/urdf.md)"
         )
     if not allow_gaps and len(rec.segments()) > 1:

@@ -17,3 +17,24 @@ def realdata(name: str) -> Path:
         if (parent / "shared" / "realdata" / name).is_dir():
             return parent / "shared" / "realdata" / name
     return repo.parent / "shared" / "realdata" / name
+
+
+KUKA = "kuka-lwr4-flobaroid"
+
+
+def kuka_csv(run: int, folder: str | Path) -> Path:
+    """``measurements_<run>.npz`` of the KUKA LWR4+ (LGPL-3, read from ../shared only) written as
+    this project's standard CSV (t from 0, q1..q7, tau1..tau7) in ``folder``, a temporary
+    directory: the data never enters the tree. The owners' velocities and accelerations are left
+    out (hil derives its own)."""
+    import numpy as np
+
+    data = np.load(realdata(KUKA) / f"measurements_{run}.npz")
+    t = data["times"] - data["times"][0]
+    q, tau = data["positions"], data["torques"]
+    n = q.shape[1]
+    header = ",".join(["t", *(f"q{j + 1}" for j in range(n)), *(f"tau{j + 1}" for j in range(n))])
+    path = Path(folder) / f"kuka_measurements_{run}.csv"
+    np.savetxt(path, np.column_stack([t, q, tau]), delimiter=",", header=header, comments="",
+               fmt="%.10g")  # fmt: skip
+    return path

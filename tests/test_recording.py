@@ -236,13 +236,19 @@ def test_malformed_middle_row_names_file_and_line(tmp_path, bad):
 
 
 def test_missing_base_columns_are_listed(tmp_path):
+    """t and a q and a tau per joint: a joint with half its columns is named, not dropped; one
+    joint is a recording (a pendulum's)."""
     csv_path = tmp_path / "short.csv"
-    csv_path.write_text("t,q1,tau1,x\n0.0,0.1,0.2,0.3\n")
-    with pytest.raises(RecordingError) as exc:
-        read_signals(csv_path)
-    msg = str(exc.value)
-    assert str(csv_path) in msg and "q2" in msg and "tau2" in msg
-    assert "missing column" in msg and "\n" not in msg
+    for header, absent in (("t,q1,x", "tau1"), ("t,q1,q2,tau1", "tau2"), ("q1,tau1", "t")):
+        csv_path.write_text(header + "\n" + ",".join(["0.1"] * (header.count(",") + 1)) + "\n")
+        with pytest.raises(RecordingError) as exc:
+            read_signals(csv_path)
+        msg = str(exc.value)
+        assert str(csv_path) in msg and f"missing column(s) {absent} " in msg, msg
+        assert "\n" not in msg
+    csv_path.write_text("t,q1,tau1,x\n0.0,0.1,0.2,0.3\n0.01,0.2,0.2,0.3\n")
+    rec = read_signals(csv_path)
+    assert rec.n_joints == 1 and rec.q.shape == (2, 1)
 
 
 @pytest.mark.parametrize(

@@ -1110,7 +1110,8 @@ def model_name(model: Any) -> str:
     if not isinstance(model, ArmModel):
         terms = f", {' and '.join(model.terms)}" if model.terms else ""
         robot = model.name or "URDF"
-        return f"{model.n_params}-base-parameter {robot} ({model.n_joints} joints{terms})"
+        joints = f"{model.n_joints} joint{'s' if model.n_joints != 1 else ''}"
+        return f"{model.n_params}-base-parameter {robot} ({joints}{terms})"
     if not model.terms:
         return "9-parameter"
     return f"{model.n_params}-parameter ({' and '.join(model.terms)})"
@@ -1694,9 +1695,9 @@ def diagnose(
             "I cannot tell what the model leaves out: the nominal "
             f"{model_name(model)} fit of these "
             "recordings is not physical (" + "; ".join(nominal_unphysical) + "), so no finding "
-            f"could stand on it. Record more varied motion of {'both' if n_joints == 2 else 'all'} "
-            "joints, or check the torque "
-            "and angle columns."
+            "could stand on it. Record more varied motion of "
+            f"{ {1: 'the joint', 2: 'both joints'}.get(n_joints, 'all joints') }, or check the "
+            "torque and angle columns."
         ]
     else:
         cannot = []
@@ -1740,6 +1741,11 @@ def diagnose(
         rigid_reference=pinned_rigid_body(prob, findings, reference_theta),
     )
     refused = refused_candidates(model)
+    if len(live) == 1:  # the library leaves the gain out (above): say so
+        refused["gain"] = (
+            "one joint moves, and a torque gain error on it scales every parameter alike "
+            "(only the ratio of two joints' gains shows; docs/diagnosis.md)"
+        )
     notes = (
         cannot
         + dead_notes

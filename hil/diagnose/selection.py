@@ -171,13 +171,19 @@ def refused_candidates(model: Any) -> dict[str, str]:
     """Candidates of the vocabulary not tested against ``model``, with the reason: none for
     the closed-form 2-DOF model; for an n-joint model from a URDF
     (:class:`hil.model.urdf.UrdfArmModel`) the 2-DOF model terms, and the torque offset when
-    the model already has one per joint (its ``friction_offset`` term)."""
+    the model already has one per joint (its ``friction_offset`` term); the armature is said
+    to be the model's own when its ``rotor_inertia`` term is on."""
     if isinstance(model, ArmModel):
         return {}
+    armature = (
+        "the nominal model has an armature per joint (its rotor_inertia term), fitted"
+        if "rotor_inertia" in model.terms
+        else "a 2-DOF closed-form term (θ_rotor beside θ3); an n-joint arm's armature is the "
+        "URDF model's own rotor_inertia term: identify with it in the profile's [model] terms "
+        "and compare"
+    )
     out = {
-        "rotor_inertia": "a 2-DOF closed-form term (θ_rotor beside θ3); an n-joint arm's "
-        "armature is the URDF model's own rotor_inertia term: identify with it in the "
-        "profile's [model] terms and compare",
+        "rotor_inertia": armature,
         "com_offset": "a 2-DOF closed-form term; a URDF model's bodies carry their centres of "
         "mass in every direction already (10 parameters per body)",
     }

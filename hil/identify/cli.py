@@ -870,8 +870,7 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     for rec in (fit, val):
         if rec is not None and rec.n_joints != model.n_joints:
             raise ValueError(
-                f"{rec.path}: {rec.n_joints} joints (q1..q{rec.n_joints}), robot {args.robot} "
-                f"has {model.n_joints}"
+                f"{rec.path}: {rec.joints_text}, robot {args.robot} has {model.n_joints}"
             )
     say(
         "identify",
