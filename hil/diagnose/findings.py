@@ -220,6 +220,42 @@ def classify_rate(
     return out, (lag_rows if lag_ok else delay_rows)
 
 
+# A lag or delay shorter than this fraction of the sample interval is below what the samples
+# resolve: a torque held over an interval cannot tell when inside it it acted (issue 26 saw a
+# 50 µs "lag" on 1.5 ms samples). Such a term is not a finding (Nyquist: nothing in the
+# recording changes faster than two intervals, so timing finer than half of one is a fit to
+# the model's own discretisation error, not to the arm).
+RESOLVABLE_INTERVALS = 0.5
+
+
+def unresolved_rate_terms(prob: Problem, findings: Sequence[Finding]) -> dict[str, str]:
+    """The rate terms (Candidate keys ``rate:j``) whose every lag and delay finding is shorter
+    than :data:`RESOLVABLE_INTERVALS` of the sample interval (the shortest recording's median),
+    each with its reason. A delay found on all joints (joint None) counts for each joint tested
+    with its own per-joint value."""
+    h = min(float(r.h) for r in prob.rows)
+    floor = RESOLVABLE_INTERVALS * h
+    times: dict[int, list[float]] = {}
+    for f in findings:
+        if f.effect == "actuator_lag":
+            times.setdefault(f.joint, []).append(float(f.estimate["time_constant_s"]))
+        elif f.effect == "transport_delay" and f.joint is not None:
+            times.setdefault(f.joint, []).append(float(f.estimate["delay_s"]))
+        elif f.effect == "transport_delay":
+            per = f.estimate.get("per_joint_s") or []
+            tested = f.evidence.get("joints_tested") or list(range(1, len(per) + 1))
+            for j, d in zip(tested, per, strict=False):
+                times.setdefault(j, []).append(float(d))
+    return {
+        f"rate:{j}": (
+            f"a lag or delay of {1e3 * max(ts):.3g} ms is under {RESOLVABLE_INTERVALS:g} of the "
+            f"{1e3 * h:.3g} ms sample interval: the samples cannot resolve it"
+        )
+        for j, ts in times.items()
+        if ts and max(ts) < floor
+    }
+
+
 def resolve_gain(
     prob: Problem, accepted: Sequence[Accepted], fit: FinalFit, reference_theta: np.ndarray
 ) -> tuple[dict[int, float], dict[str, Any]]:

@@ -23,16 +23,21 @@ recorded motion). Torques at row i are evaluated at the state of the row the rea
 with (row i + the source's loop delay); the state is the smoothed motion of
 :func:`hil.identify.urdf.smoothed_positions` at :func:`hil.identify.urdf.smoothing_cutoff_hz`.
 
-| effect | written | truth magnitude | size drawn (why) |
-|---|---|---|---|
-| torque_gain | τ_j / g, g = 1 + ε | relative ε | ±5–20 % (magnet temperature ~5 %, a scale error) |
-| torque_offset | τ_j − c | offset_Nm c | ±3–10 % of the joint's RMS torque |
-| transport_delay | τ[i] ← τ[i + k] (last k rows dropped) | delay_s, rows | 2–8 ms (a few bus periods), ≥ 1 row |
-| coulomb_asymmetry | τ_j + a·sgn(q̇_j) on one direction | change of each level | 3–10 % of RMS torque |
-| angle_offset | q_j + δ | offset_rad δ | ±0.02–0.06 rad (1.1–3.4°, an encoder re-zeroed) |
-| cogging | τ_j − A sin(N q_j + φ) | amplitude_Nm, periods_per_rev, phase | A 3–8 % of RMS torque |
-| velocity_squared_drag | τ_j + c q̇_j abs(q̇_j) | coefficient_Nms2 | c q̇² RMS 5–15 % of RMS torque |
-| payload | τ + RNEA(point mass) at (q, q̇, q̈) | mass_kg, com_m in the last body | 20–60 % of the last body's mass |
+Effect: what is written (truth magnitude; size drawn, and why):
+  * torque_gain: τ_j / g, g = 1 + ε (relative ε; ±5–20 %: magnet temperature gives ~5 %, a
+    wrong current or gear scale more);
+  * torque_offset: τ_j − c (offset_Nm c; ±3–10 % of the joint's RMS torque);
+  * transport_delay: τ[i] ← τ[i + k], the last k rows dropped (delay_s, rows; 2–8 ms, a few
+    bus periods, at least one row);
+  * coulomb_asymmetry: τ_j + a sgn(q̇_j) in one direction only (the change of each level;
+    a 3–10 % of the RMS torque; sgn 0 under DEAD_BAND_RAD_S);
+  * angle_offset: q_j + δ (offset_rad δ; ±0.02–0.06 rad, 1.1–3.4°, an encoder re-zeroed);
+  * cogging: τ_j − A sin(N q_j + φ) (amplitude_Nm, periods_per_rev, phase_rad; A 3–8 % of the
+    RMS torque);
+  * velocity_squared_drag: τ_j + c q̇_j |q̇_j| (coefficient_Nms2; the drag's RMS 5–15 % of the
+    RMS torque), outside the diagnosis's vocabulary;
+  * payload: τ + RNEA of a point mass at (q, q̇, q̈) (mass_kg, com_m in the last joint's frame;
+    20–60 % of the last body's mass, at 0.8–1.2 times its centre of mass).
 
 Cogging's N is an integer with at least two periods over the swept range (the diagnosis's own
 rule, hil.diagnose.selection.cogging_periods) and a spatial frequency at the joint's RMS speed
@@ -157,29 +162,31 @@ class Source:
 
 def _dfki_urdf_xml(robot: str) -> str:
     """The owners' URDF with the ``world`` link their ``base_weld`` joint names (missing from the
-    file, which urdfdom refuses)."""
-    text = (realdata(DFKI) / "params" / DFKI_URDF[robot]).read_text(encoding="utf-8")
+    file, which urdfdom refuses); "" when ../shared/realdata is absent (no payload then)."""
+    path = realdata(DFKI) / "params" / DFKI_URDF[robot]
+    if not path.is_file():
+        return ""
+    text = path.read_text(encoding="utf-8")
     return re.sub(r"(<robot[^>]*>)", r'\1\n  <link name="world" />', text, count=1)
 
 
+def dfki_source(path: Path, robot: str) -> Source:
+    """One DFKI recording in its own layout (the dfki format's layout that fits its header)."""
+    header = path.read_text(encoding="utf-8").split("\n", 1)[0].strip().split(",")
+    layout = load_format("dfki").layout_for(header)
+    if layout is None:
+        raise ValueError(f"{path}: no layout of the dfki format fits its header")
+    torque = layout.torques[layout.default_torque]
+    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    return Source(path.stem, robot, path, "BSD-3-Clause", header, data, layout.time,
+                  layout.positions, torque.columns, torque.loop_delay, _dfki_urdf_xml(robot),
+                  load_any_robot(robot).gravity_m_s2, "dfki")  # fmt: skip
+
+
 def dfki_sources(robot: str) -> list[Source]:
-    """The system-identification recordings of a DFKI design, in their own layout."""
+    """The system-identification recordings of a DFKI design."""
     records = realdata(DFKI) / "records"
-    fmt = load_format("dfki")
-    xml = _dfki_urdf_xml(robot)
-    gravity = load_any_robot(robot).gravity_m_s2
-    out = []
-    for path in sorted(records.glob(DFKI_GLOB[robot])):
-        header = path.read_text(encoding="utf-8").split("\n", 1)[0].strip().split(",")
-        layout = fmt.layout_for(header)
-        if layout is None:
-            raise ValueError(f"{path}: no layout of the dfki format fits its header")
-        torque = layout.torques[layout.default_torque]
-        data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-        out.append(Source(path.stem, robot, path, "BSD-3-Clause", header, data, layout.time,
-                          layout.positions, torque.columns, torque.loop_delay, xml, gravity,
-                          "dfki"))  # fmt: skip
-    return out
+    return [dfki_source(p, robot) for p in sorted(records.glob(DFKI_GLOB[robot]))]
 
 
 def panda_sources() -> list[Source]:
@@ -243,14 +250,14 @@ def _rms(x: np.ndarray) -> float:
 def pinocchio_model(src: Source) -> Any:
     import pinocchio as pin
 
+    if not src.urdf_xml:
+        raise ValueError(f"{src.name}: no URDF of {src.robot} found (../shared/realdata)")
     model = pin.buildModelFromXML(src.urdf_xml)
     model.gravity.linear = np.array([0.0, 0.0, -src.gravity_m_s2])
     return model
 
 
-def payload_torque(
-    src: Source, motion: Motion, mass_kg: float, com_m: np.ndarray
-) -> np.ndarray:
+def payload_torque(src: Source, motion: Motion, mass_kg: float, com_m: np.ndarray) -> np.ndarray:
     """Torque of a point mass at ``com_m`` (the last joint's frame) at the motion, by Pinocchio's
     RNEA: RNEA(arm + mass) − RNEA(arm), which is RNEA of the mass alone (RNEA is linear in the
     bodies' inertias)."""
@@ -374,9 +381,7 @@ def plan_cases(robots: list[str], rng: np.random.Generator) -> list[dict[str, An
     return cases
 
 
-def write_set(
-    out: Path, robots: list[str], seed: int, only: int | None = None
-) -> dict[str, Any]:
+def write_set(out: Path, robots: list[str], seed: int, only: int | None = None) -> dict[str, Any]:
     """Write the set to ``out`` (replaced if it holds an earlier set's truth.json) and return
     its truth document."""
     if any(r not in SOURCES for r in robots):

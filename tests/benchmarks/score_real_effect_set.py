@@ -133,9 +133,10 @@ def main(argv: list[str] | None = None) -> int:
     mode = args.nominal
     if mode == "auto":
         mode = "reference" if offers_reference() else "params"
-    with tempfile.TemporaryDirectory(prefix="score_real_") as tmp, ThreadPoolExecutor(
-        args.jobs
-    ) as pool:
+    with (
+        tempfile.TemporaryDirectory(prefix="score_real_") as tmp,
+        ThreadPoolExecutor(args.jobs) as pool,
+    ):
         results = list(pool.map(lambda e: diagnose_case(args.set_dir, e, mode, Path(tmp)), cases))
     rows, totals = [], {}
     print(f"{'':4s} {'case':8s} {'robot':8s} {'effect':22s} {'joint':5s} {'truth':>9s} "
@@ -155,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{'ok ' if s['pass'] else 'BAD'}  {entry['case']:8s} {entry['robot']:8s} "
               f"{entry['effect']:22s} {joint:5s} {_size(entry['truth']):>9s} "
               f"{'' if found is None else f'{found:.4g}':>9s} {s.get('nominal', '-'):9s} "
-              f"{s['extra']} / {s['missed']}{' ' + s['error'] if 'error' in s else ''}")  # fmt: skip
+              f"{s['extra']} / {s['missed']} {s.get('error', '')}")  # fmt: skip
         rows.append({"case": entry["case"], "robot": entry["robot"], "effect": entry["effect"],
                      "recording": entry["recording"], "truth": entry["truth"], **s,
                      "seconds": round(result["seconds"], 1)})  # fmt: skip
