@@ -233,8 +233,6 @@ def unresolved_rate_terms(prob: Problem, findings: Sequence[Finding]) -> dict[st
     than :data:`RESOLVABLE_INTERVALS` of the sample interval (the shortest recording's median),
     each with its reason. A delay found on all joints (joint None) counts for each joint tested
     with its own per-joint value."""
-    h = min(float(r.h) for r in prob.rows)
-    floor = RESOLVABLE_INTERVALS * h
     times: dict[int, list[float]] = {}
     for f in findings:
         if f.effect == "actuator_lag":
@@ -246,6 +244,10 @@ def unresolved_rate_terms(prob: Problem, findings: Sequence[Finding]) -> dict[st
             tested = f.evidence.get("joints_tested") or list(range(1, len(per) + 1))
             for j, d in zip(tested, per, strict=False):
                 times.setdefault(j, []).append(float(d))
+    if not times:
+        return {}
+    h = min(float(r.h) for r in prob.rows)
+    floor = RESOLVABLE_INTERVALS * h
     return {
         f"rate:{j}": (
             f"a lag or delay of {1e3 * max(ts):.3g} ms is under {RESOLVABLE_INTERVALS:g} of the "
