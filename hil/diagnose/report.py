@@ -331,7 +331,7 @@ def _interpret_resolved(
         kept = [a for a in accepted if a.cand.key not in unresolved]
         if len(kept) == len(accepted):  # not from a rate term of its own: nothing to drop
             return accepted, findings, confounded, shaft
-        rejected.update(unresolved)
+        rejected.update({a.cand.key: unresolved[a.cand.key] for a in accepted if a not in kept})
         accepted = kept
 
 
