@@ -1,5 +1,6 @@
 """Never a finding below what the data can resolve (issue 26, item 4): a lag or delay shorter
-than half the sample interval is not a finding; its rate term is dropped with the reason."""
+than a quarter of the sample interval is not a finding; its rate term is dropped with the
+reason."""
 
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ def _rate(joint: int) -> SimpleNamespace:
     return SimpleNamespace(cand=SimpleNamespace(kind="rate", key=f"rate:{joint}", joint=joint - 1))
 
 
-def test_a_lag_under_half_an_interval_is_unresolved():
+def test_a_lag_under_a_quarter_interval_is_unresolved():
     lag = Finding("actuator_lag", 1, {"time_constant_s": 5e-5}, {})
     slow = Finding("actuator_lag", 2, {"time_constant_s": 0.003}, {})
     out = unresolved_rate_terms(_prob(), [lag, slow])

@@ -221,11 +221,12 @@ def classify_rate(
 
 
 # A lag or delay shorter than this fraction of the sample interval is below what the samples
-# resolve: a torque held over an interval cannot tell when inside it it acted (issue 26 saw a
-# 50 µs "lag" on 1.5 ms samples). Such a term is not a finding (Nyquist: nothing in the
-# recording changes faster than two intervals, so timing finer than half of one is a fit to
-# the model's own discretisation error, not to the arm).
-RESOLVABLE_INTERVALS = 0.5
+# resolve, and not a finding (issue 26 saw a 50 µs "lag", 1/30 of its 1.5 ms samples). Not a
+# half: a command held over an interval is exact in the interval rows, so a delay moves its
+# step inside the interval and a fraction of an interval shows in the momentum change (the
+# blind-like sets' delays of 1.25-5 ms and lags of 1.5-6 ms on 2.5 ms samples are found,
+# docs/diagnosis.md); a quarter keeps those and refuses timing finer than the rows can place.
+RESOLVABLE_INTERVALS = 0.25
 
 
 def unresolved_rate_terms(prob: Problem, findings: Sequence[Finding]) -> dict[str, str]:
