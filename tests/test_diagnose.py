@@ -589,7 +589,8 @@ def test_a_rival_rate_term_is_listed_once_beside_a_found_lag(monkeypatch):
     monkeypatch.setattr(report, "interpret", interpret)
     monkeypatch.setattr(report, "reselect_on_shaft", lambda prob, acc, *_: acc)
     monkeypatch.setattr(report, "shaft_problem", lambda prob, shaft: prob)
-    _, findings, _, _ = report.interpret_with_rate(None, accepted, [], np.zeros(9), {})
+    prob = SimpleNamespace(rows=[SimpleNamespace(h=0.002)])  # the sample interval the lag needs
+    _, findings, _, _ = report.interpret_with_rate(prob, accepted, [], np.zeros(9), {})
     listed = [(f.effect, f.joint) for f in findings]
     assert calls == [["rotor", "rate"], ["rotor"]]
     assert sorted(listed) == [("actuator_lag", 1), ("actuator_lag", 2), ("rotor_inertia", 2)]

@@ -4,7 +4,9 @@ a URDF (``--robot cicese3``, ``panda``), the physics its n-joint model leaves ou
 
 Reads recordings in the standard format (a run directory or a CSV with t,q1,q2,tau1,tau2, or
 t,q1..qN,tau1..tauN for an N-joint robot), from this bench or a real one; prints the findings
-and the before/after fit in words, or one JSON document with ``--json``; writes
+and the before/after fit in words, or one JSON document with ``--json``; where the file's
+format holds both a commanded and a measured torque, the path between them and which torque
+is judged (:mod:`hil.diagnose.torque_path`); writes
 ``diagnosis.json`` and plots to ``--out``.
 """
 
@@ -29,6 +31,8 @@ from hil.cli_options import (
     write_html_report,
 )
 from hil.diagnose.report import diagnose, percent
+from hil.diagnose.torque_path import describe as describe_torque_path
+from hil.diagnose.torque_path import torque_path_of
 from hil.model.closed_form import ArmModel
 from hil.model.params import check_inertia, load_params, robot_params
 from profiles.robot import describes_urdf_only
@@ -109,6 +113,10 @@ def main(args: argparse.Namespace) -> int:
             )
     result = diagnose(recs, reference, nominal_theta=nominal, progress=_progress, model=model)
     doc = result.document
+    if args.columns is None and args.loop_delay is None:  # the format's own torque sources
+        paths = [torque_path_of(rec, args.recording_format) for rec in recs]
+        if any(paths):
+            doc["torque_path"] = [p for p in paths if p]
     if args.out:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
@@ -161,5 +169,7 @@ def format_report(doc: dict) -> str:
             f"(robust scale {j['robust_scale_Nm']:.3g} Nm), "
             f"carried by {carried}"
         )
+    for path in doc.get("torque_path", []):
+        lines += ["", *describe_torque_path(path)]
     lines += ["", doc["summary"]]
     return "\n".join(lines)

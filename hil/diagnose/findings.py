@@ -220,6 +220,45 @@ def classify_rate(
     return out, (lag_rows if lag_ok else delay_rows)
 
 
+# A lag or delay shorter than this fraction of the sample interval is below what the samples
+# resolve, and not a finding (issue 26 saw a 50 µs "lag", 1/30 of its 1.5 ms samples). Not a
+# half: a command held over an interval is exact in the interval rows, so a delay moves its
+# step inside the interval and a fraction of an interval shows in the momentum change (the
+# blind-like sets' delays of 1.25-5 ms and lags of 1.5-6 ms on 2.5 ms samples are found,
+# docs/diagnosis.md); a quarter keeps those and refuses timing finer than the rows can place.
+RESOLVABLE_INTERVALS = 0.25
+
+
+def unresolved_rate_terms(prob: Problem, findings: Sequence[Finding]) -> dict[str, str]:
+    """The rate terms (Candidate keys ``rate:j``) whose every lag and delay finding is shorter
+    than :data:`RESOLVABLE_INTERVALS` of the sample interval (the shortest recording's median),
+    each with its reason. A delay found on all joints (joint None) counts for each joint tested
+    with its own per-joint value."""
+    times: dict[int, list[float]] = {}
+    for f in findings:
+        if f.effect == "actuator_lag":
+            times.setdefault(f.joint, []).append(float(f.estimate["time_constant_s"]))
+        elif f.effect == "transport_delay" and f.joint is not None:
+            times.setdefault(f.joint, []).append(float(f.estimate["delay_s"]))
+        elif f.effect == "transport_delay":
+            per = f.estimate.get("per_joint_s") or []
+            tested = f.evidence.get("joints_tested") or list(range(1, len(per) + 1))
+            for j, d in zip(tested, per, strict=False):
+                times.setdefault(j, []).append(float(d))
+    if not times:
+        return {}
+    h = min(float(r.h) for r in prob.rows)
+    floor = RESOLVABLE_INTERVALS * h
+    return {
+        f"rate:{j}": (
+            f"a lag or delay of {1e3 * max(ts):.3g} ms is under {RESOLVABLE_INTERVALS:g} of the "
+            f"{1e3 * h:.3g} ms sample interval: the samples cannot resolve it"
+        )
+        for j, ts in times.items()
+        if ts and max(ts) < floor
+    }
+
+
 def resolve_gain(
     prob: Problem, accepted: Sequence[Accepted], fit: FinalFit, reference_theta: np.ndarray
 ) -> tuple[dict[int, float], dict[str, Any]]:

@@ -35,6 +35,7 @@ from hil.diagnose.findings import (
     classify_rate,
     coulomb_column,
     resolve_gain,
+    unresolved_rate_terms,
 )
 from hil.diagnose.locate import locate
 from hil.diagnose.selection import (
@@ -313,6 +314,27 @@ def reselect_on_shaft(
     return settle_gain_joint(prob, out, library, reference)
 
 
+def _interpret_resolved(
+    prob: Problem,
+    accepted: list[Accepted],
+    library: Sequence[Candidate],
+    reference: np.ndarray,
+    rejected: dict[str, str],
+) -> tuple[list[Accepted], list[Finding], list[list[str]], np.ndarray | None]:
+    """:func:`interpret` without the rate terms whose lag or delay the samples cannot resolve
+    (:func:`hil.diagnose.findings.unresolved_rate_terms`; the reason goes to ``rejected``)."""
+    while True:
+        findings, confounded, shaft = interpret(prob, accepted, library, reference)
+        unresolved = unresolved_rate_terms(prob, findings)
+        if not unresolved:
+            return accepted, findings, confounded, shaft
+        kept = [a for a in accepted if a.cand.key not in unresolved]
+        if len(kept) == len(accepted):  # not from a rate term of its own: nothing to drop
+            return accepted, findings, confounded, shaft
+        rejected.update({a.cand.key: unresolved[a.cand.key] for a in accepted if a not in kept})
+        accepted = kept
+
+
 def interpret_with_rate(
     prob: Problem,
     accepted: list[Accepted],
@@ -325,13 +347,16 @@ def interpret_with_rate(
     again (:func:`reselect_on_shaft`) and every other term's size fitted against the exact shaft
     torque, not beside the first-order rate terms, whose approximation error the other terms'
     coefficients would otherwise take up (the asymmetry above came out −0.29 Nm for +0.44)."""
-    findings, confounded, shaft = interpret(prob, accepted, library, reference)
+    accepted, findings, confounded, shaft = _interpret_resolved(
+        prob, accepted, library, reference, rejected
+    )
     if shaft is None:
         return accepted, findings, confounded, shaft
     more = reselect_on_shaft(prob, accepted, library, shaft, reference, rejected, log)
     if more != accepted:
-        accepted = more
-        findings, confounded, shaft = interpret(prob, accepted, library, reference)
+        accepted, findings, confounded, shaft = _interpret_resolved(
+            prob, more, library, reference, rejected
+        )
         if shaft is None:  # the rate terms did not survive the gates
             return accepted, findings, confounded, shaft
     others = [a for a in accepted if a.cand.kind != "rate"]

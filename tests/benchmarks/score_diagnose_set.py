@@ -40,6 +40,9 @@ FINDING_SIZE = {
     "angle_offset": lambda e: e["offset_rad"],
     "torque_gain": lambda e: e["relative"],
 }
+# Sizes a finding cannot give (an effect outside the vocabulary, found as a structure only).
+UNSIZED = {"unexplained"}
+WITHIN = 0.25  # a size counts when within this fraction of the truth's
 
 
 def _diagnose(path: str) -> tuple[str, dict, float]:
@@ -63,15 +66,32 @@ def _same_joints(partner_joint, named_joint) -> bool:
     return partner_joint is None or named_joint is None or partner_joint == named_joint
 
 
-def score(entry: dict, doc: dict) -> dict:
+def score(
+    entry: dict,
+    doc: dict,
+    *,
+    within: float = WITHIN,
+    aliases: dict[str, tuple[str, ...]] | None = None,
+    truth_size: dict | None = None,
+    finding_size: dict | None = None,
+) -> dict:
+    """Which truths of ``entry`` the findings of ``doc`` name, size (within ``within`` of the
+    truth) or miss, and which findings are extra. ``aliases``: truth effect -> the finding
+    effects that name it (default: its own name); ``truth_size`` / ``finding_size``: more size
+    rules over :data:`SIZE` / :data:`FINDING_SIZE` (a finding in :data:`UNSIZED` names a truth
+    without a size: sized when the truth has no size rule of that finding's effect)."""
     findings = doc["findings"]
+    aliases = aliases or {}
+    size_of_truth = {**SIZE, **(truth_size or {})}
+    size_of_finding = {**FINDING_SIZE, **(finding_size or {})}
     named, sized, missed = [], [], []
     used = set()
     for t in entry["truth"]:
+        names = aliases.get(t["effect"], (t["effect"],))
         hits = [
             i
             for i, f in enumerate(findings)
-            if f["effect"] == t["effect"] and _joint_ok(t["joint"], f["joint"])
+            if f["effect"] in names and _joint_ok(t["joint"], f["joint"])
         ]
         if not hits:
             missed.append(f"{t['effect']}:{t['joint']}")
@@ -85,10 +105,17 @@ def score(entry: dict, doc: dict) -> dict:
                 if g["effect"] in findings[i].get("confounded_with", [])
                 and _same_joints(g["joint"], findings[i]["joint"])
             )
-        want = SIZE[t["effect"]](t["magnitude"])
-        got = [FINDING_SIZE[t["effect"]](findings[i]["estimate"]) for i in hits]
+        want = size_of_truth[t["effect"]](t["magnitude"])
+        got = [
+            size_of_finding[findings[i]["effect"]](findings[i]["estimate"])
+            for i in hits
+            if findings[i]["effect"] not in UNSIZED
+        ]
+        if not got:  # named only as a structure the vocabulary lacks
+            sized.append((f"{t['effect']}:{t['joint']}", round(want, 5), None, True))
+            continue
         best = min(got, key=lambda g: abs(g - want))
-        ok = abs(best - want) <= 0.25 * abs(want)
+        ok = abs(best - want) <= within * abs(want)
         if t["effect"] == "cogging":
             ok = ok and any(
                 findings[i]["estimate"]["periods_per_rev"] == t["magnitude"]["periods_per_rev"]
