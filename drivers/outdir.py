@@ -25,8 +25,8 @@ import fcntl
 import os
 import shutil
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 RUNS = Path("runs")  # where the per-run default directories go (relative to the working dir)
@@ -47,6 +47,8 @@ class _Held:
     fresh: bool  # absent or empty when taken (or emptied by --overwrite): what is in it is ours
     created: bool  # made by this process
     group: Path | None  # runs/<group> of a per-run default directory, for its `latest` links
+    made: list[Path] = field(default_factory=list)  # parents new_run_dir made, deepest first
+    kept: Callable[[Path], None] | None = None  # told the directory once it is kept
 
 
 _held: dict[tuple[int, int], _Held] = {}  # (st_dev, st_ino) -> the directory this process holds
@@ -170,10 +172,15 @@ def _refuse_or_empty(
     _empty(target)
 
 
-def new_run_dir(group: str | Path, *, runs: Path = RUNS) -> Path:
-    """A new directory for one run, ``runs/<group>/<stamp>``, taken (:func:`take_out_dir`)."""
+def new_run_dir(
+    group: str | Path, *, runs: Path = RUNS, kept: Callable[[Path], None] | None = None
+) -> Path:
+    """A new directory for one run, ``runs/<group>/<stamp>``, taken (:func:`take_out_dir`);
+    ``kept(path)`` is called when the command ends with the directory kept (to say where the
+    results are: a start that fails leaves no directory to name)."""
     base = runs / group
     stamp = time.strftime(STAMP_FORMAT)
+    made = [p for p in (base, *base.parents) if not p.exists()]  # deepest first
     for n in range(1, 1000):
         out = base / (stamp if n == 1 else f"{stamp}-{n}")
         base.mkdir(parents=True, exist_ok=True)
@@ -185,6 +192,8 @@ def new_run_dir(group: str | Path, *, runs: Path = RUNS) -> Path:
         for held in _held.values():
             if held.path == out:
                 held.created = True  # made for this run: removed again if its start fails
+                held.made = made  # and so are the empty parents made for it
+                held.kept = kept
         return taken
     raise ValueError(f"{base}: no free run directory for {stamp} (1000 runs in one second?)")
 
@@ -207,10 +216,14 @@ def _release(held: _Held, *, started: bool) -> None:
             _empty(out)
             if held.created:
                 out.rmdir()
+                for parent in held.made:  # deepest first; one another run uses stays
+                    parent.rmdir()
         elif held.group is not None and out.is_dir():
             with contextlib.suppress(OSError):
                 _point(held.group / LATEST, out)
                 _point(held.group.parent / LATEST, out)
+            if held.kept is not None:
+                held.kept(out)
     except OSError:
         pass  # the clean-up is a courtesy: it never hides why the command ended
     finally:

@@ -559,16 +559,17 @@ def prepare_out_dir(
     holds it, ``--overwrite`` or not; a non-empty one refused unless ``overwrite``, which empties
     it first; never one that holds one of ``inputs``), or, when ``out`` is None, a new
     directory for this run, ``runs/<default>/<stamp>`` (:func:`drivers.outdir.new_run_dir`;
-    ``runs/latest`` points to it once the command ends; ``command``: say so on stderr). A
+    ``runs/latest`` points to it once the command ends; ``command``: say where on stderr then). A
     start that fails before any recording began leaves nothing in it
     (:func:`drivers.outdir.release_out_dirs`, called by :func:`run_command`)."""
     if out is None:
         if default is None:
             raise ValueError("--out is required")
-        run_dir = new_run_dir(default)
-        if command is not None:
-            say(command, f"writing to {run_dir} (a new directory for this run; runs/latest)")
-        return run_dir
+        label = command
+        return new_run_dir(
+            default,
+            kept=None if label is None else lambda d: say(label, f"results in {d} (runs/latest)"),
+        )
     return take_out_dir(out, overwrite, inputs)
 
 
