@@ -37,6 +37,7 @@ from drivers.recording import Recording
 from hil.diagnose.effects import REGISTRY, Context, Effect, SimInput
 from hil.diagnose.findings import Finding
 from hil.diagnose.report import (
+    HELD_OUT_FRACTION,
     SIMULATION_NOISE_FLOOR,
     _extras,
     _masks,
@@ -82,6 +83,10 @@ class Nominal:
     source: str
     why: str
     theta_se: np.ndarray | None = None
+    # bootstrap draws of θ₀ (draws, p) when it was identified: its own uncertainty, which a
+    # drift must exceed as well as the recording's (a θ₀ off by its error leaves a structured
+    # residual that the patterns project onto)
+    theta_draws: np.ndarray | None = None
     # the reference recordings' own departures from θ (effect name, joint, linearisation
     # point, coefficients): part of the nominal model, so that what persists is not a change
     terms: list[tuple[str, int | None, Any, np.ndarray]] = field(default_factory=list)
@@ -114,15 +119,15 @@ def _problem_inputs(recordings: Sequence[Recording]) -> list[tuple[np.ndarray, .
 def _bounded_fit(
     prob: Problem, model: Any, extra: np.ndarray | None, target: np.ndarray, draws: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """[θ, β] of Ψ θ + ``extra`` β ≈ ``target`` (scaled rows), θ's physical signs bounded."""
+    """[θ, β] of Ψ θ + ``extra`` β ≈ ``target`` (scaled rows), θ's physical signs bounded, and
+    its blocked-bootstrap draws (draws, p)."""
     Z = prob.Psi if extra is None else np.concatenate([prob.Psi, extra], axis=-1)
     stats = block_stats(Z, target, prob.w, prob.blocks)
     H_b, g_b = stats.G.sum(axis=1), stats.r.sum(axis=1)  # (B, p, p), (B, p)
     lower = np.full(Z.shape[-1], -np.inf)
     lower[list(model.nonnegative_columns)] = 0.0
     theta, _method = bounded_quadratic_fit(H_b.sum(axis=0), g_b.sum(axis=0), lower)
-    se = blocked_bootstrap(H_b, g_b, draws=draws).std(axis=0)
-    return theta, se
+    return theta, blocked_bootstrap(H_b, g_b, draws=draws)
 
 
 def nominal_from_reference(
@@ -142,21 +147,21 @@ def nominal_from_reference(
     Coulomb friction, which θ has no term for) is not a change."""
     say = progress or (lambda _m: None)
     prob, _ = build_problem(_problem_inputs(recordings), model)
-    theta, se = _bounded_fit(prob, model, None, prob.y, draws)
+    theta, boot = _bounded_fit(prob, model, None, prob.y, draws)
     fit = _make_fit(prob, model, theta)
-    cands = _candidates(fit.ctx)
+    cands = _candidates(fit.ctx, reference=True)
     accepted, _ = _select(fit, cands, lambda m: say(m.replace("nominal model", "reference")))
     terms: list[tuple[str, int | None, Any, np.ndarray]] = []
     if accepted:
         shifts = [t.shift for t in accepted if t.shift is not None]
         target = (prob.y_raw - (sum(shifts) if shifts else 0.0)) / prob.scale
         extra = fit.design(accepted) * (fit.scale / prob.scale)[None, :, None]
-        both, se_both = _bounded_fit(prob, model, extra, target, draws)
+        both, boot = _bounded_fit(prob, model, extra, target, draws)
         p = model.n_params
-        theta, se = both[:p], se_both[:p]
+        theta, boot = both[:p], boot[:, :p]
         for t, b in zip(accepted, fit.split(both[p:], accepted), strict=True):
             terms.append((t.effect.name, t.joint, t.at, b))
-    return Nominal(theta, model, "reference", why, se, terms)
+    return Nominal(theta, model, "reference", why, boot.std(axis=0), boot, terms)
 
 
 # --- the regression against θ₀ -------------------------------------------------------------
@@ -236,11 +241,13 @@ def _make_fit(
     return _Fit(prob, ctx, residual, scale, starts, list(baseline))
 
 
-def _candidates(ctx: Context) -> list[Term]:
+def _candidates(ctx: Context, reference: bool = False) -> list[Term]:
+    """Every variant of every registered effect that applies (``reference``: those a reference
+    identification keeps, :attr:`Effect.in_reference`); partners only included."""
     return [
         Term(e, j, e.start(ctx, j))
         for e in REGISTRY.values()
-        if e.applies(ctx)
+        if e.applies(ctx) and (e.in_reference or not reference)
         for j in e.variants(ctx)
     ]
 
@@ -258,7 +265,7 @@ def _select(
         best = None
         keys = {t.key for t in accepted}
         for c in cands:
-            if c.key in keys:
+            if c.key in keys or not c.effect.primary:
                 continue
             if c.key not in built:
                 built[c.key] = fit.build(Term(c.effect, c.joint, c.at))
@@ -282,11 +289,29 @@ def _select(
     return accepted, tested
 
 
+def _nominal_spread(fit: _Fit, terms: Sequence[Term], draws: np.ndarray | None) -> np.ndarray:
+    """Standard deviation of the terms' coefficients over the draws of θ₀: the residual moves
+    by Ψ (θ₀ − θ_b), which the terms' least squares projects onto their columns."""
+    if draws is None or not terms:
+        return np.zeros(sum(t.effect.width for t in terms))
+    Z = fit.design(terms)  # (K, n, P) scaled
+    w = fit.prob.w
+    G = np.einsum("kn,knp,knq->pq", w, Z, Z)
+    moved = fit.prob.Psi_raw @ (fit.ctx.theta0[None, :] - draws).T  # (K, n, D) Nm
+    moved /= fit.scale[None, :, None]
+    rhs = np.einsum("kn,knp,knd->pd", w, Z, moved)
+    scale = np.maximum(np.diag(G), 1e-300)
+    beta = np.linalg.solve(G + 1e-10 * np.diag(scale), rhs)  # (P, D)
+    return beta.std(axis=1)
+
+
 def _estimates(
-    fit: _Fit, terms: Sequence[Term]
+    fit: _Fit, terms: Sequence[Term], draws: np.ndarray | None = None
 ) -> tuple[list[tuple[dict, float, float]], CrossValidation]:
+    """Each term's finding numbers, size and SE: the blocked jackknife of the recording's
+    rows and, when θ₀ was identified, the spread its own draws cause, combined."""
     cv = fit.cv(terms)
-    se = jackknife_se(cv.fold_beta)
+    se = np.hypot(jackknife_se(cv.fold_beta), _nominal_spread(fit, terms, draws))
     out = [
         t.effect.estimate(fit.ctx, t.joint, b, s, t.at)
         for t, b, s in zip(terms, fit.split(cv.beta, terms), fit.split(se, terms), strict=True)
@@ -466,9 +491,8 @@ def _torque_errors(fit: _Fit, terms: Sequence[Term]) -> dict[str, list[float | N
     return out
 
 
-def _mean(x: Sequence[float | None]) -> float:
-    v = [e for e in x if e is not None]
-    return float(np.mean(v)) if v else float("nan")
+def _words(x: Sequence[float | None]) -> str:
+    return " / ".join("n/a" if e is None or not np.isfinite(e) else f"{100 * e:.3g} %" for e in x)
 
 
 def judge(
@@ -492,7 +516,7 @@ def judge(
     accepted, tested = _select(fit, cands, say)
     not_findings: dict[str, str] = {}
     # each term's own held-out proof on top of the others, and its size against its SE
-    estimates, _ = _estimates(fit, accepted)
+    estimates, _ = _estimates(fit, accepted, nominal.theta_draws)
     kept: list[Term] = []
     for i, (t, (_est, size, size_se)) in enumerate(zip(accepted, estimates, strict=True)):
         others = accepted[:i] + accepted[i + 1 :]
@@ -512,7 +536,7 @@ def judge(
         fit.refine(kept)
     kept, dropped, position = _simulation_gate(fit, kept, say)
     not_findings.update(dropped)
-    estimates, cv = _estimates(fit, kept)
+    estimates, cv = _estimates(fit, kept, nominal.theta_draws)
     confounded = _confounded(fit, kept, cands, len(cands))
     findings = []
     for i, (t, (est, _size, _se)) in enumerate(zip(kept, estimates, strict=True)):
@@ -542,12 +566,19 @@ def judge(
             )
         )
     errors = _torque_errors(fit, kept)
-    with_drift, refit = _mean(errors["nominal_with_drift"]), _mean(errors["refit"])
-    used = not (with_drift > NOMINAL_TOLERANCE * refit)
+    # held-out error of every block (leave-one-block-out), θ₀ + drift against a refit of θ
+    own = cross_validate(
+        block_stats(
+            prob.Psi_raw / fit.scale[None, :, None], prob.y_raw / fit.scale, prob.w, prob.blocks
+        )
+    ).held_out_sse.sum()
+    ratio = float(np.sqrt(fit.cv(kept).held_out_sse.sum() / max(own, 1e-300)))
+    used = not (ratio > NOMINAL_TOLERANCE)
     decision = (
-        f"the {nominal.source} model with the drift found predicts the held-out torque "
-        f"{100 * with_drift:.3g} % (mean NRMSE over the joints) against {100 * refit:.3g} % for "
-        "θ refitted from the recording alone"
+        f"the {nominal.source} model with the drift found predicts the recording's held-out "
+        f"blocks with {ratio:.3g} times the torque error of θ refitted from the recording alone"
+        f" (last {int(100 * HELD_OUT_FRACTION)} %: {_words(errors['nominal_with_drift'])} "
+        f"against {_words(errors['refit'])})"
     )
     if used:
         decision += ": judged against it"
@@ -577,6 +608,7 @@ def judge(
             }
             for name, joint, at, beta in nominal.terms
         ],
+        "held_out_error_ratio": ratio,
         "held_out_torque_nrmse": errors,
         "held_out_position_nrmse": position,
         "findings": [f.as_dict() for f in findings],

@@ -68,6 +68,11 @@ class Effect:
     partners: tuple[str, ...] = ()  # effects it may be confounded with
     separate: str = ""  # the experiment that tells it from those partners
     nonlinear: bool = False
+    # tested as a finding of its own (False: only as the partner a finding is confounded with)
+    primary: bool = True
+    # kept in a nominal model identified from reference recordings when they show it: only a
+    # departure θ cannot take up (a gain, a friction level, a mass are θ's own business there)
+    in_reference: bool = False
     # the smallest size worth naming (absolute, in the unit of :meth:`estimate`'s size)
     floor: float = 0.0
 

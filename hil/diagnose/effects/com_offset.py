@@ -18,6 +18,7 @@ from hil.diagnose.effects.base import Context, Effect, r4, register
 
 class ComOffset(Effect):
     name = "com_offset"
+    primary = False
     width = 3
     partners = ("encoder_offset",)
     separate = (

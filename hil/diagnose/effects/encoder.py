@@ -38,6 +38,7 @@ def model_torque_at(ctx: Context, joint: int, delta: float) -> np.ndarray:
 
 class EncoderOffset(Effect):
     name = "encoder_offset"
+    in_reference = True
     nonlinear = True
     partners = ("com_offset", "payload")
     separate = (

@@ -19,6 +19,7 @@ from hil.diagnose.effects.base import Context, Effect, SimInput, r4, register
 
 class TorqueOffset(Effect):
     name = "torque_offset"
+    in_reference = True
     partners = ("coulomb_asymmetry",)
     separate = (
         "hold the joint still against a known torque (an offset acts at rest, a Coulomb "
