@@ -30,7 +30,8 @@ class TorqueGain(Effect):
     def estimate(self, ctx, joint, beta, se, at):
         g = 1.0 + float(beta[0])
         return (
-            {"gain": r4(g), "gain_se": r4(float(se[0])), "percent": r4(100 * (g - 1))},
+            # relative: g − 1, the refit vocabulary's torque_gain number
+            {"gain": r4(g), "gain_se": r4(float(se[0])), "relative": r4(g - 1)},
             (g - 1.0),
             float(se[0]),
         )
@@ -38,7 +39,8 @@ class TorqueGain(Effect):
     def words(self, e: dict[str, Any]) -> str:
         return (
             f"the torque reaching the shaft is {e['gain']:.4g} ± {e['gain_se']:.2g} times the "
-            f"recorded one ({e['percent']:+.3g} %: motor constant, current sensing or amplifier)"
+            f"recorded one ({100 * e['relative']:+.3g} %: motor constant, current sensing or "
+            "amplifier)"
         )
 
     def simulation(self, ctx: Context, joint: int | None, e: dict[str, Any]) -> SimInput:
