@@ -93,6 +93,7 @@ class Nominal:
     # the reference recordings' own departures from θ (effect name, joint, linearisation
     # point, coefficients): part of the nominal model, so that what persists is not a change
     terms: list[tuple[str, int | None, Any, np.ndarray]] = field(default_factory=list)
+    reference: Problem | None = None  # the reference recordings' rows (the reverse check)
 
 
 @dataclass
@@ -130,6 +131,8 @@ def _bounded_fit(
     lower = np.full(Z.shape[-1], -np.inf)
     lower[list(model.nonnegative_columns)] = 0.0
     theta, _method = bounded_quadratic_fit(H_b.sum(axis=0), g_b.sum(axis=0), lower)
+    if not draws:
+        return theta, theta[None, :]
     return theta, blocked_bootstrap(H_b, g_b, draws=draws)
 
 
@@ -164,7 +167,7 @@ def nominal_from_reference(
         theta, boot = both[:p], boot[:, :p]
         for t, b in zip(accepted, fit.split(both[p:], accepted), strict=True):
             terms.append((t.effect.name, t.joint, t.at, b))
-    return Nominal(theta, model, "reference", why, boot.std(axis=0), boot, terms)
+    return Nominal(theta, model, "reference", why, boot.std(axis=0), boot, terms, prob)
 
 
 # --- the regression against θ₀ -------------------------------------------------------------
@@ -239,6 +242,7 @@ def _make_fit(
         shift = effect.shift(ctx, joint, at)
         if shift is not None:
             residual = residual - shift
+    ctx.prediction = prob.y_raw - residual
     scale = robust_scale(residual, prob.w)
     starts = np.flatnonzero(np.r_[True, np.diff(prob.blocks) != 0])
     return _Fit(prob, ctx, residual, scale, starts, list(baseline))
@@ -529,6 +533,33 @@ def _words(x: Sequence[float | None]) -> str:
     return " / ".join("n/a" if e is None or not np.isfinite(e) else f"{100 * e:.3g} %" for e in x)
 
 
+def _reverse_check(
+    fit: _Fit, kept: list[Term], reference: Problem, say: Callable[[str], None]
+) -> dict[str, str]:
+    """The reference judged against θ identified from the recording (the comparison the other
+    way round): a real change since the reference shows there with the opposite sign (a gain
+    g as about 1/g, an offset c as about −c), a misfit of the model that both recordings
+    share (another excitation projects the same model error onto the pattern) with the same
+    sign. {key: why it is not a finding} for the terms the reverse does not confirm."""
+    model = fit.ctx.model
+    theta_rec, _ = _bounded_fit(fit.prob, model, None, fit.prob.y, 0)
+    back = _make_fit(reference, model, theta_rec)
+    out: dict[str, str] = {}
+    forward = _estimates(fit, kept)[0]
+    for t, (_e, size, _s) in zip(kept, forward, strict=True):
+        term = back.build(Term(t.effect, t.joint, t.effect.start(back.ctx, t.joint)))
+        back.refine([term])
+        _est, size_back, se_back = _estimates(back, [term])[0][0]
+        if size_back * size > 0:
+            out[t.key] = (
+                f"the reverse comparison (the reference judged against the recording's own θ) "
+                f"shows the same sign ({size_back:+.3g} ± {se_back:.2g} against {size:+.3g}): a "
+                "misfit of the model both recordings share, not a change; cannot tell"
+            )
+            say(f"diagnose: against the nominal model: {t.key} not confirmed the other way round")
+    return out
+
+
 def _gates(fit: _Fit, accepted: list[Term], nominal: Nominal, tests: int) -> dict[str, str]:
     """Each term's own held-out proof on top of the others, and its size against its SE and
     the effect's floor: {key: why it is not a finding}."""
@@ -586,6 +617,11 @@ def judge(
         not_findings.update(failed)
         if not failed:
             break
+    if nominal.reference is not None and kept:
+        reversed_ = _reverse_check(fit, kept, nominal.reference, say)
+        not_findings.update(reversed_)
+        kept = [t for t in kept if t.key not in reversed_]
+        fit.refine(kept)
     estimates, cv = _estimates(fit, kept, nominal.theta_draws)
     confounded = _confounded(fit, kept, cands, len(cands))
     findings = []

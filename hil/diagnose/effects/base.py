@@ -29,6 +29,12 @@ class Context:
     model: Any
     theta0: np.ndarray
     Psi_raw: np.ndarray  # (K, n, p), the stacked nominal design
+    # the nominal model's torque rows (K, n): Ψ θ₀ with the nominal model's own departures
+    # (:attr:`hil.diagnose.drift.Nominal.terms`); None: Ψ θ₀
+    prediction: np.ndarray | None = None
+
+    def predicted(self) -> np.ndarray:
+        return self.Psi_raw @ self.theta0 if self.prediction is None else self.prediction
 
     @property
     def n_joints(self) -> int:

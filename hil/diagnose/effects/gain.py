@@ -2,10 +2,11 @@
 
 Convention: a recorded torque column scaled by 1/g is a gain g (a motor constant, a current
 sensor or an amplifier off by that factor). Joint j's equation of the nominal model then holds
-for g τ_j: y_j = Ψ_j θ₀ / g = Ψ_j θ₀ − (1 − 1/g) Ψ_j θ₀, so X = −Ψ_j θ₀ (on joint j's rows),
-β = 1 − 1/g. The column is the model's torque, not the recorded one: a residual the model
-leaves (30–50 % of a real arm's joint torque) is in y_j, and a column of y_j would read it as
-a gain (errors in variables: β → −NRMSE², a "gain" of 0.66 on an unchanged DFKI arm).
+for g τ_j: y_j = Ψ_j θ₀ / g = Ψ_j θ₀ − (1 − 1/g) Ψ_j θ₀, so X = −Ψ_j θ₀ on joint j's rows (the
+nominal model's whole torque, with its own departures), β = 1 − 1/g. The column is the model's
+torque, not the recorded one: a residual the model leaves (30–50 % of a real arm's joint
+torque) is in y_j, and a column of y_j would read it as a gain (errors in variables: β → −NRMSE²,
+a "gain" of 0.66 on an unchanged DFKI arm).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ class TorqueGain(Effect):
     floor = 0.005  # relative: below this, within what a profile's numbers are known to
 
     def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
-        return on_joint(-(ctx.Psi_raw[:, joint, :] @ ctx.theta0)[:, None], joint, ctx.n_joints)
+        return on_joint(-ctx.predicted()[:, joint, None], joint, ctx.n_joints)
 
     def estimate(self, ctx, joint, beta, se, at):
         b = min(float(beta[0]), 0.99)
