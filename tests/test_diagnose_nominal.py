@@ -55,8 +55,12 @@ def _drift(doc: dict) -> list[tuple[str, int | None]]:
 
 
 def _one(doc: dict, effect: str) -> dict:
-    found = [f for f in doc["findings"] if f["effect"] == effect]
+    """The drift finding ``effect`` (against the nominal model), also in the findings: as
+    itself, or beside the refit's finding of the same physics on the same joint."""
+    found = [f for f in doc["nominal"]["findings"] if f["effect"] == effect]
     assert len(found) == 1, doc["summary"]
+    listed = [g.get("against_nominal", g) for g in doc["findings"]]
+    assert found[0] in listed, doc["findings"]
     return found[0]
 
 

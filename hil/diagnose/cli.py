@@ -211,40 +211,46 @@ def urdf_params(path: str, robot: str, model: Any) -> tuple[Any, np.ndarray]:
     return model, theta
 
 
-# What the drift against a nominal model replaces among the refit's findings: the same physics
-# read as θ's drift (an encoder offset shows as a centre-of-mass offset in a refit θ).
-SUPERSEDED = {
+# The refit's findings of the same physics as a drift against the nominal model, on the same
+# joint: they stay, with the drift's reading beside them ("against_nominal") ...
+SAME = {
     "torque_gain": ("torque_gain",),
     "torque_offset": ("torque_offset", "coulomb_asymmetry"),
-    "encoder_offset": ("angle_offset", "com_offset"),
     "rotor_inertia_change": ("rotor_inertia",),
-    "payload": (),
-    "friction_change": (),
-    "com_offset": ("com_offset",),
 }
+# ... and those the drift names better: an encoder offset shows as a centre-of-mass offset (or
+# the refit's angle offset) in a refitted θ.
+REPLACED = {"encoder_offset": ("angle_offset", "com_offset")}
 
 
 def merge_drift(doc: dict, drift: DriftResult) -> None:
     """The drift against the nominal model into the refit's document: its findings beside the
-    refit's (those it reads as drift replaced), the decision in the summary."""
+    refit's (the same physics on the same joint joined, those it names better replaced, those
+    the references already show set aside), the decision in the summary."""
     doc["nominal"] = drift.document
     head = f"Judged against {drift.document['why']}; {drift.document['decision']}."
     if drift.used:
-        gone, known = set(), set()
+        gone, known, same = set(), set(), {}
         for f in drift.findings:
-            for old in SUPERSEDED.get(f.effect, ()):
+            for old in REPLACED.get(f.effect, ()):
                 gone |= {(old, f.joint), (old, None)}
+            for old in SAME.get(f.effect, ()):
+                same[(old, f.joint)] = f
         for b in drift.document["baseline"]:  # the references show it: not a change
-            for old in SUPERSEDED.get(b["effect"], ()):
+            for old in (*SAME.get(b["effect"], ()), *REPLACED.get(b["effect"], ())):
                 known |= {(old, b["joint"]), (old, None)}
-        kept = []
+        kept, joined = [], set()
         for f in doc["findings"]:
             key = (f["effect"], f["joint"])
-            if key in known and key not in gone:
+            if key in same:
+                f["against_nominal"] = same[key].as_dict()
+                joined.add(id(same[key]))
+                kept.append(f)
+            elif key in known and key not in gone:
                 drift.document.setdefault("in_reference", []).append(f)
             elif key not in gone:
                 kept.append(f)
-        doc["findings"] = kept + [f.as_dict() for f in drift.findings]
+        doc["findings"] = kept + [f.as_dict() for f in drift.findings if id(f) not in joined]
         if drift.findings:
             head += (
                 " What changed: "
@@ -258,6 +264,15 @@ def merge_drift(doc: dict, drift: DriftResult) -> None:
             )
         else:
             head += " Nothing changed against it beyond what the data resolve."
+        if drift.document.get("in_reference"):
+            head += (
+                " The references show "
+                + ", ".join(
+                    f"{f['effect'].replace('_', ' ')} on joint {f['joint']}"
+                    for f in drift.document["in_reference"]
+                )
+                + " as well: not a change."
+            )
     doc["summary"] = head + " Refitted from the recordings alone: " + doc["summary"]
 
 
