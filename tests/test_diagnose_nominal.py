@@ -41,6 +41,11 @@ def arm(tmp_path_factory) -> dict[str, Path]:
         "null_a": make_recording(root / "null_a", "diagnosis", {}, seed=1),
         "null_b": make_recording(root / "null_b", "diagnosis", {}, seed=2),
         "gain_b": make_recording(root / "gain_b", "diagnosis", gain, seed=2),
+        "payload": make_recording(
+            root / "payload",
+            "diagnosis",
+            {"payload": {"mass_kg": 1.5, "distance_m": 0.25, "inertia_kgm2": 0.0}},
+        ),
     }
 
 
@@ -89,6 +94,14 @@ def test_encoder_offset_on_joint_1_is_named_with_its_angle(arm, capsys):
     # not a centre-of-mass offset (nor the refit's angle offset beside it)
     effects = {g["effect"] for g in doc["findings"]}
     assert "com_offset" not in effects and "angle_offset" not in effects, doc["summary"]
+
+
+def test_planar_payload_on_link_2_found_with_its_mass_and_distance(arm, capsys):
+    doc = _diagnose(capsys, str(arm["payload"]), "--robot", "cicese")
+    f = _one(doc, "payload")
+    assert abs(f["estimate"]["mass_kg"] - 1.5) <= WITHIN * 1.5, f
+    assert abs(f["estimate"]["centre_m"][0] - 0.25) <= WITHIN * 0.25, f
+    assert ("torque_gain", 1) not in _drift(doc) and ("torque_gain", 2) not in _drift(doc)
 
 
 def test_reference_null_pair_gives_no_finding_and_a_gain_since_then_is_found(arm, capsys):

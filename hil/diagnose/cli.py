@@ -100,6 +100,7 @@ def main(args: argparse.Namespace) -> int:
             f"{' and '.join(given + (['--refit'] if args.refit else []))}: give one nominal model"
         )
     nominal = None
+    geometry = None
     urdf = describes_urdf_only(args.robot)
     if urdf:
         # an n-joint arm described by a URDF (docs/urdf.md): the model object from the
@@ -115,6 +116,7 @@ def main(args: argparse.Namespace) -> int:
     else:
         profile = robot_params(args.robot)
         reference, model, joints = profile.theta, ArmModel(profile.terms), 2
+        geometry = arm_geometry(args.robot)
         source = f"the {args.robot} profile's θ ({profile.source})"
         if args.params:  # the nominal model is the one the parameters were identified in
             params = load_params(args.params)
@@ -140,14 +142,23 @@ def main(args: argparse.Namespace) -> int:
             "the same rows, blocked-bootstrap standard errors, with the departures the "
             "references already show): what changed since then",
             progress=_progress,
+            geometry=geometry,
         )
     elif args.params:
         judged_against = Nominal(
-            np.asarray(reference, float), model, "params", f"--params {args.params}"
+            np.asarray(reference, float),
+            model,
+            "params",
+            f"--params {args.params}",
+            geometry=geometry,
         )
     elif not args.refit:
         judged_against = Nominal(
-            np.asarray(reference, float), model, "profile", source + ": the user's model"
+            np.asarray(reference, float),
+            model,
+            "profile",
+            source + ": the user's model",
+            geometry=geometry,
         )
     for rec in recs:
         if rec.meta.get("status") not in (None, "complete"):
@@ -177,6 +188,16 @@ def main(args: argparse.Namespace) -> int:
             write_json_atomic(out / "diagnosis.json", doc)
     print_document(args, doc, lambda: format_report(doc))
     return 0
+
+
+def arm_geometry(robot: str) -> dict[str, float] | None:
+    """l1 and g of a 2-DOF robot profile (the payload pattern's), None when it has no l1."""
+    from profiles.robot import load_robot
+
+    p = load_robot(robot)
+    if p.link1.length_m is None:
+        return None
+    return {"link1_m": float(p.link1.length_m), "gravity_m_s2": float(p.gravity_m_s2)}
 
 
 def urdf_params(path: str, robot: str, model: Any) -> tuple[Any, np.ndarray]:

@@ -94,6 +94,7 @@ class Nominal:
     # point, coefficients): part of the nominal model, so that what persists is not a change
     terms: list[tuple[str, int | None, Any, np.ndarray]] = field(default_factory=list)
     reference: Problem | None = None  # the reference recordings' rows (the reverse check)
+    geometry: dict[str, float] | None = None  # the 2-DOF arm's l1 and g (its payload pattern)
 
 
 @dataclass
@@ -103,6 +104,11 @@ class Term:
     at: Any = None
     cols: np.ndarray | None = None  # raw (K, n, width)
     shift: np.ndarray | None = None  # raw (K, n): the model's change at ``at``
+
+    @property
+    def width(self) -> int:
+        """Its number of coefficients (its columns', once built)."""
+        return self.effect.width if self.cols is None else self.cols.shape[-1]
 
     @property
     def key(self) -> str:
@@ -143,6 +149,7 @@ def nominal_from_reference(
     *,
     draws: int = 200,
     progress: Callable[[str], None] | None = None,
+    geometry: dict[str, float] | None = None,
 ) -> Nominal:
     """The nominal model identified from reference ``recordings`` on the diagnosis's own rows:
     weighted least squares (rows scaled to unit noise per joint) bounded to the physical signs
@@ -154,7 +161,7 @@ def nominal_from_reference(
     say = progress or (lambda _m: None)
     prob, _ = build_problem(_problem_inputs(recordings), model)
     theta, boot = _bounded_fit(prob, model, None, prob.y, draws)
-    fit = _make_fit(prob, model, theta)
+    fit = _make_fit(prob, model, theta, geometry=geometry)
     cands = _candidates(fit.ctx, reference=True)
     accepted, _ = _select(fit, cands, lambda m: say(m.replace("nominal model", "reference")))
     terms: list[tuple[str, int | None, Any, np.ndarray]] = []
@@ -167,7 +174,7 @@ def nominal_from_reference(
         theta, boot = both[:p], boot[:, :p]
         for t, b in zip(accepted, fit.split(both[p:], accepted), strict=True):
             terms.append((t.effect.name, t.joint, t.at, b))
-    return Nominal(theta, model, "reference", why, boot.std(axis=0), boot, terms, prob)
+    return Nominal(theta, model, "reference", why, boot.std(axis=0), boot, terms, prob, geometry)
 
 
 # --- the regression against θ₀ -------------------------------------------------------------
@@ -212,8 +219,8 @@ class _Fit:
     def split(self, beta: np.ndarray, terms: Sequence[Term]) -> list[np.ndarray]:
         out, at = [], 0
         for t in terms:
-            out.append(beta[at : at + t.effect.width])
-            at += t.effect.width
+            out.append(beta[at : at + t.width])
+            at += t.width
         return out
 
     def refine(self, terms: list[Term], only: Term | None = None) -> None:
@@ -230,11 +237,15 @@ class _Fit:
 
 
 def _make_fit(
-    prob: Problem, model: Any, theta0: np.ndarray, baseline: Sequence[tuple] = ()
+    prob: Problem,
+    model: Any,
+    theta0: np.ndarray,
+    baseline: Sequence[tuple] = (),
+    geometry: dict[str, float] | None = None,
 ) -> _Fit:
     """The regression of ``prob``'s rows against θ₀ (with the ``baseline`` terms of the nominal
     model, :attr:`Nominal.terms`, taken off the residual)."""
-    ctx = Context(prob.rows, model, theta0, prob.Psi_raw)
+    ctx = Context(prob.rows, model, theta0, prob.Psi_raw, geometry=geometry)
     residual = prob.y_raw - prob.Psi_raw @ theta0
     for name, joint, at, beta in baseline:
         effect = REGISTRY[name]
@@ -300,7 +311,7 @@ def _nominal_spread(fit: _Fit, terms: Sequence[Term], draws: np.ndarray | None) 
     """Standard deviation of the terms' coefficients over the draws of θ₀: the residual moves
     by Ψ (θ₀ − θ_b), which the terms' least squares projects onto their columns."""
     if draws is None or not terms:
-        return np.zeros(sum(t.effect.width for t in terms))
+        return np.zeros(sum(t.width for t in terms))
     Z = fit.design(terms)  # (K, n, P) scaled
     w = fit.prob.w
     G = np.einsum("kn,knp,knq->pq", w, Z, Z)
@@ -490,7 +501,7 @@ def _not_simulated(s: SimInput) -> bool:
 
 
 def _zero_estimate(fit: _Fit, t: Term) -> dict:
-    b = np.zeros(t.effect.width)
+    b = np.zeros(t.width)
     if t.effect.name == "payload":
         b[0] = 1.0
     return t.effect.estimate(fit.ctx, t.joint, b, b, t.at)[0]
@@ -543,7 +554,7 @@ def _reverse_check(
     sign. {key: why it is not a finding} for the terms the reverse does not confirm."""
     model = fit.ctx.model
     theta_rec, _ = _bounded_fit(fit.prob, model, None, fit.prob.y, 0)
-    back = _make_fit(reference, model, theta_rec)
+    back = _make_fit(reference, model, theta_rec, geometry=fit.ctx.geometry)
     out: dict[str, str] = {}
     forward = _estimates(fit, kept)[0]
     for t, (_e, size, _s) in zip(kept, forward, strict=True):
@@ -594,7 +605,7 @@ def judge(
             f"the nominal θ holds {len(theta0)} numbers; the model has {model.n_params}"
         )
     prob, _ = build_problem(_problem_inputs(recordings), model)
-    fit = _make_fit(prob, model, theta0, nominal.terms)
+    fit = _make_fit(prob, model, theta0, nominal.terms, nominal.geometry)
     ctx = fit.ctx
     cands = _candidates(ctx)
     say(f"diagnose: against the {nominal.source} model: testing {len(cands)} drift patterns")

@@ -32,6 +32,8 @@ class Context:
     # the nominal model's torque rows (K, n): Ψ θ₀ with the nominal model's own departures
     # (:attr:`hil.diagnose.drift.Nominal.terms`); None: Ψ θ₀
     prediction: np.ndarray | None = None
+    # the 2-DOF arm's geometry from its profile (link1_m: l1, gravity_m_s2: g), when known
+    geometry: dict[str, float] | None = None
 
     def predicted(self) -> np.ndarray:
         return self.Psi_raw @ self.theta0 if self.prediction is None else self.prediction

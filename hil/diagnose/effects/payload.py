@@ -5,7 +5,13 @@ parameters, :class:`hil.model.urdf.UrdfArmModel`), so the rows of the last body'
 parameters (Pinocchio's order m, m c, I at the frame origin) are Ψ_b E_last. A point mass adds
 m (1, c, |c|² 1 − c cᵀ) to them; with h = m c that is linear in (m, h) once the inertia's c is
 held at ĉ: m I = (ĉ·h) 1 − ½ (h ĉᵀ + ĉ hᵀ) (exact at ĉ = c), so the fit is repeated with
-ĉ = h / m. The 2-DOF closed-form θ has no body parameters to place it in: not tested there.
+ĉ = h / m.
+
+On the 2-DOF closed form (Reyes & Kelly (1997), Section 5) a point mass m on link 2 at l_p from
+joint 2 adds Δθ1 = m (l1² + l_p²), Δθ2 = l1 m l_p, Δθ3 = m l_p², Δθ4 = g m l1, Δθ5 = g m l_p
+(:func:`virtual_robot.effects.payload_theta` without its own inertia); with h = m l_p and the
+squared l_p held at l̂: X_m = l1² Ψ₁ + g l1 Ψ₄, X_h = l̂ Ψ₁ + l1 Ψ₂ + l̂ Ψ₃ + g Ψ₅, repeated with
+l̂ = h / m. It needs l1 and g from the robot profile.
 """
 
 from __future__ import annotations
@@ -37,9 +43,18 @@ def _last_body(ctx: Context) -> np.ndarray:
     return ctx.model.base.expand[:, 10 * (n - 1) : 10 * n]
 
 
+def _planar_columns(ctx: Context, lp: float) -> np.ndarray:
+    """(X_m, X_h) of the 2-DOF arm's point mass on link 2 (module doc), (K, 2, 2)."""
+    assert ctx.geometry is not None
+    P, l1, g = ctx.Psi_raw, ctx.geometry["link1_m"], ctx.geometry["gravity_m_s2"]
+    x_m = l1**2 * P[:, :, 0] + g * l1 * P[:, :, 3]
+    x_h = lp * P[:, :, 0] + l1 * P[:, :, 1] + lp * P[:, :, 2] + g * P[:, :, 4]
+    return np.stack([x_m, x_h], axis=-1)
+
+
 class Payload(Effect):
     name = "payload"
-    width = 4
+    width = 4  # (m, m c) of a URDF arm's last body; 2 on the 2-DOF arm (m, m l_p)
     nonlinear = True
     partners = ("torque_gain", "encoder_offset")
     separate = (
@@ -49,15 +64,17 @@ class Payload(Effect):
     floor = 0.01  # kg
 
     def applies(self, ctx: Context) -> bool:
-        return not ctx.closed_form
+        return not ctx.closed_form or bool(ctx.geometry)
 
     def variants(self, ctx: Context) -> list[int | None]:
         return [None]
 
     def start(self, ctx: Context, joint: int | None) -> Any:
-        return np.zeros(3)
+        return np.zeros(1 if ctx.closed_form else 3)
 
     def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
+        if ctx.closed_form:
+            return _planar_columns(ctx, float(np.asarray(at).ravel()[0]))
         Y = ctx.Psi_raw @ _last_body(ctx)  # (K, n, 10): rows of the last body's parameters
         c = np.asarray(at, float)
         cols = [Y[:, :, 0]]
@@ -70,10 +87,24 @@ class Payload(Effect):
 
     def update(self, ctx, joint, beta, at):
         m = float(beta[0])
-        return np.asarray(beta[1:4], float) / m if abs(m) > 1e-9 else np.zeros(3)
+        k = len(beta) - 1
+        return np.asarray(beta[1:], float) / m if abs(m) > 1e-9 else np.zeros(k)
 
     def estimate(self, ctx, joint, beta, se, at):
         m, s = float(beta[0]), float(se[0])
+        if ctx.closed_form:
+            lp = float(beta[1]) / m if abs(m) > 1e-9 else 0.0
+            return (
+                {
+                    "mass_kg": r4(m),
+                    "mass_se_kg": r4(s),
+                    "centre_m": [r4(lp)],
+                    "centre_se_m": [r4(float(se[1]) / max(abs(m), 1e-9))],
+                    "body": "link 2 (distance from joint 2 along the link)",
+                },
+                m,
+                s,
+            )
         c = np.asarray(beta[1:4], float) / m if abs(m) > 1e-9 else np.zeros(3)
         c_se = np.asarray(se[1:4], float) / max(abs(m), 1e-9)
         return (
@@ -95,6 +126,13 @@ class Payload(Effect):
         )
 
     def simulation(self, ctx: Context, joint: int | None, e: dict[str, Any]) -> SimInput:
+        if ctx.closed_form:
+            assert ctx.geometry is not None
+            m, lp = e["mass_kg"], e["centre_m"][0]
+            l1, g = ctx.geometry["link1_m"], ctx.geometry["gravity_m_s2"]
+            d = np.zeros(len(ctx.theta0))
+            d[:5] = [m * (l1**2 + lp**2), l1 * m * lp, m * lp**2, g * m * l1, g * m * lp]
+            return SimInput(dtheta=d)
         std = point_mass_standard(e["mass_kg"], np.array(e["centre_m"]))
         return SimInput(dtheta=_last_body(ctx) @ std)
 
