@@ -34,6 +34,7 @@ class Context:
     prediction: np.ndarray | None = None
     # the 2-DOF arm's geometry from its profile (link1_m: l1, gravity_m_s2: g), when known
     geometry: dict[str, float] | None = None
+    memo: dict = field(default_factory=dict)  # rows an effect rebuilt, kept for its next call
 
     def predicted(self) -> np.ndarray:
         return self.Psi_raw @ self.theta0 if self.prediction is None else self.prediction
