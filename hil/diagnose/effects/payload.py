@@ -121,9 +121,13 @@ class Payload(Effect):
 
     def words(self, e: dict[str, Any]) -> str:
         c = ", ".join(f"{x:+.3g}" for x in e["centre_m"])
-        return (
-            f"a payload of {e['mass_kg']:.3g} ± {e['mass_se_kg']:.2g} kg at ({c}) m on {e['body']}"
-        )
+        m = e["mass_kg"]
+        if m < 0:  # the model carries a mass the arm does not (a load taken off, a heavy model)
+            return (
+                f"a point mass of {-m:.3g} ± {e['mass_se_kg']:.2g} kg at ({c}) m on {e['body']} "
+                "that the model has and the arm lacks (a load taken off)"
+            )
+        return f"a payload of {m:.3g} ± {e['mass_se_kg']:.2g} kg at ({c}) m on {e['body']}"
 
     def simulation(self, ctx: Context, joint: int | None, e: dict[str, Any]) -> SimInput:
         if ctx.closed_form:
