@@ -294,7 +294,9 @@ def merge_drift(doc: dict, drift: DriftResult) -> None:
                 )
                 + " as well: not a change."
             )
-    doc["summary"] = head + " Refitted from the recordings alone: " + doc["summary"]
+    # after the refit's summary, which keeps its first words (a null's "No missing physics
+    # found: ..." is about the model's structure; this is about what changed)
+    doc["summary"] = doc["summary"] + " " + head
 
 
 def format_report(doc: dict) -> str:
