@@ -9,7 +9,11 @@ the effect. Rewriting the recording's command (or angle) columns so gives that a
 - ``angle`` δ on joint j: reading q_j + δ (exact);
 - ``offset`` c on joint j: τ_j = τ_a,j − c (exact);
 - ``cogging`` A sin(n q_j + φ) on joint j: τ_j = τ_a,j − A sin(n q_j,k + φ) at each sample, the
-  cogging torque held over the interval (approximate: a real rotor's varies within it).
+  cogging torque held over the interval (approximate: a real rotor's varies within it);
+- a ``payload`` (:func:`with_payload`): a point mass m at c on the last body, its torque
+  (Pinocchio's regressor of the last body at the point mass's ten parameters) at the recorded
+  motion (Savitzky–Golay velocities and accelerations) added to every command (approximate in
+  the same way).
 
 Used by tests/test_diagnose_urdf.py and tests/benchmarks/diagnose_urdf_catalogue.py.
 """
@@ -44,5 +48,33 @@ def with_effect(src: Path, out: Path, kind: str, joint: int, size: float, **extr
         else:
             raise ValueError(f"unknown effect {kind!r}")
         rows.append(",".join(f))
+    (out / "signals.csv").write_text("\n".join(rows) + "\n")
+    return out
+
+
+def with_payload(src: Path, out: Path, robot: str, mass_kg: float, centre_m: tuple) -> Path:
+    """Copy the run directory ``src`` to ``out`` with a point mass ``mass_kg`` at ``centre_m``
+    (the last body's frame) on ``robot``'s last body written into its torque columns."""
+    import numpy as np
+    from scipy.signal import savgol_filter
+
+    from hil.diagnose.effects.payload import point_mass_standard
+    from hil.model.urdf import UrdfArmModel
+
+    shutil.copytree(src, out)
+    lines = (src / "signals.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    data = np.array([[float(x) for x in line.split(",")] for line in lines[1:]])
+    model = UrdfArmModel.from_profile(robot)
+    n = model.n_joints
+    qi = [header.index(f"q{j}") for j in range(1, n + 1)]
+    ti = [header.index(f"tau{j}") for j in range(1, n + 1)]
+    h = float(np.median(np.diff(data[:, header.index("t")])))
+    q = data[:, qi]
+    dq = savgol_filter(q, 15, 3, deriv=1, delta=h, axis=0)
+    ddq = savgol_filter(q, 15, 3, deriv=2, delta=h, axis=0)
+    Y = model.standard_regressor(q, dq, ddq)[..., 10 * (n - 1) : 10 * n]
+    data[:, ti] += Y @ point_mass_standard(mass_kg, np.asarray(centre_m, float))
+    rows = [lines[0]] + [",".join(repr(float(x)) for x in row) for row in data]
     (out / "signals.csv").write_text("\n".join(rows) + "\n")
     return out

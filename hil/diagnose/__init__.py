@@ -3,10 +3,14 @@
 What lives here: the candidate terms (:mod:`.columns`), blocked cross-validation
 (:mod:`.stats`), the term selection with its physical and held-out gates (:mod:`.selection`),
 where the residual lives (:mod:`.locate`), findings with magnitudes (:mod:`.findings`), the
-whole report (:mod:`.report`), its plots (:mod:`.plots`) and the ``hil diagnose`` command
+whole report (:mod:`.report`), its plots (:mod:`.plots`), the judgement against the model the
+user has (:mod:`.drift`: the profile's θ, ``--params``, ``--reference``) with its drift patterns
+(:mod:`.effects`, one module per pattern, a registry) and the ``hil diagnose`` command
 (:mod:`.cli`).
 
-Imports: :mod:`hil.model`, :mod:`hil.cli_options`; plots import the report, never the reverse.
+Imports: :mod:`hil.model`, :mod:`hil.cli_options`; plots import the report, never the reverse;
+the drift imports the report and the effects, the effects only :mod:`.columns` and
+:mod:`hil.model`.
 
 Public API (``from hil.diagnose import ...``, docs/api.md): ``diagnose(recordings,
 reference_theta)`` returns a ``DiagnosisResult`` whose ``document`` is what ``hil diagnose

@@ -1,6 +1,9 @@
-"""`hil diagnose RECORDING [RECORDING ...] --robot cicese [--params FILE] [--out DIR] [--json]`:
-find the physics the 9-parameter model leaves out (docs/diagnosis.md); with a robot described by
-a URDF (``--robot cicese3``, ``panda``), the physics its n-joint model leaves out.
+"""`hil diagnose RECORDING [RECORDING ...] --robot cicese [--params FILE | --reference REC ... |
+--refit] [--out DIR] [--json]`: find the physics the 9-parameter model leaves out
+(docs/diagnosis.md); with a robot described by a URDF (``--robot cicese3``, ``panda``), the
+physics its n-joint model leaves out. The recordings are judged against the model the user has
+(:mod:`hil.diagnose.drift`): the robot profile's, a ``--params`` file's, or one identified from
+``--reference`` recordings of the same arm; ``--refit`` judges them against their own fit only.
 
 Reads recordings in the standard format (a run directory or a CSV with t,q1,q2,tau1,tau2, or
 t,q1..qN,tau1..tauN for an N-joint robot), from this bench or a real one; prints the findings
@@ -17,7 +20,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from drivers.recording import write_json_atomic
+import numpy as np
+
+from drivers.recording import Recording, write_json_atomic
 from hil.cli_options import (
     add_html_report_option,
     add_out_options,
@@ -30,6 +35,7 @@ from hil.cli_options import (
     say,
     write_html_report,
 )
+from hil.diagnose.drift import DriftResult, Nominal, judge, nominal_from_reference
 from hil.diagnose.report import diagnose, percent
 from hil.diagnose.torque_path import describe as describe_torque_path
 from hil.diagnose.torque_path import torque_path_of
@@ -55,8 +61,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--params",
         default=None,
-        help="params.json (hil identify): the nominal model's θ for the before/after fit and the "
-        "reference for telling which joint a torque gain error is on",
+        help="params.json or identify.json (hil identify, of a 2-DOF or a URDF arm): the nominal "
+        "model the recordings are judged against (what changed since it), also the before/after "
+        "fit's θ and the reference for telling which joint a torque gain error is on",
+    )
+    p.add_argument(
+        "--reference",
+        nargs="+",
+        default=None,
+        metavar="REC",
+        help="recordings of the same arm (read with the same --format/--columns) from which the "
+        "nominal model is identified first: the recordings are judged against it ('what "
+        "changed since REC?')",
+    )
+    p.add_argument(
+        "--refit",
+        action="store_true",
+        help="judge the recordings against θ refitted from them alone (no nominal model: "
+        "missing physics only, no drift)",
     )
     add_out_options(p, "write diagnosis.json and plots here")
     add_recording_options(p)
@@ -79,31 +101,72 @@ def main(args: argparse.Namespace) -> int:
                 f"({', '.join(sorted(r or 'a 2-DOF arm' for r in recorded))}): give --robot"
             )
         args.robot = recorded.pop() or "cicese"
-    if describes_urdf_only(args.robot):
+    given = [o for o, v in (("--params", args.params), ("--reference", args.reference)) if v]
+    if len(given) > 1 or (given and args.refit):
+        raise ValueError(
+            f"{' and '.join(given + (['--refit'] if args.refit else []))}: give one nominal model"
+        )
+    nominal = None
+    geometry = None
+    urdf = describes_urdf_only(args.robot)
+    if urdf:
         # an n-joint arm described by a URDF (docs/urdf.md): the model object from the
         # profile, its base parameters at the URDF's bodies and the profile's friction as the
         # reference
-        if args.params:
-            raise ValueError(
-                f"--params: for the 2-DOF closed-form model; {args.robot} is a URDF arm, "
-                "diagnosed against its own least-squares fit (docs/diagnosis.md)"
-            )
         from hil.model.urdf import UrdfArmModel  # Pinocchio: loaded only for a URDF arm
 
         model: Any = UrdfArmModel.from_profile(args.robot)
-        reference, joints = model.base_theta(), model.n_joints
+        if args.params:
+            model, nominal = urdf_params(args.params, args.robot, model)
+        reference, joints = (model.base_theta() if nominal is None else nominal), model.n_joints
+        source = f"the {args.robot} profile: the URDF's base parameters with the profile's friction"
     else:
         profile = robot_params(args.robot)
         reference, model, joints = profile.theta, ArmModel(profile.terms), 2
-    recs = [
-        read_recording(args, path, command="diagnose", min_rows=2, joints=joints, allow_gaps=True)
-        for path in args.recordings
-    ]
-    nominal = None
-    if args.params:  # the nominal model is the one the parameters were identified in
-        params = load_params(args.params)
-        check_inertia(params)  # a non-physical nominal model cannot be simulated
-        nominal, reference, model = params.theta, params.theta, ArmModel(params.terms)
+        geometry = arm_geometry(args.robot)
+        source = f"the {args.robot} profile's θ ({profile.source})"
+        if args.params:  # the nominal model is the one the parameters were identified in
+            params = load_params(args.params)
+            check_inertia(params)  # a non-physical nominal model cannot be simulated
+            nominal, reference, model = params.theta, params.theta, ArmModel(params.terms)
+
+    def read(path: str) -> Recording:
+        return read_recording(
+            args, path, command="diagnose", min_rows=2, joints=joints, allow_gaps=True
+        )
+
+    recs = [read(path) for path in args.recordings]
+    judged_against = None
+    if args.reference:
+        refs = [read(path) for path in args.reference]
+        _progress(
+            f"diagnose: identifying the nominal model from {len(refs)} reference recording(s)"
+        )
+        judged_against = nominal_from_reference(
+            refs,
+            model,
+            f"the model identified from {', '.join(args.reference)} (bounded least squares on "
+            "the same rows, blocked-bootstrap standard errors, with the departures the "
+            "references already show): what changed since then",
+            progress=_progress,
+            geometry=geometry,
+        )
+    elif args.params:
+        judged_against = Nominal(
+            np.asarray(reference, float),
+            model,
+            "params",
+            f"--params {args.params}",
+            geometry=geometry,
+        )
+    elif not args.refit:
+        judged_against = Nominal(
+            np.asarray(reference, float),
+            model,
+            "profile",
+            source + ": the user's model",
+            geometry=geometry,
+        )
     for rec in recs:
         if rec.meta.get("status") not in (None, "complete"):
             say(
@@ -117,6 +180,14 @@ def main(args: argparse.Namespace) -> int:
         paths = [torque_path_of(rec, args.recording_format) for rec in recs]
         if any(paths):
             doc["torque_path"] = [p for p in paths if p]
+    if judged_against is not None:
+        merge_drift(doc, judge(recs, judged_against, progress=_progress))
+    else:
+        doc["nominal"] = {
+            "source": "refit",
+            "used": False,
+            "decision": "--refit: judged against θ refitted from the recordings alone",
+        }
     if args.out:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
@@ -131,8 +202,121 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
+def arm_geometry(robot: str) -> dict[str, float] | None:
+    """l1 and g of a 2-DOF robot profile (the payload pattern's), None when it has no l1."""
+    from profiles.robot import load_robot
+
+    p = load_robot(robot)
+    if p.link1.length_m is None:
+        return None
+    return {"link1_m": float(p.link1.length_m), "gravity_m_s2": float(p.gravity_m_s2)}
+
+
+def urdf_params(path: str, robot: str, model: Any) -> tuple[Any, np.ndarray]:
+    """The model and θ of a URDF arm's ``hil identify`` output (identify.json): its selected
+    scheme's base parameters, in the model of its terms."""
+    from hil.model.params import _read_object
+    from hil.model.urdf import UrdfArmModel
+
+    doc = _read_object(Path(path))
+    if doc.get("model") != "urdf":
+        raise ValueError(
+            f"--params {path}: not the identification of a URDF arm ({robot} is one): "
+            "give the identify.json of `hil identify --robot " + robot + "`"
+        )
+    if doc.get("robot") not in (None, robot):
+        raise ValueError(f"--params {path}: identified for {doc['robot']}, not {robot}")
+    terms = tuple(doc.get("terms") or ())
+    if terms != tuple(model.terms):
+        model = UrdfArmModel.from_profile(robot, terms=terms)
+    scheme = doc.get("params_scheme")
+    entry = (doc.get("schemes") or {}).get(scheme) or {}
+    theta = entry.get("theta")
+    if not isinstance(theta, list) or len(theta) != model.n_params:
+        raise ValueError(
+            f"--params {path}: scheme {scheme!r} holds no theta of {model.n_params} base "
+            f"parameters of {robot}"
+        )
+    theta = np.asarray(theta, float)
+    violations = model.physical_consistency(theta)["violations"]
+    if violations:
+        raise ValueError(f"--params {path}: not physical ({'; '.join(violations)})")
+    return model, theta
+
+
+# The refit's findings of the same physics as a drift against the nominal model, on the same
+# joint: they stay, with the drift's reading beside them ("against_nominal") ...
+SAME = {
+    "torque_gain": ("torque_gain",),
+    "torque_offset": ("torque_offset", "coulomb_asymmetry"),
+    "rotor_inertia_change": ("rotor_inertia",),
+}
+# ... and those the drift names better: an encoder offset shows as a centre-of-mass offset (or
+# the refit's angle offset) in a refitted θ.
+REPLACED = {"encoder_offset": ("angle_offset", "com_offset")}
+
+
+def merge_drift(doc: dict, drift: DriftResult) -> None:
+    """The drift against the nominal model into the refit's document: its findings beside the
+    refit's (the same physics on the same joint joined, those it names better replaced, those
+    the references already show set aside), the decision in the summary."""
+    doc["nominal"] = drift.document
+    head = f"Judged against {drift.document['why']}; {drift.document['decision']}."
+    if drift.used:
+        gone, known, same = set(), set(), {}
+        for f in drift.findings:
+            for old in REPLACED.get(f.effect, ()):
+                gone |= {(old, f.joint), (old, None)}
+            for old in SAME.get(f.effect, ()):
+                same[(old, f.joint)] = f
+        for b in drift.document["baseline"]:  # the references show it: not a change
+            for old in (*SAME.get(b["effect"], ()), *REPLACED.get(b["effect"], ())):
+                known |= {(old, b["joint"]), (old, None)}
+        kept, joined = [], set()
+        for f in doc["findings"]:
+            key = (f["effect"], f["joint"])
+            if key in same:
+                f["against_nominal"] = same[key].as_dict()
+                joined.add(id(same[key]))
+                kept.append(f)
+            elif key in known and key not in gone:
+                drift.document.setdefault("in_reference", []).append(f)
+            elif key not in gone:
+                kept.append(f)
+        doc["findings"] = kept + [f.as_dict() for f in drift.findings if id(f) not in joined]
+        if drift.findings:
+            head += (
+                " What changed: "
+                + "; ".join(
+                    f"{f.effect.replace('_', ' ')}"
+                    + (f" on joint {f.joint}" if f.joint else "")
+                    + f": {f.evidence['words']}"
+                    for f in drift.findings
+                )
+                + "."
+            )
+        else:
+            head += " Nothing changed against it beyond what the data resolve."
+        if drift.document.get("in_reference"):
+            head += (
+                " The references show "
+                + ", ".join(
+                    f"{f['effect'].replace('_', ' ')} on joint {f['joint']}"
+                    for f in drift.document["in_reference"]
+                )
+                + " as well: not a change."
+            )
+    # after the refit's summary, which keeps its first words (a null's "No missing physics
+    # found: ..." is about the model's structure; this is about what changed)
+    doc["summary"] = doc["summary"] + " " + head
+
+
 def format_report(doc: dict) -> str:
     lines = ["Mismatch diagnosis", ""]
+    nominal = doc.get("nominal")
+    if nominal:
+        lines += [f"Nominal model: {nominal.get('why', nominal['source'])}"]
+        lines += [f"  {nominal['decision']}", ""]
     every = "both" if len(doc["fit"]["before"]["torque_nrmse"]) == 2 else "all"
     if not doc["findings"]:
         lines.append("Findings: none.")
@@ -151,6 +335,8 @@ def format_report(doc: dict) -> str:
                 f"-{100 * ev.get('held_out_error_reduction', 0):.1f} % in "
                 f"{ev.get('blocks_improved', '?')}/{ev.get('blocks', '?')} blocks{conf}"
             )
+            if ev.get("words"):
+                lines.append(f"    {ev['words']}")
     if doc.get("timing"):
         lines += ["", "Timing (from the time stamps):"]
         lines += [f"  {t['note']}" for t in doc["timing"]]  # each note names its kind

@@ -1,0 +1,148 @@
+"""The effect interface and its registry (:mod:`hil.diagnose.effects`).
+
+An effect is a physical way a recording departs from its nominal model θ₀ (the profile's, a
+``--params`` file's, or one identified from reference recordings). Against θ₀ the recording's
+rows (:mod:`hil.diagnose.columns`: y ≈ Ψ θ, y the filtered torque side) leave the residual
+r = y − Ψ θ₀; an effect on joint j (or on the arm) explains part of it as X β with X its
+columns (built over the same intervals and through the same filter as Ψ) and β its
+coefficients. A nonlinear effect (an encoder offset, a point mass's centre) is linearised at a
+point ``at`` and moved there by Gauss–Newton steps (:meth:`Effect.update`), its model change at
+``at`` (:meth:`Effect.shift`) taken off r first.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from hil.diagnose.columns import RecordingRows, moving_average
+
+
+@dataclass
+class Context:
+    """What an effect builds its columns from: the rows of the recording(s) judged, the nominal
+    model object and its θ₀ (in the model's parameters)."""
+
+    rows: list[RecordingRows]
+    model: Any
+    theta0: np.ndarray
+    Psi_raw: np.ndarray  # (K, n, p), the stacked nominal design
+    # the nominal model's torque rows (K, n): Ψ θ₀ with the nominal model's own departures
+    # (:attr:`hil.diagnose.drift.Nominal.terms`); None: Ψ θ₀
+    prediction: np.ndarray | None = None
+    # the 2-DOF arm's geometry from its profile (link1_m: l1, gravity_m_s2: g), when known
+    geometry: dict[str, float] | None = None
+    memo: dict = field(default_factory=dict)  # rows an effect rebuilt, kept for its next call
+
+    def predicted(self) -> np.ndarray:
+        return self.Psi_raw @ self.theta0 if self.prediction is None else self.prediction
+
+    @property
+    def n_joints(self) -> int:
+        return self.Psi_raw.shape[1]
+
+    @property
+    def closed_form(self) -> bool:
+        """The 2-DOF closed-form model (no Pinocchio body parameters)."""
+        return not hasattr(self.model, "n_body_params")
+
+    def stack(self, build) -> np.ndarray:
+        """``build(rows)`` of every recording, stacked as the design is."""
+        return np.concatenate([build(r) for r in self.rows])
+
+    def filtered(self, build) -> np.ndarray:
+        """F of per-interval values ``build(rows)`` (K, n, ...), as Ψ and y are filtered."""
+        return self.stack(lambda r: moving_average(build(r), r.window))
+
+
+@dataclass
+class SimInput:
+    """What an effect changes in the open-loop simulation of the nominal model: θ (``dtheta``
+    added), the torque reaching the shaft (``gain``: τ_shaft = g τ on a joint; ``offset``:
+    + c Nm), the encoder (``angle``: reading = true angle + δ)."""
+
+    dtheta: np.ndarray | None = None
+    gain: dict[int, float] = field(default_factory=dict)
+    offset: dict[int, float] = field(default_factory=dict)
+    angle: dict[int, float] = field(default_factory=dict)
+
+
+class Effect:
+    """One drift pattern. Subclasses set the class attributes and the methods they need."""
+
+    name: str = ""
+    width: int = 1
+    partners: tuple[str, ...] = ()  # effects it may be confounded with
+    separate: str = ""  # the experiment that tells it from those partners
+    nonlinear: bool = False
+    # tested as a finding of its own (False: only as the partner a finding is confounded with)
+    primary: bool = True
+    # kept in a nominal model identified from reference recordings when they show it: only a
+    # departure θ cannot take up (a gain, a friction level, a mass are θ's own business there)
+    in_reference: bool = False
+    # the smallest size worth naming (absolute, in the unit of :meth:`estimate`'s size)
+    floor: float = 0.0
+
+    def applies(self, ctx: Context) -> bool:
+        return True
+
+    def variants(self, ctx: Context) -> list[int | None]:
+        """Joints (0-based) the effect is tested on; None: one variant for the arm."""
+        return list(range(ctx.n_joints))
+
+    def acts_on(self, ctx: Context, joint: int | None) -> list[int]:
+        """The joints whose rows its columns reach (its held-out error is judged there)."""
+        return list(range(ctx.n_joints)) if joint is None else [joint]
+
+    def start(self, ctx: Context, joint: int | None) -> Any:
+        """The linearisation point before any fit (nonlinear effects)."""
+        return None
+
+    def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
+        """X (K, n, width) in Nm per unit coefficient."""
+        raise NotImplementedError
+
+    def shift(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray | None:
+        """The model's change (K, n) Nm at the linearisation point ``at`` (nonlinear effects)."""
+        return None
+
+    def update(self, ctx: Context, joint: int | None, beta: np.ndarray, at: Any) -> Any:
+        """The next linearisation point after a fit gave ``beta`` at ``at``."""
+        return at
+
+    def estimate(
+        self, ctx: Context, joint: int | None, beta: np.ndarray, se: np.ndarray, at: Any
+    ) -> tuple[dict[str, Any], float, float]:
+        """The finding's numbers, and its size with the standard error of that size."""
+        raise NotImplementedError
+
+    def words(self, estimate: dict[str, Any]) -> str:
+        raise NotImplementedError
+
+    def simulation(self, ctx: Context, joint: int | None, estimate: dict[str, Any]) -> SimInput:
+        """How the simulation takes it; an empty SimInput: it is not simulated."""
+        return SimInput()
+
+
+REGISTRY: dict[str, Effect] = {}
+
+
+def register(effect: Effect) -> Effect:
+    """Add ``effect`` to the registry (by its name; a name registered again replaces it)."""
+    if not effect.name:
+        raise ValueError("an effect needs a name")
+    REGISTRY[effect.name] = effect
+    return effect
+
+
+def on_joint(column: np.ndarray, joint: int, n_joints: int) -> np.ndarray:
+    """(K, w) columns of one joint's rows → (K, n, w), zero on the other joints."""
+    out = np.zeros((column.shape[0], n_joints, column.shape[1]))
+    out[:, joint, :] = column
+    return out
+
+
+def r4(x: float) -> float:
+    return float(f"{x:.4g}")

@@ -1,0 +1,97 @@
+"""Encoder zero offset on joint j: the reading is the true angle plus δ.
+
+The model holds at the true angle, q − δ e_j: y = Ψ(q − δ e_j) θ₀. Linearised at δ̂,
+Ψ(q − δ e_j) θ₀ ≈ Ψ(q − δ̂ e_j) θ₀ − (δ − δ̂) ∂(Ψθ₀)/∂q_j (a forward difference in δ of the
+rows rebuilt at the shifted angles, as :func:`hil.diagnose.columns.angle_offset_column`),
+refined by Gauss–Newton steps. One angle explains what would otherwise look like centres of
+mass off the link axes on every link beyond the joint (on the 2-DOF arm θ4⊥/θ4 = θ5⊥/θ5 = δ and
+θ2⊥ = 0 for joint 1): a joint held at a known angle (a level, the index pulse) tells the two
+apart.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from hil.diagnose.columns import _momentum_rows, moving_average
+from hil.diagnose.effects.base import Context, Effect, SimInput, r4, register
+
+
+def _shifted(r, joint: int, delta: float):
+    q = r.q.copy()
+    q[:, joint] -= delta
+    return replace(r, q=q)
+
+
+STEP_RAD = 1e-4  # the forward difference of ∂(Ψθ₀)/∂q_j
+
+
+def model_torque_at(ctx: Context, joint: int, delta: float) -> np.ndarray:
+    """F[Ψ(q − δ e_j) θ₀] (K, n): the nominal model's rows at the true angles (kept on the
+    context: the column and the shift at one point share it; an n-joint arm's rows are its
+    costliest step)."""
+    if delta == 0.0:
+        return ctx.Psi_raw @ ctx.theta0
+    key = ("encoder", joint, float(delta))
+    if key in ctx.memo:
+        return ctx.memo[key]
+
+    def rows(r):
+        s = _shifted(r, joint, delta)
+        psi = _momentum_rows(s.q, s.tau, s.h, s.stamps, s.half_window, s.model)[2]
+        return moving_average(psi @ ctx.theta0, r.window)
+
+    if len(ctx.memo) > 16:
+        ctx.memo.clear()
+    out = ctx.memo[key] = ctx.stack(rows)
+    return out
+
+
+class EncoderOffset(Effect):
+    name = "encoder_offset"
+    in_reference = True
+    nonlinear = True
+    partners = ("com_offset", "payload")
+    separate = (
+        "hold the joint at a known angle (a level, the encoder's index pulse): an encoder "
+        "offset moves every reading, a centre-of-mass offset only the gravity torque"
+    )
+    floor = 3e-4  # rad
+
+    def acts_on(self, ctx: Context, joint: int | None) -> list[int]:
+        return list(range(ctx.n_joints))  # gravity and inertia of every joint move with q_j
+
+    def start(self, ctx: Context, joint: int | None) -> Any:
+        return 0.0
+
+    def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
+        # d/dδ of F[Ψ(q − δ e_j) θ₀] at δ̂ (forward difference: one row build, not two)
+        ahead = model_torque_at(ctx, joint, at + STEP_RAD)
+        return ((ahead - model_torque_at(ctx, joint, at)) / STEP_RAD)[:, :, None]
+
+    def shift(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray | None:
+        if not at:
+            return None
+        return model_torque_at(ctx, joint, at) - ctx.Psi_raw @ ctx.theta0
+
+    def update(self, ctx, joint, beta, at):
+        return float(at + beta[0])
+
+    def estimate(self, ctx, joint, beta, se, at):
+        d, s = float(at + beta[0]), float(se[0])
+        return {"offset_rad": r4(d), "offset_se_rad": r4(s), "deg": r4(np.degrees(d))}, d, s
+
+    def words(self, e: dict[str, Any]) -> str:
+        return (
+            f"the encoder zero is off by {e['offset_rad']:+.4g} ± {e['offset_se_rad']:.2g} rad "
+            f"({e['deg']:+.3g} deg): the reading is the true angle plus that"
+        )
+
+    def simulation(self, ctx: Context, joint: int | None, e: dict[str, Any]) -> SimInput:
+        return SimInput(angle={joint: e["offset_rad"]})
+
+
+register(EncoderOffset())

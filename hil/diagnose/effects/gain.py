@@ -1,0 +1,55 @@
+"""Torque gain on joint j: the torque reaching the shaft is g times the recorded one.
+
+Convention: a recorded torque column scaled by 1/g is a gain g (a motor constant, a current
+sensor or an amplifier off by that factor). Joint j's equation of the nominal model then holds
+for g τ_j: y_j = Ψ_j θ₀ / g = Ψ_j θ₀ − (1 − 1/g) Ψ_j θ₀, so X = −Ψ_j θ₀ on joint j's rows (the
+nominal model's whole torque, with its own departures), β = 1 − 1/g. The column is the model's
+torque, not the recorded one: a residual the model leaves (30–50 % of a real arm's joint
+torque) is in y_j, and a column of y_j would read it as a gain (errors in variables: β → −NRMSE²,
+a "gain" of 0.66 on an unchanged DFKI arm).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from hil.diagnose.effects.base import Context, Effect, SimInput, on_joint, r4, register
+
+
+class TorqueGain(Effect):
+    name = "torque_gain"
+    partners = ("payload", "rotor_inertia")
+    separate = (
+        "a known load or a torque sensor on the shaft (a gain scales every torque of the "
+        "joint, a load only its gravity and inertia)"
+    )
+    floor = 0.005  # relative: below this, within what a profile's numbers are known to
+
+    def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
+        return on_joint(-ctx.predicted()[:, joint, None], joint, ctx.n_joints)
+
+    def estimate(self, ctx, joint, beta, se, at):
+        b = min(float(beta[0]), 0.99)
+        g = 1.0 / (1.0 - b)
+        g_se = float(se[0]) * g * g  # dg/dβ = 1/(1 − β)²
+        return (
+            # relative: g − 1, the refit vocabulary's torque_gain number
+            {"gain": r4(g), "gain_se": r4(g_se), "relative": r4(g - 1)},
+            (g - 1.0),
+            g_se,
+        )
+
+    def words(self, e: dict[str, Any]) -> str:
+        return (
+            f"the torque reaching the shaft is {e['gain']:.4g} ± {e['gain_se']:.2g} times the "
+            f"recorded one ({100 * e['relative']:+.3g} %: motor constant, current sensing or "
+            "amplifier)"
+        )
+
+    def simulation(self, ctx: Context, joint: int | None, e: dict[str, Any]) -> SimInput:
+        return SimInput(gain={joint: e["gain"]})
+
+
+register(TorqueGain())

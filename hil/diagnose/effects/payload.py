@@ -1,0 +1,144 @@
+"""A payload: a point mass m at c (in the last body's frame) that the nominal model lacks.
+
+For an arm described by a URDF the nominal rows are Ψ_b θ_b with θ_b = E θ_std (the base
+parameters, :class:`hil.model.urdf.UrdfArmModel`), so the rows of the last body's ten standard
+parameters (Pinocchio's order m, m c, I at the frame origin) are Ψ_b E_last. A point mass adds
+m (1, c, |c|² 1 − c cᵀ) to them; with h = m c that is linear in (m, h) once the inertia's c is
+held at ĉ: m I = (ĉ·h) 1 − ½ (h ĉᵀ + ĉ hᵀ) (exact at ĉ = c), so the fit is repeated with
+ĉ = h / m.
+
+On the 2-DOF closed form (Reyes & Kelly (1997), Section 5) a point mass m on link 2 at l_p from
+joint 2 adds Δθ1 = m (l1² + l_p²), Δθ2 = l1 m l_p, Δθ3 = m l_p², Δθ4 = g m l1, Δθ5 = g m l_p
+(:func:`virtual_robot.effects.payload_theta` without its own inertia); with h = m l_p and the
+squared l_p held at l̂: X_m = l1² Ψ₁ + g l1 Ψ₄, X_h = l̂ Ψ₁ + l1 Ψ₂ + l̂ Ψ₃ + g Ψ₅, repeated with
+l̂ = h / m. It needs l1 and g from the robot profile.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from hil.diagnose.effects.base import Context, Effect, SimInput, r4, register
+
+# Pinocchio's dynamic parameters: m, mx, my, mz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz
+_INERTIA = ((0, 0), (0, 1), (1, 1), (0, 2), (1, 2), (2, 2))
+
+
+def _inertia_vector(matrix: np.ndarray) -> np.ndarray:
+    return np.array([matrix[a, b] for a, b in _INERTIA])
+
+
+def point_mass_standard(m: float, c: np.ndarray) -> np.ndarray:
+    """The ten standard parameters of a point mass m at c."""
+    c = np.asarray(c, float)
+    inertia = m * (float(c @ c) * np.eye(3) - np.outer(c, c))
+    return np.concatenate([[m], m * c, _inertia_vector(inertia)])
+
+
+def _last_body(ctx: Context) -> np.ndarray:
+    """E's columns of the last body's standard parameters (p_base, 10)."""
+    n = ctx.n_joints
+    return ctx.model.base.expand[:, 10 * (n - 1) : 10 * n]
+
+
+def _planar_columns(ctx: Context, lp: float) -> np.ndarray:
+    """(X_m, X_h) of the 2-DOF arm's point mass on link 2 (module doc), (K, 2, 2)."""
+    assert ctx.geometry is not None
+    P, l1, g = ctx.Psi_raw, ctx.geometry["link1_m"], ctx.geometry["gravity_m_s2"]
+    x_m = l1**2 * P[:, :, 0] + g * l1 * P[:, :, 3]
+    x_h = lp * P[:, :, 0] + l1 * P[:, :, 1] + lp * P[:, :, 2] + g * P[:, :, 4]
+    return np.stack([x_m, x_h], axis=-1)
+
+
+class Payload(Effect):
+    name = "payload"
+    width = 4  # (m, m c) of a URDF arm's last body; 2 on the 2-DOF arm (m, m l_p)
+    nonlinear = True
+    partners = ("torque_gain", "encoder_offset")
+    separate = (
+        "a motion with the last joints still and the first ones moving slowly, then the same "
+        "with the payload off (a mass shows in gravity at every pose, a gain in every torque)"
+    )
+    floor = 0.01  # kg
+
+    def applies(self, ctx: Context) -> bool:
+        return not ctx.closed_form or bool(ctx.geometry)
+
+    def variants(self, ctx: Context) -> list[int | None]:
+        return [None]
+
+    def start(self, ctx: Context, joint: int | None) -> Any:
+        return np.zeros(1 if ctx.closed_form else 3)
+
+    def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
+        if ctx.closed_form:
+            return _planar_columns(ctx, float(np.asarray(at).ravel()[0]))
+        Y = ctx.Psi_raw @ _last_body(ctx)  # (K, n, 10): rows of the last body's parameters
+        c = np.asarray(at, float)
+        cols = [Y[:, :, 0]]
+        for k in range(3):
+            e = np.zeros(3)
+            e[k] = 1.0
+            inertia = c[k] * np.eye(3) - 0.5 * (np.outer(e, c) + np.outer(c, e))
+            cols.append(Y[:, :, 1 + k] + Y[:, :, 4:] @ _inertia_vector(inertia))
+        return np.stack(cols, axis=-1)
+
+    def update(self, ctx, joint, beta, at):
+        m = float(beta[0])
+        k = len(beta) - 1
+        return np.asarray(beta[1:], float) / m if abs(m) > 1e-9 else np.zeros(k)
+
+    def estimate(self, ctx, joint, beta, se, at):
+        m, s = float(beta[0]), float(se[0])
+        if ctx.closed_form:
+            lp = float(beta[1]) / m if abs(m) > 1e-9 else 0.0
+            return (
+                {
+                    "mass_kg": r4(m),
+                    "mass_se_kg": r4(s),
+                    "centre_m": [r4(lp)],
+                    "centre_se_m": [r4(float(se[1]) / max(abs(m), 1e-9))],
+                    "body": "link 2 (distance from joint 2 along the link)",
+                },
+                m,
+                s,
+            )
+        c = np.asarray(beta[1:4], float) / m if abs(m) > 1e-9 else np.zeros(3)
+        c_se = np.asarray(se[1:4], float) / max(abs(m), 1e-9)
+        return (
+            {
+                "mass_kg": r4(m),
+                "mass_se_kg": r4(s),
+                "centre_m": [r4(x) for x in c],
+                "centre_se_m": [r4(x) for x in c_se],
+                "body": f"the last body (joint {ctx.n_joints}'s frame)",
+            },
+            m,
+            s,
+        )
+
+    def words(self, e: dict[str, Any]) -> str:
+        c = ", ".join(f"{x:+.3g}" for x in e["centre_m"])
+        m = e["mass_kg"]
+        if m < 0:  # the model carries a mass the arm does not (a load taken off, a heavy model)
+            return (
+                f"a point mass of {-m:.3g} ± {e['mass_se_kg']:.2g} kg at ({c}) m on {e['body']} "
+                "that the model has and the arm lacks (a load taken off)"
+            )
+        return f"a payload of {m:.3g} ± {e['mass_se_kg']:.2g} kg at ({c}) m on {e['body']}"
+
+    def simulation(self, ctx: Context, joint: int | None, e: dict[str, Any]) -> SimInput:
+        if ctx.closed_form:
+            assert ctx.geometry is not None
+            m, lp = e["mass_kg"], e["centre_m"][0]
+            l1, g = ctx.geometry["link1_m"], ctx.geometry["gravity_m_s2"]
+            d = np.zeros(len(ctx.theta0))
+            d[:5] = [m * (l1**2 + lp**2), l1 * m * lp, m * lp**2, g * m * l1, g * m * lp]
+            return SimInput(dtheta=d)
+        std = point_mass_standard(e["mass_kg"], np.array(e["centre_m"]))
+        return SimInput(dtheta=_last_body(ctx) @ std)
+
+
+register(Payload())

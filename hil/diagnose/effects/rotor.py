@@ -1,0 +1,43 @@
+"""Rotor inertia change on joint j: a reflected inertia ΔI_a on joint j's own equation.
+
+ΔI_a q̈_j on joint j's row; in the momentum form of the rows (Reyes & Kelly (1997) eq. (24))
+X_j = F[(q̇_j(t_{k+1}) − q̇_j(t_k)) / h_k], β = ΔI_a [kg m²] (a new motor, gearbox or coupling).
+Its size is judged against its standard error; the nominal M(q) cannot take a diagonal term on
+one joint alone in the 2-DOF θ, so it is not simulated there.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from hil.diagnose.effects.base import Context, Effect, on_joint, r4, register
+
+
+def _velocity_step(r, joint: int) -> np.ndarray:
+    k = r.k
+    h = r.h if r.stamps is None else (r.stamps[k + 1] - r.stamps[k])
+    return ((r.v[k + 1, joint] - r.v[k, joint]) / h)[:, None]
+
+
+class RotorInertia(Effect):
+    name = "rotor_inertia_change"
+    partners = ("torque_gain",)
+    separate = "fast small-amplitude motion of the joint alone (inertia against gravity)"
+
+    def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
+        return ctx.filtered(lambda r: on_joint(_velocity_step(r, joint), joint, ctx.n_joints))
+
+    def estimate(self, ctx, joint, beta, se, at):
+        d, s = float(beta[0]), float(se[0])
+        return {"inertia_change_kgm2": r4(d), "inertia_se_kgm2": r4(s)}, d, s
+
+    def words(self, e: dict[str, Any]) -> str:
+        return (
+            f"the reflected inertia on the joint changed by {e['inertia_change_kgm2']:+.3g} "
+            f"± {e['inertia_se_kgm2']:.2g} kg m² (motor, gearbox or coupling)"
+        )
+
+
+register(RotorInertia())
