@@ -20,7 +20,7 @@ import math
 import os
 import re
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -50,10 +50,62 @@ class RecordingError(ValueError):
 
 
 def write_json_atomic(path: Path, document: dict[str, Any]) -> None:
-    """Write JSON so that a reader never sees half a file (write, then rename)."""
+    """Write JSON so that a reader never sees half a file (write, then rename); strict JSON
+    (:func:`dumps_strict`: no NaN or Infinity)."""
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(document, indent=2, sort_keys=False, default=_json_default) + "\n")
+    tmp.write_text(dumps_strict(document, indent=2) + "\n")
     os.replace(tmp, path)
+
+
+def dumps_strict(document: Any, **kwargs: Any) -> str:
+    """``document`` as strict JSON (RFC 8259 has no NaN or Infinity, and strict parsers refuse
+    Python's): every non-finite number becomes null, with a ``<key>_null_reason`` beside it
+    (:func:`strict_json`); numpy scalars and arrays as numbers and lists, paths as strings.
+    ``allow_nan=False`` is the guard: a non-finite number that gets past the sanitiser fails
+    here, loudly, instead of writing invalid JSON."""
+    return json.dumps(strict_json(document), allow_nan=False, default=_json_default, **kwargs)
+
+
+def strict_json(value: Any) -> Any:
+    """A copy of ``value`` (dicts, lists, tuples, numpy arrays and scalars, floats) in which
+    every NaN or ±Infinity is None. In a dict, a key whose value was (or held) a non-finite
+    number gets ``<key>_null_reason`` beside it saying which (``"NaN"``, or ``"NaN at index
+    3, Infinity at index 5"`` for a list), so a null is never silent."""
+    cleaned, _ = _strict(value)
+    return cleaned
+
+
+def _strict(value: Any) -> tuple[Any, str | None]:
+    """(value with non-finite numbers as None, what was replaced or None)."""
+    if isinstance(value, bool) or value is None or isinstance(value, int | str):
+        return value, None
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    elif isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float):
+        if math.isfinite(value):
+            return value, None
+        return None, "NaN" if math.isnan(value) else ("Infinity" if value > 0 else "-Infinity")
+    if isinstance(value, Mapping):
+        out: dict[Any, Any] = {}
+        reasons: dict[str, str] = {}
+        for key, item in value.items():
+            out[key], why = _strict(item)
+            if why is not None:
+                reasons[f"{key}_null_reason"] = why
+        for key, why in reasons.items():
+            out.setdefault(key, f"not a finite number: {why}")
+        return out, None  # its own keys say what they hold
+    if isinstance(value, list | tuple):
+        items, whys = [], []
+        for i, item in enumerate(value):
+            cleaned, why = _strict(item)
+            items.append(cleaned)
+            if why is not None and len(whys) < 3:
+                whys.append(f"{why} at index {i}" if " at index " not in why else f"[{i}]: {why}")
+        return items, (", ".join(whys) if whys else None)
+    return value, None
 
 
 def _json_default(value: Any) -> Any:
@@ -158,7 +210,20 @@ IRREGULAR_FACTOR = 1.5
 # t in ms, or a wrong period_s), and 1 µs is below any loop this bench or a real arm runs.
 PERIOD_MIN_S = 1e-6
 PERIOD_MAX_S = 1.0
-CHUNK_LINES = 1 << 16  # lines parsed at once: bounded memory for the text, fast C parsing
+CHUNK_CHARS = 1 << 22  # characters of text parsed at once: bounded memory, fast C parsing
+# The longest line a reader takes (characters, without its newline): a recording's row is tens
+# of numbers of at most ~25 characters each, so 128 KiB is thousands of columns; past it (a file
+# with no newline, a field of megabytes, /dev/zero) the reader stops in one line, having held
+# at most this much of it.
+MAX_LINE_CHARS = 128 * 1024
+# The largest |q| (rad) and |tau| (Nm) a recording may hold. Physically: 1e6 rad is 160,000
+# turns, 1e6 Nm a hundred times the largest arm's joint torque, so a value past it is a unit, a
+# parse or a logging fault, never a measurement. Numerically: every row the analyses build is a
+# low-degree polynomial in q, its divided differences (h >= PERIOD_MIN_S = 1e-6 s) and tau, so
+# with |q|, |tau| <= 1e6 each stays far inside float64's range and the solvers never see an
+# overflow (a 1e300 ends in NaN rows, and LAPACK then prints on stdout and fails with no file,
+# row or column named). Not tuned to any recording: any bound between the two arguments would do.
+MAX_ABS_VALUE = 1e6
 # meta.json fields an analysis reads, with the JSON types they must have
 _META_TYPES: dict[str, tuple[type, ...]] = {
     "period_s": (float, int),
@@ -366,15 +431,20 @@ def read_signals(
     if isinstance(min_rows, bool) or not isinstance(min_rows, int) or min_rows < 0:
         raise ValueError(f"min_rows must be an integer >= 0, got {min_rows!r}")
     try:
-        f = open(csv_path, encoding="utf-8", newline=None)  # noqa: SIM115 (closed below)
+        # utf-8-sig: a byte-order mark before the header (Excel's "CSV UTF-8") is dropped
+        f = open(csv_path, encoding="utf-8-sig", newline=None)  # noqa: SIM115 (closed below)
     except OSError as exc:
         raise RecordingError(f"{csv_path}: cannot read ({exc.strerror})") from None
     with f:
         try:
-            first = f.readline()
+            first = f.readline(MAX_LINE_CHARS + 2)  # bounded: a file with no newline too
             if not first:
                 raise RecordingError(f"{csv_path}: empty file, no header")
-            header = [h.strip() for h in next(csv.reader(io.StringIO(first)), [])]
+            _check_line_length(csv_path, 1, len(first.rstrip("\n")))
+            try:
+                header = [h.strip() for h in next(csv.reader(io.StringIO(first)), [])]
+            except csv.Error as exc:
+                raise RecordingError(f"{csv_path}:1: header is not CSV ({exc})") from None
             plan = _plan(csv_path, header, meta, fmt, columns, torque, loop_delay)
             keep = list(header) if extra_columns else list(dict.fromkeys(plan.sources.values()))
             if len(set(header)) != len(header) and extra_columns:
@@ -552,11 +622,43 @@ def _plan(
     )
 
 
+def _check_line_length(csv_path: Path, line_no: int, length: int) -> None:
+    if length > MAX_LINE_CHARS:
+        raise RecordingError(
+            f"{csv_path}:{line_no}: line longer than {MAX_LINE_CHARS // 1024} KiB (a file "
+            "without newlines, a huge field, or not a CSV recording at all)"
+        )
+
+
+def _line_chunks(f: io.TextIOBase, csv_path: Path, line_no: int) -> Iterator[list[str]]:
+    """The file's remaining lines in lists of about :data:`CHUNK_CHARS` characters, each line
+    ending in its newline but perhaps the very last (torn); a line longer than
+    :data:`MAX_LINE_CHARS` stops the reading, having held at most a chunk and that line."""
+    rest = ""
+    while True:
+        block = f.read(CHUNK_CHARS)
+        if not block:
+            _check_line_length(csv_path, line_no, len(rest))
+            if rest:
+                yield [rest]
+            return
+        parts = (rest + block).split("\n")
+        rest = parts.pop()
+        if parts:
+            longest = max(range(len(parts)), key=lambda i: len(parts[i]))
+            _check_line_length(csv_path, line_no + longest, len(parts[longest]))
+        _check_line_length(csv_path, line_no + len(parts), len(rest))
+        if parts:
+            line_no += len(parts)
+            yield [p + "\n" for p in parts]
+
+
 def _parse_body(
     f: io.TextIOBase, csv_path: Path, header: list[str], keep: list[int]
 ) -> tuple[np.ndarray, bool]:
     """Parse the rows after the header into a (rows, len(keep)) float array, chunk by chunk:
-    the text of at most :data:`CHUNK_LINES` lines is held at once; the array grows in place."""
+    the text of at most :data:`CHUNK_CHARS` characters is held at once (lines of at most
+    :data:`MAX_LINE_CHARS`); the array grows in place."""
     ncols = len(header)
     cap = 0
     out = np.empty((0, len(keep)))
@@ -564,10 +666,7 @@ def _parse_body(
     dropped = False
     size = os.fstat(f.fileno()).st_size if hasattr(f, "fileno") else 0
     line_no = 2  # file line of the chunk's first row (the header is line 1)
-    while True:
-        lines = list(itertools.islice(f, CHUNK_LINES))
-        if not lines:
-            break
+    for lines in _line_chunks(f, csv_path, line_no):
         if not lines[-1].endswith("\n"):
             lines.pop()  # the writer always ends rows with a newline: this one was torn
             dropped = True
@@ -641,6 +740,16 @@ def _assemble(
                 f"{csv_path}:{i + 2}: {plan.sources[name]} = {float(data[i, j])!r} is not a "
                 "finite number"
             )
+        if name != "t":  # t: its own checks below (increasing, its period)
+            beyond = np.abs(data[:, j]) > MAX_ABS_VALUE
+            if beyond.any():
+                i = int(np.argmax(beyond))
+                unit = "rad" if name.startswith("q") else "Nm"
+                raise RecordingError(
+                    f"{csv_path}:{i + 2}: {plan.sources[name]} = {float(data[i, j])!r}: value "
+                    f"out of range (|{name}| <= {MAX_ABS_VALUE:g} {unit} for any arm; wrong "
+                    "units or a logging fault?)"
+                )
     t = data[:, col[plan.sources["t"]]]
     dt = np.diff(t)
     back = dt < 0
@@ -893,9 +1002,11 @@ __all__ = [
     "Recording",
     "RecordingError",
     "RecordingWriter",
+    "dumps_strict",
     "parse_column_map",
     "plot_positions",
     "read_signals",
     "reassemble",
+    "strict_json",
     "write_json_atomic",
 ]

@@ -47,6 +47,7 @@ from drivers.recording import (
     SIGNALS,
     Recording,
     RecordingError,
+    dumps_strict,
     parse_column_map,
     read_signals,
 )
@@ -233,10 +234,11 @@ def add_report_options(
 def print_document(
     args: argparse.Namespace, doc: dict[str, Any], text: str | Callable[[], str]
 ) -> None:
-    """With ``--json`` ``doc`` as one line of JSON on stdout (numpy scalars as numbers), else
+    """With ``--json`` ``doc`` as one line of strict JSON on stdout (numpy scalars as numbers,
+    NaN and Infinity as null with a reason: :func:`drivers.recording.dumps_strict`), else
     ``text`` (or what it returns)."""
     if getattr(args, "json", False):
-        print(json.dumps(doc, default=float))
+        print(dumps_strict(doc))
     else:
         print(text() if callable(text) else text)
 

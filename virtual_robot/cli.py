@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -13,7 +12,7 @@ from collections.abc import Sequence
 from drivers.logsetup import add_verbosity_options, configure, verbosity
 from drivers.options import float_list
 from drivers.process import limit_blas_threads, reader_gone
-from drivers.recording import RecordingError
+from drivers.recording import RecordingError, dumps_strict
 from profiles import ProfileError
 from profiles.bench import BenchProfile, load_bench
 from profiles.effects import load_effects
@@ -161,7 +160,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     )
     summary = result.summary()
     if args.json:
-        print(json.dumps(summary))
+        print(dumps_strict(summary))
     else:
         print(
             f"wrote {summary['rows']} rows ({summary['simulated_s']:.3f} s at "
@@ -222,7 +221,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         _watch_parent(stop)
 
     def announce(info: dict) -> None:
-        print(json.dumps({**info, "bench": bench.name, "pid": os.getpid()}), flush=True)
+        print(dumps_strict({**info, "bench": bench.name, "pid": os.getpid()}), flush=True)
 
     code = serve(
         bench,

@@ -50,6 +50,7 @@ from hil.diagnose.stats import (
     target_block_sums,
 )
 from hil.model.closed_form import TERMS, ArmModel
+from hil.model.estimators import require_finite
 
 VOCABULARY = (
     "coulomb_asymmetry",
@@ -506,6 +507,8 @@ def fit_theta(
     sw = np.sqrt(w)[..., None]
     A = (np.multiply(Psi, sw, out=Psi) if overwrite_design else Psi * sw).reshape(-1, Psi.shape[-1])
     b = (y * sw[..., 0]).reshape(-1)
+    require_finite(A, "diagnosis fit rows")
+    require_finite(b, "diagnosis fit torques")
     return np.linalg.lstsq(A, b, rcond=None)[0]
 
 
