@@ -193,3 +193,73 @@ def test_diagnose_dev_zero_ends_quickly_in_one_line():
 def test_a_bom_header_reads(tmp_path):
     rec = read_signals(write_csv(tmp_path / "excel.csv", rows(20), bom=True))
     assert len(rec) == 20 and rec.n_joints == 2
+
+
+# ---- non-physical parameters are never offered -------------------------------------------------
+
+
+def _noise_csv(path: Path, seed: int = 1) -> Path:
+    rng = np.random.default_rng(seed)
+    data = rng.normal(size=(3000, 5))
+    data[:, 0] = np.arange(3000) * H
+    return write_csv(path, data)
+
+
+@pytest.fixture(scope="module")
+def swapped_run(tmp_path_factory) -> Path:
+    """A simulated CICESE run with its two torque columns swapped."""
+    from profiles.experiment import load_experiment
+    from profiles.robot import load_robot
+    from virtual_robot.simulate import simulate
+
+    base = tmp_path_factory.mktemp("swap")
+    run = base / "run"
+    simulate(load_robot("cicese"), load_experiment("reyes-kelly"), run, duration_s=8, plot=False)
+    rec = read_signals(run)
+    data = np.column_stack([rec.t, rec.q, rec.tau[:, ::-1]])
+    return write_csv(base / "swapped.csv", data)
+
+
+@pytest.mark.parametrize("source", ["noise", "swapped"])
+@pytest.mark.parametrize("path", ["table-ii", "model"])
+def test_identify_never_offers_a_non_physical_theta(tmp_path, swapped_run, source, path):
+    """Before: every scheme NOT PHYSICAL, yet exit 0, params.json written, "selected:
+    filtered_dynamic"."""
+    rec = _noise_csv(tmp_path / "noise.csv") if source == "noise" else swapped_run
+    out = tmp_path / "id"
+    extra = ["--terms", ""] if path == "model" else []
+    proc = hil("identify", "--from", str(rec), "--out", str(out), "--no-plot", "--json", *extra)
+    assert proc.returncode == 1, proc.stderr
+    assert "FAILED" in proc.stderr.strip().splitlines()[-1]
+    assert not (out / "params.json").exists()
+    doc = strict_loads(proc.stdout)
+    assert doc["selection"]["usable"] is False and doc["selection"]["reason"]
+    assert strict_loads((out / "identify.json").read_text())["selection"] == doc["selection"]
+    if path == "table-ii":
+        schemes = doc["discretizations"]["exact"]["schemes"]
+        assert all(not s["usable"] and s["failed_reason"] for s in schemes.values())
+
+
+def test_control_refuses_a_scheme_identify_marked_not_physical(tmp_path):
+    """A params.json written before identify withheld such schemes: its selected θ marked
+    not physically consistent is refused (exit 2), --out left unwritten."""
+    params = tmp_path / "params.json"
+    theta = [2.35, 0.08, 0.1, 38, 1.8, 2.3, 0.17, 7, -1.7]  # M(q) > 0, a negative Coulomb level
+    consistency = {"consistent": False, "violations": ["negative friction coefficient"]}
+    params.write_text(
+        json.dumps(
+            {
+                "selected": "filtered_dynamic",
+                "schemes": {
+                    "filtered_dynamic": {"theta": theta, "physical_consistency": consistency}
+                },
+            }
+        )
+    )
+    out = tmp_path / "c"
+    proc = hil("control", "--bench", "virtual-inprocess", "--scheme", "ct", "--params",
+               str(params), "--out", str(out), "--no-plot")  # fmt: skip
+    assert proc.returncode == 2, proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    assert "not physically consistent" in last and str(params) in last
+    assert not out.exists()
