@@ -263,3 +263,35 @@ def test_control_refuses_a_scheme_identify_marked_not_physical(tmp_path):
     last = proc.stderr.strip().splitlines()[-1]
     assert "not physically consistent" in last and str(params) in last
     assert not out.exists()
+
+
+# ---- --attach ----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "bench, channel, expected",
+    [
+        ("virtual-socketcand", "foo", "HOST:PORT"),  # before: invalid literal for int()
+        ("virtual-socketcand", "127.0.0.1:99999", "1..65535"),  # before: nothing listens there
+        ("virtual-socketcand", "127.0.0.1:", "HOST:PORT"),
+        ("virtual-slcan", "no-such-pty", "does not exist"),
+    ],
+)
+def test_attach_to_a_malformed_channel_is_a_usage_error(tmp_path, capsys, bench, channel, expected):
+    from hil.cli import main as hil_main
+
+    out = tmp_path / "run"
+    code = hil_main(["run", "--bench", bench, "--attach", channel, "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1, err
+    assert "--attach" in err and expected in err and repr(channel) in err
+    assert not out.exists()
+
+
+def test_host_port():
+    from drivers.options import host_port
+
+    assert host_port("127.0.0.1:29536", "--attach") == ("127.0.0.1", 29536)
+    assert host_port(":80", "--attach") == ("127.0.0.1", 80)
+    with pytest.raises(ValueError, match="got '0'"):
+        host_port("0", "--attach")
