@@ -8,6 +8,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -295,3 +297,76 @@ def test_host_port():
     assert host_port(":80", "--attach") == ("127.0.0.1", 80)
     with pytest.raises(ValueError, match="got '0'"):
         host_port("0", "--attach")
+
+
+# ---- bad profiles: exit 2, the field named, nothing in --out -----------------------------------
+
+
+def _cicese_with(tmp_path: Path, old: str, new: str) -> Path:
+    text = (ROOT / "profiles" / "robots" / "cicese.toml").read_text()
+    assert old in text
+    path = tmp_path / "robot.toml"
+    path.write_text(text.replace(old, new))
+    (tmp_path / "cicese.urdf").write_text(
+        (ROOT / "profiles" / "robots" / "cicese.urdf").read_text()
+    )
+    return path
+
+
+@pytest.mark.parametrize("command", ["simulate", "identify", "diagnose"])
+def test_a_robot_value_that_overflows_is_refused_naming_the_field(tmp_path, command):
+    """Before: com_m = 1e300 passed validation and ended in OverflowError tracebacks."""
+    robot = _cicese_with(tmp_path, "com_m = 0.091", "com_m = 1e300")
+    out = tmp_path / "out"
+    rec = write_csv(tmp_path / "rec.csv", rows())
+    if command == "simulate":
+        argv = [sys.executable, "-m", "virtual_robot.cli", "simulate", "--robot", str(robot),
+                "--experiment", "reyes-kelly", "--duration", "0.1", "--out", str(out)]  # fmt: skip
+        proc = subprocess.run(argv, capture_output=True, text=True, check=False, timeout=120)
+    elif command == "identify":
+        proc = hil("identify", "--from", str(rec), "--robot", str(robot), "--out", str(out))
+    else:
+        proc = hil("diagnose", str(rec), "--robot", str(robot), "--out", str(out))
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr and proc.stderr.strip().count("\n") == 0, proc.stderr
+    assert "'link1.com_m': 1e+300 is out of range" in proc.stderr
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "kind", ["unknown-name", "nan", "cogging-1e300", "drive-watchdog", "robot-inertia"]
+)
+def test_a_bad_profile_for_the_virtual_robot_exits_2_leaving_out_empty(tmp_path, capsys, kind):
+    """Before: exit 3 (link failure: the robot did not start, the cause in its log) with
+    virtual-robot.log left in --out, or "no feedback ... stalled or gone" after 2 s."""
+    from hil.cli import main as hil_main
+
+    argv = ["run", "--bench", "virtual-slcan", "--duration", "0.2", "--out", str(tmp_path / "o")]
+    effects = tmp_path / "effects.toml"
+    cogging = "[cogging]\nperiods_per_rev = [120, 96]\nphase_rad = [0.0, 0.0]\n"
+    if kind == "unknown-name":
+        argv += ["--effects", "no-such-effect"]
+        field = "no effects profile of that name"
+    elif kind in ("nan", "cogging-1e300"):
+        value = "nan" if kind == "nan" else "1e300"
+        effects.write_text(f'name = "x"\n{cogging}amplitude_Nm = [{value}, 0.1]\n')
+        argv += ["--effects", str(effects)]
+        field = "'cogging.amplitude_Nm[0]'"
+    elif kind == "drive-watchdog":
+        drive = tmp_path / "drive.toml"
+        text = (ROOT / "profiles" / "drives" / "dm1015b.toml").read_text()
+        drive.write_text(text.replace("watchdog_s = 0.5", "watchdog_s = 1e9"))
+        robot = _cicese_with(tmp_path, '"dm1015b"]', f'"{drive}"]')
+        argv += ["--robot", str(robot)]
+        field = "'watchdog_s'"
+    else:
+        argv += [
+            "--robot",
+            str(_cicese_with(tmp_path, "inertia_kgm2 = 0.093", "inertia_kgm2 = -1")),
+        ]
+        field = "'link2.inertia_kgm2'"
+    code = hil_main(argv)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.count("\n") == 1 and field in err, err
+    assert not (tmp_path / "o").exists()
