@@ -20,7 +20,7 @@ import math
 import os
 import re
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -406,6 +406,7 @@ def read_signals(
     loop_delay: int | None = None,
     extra_columns: bool = True,
     min_rows: int = 0,
+    progress: Callable[..., None] | None = None,
 ) -> Recording:
     """Read a run directory, a bare CSV with the columns t,q1..qN,tau1..tauN, or a foreign CSV.
 
@@ -417,7 +418,8 @@ def read_signals(
     the reader shifts tau so row k's is held over [t_k, t_{k+1}) and drops the rows left without
     a torque (default: the torque source's, 0 for this project's files). ``extra_columns``:
     keep the file's other columns (False: only t, q, tau; less memory). ``min_rows``: fewer rows
-    is an error.
+    is an error. ``progress(stage, done, total, unit)``: told the megabytes read after every
+    chunk of text (a command's throttled progress line).
 
     Checked on read, each failure a one-line :class:`RecordingError` naming the file and line:
     a malformed row, NaN/inf in t, q or tau, t not strictly increasing, t inconsistent with
@@ -450,7 +452,9 @@ def read_signals(
             if len(set(header)) != len(header) and extra_columns:
                 dup = next(h for h in header if header.count(h) > 1)
                 raise RecordingError(f"{csv_path}: column {dup!r} appears twice in the header")
-            data, dropped = _parse_body(f, csv_path, header, [header.index(c) for c in keep])
+            data, dropped = _parse_body(
+                f, csv_path, header, [header.index(c) for c in keep], progress
+            )
         except UnicodeDecodeError as exc:
             raise RecordingError(f"{csv_path}: not UTF-8 text ({exc})") from None
         except OSError as exc:
@@ -654,7 +658,11 @@ def _line_chunks(f: io.TextIOBase, csv_path: Path, line_no: int) -> Iterator[lis
 
 
 def _parse_body(
-    f: io.TextIOBase, csv_path: Path, header: list[str], keep: list[int]
+    f: io.TextIOBase,
+    csv_path: Path,
+    header: list[str],
+    keep: list[int],
+    progress: Callable[..., None] | None = None,
 ) -> tuple[np.ndarray, bool]:
     """Parse the rows after the header into a (rows, len(keep)) float array, chunk by chunk:
     the text of at most :data:`CHUNK_CHARS` characters is held at once (lines of at most
@@ -682,6 +690,9 @@ def _parse_body(
             out.resize((cap, len(keep)), refcheck=False)
         out[rows : rows + len(block)] = block[:, keep]
         rows += len(block)
+        if progress is not None and size:
+            done = f.buffer.tell() if hasattr(f, "buffer") else 0
+            progress(f"reading {csv_path.name}", done // 1_000_000, size // 1_000_000, "MB")
         line_no += len(lines)
         if dropped:
             break

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -208,18 +209,23 @@ def _noise_csv(path: Path, seed: int = 1) -> Path:
 
 
 @pytest.fixture(scope="module")
-def swapped_run(tmp_path_factory) -> Path:
-    """A simulated CICESE run with its two torque columns swapped."""
+def sim_run(tmp_path_factory) -> Path:
+    """8 s of the CICESE arm's excitation, simulated."""
     from profiles.experiment import load_experiment
     from profiles.robot import load_robot
     from virtual_robot.simulate import simulate
 
-    base = tmp_path_factory.mktemp("swap")
-    run = base / "run"
+    run = tmp_path_factory.mktemp("sim") / "run"
     simulate(load_robot("cicese"), load_experiment("reyes-kelly"), run, duration_s=8, plot=False)
-    rec = read_signals(run)
+    return run
+
+
+@pytest.fixture(scope="module")
+def swapped_run(sim_run) -> Path:
+    """The simulated run with its two torque columns swapped."""
+    rec = read_signals(sim_run)
     data = np.column_stack([rec.t, rec.q, rec.tau[:, ::-1]])
-    return write_csv(base / "swapped.csv", data)
+    return write_csv(sim_run.parent / "swapped.csv", data)
 
 
 @pytest.mark.parametrize("source", ["noise", "swapped"])
@@ -370,3 +376,22 @@ def test_a_bad_profile_for_the_virtual_robot_exits_2_leaving_out_empty(tmp_path,
     assert code == 2, err
     assert err.count("\n") == 1 and field in err, err
     assert not (tmp_path / "o").exists()
+
+
+# ---- progress ------------------------------------------------------------------------------------
+
+
+def test_diagnose_tells_its_progress_on_stderr_only(sim_run):
+    """Before: a 200 MB recording's diagnosis was silent for 100 s between stage lines (the
+    candidates' cross-validated fits). With --progress-every 0 every tick is a line."""
+    proc = hil("diagnose", str(sim_run), "--progress-every", "0", "--json", "--no-plots")
+    assert proc.returncode == 0, proc.stderr
+    strict_loads(proc.stdout)  # stdout stays one document
+    err = proc.stderr.splitlines()
+    assert any(ln.startswith("hil diagnose: reading signals.csv: ") for ln in err), err
+    ticks = [ln for ln in err if ln.startswith("hil diagnose: testing candidates, round 1: ")]
+    last = re.search(r": (\d+) of (\d+) candidates \(", ticks[-1]) if ticks else None
+    assert len(ticks) >= 2 and last and int(last[1]) == int(last[2]) - 1, err
+    # throttled: none within the interval (the default is 5 s)
+    quiet = hil("diagnose", str(sim_run), "--progress-every", "3600", "--json", "--no-plots")
+    assert not any(ln.startswith("hil diagnose: ") for ln in quiet.stderr.splitlines())
