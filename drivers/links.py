@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from drivers.arm import Arm, SafetyLimits
+from drivers.options import host_port
 from profiles.bench import BenchProfile
 from profiles.drive import load_drive
 from profiles.robot import load_any_robot
@@ -38,11 +39,11 @@ def can_bus_kwargs(bench: BenchProfile, channel: dict[str, Any]) -> dict[str, An
             "sleep_after_open": sleep,
         }
     if bench.transport == "socketcand":
-        host, _, port = str(where).rpartition(":")
+        host, port = host_port(str(where), f"{bench.source}: socketcand channel")
         return {
             "interface": "socketcand",
-            "host": host or "127.0.0.1",
-            "port": int(port),
+            "host": host,
+            "port": port,
             "channel": channel.get("interface_channel", "can0"),
             # without TCP_NODELAY, Nagle holds small frames for ~40 ms: 16 periods at 400 Hz
             "tcp_tune": True,

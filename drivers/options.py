@@ -10,7 +10,20 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
-__all__ = ["float_list"]
+__all__ = ["float_list", "host_port"]
+
+
+def host_port(text: str, option: str) -> tuple[str, int]:
+    """``HOST:PORT`` (HOST may be empty: 127.0.0.1; PORT an integer in 1..65535) from option
+    ``option``'s ``text``; anything else is a ValueError of one line saying what is expected."""
+    host, sep, port = str(text).strip().rpartition(":")
+    problem = (
+        f"{option} takes HOST:PORT with PORT an integer in 1..65535 (what `virtual-robot "
+        f"serve` announced, e.g. 127.0.0.1:29536), got {text!r}"
+    )
+    if not sep or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ValueError(problem)
+    return host or "127.0.0.1", int(port)
 
 
 def float_list(

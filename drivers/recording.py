@@ -20,7 +20,7 @@ import math
 import os
 import re
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -56,10 +56,62 @@ class RecordingError(ValueError):
 
 
 def write_json_atomic(path: Path, document: dict[str, Any]) -> None:
-    """Write JSON so that a reader never sees half a file (write, then rename)."""
+    """Write JSON so that a reader never sees half a file (write, then rename); strict JSON
+    (:func:`dumps_strict`: no NaN or Infinity)."""
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(document, indent=2, sort_keys=False, default=_json_default) + "\n")
+    tmp.write_text(dumps_strict(document, indent=2) + "\n")
     os.replace(tmp, path)
+
+
+def dumps_strict(document: Any, **kwargs: Any) -> str:
+    """``document`` as strict JSON (RFC 8259 has no NaN or Infinity, and strict parsers refuse
+    Python's): every non-finite number becomes null, with a ``<key>_null_reason`` beside it
+    (:func:`strict_json`); numpy scalars and arrays as numbers and lists, paths as strings.
+    ``allow_nan=False`` is the guard: a non-finite number that gets past the sanitiser fails
+    here, loudly, instead of writing invalid JSON."""
+    return json.dumps(strict_json(document), allow_nan=False, default=_json_default, **kwargs)
+
+
+def strict_json(value: Any) -> Any:
+    """A copy of ``value`` (dicts, lists, tuples, numpy arrays and scalars, floats) in which
+    every NaN or ±Infinity is None. In a dict, a key whose value was (or held) a non-finite
+    number gets ``<key>_null_reason`` beside it saying which (``"NaN"``, or ``"NaN at index
+    3, Infinity at index 5"`` for a list), so a null is never silent."""
+    cleaned, _ = _strict(value)
+    return cleaned
+
+
+def _strict(value: Any) -> tuple[Any, str | None]:
+    """(value with non-finite numbers as None, what was replaced or None)."""
+    if isinstance(value, bool) or value is None or isinstance(value, int | str):
+        return value, None
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    elif isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float):
+        if math.isfinite(value):
+            return value, None
+        return None, "NaN" if math.isnan(value) else ("Infinity" if value > 0 else "-Infinity")
+    if isinstance(value, Mapping):
+        out: dict[Any, Any] = {}
+        reasons: dict[str, str] = {}
+        for key, item in value.items():
+            out[key], why = _strict(item)
+            if why is not None:
+                reasons[f"{key}_null_reason"] = why
+        for key, why in reasons.items():
+            out.setdefault(key, f"not a finite number: {why}")
+        return out, None  # its own keys say what they hold
+    if isinstance(value, list | tuple):
+        items, whys = [], []
+        for i, item in enumerate(value):
+            cleaned, why = _strict(item)
+            items.append(cleaned)
+            if why is not None and len(whys) < 3:
+                whys.append(f"{why} at index {i}" if " at index " not in why else f"[{i}]: {why}")
+        return items, (", ".join(whys) if whys else None)
+    return value, None
 
 
 def _json_default(value: Any) -> Any:
@@ -164,7 +216,20 @@ IRREGULAR_FACTOR = 1.5
 # t in ms, or a wrong period_s), and 1 µs is below any loop this bench or a real arm runs.
 PERIOD_MIN_S = 1e-6
 PERIOD_MAX_S = 1.0
-CHUNK_LINES = 1 << 16  # lines parsed at once: bounded memory for the text, fast C parsing
+CHUNK_CHARS = 1 << 22  # characters of text parsed at once: bounded memory, fast C parsing
+# The longest line a reader takes (characters, without its newline): a recording's row is tens
+# of numbers of at most ~25 characters each, so 128 KiB is thousands of columns; past it (a file
+# with no newline, a field of megabytes, /dev/zero) the reader stops in one line, having held
+# at most this much of it.
+MAX_LINE_CHARS = 128 * 1024
+# The largest |q| (rad) and |tau| (Nm) a recording may hold. Physically: 1e6 rad is 160,000
+# turns, 1e6 Nm a hundred times the largest arm's joint torque, so a value past it is a unit, a
+# parse or a logging fault, never a measurement. Numerically: every row the analyses build is a
+# low-degree polynomial in q, its divided differences (h >= PERIOD_MIN_S = 1e-6 s) and tau, so
+# with |q|, |tau| <= 1e6 each stays far inside float64's range and the solvers never see an
+# overflow (a 1e300 ends in NaN rows, and LAPACK then prints on stdout and fails with no file,
+# row or column named). Not tuned to any recording: any bound between the two arguments would do.
+MAX_ABS_VALUE = 1e6
 # meta.json fields an analysis reads, with the JSON types they must have
 _META_TYPES: dict[str, tuple[type, ...]] = {
     "period_s": (float, int),
@@ -376,6 +441,7 @@ def read_signals(
     effort_scale: Sequence[float] | None = None,
     leave_out: Sequence[int] | None = None,
     ignore: Sequence[str] | None = None,
+    progress: Callable[..., None] | None = None,
 ) -> Recording:
     """Read a run directory, a bare CSV with the columns t,q1..qN,tau1..tauN, or a foreign CSV.
 
@@ -395,6 +461,8 @@ def read_signals(
     The container follows from the path: an ``.npz`` archive, an ``.mcap`` file (default format
     ``ros2-joint-state``), a directory a format names one CSV per quantity in (joined on time),
     else a CSV or a run directory (:mod:`drivers.containers`); every one gets the checks below.
+    ``progress(stage, done, total, unit)``: told the megabytes read after every chunk of a CSV's
+    text (a command's throttled progress line).
 
     Checked on read, each failure a one-line :class:`RecordingError` naming the file and line:
     a malformed row, NaN/inf in t, q or tau, t not strictly increasing, t inconsistent with
@@ -427,7 +495,9 @@ def read_signals(
                 dup = next(h for h in header if header.count(h) > 1)
                 raise RecordingError(f"{csv_path}: column {dup!r} appears twice in the header")
             skip = {i for i, c in enumerate(header) if c not in keep and _is_ignored(c, ignored)}
-            data, dropped = _parse_body(f, csv_path, header, [header.index(c) for c in keep], skip)
+            data, dropped = _parse_body(
+                f, csv_path, header, [header.index(c) for c in keep], skip, progress
+            )
         except UnicodeDecodeError as exc:
             raise RecordingError(f"{csv_path}: not UTF-8 text ({exc})") from None
         except OSError as exc:
@@ -527,17 +597,22 @@ def _csv_table(csv_path: Path) -> tuple[list[str], np.ndarray, Callable[[int], s
 def _open_csv(csv_path: Path) -> io.TextIOWrapper:
     """The CSV opened as text (a one-line error if it cannot be)."""
     try:
-        return open(csv_path, encoding="utf-8", newline=None)
+        # utf-8-sig: a byte-order mark before the header (Excel's "CSV UTF-8") is dropped
+        return open(csv_path, encoding="utf-8-sig", newline=None)
     except OSError as exc:
         raise RecordingError(f"{csv_path}: cannot read ({exc.strerror})") from None
 
 
 def _read_header(f: io.TextIOBase, csv_path: Path) -> list[str]:
     """The first line's column names, stripped."""
-    first = f.readline()
+    first = f.readline(MAX_LINE_CHARS + 2)  # bounded: a file with no newline too
     if not first:
         raise RecordingError(f"{csv_path}: empty file, no header")
-    return [h.strip() for h in next(csv.reader(io.StringIO(first)), [])]
+    _check_line_length(csv_path, 1, len(first.rstrip("\n")))
+    try:
+        return [h.strip() for h in next(csv.reader(io.StringIO(first)), [])]
+    except csv.Error as exc:
+        raise RecordingError(f"{csv_path}:1: header is not CSV ({exc})") from None
 
 
 def _ignored(
@@ -789,16 +864,49 @@ def _plan(
     )
 
 
+def _check_line_length(csv_path: Path, line_no: int, length: int) -> None:
+    if length > MAX_LINE_CHARS:
+        raise RecordingError(
+            f"{csv_path}:{line_no}: line longer than {MAX_LINE_CHARS // 1024} KiB (a file "
+            "without newlines, a huge field, or not a CSV recording at all)"
+        )
+
+
+def _line_chunks(f: io.TextIOBase, csv_path: Path, line_no: int) -> Iterator[list[str]]:
+    """The file's remaining lines in lists of about :data:`CHUNK_CHARS` characters, each line
+    ending in its newline but perhaps the very last (torn); a line longer than
+    :data:`MAX_LINE_CHARS` stops the reading, having held at most a chunk and that line."""
+    rest = ""
+    while True:
+        block = f.read(CHUNK_CHARS)
+        if not block:
+            _check_line_length(csv_path, line_no, len(rest))
+            if rest:
+                yield [rest]
+            return
+        parts = (rest + block).split("\n")
+        rest = parts.pop()
+        if parts:
+            longest = max(range(len(parts)), key=lambda i: len(parts[i]))
+            _check_line_length(csv_path, line_no + longest, len(parts[longest]))
+        _check_line_length(csv_path, line_no + len(parts), len(rest))
+        if parts:
+            line_no += len(parts)
+            yield [p + "\n" for p in parts]
+
+
 def _parse_body(
     f: io.TextIOBase,
     csv_path: Path,
     header: list[str],
     keep: list[int],
     skip: set[int] | None = None,
+    progress: Callable[..., None] | None = None,
 ) -> tuple[np.ndarray, bool]:
     """Parse the rows after the header into a (rows, len(keep)) float array, chunk by chunk:
-    the text of at most :data:`CHUNK_LINES` lines is held at once; the array grows in place.
-    The fields ``skip`` (ignored columns, e.g. text) are not parsed; they read as NaN."""
+    the text of at most :data:`CHUNK_CHARS` characters is held at once (lines of at most
+    :data:`MAX_LINE_CHARS`); the array grows in place. The fields ``skip`` (ignored columns,
+    e.g. text) are not parsed; they read as NaN. ``progress``: as :func:`read_signals`'s."""
     ncols = len(header)
     cap = 0
     out = np.empty((0, len(keep)))
@@ -806,10 +914,7 @@ def _parse_body(
     dropped = False
     size = os.fstat(f.fileno()).st_size if hasattr(f, "fileno") else 0
     line_no = 2  # file line of the chunk's first row (the header is line 1)
-    while True:
-        lines = list(itertools.islice(f, CHUNK_LINES))
-        if not lines:
-            break
+    for lines in _line_chunks(f, csv_path, line_no):
         if not lines[-1].endswith("\n"):
             lines.pop()  # the writer always ends rows with a newline: this one was torn
             dropped = True
@@ -825,6 +930,9 @@ def _parse_body(
             out.resize((cap, len(keep)), refcheck=False)
         out[rows : rows + len(block)] = block[:, keep]
         rows += len(block)
+        if progress is not None and size:
+            done = f.buffer.tell() if hasattr(f, "buffer") else 0
+            progress(f"reading {csv_path.name}", done // 1_000_000, size // 1_000_000, "MB")
         line_no += len(lines)
         if dropped:
             break
@@ -924,6 +1032,16 @@ def _assemble(
             raise RecordingError(
                 f"{locate(i)}: {plan.sources[name]} = {float(data[i, j])!r} is not a finite number"
             )
+        if name != "t":  # t: its own checks below (increasing, its period)
+            beyond = np.abs(data[:, j]) > MAX_ABS_VALUE
+            if beyond.any():
+                i = int(np.argmax(beyond))
+                unit = "rad" if name.startswith("q") else "Nm"
+                raise RecordingError(
+                    f"{locate(i)}: {plan.sources[name]} = {float(data[i, j])!r}: value "
+                    f"out of range (|{name}| <= {MAX_ABS_VALUE:g} {unit} for any arm; wrong "
+                    "units or a logging fault?)"
+                )
     t = data[:, col[plan.sources["t"]]]
     dt = np.diff(t)
     back = dt < 0
@@ -1214,10 +1332,12 @@ __all__ = [
     "Recording",
     "RecordingError",
     "RecordingWriter",
+    "dumps_strict",
     "parse_column_map",
     "plot_positions",
     "read_signals",
     "reassemble",
+    "strict_json",
     "write_json_atomic",
     "write_run_mcap",
 ]

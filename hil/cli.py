@@ -307,6 +307,21 @@ def _demo_identify(out: Path, fit_dir: Path, duration_s: float) -> tuple[dict, s
     return run_identify(args)
 
 
+def _check_attach_channel(transport: str, channel: str) -> None:
+    """``--attach CHANNEL`` checked for the bench's transport before anything is written: a
+    socketcand HOST:PORT (:func:`drivers.options.host_port`), a pty or serial device that
+    exists for slcan and serial; one-line ValueError saying what is expected."""
+    from drivers.options import host_port
+
+    if transport == "socketcand":
+        host_port(channel, "--attach")
+    elif transport in ("slcan", "serial") and not Path(channel).exists():
+        raise ValueError(
+            f"--attach takes the pty that `virtual-robot serve` announced for a {transport} "
+            f"bench (e.g. /dev/pts/7); {channel!r} does not exist"
+        )
+
+
 def _attached_bench(args: argparse.Namespace) -> str:
     """``--attach``: the bench attached to the running robot, written into the run directory
     (so the run records what it used); its path."""
@@ -316,6 +331,7 @@ def _attached_bench(args: argparse.Namespace) -> str:
     if args.effects is not None or args.seed is not None:
         raise UsageError("--effects and --seed belong to the robot; give them to its serve")
     bench = load_bench(args.bench)
+    _check_attach_channel(bench.transport, args.attach)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "bench-attached.toml"

@@ -51,6 +51,7 @@ from drivers.recording import (
     SIGNALS,
     Recording,
     RecordingError,
+    dumps_strict,
     parse_column_map,
     read_signals,
 )
@@ -91,7 +92,7 @@ class StageProgress:
         self.command, self.every_s, self.enabled, self.clock = command, every_s, enabled, clock
         self.last = clock()
 
-    def __call__(self, stage: str, done: int, total: int) -> None:
+    def __call__(self, stage: str, done: int, total: int, unit: str = "rows") -> None:
         if not self.enabled:
             return
         now = self.clock()
@@ -99,7 +100,7 @@ class StageProgress:
             return
         self.last = now
         pct = 100.0 * done / total if total > 0 else 100.0
-        say(self.command, f"{stage}: {done:,} of {total:,} rows ({pct:.0f} %)")
+        say(self.command, f"{stage}: {done:,} of {total:,} {unit} ({pct:.0f} %)")
 
 
 def error(command: str, message: str) -> None:
@@ -275,10 +276,11 @@ def add_report_options(
 def print_document(
     args: argparse.Namespace, doc: dict[str, Any], text: str | Callable[[], str]
 ) -> None:
-    """With ``--json`` ``doc`` as one line of JSON on stdout (numpy scalars as numbers), else
+    """With ``--json`` ``doc`` as one line of strict JSON on stdout (numpy scalars as numbers,
+    NaN and Infinity as null with a reason: :func:`drivers.recording.dumps_strict`), else
     ``text`` (or what it returns)."""
     if getattr(args, "json", False):
-        print(json.dumps(doc, default=float))
+        print(dumps_strict(doc))
     else:
         print(text() if callable(text) else text)
 
@@ -481,8 +483,17 @@ def read_recording(
     if large:
         say(command, f"reading {csv_path} ({size / 1e6:.0f} MB) ...")
         started = time.perf_counter()
+    progress = StageProgress(
+        command,
+        every_s=getattr(args, "progress_every", PROGRESS_EVERY_S),
+        enabled=not getattr(args, "quiet", False),
+    )
     rec = read_signals(
-        path, **recording_kwargs(args), extra_columns=extra_columns, min_rows=min_rows
+        path,
+        **recording_kwargs(args),
+        extra_columns=extra_columns,
+        min_rows=min_rows,
+        progress=progress,
     )
     if large:
         say(

@@ -192,6 +192,16 @@ def _check_range(f: Fields, key: str, value: float, lo: float | None, hi: float 
         raise f.error(key, f"must be <= {hi}, got {value}")
 
 
+# The largest magnitude of a profile number without a range of its own. Profile numbers are SI
+# quantities of an arm, a drive, a bench or an effect (kg, m, kg m², Nm, s, rad); none of any
+# real one comes near 1e9. Bounded so, the quantities derived from them (θ = m·lc² + I,
+# g·m·lc, the plant's det M = θ1·θ3 − θ2², a cogging torque over an inertia) stay finite in
+# float64 (products of three fields: 1e27; their squares: 1e54), where 1e300 overflowed into
+# OverflowError tracebacks in simulate, identify and diagnose. Not tuned: any bound between
+# "beyond any arm" and "overflows when multiplied" would do.
+MAX_PROFILE_MAGNITUDE = 1e9
+
+
 def _as_number(
     f: Fields, key: str, value: Any, lo: float | None, hi: float | None, positive: bool
 ) -> float:
@@ -206,11 +216,18 @@ def _as_number(
     if positive and value <= 0:
         raise f.error(key, f"must be > 0, got {value}")
     _check_range(f, key, value, lo, hi)
+    if abs(value) > MAX_PROFILE_MAGNITUDE:
+        raise f.error(
+            key,
+            f"{value:g} is out of range (|value| <= {MAX_PROFILE_MAGNITUDE:g} in SI units: "
+            "beyond any arm or bench, and what is derived from it would overflow)",
+        )
     return value
 
 
 __all__ = [
     "KINDS",
+    "MAX_PROFILE_MAGNITUDE",
     "ProfileError",
     "available",
     "load_toml",

@@ -72,6 +72,16 @@ def run_hil(argv: list[str], capsys) -> tuple[int, str]:
     return code, capsys.readouterr().err
 
 
+def assert_identified_or_failed(code: int, err: str, out: Path) -> None:
+    """0 with params.json, 2 (refused), or 1 when the θ is no arm: FAILED in one line and no
+    params.json offered (issue 31)."""
+    assert "Traceback" not in err
+    if code == 1:
+        assert "FAILED" in err.strip().splitlines()[-1] and not (out / "params.json").exists()
+    else:
+        assert code in (0, 2), err
+
+
 def assert_one_line_error(code: int, err: str) -> None:
     assert code == 2, err
     last = [ln for ln in err.splitlines() if ln.strip()][-1]
@@ -190,7 +200,7 @@ def test_out_reuse_is_refused_without_overwrite(tmp_path, capsys):
     assert (out / "bus.log").exists()
     code, err = run_hil([*argv, "--overwrite"], capsys)
     assert not (out / "bus.log").exists()
-    assert code in (0, 2), err
+    assert_identified_or_failed(code, err, out)
     # --overwrite never empties a directory holding the input
     code, err = run_hil(
         ["diagnose", str(run), "--out", str(tmp_path), "--overwrite", "--no-plots"], capsys
@@ -247,7 +257,7 @@ def test_degenerate_data_never_gives_a_traceback(tmp_path_factory, capsys, kind,
     else:
         argv = ["diagnose", str(run), "--no-plots"]
     code, err = run_hil(argv, capsys)
-    assert code in (0, 2) and "Traceback" not in err
+    assert_identified_or_failed(code, err, base / "out")
 
 
 def test_meta_period_of_a_run_checked_by_every_reader(tmp_path, capsys):

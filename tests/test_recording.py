@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 
 from drivers.recording import (
     BASE_COLUMNS,
+    MAX_ABS_VALUE,
     META,
     SIGNALS,
     Recording,
@@ -44,7 +45,9 @@ def sample_rows(n: int = 12) -> list[list[float]]:
     rows = []
     for k in range(n):
         s = specials[k % len(specials)]
-        rows.append([k * H, s, -s / 7.0, 0.1 * k, 1 / (k + 3), s * 3.0, float(k) / 3.0])
+        # q within the reader's bound (|q| <= MAX_ABS_VALUE); the extremes in the extra columns
+        q = s if abs(s) <= MAX_ABS_VALUE else 1.0 / s
+        rows.append([k * H, q, -q / 7.0, 0.1 * k, 1 / (k + 3), s * 3.0, s])
     return rows
 
 

@@ -365,7 +365,7 @@ def test_chunked_parse_equals_one_pass(tmp_path, monkeypatch):
     rows = lockstep_rows(1000)
     run = write_run(tmp_path / "run", rows)
     whole = read_signals(run)
-    monkeypatch.setattr(recording, "CHUNK_LINES", 7)
+    monkeypatch.setattr(recording, "CHUNK_CHARS", 100)
     chunked = read_signals(run)
     for name in BASE_COLUMNS:
         assert whole.columns[name].tobytes() == chunked.columns[name].tobytes()

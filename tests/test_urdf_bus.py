@@ -192,16 +192,16 @@ def test_lockstep_run_with_effects_equals_its_simulation(bench, effects, referen
 
 
 def test_run_refuses_what_the_robot_cannot_take(tmp_path):
-    """A 2-joint experiment on the 3-joint arm (the host refuses it: usage, 2), and a 2-DOF
-    effects profile on it (the robot refuses to start, which `hil` reports as a launch failure,
-    3, naming the profile's file and key): one line each,
-    at once (the in-process robot's refusal does not wait out the start-up timeout)."""
+    """A 2-joint experiment on the 3-joint arm, and a 2-DOF effects profile on it: the host
+    refuses both before starting the robot (usage, 2; the effects profile checked for the
+    robot's joints by hil.bench.run.check_virtual_robot_profiles, issue 31), one line each
+    naming the profile's file and key, and --out left unwritten."""
     for extra, words, status in (
         (["--experiment", "reyes-kelly"], "robot cicese3 has 3", 2),
         (
             ["--experiment", EXPERIMENT, "--effects", "cogging"],
             "field 'cogging.periods_per_rev'",
-            3,
+            2,
         ),
     ):
         out = tmp_path / f"r{len(extra)}"
@@ -210,6 +210,7 @@ def test_run_refuses_what_the_robot_cannot_take(tmp_path):
         assert proc.returncode == status, proc.stderr
         lines = proc.stderr.strip().splitlines()
         assert len(lines) == 1 and words in lines[0], proc.stderr
+        assert not out.exists()
 
 
 def test_realtime_run_of_cicese3_completes(tmp_path):

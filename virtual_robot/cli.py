@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -22,7 +21,7 @@ from drivers.process import (
     run_command_line,
     stdout_closed,
 )
-from drivers.recording import RecordingError
+from drivers.recording import RecordingError, dumps_strict
 from profiles import ProfileError
 from profiles.bench import BenchProfile, load_bench
 from profiles.effects import load_effects
@@ -184,7 +183,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     )
     summary = result.summary()
     if args.json:
-        print(json.dumps(summary))
+        print(dumps_strict(summary))
     else:
         print(
             f"wrote {summary['rows']} rows ({summary['simulated_s']:.3f} s at "
@@ -250,7 +249,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         _watch_parent(stop)
 
     def announce(info: dict) -> None:
-        print(json.dumps({**info, "bench": bench.name, "pid": os.getpid()}), flush=True)
+        print(dumps_strict({**info, "bench": bench.name, "pid": os.getpid()}), flush=True)
 
     code = serve(
         bench,

@@ -76,7 +76,25 @@ def check_bench(
         )
     if effects is not None and not bench.virtual:
         raise UsageError("--effects only applies to a virtual bench")
+    if bench.virtual:
+        check_virtual_robot_profiles(bench, effects)
     return bench
+
+
+def check_virtual_robot_profiles(bench: BenchProfile, effects: str | None) -> None:
+    """Load what the bench's virtual robot will load (its robot profile, its drives, the
+    effects profile for that robot's joints) here, before anything is written or started: a
+    bad profile is a one-line :class:`profiles.ProfileError` (exit 2) naming the file and the
+    field, not a robot that fails to start (exit 3) with the cause only in its log, nor a file
+    left in ``--out``. The robot checks them again when it loads them."""
+    from profiles.drive import load_drive
+    from profiles.effects import load_effects
+    from profiles.robot import load_any_robot
+
+    arm = load_any_robot(bench.robot)
+    for drive in getattr(arm, "drives", None) or ():
+        load_drive(drive)
+    load_effects(effects or bench.effects).for_joints(arm.n_joints, arm.name)
 
 
 def bench_meta(

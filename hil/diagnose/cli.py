@@ -24,6 +24,8 @@ import numpy as np
 
 from drivers.recording import Recording, write_json_atomic
 from hil.cli_options import (
+    PROGRESS_EVERY_S,
+    StageProgress,
     add_html_report_option,
     add_out_options,
     add_recording_options,
@@ -84,6 +86,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_recording_options(p)
     add_report_options(p, plot="skip the PNG plots", plot_flag="--no-plots")
     add_html_report_option(p)
+    p.add_argument(
+        "--progress-every",
+        type=float,
+        default=PROGRESS_EVERY_S,
+        metavar="SECONDS",
+        help="seconds between the progress lines of a long recording's stages on stderr "
+        f"(default {PROGRESS_EVERY_S:g}; -q: none)",
+    )
 
 
 def _progress(message: str) -> None:
@@ -174,7 +184,14 @@ def main(args: argparse.Namespace) -> int:
                 f"note: {rec.path} is a {rec.meta.get('status')} recording; "
                 f"using its {len(rec)} rows",
             )
-    result = diagnose(recs, reference, nominal_theta=nominal, progress=_progress, model=model)
+    tick = StageProgress(
+        "diagnose",
+        every_s=getattr(args, "progress_every", PROGRESS_EVERY_S),
+        enabled=not getattr(args, "quiet", False),  # -q, errors only
+    )
+    result = diagnose(
+        recs, reference, nominal_theta=nominal, progress=_progress, model=model, tick=tick
+    )
     doc = result.document
     if args.columns is None and args.loop_delay is None:  # the format's own torque sources
         paths = [torque_path_of(rec, args.recording_format) for rec in recs]

@@ -1664,11 +1664,14 @@ def diagnose(
     nominal_theta: np.ndarray | None = None,
     progress: Callable[[str], None] | None = None,
     model: ArmModel | None = None,
+    tick: Callable[..., None] | None = None,
 ) -> DiagnosisResult:
     """Diagnose ``recordings`` against ``model`` (module doc; default the 9-parameter model,
     else e.g. ``ArmModel(profile.terms)``: the nominal fit, its physical checks and the
     held-out simulation are that model's, and the model terms it lacks are candidates).
-    ``nominal_theta``, when given, is in ``model``'s parameters."""
+    ``nominal_theta``, when given, is in ``model``'s parameters. ``progress`` is told each
+    stage as it starts; ``tick(stage, done, total, unit)`` the progress within the long ones
+    (:class:`hil.cli_options.StageProgress` throttles it)."""
     model = ArmModel(()) if model is None else model
     if nominal_theta is not None and len(nominal_theta) != model.n_params:
         raise DiagnosisError(
@@ -1728,7 +1731,9 @@ def diagnose(
         cannot = []
         said = "both joints" if n_joints == 2 else f"{n_joints} joints"
         say(f"diagnose: testing {len(library)} candidates ({said})")
-        accepted, first = select(prob, library, reference=reference_theta, rejected=rejected)
+        accepted, first = select(
+            prob, library, reference=reference_theta, rejected=rejected, tick=tick
+        )
         release_freed_heap()  # the grids and columns the selection dropped (Problem.keep_only)
         accepted = physical_gate(prob, relinearise_angle(prob, accepted), rejected)
         accepted = lack_of_fit(prob, accepted, rejected, say)

@@ -50,6 +50,7 @@ from hil.diagnose.stats import (
     target_block_sums,
 )
 from hil.model.closed_form import TERMS, ArmModel
+from hil.model.estimators import require_finite
 
 VOCABULARY = (
     "coulomb_asymmetry",
@@ -512,6 +513,8 @@ def fit_theta(
     sw = np.sqrt(w)[..., None]
     A = (np.multiply(Psi, sw, out=Psi) if overwrite_design else Psi * sw).reshape(-1, Psi.shape[-1])
     b = (y * sw[..., 0]).reshape(-1)
+    require_finite(A, "diagnosis fit rows")
+    require_finite(b, "diagnosis fit torques")
     return np.linalg.lstsq(A, b, rcond=None)[0]
 
 
@@ -943,10 +946,13 @@ def select(
     log: Callable[[str], None] | None = None,
     reference: np.ndarray | None = None,
     rejected: dict[str, str] | None = None,
+    tick: Callable[..., None] | None = None,
 ) -> tuple[list[Accepted], dict[str, Evidence]]:
     """Greedy forward selection with blocked cross-validation (module doc). ``reference``: θ
     that a torque gain error must be supported by (:data:`GAIN_SUPPORT_RATIO`). ``rejected``
-    collects candidates that passed the test but whose refit is not physical, with the reason."""
+    collects candidates that passed the test but whose refit is not physical, with the reason.
+    ``tick(stage, done, total, unit)``: told after every candidate tested (the long stage of a
+    long recording: each is a cross-validated fit over all its rows)."""
     first_round: dict[str, Evidence] = {}
     rejected = {} if rejected is None else rejected
     # one-variant candidates first, so that their columns exist when a grid is first summed
@@ -958,7 +964,7 @@ def select(
             if log:
                 log(f"reselecting without {sorted(excluded)} (not physical)")
         pool = [c for c in library if c.key not in excluded]
-        accepted = _forward(prob, pool, library, log, reference, rejected, first_round)
+        accepted = _forward(prob, pool, library, log, reference, rejected, first_round, tick)
         # Terms are judged redundant only against a physical model: a gain accepted while its
         # refit was physical can drift to removing most of the torque once a lag joins, and
         # would then "explain" the terms accepted before it (on DFKI A.0 trajectories 03 → 04
@@ -1002,6 +1008,7 @@ def _forward(
     reference: np.ndarray | None,
     rejected: dict[str, str],
     first_round: dict[str, Evidence],
+    tick: Callable[..., None] | None = None,
 ) -> list[Accepted]:
     """The forward rounds of :func:`select` over the candidates ``pool`` (the family of tests
     is the whole ``library``); fills ``first_round`` with each candidate's first evidence."""
@@ -1009,10 +1016,12 @@ def _forward(
     extra: list[np.ndarray] = []
     tests = len(library)
     remaining = sorted(pool, key=lambda c: len(c.variants) > 1)
-    for _round in range(MAX_ROUNDS):
+    for round_no in range(MAX_ROUNDS):
         base = _cv(prob, extra)
         scored = []
-        for cand in remaining:
+        for i, cand in enumerate(remaining):
+            if tick is not None:
+                tick(f"testing candidates, round {round_no + 1}", i, len(remaining), "candidates")
             cv = _cv_terms(prob, accepted, cand)
             ev = evidence(base, cv, _joints(cand))
             if not first_round.get(cand.key):

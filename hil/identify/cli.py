@@ -213,9 +213,27 @@ def _record(
 PLOT_ONLY = ("simulated_q", "simulated_rows")  # validate()'s arrays for plots, not for JSON
 
 
+def unusable_reason(theta: np.ndarray, consistency: dict[str, Any]) -> str | None:
+    """Why an identified θ may not be offered as parameters (None: it may): a non-finite
+    entry, or a θ that is not physically consistent (M(q) not positive definite for every q, a
+    negative friction coefficient: :func:`hil.model.closed_form.physical_consistency`). Such a
+    θ is a failed fit (pure noise, swapped torque columns, too little excitation), not an arm:
+    every model-based law and simulation given it commands or integrates nonsense."""
+    if not np.all(np.isfinite(theta)):
+        return "θ holds a non-finite number"
+    if not consistency["consistent"]:
+        return "not physically consistent: " + "; ".join(consistency["violations"])
+    return None
+
+
 def _scheme_json(res: SchemeResult, reference: np.ndarray, validation: dict) -> dict[str, Any]:
+    reason = unusable_reason(res.theta, res.consistency)
     return {
         "theta": res.theta.tolist(),
+        # false: FAILED, not offered in params.json (`hil identify` exits 1 when it was the
+        # --params-scheme)
+        "usable": reason is None,
+        "failed_reason": reason,
         "relative_error": res.relative_error(reference).tolist(),
         "estimator": res.estimator,
         "theta_rls": res.theta_rls.tolist(),
@@ -257,7 +275,8 @@ def _validations(
 
 def main(args: argparse.Namespace) -> int:
     """Exit status 0; 1 when the scheme selected by --params-scheme failed its held-out
-    validation (a URDF arm: its report and identify.json are written, its θ marked failed)."""
+    validation (a URDF arm: its report and identify.json are written, its θ marked failed) or
+    is not physical (the 2-DOF paths: no params.json written)."""
     args.out = str(
         prepare_out_dir(
             args.out,
@@ -276,6 +295,16 @@ def main(args: argparse.Namespace) -> int:
         text,
         paths=(report.get("recording"), report.get("validation_recording")),
     )
+    selection = report.get("selection")
+    if isinstance(selection, dict) and selection.get("usable") is False:
+        usable = selection["schemes_usable"]
+        error(
+            "identify",
+            f"--params-scheme {selection['scheme']} FAILED ({selection['reason']}): no "
+            "identified parameters, no params.json"
+            + (f"; usable schemes: {', '.join(usable)}" if usable else "; no scheme is usable"),
+        )
+        return EXIT_FAILED
     validation = report.get("validation")
     if isinstance(validation, dict) and validation.get("passed") is False:
         passed = validation["schemes_passed"]
@@ -502,20 +531,41 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             report["online"]["stamp_uncertainty_max_s"] = STAMP_UNCERTAINTY_MAX * online.period_s
             report["online"]["segments"] = online.segments
 
+    # a scheme whose θ is not an arm is FAILED: reported, never written as parameters; no
+    # parameter file at all when the selected scheme failed (main exits 1)
     params_files = []
+    failed_lines = []
     for i, disc in enumerate(discretizations):
+        entries = report["discretizations"][disc]["schemes"]
+        usable = [s for s in all_results[disc] if entries[s]["usable"]]
+        for s in all_results[disc]:
+            if not entries[s]["usable"]:
+                failed_lines.append(
+                    f"{s} ({disc}) FAILED: {entries[s]['failed_reason']}; its θ is not offered"
+                )
+        if i == 0:
+            selected_reason = entries[args.params_scheme]["failed_reason"]
+            report["selection"] = {
+                "scheme": args.params_scheme,
+                "discretization": disc,
+                "usable": selected_reason is None,
+                "reason": selected_reason,
+                "schemes_usable": usable,
+            }
+        if args.params_scheme not in usable:
+            continue
         path = out / ("params.json" if i == 0 else f"params-{disc}.json")
         save_params(
             path,
             {
                 s: {
-                    "theta": r.theta,
+                    "theta": all_results[disc][s].theta,
                     "discretization": disc,
                     "lambda_rad_s": args.lam,
                     "estimator": args.estimator,
-                    "physical_consistency": r.consistency,
+                    "physical_consistency": all_results[disc][s].consistency,
                 }
-                for s, r in all_results[disc].items()
+                for s in usable
             },
             selected=args.params_scheme,
             robot=robot,
@@ -548,7 +598,12 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             f"{o['cost_per_cycle_us']:.0f} µs per cycle for {len(schemes)} schemes; final θ̂ "
             + compared
         )
-    lines.append(f"\nparameters: {', '.join(params_files)} (selected: {args.params_scheme})")
+    lines += ["", *failed_lines] if failed_lines else []
+    lines.append(
+        f"\nparameters: {', '.join(params_files)} (selected: {args.params_scheme})"
+        if params_files
+        else f"\nparameters: none ({args.params_scheme} FAILED)"
+    )
     lines.append(f"report:     {out / 'identify.json'}")
     if report["plots"]:
         lines.append(f"plots:      {out}/theta-*.png, {out}/validation-*.png")
@@ -719,7 +774,34 @@ def run_identify_model(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             "datasheet_kgm2": profile.rotor.datasheet_inertia_kgm2,
             "gear_ratio": profile.rotor.gear_ratio,
         }
+    # the bounded estimate is offered only when it is an arm, some parameter is determined and
+    # it predicts every joint's torque better than the torque's own mean (NRMSE < 1, the
+    # criterion of the URDF path's held-out verdict; on the held-out recording when given)
+    judged = "held_out" if "held_out" in validation else "fit"
+    nrmse_judged = validation[judged]["identified"]["torque_nrmse"]
+    reason = unusable_reason(res.theta, res.consistency)
+    if reason is None and not np.any(res.identified):
+        reason = "no parameter is determined by these data (every SE > 50 % of its value)"
+    if reason is None:
+        worse = [j for j, x in enumerate(nrmse_judged) if not x < 1.0]
+        if worse:
+            reason = (
+                f"torque prediction on the {judged.replace('_', '-')} recording no better than "
+                "its mean on joint "
+                + ", ".join(f"{j + 1} (NRMSE {nrmse_judged[j]:.3g})" for j in worse)
+            )
+    report["selection"] = {
+        "scheme": "filtered_dynamic",
+        "discretization": "exact",
+        "usable": reason is None,
+        "reason": reason,
+        "schemes_usable": [] if reason else ["filtered_dynamic"],
+    }
     out.mkdir(parents=True, exist_ok=True)
+    if reason is not None:
+        report["params_files"] = []
+        write_json_atomic(out / "identify.json", report)
+        return report, format_model_report(report, model)
     save_params(
         out / "params.json",
         {
@@ -808,7 +890,12 @@ def format_model_report(report: dict[str, Any], model: ArmModel) -> str:
                 f"{where + ': ' + label:26s}{100 * v['torque_nrmse'][0]:>10.2f}"
                 f"{100 * v['torque_nrmse'][1]:>8.2f}{simtxt}"
             )
-    lines.append(f"\nparameters: {report['params_files'][0]}")
+    selection = report["selection"]
+    lines.append(
+        f"\nparameters: {report['params_files'][0]}"
+        if selection["usable"]
+        else f"\nidentified model FAILED: {selection['reason']}; parameters: none"
+    )
     return "\n".join(lines)
 
 

@@ -244,6 +244,7 @@ class LeastSquaresRows:
             self.used += int(np.count_nonzero(sw))
         else:
             self.used += K * m
+        require_finite(rows, "least-squares rows")
         self.R = np.linalg.qr(np.vstack([self.R, rows]), mode="r")
         self.rows += K
 
@@ -428,8 +429,24 @@ class BlockNormalEquations:
         )
 
 
+def require_finite(a: np.ndarray, what: str) -> None:
+    """ValueError unless every entry of ``a`` is finite. LAPACK given a NaN or an infinity
+    prints "On entry to DLASCL parameter number 4 had an illegal value" on stdout (Fortran's
+    unit 6, out of Python's reach) and fails with no cause named; checked before every solve.
+    The recording reader bounds its values (drivers.recording.MAX_ABS_VALUE), so this is a
+    guard for rows that overflowed in between."""
+    if not np.all(np.isfinite(a)):
+        bad = np.argwhere(~np.isfinite(a))[0]
+        raise ValueError(
+            f"{what}: a non-finite number at index {tuple(int(i) for i in bad)} (an overflow "
+            "from values out of range?); nothing solved"
+        )
+
+
 def solve_normal_equations(H: np.ndarray, g: np.ndarray) -> np.ndarray:
     """argmin θᵀHθ − 2gᵀθ with column scaling (units of θ differ by orders of magnitude)."""
+    require_finite(H, "normal equations")
+    require_finite(g, "normal equations")
     d = np.sqrt(np.diag(H))
     d[d == 0] = 1.0
     Hs = H / np.outer(d, d)
@@ -554,6 +571,7 @@ __all__ = [
     "bounded_quadratic_fit",
     "least_squares",
     "recursive_least_squares",
+    "require_finite",
     "standard_errors",
     "weighted_least_squares",
 ]

@@ -114,7 +114,20 @@ def load_params(path: str | Path, scheme: str | None = None) -> ParamSet:
     if name not in schemes:
         raise ParamsError(f"{path}: no scheme {name!r}; it has {', '.join(sorted(schemes))}")
     theta = _theta_of(schemes[name], f"{path}: scheme {name}", terms)
+    _refuse_failed(schemes[name], f"{path}: scheme {name}")
     return ParamSet(theta, str(path), name, doc, terms)
+
+
+def _refuse_failed(entry: dict, where: str) -> None:
+    """One-line :class:`ParamsError` when `hil identify` marked the scheme's θ as no arm (its
+    ``physical_consistency`` false, or ``usable`` false): a failed fit is never parameters."""
+    consistency = entry.get("physical_consistency")
+    if entry.get("usable") is False or (
+        isinstance(consistency, dict) and consistency.get("consistent") is False
+    ):
+        violations = consistency.get("violations") if isinstance(consistency, dict) else None
+        why = "; ".join(violations) if isinstance(violations, list) and violations else "FAILED"
+        raise ParamsError(f"{where}: not physically consistent, a failed fit ({why})")
 
 
 def check_inertia(params: ParamSet, model: Any = None) -> None:

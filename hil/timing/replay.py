@@ -22,7 +22,6 @@ Where the times come from (:func:`trace_from_run`):
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,7 +36,13 @@ from drivers.realtime_times import (
     host_stamp_trace,
     robot_event_trace,
 )
-from drivers.recording import Recording, RecordingError, read_signals, write_json_atomic
+from drivers.recording import (
+    Recording,
+    RecordingError,
+    dumps_strict,
+    read_signals,
+    write_json_atomic,
+)
 from hil.bench.run import UsageError
 from profiles.bench import load_bench
 from profiles.drive import load_drive
@@ -310,7 +315,7 @@ def format_replay(doc: dict[str, Any]) -> str:
 
 
 def dumps(doc: dict[str, Any]) -> str:
-    return json.dumps(doc)
+    return dumps_strict(doc)
 
 
 __all__ = [
