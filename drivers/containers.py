@@ -553,7 +553,7 @@ def write_mcap(
         schema = writer.register_schema(
             name="sensor_msgs/JointState",
             encoding="jsonschema",
-            data=json.dumps(JOINT_STATE_SCHEMA).encode(),
+            data=json.dumps(JOINT_STATE_SCHEMA, allow_nan=False).encode(),
         )
         channel = writer.register_channel(JOINT_STATE_TOPIC, "json", schema)
         for k in range(len(t)):
@@ -573,12 +573,15 @@ def write_mcap(
                 channel,
                 log_time=max(stamp_ns, 0),
                 publish_time=max(stamp_ns, 0),
-                data=json.dumps(body).encode(),
+                data=json.dumps(body, allow_nan=False).encode(),  # rows checked finite on read
                 sequence=k,
             )
         writer.add_metadata(
             MCAP_META,
-            {"meta": json.dumps(meta, default=str), "torque_source": torque_source},
+            {
+                "meta": json.dumps(meta, default=str, allow_nan=False),
+                "torque_source": torque_source,
+            },
         )
         writer.finish()
     tmp.replace(path)

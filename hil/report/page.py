@@ -9,11 +9,12 @@ browser offline; without a script it still shows the words and tables.
 from __future__ import annotations
 
 import html
-import json
 import math
 import re
 from collections.abc import Sequence
 from typing import Any
+
+from drivers.recording import dumps_strict
 
 __all__ = ["MAX_POINTS", "Page", "decimate"]
 
@@ -208,7 +209,7 @@ class Page:
         for name, x, y in series:
             xs, ys = decimate([float(v) for v in x], [_number(v) for v in y])
             data["series"].append({"name": name, "x": [round(v, 9) for v in xs], "y": ys})
-        island = json.dumps(data, separators=(",", ":")).replace("<", "\\u003c")  # no tag inside
+        island = dumps_strict(data, separators=(",", ":")).replace("<", "\\u003c")  # no tag inside
         self.parts.append(
             f'<figure class="plot"><figcaption>{html.escape(title)}</figcaption>'
             f'<script type="application/json">{island}</script></figure>'
