@@ -544,6 +544,19 @@ def _on_real_times(
 
 
 # ---- output directory -------------------------------------------------------------------------
+def add_progress_option(p: argparse.ArgumentParser) -> None:
+    """``--progress-every SECONDS``: the throttle of :class:`StageProgress` on a long
+    analysis (reading, rows, fits, candidates), on stderr only."""
+    p.add_argument(
+        "--progress-every",
+        type=float,
+        default=PROGRESS_EVERY_S,
+        metavar="SECONDS",
+        help="seconds between the progress lines of a long recording's stages on stderr "
+        f"(default {PROGRESS_EVERY_S:g}; -q: none)",
+    )
+
+
 def add_out_options(
     p: argparse.ArgumentParser, help: str, *, default: str | None = None, required: bool = False
 ) -> None:

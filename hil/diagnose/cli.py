@@ -28,6 +28,7 @@ from hil.cli_options import (
     StageProgress,
     add_html_report_option,
     add_out_options,
+    add_progress_option,
     add_recording_options,
     add_report_options,
     prepare_out_dir,
@@ -86,14 +87,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_recording_options(p)
     add_report_options(p, plot="skip the PNG plots", plot_flag="--no-plots")
     add_html_report_option(p)
-    p.add_argument(
-        "--progress-every",
-        type=float,
-        default=PROGRESS_EVERY_S,
-        metavar="SECONDS",
-        help="seconds between the progress lines of a long recording's stages on stderr "
-        f"(default {PROGRESS_EVERY_S:g}; -q: none)",
-    )
+    add_progress_option(p)
 
 
 def _progress(message: str) -> None:

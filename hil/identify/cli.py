@@ -29,6 +29,7 @@ from hil.cli_options import (
     add_drive_options,
     add_html_report_option,
     add_out_options,
+    add_progress_option,
     add_recording_options,
     add_report_options,
     add_schemes_option,
@@ -139,14 +140,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_recording_options(p)
     add_report_options(p)
     add_html_report_option(p)
-    p.add_argument(
-        "--progress-every",
-        type=float,
-        default=PROGRESS_EVERY_S,
-        metavar="SECONDS",
-        help="seconds between the progress lines of a long recording's stages on stderr "
-        f"(default {PROGRESS_EVERY_S:g}; -q: none)",
-    )
+    add_progress_option(p)
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
