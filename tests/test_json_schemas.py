@@ -12,6 +12,9 @@ or a required field it stops writing, fails here.
 from __future__ import annotations
 
 import json
+import shlex
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -185,6 +188,17 @@ def test_diagnosis_with_drift_against_the_profile(gain_recording, tmp_path):
     doc = check("diagnosis.schema.json", text, "hil diagnose --json")
     assert doc == check_file("diagnosis.schema.json", out / "diagnosis.json")
     assert doc["nominal"]["used"] and doc["nominal"]["findings"], doc["summary"]
+    # docs/schemas.md's command, as written, accepts it and refuses it broken
+    page = (ROOT / "docs" / "schemas.md").read_text(encoding="utf-8")
+    line = next(ln for ln in page.splitlines() if ln.startswith("python -c "))
+    argv = [sys.executable, *shlex.split(line)[1:]]
+    argv[-1] = argv[-1].replace("OUT", str(out), 1)
+    ok = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, check=False)
+    assert ok.returncode == 0 and not ok.stdout, ok.stderr
+    broken = out / "diagnosis.json"
+    broken.write_text(json.dumps({**doc, "findings": "none"}), encoding="utf-8")
+    bad = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, check=False)
+    assert bad.returncode != 0 and "'none' is not of type 'array'" in bad.stderr, bad.stderr
 
 
 def test_diagnosis_against_params_and_refit(identified, tmp_path):
