@@ -120,6 +120,28 @@ def test_hil_jitter_summary_and_meta(tmp_path):
     assert summary["timing"]["cycles"] > 0
 
 
+def test_hil_run_realtime_with_mcap(tmp_path):
+    """A realtime run fills the timing statistics; --mcap adds its path. The summary is printed
+    whatever the run's status (a loaded machine may end it early): it is checked either way."""
+    out = tmp_path / "rt"
+    proc = hil("run", "--bench", "virtual-inprocess", "--mode", "realtime", "--duration", "1",
+               "--mcap", "--out", str(out), "--no-plot", "--json")  # fmt: skip
+    summary = check("run.schema.json", proc.stdout, "hil run --mode realtime --json")
+    meta = check_file("meta.schema.json", out / "meta.json")
+    assert summary["mode"] == meta["mode"] == "realtime" and "mcap" in summary
+    if summary["status"] == "complete":
+        assert summary["timing"]["cycles"] > 0 and "jitter" in meta["timing"]
+
+
+def test_hil_control_one_scheme(tmp_path):
+    out = tmp_path / "ct"
+    text = run_hil("control", "--scheme", "ct", "--bench", "virtual-inprocess", "--duration",
+                   "1", "--out", str(out), "--no-plot")  # fmt: skip
+    doc = check("control.schema.json", text, "hil control --json")
+    assert doc["run"] == check_file("control-run.schema.json", out / "control.json")
+    check_file("meta.schema.json", out / "meta.json")
+
+
 def test_hil_control_compare(tmp_path):
     out = tmp_path / "compare"
     text = run_hil("control", "--compare", "--bench", "virtual-inprocess", "--duration", "1",
@@ -127,8 +149,11 @@ def test_hil_control_compare(tmp_path):
     doc = check("compare.schema.json", text, "hil control --compare --json")
     assert doc == check_file("compare.schema.json", out / "compare.json")
     for scheme in doc["schemes"]:  # each controller's run directory
-        check_file(
-            "meta.schema.json", Path(doc["results"]["profile"][scheme]["out_dir"]) / "meta.json"
+        run = Path(doc["results"]["profile"][scheme]["out_dir"])
+        check_file("meta.schema.json", run / "meta.json")
+        assert (
+            check_file("control-run.schema.json", run / "control.json")
+            == (doc["results"]["profile"][scheme])
         )
 
 
