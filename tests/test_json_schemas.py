@@ -129,8 +129,27 @@ def test_hil_run_realtime_with_mcap(tmp_path):
     summary = check("run.schema.json", proc.stdout, "hil run --mode realtime --json")
     meta = check_file("meta.schema.json", out / "meta.json")
     assert summary["mode"] == meta["mode"] == "realtime" and "mcap" in summary
-    if summary["status"] == "complete":
-        assert summary["timing"]["cycles"] > 0 and "jitter" in meta["timing"]
+    if summary["status"] != "complete":
+        return  # nothing to replay
+    assert summary["timing"]["cycles"] > 0 and "jitter" in meta["timing"]
+    replay = tmp_path / "replay"
+    text = run_hil("replay", str(out), "--out", str(replay), "--no-plot")
+    doc = check("replay.schema.json", text, "hil replay --json")
+    assert doc == check_file("replay.schema.json", replay / "replay.json")
+
+
+def test_hil_jitter_sweep(tmp_path):
+    """A two-level latency sweep (control and identification at each level, 1 s runs)."""
+    out = tmp_path / "sweep"
+    text = run_hil("jitter", "--bench", "virtual-inprocess", "--sweep", "latency=0:2ms:2",
+                   "--study-duration", "1", "--executor", "serial", "--out", str(out),
+                   "--no-plot")  # fmt: skip
+    doc = check("sweep.schema.json", text, "hil jitter --sweep --json")
+    assert doc == check_file("sweep.schema.json", out / "sweep.json")
+    assert doc["identify"] and len(doc["points"]) == 2
+    for point in doc["points"]:
+        path = Path(point["out_dir"]) / "point.json"
+        assert check_file("sweep-point.schema.json", path) == point["result"]
 
 
 def test_hil_control_one_scheme(tmp_path):
