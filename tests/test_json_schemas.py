@@ -107,6 +107,17 @@ def test_hil_run_summary_and_meta(tmp_path):
     assert summary["rows"] == meta["rows"] > 0 and meta["kind"] == "hil run"
 
 
+def test_virtual_robot_simulate_meta(tmp_path):
+    out = tmp_path / "sim"
+    proc = subprocess.run(
+        [sys.executable, "-m", "virtual_robot.cli", "simulate", "--duration", "0.5", "--out",
+         str(out), "--no-plot"],
+        capture_output=True, text=True, timeout=120, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert check_file("meta.schema.json", out / "meta.json")["kind"] == "simulate"
+
+
 def test_hil_jitter_summary_and_meta(tmp_path):
     out = tmp_path / "jitter"
     text = run_hil("jitter", "--bench", "virtual-inprocess", "--duration", "1", "--out",
