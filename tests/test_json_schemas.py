@@ -59,7 +59,21 @@ def check(schema: str, text: str, what: str) -> dict:
             f"{'/'.join(map(str, e.absolute_path)) or '(top)'}: {e.message[:300]}" for e in errors
         ]
         pytest.fail(f"{what} does not match {schema}:\n" + "\n".join(lines[:10]))
+    # objects may grow, but a key the command writes at the top is described in its schema
+    undescribed = set(doc) - set(_top_properties(schema, doc))
+    assert not undescribed, f"{what}: top-level keys not described in {schema}: {undescribed}"
     return doc
+
+
+def _top_properties(schema: str, doc: dict) -> dict:
+    """The top-level ``properties`` of ``schema``, of the ``oneOf`` variant ``doc`` matches."""
+    root = json.loads((SCHEMAS / schema).read_text(encoding="utf-8"))
+    for variant in root.get("oneOf", []):
+        name = variant["$ref"].removeprefix("#/$defs/")
+        own = {**root["$defs"][name], "$defs": root["$defs"]}
+        if jsonschema.Draft202012Validator(own).is_valid(doc):
+            return own["properties"]
+    return root["properties"]
 
 
 def run_hil(*args: str) -> str:
