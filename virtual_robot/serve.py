@@ -158,7 +158,7 @@ def serve(
         _watch_resets(core, reset, stop, log)
     # robot times, for `hil replay`; not over MIT mode, whose drives sample at every frame (the
     # host's stamps then give the sample and command times, drivers.realtime_times)
-    if event_log is not None and core.mode == REALTIME and core.protocol != "mit":
+    if event_log is not None and core.mode == REALTIME and not core.own_loop:
         core.event_log = EventLog(event_log)
     if core.mode == REALTIME:
         # no cyclic-GC pauses between deadlines: everything built so far is frozen out of the
