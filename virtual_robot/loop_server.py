@@ -130,8 +130,7 @@ class LoopDriveServer:
     def _step(self) -> None:
         """Lockstep: one host period, the drives' loop run ``mit_substeps`` times."""
         with self.core.lock:
-            for _ in range(self.core.mit_substeps):
-                self.core.stepper.sync()
+            self.core.step_host_period()
             self._commanded.clear()
         self.stepped()
 

@@ -235,6 +235,15 @@ class VirtualRobot:
         lockstep: nothing. Returns robot time. Call with :attr:`lock` held."""
         return self._catch_up()
 
+    def step_host_period(self) -> None:
+        """Lockstep: one host period of drives that run their own loop, ``mit_substeps`` drive
+        periods each ending with the drives' sample and their torques applied
+        (virtual_robot.stepping.Stepper). Call with :attr:`lock` held."""
+        stepper = self.stepper
+        stepper.unapplied = True
+        for _ in range(self.mit_substeps):
+            stepper.sync()
+
     def apply_now(self, now: float) -> None:
         """The drives' present commands reach the plant: at once in realtime, at the next
         step in lockstep (robot time stands still until then). Call with :attr:`lock` held."""
