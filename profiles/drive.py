@@ -206,9 +206,9 @@ def _odrive(f: Fields) -> OdriveProfile:
 
 __all__ = [
     "LOOP_PROTOCOLS",
-    "OdriveProfile",
     "PROTOCOLS",
     "DriveProfile",
     "MitProfile",
+    "OdriveProfile",
     "load_drive",
 ]

@@ -97,7 +97,7 @@ class OdriveServer(LoopDriveServer):
             return
         if len(data) < need:
             self.ignore(
-                f"command 0x{cmd:02X} for node {node} with {len(data)} bytes (needs {need}), ignored"
+                f"command 0x{cmd:02X} for node {node}: {len(data)} bytes, needs {need}; ignored"
             )
             return
         d, core = self.drives[i], self.core

@@ -219,9 +219,9 @@ class VirtualRobot:
         return self.stepper.t
 
     def _pd_steps(self, now: float) -> None:
-        """Realtime, drives with their own loop: the plant integrated to ``now`` in drive periods, each
-        ending with every drive's sample (its PD and watchdog) and its new torque applied, as
-        the drives' own loop runs (virtual_robot.mit_drive)."""
+        """Realtime, drives with their own loop: the plant integrated to ``now`` in drive
+        periods, each ending with every drive's sample (its loop and watchdog) and its new
+        torque applied, as the drives' own loop runs (virtual_robot.loop_drive)."""
         h, plant, stepper = self.period_s, self.plant, self.stepper
         while now - plant.t >= h:
             t = plant.t + h
