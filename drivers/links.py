@@ -155,6 +155,11 @@ def open_arm(
             log_path=log_dir / "bus.log" if log_dir else None,
             **common,
         )
+    if bench.protocol == "odrive":
+        raise ValueError(
+            f"bench {bench.name}: no host driver speaks ODrive CANSimple here; drive the bench "
+            "with a CANSimple client (e.g. odrive-can; docs/protocol.md 'CAN: ODrive CANSimple')"
+        )
     if bench.protocol == "mit":
         from drivers.mit_arm import MitArm
 
