@@ -26,7 +26,8 @@ import pytest
 from drivers.protocol import odrive as od
 from profiles.drive import load_drive
 from profiles.robot import load_robot
-from virtual_robot.odrive_server import OdriveServer, run_torques
+from virtual_robot.odrive_server import OdriveServer
+from virtual_robot.odrive_simulate import run_torques
 from virtual_robot.robot import LOCKSTEP, VirtualRobot
 
 PERIOD_S = 0.002
@@ -303,3 +304,47 @@ def test_virtual_robot_serve_odrive_bench_over_slcan() -> None:
     ref = run_torques(_robot(), PERIOD_S, [[t, 0.0] for t in torques])
     np.testing.assert_array_equal(np.array(pos), ref["pos_rev"][:, 0])
     assert ref["counts"][39, 0] > 20
+
+
+ODRIVE_MULTISINE = """
+name = "odrive-multisine"
+kind = "open_loop_torque"
+period_s = 0.002
+duration_s = 0.3
+[[joints]]
+sines = [{ amplitude_Nm = 1.2, omega_rad_s = 9.0, phase_rad = 0.3 }]
+[[joints]]
+sines = [{ amplitude_Nm = 0.5, omega_rad_s = 14.0, phase_rad = 1.0 }]
+"""
+
+
+def test_library_reads_what_virtual_robot_simulate_writes(tmp_path: Path) -> None:
+    """`virtual-robot simulate --robot dfki-a0-odrive` of an experiment writes, row for row, the
+    positions odrive-can reads when it sends that experiment's torques (row k+1 is the estimate
+    after period k), to the encoder count."""
+    pytest.importorskip("odrive_can")
+    from drivers.recording import read_signals
+    from profiles.experiment import load_experiment
+
+    experiment = tmp_path / "multisine.toml"
+    experiment.write_text(ODRIVE_MULTISINE)
+    out = tmp_path / "sim"
+    args = ["simulate", "--robot", "dfki-a0-odrive", "--experiment", str(experiment)]
+    proc = subprocess.run(
+        [sys.executable, "-m", "virtual_robot.cli", *args, "--out", str(out), "--no-plot"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+    sim = read_signals(out).columns
+    exp = load_experiment(experiment)
+    n = len(sim["t"])
+    tau = np.array([exp.torque_rows(exp.period_s, n)[k] for k in range(n)])
+    with _served("odrive-sim", idle_timeout_s=0.5):
+        pos, _vel, _notes = asyncio.run(_library_run("odrive-sim", tau))
+    q = 2.0 * np.pi * pos[:-1]
+    np.testing.assert_array_equal(q[:, 0], sim["q1"][1:])
+    np.testing.assert_array_equal(q[:, 1], sim["q2"][1:])
+    assert np.ptp(sim["q1"]) > 0.05

@@ -22,21 +22,18 @@ the axis.
 Time (virtual_robot.loop_server): in lockstep a host period passes once every axis in closed
 loop has its Set_Input_Torque of the period, so a client that sends its torques and waits for
 the next encoder estimates runs in lockstep with the robot: its estimates are the offline
-stepping of the same torques (:func:`run_torques`, tests/test_odrive.py).
+stepping of the same torques (virtual_robot.odrive_simulate.run_torques, tests/test_odrive.py).
 """
 
 from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 
 import can
-import numpy as np
 
 from drivers.protocol import odrive as od
-from profiles.effects import EffectsProfile
-from profiles.robot import RobotProfile, UrdfRobotProfile
 from virtual_robot.loop_server import RECV_TIMEOUT_S, LoopDriveServer
 from virtual_robot.odrive_drive import OdriveAxis
 from virtual_robot.robot import LOCKSTEP, REALTIME, VirtualRobot
@@ -164,39 +161,4 @@ class OdriveServer(LoopDriveServer):
         super().poll(now)
 
 
-def run_torques(
-    robot: RobotProfile | UrdfRobotProfile,
-    period_s: float,
-    torques: Sequence[Sequence[float]],
-    *,
-    effects: EffectsProfile | None = None,
-    q0: Sequence[float] | None = None,
-) -> dict[str, np.ndarray]:
-    """Offline stepping of :class:`OdriveServer`'s lockstep: every axis in closed loop, torque
-    control, from t = 0; in period k each axis gets ``torques[k][j]`` (as the float32 the frame
-    carries), the plant runs one period, and ``pos_rev``, ``vel_rev_s`` (rows × axes: the encoder
-    estimates sent after the period, float32) and ``counts`` are recorded."""
-    core = VirtualRobot(robot, effects, mode=LOCKSTEP, period_s=period_s, q0=q0)
-    if core.protocol != "odrive":
-        raise ValueError(f"robot {robot.name}: its drives are no ODrive axes")
-    axes: list[OdriveAxis] = list(core.drives)  # type: ignore[arg-type]
-    core.stepper.sync()  # sample 0 at t = 0
-    for d in axes:
-        d.set_controller_mode(od.TORQUE_CONTROL, od.PASSTHROUGH)
-        d.request_state(od.CLOSED_LOOP_CONTROL, 0.0)
-    n, m = len(torques), len(axes)
-    out = {k: np.zeros((n, m)) for k in ("pos_rev", "vel_rev_s", "counts")}
-    for k, row in enumerate(torques):
-        if len(row) != m:
-            raise ValueError(f"torques row {k}: {len(row)} torques for {m} axes")
-        for d, tau in zip(axes, row, strict=True):
-            d.set_input_torque(od.f32(tau))
-        core.step_host_period()
-        for j, d in enumerate(axes):
-            out["pos_rev"][k, j] = od.f32(d.pos_estimate_rev)
-            out["vel_rev_s"][k, j] = od.f32(d.vel_estimate_rev_s)
-            out["counts"][k, j] = d.counts
-    return out
-
-
-__all__ = ["OdriveServer", "run_torques"]
+__all__ = ["OdriveServer"]
