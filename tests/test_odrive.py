@@ -348,3 +348,21 @@ def test_library_reads_what_virtual_robot_simulate_writes(tmp_path: Path) -> Non
     np.testing.assert_array_equal(q[:, 0], sim["q1"][1:])
     np.testing.assert_array_equal(q[:, 1], sim["q2"][1:])
     assert np.ptp(sim["q1"]) > 0.05
+
+
+def test_hil_refuses_an_odrive_bench(tmp_path: Path) -> None:
+    """No host driver speaks CANSimple: `hil run` on the ODrive bench says so in one line,
+    exit status 2, nothing written."""
+    out = tmp_path / "run"
+    proc = subprocess.run(
+        [sys.executable, "-m", "hil.cli", "run", "--bench", "virtual-odrive-slcan"]
+        + ["--experiment", "reyes-kelly", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert proc.returncode == 2
+    assert "no host driver speaks ODrive CANSimple" in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+    assert not out.exists() or not any(out.iterdir())
