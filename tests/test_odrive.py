@@ -217,6 +217,7 @@ async def _library_run(channel: str, torques: np.ndarray) -> tuple[np.ndarray, n
     finally:
         for axis in axes:
             axis.stop()
+            axis._bus.shutdown()  # the library leaves its bus to __del__
 
 
 def test_odrive_can_library_drives_the_virtual_axes_in_lockstep() -> None:
@@ -354,9 +355,9 @@ def test_hil_refuses_an_odrive_bench(tmp_path: Path) -> None:
     """No host driver speaks CANSimple: `hil run` on the ODrive bench says so in one line,
     exit status 2, nothing written."""
     out = tmp_path / "run"
+    args = ["run", "--bench", "virtual-odrive-slcan", "--experiment", "reyes-kelly"]
     proc = subprocess.run(
-        [sys.executable, "-m", "hil.cli", "run", "--bench", "virtual-odrive-slcan"]
-        + ["--experiment", "reyes-kelly", "--out", str(out)],
+        [sys.executable, "-m", "hil.cli", *args, "--out", str(out)],
         capture_output=True,
         text=True,
         timeout=120,
