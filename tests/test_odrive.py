@@ -24,11 +24,13 @@ import numpy as np
 import pytest
 
 from drivers.protocol import odrive as od
+from profiles.bench import load_bench
 from profiles.drive import load_drive
 from profiles.robot import load_robot
 from virtual_robot.odrive_server import OdriveServer
 from virtual_robot.odrive_simulate import run_torques
 from virtual_robot.robot import LOCKSTEP, VirtualRobot
+from virtual_robot.serve import build_core
 
 PERIOD_S = 0.002
 DRIVES = ("odrive-s1-d6374@1", "odrive-s1-d6374@2")  # robots/dfki-a0-odrive.toml
@@ -44,9 +46,9 @@ def _core() -> VirtualRobot:
 
 
 @contextlib.contextmanager
-def _served(channel: str, **kw: object) -> Iterator[OdriveServer]:
+def _served(channel: str, core: VirtualRobot | None = None, **kw: object) -> Iterator[OdriveServer]:
     bus = can.Bus(interface="virtual", channel=channel)
-    server = OdriveServer(_core(), bus, **kw)  # type: ignore[arg-type]
+    server = OdriveServer(core or _core(), bus, **kw)  # type: ignore[arg-type]
     stop = threading.Event()
     thread = threading.Thread(target=server.serve_forever, args=(stop,), daemon=True)
     thread.start()
@@ -367,3 +369,44 @@ def test_hil_refuses_an_odrive_bench(tmp_path: Path) -> None:
     assert "no host driver speaks ODrive CANSimple" in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
     assert not out.exists() or not any(out.iterdir())
+
+
+async def _realtime_run(channel: str) -> tuple[list[float], str, str]:
+    from odrive_can import ODriveCAN
+    from odrive_can.odrive import DriveError
+
+    axis = ODriveCAN(axis_id=1, can_bus=can.Bus(interface="virtual", channel=channel))
+    pos: list[float] = []
+    axis.feedback_callback = lambda msg, _axis: pos.append(msg.data["Pos_Estimate"])
+    try:
+        await axis.start()
+        axis.set_controller_mode("TORQUE_CONTROL", "PASSTHROUGH")
+        await axis.set_axis_state("CLOSED_LOOP_CONTROL")
+        for _ in range(15):  # 0.3 s of 1 Nm, a command every 20 ms
+            axis.set_input_torque(1.0)
+            await asyncio.sleep(0.02)
+        await asyncio.sleep(0.9)  # silent: the axis' own watchdog (0.5 s)
+        error = ""
+        try:
+            axis.check_errors()
+        except DriveError as exc:
+            error = str(exc)
+        return pos, axis.axis_state, error
+    finally:
+        axis.stop()
+        axis._bus.shutdown()
+
+
+def test_realtime_cyclic_estimates_and_watchdog() -> None:
+    """Realtime: the estimates arrive every encoder_period_s without being asked, the axis moves
+    under the torque, and a client gone silent trips the axis' own watchdog: IDLE, and the
+    library's check_errors raises WATCHDOG_TIMER_EXPIRED."""
+    pytest.importorskip("odrive_can")
+    core = build_core(load_bench("virtual-odrive-slcan"), effects=None, mode="realtime")
+    with _served("odrive-rt", core) as server:
+        pos, state, error = asyncio.run(_realtime_run("odrive-rt"))
+        assert server.errors == 0
+    assert len(pos) > 50  # ~1.5 s at 10 ms
+    assert max(pos) > 0.01  # rev: the first joint went the torque's way
+    assert state == "IDLE"
+    assert "WATCHDOG_TIMER_EXPIRED" in error
