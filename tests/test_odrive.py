@@ -17,6 +17,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import can
@@ -410,3 +411,10 @@ def test_realtime_cyclic_estimates_and_watchdog() -> None:
     assert max(pos) > 0.01  # rev: the first joint went the torque's way
     assert state == "IDLE"
     assert "WATCHDOG_TIMER_EXPIRED" in error
+
+
+def test_node_id_beyond_six_bits_is_refused() -> None:
+    """`odrive-s1-d6374@70` cannot be addressed by CANSimple: the robot is refused up front."""
+    robot = replace(_robot(), drives=("odrive-s1-d6374@1", "odrive-s1-d6374@70"))
+    with pytest.raises(ValueError, match="node id 70: a CANSimple node id has 6 bits"):
+        VirtualRobot(robot, None, mode=LOCKSTEP, period_s=PERIOD_S)

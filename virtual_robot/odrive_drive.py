@@ -37,6 +37,10 @@ class OdriveAxis(LoopDrive):
     def __init__(self, profile: DriveProfile, period_s: float) -> None:
         if profile.odrive is None:
             raise ValueError(f"{profile.source}: not an ODrive axis (protocol = 'odrive')")
+        if not 0 <= profile.node_id < 1 << od.NODE_BITS:
+            raise ValueError(
+                f"{profile.source}: node id {profile.node_id}: a CANSimple node id has 6 bits"
+            )
         super().__init__(profile, period_s, velocity_window_s=profile.odrive.velocity_window_s)
         self.torque_limit_Nm = profile.rated_torque_Nm * profile.max_torque_permille / 1000.0
         self._power_on()
