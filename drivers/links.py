@@ -156,10 +156,10 @@ def open_arm(
             **common,
         )
     if bench.protocol == "odrive":
-        raise ValueError(
-            f"bench {bench.name}: no host driver speaks ODrive CANSimple here; drive the bench "
-            "with a CANSimple client (e.g. odrive-can; docs/protocol.md 'CAN: ODrive CANSimple')"
-        )
+        from drivers.odrive_arm import OdriveArm
+
+        kwargs = can_bus_kwargs(bench, channel)
+        return OdriveArm(lambda: make_can_bus(kwargs), drives, **common)
     if bench.protocol == "mit":
         from drivers.mit_arm import MitArm
 
