@@ -16,8 +16,7 @@ from profiles.limits import parse_limits
 from profiles.loader import Fields, ProfileError, load_toml
 from profiles.timing_faults import MAX_FEEDBACK_BUDGET_S, TimingFaults, parse_timing_faults
 
-# can: CiA 402; mit: T-Motor/CubeMars MIT mode; odrive: ODrive CANSimple (virtual benches only:
-# no host driver speaks it here, a CANSimple client such as odrive-can does)
+# can: CiA 402; mit: T-Motor/CubeMars MIT mode; odrive: ODrive CANSimple
 PROTOCOLS = ("can", "mit", "odrive", "serial")
 TRANSPORTS = {
     "can": ("slcan", "socketcan", "socketcand", "virtual"),
