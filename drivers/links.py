@@ -155,6 +155,11 @@ def open_arm(
             log_path=log_dir / "bus.log" if log_dir else None,
             **common,
         )
+    if bench.protocol == "odrive":
+        from drivers.odrive_arm import OdriveArm
+
+        kwargs = can_bus_kwargs(bench, channel)
+        return OdriveArm(lambda: make_can_bus(kwargs), drives, **common)
     if bench.protocol == "mit":
         from drivers.mit_arm import MitArm
 

@@ -16,10 +16,12 @@ from profiles.limits import parse_limits
 from profiles.loader import Fields, ProfileError, load_toml
 from profiles.timing_faults import MAX_FEEDBACK_BUDGET_S, TimingFaults, parse_timing_faults
 
-PROTOCOLS = ("can", "mit", "serial")  # can: CiA 402; mit: T-Motor/CubeMars MIT mode
+# can: CiA 402; mit: T-Motor/CubeMars MIT mode; odrive: ODrive CANSimple
+PROTOCOLS = ("can", "mit", "odrive", "serial")
 TRANSPORTS = {
     "can": ("slcan", "socketcan", "socketcand", "virtual"),
     "mit": ("slcan", "socketcan", "virtual"),
+    "odrive": ("slcan", "socketcan", "virtual"),
     "serial": ("serial",),
 }
 MODES = ("lockstep", "realtime")
@@ -189,10 +191,11 @@ def bench_for_robot(bench: BenchProfile, robot: str | None = None) -> BenchProfi
 
 def check_drive_protocol(bench: BenchProfile, drives: tuple[str, ...], source: str) -> None:
     """A one-line ProfileError unless the robot's drives speak the bench's protocol (MIT-mode
-    drives on an ``mit`` bench, CiA 402 drives on a ``can`` or ``serial`` one)."""
+    drives on an ``mit`` bench, ODrive axes on an ``odrive`` one, CiA 402 drives on a ``can``
+    or ``serial`` one)."""
     from profiles.drive import load_drive
 
-    want = "mit" if bench.protocol == "mit" else "cia402"
+    want = bench.protocol if bench.protocol in ("mit", "odrive") else "cia402"
     for name in drives:
         drive = load_drive(name)
         if drive.protocol != want:

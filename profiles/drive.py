@@ -11,7 +11,9 @@ from profiles.loader import Fields, ProfileError, load_toml
 WATCHDOG_DEFAULT_S = 0.5  # 2× the benches' default feedback budget (docs/virtual-robot.md)
 
 
-PROTOCOLS = ("cia402", "mit")
+PROTOCOLS = ("cia402", "mit", "odrive")
+# protocols whose drives run their own loop (a drive period shorter than the host's)
+LOOP_PROTOCOLS = ("mit", "odrive")
 
 
 @dataclass(frozen=True)
@@ -33,6 +35,18 @@ class MitProfile:
 
 
 @dataclass(frozen=True)
+class OdriveProfile:
+    """An ODrive axis' [odrive] table (CANSimple, firmware 0.6): its control loop, its velocity
+    estimate and its cyclic messages (the firmware's ``can.heartbeat_msg_rate_ms`` and
+    ``can.encoder_msg_rate_ms``)."""
+
+    control_rate_hz: float  # how often the axis applies its torque setpoint and samples
+    velocity_window_s: float  # the velocity estimate: encoder counts over this window
+    heartbeat_period_s: float  # the cyclic heartbeat (wall time)
+    encoder_period_s: float  # realtime: the cyclic Get_Encoder_Estimates (0: on request only)
+
+
+@dataclass(frozen=True)
 class DriveProfile:
     model: str
     source: str
@@ -51,6 +65,16 @@ class DriveProfile:
     # mode, the [mit] table: MitProfile)
     protocol: str = "cia402"
     mit: MitProfile | None = None
+    odrive: OdriveProfile | None = None  # protocol "odrive" (ODrive CANSimple): its table
+
+    @property
+    def loop_rate_hz(self) -> float:
+        """The drive's own loop rate (its drive period), for the protocols that run one."""
+        if self.mit is not None:
+            return self.mit.pd_rate_hz
+        if self.odrive is not None:
+            return self.odrive.control_rate_hz
+        raise ValueError(f"{self.source}: a {self.protocol} drive runs no loop of its own")
 
     @property
     def rad_per_count(self) -> float:
@@ -94,6 +118,7 @@ def load_drive(name_or_path: str | Path) -> DriveProfile:
             "product_code",
             "protocol",
             "mit",
+            "odrive",
         }
     )
     protocol = f.string("protocol", "cia402") if f.has("protocol") else "cia402"
@@ -104,6 +129,13 @@ def load_drive(name_or_path: str | Path) -> DriveProfile:
             "mit", "an MIT-mode drive (protocol = 'mit') needs a [mit] table, and only it"
         )
     mit = _mit(f.table("mit")) if protocol == "mit" else None
+    if (protocol == "odrive") != f.has("odrive"):
+        raise f.error(
+            "odrive", "an ODrive axis (protocol = 'odrive') needs an [odrive] table, and only it"
+        )
+    odrive = _odrive(f.table("odrive")) if protocol == "odrive" else None
+    if odrive is not None and f.integer("node_id", lo=1, hi=127) > 63:
+        raise f.error("node_id", "an ODrive node id has 6 bits (CAN id = node_id << 5 | cmd)")
     if f.has("vendor"):
         f.string("vendor")
     if f.has("watchdog_periods"):
@@ -125,6 +157,7 @@ def load_drive(name_or_path: str | Path) -> DriveProfile:
         product_code=f.integer("product_code", 0, lo=0, hi=0xFFFFFFFF),
         protocol=protocol,
         mit=mit,
+        odrive=odrive,
     )
 
 
@@ -161,9 +194,21 @@ def _mit(f: Fields) -> MitProfile:
     )
 
 
+def _odrive(f: Fields) -> OdriveProfile:
+    f.only({"control_rate_hz", "velocity_window_s", "heartbeat_period_s", "encoder_period_s"})
+    return OdriveProfile(
+        control_rate_hz=f.number("control_rate_hz", 1000.0, lo=100.0, hi=100000.0),
+        velocity_window_s=f.number("velocity_window_s", 0.002, lo=0.0, hi=0.1),
+        heartbeat_period_s=f.number("heartbeat_period_s", 0.1, lo=0.001, hi=10.0),
+        encoder_period_s=f.number("encoder_period_s", 0.01, lo=0.0, hi=10.0),
+    )
+
+
 __all__ = [
+    "LOOP_PROTOCOLS",
     "PROTOCOLS",
     "DriveProfile",
     "MitProfile",
+    "OdriveProfile",
     "load_drive",
 ]

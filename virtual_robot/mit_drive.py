@@ -1,5 +1,6 @@
 """Emulated MIT-mode drive (T-Motor/CubeMars AK series, Mini Cheetah firmware): motor mode, the
-drive's own PD, encoder, velocity estimate and command watchdog.
+drive's own PD, encoder, velocity estimate and command watchdog (the last three
+virtual_robot.loop_drive's, shared with the ODrive axis).
 
 Pure logic like :class:`~virtual_robot.drive.DriveModel`, and stepped the same way
 (:class:`~virtual_robot.stepping.Stepper`): the plant loop calls :meth:`MitDrive.update` once per
@@ -23,39 +24,44 @@ motor mode without a command exit motor mode (torque 0, :attr:`MitDrive.last_err
 
 from __future__ import annotations
 
-import math
-from collections import deque
-
 from drivers.protocol.mit import MitCommand
 from profiles.drive import DriveProfile
 from virtual_robot.drive import Emcy
+from virtual_robot.loop_drive import LoopDrive
 
 WATCHDOG = "watchdog: no command for the watchdog time in motor mode; motor mode left"
 COMMUNICATION = "communication fault"
 
 
-class MitDrive:
+class MitDrive(LoopDrive):
     """One emulated MIT-mode drive (module docstring)."""
 
     def __init__(self, profile: DriveProfile, period_s: float) -> None:
         if profile.mit is None:
             raise ValueError(f"{profile.source}: not an MIT-mode drive (protocol = 'mit')")
-        self.profile = profile
         mit = profile.mit
-        self._dir = mit.axis_direction
+        super().__init__(
+            profile,
+            period_s,
+            direction=mit.axis_direction,
+            velocity_window_s=mit.velocity_window_s,
+        )
         self._t_max = mit.t_max
-        self._rad_per_count = profile.rad_per_count
-        self.watchdog_periods = profile.watchdog_periods(period_s)
-        window = max(1, round(mit.velocity_window_s / period_s)) if mit.velocity_window_s else 1
-        self._history: deque[tuple[float, int]] = deque(maxlen=window + 1)
-        self._counts = 0  # the drive's own encoder count (its frame), unbounded
         self._offset = 0  # the count "set zero" stored
-        self._velocity = 0.0  # rad/s, drive frame
-        self._watchdog = 0
         self.motor_mode = False
         self.command = MitCommand(0.0, 0.0, 0.0, 0.0, 0.0)
-        self.last_error = ""
-        self._events: list[Emcy] = []
+
+    @property
+    def armed(self) -> bool:
+        return self.motor_mode
+
+    def _watchdog_expired(self, now: float) -> None:
+        self.motor_mode = False
+        self.last_error = WATCHDOG
+        self._events.append(Emcy(0x8250, 0, now))
+
+    def safe_stop(self, now: float) -> None:
+        self.exit_motor_mode(now)
 
     # ---- from a transport -------------------------------------------------------------------
     def enter_motor_mode(self, now: float) -> None:
@@ -72,8 +78,7 @@ class MitDrive:
     def set_zero(self, now: float) -> None:
         """FF..FE: the present position becomes p = 0 (the firmware stores the offset)."""
         self._offset = self._counts
-        self._history.clear()
-        self._history.append((now, self._counts))
+        self.restart_velocity(now)
 
     def write_command(self, cmd: MitCommand, now: float) -> None:
         """A p/v/kp/kd/τ command (already decoded and in range); feeds the watchdog."""
@@ -86,46 +91,11 @@ class MitDrive:
         self.last_error = f"{COMMUNICATION} 0x{code:04X}"
         self._events.append(Emcy(code, 0, now))
 
-    # ---- one drive period ---------------------------------------------------------------------
-    def update(
-        self, now: float, position_rad: float, velocity_rad_s: float, count_period: bool = True
-    ) -> None:
-        """Sample the encoder (joint angle → the drive's count), estimate the velocity over the
-        profile's window, and count the watchdog (``count_period``)."""
-        if not (math.isfinite(position_rad) and math.isfinite(velocity_rad_s)):
-            raise ValueError("position and velocity must be finite")
-        counts = math.floor(self._dir * position_rad / self._rad_per_count)
-        self._counts = counts
-        history = self._history
-        if history and now > history[0][0]:
-            t0, c0 = history[0]
-            self._velocity = (counts - c0) * self._rad_per_count / (now - t0)
-        elif not history:
-            self._velocity = 0.0
-        if not history or now > history[-1][0]:
-            history.append((now, counts))
-        if count_period and self.motor_mode:
-            self._watchdog += 1
-            if self._watchdog >= self.watchdog_periods:
-                self.motor_mode = False
-                self.last_error = WATCHDOG
-                self._events.append(Emcy(0x8250, 0, now))
-
-    def pop_emcy(self) -> list[Emcy]:
-        """Watchdog and communication events since the last call (MIT mode sends none on the
-        bus; the server logs them)."""
-        events, self._events = self._events, []
-        return events
-
     # ---- readouts -----------------------------------------------------------------------------
     @property
     def position_rad(self) -> float:
         """p: what the drive reports, its frame, from its zero."""
         return (self._counts - self._offset) * self._rad_per_count
-
-    @property
-    def velocity_rad_s(self) -> float:
-        return self._velocity
 
     @property
     def drive_torque_Nm(self) -> float:
@@ -136,15 +106,6 @@ class MitDrive:
         tau = c.kp * (c.p_des - self.position_rad) + c.kd * (c.v_des - self._velocity) + c.t_ff
         t_max = self._t_max
         return t_max if tau > t_max else -t_max if tau < -t_max else tau
-
-    @property
-    def torque_Nm(self) -> float:
-        """The torque on the joint (the plant's frame)."""
-        return self._dir * self.drive_torque_Nm
-
-    @property
-    def powered(self) -> bool:
-        return self.motor_mode
 
 
 __all__ = ["COMMUNICATION", "WATCHDOG", "MitDrive"]

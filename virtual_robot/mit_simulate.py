@@ -70,9 +70,7 @@ def run_commands(
             out["p"][k, j] = d.position_rad
             out["v"][k, j] = d.velocity_rad_s
             out["tau"][k, j] = d.drive_torque_Nm
-        stepper.unapplied = True
-        for _ in range(core.mit_substeps):
-            stepper.sync()
+        core.step_host_period()
     out["plant_steps"][0] = getattr(core.plant, "steps", 0)
     return out
 

@@ -36,11 +36,13 @@ from dataclasses import dataclass
 
 from drivers.protocol import cia402 as co
 from drivers.protocol.cia402 import SdoAbortError
-from profiles.drive import DriveProfile, load_drive
+from profiles.drive import LOOP_PROTOCOLS, DriveProfile, load_drive
 from profiles.effects import EffectsProfile
 from profiles.robot import RobotProfile, UrdfRobotProfile
 from virtual_robot.drive import DriveError, DriveModel, Emcy
+from virtual_robot.loop_drive import LoopDrive
 from virtual_robot.mit_drive import MitDrive
+from virtual_robot.odrive_drive import OdriveAxis
 from virtual_robot.plant import DEFAULT_STEP_S, Plant, PlantParams
 from virtual_robot.stepping import SteppedPlant, Stepper
 from virtual_robot.timing_faults import RobotTiming
@@ -113,19 +115,23 @@ class VirtualRobot:
         kinds = {p.protocol for p in self.profiles}
         if len(kinds) > 1:
             raise ValueError(f"{robot.source}: its drives speak different protocols ({kinds})")
-        self.protocol = kinds.pop()  # "cia402" or "mit" (profiles.drive.PROTOCOLS)
-        # the drive period: the bench's period for CiA 402; the PD loop's for MIT mode, which
-        # divides the host's period into mit_substeps (one lockstep host period = that many)
+        self.protocol = kinds.pop()  # "cia402", "mit" or "odrive" (profiles.drive.PROTOCOLS)
+        # the drive period: the bench's period for CiA 402; the drives' own loop's for MIT mode
+        # and ODrive, which divides the host's period into mit_substeps (one lockstep host
+        # period = that many; profiles.drive.LOOP_PROTOCOLS)
         self.mit_substeps = 1
         self.host_period_s = period_s  # the bench's period: the realtime period timer's
-        if self.protocol == "mit":
-            rate = max(p.mit.pd_rate_hz for p in self.profiles if p.mit is not None)
+        self.own_loop = self.protocol in LOOP_PROTOCOLS
+        if self.own_loop:
+            rate = max(p.loop_rate_hz for p in self.profiles)
             self.mit_substeps = max(1, round(period_s * rate))
             period_s = period_s / self.mit_substeps
             self.period_s = period_s
-        self.drives: list[DriveModel] | list[MitDrive] = (
+        self.drives: list[DriveModel] | list[MitDrive] | list[OdriveAxis] = (
             [MitDrive(p, period_s) for p in self.profiles]
             if self.protocol == "mit"
+            else [OdriveAxis(p, period_s) for p in self.profiles]
+            if self.protocol == "odrive"
             else [DriveModel(p, period_s=period_s) for p in self.profiles]
         )
         self.by_node = {p.node_id: i for i, p in enumerate(self.profiles)}
@@ -202,7 +208,7 @@ class VirtualRobot:
         """Realtime: integrate to now with the torques held so far. Returns robot time."""
         if self.mode == REALTIME:
             now = self.now()
-            if self.protocol == "mit":
+            if self.own_loop:
                 self._pd_steps(now)
             if now > self.plant.t:
                 self.plant.advance_to(now)
@@ -213,9 +219,9 @@ class VirtualRobot:
         return self.stepper.t
 
     def _pd_steps(self, now: float) -> None:
-        """Realtime, MIT-mode drives: the plant integrated to ``now`` in drive periods, each
-        ending with every drive's sample (its PD and watchdog) and its new torque applied, as
-        the drives' own loop runs (virtual_robot.mit_drive)."""
+        """Realtime, drives with their own loop: the plant integrated to ``now`` in drive
+        periods, each ending with every drive's sample (its loop and watchdog) and its new
+        torque applied, as the drives' own loop runs (virtual_robot.loop_drive)."""
         h, plant, stepper = self.period_s, self.plant, self.stepper
         while now - plant.t >= h:
             t = plant.t + h
@@ -228,6 +234,15 @@ class VirtualRobot:
         """Realtime: integrate to now with the torques held so far (a server's frame arrived);
         lockstep: nothing. Returns robot time. Call with :attr:`lock` held."""
         return self._catch_up()
+
+    def step_host_period(self) -> None:
+        """Lockstep: one host period of drives that run their own loop, ``mit_substeps`` drive
+        periods each ending with the drives' sample and their torques applied
+        (virtual_robot.stepping.Stepper). Call with :attr:`lock` held."""
+        stepper = self.stepper
+        stepper.unapplied = True
+        for _ in range(self.mit_substeps):
+            stepper.sync()
 
     def apply_now(self, now: float) -> None:
         """The drives' present commands reach the plant: at once in realtime, at the next
@@ -290,7 +305,7 @@ class VirtualRobot:
             if self.mode != REALTIME:
                 return
             now = self._catch_up()  # MIT mode: the drives' periods run in there
-            self._sample_realtime(now, count_period=self.protocol != "mit")
+            self._sample_realtime(now, count_period=not self.own_loop)
 
     def start_period_timer(self, stop: threading.Event) -> threading.Thread | None:
         """Realtime: a daemon thread calling :meth:`tick` every period until ``stop`` is set.
@@ -432,8 +447,8 @@ class VirtualRobot:
         with self.lock:
             now = self._catch_up()
             for d in self.drives:
-                if isinstance(d, MitDrive):
-                    d.exit_motor_mode(now)
+                if isinstance(d, LoopDrive):
+                    d.safe_stop(now)
                 else:
                     d.write_controlword(co.CW_DISABLE_VOLTAGE, now)
             self._apply_torques(now, from_host=False)

@@ -17,7 +17,9 @@ The announcement (one dict, the CLI prints it as one JSON line) for CAN links:
 
 The CAN links are served by :class:`CanDriveServer` (CiA 301/402, see can_server.py), or by
 :class:`~virtual_robot.mit_server.MitDriveServer` on a bench with ``protocol = "mit"``
-(T-Motor/CubeMars MIT mode, mit_server.py; the same transports but socketcand). In
+(T-Motor/CubeMars MIT mode, mit_server.py; the same transports but socketcand), or by
+:class:`~virtual_robot.odrive_server.OdriveServer` with ``protocol = "odrive"`` (ODrive
+CANSimple, odrive_server.py; the same transports as MIT mode). In
 lockstep the drives' command watchdog counts SYNCs (robot time stands still without them), so
 a wall-clock host-silence watchdog of the bench's ``timeout_s`` (the time the host itself waits
 for the robot in lockstep) disables the drives when the host hangs; in realtime the drives'
@@ -50,6 +52,7 @@ from profiles.timing_faults import combine
 from virtual_robot.bus_pacing import BusPacer
 from virtual_robot.can_server import CanDriveServer
 from virtual_robot.mit_server import MitDriveServer
+from virtual_robot.odrive_server import OdriveServer
 from virtual_robot.robot import LOCKSTEP, REALTIME, VirtualRobot
 from virtual_robot.timing_faults import EventLog, RobotTiming
 
@@ -158,7 +161,7 @@ def serve(
         _watch_resets(core, reset, stop, log)
     # robot times, for `hil replay`; not over MIT mode, whose drives sample at every frame (the
     # host's stamps then give the sample and command times, drivers.realtime_times)
-    if event_log is not None and core.mode == REALTIME and core.protocol != "mit":
+    if event_log is not None and core.mode == REALTIME and not core.own_loop:
         core.event_log = EventLog(event_log)
     if core.mode == REALTIME:
         # no cyclic-GC pauses between deadlines: everything built so far is frozen out of the
@@ -237,9 +240,11 @@ def serve(
             raise ValueError(f"unknown CAN transport {bench.transport!r}")
         closers.insert(0, bus.shutdown)
         idle = bench.timeout_s if core.mode == LOCKSTEP else None
-        server: CanDriveServer | MitDriveServer
+        server: CanDriveServer | MitDriveServer | OdriveServer
         if bench.protocol == "mit":
             server = MitDriveServer(core, bus, idle_timeout_s=idle, log=log)
+        elif bench.protocol == "odrive":
+            server = OdriveServer(core, bus, idle_timeout_s=idle, log=log)
         else:
             server = CanDriveServer(
                 core,

@@ -60,6 +60,10 @@ def simulate(
         from virtual_robot.mit_simulate import simulate_mit
 
         return simulate_mit(robot, experiment, out_dir, effects=effects, duration_s=duration_s)
+    if drives_p[0].protocol == "odrive":  # ODrive axes: their torque setpoints, their estimates
+        from virtual_robot.odrive_simulate import simulate_odrive
+
+        return simulate_odrive(robot, experiment, out_dir, effects=effects, duration_s=duration_s)
     h = experiment.period_s
     duration = experiment.duration_s if duration_s is None else duration_s
     n_rows = max(1, round(duration / h))
