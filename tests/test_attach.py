@@ -61,11 +61,12 @@ def _hil(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
     return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
 
 
-def _wait_for(path: Path, text: str, timeout: float = 30.0) -> str:
+def _wait_for(path: Path, text: str, timeout: float = 30.0, times: int = 1) -> str:
+    """Wait until ``text`` stands ``times`` times in the file ``path``."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         got = path.read_text()
-        if text in got:
+        if got.count(text) >= times:
             return got
         time.sleep(0.05)
     raise AssertionError(f"{text!r} not in {path.name} after {timeout} s: {path.read_text()}")
@@ -74,6 +75,7 @@ def _wait_for(path: Path, text: str, timeout: float = 30.0) -> str:
 def _fault_by_two_producers(port: int, log: Path) -> None:
     """Two raw clients each send a SYNC, the second within the first's lease: the robot faults
     (0x8100) as it must when two producers share a bus; both then leave."""
+    faults = log.read_text().count("drives faulted (0x8100)")
     buses = [
         can.Bus(interface="socketcand", host="127.0.0.1", port=port, channel="can0")
         for _ in range(2)
@@ -81,7 +83,7 @@ def _fault_by_two_producers(port: int, log: Path) -> None:
     try:
         for bus in buses:
             bus.send(SYNC)
-        _wait_for(log, "drives faulted (0x8100)")
+        _wait_for(log, "drives faulted (0x8100)", times=faults + 1)
     finally:
         for bus in buses:
             bus.shutdown()
