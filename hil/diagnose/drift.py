@@ -311,14 +311,17 @@ def _change(fit: _Fit, others: Sequence[Term], term: Term) -> float:
 
 def _drift_passes(fit: _Fit, others: Sequence[Term], term: Term, ev: Evidence, tests: int) -> bool:
     """The gate of a drift pattern. Against a nominal model identified from reference rows:
-    the held-out error of its joints drops (:data:`MIN_REDUCTION`, as everywhere) and its size
+    the held-out error of its joints drops (:data:`MIN_REDUCTION`, as everywhere; in more
+    blocks than it rises) and its size
     differs from the reference's (:func:`_change`) beyond the two-sided Student-t quantile at
     :data:`FAMILY_ALPHA` Bonferroni-corrected over the ``tests`` (the jackknife over B blocks:
     B − 1 degrees of freedom). Against a profile or ``--params`` (no reference rows to
     difference against): the sign test over blocks of :func:`hil.diagnose.selection._passes`."""
     if fit.reference is None:
         return _passes(ev, tests)
-    if ev.reduction < MIN_REDUCTION:
+    # a change of the arm acts on all its motion: it lowers the held-out error of more blocks
+    # than it raises (not a few fast blocks carrying a misfit of another term's shape)
+    if ev.reduction < MIN_REDUCTION or 2 * ev.blocks_improved <= ev.blocks:
         return False
     crit = float(student_t.isf(FAMILY_ALPHA / tests / 2, max(len(fit.starts) - 1, 1)))
     return _change(fit, others, term) >= crit
