@@ -275,10 +275,10 @@ def _make_fit(
     return _Fit(prob, ctx, residual, scale, starts, list(baseline))
 
 
-def _size_and_se(fit: _Fit, terms: Sequence[Term], judged: _Fit) -> tuple[float, float]:
+def _sizes(fit: _Fit, terms: Sequence[Term], judged: _Fit) -> tuple[float, np.ndarray]:
     """The last term's size (:meth:`Effect.estimate`, read in ``judged``'s context so that both
     sides of a comparison use one scale) fitted on ``fit``'s rows with the other ``terms``, and
-    its blocked-jackknife standard error (the size of every leave-one-block-out fit)."""
+    its size in every leave-one-block-out fit (B,)."""
     cv = fit.cv(terms)
     last = terms[-1]
     zero = np.zeros(last.width)
@@ -287,8 +287,19 @@ def _size_and_se(fit: _Fit, terms: Sequence[Term], judged: _Fit) -> tuple[float,
         b = fit.split(beta, terms)[-1]
         return last.effect.estimate(judged.ctx, last.joint, b, zero, last.at)[1]
 
-    folds = np.array([[size(b)] for b in cv.fold_beta])
-    return size(cv.beta), float(jackknife_se(folds)[0])
+    return size(cv.beta), np.array([size(b) for b in cv.fold_beta])
+
+
+def change_se(folds: np.ndarray, folds_back: np.ndarray) -> np.ndarray:
+    """Blocked-jackknife standard error of a difference of two fits' coefficients (rows: the
+    leave-one-block-out fits of each). With as many blocks on both sides, block b is left out of
+    both at once (the delete-a-pair jackknife): unbiased when the two recordings' blocks are
+    independent, and it keeps their covariance when they are not (the same excitation run
+    again leaves the same model error in the same block on both sides, which cancels in the
+    difference); else the two jackknives combined as independent."""
+    if folds.shape[0] == folds_back.shape[0]:
+        return jackknife_se(folds - folds_back)
+    return np.hypot(jackknife_se(folds), jackknife_se(folds_back))
 
 
 def _change(fit: _Fit, others: Sequence[Term], term: Term) -> float:
@@ -303,9 +314,9 @@ def _change(fit: _Fit, others: Sequence[Term], term: Term) -> float:
     outweighs c²|Ψθ₀|² block by block, though not in total."""
     ref = fit.reference
     assert ref is not None
-    rec, se_rec = _size_and_se(fit, [*others, term], fit)
-    back, se_back = _size_and_se(ref, [fit.on_reference(t) for t in [*others, term]], fit)
-    se = float(np.hypot(se_rec, se_back))
+    rec, folds = _sizes(fit, [*others, term], fit)
+    back, folds_back = _sizes(ref, [fit.on_reference(t) for t in [*others, term]], fit)
+    se = float(change_se(folds[:, None], folds_back[:, None])[0])
     return abs(rec - back) / se if se > 0 else (np.inf if rec != back else 0.0)
 
 
@@ -399,16 +410,16 @@ def _estimates(
     """Each term's finding numbers, size and SE: the blocked jackknife of the recording's
     rows and, when θ₀ was identified, the spread its own draws cause, combined. With
     reference rows (:attr:`_Fit.reference`): the change since the reference, the coefficients
-    of the same terms fitted there subtracted (a shared misfit is no part of the change) and
-    their jackknife added to the SE; a nonlinear term's change is read at its starting point
-    (an encoder angle: the difference of the two angles)."""
+    of the same terms fitted there subtracted (a shared misfit is no part of the change), its
+    jackknife that of the difference (:func:`change_se`); a nonlinear term's change is read
+    at its starting point (an encoder angle: the difference of the two angles)."""
     cv = fit.cv(terms)
     se = np.hypot(jackknife_se(cv.fold_beta), _nominal_spread(fit, terms, draws))
     beta, ats = cv.beta, [t.at for t in terms]
     if fit.reference is not None and terms:
         back = fit.reference.cv([fit.on_reference(t) for t in terms])
         beta = beta - back.beta
-        se = np.hypot(se, jackknife_se(back.fold_beta))
+        se = np.hypot(change_se(cv.fold_beta, back.fold_beta), _nominal_spread(fit, terms, draws))
         ats = [t.effect.start(fit.ctx, t.joint) for t in terms]
     out = [
         t.effect.estimate(fit.ctx, t.joint, b, s, at)
