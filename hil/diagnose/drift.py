@@ -78,6 +78,10 @@ NOMINAL_TOLERANCE = 1.5
 RESOLVED_SE = 2.0  # a finding's size must exceed this many of its standard errors
 REFINE_STEPS = 4  # Gauss–Newton steps of the nonlinear patterns (encoder angle, payload centre)
 GATE_ROUNDS = 4  # selections run again after a term failed a gate
+# The recording runs the reference's motion again (its regressor rows within this fraction of the
+# reference's, block for block): the model's error then falls in the same blocks on both sides
+# and the change is judged block-paired (:func:`change_se`)
+SAME_MOTION = 0.1
 
 
 @dataclass
@@ -195,6 +199,7 @@ class _Fit:
     # the reference recordings' rows against the same θ₀ (:func:`_change`), when θ₀ was
     # identified from them
     reference: _Fit | None = None
+    paired: bool = False  # the reference ran the same motion, block for block (SAME_MOTION)
     _ref_terms: dict[str, Term] = field(default_factory=dict)
 
     def on_reference(self, term: Term) -> Term:
@@ -290,16 +295,23 @@ def _sizes(fit: _Fit, terms: Sequence[Term], judged: _Fit) -> tuple[float, np.nd
     return size(cv.beta), np.array([size(b) for b in cv.fold_beta])
 
 
-def change_se(folds: np.ndarray, folds_back: np.ndarray) -> np.ndarray:
+def change_se(folds: np.ndarray, folds_back: np.ndarray, paired: bool) -> np.ndarray:
     """Blocked-jackknife standard error of a difference of two fits' coefficients (rows: the
-    leave-one-block-out fits of each). With as many blocks on both sides, block b is left out of
-    both at once (the delete-a-pair jackknife): unbiased when the two recordings' blocks are
-    independent, and it keeps their covariance when they are not (the same excitation run
-    again leaves the same model error in the same block on both sides, which cancels in the
-    difference); else the two jackknives combined as independent."""
-    if folds.shape[0] == folds_back.shape[0]:
+    leave-one-block-out fits of each). ``paired`` (the same motion on both sides, block for
+    block): block b is left out of both at once (the delete-a-pair jackknife), which keeps the
+    covariance of the model error that falls in the same block on both sides and cancels in the
+    difference; else the two jackknives combined as independent."""
+    if paired and folds.shape[0] == folds_back.shape[0]:
         return jackknife_se(folds - folds_back)
     return np.hypot(jackknife_se(folds), jackknife_se(folds_back))
+
+
+def same_motion(a: Problem, b: Problem) -> bool:
+    """Whether ``a``'s rows run ``b``'s motion again: the same blocks, and regressor rows that
+    differ by at most :data:`SAME_MOTION` of ``b``'s (the torque may differ: that is judged)."""
+    if a.Psi_raw.shape != b.Psi_raw.shape or not np.array_equal(a.blocks, b.blocks):
+        return False
+    return bool(np.linalg.norm(a.Psi_raw - b.Psi_raw) <= SAME_MOTION * np.linalg.norm(b.Psi_raw))
 
 
 def _change(fit: _Fit, others: Sequence[Term], term: Term) -> float:
@@ -316,22 +328,25 @@ def _change(fit: _Fit, others: Sequence[Term], term: Term) -> float:
     assert ref is not None
     rec, folds = _sizes(fit, [*others, term], fit)
     back, folds_back = _sizes(ref, [fit.on_reference(t) for t in [*others, term]], fit)
-    se = float(change_se(folds[:, None], folds_back[:, None])[0])
+    se = float(change_se(folds[:, None], folds_back[:, None], fit.paired)[0])
     return abs(rec - back) / se if se > 0 else (np.inf if rec != back else 0.0)
 
 
 def _drift_passes(fit: _Fit, others: Sequence[Term], term: Term, ev: Evidence, tests: int) -> bool:
-    """The gate of a drift pattern. Against a nominal model identified from reference rows:
-    the held-out error of its joints drops (:data:`MIN_REDUCTION`, as everywhere; in more
-    blocks than it rises) and its size
-    differs from the reference's (:func:`_change`) beyond the two-sided Student-t quantile at
-    :data:`FAMILY_ALPHA` Bonferroni-corrected over the ``tests`` (the jackknife over B blocks:
-    B − 1 degrees of freedom). Against a profile or ``--params`` (no reference rows to
-    difference against): the sign test over blocks of :func:`hil.diagnose.selection._passes`."""
+    """The gate of a drift pattern. Against a profile or ``--params`` (no reference rows to
+    difference against): the sign test over blocks of :func:`hil.diagnose.selection._passes`.
+    Against a nominal model identified from reference rows: the held-out error of its joints
+    drops (:data:`MIN_REDUCTION`, as everywhere, and in more blocks than it rises: a change of
+    the arm acts on all its motion, not on a few fast blocks carrying another term's misfit),
+    and its size differs from the reference's (:func:`_change`) beyond the two-sided Student-t
+    quantile at :data:`FAMILY_ALPHA`, Bonferroni-corrected over the ``tests`` (a jackknife over
+    B blocks: B − 1 degrees of freedom). Unless the recording runs the reference's motion again
+    (:attr:`_Fit.paired`), the sign test must pass as well: another motion projects the model's
+    error onto a pattern differently, a difference the blocks' spread does not measure."""
     if fit.reference is None:
         return _passes(ev, tests)
-    # a change of the arm acts on all its motion: it lowers the held-out error of more blocks
-    # than it raises (not a few fast blocks carrying a misfit of another term's shape)
+    if not fit.paired and not _passes(ev, tests):
+        return False
     if ev.reduction < MIN_REDUCTION or 2 * ev.blocks_improved <= ev.blocks:
         return False
     crit = float(student_t.isf(FAMILY_ALPHA / tests / 2, max(len(fit.starts) - 1, 1)))
@@ -419,7 +434,9 @@ def _estimates(
     if fit.reference is not None and terms:
         back = fit.reference.cv([fit.on_reference(t) for t in terms])
         beta = beta - back.beta
-        se = np.hypot(change_se(cv.fold_beta, back.fold_beta), _nominal_spread(fit, terms, draws))
+        se = np.hypot(
+            change_se(cv.fold_beta, back.fold_beta, fit.paired), _nominal_spread(fit, terms, draws)
+        )
         ats = [t.effect.start(fit.ctx, t.joint) for t in terms]
     out = [
         t.effect.estimate(fit.ctx, t.joint, b, s, at)
@@ -652,6 +669,7 @@ def _reverse_check(
     back = _make_fit(reference, model, theta_rec, geometry=fit.ctx.geometry)
     # the recording's own rows against θ_rec: the misfit θ_rec leaves on them is no change
     back.reference = _make_fit(fit.prob, model, theta_rec, geometry=fit.ctx.geometry)
+    back.paired = fit.paired
     out: dict[str, str] = {}
     forward = _estimates(fit, kept)[0]
     for t, (_e, size, _s) in zip(kept, forward, strict=True):
@@ -705,6 +723,7 @@ def judge(
     fit = _make_fit(prob, model, theta0, nominal.terms, nominal.geometry)
     if nominal.reference is not None:
         fit.reference = _make_fit(nominal.reference, model, theta0, nominal.terms, nominal.geometry)
+        fit.paired = same_motion(prob, nominal.reference)
     ctx = fit.ctx
     cands = _candidates(ctx)
     say(f"diagnose: against the {nominal.source} model: testing {len(cands)} drift patterns")
