@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.stats import t as student_t
 
 from drivers.recording import Recording
 from hil.diagnose.effects import REGISTRY, Context, Effect, SimInput
@@ -48,7 +49,9 @@ from hil.diagnose.report import (
     worse_beyond_noise,
 )
 from hil.diagnose.selection import (
+    FAMILY_ALPHA,
     MAX_ROUNDS,
+    MIN_REDUCTION,
     Problem,
     _passes,
     build_problem,
@@ -58,6 +61,7 @@ from hil.diagnose.selection import (
 )
 from hil.diagnose.stats import (
     CrossValidation,
+    Evidence,
     block_stats,
     cross_validate,
     evidence,
@@ -74,6 +78,10 @@ NOMINAL_TOLERANCE = 1.5
 RESOLVED_SE = 2.0  # a finding's size must exceed this many of its standard errors
 REFINE_STEPS = 4  # Gauss–Newton steps of the nonlinear patterns (encoder angle, payload centre)
 GATE_ROUNDS = 4  # selections run again after a term failed a gate
+# The recording runs the reference's motion again (its regressor rows within this fraction of the
+# reference's, block for block): the model's error then falls in the same blocks on both sides
+# and the change is judged block-paired (:func:`change_se`)
+SAME_MOTION = 0.1
 
 
 @dataclass
@@ -188,6 +196,19 @@ class _Fit:
     scale: np.ndarray  # (n,)
     starts: np.ndarray
     baseline: list[tuple] = field(default_factory=list)  # Nominal.terms
+    # the reference recordings' rows against the same θ₀ (:func:`_change`), when θ₀ was
+    # identified from them
+    reference: _Fit | None = None
+    paired: bool = False  # the reference ran the same motion, block for block (SAME_MOTION)
+    _ref_terms: dict[str, Term] = field(default_factory=dict)
+
+    def on_reference(self, term: Term) -> Term:
+        """``term`` (same effect, joint and linearisation point) built on the reference rows."""
+        assert self.reference is not None
+        key = f"{term.key}@{term.at!r}"
+        if key not in self._ref_terms:
+            self._ref_terms[key] = self.reference.build(Term(term.effect, term.joint, term.at))
+        return self._ref_terms[key]
 
     def target(self, terms: Sequence[Term]) -> np.ndarray:
         r = self.residual
@@ -259,6 +280,79 @@ def _make_fit(
     return _Fit(prob, ctx, residual, scale, starts, list(baseline))
 
 
+def _sizes(fit: _Fit, terms: Sequence[Term], judged: _Fit) -> tuple[float, np.ndarray]:
+    """The last term's size (:meth:`Effect.estimate`, read in ``judged``'s context so that both
+    sides of a comparison use one scale) fitted on ``fit``'s rows with the other ``terms``, and
+    its size in every leave-one-block-out fit (B,)."""
+    cv = fit.cv(terms)
+    last = terms[-1]
+    zero = np.zeros(last.width)
+
+    def size(beta: np.ndarray) -> float:
+        b = fit.split(beta, terms)[-1]
+        return last.effect.estimate(judged.ctx, last.joint, b, zero, last.at)[1]
+
+    return size(cv.beta), np.array([size(b) for b in cv.fold_beta])
+
+
+def change_se(folds: np.ndarray, folds_back: np.ndarray, paired: bool) -> np.ndarray:
+    """Blocked-jackknife standard error of a difference of two fits' coefficients (rows: the
+    leave-one-block-out fits of each). ``paired`` (the same motion on both sides, block for
+    block): block b is left out of both at once (the delete-a-pair jackknife), which keeps the
+    covariance of the model error that falls in the same block on both sides and cancels in the
+    difference; else the two jackknives combined as independent."""
+    if paired and folds.shape[0] == folds_back.shape[0]:
+        return jackknife_se(folds - folds_back)
+    return np.hypot(jackknife_se(folds), jackknife_se(folds_back))
+
+
+def same_motion(a: Problem, b: Problem) -> bool:
+    """Whether ``a``'s rows run ``b``'s motion again: the same blocks, and regressor rows that
+    differ by at most :data:`SAME_MOTION` of ``b``'s (the torque may differ: that is judged)."""
+    if a.Psi_raw.shape != b.Psi_raw.shape or not np.array_equal(a.blocks, b.blocks):
+        return False
+    return bool(np.linalg.norm(a.Psi_raw - b.Psi_raw) <= SAME_MOTION * np.linalg.norm(b.Psi_raw))
+
+
+def _change(fit: _Fit, others: Sequence[Term], term: Term) -> float:
+    """How many standard errors ``term``'s size on the recording lies from its size on the
+    reference rows, both fitted against the same θ₀ with the same ``others``: the change since
+    the reference. A misfit of the model that both recordings share (a departure θ's terms
+    cannot express, or the part of the reference residual that the bounded fit of θ₀ leaves
+    along a pattern's column) has the same size on both sides and cancels; the per-block sign
+    of the held-out improvement cannot tell that apart from a change, and on a model whose
+    error is large against the change (30–50 % torque NRMSE on real arms) it misses changes
+    that the coefficient resolves many times over: the cross term 2c⟨Ψθ₀, r⟩ of a gain c
+    outweighs c²|Ψθ₀|² block by block, though not in total."""
+    ref = fit.reference
+    assert ref is not None
+    rec, folds = _sizes(fit, [*others, term], fit)
+    back, folds_back = _sizes(ref, [fit.on_reference(t) for t in [*others, term]], fit)
+    se = float(change_se(folds[:, None], folds_back[:, None], fit.paired)[0])
+    return abs(rec - back) / se if se > 0 else (np.inf if rec != back else 0.0)
+
+
+def _drift_passes(fit: _Fit, others: Sequence[Term], term: Term, ev: Evidence, tests: int) -> bool:
+    """The gate of a drift pattern. Against a profile or ``--params`` (no reference rows to
+    difference against): the sign test over blocks of :func:`hil.diagnose.selection._passes`.
+    Against a nominal model identified from reference rows: the held-out error of its joints
+    drops (:data:`MIN_REDUCTION`, as everywhere, and in more blocks than it rises: a change of
+    the arm acts on all its motion, not on a few fast blocks carrying another term's misfit),
+    and its size differs from the reference's (:func:`_change`) beyond the two-sided Student-t
+    quantile at :data:`FAMILY_ALPHA`, Bonferroni-corrected over the ``tests`` (a jackknife over
+    B blocks: B − 1 degrees of freedom). Unless the recording runs the reference's motion again
+    (:attr:`_Fit.paired`), the sign test must pass as well: another motion projects the model's
+    error onto a pattern differently, a difference the blocks' spread does not measure."""
+    if fit.reference is None:
+        return _passes(ev, tests)
+    if not fit.paired and not _passes(ev, tests):
+        return False
+    if ev.reduction < MIN_REDUCTION or 2 * ev.blocks_improved <= ev.blocks:
+        return False
+    crit = float(student_t.isf(FAMILY_ALPHA / tests / 2, max(len(fit.starts) - 1, 1)))
+    return _change(fit, others, term) >= crit
+
+
 def _candidates(ctx: Context, reference: bool = False) -> list[Term]:
     """Every variant of every registered effect that applies (``reference``: those a reference
     identification keeps, :attr:`Effect.in_reference`); partners only included."""
@@ -290,13 +384,15 @@ def _select(
             term = built[c.key]
             joints = term.effect.acts_on(fit.ctx, c.joint)
             ev = evidence(base, fit.cv([*accepted, term]), joints)
-            if term.effect.nonlinear and _passes(ev, len(cands)):
+            if term.effect.nonlinear and _drift_passes(fit, accepted, term, ev, len(cands)):
                 # compared at its best linearisation point, not at the nominal one (an encoder
                 # angle linearised at zero loses to the three linear columns it explains)
                 fit.refine([*accepted, term], only=term)
                 ev = evidence(base, fit.cv([*accepted, term]), joints)
             tested.setdefault(term.key, ev.as_dict())
-            if _passes(ev, len(cands)) and (best is None or ev.drop > best[1].drop):
+            if (best is None or ev.drop > best[1].drop) and _drift_passes(
+                fit, accepted, term, ev, len(cands)
+            ):
                 best = (term, ev)
         if best is None:
             break
@@ -327,12 +423,26 @@ def _estimates(
     fit: _Fit, terms: Sequence[Term], draws: np.ndarray | None = None
 ) -> tuple[list[tuple[dict, float, float]], CrossValidation]:
     """Each term's finding numbers, size and SE: the blocked jackknife of the recording's
-    rows and, when θ₀ was identified, the spread its own draws cause, combined."""
+    rows and, when θ₀ was identified, the spread its own draws cause, combined. With
+    reference rows (:attr:`_Fit.reference`): the change since the reference, the coefficients
+    of the same terms fitted there subtracted (a shared misfit is no part of the change), its
+    jackknife that of the difference (:func:`change_se`); a nonlinear term's change is read
+    at its starting point (an encoder angle: the difference of the two angles)."""
     cv = fit.cv(terms)
     se = np.hypot(jackknife_se(cv.fold_beta), _nominal_spread(fit, terms, draws))
+    beta, ats = cv.beta, [t.at for t in terms]
+    if fit.reference is not None and terms:
+        back = fit.reference.cv([fit.on_reference(t) for t in terms])
+        beta = beta - back.beta
+        se = np.hypot(
+            change_se(cv.fold_beta, back.fold_beta, fit.paired), _nominal_spread(fit, terms, draws)
+        )
+        ats = [t.effect.start(fit.ctx, t.joint) for t in terms]
     out = [
-        t.effect.estimate(fit.ctx, t.joint, b, s, t.at)
-        for t, b, s in zip(terms, fit.split(cv.beta, terms), fit.split(se, terms), strict=True)
+        t.effect.estimate(fit.ctx, t.joint, b, s, at)
+        for t, b, s, at in zip(
+            terms, fit.split(beta, terms), fit.split(se, terms), ats, strict=True
+        )
     ]
     return out, cv
 
@@ -352,10 +462,12 @@ def _confounded(fit: _Fit, accepted: list[Term], cands: list[Term], tests: int) 
             with_b = [*others, b]
             fit.refine(with_b)
             cv_b = fit.cv(with_b)
-            if not _passes(evidence(base, cv_b, b.effect.acts_on(fit.ctx, b.joint)), tests):
+            ev_b = evidence(base, cv_b, b.effect.acts_on(fit.ctx, b.joint))
+            if not _drift_passes(fit, others, b, ev_b, tests):
                 continue
             on_top = fit.cv([*with_b, a])
-            if _passes(evidence(cv_b, on_top, a.effect.acts_on(fit.ctx, a.joint)), tests):
+            ev_a = evidence(cv_b, on_top, a.effect.acts_on(fit.ctx, a.joint))
+            if _drift_passes(fit, with_b, a, ev_a, tests):
                 continue  # a explains something b does not: not confounded
             est = _estimates(fit, with_b)[0][-1]
             out.setdefault(a.key, []).append((b, est))
@@ -555,6 +667,9 @@ def _reverse_check(
     model = fit.ctx.model
     theta_rec, _ = _bounded_fit(fit.prob, model, None, fit.prob.y, 0)
     back = _make_fit(reference, model, theta_rec, geometry=fit.ctx.geometry)
+    # the recording's own rows against θ_rec: the misfit θ_rec leaves on them is no change
+    back.reference = _make_fit(fit.prob, model, theta_rec, geometry=fit.ctx.geometry)
+    back.paired = fit.paired
     out: dict[str, str] = {}
     forward = _estimates(fit, kept)[0]
     for t, (_e, size, _s) in zip(kept, forward, strict=True):
@@ -579,7 +694,7 @@ def _gates(fit: _Fit, accepted: list[Term], nominal: Nominal, tests: int) -> dic
     for i, (t, (_est, size, size_se)) in enumerate(zip(accepted, estimates, strict=True)):
         others = accepted[:i] + accepted[i + 1 :]
         ev = evidence(fit.cv(others), fit.cv(accepted), t.effect.acts_on(fit.ctx, t.joint))
-        if not _passes(ev, tests):
+        if not _drift_passes(fit, others, t, ev, tests):
             failed[t.key] = "its held-out proof on top of the others failed"
         elif abs(size) < RESOLVED_SE * size_se:
             failed[t.key] = (
@@ -606,6 +721,9 @@ def judge(
         )
     prob, _ = build_problem(_problem_inputs(recordings), model)
     fit = _make_fit(prob, model, theta0, nominal.terms, nominal.geometry)
+    if nominal.reference is not None:
+        fit.reference = _make_fit(nominal.reference, model, theta0, nominal.terms, nominal.geometry)
+        fit.paired = same_motion(prob, nominal.reference)
     ctx = fit.ctx
     cands = _candidates(ctx)
     say(f"diagnose: against the {nominal.source} model: testing {len(cands)} drift patterns")

@@ -42,12 +42,15 @@ WITHIN = 0.35  # the issue's size tolerance on real recordings
 ALIASES = {
     "transport_delay": ("transport_delay", "actuator_lag"),
     "velocity_squared_drag": ("velocity_squared_drag", "unexplained"),
+    # the drift stage's name for an encoder zero offset (hil/diagnose/effects/encoder.py)
+    "angle_offset": ("angle_offset", "encoder_offset"),
 }
 TRUTH_SIZE = {
     "payload": lambda m: m["mass_kg"],
     "velocity_squared_drag": lambda m: m["coefficient_Nms2"],
 }
 FINDING_SIZE = {
+    "encoder_offset": lambda e: e["offset_rad"],
     "payload": lambda e: e["mass_kg"],
     "velocity_squared_drag": lambda e: e["coefficient_Nms2"],
 }
