@@ -37,7 +37,7 @@ from cli_run import ROOT
 from drivers.process import run_status
 
 HIL = [sys.executable, "-m", "hil.entry"]
-ROBOT = [sys.executable, "-m", "virtual_robot.cli"]
+ROBOT = [sys.executable, "-m", "virtual_robot.entry"]  # as the console script
 TIMEOUT_S = 120.0  # any one command; past it the attempt is a hang (reported, killed)
 
 
