@@ -131,7 +131,10 @@ def judge(
     a.traceback = "Traceback (most recent call last)" in err
     lines = [ln for ln in err.splitlines() if ln.strip()]
     # the error line of a refusal or a signal is the last; progress lines come before it
-    a.one_line = code == 0 or len([ln for ln in lines if "error" in ln.lower()]) <= 1
+    errors = [ln for ln in lines if "error" in ln.lower()]
+    a.one_line = code == 0 or len(errors) <= 1
+    if not a.one_line:
+        a.note = " / ".join(errors)[:300]
     if code is None:
         a.failures.append("hang (killed after the timeout)")
     elif code not in ok_codes:
@@ -204,6 +207,7 @@ def merge(a: Attempt, subs: list[Attempt]) -> None:
         setattr(a, name, all(seen) if seen else None)
     codes = [sub.code for sub in subs if sub.code is not None]
     a.code = max(codes) if codes else None
+    a.note = " | ".join(sub.note for sub in subs if not sub.one_line)
 
 
 # ---- 1. malformed files ---------------------------------------------------------------------
@@ -537,7 +541,7 @@ def attack_hub(work: Path, rng: random.Random, quick: bool) -> Iterator[Attempt]
                 for r, o in zip(results, outs, strict=True)
             ]
             merge(a, subs)
-            a.note = f"exits {codes}"
+            a.note = f"exits {codes} {a.note}".rstrip()
             robot_state(a, work, port, f"att-{k}")
             yield a
 
@@ -562,7 +566,7 @@ def attack_concurrent(work: Path, rng: random.Random, quick: bool) -> Iterator[A
         if codes.count(0) != 1 and not (k == 2 and codes.count(0) >= 1):
             a.failures.append(f"{codes.count(0)} of 3 recorded (exits {codes})")
         check_run_dir(a, out)
-        a.note = f"exits {codes}"
+        a.note = f"exits {codes} {a.note}".rstrip()
         yield a
 
 
@@ -611,7 +615,7 @@ def main(argv: list[str] | None = None) -> int:
         f"\n{len(attempts)} attempts in {time.monotonic() - t0:.0f} s (seed {args.seed})",
         file=sys.stderr,
     )
-    for cat in args.only or CATEGORIES:
+    for cat in dict.fromkeys(a.category for a in attempts):
         print(
             f"  {cat:10} {summary[(cat, 'ok')]:3} ok  {summary[(cat, 'failed')]:3} failed",
             file=sys.stderr,
