@@ -151,7 +151,13 @@ def judge(
             a.json_ok = False
             a.failures.append(f"invalid JSON: {exc}"[:120])
     if run_dir is not None:
-        check_run_dir(a, run_dir, refused=code not in (0, 1))
+        # SIGKILL cannot be caught: a launch it cuts short may leave its robot's log (no run
+        # was recorded, nothing is lost; reported in the note)
+        check_run_dir(a, run_dir, refused=code not in (0, 1, -signal.SIGKILL))
+        if code == -signal.SIGKILL and run_dir.is_dir() and not any(run_dir.rglob("meta.json")):
+            left = sorted(str(p.relative_to(run_dir)) for p in run_dir.rglob("*") if p.is_file())
+            if left:
+                a.note = f"no run began; left {left[:3]}"
     if not a.note and lines:
         a.note = lines[-1][:110]
     return a
