@@ -16,6 +16,7 @@ session and killed (by its process group id) at the end of its attempt.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import random
@@ -547,9 +548,28 @@ def attack_hub(work: Path, rng: random.Random, quick: bool) -> Iterator[Attempt]
                 for r, o in zip(results, outs, strict=True)
             ]
             merge(a, subs)
+            overlap = _overlapping([o for o, r in zip(outs, results, strict=True) if r[0] == 0])
+            if overlap:
+                a.failures.append(
+                    f"two hosts drove the robot at once and both completed: {overlap}"
+                )
             a.note = f"exits {codes} {a.note}".rstrip()
             robot_state(a, work, port, f"att-{k}")
             yield a
+
+
+def _overlapping(outs: list[Path]) -> str:
+    """Of the runs that completed, two whose [started, finished] overlap (as 'A & B'), or ''."""
+    spans = []
+    for out in outs:
+        with suppress(OSError, ValueError):
+            meta = json.loads((out / "meta.json").read_text())
+            spans.append((meta["started_unix"], meta["finished_unix"], out.name))
+    spans.sort()
+    for (_, end, name), (start, _, other) in itertools.pairwise(spans):
+        if start < end:
+            return f"{name} & {other}"
+    return ""
 
 
 # ---- 5. concurrent runs to one --out --------------------------------------------------------
