@@ -33,7 +33,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/: cli_run
-from cli_run import ROOT
+from cli_run import ROOT, wait_rows
 
 from drivers.process import run_status
 
@@ -527,7 +527,8 @@ def attack_hub(work: Path, rng: random.Random, quick: bool) -> Iterator[Attempt]
         # a raw client sends SYNCs while a host runs: the drives fault, a rerun clears them
         a = Attempt("hub", "second SYNC producer during a run")
         host = spawn(attach_argv(work / "hub-sync", port, duration="5"), work)
-        time.sleep(2.0)
+        with suppress(AssertionError):  # its SYNCs on the bus (rows recorded), or it ended
+            wait_rows(work / "hub-sync", 50, host, timeout=60)
         with suppress(OSError), _raw(port) as s:
             for _ in range(50):
                 s.sendall(b"< send 080 0 >")
@@ -559,16 +560,19 @@ def attack_hub(work: Path, rng: random.Random, quick: bool) -> Iterator[Attempt]
 
 
 def _overlapping(outs: list[Path]) -> str:
-    """Of the runs that completed, two whose [started, finished] overlap (as 'A & B'), or ''."""
+    """Of the runs that completed, two whose SYNC phases overlap (as 'A & B'), or ''. A run's
+    SYNC phase is taken as the ``duration_s`` before its ``finished_unix`` (``started_unix`` is
+    when its recording was opened, before the attach's listen and SDO set-up)."""
     spans = []
     for out in outs:
-        with suppress(OSError, ValueError):
+        with suppress(OSError, ValueError, KeyError, TypeError):
             meta = json.loads((out / "meta.json").read_text())
-            spans.append((meta["started_unix"], meta["finished_unix"], out.name))
+            end = float(meta["finished_unix"])
+            spans.append((end - float(meta["duration_s"]), end, out.name))
     spans.sort()
     for (_, end, name), (start, _, other) in itertools.pairwise(spans):
         if start < end:
-            return f"{name} & {other}"
+            return f"{name} & {other} ({end - start:.2f} s)"
     return ""
 
 
