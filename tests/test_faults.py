@@ -211,6 +211,46 @@ def test_python_m_hil_cli_sigterm_during_its_imports_is_one_line(tmp_path: Path)
     assert not out.exists()
 
 
+# `virtual-robot` as a user starts it (the console script's module, or `python -m
+# virtual_robot.cli` as runpy runs it), with a signal sent to itself while the command line's own
+# imports run (profiles.effects is one of them)
+_SIGNAL_DURING_ROBOT_IMPORT = """
+import os, runpy, signal, sys
+
+class SignalOnImport:
+    def find_spec(self, name, path=None, target=None):
+        if name == "profiles.effects":
+            os.kill(os.getpid(), SIG)
+        return None
+
+SIG, module = int(sys.argv[3]), sys.argv[2]
+sys.meta_path.insert(0, SignalOnImport())
+sys.argv = ["virtual-robot", "simulate", "--duration", "1", "--out", sys.argv[1]]
+runpy.run_module(module, run_name="__main__", alter_sys=True)
+"""
+
+
+@pytest.mark.parametrize("module", ["virtual_robot.entry", "virtual_robot.cli"])
+@pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGTERM, signal.SIGINT])
+def test_virtual_robot_signal_during_its_imports_is_one_line(tmp_path: Path, module, sig) -> None:
+    """The exit signals are installed before virtual_robot.cli's imports: a signal during them
+    ends with one line and 128 + N, nothing written (the attack battery found SIGHUP there
+    killing `virtual-robot simulate` without a word, status -1)."""
+    out = tmp_path / "sim"
+    proc = subprocess.run(
+        [sys.executable, "-c", _SIGNAL_DURING_ROBOT_IMPORT, str(out), module, str(int(sig))],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+    )
+    assert proc.returncode == 128 + sig, (proc.returncode, proc.stderr)
+    assert "Traceback" not in proc.stderr, proc.stderr
+    assert proc.stderr.strip().startswith("virtual-robot: "), proc.stderr
+    assert proc.stderr.strip().endswith("; nothing was running yet"), proc.stderr
+    assert not out.exists()
+
+
 def test_ctrl_c_at_any_moment_is_one_line(tmp_path: Path) -> None:
     """Ctrl-C during imports, the robot's launch or the run: one line, no traceback, no robot
     left behind, and meta.json (if written) does not claim to be running."""

@@ -2,10 +2,23 @@
 
 from __future__ import annotations
 
+import sys
+
+if __name__ == "__main__":
+    # `python -m virtual_robot.cli`: the exit signals before this module's imports below (a
+    # signal during them ends with the one line, not a traceback or a silent death by SIGHUP),
+    # then this module imported again, as virtual_robot.cli, and run
+    import importlib
+
+    from drivers.process import run_command_line
+
+    sys.exit(
+        run_command_line("virtual-robot", lambda: importlib.import_module("virtual_robot.cli").run)
+    )
+
 import argparse
 import math
 import os
-import sys
 import threading
 from collections.abc import Sequence
 
@@ -313,13 +326,8 @@ def _run(argv: Sequence[str] | None) -> int:
         print(f"virtual-robot {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # Ctrl-C, SIGTERM or SIGHUP: meta.json says "interrupted"
-        print(
-            f"virtual-robot {args.command}: {interrupt_reason()}; the recording so far is kept",
-            file=sys.stderr,
-        )
+        # serve records nothing: a signal before its own handler is in place (its launch)
+        kept = "; the recording so far is kept" if args.command == "simulate" else ""
+        print(f"virtual-robot {args.command}: {interrupt_reason()}{kept}", file=sys.stderr)
         return interrupt_exit_code()
     return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())
