@@ -151,6 +151,12 @@ def test_a_stray_sync_gives_up_the_producer_role_once_silent() -> None:
             stray.send(SYNC)  # within the host's lease: refused, reported once
             host.send(SYNC)
             assert robot.recv(5.0) is not None
+            # the two clients' frames travel on two connections: the stray's may reach the
+            # hub after the host's, so wait for it rather than assume the order
+            deadline = time.monotonic() + 10.0
+            while hub.foreign_syncs == 0 and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert robot.recv(0.2) is None  # the stray's SYNC was not forwarded
             assert hub.foreign_syncs == 1 and len(conflicts) == 1, conflicts
         finally:
             stray.shutdown()
