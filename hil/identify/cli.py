@@ -131,6 +131,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "a URDF arm's scheme that fails its held-out validation is not offered (exit 1)",
     )
     p.add_argument(
+        "--instruments",
+        choices=("none", "target"),
+        default="none",
+        help="URDF arms: 'target' adds the filtered dynamic rows fitted by instrumental "
+        "variables on the recording's target positions (q_target columns), against the "
+        "closed-loop bias of least squares (docs/real-data.md), as scheme filtered_dynamic_iv",
+    )
+    p.add_argument(
         "--consistent",
         action="store_true",
         help="URDF arms (docs/urdf.md): constrain every scheme's fit to physically consistent "
@@ -321,12 +329,22 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             f"unknown scheme(s) {', '.join(unknown) or '(none given)'}; "
             f"expected some of {', '.join(SCHEMES)}"
         )
-    if args.params_scheme not in schemes:
+    iv = getattr(args, "instruments", "none") == "target"
+    if iv and "filtered_dynamic" not in schemes:
+        raise ValueError("--instruments target needs filtered_dynamic among --schemes")
+    if args.params_scheme not in schemes and not (
+        iv and args.params_scheme == "filtered_dynamic_iv"
+    ):
         raise ValueError(f"--params-scheme {args.params_scheme} is not among --schemes")
     if args.lam is not None and not args.lam > 0:
         raise ValueError(f"--lambda must be > 0 rad/s, got {args.lam}")
     if _urdf_robot(args):
         return run_identify_urdf(args)
+    if iv:
+        raise ValueError(
+            "--instruments target: URDF arms only (a --robot profile described by a URDF); "
+            "the 2-DOF closed-form path has no instrumental-variable fit"
+        )
     if getattr(args, "consistent", False):
         raise ValueError(
             "--consistent is for arms described by a URDF with --from (docs/urdf.md); the "
@@ -1018,6 +1036,8 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         entry["cpu_s"] = time.process_time() - start
         entry["uncertainty"] = uncertainty.as_json()
         results[scheme] = {"theta": theta, **entry}
+    if getattr(args, "instruments", "none") == "target" and torque_res is not None:
+        results["filtered_dynamic_iv"] = _iv_entry(model, recording, torque_res, held_out, cutoff)
     nominal = model.base_theta()
     if val is not None:
         rows = regression_rows(model, val, cutoff_hz=cutoff)
@@ -1098,6 +1118,35 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out / "identify.json", report)
     return report, format_urdf_report(report)
+
+
+def _iv_entry(model, recording, torque_res, held_out: float, cutoff: float) -> dict[str, Any]:
+    """The result of ``--instruments target``: the filtered dynamic rows (the least-squares
+    fit's cutoff and equations left out) by instrumental variables on the recording's target
+    positions (:func:`hil.identify.iv.identify_torque_iv`); not constrained by --consistent."""
+    from hil.identify.iv import identify_torque_iv
+
+    start = time.process_time()
+    res = identify_torque_iv(
+        model, recording, held_out=held_out, cutoff_hz=cutoff,
+        left_out_joints=torque_res.left_out_joints,
+    )  # fmt: skip
+    return {
+        "theta": res.theta,
+        "method": f"{res.method}, filtered dynamic rows; the motion follows the reference by "
+        f"{res.tracking.delay_s:+.3f} s, within {res.tracking.relative_error.max():.1%} of its "
+        "spread",
+        "smoothing_cutoff_hz": cutoff,
+        "rows": len(res.rows.t),
+        "reference": res.tracking.as_json(),
+        "cpu_s": time.process_time() - start,
+        "uncertainty": {
+            "se_white": res.se_white.tolist(),
+            "se_blocked_bootstrap": res.se_block.tolist(),
+            "identified": res.identified.tolist(),
+            "block_s": res.block_s,
+        },
+    }
 
 
 def format_urdf_report(report: dict[str, Any]) -> str:

@@ -43,6 +43,8 @@ SCHEME_TITLES = {
     "supplied_energy": "Supplied Energy",
     "filtered_power": "Filtered Power",
     "filtered_dynamic": "Filtered Dynamic",
+    # --instruments target: the filtered dynamic rows by instrumental variables (hil.identify.iv)
+    "filtered_dynamic_iv": "Filtered Dynamic IV",
 }
 # Reyes & Kelly (1997) Table II, the real arm: "measured" column and the three schemes'
 # estimates at t = 10 s (None where the paper gives none: its supplied-energy run diverged).
