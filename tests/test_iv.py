@@ -6,11 +6,14 @@ underestimates friction and IV does not."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from scipy.signal import butter, sosfiltfilt
 
 from drivers.recording import Recording
+from hil.cli import main as hil_main
 from hil.identify.iv import (
     MAX_TRACKING_ERROR,
     identify_torque_iv,
@@ -53,23 +56,30 @@ def test_reference_delay_and_tracking_guard() -> None:
     assert "does not track" in bad.reason and "joint 1" in bad.reason
 
 
-def _closed_loop(model: UrdfArmModel, theta: np.ndarray, seed: int) -> Recording:
-    """The arm under PD tracking with feedforward on its reference (Kp 30/15 Nm/rad, Kd
-    3/1.5 Nm s/rad), an unmodelled torque disturbance (1.5 Nm RMS, band-limited at 8 Hz) acting
-    on the arm, 1 mrad encoder noise in what is recorded and fed back; the recorded torque is the
-    command. The reference is recorded as q_target."""
+def _closed_loop(
+    model: UrdfArmModel,
+    theta: np.ndarray,
+    seed: int,
+    *,
+    duration_s: float = 20.0,
+    disturbance_Nm: float = 1.5,
+) -> Recording:
+    """The arm (2 or 3 joints) under PD tracking with feedforward on its reference (Kp 30/15/10
+    Nm/rad, Kd 3/1.5/1 Nm s/rad), an unmodelled torque disturbance (``disturbance_Nm`` RMS,
+    band-limited at 8 Hz) acting on the arm, 1 mrad encoder noise in what is recorded and fed
+    back; the recorded torque is the command. The reference is recorded as q_target."""
     rng = np.random.default_rng(seed)
     h, n = 1e-3, model.n_joints
-    t = np.arange(0.0, 20.0, h)
+    t = np.arange(0.0, duration_s, h)
     w = 2 * np.pi * np.array([0.2, 0.35, 0.5])
-    a = np.array([[0.6, 0.3, 0.2], [0.8, -0.4, 0.3]])
+    a = np.array([[0.6, 0.3, 0.2], [0.8, -0.4, 0.3], [0.5, 0.2, -0.3]])[:n]
     phase = np.outer(t, w)[:, None, :] + np.arange(n)[None, :, None]
     qr = (a * np.sin(phase)).sum(-1)
     qdr = (a * w * np.cos(phase)).sum(-1)
     qddr = (-a * w**2 * np.sin(phase)).sum(-1)
     d = sosfiltfilt(butter(2, 8.0, fs=1 / h, output="sos"), rng.standard_normal(qr.shape), axis=0)
-    d *= 1.5 / d.std(axis=0)
-    kp, kd = np.array([30.0, 15.0]), np.array([3.0, 1.5])
+    d *= disturbance_Nm / d.std(axis=0)
+    kp, kd = np.array([30.0, 15.0, 10.0])[:n], np.array([3.0, 1.5, 1.0])[:n]
     ff = model.torque(theta, qr, qdr, qddr)
     q, qd = qr[0].copy(), qdr[0].copy()
     Q, TAU = np.empty_like(qr), np.empty_like(qr)
@@ -121,3 +131,36 @@ def test_iv_refuses_a_recording_without_a_reference() -> None:
     rec = Recording.from_arrays(t, q, np.zeros_like(q), source="no-ref")
     with pytest.raises(ValueError, match="no target positions"):
         identify_torque_iv(model, rec)
+
+
+def test_hil_identify_instruments_target_end_to_end(tmp_path, capsys) -> None:
+    """`hil identify --instruments target` on a closed-loop recording of a URDF arm (cicese3)
+    with q_target columns: the IV fit is reported and validated beside least squares; without
+    the columns, or on the 2-DOF closed-form path, a one-line error (exit 2)."""
+    model = UrdfArmModel.from_profile("cicese3")
+    rec = _closed_loop(model, model.base_theta(), 0, duration_s=8.0, disturbance_Nm=0.3)
+    n = model.n_joints
+    names = ["t", *(f"{p}{j + 1}" for p in ("q", "tau", "q_target") for j in range(n))]
+    csv = tmp_path / "closed_loop.csv"
+    data = np.column_stack([rec.t, rec.q, rec.tau, rec.q_target])
+    np.savetxt(csv, data, delimiter=",", header=",".join(names), comments="", fmt="%.10g")
+    argv = ["identify", "--from", str(csv), "--robot", "cicese3", "--schemes", "filtered_dynamic",
+            "--instruments", "target", "--no-plot", "--json"]  # fmt: skip
+    capsys.readouterr()
+    code = hil_main([*argv, "--out", str(tmp_path / "id")])
+    out, err = capsys.readouterr()
+    assert code in (0, 1) and "Traceback" not in err, err
+    report = json.loads(out)
+    iv = report["schemes"]["filtered_dynamic_iv"]
+    assert abs(iv["reference"]["delay_s"]) < 0.002 and iv["reference"]["usable"]
+    assert len(iv["validation"]["torque_nrmse"]) == n
+    assert iv["validation"]["passed"], iv["validation"]  # better than the mean on every joint
+    # the same file without its targets: refused in one line
+    bare = tmp_path / "bare.csv"
+    np.savetxt(bare, data[:, : 1 + 2 * n], delimiter=",", header=",".join(names[: 1 + 2 * n]),
+               comments="", fmt="%.10g")  # fmt: skip
+    argv[2] = str(bare)
+    assert hil_main([*argv, "--out", str(tmp_path / "bare")]) == 2
+    assert "no target positions" in capsys.readouterr().err
+    assert hil_main([*argv[:4], "cicese", *argv[5:], "--out", str(tmp_path / "cf")]) == 2
+    assert "URDF arms only" in capsys.readouterr().err
