@@ -30,11 +30,11 @@ def kuka_csv(run: int, folder: str | Path, *, targets: bool = False) -> Path:
 
     ``targets``: also q_target1..7, the files' ``target_positions`` × 180/π. As stored they are
     the reference in rad multiplied by π/180 once more (a degree conversion applied twice): the
-    ratio of the positions' extremes to theirs is 57.28–57.32 (180/π = 57.296) on all 14 joint-runs; so
-    converted they equal the measured positions 1.405 s (run 1) and 0.708 s (run 3) later within
-    1.2–5.6 mrad RMS (docs/real-data.md, "Closed loop"). ``target_velocities`` is not written:
-    it is the derivative of the targets on run 3 but twice it on run 1, and
-    ``target_accelerations`` is exactly −``target_positions``."""
+    ratio of the positions' extremes to theirs is 57.28–57.32 (180/π = 57.296) on all 14
+    joint-runs; so converted, the measured positions follow them 1.406 s (run 1) and 0.709 s
+    (run 3) later within 1.2–5.6 mrad RMS (docs/real-data.md, "Closed loop").
+    ``target_velocities`` is not written: it is the derivative of the targets on run 3 but twice
+    it on run 1, and ``target_accelerations`` is exactly −``target_positions``."""
     import numpy as np
 
     data = np.load(realdata(KUKA) / f"measurements_{run}.npz")
