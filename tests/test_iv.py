@@ -54,6 +54,11 @@ def test_reference_delay_and_tracking_guard() -> None:
     bad = reference_tracking(t, q, ref * np.pi / 180)
     assert not bad.usable and bad.relative_error.min() > MAX_TRACKING_ERROR
     assert "does not track" in bad.reason and "joint 1" in bad.reason
+    # a periodic reference (12.6 s) matches again a period later: the nearest match is the delay
+    t = np.arange(0.0, 60.0, 0.005)
+    ref = np.column_stack([np.sin(0.5 * t) + 0.3 * np.sin(1.5 * t), np.cos(1.0 * t)])
+    q = np.column_stack([np.interp(t - 1.4, t, ref[:, j], period=4 * np.pi) for j in range(2)])
+    assert reference_delay(t, q, ref) == pytest.approx(1.4, abs=0.001)
 
 
 def _closed_loop(

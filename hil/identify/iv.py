@@ -43,6 +43,7 @@ from hil.identify.urdf import (
     regression_rows,
     torque_nrmse,
 )
+from hil.model.regressors import excitation_bandwidth
 from hil.model.urdf import UrdfArmModel
 
 # A reference whose RMS distance from the measured positions exceeds this share of their spread
@@ -192,20 +193,50 @@ def _misfit(t: np.ndarray, q: np.ndarray, q_ref: np.ndarray, delay_s: float) -> 
 
 def reference_delay(t: np.ndarray, q: np.ndarray, q_ref: np.ndarray) -> float:
     """The delay s (seconds) by which the motion follows the reference, q(t) ≈ q_r(t − s):
-    the minimum over all joints of the RMS of q(t) − q_r(t − s), searched on a grid of one
-    median sample interval within ±:data:`MAX_DELAY_FRACTION` of the span, then refined to a
-    tenth of an interval. A tracking controller's lag is a few samples; a reference logged with
-    another clock's offset is found the same way. One number from the whole recording, so its
-    correlation with any row's noise is negligible."""
+    the minimum over all joints of the RMS of q(t) − q_r(t − s) within
+    ±:data:`MAX_DELAY_FRACTION` of the span. Searched coarse to fine so that a long recording
+    costs seconds, not its length squared: on at most :data:`DELAY_SEARCH_POINTS` samples with a
+    grid of a twentieth of the reference's shortest period of note (its excitation bandwidth,
+    :func:`hil.model.regressors.excitation_bandwidth`; a tenth of a radian of phase), the
+    nearest of equally good minima (a periodic reference matches again a period later); then
+    around it at one median interval, then at a tenth of one on every sample. A tracking
+    controller's lag is a few samples; a reference logged with another clock's offset is found
+    the same way. One number from the whole recording, so its correlation with any row's noise
+    is negligible."""
     period = float(np.median(np.diff(t)))
-    span = float(t[-1] - t[0])
-    grid = np.arange(-MAX_DELAY_FRACTION * span, MAX_DELAY_FRACTION * span + period, period)
-    # a coarse pass on every 4th sample, then the neighbourhood at full resolution
-    sub = slice(None, None, 4)
+    limit = MAX_DELAY_FRACTION * float(t[-1] - t[0])
+    omega = excitation_bandwidth(q_ref, t)
+    step = max(period, min(0.1 / omega if omega > 0 else limit, limit / 10))
+    sub = slice(None, None, max(1, len(t) // DELAY_SEARCH_POINTS))
+    grid = np.arange(-limit, limit + step, step)
     costs = np.array([_misfit(t[sub], q[sub], q_ref[sub], s) for s in grid])
-    best = float(grid[int(np.argmin(costs))])
-    fine = best + np.arange(-2.0, 2.0 + 1e-9, 0.1) * period
-    return float(fine[int(np.argmin([_misfit(t, q, q_ref, s) for s in fine]))])
+    found = []  # (shift, cost on every sample) of each promising coarse minimum, refined
+    for start in _coarse_minima(grid, costs):
+        sub = slice(None, None, max(1, len(t) // (10 * DELAY_SEARCH_POINTS)))
+        near = start + np.arange(-step, step + period, period)
+        best = float(near[int(np.argmin([_misfit(t[sub], q[sub], q_ref[sub], s) for s in near]))])
+        fine = best + np.arange(-1.0, 1.0 + 1e-9, 0.1) * period
+        fine_costs = [_misfit(t, q, q_ref, s) for s in fine]
+        found.append((float(fine[int(np.argmin(fine_costs))]), float(np.min(fine_costs))))
+    # a periodic reference matches the motion again a period later: the nearest of the equally
+    # good matches (within 20 %, or 1 % of the positions' spread) is the controller's lag (or
+    # the log's offset)
+    tolerance = 1.2 * min(c for _, c in found) + 0.01 * float(np.sqrt(np.mean(np.var(q, axis=0))))
+    return min((s for s, c in found if c <= tolerance), key=abs)
+
+
+def _coarse_minima(grid: np.ndarray, costs: np.ndarray, keep: int = 5) -> list[float]:
+    """The ``keep`` best local minima of ``costs`` over ``grid`` within 4 times the least (a
+    coarse grid can miss a true minimum by a few times its depth)."""
+    finite = np.where(np.isfinite(costs), costs, np.inf)
+    left = np.r_[np.inf, finite[:-1]]
+    right = np.r_[finite[1:], np.inf]
+    local = np.flatnonzero((finite <= left) & (finite <= right) & (finite <= 4 * finite.min()))
+    return [float(grid[i]) for i in local[np.argsort(finite[local])][:keep]]
+
+
+# Samples the coarse stage of reference_delay's search uses (the next stage 10x more).
+DELAY_SEARCH_POINTS = 2000
 
 
 @dataclass(frozen=True)
