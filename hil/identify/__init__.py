@@ -2,7 +2,8 @@
 
 What lives here: the three schemes, Table II and validation (:mod:`.schemes`); online RLS
 while a run records (:mod:`.online`); base parameters of a URDF arm (:mod:`.urdf`); optimal
-periodic excitation (:mod:`.excitation`); the ``hil identify`` and ``hil excite`` commands
+periodic excitation (:mod:`.excitation`); instrumental variables on a closed-loop
+recording's reference (:mod:`.iv`); the ``hil identify`` and ``hil excite`` commands
 (:mod:`.cli`, :mod:`.excite_cli`) and their plots (:mod:`.plots`).
 
 Imports: :mod:`hil.model`, :mod:`hil.bench` (to record over a bench), :mod:`hil.cli_options`.
