@@ -289,16 +289,6 @@ def main(args: argparse.Namespace) -> int:
         text,
         paths=(report.get("recording"), report.get("validation_recording")),
     )
-    selection = report.get("selection")
-    if isinstance(selection, dict) and selection.get("usable") is False:
-        usable = selection["schemes_usable"]
-        error(
-            "identify",
-            f"--params-scheme {selection['scheme']} FAILED ({selection['reason']}): no "
-            "identified parameters, no params.json"
-            + (f"; usable schemes: {', '.join(usable)}" if usable else "; no scheme is usable"),
-        )
-        return EXIT_FAILED
     validation = report.get("validation")
     if isinstance(validation, dict) and validation.get("passed") is False:
         passed = validation["schemes_passed"]
@@ -307,6 +297,17 @@ def main(args: argparse.Namespace) -> int:
             f"--params-scheme {report['params_scheme']} failed held-out validation "
             f"({validation['reason']}): no identified parameters"
             + (f"; schemes that passed: {', '.join(passed)}" if passed else ""),
+        )
+        return EXIT_FAILED
+    selection = report.get("selection")
+    if isinstance(selection, dict) and selection.get("usable") is False:
+        usable = selection["schemes_usable"]
+        error(
+            "identify",
+            f"--params-scheme {selection['scheme']} FAILED ({selection['reason']}): no "
+            "identified parameters"
+            + ("" if report.get("model") == "urdf" else ", no params.json")
+            + (f"; usable schemes: {', '.join(usable)}" if usable else "; no scheme is usable"),
         )
         return EXIT_FAILED
     return 0
@@ -1000,9 +1001,7 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             theta, uncertainty = res.theta, res.uncertainty
             standards[scheme] = res.theta_standard
             entry = {
-                "method": (
-                    "physically consistent least squares" if args.consistent else "least squares"
-                )
+                "method": res.method
                 + " on the exact "
                 + (
                     "energy rows, eq. (28)"
@@ -1017,6 +1016,9 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             }
         entry["cpu_s"] = time.process_time() - start
         entry["uncertainty"] = uncertainty.as_json()
+        bounded = (torque_res if scheme == "filtered_dynamic" else res).theta_least_squares
+        if bounded is not None:  # least squares had negative friction: θ is the bounded fit
+            entry["theta_least_squares"] = bounded.tolist()
         results[scheme] = {"theta": theta, **entry}
     nominal = model.base_theta()
     if val is not None:
@@ -1039,8 +1041,14 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         # the held-out check decides what is reported: a scheme that does not predict every
         # joint's torque better than its mean is shown, marked failed, not offered as θ
         r["validation"] = held_out_verdict(r["theta"], rows, cutoff).as_json()
+        # offered only when it is an arm and passed held-out validation (the 2-DOF paths' rule:
+        # a θ that is not physical is FAILED, never parameters)
+        reason = unusable_reason(r["theta"], r["physical_consistency"])
+        if reason is None and not r["validation"]["passed"]:
+            reason = "failed held-out validation: " + r["validation"]["reason"]
+        r["usable"], r["failed_reason"] = reason is None, reason
     chosen = results[args.params_scheme]
-    chosen_passed = chosen["validation"]["passed"]
+    chosen_passed = chosen["usable"]
     report: dict[str, Any] = {
         "recording": str(fit.path),
         "robot": args.robot,
@@ -1080,13 +1088,21 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             )
         ],
         "physical_consistency": chosen["physical_consistency"],
+        # as the 2-DOF paths': the --params-scheme, whether its θ is offered, and why not
+        "selection": {
+            "scheme": args.params_scheme,
+            "discretization": "exact",
+            "usable": chosen["usable"],
+            "reason": chosen["failed_reason"],
+            "schemes_usable": [s for s, r in results.items() if r["usable"]],
+        },
         "validation": {
             "on": where,
             "torque_nrmse_identified": chosen["validation"]["torque_nrmse"],
             "torque_nrmse_nominal": torque_nrmse(nominal, rows).tolist(),
             # false: the top-level parameters failed it and are not the identified ones
             # (hil control --params refuses them; `hil identify` exits 1)
-            "passed": chosen_passed,
+            "passed": chosen["validation"]["passed"],
             "reason": chosen["validation"]["reason"],
             "schemes_passed": [s for s, r in results.items() if r["validation"]["passed"]],
         },
@@ -1104,9 +1120,9 @@ def format_urdf_report(report: dict[str, Any]) -> str:
     """The text of :func:`run_identify_urdf`: per base parameter the nominal value and each
     scheme's estimate, then each scheme's physical consistency and held-out torque NRMSE."""
     schemes = list(report["schemes"])
-    failed = [s for s in schemes if not report["schemes"][s]["validation"]["passed"]]
+    failed = [s for s in schemes if not report["schemes"][s]["usable"]]
 
-    def title(s: str) -> str:  # a scheme that failed held-out validation is marked everywhere
+    def title(s: str) -> str:  # a scheme not offered (FAILED) is marked everywhere
         return SCHEME_TITLES[s] + (" (FAILED)" if s in failed else "")
 
     lines = [
@@ -1163,15 +1179,22 @@ def format_urdf_report(report: dict[str, Any]) -> str:
         lines.append(f"  {title(s):26s} " + " ".join(f"{x:7.4f}" for x in nrmse_s))
     lines.append(f"  {'nominal':26s} " + " ".join(f"{x:7.4f}" for x in v["torque_nrmse_nominal"]))
     for s in failed:
+        r = report["schemes"][s]
         lines.append(
             f"{SCHEME_TITLES[s]} FAILED held-out validation: "
-            f"{report['schemes'][s]['validation']['reason']}; its θ is not identified parameters"
+            f"{r['validation']['reason']}; its θ is not identified parameters"
+            if not r["validation"]["passed"]
+            else f"{SCHEME_TITLES[s]} FAILED: {r['failed_reason']}; its θ is not offered"
         )
+    selection = report["selection"]
     lines.append(
         f"parameters: {report['params_scheme']} ('estimate' in identify.json; 'identified' is "
         "null where not identifiable)"
-        if v["passed"]
+        if selection["usable"]
         else f"parameters: none ({report['params_scheme']} failed held-out validation; "
         f"schemes that passed: {', '.join(v['schemes_passed']) or 'none'})"
+        if not v["passed"]
+        else f"parameters: none ({report['params_scheme']} FAILED: {selection['reason']}; "
+        f"usable schemes: {', '.join(selection['schemes_usable']) or 'none'})"
     )
     return "\n".join(lines)

@@ -44,6 +44,7 @@ from hil.identify.schemes import BOOTSTRAP_DRAWS, IDENTIFIED_MAX_RELATIVE_SE, bo
 from hil.model.estimators import (
     BlockNormalEquations,
     LeastSquaresRows,
+    bounded_quadratic_fit,
     channel_weights,
     combine,
     solve_normal_equations,
@@ -352,6 +353,8 @@ class TorqueIdentification:
     left_out_joints: np.ndarray | None = None
     # (n,): RMS residual of the first fit near friction steps over that away from them
     step_residual_ratio: np.ndarray | None = None
+    # the least-squares θ when its friction was negative and θ is the bounded fit, else None
+    theta_least_squares: np.ndarray | None = None
 
 
 def fit_split(rec: Recording, held_out: float) -> float:
@@ -494,10 +497,13 @@ def identify_torque(
     blocks = BlockNormalEquations(model.n_params, model.n_joints, block_s)
     blocks.add(rows.t[fit], rows.tau[fit], rows.Y[fit], weights)
     uncertainty = parameter_uncertainty(blocks, theta)
-    theta_standard, method = None, "weighted least squares"
+    theta_standard, method, theta_ls = None, "weighted least squares", None
     if consistent:
         theta_standard = consistent_fit(model, rows.Y[fit], rows.tau[fit], theta, weights)
         theta, method = model.base_theta(theta_standard), "physically consistent least squares"
+    else:
+        theta_ls, (theta, method) = theta, friction_bounded(model, blocks, theta, method)
+        theta_ls = None if theta is theta_ls else theta_ls
     predicted = np.einsum("knp,p->kn", rows.Y, theta)
     held = (
         torque_nrmse(theta, rows.select(held_out_rows))
@@ -505,8 +511,36 @@ def identify_torque(
         else np.full(model.n_joints, np.nan)
     )
     return TorqueIdentification(
-        theta, split, rows, predicted, held, theta_standard, method, uncertainty, left_out, ratio
-    )
+        theta, split, rows, predicted, held, theta_standard, method, uncertainty, left_out, ratio,
+        theta_ls,
+    )  # fmt: skip
+
+
+def friction_bounded(
+    model: UrdfArmModel, blocks: BlockNormalEquations, theta: np.ndarray, method: str,
+    *, weighted: bool = True,
+) -> tuple[np.ndarray, str]:  # fmt: skip
+    """(θ, ``method``) itself when every viscous and Coulomb coefficient of the least-squares
+    ``theta`` is ≥ 0; else the bounded least squares of the same rows (``blocks``, each output
+    channel weighted by 1/σ² of ``theta``'s residuals when ``weighted``) with those
+    coefficients ≥ 0 (:func:`hil.model.estimators.bounded_quadratic_fit`, BVLS), as the 2-DOF
+    model path bounds its fit (:func:`hil.identify.schemes.identify_model`). A coefficient
+    whose true value is 0 (an arm without viscous friction) comes out of least squares below 0
+    half the time; the bound puts it at 0 and refits the rest. Base parameters are
+    combinations of the bodies' (many standard vectors share one), so friction signs are the
+    only sign a base vector fixes; M(q) ≻ 0 is no linear bound and is checked afterwards
+    (:meth:`UrdfArmModel.physical_consistency`; ``--consistent`` fits standard parameters)."""
+    negative = [i for i in model.friction_columns if not theta[i] >= 0]
+    if not negative:
+        return theta, method
+    H, g, yy, n = blocks.arrays()
+    w = channel_weights(H, g, yy, n, theta) if weighted else np.ones(H.shape[1])
+    Hw, gw, _ = combine(H, g, yy, w)
+    lower = np.full(model.n_params, -np.inf)
+    lower[list(model.nonnegative_columns)] = 0.0
+    bounded, how = bounded_quadratic_fit(Hw.sum(0), gw.sum(0), lower)
+    names = ", ".join(f"{model.meanings[i]} = {theta[i]:.4g}" for i in negative)
+    return bounded, f"{how}, friction >= 0 ({method} gave {names})"
 
 
 def leave_out_friction_steps(
@@ -586,6 +620,9 @@ class EnergyIdentification:
     uncertainty: Uncertainty | None = None  # of the least-squares fit
     theta_standard: np.ndarray | None = None  # the consistent fit's standard parameters
     cutoff_hz: float | None = None  # positions smoothed at this cutoff; None: raw
+    method: str = "least squares"
+    # the least-squares θ when its friction was negative and θ is the bounded fit, else None
+    theta_least_squares: np.ndarray | None = None
 
 
 def identify_energy(
@@ -656,15 +693,21 @@ def identify_energy(
         )
     theta = ls.solve()
     uncertainty = parameter_uncertainty(blocks, theta, weighted=False)
-    theta_standard = None
+    theta_standard, method, theta_ls = None, "least squares", None
     if consistent:
         theta_standard = consistent_fit(
             model, np.concatenate(kept_psi), np.concatenate(kept_y), theta
         )
-        theta = model.base_theta(theta_standard)
+        theta, method = model.base_theta(theta_standard), "physically consistent least squares"
+    else:
+        theta_ls, (theta, method) = theta, friction_bounded(
+            model, blocks, theta, method, weighted=False
+        )
+        theta_ls = None if theta is theta_ls else theta_ls
     return EnergyIdentification(
-        scheme, theta, lam, rows, float(split), uncertainty, theta_standard, cutoff_hz
-    )
+        scheme, theta, lam, rows, float(split), uncertainty, theta_standard, cutoff_hz, method,
+        theta_ls,
+    )  # fmt: skip
 
 
 def _block_mean(x: np.ndarray, size: int) -> np.ndarray:
@@ -796,6 +839,7 @@ __all__ = [
     "Uncertainty",
     "energy_rows_cutoff",
     "fit_split",
+    "friction_bounded",
     "friction_step_samples",
     "held_out_verdict",
     "identify_energy",
