@@ -32,6 +32,7 @@ hil.model.regressors and hil.model.urdf; no plotting.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,7 +45,6 @@ from hil.identify.schemes import BOOTSTRAP_DRAWS, IDENTIFIED_MAX_RELATIVE_SE, bo
 from hil.model.estimators import (
     BlockNormalEquations,
     LeastSquaresRows,
-    bounded_quadratic_fit,
     channel_weights,
     combine,
     solve_normal_equations,
@@ -502,7 +502,13 @@ def identify_torque(
         theta_standard = consistent_fit(model, rows.Y[fit], rows.tau[fit], theta, weights)
         theta, method = model.base_theta(theta_standard), "physically consistent least squares"
     else:
-        theta_ls, (theta, method) = theta, friction_bounded(model, blocks, theta, method)
+        theta_ls, (theta, method) = theta, friction_bounded(
+            model, theta, method,
+            lambda lower: weighted_least_squares(rows.Y[fit], rows.tau[fit], weights, lower=lower),
+        )  # fmt: skip
+        if not model.physical_consistency(theta)["consistent"]:  # M(q) ≻ 0 is no linear bound
+            theta_standard = consistent_fit(model, rows.Y[fit], rows.tau[fit], theta_ls, weights)
+            theta, method = model.base_theta(theta_standard), _consistent_instead(model, theta)
         theta_ls = None if theta is theta_ls else theta_ls
     predicted = np.einsum("knp,p->kn", rows.Y, theta)
     held = (
@@ -516,31 +522,36 @@ def identify_torque(
     )  # fmt: skip
 
 
+def _consistent_instead(model: UrdfArmModel, theta: np.ndarray) -> str:
+    """The method of a fit made physically consistent because ``theta`` (friction bounded) is
+    not: its violations named (M(q) not positive definite at a sampled q)."""
+    why = "; ".join(model.physical_consistency(theta)["violations"])
+    return f"physically consistent least squares (least squares is not: {why})"
+
+
 def friction_bounded(
-    model: UrdfArmModel, blocks: BlockNormalEquations, theta: np.ndarray, method: str,
-    *, weighted: bool = True,
-) -> tuple[np.ndarray, str]:  # fmt: skip
+    model: UrdfArmModel,
+    theta: np.ndarray,
+    method: str,
+    solve_bounded: Callable[[np.ndarray], np.ndarray],
+) -> tuple[np.ndarray, str]:
     """(θ, ``method``) itself when every viscous and Coulomb coefficient of the least-squares
-    ``theta`` is ≥ 0; else the bounded least squares of the same rows (``blocks``, each output
-    channel weighted by 1/σ² of ``theta``'s residuals when ``weighted``) with those
-    coefficients ≥ 0 (:func:`hil.model.estimators.bounded_quadratic_fit`, BVLS), as the 2-DOF
-    model path bounds its fit (:func:`hil.identify.schemes.identify_model`). A coefficient
-    whose true value is 0 (an arm without viscous friction) comes out of least squares below 0
-    half the time; the bound puts it at 0 and refits the rest. Base parameters are
-    combinations of the bodies' (many standard vectors share one), so friction signs are the
-    only sign a base vector fixes; M(q) ≻ 0 is no linear bound and is checked afterwards
-    (:meth:`UrdfArmModel.physical_consistency`; ``--consistent`` fits standard parameters)."""
+    ``theta`` is ≥ 0; else ``solve_bounded(lower)``: the same fit (same rows, same weights)
+    with those coefficients ≥ 0 (BVLS, :meth:`hil.model.estimators.LeastSquaresRows.
+    solve_bounded`), as the 2-DOF model path bounds its fit
+    (:func:`hil.identify.schemes.identify_model`). A coefficient whose true value is 0 (an arm
+    without viscous friction) comes out of least squares below 0 half the time; the bound puts
+    it at 0 and refits the rest. Base parameters are combinations of the bodies' (many
+    standard vectors share one), so friction signs are the only signs a base vector fixes;
+    M(q) ≻ 0 is no linear bound and is checked afterwards
+    (:meth:`UrdfArmModel.physical_consistency`)."""
     negative = [i for i in model.friction_columns if not theta[i] >= 0]
     if not negative:
         return theta, method
-    H, g, yy, n = blocks.arrays()
-    w = channel_weights(H, g, yy, n, theta) if weighted else np.ones(H.shape[1])
-    Hw, gw, _ = combine(H, g, yy, w)
     lower = np.full(model.n_params, -np.inf)
     lower[list(model.nonnegative_columns)] = 0.0
-    bounded, how = bounded_quadratic_fit(Hw.sum(0), gw.sum(0), lower)
     names = ", ".join(f"{model.meanings[i]} = {theta[i]:.4g}" for i in negative)
-    return bounded, f"{how}, friction >= 0 ({method} gave {names})"
+    return solve_bounded(lower), f"{method} bounded to friction >= 0 (unbounded: {names})"
 
 
 def leave_out_friction_steps(
@@ -648,7 +659,8 @@ def identify_energy(
     Rows are averaged over blocks of ``decimate`` consecutive ones before the solve, as the
     torque scheme's are (:func:`filtered_rows`): a mean of exact equations is exact, and the
     QR of the least squares, most of the cost at 1 kHz, shrinks by as much. Streams the rows
-    in chunks: memory O(chunk · p) whatever the recording's length.
+    in chunks and keeps only the block-averaged ones (a ``decimate``-th of them, for the
+    consistent fit).
 
     ``cutoff_hz``: the rows are built on the positions smoothed as the torque scheme's
     (:func:`smoothed_positions`, Gautier's parallel filtering; ends EDGE_S dropped) instead of
@@ -684,9 +696,8 @@ def identify_energy(
             ls.add(Psi, y)
             blocks.add(_block_mean(c.t[fit], decimate), y, Psi, np.ones(y.shape))
             rows += len(y)
-            if consistent:
-                kept_y.append(y)
-                kept_psi.append(Psi)
+            kept_y.append(y)  # for the consistent fit, when it is asked or needed
+            kept_psi.append(Psi)
     if rows < 2 * model.n_params:
         raise ValueError(
             f"{rec.path}: {rows} {scheme} rows to fit, too few for {model.n_params} parameters"
@@ -700,9 +711,12 @@ def identify_energy(
         )
         theta, method = model.base_theta(theta_standard), "physically consistent least squares"
     else:
-        theta_ls, (theta, method) = theta, friction_bounded(
-            model, blocks, theta, method, weighted=False
-        )
+        theta_ls, (theta, method) = theta, friction_bounded(model, theta, method, ls.solve_bounded)
+        if not model.physical_consistency(theta)["consistent"]:  # M(q) ≻ 0 is no linear bound
+            theta_standard = consistent_fit(
+                model, np.concatenate(kept_psi), np.concatenate(kept_y), theta_ls
+            )
+            theta, method = model.base_theta(theta_standard), _consistent_instead(model, theta)
         theta_ls = None if theta is theta_ls else theta_ls
     return EnergyIdentification(
         scheme, theta, lam, rows, float(split), uncertainty, theta_standard, cutoff_hz, method,

@@ -98,10 +98,41 @@ def _read_object(path: Path) -> dict:
     return doc
 
 
+def _identify_document(doc: dict[str, Any], where: str) -> dict[str, Any]:
+    """A 2-DOF arm's ``identify.json`` (`hil identify`: the Table II layout, ``discretizations``,
+    or the model-object layout, ``identification``) read as a parameter file: its schemes of the
+    selected discretization, each with ``usable`` and ``failed_reason``, the ``selection``'s
+    scheme selected. Any other document is returned as it is."""
+    if doc.get("model") == "urdf":
+        raise ParamsError(
+            f"{where}: the identification of a URDF arm ({doc.get('robot')}): its base "
+            "parameters are for that robot's model (--robot " + str(doc.get("robot")) + ")"
+        )
+    selection = doc.get("selection") if isinstance(doc.get("selection"), dict) else {}
+    if isinstance(doc.get("discretizations"), dict):
+        disc = selection.get("discretization") or next(iter(doc["discretizations"]), None)
+        entry = doc["discretizations"].get(disc)
+        if not isinstance(entry, dict) or not isinstance(entry.get("schemes"), dict):
+            raise ParamsError(f"{where}: no schemes of discretization {disc!r}")
+        schemes = entry["schemes"]
+    elif isinstance(doc.get("identification"), dict):
+        ident = doc["identification"]
+        scheme = ident.get("scheme") or selection.get("scheme") or "filtered_dynamic"
+        usable = {k: selection[k] for k in ("usable",) if k in selection}
+        reason = {"failed_reason": selection["reason"]} if selection.get("reason") else {}
+        schemes = {scheme: {**ident, **usable, **reason}}
+        doc = {**doc, "model_terms": ident.get("model_terms", [])}
+    else:
+        return doc
+    return {**doc, "schemes": schemes, "selected": selection.get("scheme")}
+
+
 def load_params(path: str | Path, scheme: str | None = None) -> ParamSet:
-    """Read a parameter file; ``scheme`` picks one of its schemes (default: its selected one)."""
+    """Read a parameter file (``params.json``, or the ``identify.json`` of a 2-DOF arm, which
+    holds the same θ: :func:`_identify_document`); ``scheme`` picks one of its schemes
+    (default: its selected one)."""
     path = Path(path)
-    doc = _read_object(path)
+    doc = _identify_document(_read_object(path), str(path))
     terms = _terms_of(doc, str(path))
     schemes = doc.get("schemes")
     if schemes is None:
@@ -122,12 +153,12 @@ def _refuse_failed(entry: dict, where: str) -> None:
     """One-line :class:`ParamsError` when `hil identify` marked the scheme's θ as no arm (its
     ``physical_consistency`` false, or ``usable`` false): a failed fit is never parameters."""
     consistency = entry.get("physical_consistency")
-    if entry.get("usable") is False or (
-        isinstance(consistency, dict) and consistency.get("consistent") is False
-    ):
-        violations = consistency.get("violations") if isinstance(consistency, dict) else None
+    if isinstance(consistency, dict) and consistency.get("consistent") is False:
+        violations = consistency.get("violations")
         why = "; ".join(violations) if isinstance(violations, list) and violations else "FAILED"
         raise ParamsError(f"{where}: not physically consistent, a failed fit ({why})")
+    if entry.get("usable") is False:
+        raise ParamsError(f"{where}: FAILED, not parameters ({entry.get('failed_reason')})")
 
 
 def check_inertia(params: ParamSet, model: Any = None) -> None:
