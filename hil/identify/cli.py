@@ -44,6 +44,8 @@ from hil.cli_options import (
     split_list,
     write_html_report,
 )
+from hil.identify.identification import Identification, unusable_reason
+from hil.identify.identification import identify as identify_arm
 from hil.identify.online import STAMP_UNCERTAINTY_MAX, OnlineIdentifier
 from hil.identify.schemes import (
     ESTIMATORS,
@@ -51,7 +53,6 @@ from hil.identify.schemes import (
     SCHEME_TITLES,
     SchemeResult,
     format_table_ii,
-    identify,
     irregular_times,
     table_ii_rows,
     validate_many,
@@ -205,19 +206,6 @@ def _record(
 
 
 PLOT_ONLY = ("simulated_q", "simulated_rows")  # validate()'s arrays for plots, not for JSON
-
-
-def unusable_reason(theta: np.ndarray, consistency: dict[str, Any]) -> str | None:
-    """Why an identified θ may not be offered as parameters (None: it may): a non-finite
-    entry, or a θ that is not physically consistent (M(q) not positive definite for every q, a
-    negative friction coefficient: :func:`hil.model.closed_form.physical_consistency`). Such a
-    θ is a failed fit (pure noise, swapped torque columns, too little excitation), not an arm:
-    every model-based law and simulation given it commands or integrates nonsense."""
-    if not np.all(np.isfinite(theta)):
-        return "θ holds a non-finite number"
-    if not consistency["consistent"]:
-        return "not physically consistent: " + "; ".join(consistency["violations"])
-    return None
 
 
 def _scheme_json(res: SchemeResult, reference: np.ndarray, validation: dict) -> dict[str, Any]:
@@ -404,6 +392,7 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     }
     texts = []
     all_results: dict[str, dict[str, SchemeResult]] = {}
+    idents: dict[str, dict[str, Identification]] = {}
     for disc in discretizations:
         say("identify", f"identifying ({disc}, λ = {args.lam:g} rad/s, {', '.join(schemes)})")
         t0 = time.perf_counter()
@@ -430,10 +419,19 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
                 "filters from zero): the rows after a gap start in motion and are biased; "
                 "--discretization exact writes every balance over its interval and is not",
             )
-        results = identify(
-            fit.q, fit.tau, h, schemes=schemes, discretization=disc, lam=args.lam,
-            estimator=args.estimator, t=times, segments=segments, progress=progress,
-        )  # fmt: skip
+        idents[disc] = {
+            s: identify_arm(
+                ArmModel(),
+                fit,
+                s,
+                discretization=disc,
+                estimator=args.estimator,
+                lam=args.lam,
+                progress=progress,
+            )
+            for s in schemes
+        }
+        results = {s: ident.result for s, ident in idents[disc].items()}
         elapsed = time.perf_counter() - t0
         all_results[disc] = results
         entry: dict[str, Any] = {
@@ -569,6 +567,8 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         )
         params_files.append(str(path))
     report["params_files"] = params_files
+    # one layout for every arm (hil.identify.identification): each scheme of each discretization
+    report["identifications"] = [i.to_json() for d in discretizations for i in idents[d].values()]
     write_json_atomic(out / "identify.json", report)
 
     lines = [
@@ -695,7 +695,7 @@ def run_identify_model(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     """`hil identify --from A [--validate B] --robot R [--terms ...]`: θ of the model object
     from A, side by side with the robot profile's θ, both validated on B (same rows, same
     filter): held-out torque prediction and restarted short-window simulation."""
-    from hil.identify.schemes import identify_model, torque_prediction_error
+    from hil.identify.schemes import torque_prediction_error
     from hil.model.openloop import simulate_windows
     from profiles.robot import load_robot
 
@@ -718,7 +718,8 @@ def run_identify_model(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         "identify",
         f"identifying {robot} model (terms: {', '.join(terms) or 'none'}) from {fit.path}",
     )
-    res = identify_model(fit.t, fit.q, fit.tau, model, lam=args.lam)
+    ident = identify_arm(model, fit, "filtered_dynamic", lam=args.lam)
+    res = ident.result
     # the profile's θ in the identified model's columns (terms it lacks are zero there; terms
     # the model lacks are dropped, which the report says)
     prof_model = ArmModel(profile.terms)
@@ -774,7 +775,7 @@ def run_identify_model(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     # criterion of the URDF path's held-out verdict; on the held-out recording when given)
     judged = "held_out" if "held_out" in validation else "fit"
     nrmse_judged = validation[judged]["identified"]["torque_nrmse"]
-    reason = unusable_reason(res.theta, res.consistency)
+    reason = ident.failed_reason
     if reason is None and not np.any(res.identified):
         reason = "no parameter is determined by these data (every SE > 50 % of its value)"
     if reason is None:
@@ -792,6 +793,7 @@ def run_identify_model(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         "reason": reason,
         "schemes_usable": [] if reason else ["filtered_dynamic"],
     }
+    report["identifications"] = [ident.failing(reason).to_json()]
     out.mkdir(parents=True, exist_ok=True)
     if reason is not None:
         report["params_files"] = []
@@ -918,8 +920,6 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         energy_rows_cutoff,
         fit_split,
         held_out_verdict,
-        identify_energy,
-        identify_torque,
         regression_rows,
         smoothing_cutoff_hz,
         torque_nrmse,
@@ -965,22 +965,21 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     recording = fit
     cutoff = smoothing_cutoff_hz(recording)
     results: dict[str, dict[str, Any]] = {}
-    standards: dict[str, np.ndarray | None] = {}  # per scheme, the consistent fit's
+    idents: dict[str, Identification] = {}
     energy_cutoff: float | bool | None = False  # decided once, for both energy schemes
     torque_res = None
     for scheme in schemes:
         start = time.process_time()
         if scheme == "filtered_dynamic":
-            torque_res = identify_torque(
-                model, recording, held_out=held_out, consistent=args.consistent, cutoff_hz=cutoff
-            )
-            theta = torque_res.theta
-            uncertainty = torque_res.uncertainty
-            standards[scheme] = torque_res.theta_standard
+            ident = identify_arm(
+                model, recording, scheme, held_out=held_out, consistent=args.consistent,
+                cutoff_hz=cutoff,
+            )  # fmt: skip
+            torque_res = ident.result
             entry: dict[str, Any] = {
-                "method": torque_res.method + " on the torque regressor (parallel filtering)",
+                "method": ident.method + " on the torque regressor (parallel filtering)",
                 "smoothing_cutoff_hz": cutoff,
-                "rows": len(torque_res.rows.t),
+                "rows": ident.rows,
                 # per joint: rows near its friction steps (sticks, reversals) left out, and
                 # why (hil.identify.urdf.leave_out_friction_steps)
                 "friction_steps_left_out": torque_res.left_out_joints.tolist(),
@@ -994,14 +993,13 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             # rows are quadratic in q̇, and its noise biases them (energy_rows_cutoff)
             if energy_cutoff is False:
                 energy_cutoff = energy_rows_cutoff(recording, cutoff)
-            res = identify_energy(
+            ident = identify_arm(
                 model, recording, scheme, lam=args.lam, held_out=held_out,
                 cutoff_hz=energy_cutoff, consistent=args.consistent,
             )  # fmt: skip
-            theta, uncertainty = res.theta, res.uncertainty
-            standards[scheme] = res.theta_standard
+            res = ident.result
             entry = {
-                "method": res.method
+                "method": ident.method
                 + " on the exact "
                 + (
                     "energy rows, eq. (28)"
@@ -1009,17 +1007,18 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
                     else "power rows, eq. (30)"
                 )
                 + (" (smoothed positions)" if res.cutoff_hz is not None else ""),
-                "lambda_rad_s": res.lam,
+                "lambda_rad_s": ident.lam,
                 # None: the raw positions (their velocity noise below the rule's level)
                 "smoothing_cutoff_hz": res.cutoff_hz,
-                "rows": res.rows,
+                "rows": ident.rows,
             }
         entry["cpu_s"] = time.process_time() - start
-        entry["uncertainty"] = uncertainty.as_json()
-        bounded = (torque_res if scheme == "filtered_dynamic" else res).theta_least_squares
-        if bounded is not None:  # least squares had negative friction: θ is the bounded fit
-            entry["theta_least_squares"] = bounded.tolist()
-        results[scheme] = {"theta": theta, **entry}
+        assert ident.uncertainty is not None  # every URDF scheme gives one
+        entry["uncertainty"] = ident.uncertainty.as_json()
+        if ident.theta_least_squares is not None:  # least squares not physical: θ is bounded
+            entry["theta_least_squares"] = ident.theta_least_squares.tolist()
+        idents[scheme] = ident
+        results[scheme] = {"theta": ident.theta, **entry}
     nominal = model.base_theta()
     if val is not None:
         rows = regression_rows(model, val, cutoff_hz=cutoff)
@@ -1036,17 +1035,15 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         )
         rows = all_rows.select(all_rows.t >= split)
         where = f"last 25 % of {fit.path} (t >= {split:.3f} s)"
-    for r in results.values():
-        r["physical_consistency"] = model.physical_consistency(r["theta"])
+    for scheme, r in results.items():
+        r["physical_consistency"] = idents[scheme].consistency
         # the held-out check decides what is reported: a scheme that does not predict every
-        # joint's torque better than its mean is shown, marked failed, not offered as θ
+        # joint's torque better than its mean is shown, marked failed, not offered as θ; nor
+        # is one that is not an arm (the 2-DOF paths' rule)
         r["validation"] = held_out_verdict(r["theta"], rows, cutoff).as_json()
-        # offered only when it is an arm and passed held-out validation (the 2-DOF paths' rule:
-        # a θ that is not physical is FAILED, never parameters)
-        reason = unusable_reason(r["theta"], r["physical_consistency"])
-        if reason is None and not r["validation"]["passed"]:
-            reason = "failed held-out validation: " + r["validation"]["reason"]
-        r["usable"], r["failed_reason"] = reason is None, reason
+        held = None if r["validation"]["passed"] else r["validation"]["reason"]
+        idents[scheme] = idents[scheme].failing(held and "failed held-out validation: " + held)
+        r["usable"], r["failed_reason"] = idents[scheme].usable, idents[scheme].failed_reason
     chosen = results[args.params_scheme]
     chosen_passed = chosen["usable"]
     report: dict[str, Any] = {
@@ -1063,8 +1060,14 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
         else "sampled with the positions",
         # --consistent: the selected scheme's physically consistent standard parameters
         "standard_parameters": None
-        if standards.get(args.params_scheme) is None
-        else dict(zip(model.standard_names, standards[args.params_scheme].tolist(), strict=True)),
+        if idents[args.params_scheme].theta_standard is None
+        else dict(
+            zip(
+                model.standard_names,
+                idents[args.params_scheme].theta_standard.tolist(),
+                strict=True,
+            )
+        ),
         "parameters": [
             {
                 "name": n,
@@ -1110,6 +1113,8 @@ def run_identify_urdf(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
             s: {**{k: v for k, v in r.items() if k != "theta"}, "theta": r["theta"].tolist()}
             for s, r in results.items()
         },
+        # one layout for every arm (hil.identify.identification)
+        "identifications": [i.to_json() for i in idents.values()],
     }
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out / "identify.json", report)

@@ -41,7 +41,12 @@ from scipy.interpolate import CubicSpline
 from scipy.signal import butter, sosfiltfilt
 
 from drivers.recording import Recording
-from hil.identify.schemes import BOOTSTRAP_DRAWS, IDENTIFIED_MAX_RELATIVE_SE, bootstrap_block_s
+from hil.identify.schemes import (
+    BOOTSTRAP_DRAWS,
+    IDENTIFIED_MAX_RELATIVE_SE,
+    Uncertainty,
+    bootstrap_block_s,
+)
 from hil.model.estimators import (
     BlockNormalEquations,
     LeastSquaresRows,
@@ -293,35 +298,6 @@ def filtered_rows(
     if motion.near_step is not None:
         near = motion.near_step[: K * decimate].reshape(K, decimate, n).any(axis=1)
     return FilteredRows(t, both[:, :n], both[:, n:].reshape(K, n, p), near, np.ones((K, n)))
-
-
-# A parameter whose blocked-bootstrap standard error exceeds IDENTIFIED_MAX_RELATIVE_SE of its
-# magnitude is not determined by the data: reported with its uncertainty, not as a number
-# (issue 12's rule, the 2-DOF path's, hil.identify.schemes).
-
-
-@dataclass(frozen=True)
-class Uncertainty:
-    """Per base parameter: ``se_white`` (σ² (ΨᵀWΨ)⁻¹, white residuals), ``se_block`` (blocked
-    bootstrap over ``blocks`` blocks of ``block_s``; the residuals of smoothed or filtered
-    rows are correlated), and ``identified``: se_block < IDENTIFIED_MAX_RELATIVE_SE · |θ|."""
-
-    se_white: np.ndarray
-    se_block: np.ndarray
-    identified: np.ndarray
-    block_s: float
-    blocks: int
-
-    def as_json(self) -> dict:
-        return {
-            "se_white": self.se_white.tolist(),
-            "se_blocked_bootstrap": self.se_block.tolist(),
-            "identified": self.identified.tolist(),
-            "rule": f"identified when the blocked-bootstrap SE < {IDENTIFIED_MAX_RELATIVE_SE:.0%}"
-            " of |value|",
-            "block_s": self.block_s,
-            "blocks": self.blocks,
-        }
 
 
 def parameter_uncertainty(
