@@ -99,23 +99,39 @@ def _read_object(path: Path) -> dict:
 
 
 def _identify_document(doc: dict[str, Any], where: str) -> dict[str, Any]:
-    """A 2-DOF arm's ``identify.json`` (`hil identify`: the Table II layout, ``discretizations``,
-    or the model-object layout, ``identification``) read as a parameter file: its schemes of the
-    selected discretization, each with ``usable`` and ``failed_reason``, the ``selection``'s
-    scheme selected. Any other document is returned as it is."""
+    """A 2-DOF arm's ``identify.json`` (`hil identify`) read as a parameter file: the entries of
+    its ``identifications`` (:meth:`hil.identify.identification.Identification.to_json`, one
+    layout for every arm; in files older than it, the Table II layout's ``discretizations`` or
+    the model-object layout's ``identification``) of the selected discretization as schemes,
+    each with ``usable`` and ``failed_reason``, the ``selection``'s scheme selected. Any other
+    document is returned as it is."""
     if doc.get("model") == "urdf":
         raise ParamsError(
             f"{where}: the identification of a URDF arm ({doc.get('robot')}): its base "
             "parameters are for that robot's model (--robot " + str(doc.get("robot")) + ")"
         )
     selection = doc.get("selection") if isinstance(doc.get("selection"), dict) else {}
-    if isinstance(doc.get("discretizations"), dict):
+    if isinstance(doc.get("identifications"), list):  # the layout of every arm
+        disc = selection.get("discretization", "exact")
+        entries = [
+            e for e in doc["identifications"]
+            if isinstance(e, dict) and e.get("discretization", "exact") == disc
+        ]  # fmt: skip
+        schemes = {e.get("scheme"): e for e in entries}
+        terms = entries[0].get("terms", []) if entries else []
+        return {
+            **doc,
+            "schemes": schemes,
+            "selected": selection.get("scheme"),
+            "model_terms": terms,
+        }
+    if isinstance(doc.get("discretizations"), dict):  # older files: the Table II layout
         disc = selection.get("discretization") or next(iter(doc["discretizations"]), None)
         entry = doc["discretizations"].get(disc)
         if not isinstance(entry, dict) or not isinstance(entry.get("schemes"), dict):
             raise ParamsError(f"{where}: no schemes of discretization {disc!r}")
         schemes = entry["schemes"]
-    elif isinstance(doc.get("identification"), dict):
+    elif isinstance(doc.get("identification"), dict):  # older files: the model-object layout
         ident = doc["identification"]
         scheme = ident.get("scheme") or selection.get("scheme") or "filtered_dynamic"
         usable = {k: selection[k] for k in ("usable",) if k in selection}
