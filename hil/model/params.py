@@ -255,12 +255,18 @@ def load_base_params(path: str | Path, model: Any) -> ParamSet:
             raise ParamsError(
                 f"{where}: model terms {terms}, robot {model.name} has {list(model.terms)}"
             )
-        validation = doc.get("validation")
+        validation, selection = doc.get("validation"), doc.get("selection")
         if isinstance(validation, dict) and validation.get("passed") is False:
             raise ParamsError(
                 f"{where}: its parameters ({doc.get('params_scheme')}) failed held-out "
                 f"validation ({validation.get('reason')}); identify with a scheme that passed: "
                 f"{', '.join(validation.get('schemes_passed') or []) or 'none did'}"
+            )
+        if isinstance(selection, dict) and selection.get("usable") is False:
+            raise ParamsError(
+                f"{where}: its parameters ({doc.get('params_scheme')}) FAILED "
+                f"({selection.get('reason')}); usable schemes: "
+                f"{', '.join(selection.get('schemes_usable') or []) or 'none'}"
             )
         entries = doc["parameters"]
         if not isinstance(entries, list) or [
