@@ -4,7 +4,8 @@ What lives here: one identification API for every arm (:mod:`.identification`: `
 ``Identification``); its engines, the three schemes, Table II and validation of the 2-DOF arm
 (:mod:`.schemes`) and the base parameters of a URDF arm (:mod:`.urdf`); online RLS while a run
 records (:mod:`.online`); optimal periodic excitation (:mod:`.excitation`); the ``hil identify``
-and ``hil excite`` commands (:mod:`.cli`, :mod:`.excite_cli`) and their plots (:mod:`.plots`).
+and ``hil excite`` commands (:mod:`.cli`, :mod:`.excite_cli`), the three paths of
+``hil identify`` (:mod:`.pipelines`) and their plots (:mod:`.plots`).
 
 Imports: :mod:`hil.model`, :mod:`hil.bench` (to record over a bench), :mod:`hil.cli_options`.
 

@@ -2,7 +2,8 @@
 Table II, and validation on the fitting recording and on a held-out one.
 
 Pure computation over arrays and :class:`~drivers.recording.Recording` objects; running the
-experiments over a bench and writing files is :mod:`hil.identify.cli`'s job.
+experiments over a bench and writing files is :mod:`hil.identify.pipelines` and
+:mod:`hil.identify.cli`'s job.
 """
 
 from __future__ import annotations
