@@ -104,7 +104,7 @@ def test_panda_least_squares_not_physical_is_made_consistent(tmp_path, capsys):
     supplied_energy` is refused (exit 1)."""
     import gaz_reference
 
-    from hil.identify.urdf import read_one_per_line_log
+    from drivers.one_per_line import read_one_per_line_log
 
     if not gaz_reference.available():
         pytest.skip(f"Panda data of Gaz et al. not found at {gaz_reference.MODEL_DIR}")
@@ -142,7 +142,7 @@ def test_panda_consistent_energy_schemes_predict_the_held_out_torque(tmp_path, c
     Panda"); every scheme's θ is physically consistent. About 15 s CPU."""
     import gaz_reference
 
-    from hil.identify.urdf import read_one_per_line_log
+    from drivers.one_per_line import read_one_per_line_log
 
     if not gaz_reference.available():
         pytest.skip(f"Panda data of Gaz et al. not found at {gaz_reference.MODEL_DIR}")

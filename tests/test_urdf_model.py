@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 import hil.model.closed_form as closed_form
+from drivers.one_per_line import read_one_per_line_log
 from drivers.recording import Recording, RecordingWriter, read_signals
 from hil.identify.urdf import (
     filtered_rows,
     identify_torque,
-    read_one_per_line_log,
     smoothed_motion,
     torque_at_samples,
     torque_nrmse,

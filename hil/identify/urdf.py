@@ -1,6 +1,6 @@
 """Identification of an n-joint arm's base parameters from a torque recording, on the torque
 regressor of :class:`hil.model.urdf.UrdfArmModel` (batch least squares, filtered, on the real
-time stamps), its held-out validation, and a reader for the Gaz et al. (2019) Panda log layout.
+time stamps) and its held-out validation.
 
 Method (Gautier (1997) "parallel filtering"): positions are smoothed by a zero-phase low-pass
 that respects the real time stamps (see :func:`smoothed_motion`), velocities and accelerations
@@ -21,20 +21,18 @@ power, eq. (30)) — on the model's energy regressors (:meth:`UrdfArmModel.energ
 and the recording's real time stamps, the same code that builds the 2-DOF rows; batch least
 squares (:class:`hil.model.estimators.LeastSquaresRows`).
 
-The Panda log layout (``rbt_log/exciting_traj_{time,positions,torques}.txt``: one number a
-line, 7 joints of a sample on 7 consecutive lines) is read by :func:`read_one_per_line_log`
-into the standard recording (:class:`drivers.recording.Recording`, the one every analysis
-reads). Per-parameter uncertainty and "not identifiable" (:class:`Uncertainty`) follow the 2-DOF
-path's rule (:mod:`hil.identify.schemes`). Imports drivers.recording, hil.identify.schemes (its
-identifiability constants and bootstrap block rule), hil.model.estimators, hil.model.metrics,
-hil.model.regressors and hil.model.urdf; no plotting.
+The Panda log layout of Gaz et al. (2019) is read into the standard recording by
+:func:`drivers.one_per_line.read_one_per_line_log`. Per-parameter uncertainty and "not
+identifiable" (:class:`~hil.identify.schemes.Uncertainty`) follow the 2-DOF path's rule
+(:mod:`hil.identify.schemes`). Imports drivers.recording, hil.identify.schemes (its
+identifiability constants, uncertainty type and bootstrap block rule), hil.model.estimators,
+hil.model.metrics, hil.model.regressors and hil.model.urdf; no plotting, no file reading.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -113,36 +111,6 @@ def torque_over_intervals(rec: Recording) -> np.ndarray:
     out = rec.tau.copy()
     out[:-1] = 0.5 * (rec.tau[:-1] + rec.tau[1:])
     return out
-
-
-def read_one_per_line_log(
-    folder: str | Path, *, n_joints: int = 7, prefix: str = "exciting_traj"
-) -> Recording:
-    """Read ``<prefix>_{time,positions,torques}.txt`` of ``folder`` (one number a line; the
-    position and torque files hold the ``n_joints`` values of a sample on consecutive lines).
-    Raises ValueError with one line naming the file for a length mismatch or bad time stamps."""
-    folder = Path(folder)
-
-    def load(kind: str) -> np.ndarray:
-        path = folder / f"{prefix}_{kind}.txt"
-        try:
-            return np.loadtxt(path, dtype=float, ndmin=1)
-        except (OSError, ValueError) as exc:
-            raise ValueError(f"{path}: cannot read: {exc}") from None
-
-    t = load("time")
-    out = {}
-    for kind in ("positions", "torques"):
-        x = load(kind)
-        if x.size != t.size * n_joints:
-            raise ValueError(
-                f"{folder / f'{prefix}_{kind}.txt'}: {x.size} numbers, expected "
-                f"{t.size} samples x {n_joints} joints = {t.size * n_joints}"
-            )
-        out[kind] = x.reshape(t.size, n_joints)
-    if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
-        raise ValueError(f"{folder / f'{prefix}_time.txt'}: time stamps not strictly increasing")
-    return Recording.from_arrays(t, out["positions"], out["torques"], source=folder)
 
 
 @dataclass(frozen=True)
@@ -836,7 +804,6 @@ __all__ = [
     "identify_torque",
     "inside_edges",
     "leave_out_friction_steps",
-    "read_one_per_line_log",
     "regression_rows",
     "smoothed_positions",
     "stuck_samples",
