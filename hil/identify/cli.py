@@ -124,9 +124,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
 
 
 def main(args: argparse.Namespace) -> int:
-    """Exit status 0; 1 when the scheme selected by --params-scheme failed its held-out
-    validation (a URDF arm: its report and identify.json are written, its θ marked failed) or
-    is not physical (the 2-DOF paths: no params.json written)."""
+    """Exit status 0; 1 when the scheme selected by --params-scheme FAILED (its report and
+    identify.json are written, its θ marked failed, no params.json): its θ is not physical, or
+    it failed the path's verdict (a URDF arm's held-out validation; the model path's
+    determination and torque prediction)."""
     args.out = str(
         prepare_out_dir(
             args.out,
@@ -145,25 +146,27 @@ def main(args: argparse.Namespace) -> int:
         text,
         paths=(report.get("recording"), report.get("validation_recording")),
     )
-    validation = report.get("validation")
-    if isinstance(validation, dict) and validation.get("passed") is False:
-        passed = validation["schemes_passed"]
-        error(
-            "identify",
-            f"--params-scheme {report['params_scheme']} failed held-out validation "
-            f"({validation['reason']}): no identified parameters"
-            + (f"; schemes that passed: {', '.join(passed)}" if passed else ""),
-        )
-        return EXIT_FAILED
     selection = report.get("selection")
     if isinstance(selection, dict) and selection.get("usable") is False:
-        usable = selection["schemes_usable"]
+        # a URDF arm's held-out verdict, said as such; else the reason the θ is no arm
+        validation = report.get("validation")
+        held = isinstance(validation, dict) and validation.get("passed") is False
+        others = validation["schemes_passed"] if held else selection["schemes_usable"]
         error(
             "identify",
-            f"--params-scheme {selection['scheme']} FAILED ({selection['reason']}): no "
-            "identified parameters"
+            f"--params-scheme {selection['scheme']} "
+            + (
+                f"failed held-out validation ({validation['reason']})"
+                if held
+                else f"FAILED ({selection['reason']})"
+            )
+            + ": no identified parameters"
             + ("" if report.get("model") == "urdf" else ", no params.json")
-            + (f"; usable schemes: {', '.join(usable)}" if usable else "; no scheme is usable"),
+            + (
+                f"; {'schemes that passed' if held else 'usable schemes'}: {', '.join(others)}"
+                if others
+                else "; no scheme is usable"
+            ),
         )
         return EXIT_FAILED
     return 0
