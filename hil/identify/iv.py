@@ -326,6 +326,7 @@ class IvIdentification:
     se_block: np.ndarray  # blocked bootstrap (iv_blocked_bootstrap)
     identified: np.ndarray  # se_block < IDENTIFIED_MAX_RELATIVE_SE · |θ| (issue 12's rule)
     block_s: float
+    blocks: int  # of the bootstrap
     rows: FilteredRows
     instruments: FilteredRows
     tracking: ReferenceTracking
@@ -378,9 +379,10 @@ def identify_torque_iv(
         rows.Y[fit], rows.tau[fit], inst.Y[fit], w / sigma2, rows.t[fit], block_s
     )
     identified = se_block < IDENTIFIED_MAX_RELATIVE_SE * np.abs(theta)
+    blocks = int(np.floor((rows.t[fit][-1] - rows.t[fit][0]) / block_s)) + 1
     held = (
         torque_nrmse(theta, rows.select(~fit)) if held_out > 0 else np.full(model.n_joints, np.nan)
     )
     return IvIdentification(
-        theta, se, se_block, identified, block_s, rows, inst, tracking, split, held
+        theta, se, se_block, identified, block_s, blocks, rows, inst, tracking, split, held
     )
