@@ -104,7 +104,11 @@ def main() -> int:
                 entry = report["schemes"]["filtered_dynamic"]
                 rows = regression_rows(model, val, cutoff_hz=report["smoothing_cutoff_hz"])
                 rows = rows.leaving_out(np.asarray(entry["friction_steps_left_out"], bool))
-                ours = torque_nrmse(np.asarray(entry["theta"]), rows)
+                # least squares' own θ: `hil identify` offers the consistent fit when least
+                # squares is not physical, and keeps least squares' as theta_least_squares
+                ours = torque_nrmse(
+                    np.asarray(entry.get("theta_least_squares", entry["theta"])), rows
+                )
                 owners = torque_nrmse(theta_owners, rows)
                 if rows_owners is None:
                     rows_owners = owners
@@ -113,6 +117,8 @@ def main() -> int:
                                   owners))  # fmt: skip
                 label = "ours, consistent" if consistent else "ours, least squares"
                 passed = "" if entry["validation"]["passed"] else " (failed held-out check)"
+                if not consistent and "theta_least_squares" in entry:
+                    passed = " (not physical)"
                 lines.append((label + passed, ours, owners))
                 if not consistent:  # IV on the reference, on the same rows
                     iv = report["schemes"]["filtered_dynamic_iv"]
@@ -132,11 +138,12 @@ def main() -> int:
         for kind in ("fv", "fc"):
             for scheme, label in (("filtered_dynamic", "LS"), ("filtered_dynamic_iv", "IV")):
                 entry = report["schemes"][scheme]
+                theta = entry.get("theta_least_squares", entry["theta"])
                 se = entry["uncertainty"]["se_blocked_bootstrap"]
                 cells = []
                 for j in range(model.n_joints):
                     i = model.meanings.index(f"{kind}{j + 1}")
-                    cells.append(f"{entry['theta'][i]:.3g} ± {se[i]:.2g}")
+                    cells.append(f"{theta[i]:.3g} ± {se[i]:.2g}")
                 print(f"| {a} | {track} | {kind} {label} | " + " | ".join(cells) + " |")
         n_id = {s: sum(report["schemes"][s]["uncertainty"]["identified"])
                 for s in ("filtered_dynamic", "filtered_dynamic_iv")}  # fmt: skip
