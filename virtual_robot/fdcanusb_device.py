@@ -13,6 +13,7 @@ one: ``ERR checksum mismatch``, the frame dropped) and its replies checksummed.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import threading
@@ -141,15 +142,18 @@ class FdcanusbPtyBus(can.BusABC):
                 data = data[n:]
 
     def shutdown(self) -> None:
+        """Close the pty (a second call does nothing)."""
         super().shutdown()
-        os.write(self._wake_w, b"x")
-        for fd in (self._master, self._slave, self._wake_r, self._wake_w):
-            if fd is not None:
-                try:
-                    os.close(fd)
-                except OSError:
-                    pass
-        self._master = self._slave = None
+        if self._master is None:
+            return
+        with contextlib.suppress(OSError):
+            os.write(self._wake_w, b"x")
+        with self._write_lock:
+            for fd in (self._master, self._slave, self._wake_r, self._wake_w):
+                if fd is not None:
+                    with contextlib.suppress(OSError):
+                        os.close(fd)
+            self._master = self._slave = None
 
 
 __all__ = ["FdcanusbPtyBus"]

@@ -148,9 +148,9 @@ class MoteusDrive(LoopDrive):
     ) -> None:
         super().update(now, position_rad, velocity_rad_s, count_period)
         v = self.command.velocity_rev_s
-        if count_period and self.mode == mo.POSITION_MODE and self.control_position_rev is not None:
-            if math.isfinite(v):
-                self.control_position_rev += v * self._period_s
+        moving = self.mode == mo.POSITION_MODE and self.control_position_rev is not None
+        if count_period and moving and math.isfinite(v):
+            self.control_position_rev += v * self._period_s  # type: ignore[operator]
 
     # ---- readouts -----------------------------------------------------------------------------
     @property

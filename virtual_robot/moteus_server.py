@@ -21,10 +21,12 @@ frames, frames for ids that are no controller (and broadcasts, 0x7F), frames tha
 multiplex payload (truncated values, unknown subframes: nothing of such a frame is applied).
 
 Time (virtual_robot.loop_server): in lockstep a command is answered with the state sampled at
-t_k; a host period passes once every controller in position mode has its command of the period,
-so a client that commands its controllers with ``query=True`` and waits for the replies runs in
-lockstep with the robot: its replies are the offline stepping of the same commands
-(virtual_robot.moteus_simulate.run_commands, tests/test_moteus.py).
+t_k; a host period passes once every controller in position mode has its command of the period
+(a command that brings a controller into position mode does not close a period: the next
+command to a controller that already has one does), so a client that commands its controllers
+with ``query=True`` and waits for the replies runs in lockstep with the robot: its replies are
+the offline stepping of the same commands (virtual_robot.moteus_simulate.run_commands,
+tests/test_moteus.py).
 """
 
 from __future__ import annotations
@@ -66,6 +68,17 @@ class MoteusServer(LoopDriveServer):
 
     protocol = "moteus"
     label = "moteus"
+
+    _entered = False  # the frame being handled brought its controller into position mode
+
+    def _period_complete(self) -> bool:
+        """As the base's, except that a command bringing a controller into position mode does
+        not close the period: the controllers a client brings up one after the other all start
+        in the same period (the first would otherwise run a period alone)."""
+        if self._entered:
+            self._entered = False
+            return False
+        return super()._period_complete()
 
     # ---- one frame ----------------------------------------------------------------------------
     def handle(self, msg: can.Message) -> None:
@@ -110,6 +123,7 @@ class MoteusServer(LoopDriveServer):
                     if not why:
                         self.next_period_if_commanded(i)
                         now = core.now() if core.mode == LOCKSTEP else core.catch_up()
+                        self._entered = d.mode != mo.POSITION_MODE
                         d.position(cmd)
                         self.commanded(i)
                         core.apply_now(now)
