@@ -267,7 +267,7 @@ async def _library_run(path: str, rows: list[list[PositionCommand]]) -> dict[str
             await c.set_stop()
         return out
     finally:
-        transport.close() if hasattr(transport, "close") else None
+        transport.close()
 
 
 def test_moteus_library_over_fdcanusb_in_lockstep_equals_the_offline_stepping() -> None:
