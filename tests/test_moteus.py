@@ -233,7 +233,7 @@ def _commands(n: int) -> list[list[PositionCommand]]:
 
 
 async def _library_run(path: str, rows: list[list[PositionCommand]]) -> dict[str, np.ndarray]:
-    """moteus.Controller on moteus.Fdcanusb(path): stop both, then each period set_position
+    """moteus.Controller on moteus.Fdcanusb(path): stop and bring up both, then each period set_position
     with query=True to controller 1 then 2, the replies recorded."""
     import moteus
 
@@ -249,8 +249,9 @@ async def _library_run(path: str, rows: list[list[PositionCommand]]) -> dict[str
         k: np.zeros((len(rows), 2)) for k in ("mode", "position_rev", "velocity_rev_s", "torque_Nm")
     }
     try:
-        for c in ctl:
+        for c in ctl:  # stop, then bring up: position mode without torque (takes no time)
             await c.set_stop()
+            await c.set_position(position=math.nan, kp_scale=0, kd_scale=0, feedforward_torque=0)
         for k, row in enumerate(rows):
             for j, (c, cmd) in enumerate(zip(ctl, row, strict=True)):
                 r = await c.set_position(

@@ -22,10 +22,10 @@ multiplex payload (truncated values, unknown subframes: nothing of such a frame 
 
 Time (virtual_robot.loop_server): in lockstep a command is answered with the state sampled at
 t_k; a host period passes once every controller in position mode has its command of the period
-(a command that brings a controller into position mode does not close a period: the next
-command to a controller that already has one does), so a client that commands its controllers
-with ``query=True`` and waits for the replies runs in lockstep with the robot: its replies are
-the offline stepping of the same commands (virtual_robot.moteus_simulate.run_commands,
+(a command that brings a controller into position mode is not a period's command: bringing a
+controller up takes no time, as MIT mode's "enter motor mode"), so a client that brings its
+controllers up, then commands them with ``query=True`` and waits for the replies, runs in
+lockstep with the robot: its replies are the offline stepping of the same commands (virtual_robot.moteus_simulate.run_commands,
 tests/test_moteus.py).
 """
 
@@ -68,17 +68,6 @@ class MoteusServer(LoopDriveServer):
 
     protocol = "moteus"
     label = "moteus"
-
-    _entered = False  # the frame being handled brought its controller into position mode
-
-    def _period_complete(self) -> bool:
-        """As the base's, except that a command bringing a controller into position mode does
-        not close the period: the controllers a client brings up one after the other all start
-        in the same period (the first would otherwise run a period alone)."""
-        if self._entered:
-            self._entered = False
-            return False
-        return super()._period_complete()
 
     # ---- one frame ----------------------------------------------------------------------------
     def handle(self, msg: can.Message) -> None:
@@ -123,9 +112,10 @@ class MoteusServer(LoopDriveServer):
                     if not why:
                         self.next_period_if_commanded(i)
                         now = core.now() if core.mode == LOCKSTEP else core.catch_up()
-                        self._entered = d.mode != mo.POSITION_MODE
+                        entering = d.mode != mo.POSITION_MODE
                         d.position(cmd)
-                        self.commanded(i)
+                        if not entering:  # bringing a controller up takes no time
+                            self.commanded(i)
                         core.apply_now(now)
                 elif not why:  # mode 0
                     now = core.now() if core.mode == LOCKSTEP else core.catch_up()

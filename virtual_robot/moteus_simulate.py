@@ -3,7 +3,8 @@ controllers' loop into the plant, no transport and no clock.
 
 :func:`run_commands` is the lockstep sequence of
 :class:`~virtual_robot.moteus_server.MoteusServer` written against the controllers and the
-stepper directly: every controller stopped at t = 0; in period k each is commanded
+stepper directly: every controller brought up at t = 0 (:data:`BRING_UP`: position mode, no
+torque; it takes no time); in period k each is commanded
 ``commands[k][j]`` and reports its state sampled at t_k (mode, position, velocity, torque: the
 float32 a default query reply carries), then the plant runs one period. A client driving the
 served robot in lockstep with the same commands (``query=True``) reads the same replies
@@ -47,6 +48,10 @@ def torque_command(tau_Nm: float) -> PositionCommand:
     )
 
 
+# how a client brings a controller up: position mode, the present position, no gain, no torque
+BRING_UP = PositionCommand(position_rev=math.nan, feedforward_Nm=0.0, kp_scale=0.0, kd_scale=0.0)
+
+
 def run_commands(
     robot: RobotProfile | UrdfRobotProfile,
     period_s: float,
@@ -63,6 +68,8 @@ def run_commands(
         raise ValueError(f"robot {robot.name}: its drives are no moteus controllers")
     drives: list[MoteusDrive] = list(core.drives)  # type: ignore[arg-type]
     core.stepper.sync()  # sample 0 at t = 0
+    for d in drives:
+        d.position(BRING_UP)
     n, m = len(commands), len(drives)
     out = {k: np.zeros((n, m)) for k in ("mode", "position_rev", "velocity_rev_s", "torque_Nm")}
     for k, row in enumerate(commands):
@@ -126,4 +133,4 @@ def simulate_moteus(
     return SimulationResult(Path(out_dir), n_rows, wall, n_rows * h, int(out["plant_steps"][0]))
 
 
-__all__ = ["f32", "run_commands", "simulate_moteus", "torque_command"]
+__all__ = ["BRING_UP", "f32", "run_commands", "simulate_moteus", "torque_command"]
