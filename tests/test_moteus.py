@@ -185,7 +185,8 @@ def test_modes_limits_watchdog_and_bad_frames() -> None:
 
 def test_offline_stepping_follows_the_torque_and_the_pd() -> None:
     """run_commands is physics, not an echo: +1 Nm accelerates the first joint that way; a
-    torque beyond the 16 Nm clamp acts as 16 Nm; the position PD pulls toward its target with kp (p_c − p) + kd (v_c − v)."""
+    torque beyond the 16 Nm clamp acts as 16 Nm; the position PD pulls toward its target with
+    kp (p_c − p) + kd (v_c − v)."""
     n = 50
     up = run_commands(_robot(), PERIOD_S, [[torque_command(1.0), torque_command(0.0)]] * n)
     assert up["position_rev"][-1, 0] > 1e-3 and up["velocity_rev_s"][-1, 0] > 0
@@ -233,8 +234,8 @@ def _commands(n: int) -> list[list[PositionCommand]]:
 
 
 async def _library_run(path: str, rows: list[list[PositionCommand]]) -> dict[str, np.ndarray]:
-    """moteus.Controller on moteus.Fdcanusb(path): stop and bring up both, then each period set_position
-    with query=True to controller 1 then 2, the replies recorded."""
+    """moteus.Controller on moteus.Fdcanusb(path): stop and bring up both, then each period
+    set_position with query=True to controller 1 then 2, the replies recorded."""
     import moteus
 
     transport = moteus.Fdcanusb(path)
@@ -386,3 +387,29 @@ def test_realtime_watchdog_sends_a_silent_client_to_timeout() -> None:
     assert modes[:10] == [mo.POSITION_MODE] * 10
     assert modes[-1] == mo.TIMEOUT_MODE and torque == 0.0
     assert core.drives[0].mode == mo.TIMEOUT_MODE and core.drives[0].torque_Nm == 0.0
+
+
+def test_hil_run_over_the_moteus_bench_equals_virtual_robot_simulate(tmp_path: Path) -> None:
+    """This project's host on the register protocol (drivers/moteus_arm.py, drivers/fdcanusb.py):
+    `hil run` of an experiment over the moteus bench (fdcanusb pty, lockstep) records the q and τ
+    `virtual-robot simulate` writes for it, row for row, bit for bit."""
+    from drivers.recording import read_signals
+
+    experiment = tmp_path / "multisine.toml"
+    experiment.write_text(MULTISINE)
+
+    def run(*args: str) -> None:
+        proc = subprocess.run(
+            [sys.executable, "-m", *args], capture_output=True, text=True, timeout=120, check=False
+        )
+        assert proc.returncode == 0, proc.stderr
+
+    ex = ["--experiment", str(experiment)]
+    run("hil.cli", "run", "--bench", "virtual-moteus-fdcanusb", *ex, "--out", str(tmp_path / "h"))
+    sim = ["simulate", "--robot", "dfki-a0-moteus", *ex, "--no-plot"]
+    run("virtual_robot.cli", *sim, "--out", str(tmp_path / "s"))
+    host, offline = read_signals(tmp_path / "h").columns, read_signals(tmp_path / "s").columns
+    assert len(host["t"]) == len(offline["t"]) == 150
+    for key in ("q1", "q2", "tau1", "tau2"):
+        np.testing.assert_array_equal(host[key], offline[key])
+    assert np.ptp(host["q1"]) > 0.05

@@ -25,8 +25,8 @@ t_k; a host period passes once every controller in position mode has its command
 (a command that brings a controller into position mode is not a period's command: bringing a
 controller up takes no time, as MIT mode's "enter motor mode"), so a client that brings its
 controllers up, then commands them with ``query=True`` and waits for the replies, runs in
-lockstep with the robot: its replies are the offline stepping of the same commands (virtual_robot.moteus_simulate.run_commands,
-tests/test_moteus.py).
+lockstep with the robot: its replies are the offline stepping of the same commands
+(virtual_robot.moteus_simulate.run_commands, tests/test_moteus.py).
 """
 
 from __future__ import annotations

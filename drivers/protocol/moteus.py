@@ -1,5 +1,5 @@
-"""mjbots moteus register protocol (firmware 2024-2025, docs/reference.md of github.com/mjbots/moteus,
-"A. Protocol" and "A.2b Registers") and the fdcanusb's serial line protocol
+"""mjbots moteus register protocol (docs/reference.md of github.com/mjbots/moteus, "A. Protocol"
+and "A.2b Registers") and the fdcanusb's serial line protocol
 (docs/reference.md "fdcanusb"): pure functions, no port, no bus.
 
 CAN-FD arbitration id (reference "A.1 CAN"): ``0x8000`` if a reply is wanted, source id in bits
@@ -105,10 +105,10 @@ class FrameError(ValueError):
 
 @dataclass(frozen=True)
 class Subframe:
-    kind: int  # WRITE_BASE, READ_BASE or REPLY_BASE
+    kind: int  # WRITE_BASE, READ_BASE, REPLY_BASE, WRITE_ERROR or READ_ERROR
     register: int
     resolution: int
-    value: float | int | None  # scaled (None for a read)
+    value: float | int | None  # scaled (None for a read; an error's code)
 
 
 # ---- CAN ids ---------------------------------------------------------------------------------
@@ -170,13 +170,18 @@ def scale_out(register: int, resolution: int, value: float | int) -> float | int
 
 # ---- frames ------------------------------------------------------------------------------------
 def parse(data: bytes) -> Iterator[Subframe]:
-    """The register subframes of a host → drive payload; raises :class:`FrameError` on a
+    """The register and error subframes of a payload; raises :class:`FrameError` on a
     truncated or unknown subframe (the firmware drops the rest of such a frame)."""
     i = 0
     while i < len(data):
         cmd = data[i]
         i += 1
         if cmd == NOP:
+            continue
+        if cmd in (WRITE_ERROR, READ_ERROR):
+            register, i = _varuint(data, i)
+            code, i = _varuint(data, i)
+            yield Subframe(cmd, register, INT8, code)
             continue
         upper, res, n = cmd & 0xF0, (cmd >> 2) & 3, cmd & 3
         if upper not in (WRITE_BASE, READ_BASE, REPLY_BASE):
