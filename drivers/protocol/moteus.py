@@ -57,9 +57,7 @@ CMD_IGNORE_BOUNDS = 0x02D
 # modes (register 0x000)
 STOPPED, FAULT_MODE, POSITION_MODE, TIMEOUT_MODE = 0, 1, 10, 11
 
-# fault codes (register 0x00f) the emulation raises
-FAULT_NONE = 0
-FAULT_CONFIG_CHANGED = 41  # used here for "a command the emulation refuses": see docs/protocol.md
+FAULT_NONE = 0  # register 0x00f: the emulation models no fault (docs/protocol.md)
 
 # int8, int16, int32 scale of each kind of register (reference "A.2b", the mapping column)
 _POS = (0.01, 0.0001, 0.00001)
