@@ -413,3 +413,65 @@ def test_hil_run_over_the_moteus_bench_equals_virtual_robot_simulate(tmp_path: P
     for key in ("q1", "q2", "tau1", "tau2"):
         np.testing.assert_array_equal(host[key], offline[key])
     assert np.ptp(host["q1"]) > 0.05
+
+
+# ---- the fdcanusb pty, line by line -------------------------------------------------------------
+def test_fdcanusb_pty_answers_lines_and_refuses_bad_ones() -> None:
+    """A `can send` is answered OK and becomes a CAN-FD frame; a wrong checksum, an unknown
+    command and unreadable hex are answered ERR and deliver nothing; the first line with a
+    checksum switches the replies to checksummed ones (what the moteus library expects on a pty)."""
+    import os
+
+    bus = FdcanusbPtyBus()
+    fd = os.open(bus.channel_path, os.O_RDWR | os.O_NOCTTY)
+    try:
+
+        def say(line: bytes) -> tuple[can.Message | None, bytes]:
+            os.write(fd, line + b"\n")
+            msg = bus.recv(0.5)
+            time.sleep(0.05)
+            return msg, os.read(fd, 4096)
+
+        msg, out = say(b"can send 8001 0000 BF")
+        assert out == b"OK\r\n" and msg is not None and msg.arbitration_id == 0x8001
+        assert bytes(msg.data) == b"\x00\x00" and msg.bitrate_switch and msg.is_extended_id
+        bad = (None, mo.add_checksum(b"ERR checksum mismatch") + b"\r\n")
+        assert (
+            say(b"can send 8001 01 BF *00") == bad
+        )  # a checksum, even wrong: checksummed from here
+        msg, out = say(b"frobnicate")
+        assert msg is None and out.startswith(b"ERR unknown command")
+        msg, out = say(mo.add_checksum(b"can send 8001 0G BF"))
+        assert msg is None and out.startswith(b"ERR") and bus.malformed == 3
+        msg, out = say(mo.add_checksum(b"can send 8002 0102 BF"))
+        assert msg is not None and out == mo.add_checksum(b"OK") + b"\r\n"
+        bus.send(can.Message(arbitration_id=0x201, data=b"\x21\x00\x00", is_fd=True))
+        time.sleep(0.05)
+        line = os.read(fd, 4096).rstrip(b"\r\n")
+        assert mo.strip_checksum(line) == (b"rcv 201 210000 E B F", True)
+    finally:
+        os.close(fd)
+        bus.shutdown()
+
+
+def test_codec_round_trips_every_resolution() -> None:
+    """pack_registers → parse gives the values back within one step of the resolution, NaN as
+    NaN, and saturates beyond the integer range."""
+    rng = np.random.default_rng(7)
+    for r in (mo.INT8, mo.INT16, mo.INT32, mo.F32):
+        values = [float(v) for v in rng.uniform(-1.2, 1.2, 6)] + [math.nan]
+        subs = list(mo.parse(mo.pack_registers(mo.WRITE_BASE, mo.CMD_POSITION, r, values)))
+        assert [s.register for s in subs] == list(range(mo.CMD_POSITION, mo.CMD_POSITION + 7))
+        for s, v in zip(subs, values, strict=True):
+            step = 0.0 if r == mo.F32 else mo.SCALES[s.register][r]  # the register's own scale
+            top = (127, 32767, 2147483647, math.inf)[r] * step
+            if math.isnan(v):
+                assert math.isnan(s.value)  # type: ignore[arg-type]
+            elif abs(v) > top:
+                assert abs(s.value) == pytest.approx(top)  # type: ignore[arg-type]
+            else:
+                assert abs(s.value - v) <= step + 1e-6 * abs(v)  # type: ignore[operator]
+    with pytest.raises(mo.FrameError):
+        list(mo.parse(b"\x0d\x20\x00"))  # a float32 cut short
+    with pytest.raises(mo.FrameError):
+        list(mo.parse(b"\x01\x80\x80\x80\x80\x80"))  # a varuint beyond 5 bytes
