@@ -21,7 +21,8 @@ measured position when position mode starts), and p_c advances by v_c every peri
 The watchdog (``servo.default_timeout_s``: the profile's ``watchdog_s``; a command's
 watchdog_timeout register overrides it, NaN disables it): that long in position mode without a
 command → TIMEOUT, emulated as ``servo.timeout_mode = 0`` (torque 0, power stage off; the
-firmware default 12 damps the motor instead). TIMEOUT, as on the firmware, is left only by a stop
+firmware's modes 12, zero velocity, and 15, brake, damp the motor instead: reference
+"servo.timeout_mode"). TIMEOUT, as on the firmware, is left only by a stop
 command; position commands sent in TIMEOUT are refused.
 """
 
