@@ -23,7 +23,6 @@ code, or the mode). Safe stop (every exit path): a stop to every controller, eac
 from __future__ import annotations
 
 import math
-import struct
 import time
 from typing import Any
 
@@ -51,11 +50,6 @@ def torque_frame(tau_Nm: float) -> bytes:
     return mo.pack_registers(mo.WRITE_BASE, mo.MODE, mo.INT8, [mo.POSITION_MODE]) + (
         mo.pack_registers(mo.WRITE_BASE, mo.CMD_POSITION, mo.F32, [math.nan, 0.0, tau_Nm, 0.0, 0.0])
     )
-
-
-def f32(x: float) -> float:
-    """``x`` as the float32 register carries it."""
-    return struct.unpack("<f", struct.pack("<f", x))[0]
 
 
 class MoteusArm(BusArm):
@@ -158,7 +152,7 @@ class MoteusArm(BusArm):
         return self._sample(now, (), now, now)
 
     def cycle(self, tau_Nm: Any, deadline: float | None = None) -> Sample:
-        tau = tuple(f32(t) for t in self._command(tau_Nm, self._started))
+        tau = tuple(mo.f32(t) for t in self._command(tau_Nm, self._started))
         sent_at = self.now()
         for j, t in enumerate(tau):
             self._send(j, torque_frame(t), reply=False)

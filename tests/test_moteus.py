@@ -20,12 +20,13 @@ import pytest
 from loop_clients import serving
 
 from drivers.protocol import moteus as mo
+from drivers.protocol.moteus import f32
 from profiles.bench import load_bench
 from profiles.robot import load_robot
 from virtual_robot.fdcanusb_device import FdcanusbPtyBus
 from virtual_robot.moteus_drive import PositionCommand
 from virtual_robot.moteus_server import MoteusServer
-from virtual_robot.moteus_simulate import f32, run_commands, torque_command
+from virtual_robot.moteus_simulate import run_commands, torque_command
 from virtual_robot.robot import LOCKSTEP, VirtualRobot
 from virtual_robot.serve import build_core
 

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from drivers.protocol.moteus import f32
 from drivers.recording import RecordingWriter
 from profiles.drive import load_drive
 from profiles.effects import EffectsProfile
@@ -34,11 +35,6 @@ from virtual_robot.offline import SimulationResult
 from virtual_robot.robot import LOCKSTEP, VirtualRobot
 
 TWO_PI = 2.0 * math.pi
-
-
-def f32(x: float) -> float:
-    """``x`` as a float32 register carries it."""
-    return float(np.float32(x))
 
 
 def torque_command(tau_Nm: float) -> PositionCommand:
@@ -133,4 +129,4 @@ def simulate_moteus(
     return SimulationResult(Path(out_dir), n_rows, wall, n_rows * h, int(out["plant_steps"][0]))
 
 
-__all__ = ["BRING_UP", "f32", "run_commands", "simulate_moteus", "torque_command"]
+__all__ = ["BRING_UP", "run_commands", "simulate_moteus", "torque_command"]

@@ -23,6 +23,8 @@ import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
 
+from drivers.protocol.odrive import f32  # the one float32 rounding (F32 registers carry it)
+
 INT8, INT16, INT32, F32 = 0, 1, 2, 3
 WRITE_BASE, READ_BASE, REPLY_BASE = 0x00, 0x10, 0x20
 WRITE_ERROR, READ_ERROR, NOP = 0x30, 0x31, 0x50
@@ -315,6 +317,7 @@ __all__ = [
     "Subframe",
     "add_checksum",
     "crc8",
+    "f32",
     "format_rcv",
     "pack_error",
     "pack_read",
