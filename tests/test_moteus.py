@@ -234,12 +234,18 @@ def _commands(n: int) -> list[list[PositionCommand]]:
     return rows
 
 
-async def _library_run(path: str, rows: list[list[PositionCommand]]) -> dict[str, np.ndarray]:
-    """moteus.Controller on moteus.Fdcanusb(path): stop and bring up both, then each period
-    set_position with query=True to controller 1 then 2, the replies recorded."""
+async def _library_run(
+    where: str, rows: list[list[PositionCommand]], via: str = "fdcanusb"
+) -> dict[str, np.ndarray]:
+    """moteus.Controller on moteus.Fdcanusb(where) (or the library's python-can transport on
+    the virtual bus ``where``): stop and bring up both, then each period set_position with
+    query=True to controller 1 then 2, the replies recorded."""
     import moteus
 
-    transport = moteus.Fdcanusb(path)
+    if via == "fdcanusb":
+        transport = moteus.Fdcanusb(where)
+    else:
+        transport = moteus.PythonCan(interface="virtual", channel=where)
     ctl = [moteus.Controller(id=i, transport=transport) for i in (1, 2)]
     keys = (
         moteus.Register.MODE,
@@ -273,14 +279,22 @@ async def _library_run(path: str, rows: list[list[PositionCommand]]) -> dict[str
         transport.close()
 
 
-def test_moteus_library_over_fdcanusb_in_lockstep_equals_the_offline_stepping() -> None:
+@pytest.mark.parametrize("via", ["fdcanusb", "pythoncan"])
+def test_moteus_library_in_lockstep_equals_the_offline_stepping(via: str) -> None:
     """The library's replies (mode, position, velocity, torque, float32) equal the offline
-    stepping of the same commands bit for bit, through torque and PD phases."""
+    stepping of the same commands bit for bit, through torque and PD phases, over both its
+    transports that run here: the fdcanusb (a pty) and python-can (CAN-FD frames on
+    python-can's virtual bus)."""
     pytest.importorskip("moteus")
     rows = _commands(200)
-    bus = FdcanusbPtyBus()
+    if via == "fdcanusb":
+        bus: can.BusABC = FdcanusbPtyBus()
+        where = bus.channel_path  # type: ignore[attr-defined]
+    else:
+        where = "moteus-pythoncan"
+        bus = can.Bus(interface="virtual", channel=where)
     with serving(MoteusServer(_core(), bus, idle_timeout_s=2.0)) as server:
-        got = asyncio.run(_library_run(bus.channel_path, rows))
+        got = asyncio.run(_library_run(where, rows, via))
         assert server.errors == 0 and server.ignored == 0
     ref = run_commands(_robot(), PERIOD_S, rows)
     for key in ("mode", "position_rev", "velocity_rev_s", "torque_Nm"):
