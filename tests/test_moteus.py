@@ -149,10 +149,11 @@ def test_modes_limits_watchdog_and_bad_frames() -> None:
         ignored = server.ignored
         send(0x8009, _pos(c1, feedforward_torque=1.0, query=True))  # no controller 9
         send(0x807F, _pos(c1, feedforward_torque=1.0, query=True))  # broadcast: not emulated
+        send(0x18001, _pos(c1, feedforward_torque=1.0, query=True))  # another CAN prefix
         send(0x8001, b"\x0d\x20")  # a float32 write cut short
         send(0x8001, b"\x61\x00")  # an unknown subframe
         server.handle(can.Message(arbitration_id=0x8001, is_remote_frame=True, is_extended_id=True))
-        assert server.ignored == ignored + 5 and server.errors == 0
+        assert server.ignored == ignored + 6 and server.errors == 0
         assert host.recv(0.05) is None and server.core.t == t0
         # PD: position 0.1 rev ahead with kp_scale 1 -> τ = kp · 0.1 rev (d1's velocity ~ 0)
         p = d1.position_rev

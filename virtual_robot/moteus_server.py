@@ -17,7 +17,8 @@ command registers written without a mode. The controller keeps its present comma
 Reads of registers the emulation does not keep get a read-error subframe (0x31).
 
 Ignored, counted in :attr:`MoteusServer.ignored` and logged once per kind: error and remote
-frames, frames for ids that are no controller (and broadcasts, 0x7F), frames that are no valid
+frames, frames for ids that are no controller (and broadcasts, 0x7F) or with a CAN prefix
+(bits 16-28, ``id.can_prefix``: the emulated controllers' is 0), frames that are no valid
 multiplex payload (truncated values, unknown subframes: nothing of such a frame is applied).
 
 Time (virtual_robot.loop_server): in lockstep a command is answered with the state sampled at
@@ -88,6 +89,9 @@ class MoteusServer(LoopDriveServer):
         super().handle(msg)
 
     def _frame(self, msg: can.Message) -> None:
+        if msg.arbitration_id >> 16:  # id.can_prefix: the emulated controllers' is 0
+            self.ignore(f"frame 0x{msg.arbitration_id:X}: CAN prefix not 0 (id.can_prefix)")
+            return
         source, dest, want_reply = mo.split_id(msg.arbitration_id)
         i = self.by_id.get(dest)
         if i is None:
