@@ -367,42 +367,45 @@ def test_virtual_robot_serve_moteus_bench_equals_virtual_robot_simulate(tmp_path
     assert np.ptp(sim["q1"]) > 0.05
 
 
-async def _silent_run(path: str) -> tuple[list[int], float, str]:
+async def _silent_run(path: str) -> tuple[list[int], list[float]]:
+    """2 Nm for 0.2 s, 0.3 s of silence, a position command (refused in TIMEOUT), a stop and a
+    position command again: the mode and torque each reply reports."""
     import moteus
 
     c = moteus.Controller(id=1, transport=moteus.Fdcanusb(path))
-    modes = []
-    for _ in range(10):  # 0.2 s of 2 Nm, a command every 20 ms
-        r = await c.set_position(
-            position=math.nan, kp_scale=0, kd_scale=0, feedforward_torque=2.0, query=True
-        )
-        modes.append(r.values[moteus.Register.MODE])
+    modes, torques = [], []
+
+    def note(r: object) -> None:
+        modes.append(r.values[moteus.Register.MODE])  # type: ignore[attr-defined]
+        torques.append(r.values[moteus.Register.TORQUE])  # type: ignore[attr-defined]
+
+    kw = {"position": math.nan, "kp_scale": 0, "kd_scale": 0, "feedforward_torque": 2.0}
+    for _ in range(10):  # a command every 20 ms
+        note(await c.set_position(**kw, query=True))
         await asyncio.sleep(0.02)
     await asyncio.sleep(0.3)  # silent: the controller's own watchdog (0.1 s)
-    r = await c.query()
-    modes.append(r.values[moteus.Register.MODE])
-    faulted = ""
-    try:
-        await c.set_position(
-            position=math.nan, kp_scale=0, kd_scale=0, feedforward_torque=2.0, query=True
-        )
-    except Exception as exc:  # the library raises nothing here: the reply carries an error
-        faulted = str(exc)
-    return modes, r.values[moteus.Register.TORQUE], faulted
+    note(await c.query())
+    note(await c.set_position(**kw, query=True))  # refused: only a stop leaves TIMEOUT
+    note(await c.set_stop(query=True))
+    note(await c.set_position(**kw, query=True))
+    await c.set_stop()
+    return modes, torques
 
 
 def test_realtime_watchdog_sends_a_silent_client_to_timeout() -> None:
     """Realtime: the controller's own timer runs its watchdog; a client silent for 0.3 s finds
-    it in TIMEOUT (mode 11) with torque 0, as the firmware reports it."""
+    it in TIMEOUT (mode 11) with torque 0, as the firmware reports it; a position command does
+    not leave TIMEOUT (torque stays 0), a stop does, and position mode works again."""
     pytest.importorskip("moteus")
     core = build_core(load_bench("virtual-moteus-fdcanusb"), effects=None, mode="realtime")
     bus = FdcanusbPtyBus()
     with serving(MoteusServer(core, bus)) as server:
-        modes, torque, _ = asyncio.run(_silent_run(bus.channel_path))
+        modes, torques = asyncio.run(_silent_run(bus.channel_path))
         assert server.errors == 0
-    assert modes[:10] == [mo.POSITION_MODE] * 10
-    assert modes[-1] == mo.TIMEOUT_MODE and torque == 0.0
-    assert core.drives[0].mode == mo.TIMEOUT_MODE and core.drives[0].torque_Nm == 0.0
+    assert modes[:10] == [mo.POSITION_MODE] * 10 and torques[:10] == [2.0] * 10
+    assert modes[10:] == [mo.TIMEOUT_MODE, mo.TIMEOUT_MODE, mo.STOPPED, mo.POSITION_MODE]
+    assert torques[10:] == [0.0, 0.0, 0.0, 2.0]
+    assert core.drives[0].mode == mo.STOPPED and core.drives[0].torque_Nm == 0.0
 
 
 def test_hil_run_over_the_moteus_bench_equals_virtual_robot_simulate(tmp_path: Path) -> None:

@@ -9,7 +9,8 @@ registers 0x020..0x027 written in the same frame (the rest take the firmware's d
 reads, answered in one reply (id = controller id << 8 | the host's source id, padded with nop
 subframes to a CAN-FD length) when the id asks for one (bit 15).
 
-Refused with a write-error subframe (0x30, register 0x000, and logged once): other modes
+Refused with a write-error subframe (0x30, register 0x000, after the reply's registers; logged
+once): other modes
 (PWM, voltage, current, stay-within, brake, …), the position-mode registers the emulation does not
 run (stop_position, velocity_limit, accel_limit, fixed voltage or current, ilimit_scale) when
 finite, a non-finite feed-forward torque or kp/kd scale, a position command in TIMEOUT;
@@ -106,7 +107,7 @@ class MoteusServer(LoopDriveServer):
         reads = [s for s in subframes if s.kind == mo.READ_BASE]
         d, core = self.drives[i], self.core
         assert isinstance(d, MoteusDrive)
-        out = b""
+        out = refused = b""
         with core.lock:
             if writes:
                 why = self._check(writes)
@@ -127,11 +128,14 @@ class MoteusServer(LoopDriveServer):
                     core.apply_now(now)
                 if why:
                     self._once(f"controller {dest}: {why}")
-                    out += mo.pack_error(False, mo.MODE, ERR_REFUSED)
+                    refused = mo.pack_error(False, mo.MODE, ERR_REFUSED)
             if reads:
                 if core.mode != LOCKSTEP:
                     core.catch_up()
                 out += self._reply(d, reads)
+        # the registers first: the library takes a reply that starts with a reply or read-error
+        # subframe (moteus.Controller's reply filter), the write error after them
+        out += refused
         if want_reply and out:
             self.send_fd(mo.reply_id(dest, source), mo.pad_fd(out))
 
