@@ -315,7 +315,7 @@ def _check_attach_channel(transport: str, channel: str) -> None:
 
     if transport == "socketcand":
         host_port(channel, "--attach")
-    elif transport in ("slcan", "serial") and not Path(channel).exists():
+    elif transport in ("slcan", "serial", "fdcanusb") and not Path(channel).exists():
         raise ValueError(
             f"--attach takes the pty that `virtual-robot serve` announced for a {transport} "
             f"bench (e.g. /dev/pts/7); {channel!r} does not exist"

@@ -15,17 +15,16 @@ virtual robot in a thread, and the link each library opens by name, pointed at i
 
 from __future__ import annotations
 
-import contextlib
 import os
 import socket
 import stat
 import struct
-import threading
 import types
-from collections.abc import Iterator
+from contextlib import AbstractContextManager
 from pathlib import Path
 
 import can
+from loop_clients import served_on
 
 from profiles.bench import load_bench
 from virtual_robot.mit_server import MitDriveServer
@@ -81,23 +80,11 @@ def raw_can_module(sock: RawCanSocket) -> types.SimpleNamespace:
     )
 
 
-@contextlib.contextmanager
-def served(bench: str, channel: str, **build: object) -> Iterator[MitDriveServer]:
+def served(bench: str, channel: str, **build: object) -> AbstractContextManager[MitDriveServer]:
     """The bench's virtual robot served by :class:`MitDriveServer` on python-can's virtual bus
-    ``channel``, in a thread, until the block ends."""
-    profile = load_bench(bench)
-    core = build_core(profile, effects=None, mode=None, **build)  # type: ignore[arg-type]
-    bus = can.Bus(interface="virtual", channel=channel)
-    server = MitDriveServer(core, bus, idle_timeout_s=None, log=lambda line: None)
-    stop = threading.Event()
-    thread = threading.Thread(target=server.serve_forever, args=(stop,), daemon=True)
-    thread.start()
-    try:
-        yield server
-    finally:
-        stop.set()
-        thread.join()
-        bus.shutdown()
+    ``channel``, in a thread, until the block ends (tests/loop_clients.py)."""
+    core = build_core(load_bench(bench), effects=None, mode=None, **build)  # type: ignore[arg-type]
+    return served_on(MitDriveServer, core, channel, idle_timeout_s=None, log=lambda line: None)
 
 
 def socketcan_as_virtual(monkeypatch: object, tmp_path: Path) -> None:
