@@ -239,29 +239,27 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def _demo_diagnose(out: Path, duration_s: float) -> tuple[dict, str]:
     """Record the diagnosis excitation (fast multisine, then slow moves with holds) over the
-    bench and diagnose it: the default robot's joint-1 Coulomb friction depends on direction."""
-    from drivers.recording import read_signals, write_json_atomic
+    bench and diagnose it as a user runs ``hil diagnose RUN --robot cicese --out DIR``: against
+    the profile's nominal model (its θ and terms), which leaves out the default robot's
+    direction-dependent joint-1 Coulomb friction."""
     from hil.bench.run import run_experiment
-    from hil.diagnose.cli import format_report
-    from hil.diagnose.plots import plot_diagnosis
-    from hil.diagnose.report import diagnose
-    from hil.model.params import robot_params
+    from hil.diagnose.cli import format_report, run_diagnose
 
     run_dir, diag_dir = out / "hil-run-diagnosis", out / "diagnose"
     say(
         "demo",
         f"{duration_s:g} s of the diagnosis excitation over virtual-slcan -> {run_dir}; "
-        f"hil diagnose -> {diag_dir}",
+        f"hil diagnose {run_dir} --robot cicese (the profile's nominal model) -> {diag_dir}",
     )
     run = run_experiment(
         "virtual-slcan", "diagnosis", run_dir, duration_s=duration_s, progress=False
     )
     require_complete("diagnosis run", run)
-    result = diagnose([read_signals(run_dir)], robot_params("cicese").theta)
-    diag_dir.mkdir(parents=True, exist_ok=True)
-    result.document["plots"] = [str(p) for p in plot_diagnosis(result, diag_dir)]
-    write_json_atomic(diag_dir / "diagnosis.json", result.document)
-    return result.document, format_report(result.document)
+    args = _parser(("diagnose",)).parse_args(
+        ["diagnose", str(run_dir), "--robot", "cicese", "--out", str(diag_dir), "-q"]
+    )
+    doc, _recordings = run_diagnose(args)
+    return doc, format_report(doc)
 
 
 def _demo_control(out: Path, params: Path, duration_s: float) -> tuple[dict, str]:

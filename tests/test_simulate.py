@@ -188,6 +188,10 @@ def _check_demo_summary(summary: dict, excitation_s: float, tracking_s: float) -
     # ... and the mismatch diagnosis (issue 7): joint 1's direction-dependent Coulomb friction
     found = {(f["effect"], f["joint"]) for f in summary["diagnose"]["findings"]}
     assert ("coulomb_asymmetry", 1) in found
+    # judged against the profile's nominal model, as `hil diagnose RUN --robot cicese` does
+    nominal = summary["diagnose"]["nominal"]
+    assert nominal["source"] == "profile" and nominal["used"] is True
+    assert any(f["joint"] == 1 for f in nominal["findings"])
     assert summary["diagnose"]["plots"] and all(
         Path(p).is_file() for p in summary["diagnose"]["plots"]
     )
@@ -207,6 +211,7 @@ def test_hil_demo_quick_runs_every_step_of_the_main_job(tmp_path, capsys):
     assert summary["quick"] is True
     _check_demo_summary(summary, DEMO_QUICK.excitation_s, DEMO_QUICK.tracking_s)
     assert "4 s of the Reyes & Kelly" in out.err and "14 s of the diagnosis" in out.err
+    assert "the profile's nominal model" in out.err
 
 
 @pytest.mark.slow
