@@ -9,7 +9,7 @@ The other subcommands live with their capability (``COMMANDS``); the plumbing ev
 shares (common options, ``--json``, ``--out``, progress and error lines, exit status) is
 :mod:`hil.cli_options` (docs/cli.md).
 
-Errors are one line, ``hil <command>: error: ...``. Exit status (docs/interop.md):
+Errors are one line, ``hil <command>: error: ...``. Exit status (docs/faults.md, "Exit status"):
 
 =====  =========================================================================================
 0      done
