@@ -140,7 +140,7 @@ def _parser(with_arguments: Collection[str] = COMMANDS) -> argparse.ArgumentPars
     )
     r.add_argument("--experiment", default="reyes-kelly", help="experiment profile or file")
     r.add_argument("--duration", type=float, default=None, help="seconds (default: experiment's)")
-    add_out_options(r, "run directory to write", required=True)
+    add_out_options(r, "run directory to write (default: a new runs/run/<date>T<time>)")
     r.add_argument(
         "--mcap",
         action="store_true",
@@ -340,7 +340,8 @@ def _attached_bench(args: argparse.Namespace) -> str:
 def cmd_run(args: argparse.Namespace) -> int:
     from hil.bench.run import run_experiment
 
-    prepare_out_dir(args.out, args.overwrite)
+    taken = prepare_out_dir(args.out, args.overwrite, default="run", command="run")
+    args.out = args.out or str(taken)  # --out exactly as given, else this run's new directory
     summary = run_experiment(
         _attached_bench(args) if args.attach else args.bench,
         args.experiment,
