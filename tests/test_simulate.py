@@ -212,6 +212,20 @@ def test_hil_demo_quick_runs_every_step_of_the_main_job(tmp_path, capsys):
     _check_demo_summary(summary, DEMO_QUICK.excitation_s, DEMO_QUICK.tracking_s)
     assert "4 s of the Reyes & Kelly" in out.err and "14 s of the diagnosis" in out.err
     assert "the profile's nominal model" in out.err
+    # the summary and each step's document against their schemas (docs/schemas.md)
+    jsonschema = pytest.importorskip("jsonschema", reason="the test extra's jsonschema is missing")
+    schemas = Path(__file__).resolve().parent.parent / "docs" / "schemas"
+    steps = [
+        (None, "demo"),
+        ("hil_run", "run"),
+        ("simulate", "simulate"),
+        ("identify", "identify"),
+        ("control", "compare"),
+        ("diagnose", "diagnosis"),
+    ]
+    for key, name in steps:
+        schema = json.loads((schemas / f"{name}.schema.json").read_text(encoding="utf-8"))
+        jsonschema.validate(summary if key is None else summary[key], schema)
 
 
 @pytest.mark.slow
