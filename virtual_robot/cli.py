@@ -17,6 +17,7 @@ if __name__ == "__main__":
     )
 
 import argparse
+import contextlib
 import math
 import os
 import threading
@@ -249,15 +250,36 @@ def cmd_serve(args: argparse.Namespace) -> int:
     initial_q = _initial_q(args.initial_q, load_any_robot(bench.robot).n_joints)
     stop = threading.Event()
     stopped_by: list[int] = []
+    reset = threading.Event()  # SIGUSR1: reset the drives' faults (docs/faults.md)
+    # A handler runs in the main thread between two bytecodes, possibly while that thread holds
+    # an Event's internal lock (inside stop.wait): an Event.set() there would deadlock. The
+    # handlers only write a byte to a pipe; a thread sets the events.
+    wake_r, wake_w = os.pipe()
+    os.set_blocking(wake_w, False)
+
+    def relay() -> None:
+        while True:
+            byte = os.read(wake_r, 1)
+            if byte == b"r":
+                reset.set()
+            else:
+                stop.set()
+                return
+
+    threading.Thread(target=relay, name="signal-relay", daemon=True).start()
 
     def on_signal(signum: int, _frame: object) -> None:
         stopped_by.append(signum)
-        stop.set()
+        with contextlib.suppress(OSError):  # the pipe full: a stop is on its way already
+            os.write(wake_w, b"s")
+
+    def on_reset(_signum: int, _frame: object) -> None:
+        with contextlib.suppress(OSError):
+            os.write(wake_w, b"r")
 
     for name in ("SIGTERM", "SIGINT", "SIGHUP"):  # the exit signals (drivers.process)
         signal.signal(getattr(signal, name), on_signal)
-    reset = threading.Event()  # SIGUSR1: reset the drives' faults (docs/faults.md)
-    signal.signal(signal.SIGUSR1, lambda _signum, _frame: reset.set())
+    signal.signal(signal.SIGUSR1, on_reset)
     if args.exit_with_parent:
         _watch_parent(stop)
 
