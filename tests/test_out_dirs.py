@@ -215,7 +215,8 @@ def test_sigterm_before_the_recording_begins_leaves_a_rerunnable_directory(
 def test_every_command_twice_with_defaults_keeps_both_runs(tmp_path: Path) -> None:
     """Issue 30: each command run twice without --out writes a new directory each time (both
     kept, no error) and runs/latest points to the newest; --out stays exact. `hil demo` takes
-    the same default (prepare_out_dir(default="demo")) and is left out for its length."""
+    the same default (prepare_out_dir(default="demo")) and is left out for its length;
+    `virtual-robot serve` writes no run directory."""
     sim = _run([*ROBOT, "simulate", "--duration", "1.5", "--no-plot", "--out", "base"],
                cwd=tmp_path)  # fmt: skip
     assert sim.returncode == 0, sim.stderr
@@ -237,6 +238,8 @@ def test_every_command_twice_with_defaults_keeps_both_runs(tmp_path: Path) -> No
         "excite": [*ENTRY, "excite", "--starts", "1", "--time-budget", "1", "--no-simulate",
                    "--no-plot", "--json"],
         "replay": [*ENTRY, "replay", "rt", "--no-plot", "--json"],
+        "jitter-virtual-inprocess": [*ENTRY, "jitter", *inprocess, "--duration", "0.3",
+                                     "--json"],
     }  # fmt: skip
     for name, argv in commands.items():
         for _ in range(2):

@@ -65,7 +65,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=DEFAULT_DURATION_S,
         help=f"seconds of loop (default {DEFAULT_DURATION_S:g})",
     )
-    add_out_options(p, "run directory (default: a new runs/jitter-BENCH-RATEhz/<date>T<time>)")
+    add_out_options(p, "run directory (default: a new runs/jitter-BENCH[-RATEhz]/<date>T<time>)")
     p.add_argument(
         "--experiment",
         default=None,
