@@ -19,6 +19,7 @@ from collections.abc import Callable
 
 import can
 
+from virtual_robot.host_silence import HostSilence
 from virtual_robot.loop_drive import LoopDrive
 from virtual_robot.robot import LOCKSTEP, REALTIME, VirtualRobot
 
@@ -56,8 +57,7 @@ class LoopDriveServer:
         self.ignored = 0
         self.errors = 0
         self._said: set[str] = set()
-        self._last_rx: float | None = None
-        self._idle_fired = False
+        self._silence = HostSilence(idle_timeout_s)
         if core.mode == LOCKSTEP and core.syncs == 0:
             core.stepper.sync()  # sample 0 at t = 0: every later step is one whole period
 
@@ -85,8 +85,7 @@ class LoopDriveServer:
     def handle(self, msg: can.Message) -> None:
         """Answer one received frame; never raises (errors are counted and logged)."""
         self.frames_in += 1
-        self._last_rx = time.monotonic()
-        self._idle_fired = False
+        self._silence.heard()
         if msg.is_error_frame or msg.is_extended_id or msg.is_fd:
             self.ignore(f"error, extended-id or CAN FD frames are ignored by {self.label} drives")
             return
@@ -141,13 +140,7 @@ class LoopDriveServer:
     def poll(self, now: float | None = None) -> None:
         """The host-silence check (lockstep) and the drives' events."""
         now = time.monotonic() if now is None else now
-        if (
-            self.idle_timeout_s is not None
-            and self._last_rx is not None
-            and not self._idle_fired
-            and now - self._last_rx > self.idle_timeout_s
-        ):
-            self._idle_fired = True
+        if self._silence.expired(now):
             self.core.disable_all()
             self._log(f"host silent for {self.idle_timeout_s:g} s: every drive stopped, torque 0")
         self._report_events()
