@@ -30,7 +30,7 @@ _logger = logging.getLogger(__name__)
 
 class LoopDriveServer:
     """Base of the servers of ``core``'s drives on ``bus`` (module docstring). A subclass
-    answers one standard data frame in :meth:`_frame`."""
+    answers one standard data frame in :meth:`_frame` and sets itself up in :meth:`_setup`."""
 
     protocol = ""  # the drives' protocol (profiles.drive.PROTOCOLS)
     label = ""  # how the log names it
@@ -60,6 +60,10 @@ class LoopDriveServer:
         self._silence = HostSilence(idle_timeout_s)
         if core.mode == LOCKSTEP and core.syncs == 0:
             core.stepper.sync()  # sample 0 at t = 0: every later step is one whole period
+        self._setup()
+
+    def _setup(self) -> None:
+        """A subclass's own set-up from ``self.core`` (called last by ``__init__``)."""
 
     # ---- life cycle ---------------------------------------------------------------------------
     def serve_forever(self, stop: threading.Event) -> None:
