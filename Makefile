@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/hil demo --out runs/demo --overwrite
+	$(BIN)/hil demo
 
 test: $(STAMP)
 	$(BIN)/ruff check hil drivers virtual_robot profiles tests

@@ -8,7 +8,9 @@ joined on time: :mod:`.containers`), a realtime run's real sample and command ti
 (:mod:`.logsetup`), option values both command lines parse (:mod:`.options`), the candump writer
 (:mod:`.candump`); on the host side, the drive API and safety limits (:mod:`.arm`), CiA 402 over
 python-can (:mod:`.can_arm`), MIT mode over python-can (:mod:`.mit_arm`), ODrive CANSimple over
-python-can (:mod:`.odrive_arm`), the Gemini dialect over pyserial (:mod:`.serial_arm`), bench
+python-can (:mod:`.odrive_arm`), moteus over an fdcanusb (:mod:`.moteus_arm`,
+:mod:`.fdcanusb`; the base of these three: :mod:`.bus_arm`), the Gemini dialect over pyserial
+(:mod:`.serial_arm`), bench
 profile to transport to ``Arm`` (:mod:`.links`), python-can's slcan without its busy-wait
 (:mod:`.slcan`) and host-side timing faults (:mod:`.fault_injection`).
 

@@ -160,6 +160,12 @@ def open_arm(
 
         kwargs = can_bus_kwargs(bench, channel)
         return OdriveArm(lambda: make_can_bus(kwargs), drives, **common)
+    if bench.protocol == "moteus":
+        from drivers.fdcanusb import FdcanusbBus
+        from drivers.moteus_arm import MoteusArm
+
+        port = str(channel.get("channel") or bench.channel)
+        return MoteusArm(lambda: FdcanusbBus(port), drives, **common)
     if bench.protocol == "mit":
         from drivers.mit_arm import MitArm
 

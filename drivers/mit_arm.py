@@ -28,74 +28,42 @@ drive, each on its own (one that does not answer does not keep the others in mot
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import can
 
-from drivers.arm import Arm, Fault, LinkError, SafetyLimits, Sample
+from drivers.arm import Fault, LinkError, Sample
+from drivers.bus_arm import BusArm
 from drivers.protocol import mit
-from profiles.drive import DriveProfile
 
 SW_ENABLED = 0x0637  # CiA 402 statusword OPERATION ENABLED (what the loop checks)
 SW_FAULT = 0x0008
 
 
-class MitArm(Arm):
+class MitArm(BusArm):
     """N MIT-mode drives on one CAN bus; joint j is ``drives[j]`` at CAN id ``node_id``."""
 
-    def __init__(
-        self,
-        bus_factory: Callable[[], can.BusABC],
-        drives: Sequence[DriveProfile],
-        *,
-        period_s: float,
-        mode: str,
-        timeout_s: float,
-        limits: SafetyLimits,
-        feedback_budget_s: float | None = None,
-    ) -> None:
-        self._init_link(
-            drives,
-            period_s=period_s,
-            mode=mode,
-            timeout_s=timeout_s,
-            limits=limits,
-            feedback_budget_s=feedback_budget_s,
-        )
-        if mode != "realtime":
+    table = "mit"
+    label = "MIT"
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        if kwargs.get("mode") != "realtime":
             raise ValueError(
                 "MIT mode runs the host realtime only (--mode realtime): in lockstep the "
                 "virtual robot counts a period per set of commands (docs/protocol.md)"
             )
-        for p in self.drives:
-            if p.mit is None:
-                raise ValueError(f"{p.source}: drive {p.model} does not speak MIT mode")
-        self._bus_factory = bus_factory
-        self.bus: can.BusABC | None = None
-        self.ids = tuple(p.node_id for p in self.drives)
+        super().__init__(*args, **kwargs)
         self.ranges = tuple(mit.MitRanges.of(p.mit) for p in self.drives)  # type: ignore[arg-type]
         self.direction = tuple(p.mit.axis_direction for p in self.drives)  # type: ignore[union-attr]
-        self._errors = [0] * self.n_joints
         self._held = [mit.MitCommand(0.0, 0.0, 0.0, 0.0, 0.0)] * self.n_joints
         zeros = [mit.pack_command(mit.MitCommand(0.0, 0.0, 0.0, 0.0, 0.0), r) for r in self.ranges]
         self._zero_pv = [mit.unpack_command_raw(z)[:2] for z in zeros]  # p = v = 0, packed
-        self._started = False
 
     # ---- link ---------------------------------------------------------------------------------
-    def open(self) -> None:
-        self.bus = self._bus_factory()
-        self.opened_at = time.monotonic()
-
-    def close(self) -> None:
-        bus, self.bus = self.bus, None
-        if bus is not None:
-            bus.shutdown()
-
     def _exchange(self, j: int, data: bytes) -> tuple[float, float, float]:
         """Send ``data`` to drive j and wait for its reply: (p, v, τ) in the joint's frame."""
-        bus = self.bus
-        if bus is None:
-            raise LinkError("MIT arm: link not open")
+        bus = self._bus()
         drive_id = self.ids[j]
         bus.send(can.Message(arbitration_id=drive_id, data=data, is_extended_id=False))
         self.stats.frames_sent += 1
@@ -131,19 +99,13 @@ class MitArm(Arm):
     def disable(self) -> None:
         """Zero command, then exit motor mode, on every drive; the first failure is raised
         after every drive was tried."""
-        first: Exception | None = None
         zero = mit.MitCommand(0.0, 0.0, 0.0, 0.0, 0.0)
-        for j in range(self.n_joints):
-            try:
-                self._exchange(j, mit.pack_command(zero, self.ranges[j]))
-            except Exception as exc:
-                first = first or exc
-            try:
-                self._exchange(j, mit.EXIT_MOTOR_MODE)
-            except Exception as exc:
-                first = first or exc
-        if first is not None:
-            raise first
+        self._stop_each(
+            lambda j: (
+                lambda: self._exchange(j, mit.pack_command(zero, self.ranges[j])),
+                lambda: self._exchange(j, mit.EXIT_MOTOR_MODE),
+            )
+        )
 
     def faults(self) -> list[Fault]:
         return [
@@ -193,12 +155,6 @@ class MitArm(Arm):
             deadline = self.now() + self.period_s
         self.wait_for_deadline(deadline)
         return self._sample(self.now(), tuple(quantized), self.now(), deadline)
-
-    def traffic_log(self) -> str | None:
-        return None
-
-    def __repr__(self) -> str:
-        return f"MitArm(ids={self.ids}, mode={self.mode!r})"
 
 
 __all__ = ["MitArm"]

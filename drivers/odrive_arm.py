@@ -27,65 +27,29 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import can
 
-from drivers.arm import Arm, Fault, LinkError, SafetyLimits, Sample
+from drivers.arm import Fault, LinkError, Sample
+from drivers.bus_arm import BusArm
 from drivers.protocol import odrive as od
-from profiles.drive import DriveProfile
 
 SW_ENABLED = 0x0637  # CiA 402 statusword OPERATION ENABLED (what the loop checks)
 SW_FAULT = 0x0008
 TWO_PI = 2.0 * math.pi
 
 
-class OdriveArm(Arm):
+class OdriveArm(BusArm):
     """N ODrive axes on one CAN bus; joint j is ``drives[j]`` at node id ``node_id``."""
 
-    def __init__(
-        self,
-        bus_factory: Callable[[], can.BusABC],
-        drives: Sequence[DriveProfile],
-        *,
-        period_s: float,
-        mode: str,
-        timeout_s: float,
-        limits: SafetyLimits,
-        feedback_budget_s: float | None = None,
-    ) -> None:
-        self._init_link(
-            drives,
-            period_s=period_s,
-            mode=mode,
-            timeout_s=timeout_s,
-            limits=limits,
-            feedback_budget_s=feedback_budget_s,
-        )
-        for p in self.drives:
-            if p.odrive is None:
-                raise ValueError(f"{p.source}: drive {p.model} is no ODrive axis")
-        self._bus_factory = bus_factory
-        self.bus: can.BusABC | None = None
-        self.ids = tuple(p.node_id for p in self.drives)
+    table = "odrive"
+    label = "ODrive"
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
         self._index = {node: j for j, node in enumerate(self.ids)}
-        self._errors = [0] * self.n_joints
         self._states = [0] * self.n_joints
-        self._started = False
-
-    # ---- link ---------------------------------------------------------------------------------
-    def open(self) -> None:
-        self.bus = self._bus_factory()
-        self.opened_at = time.monotonic()
-
-    def close(self) -> None:
-        bus, self.bus = self.bus, None
-        if bus is not None:
-            bus.shutdown()
-
-    def _bus(self) -> can.BusABC:
-        if self.bus is None:
-            raise LinkError("ODrive arm: link not open")
-        return self.bus
 
     def _send(self, j: int, cmd: int, data: bytes = b"", *, rtr: bool = False) -> None:
         msg = can.Message(
@@ -160,18 +124,12 @@ class OdriveArm(Arm):
 
     def disable(self) -> None:
         """Torque 0, then IDLE, on every axis; the first failure is raised after all were tried."""
-        first: Exception | None = None
-        for j in range(self.n_joints):
-            for cmd, data in (
-                (od.SET_INPUT_TORQUE, od.pack_input_torque(0.0)),
-                (od.SET_AXIS_STATE, od.pack_u32(od.IDLE)),
-            ):
-                try:
-                    self._send(j, cmd, data)
-                except Exception as exc:
-                    first = first or exc
-        if first is not None:
-            raise first
+        self._stop_each(
+            lambda j: (
+                lambda: self._send(j, od.SET_INPUT_TORQUE, od.pack_input_torque(0.0)),
+                lambda: self._send(j, od.SET_AXIS_STATE, od.pack_u32(od.IDLE)),
+            )
+        )
 
     def faults(self) -> list[Fault]:
         return [Fault(j, e, f"axis error 0x{e:08X}") for j, e in enumerate(self._errors) if e]
@@ -225,12 +183,6 @@ class OdriveArm(Arm):
             self.wait_for_deadline(deadline)
             got = self._request()
         return self._sample(got, self.now(), tau, sent_at, deadline)
-
-    def traffic_log(self) -> str | None:
-        return None
-
-    def __repr__(self) -> str:
-        return f"OdriveArm(ids={self.ids}, mode={self.mode!r})"
 
 
 __all__ = ["OdriveArm"]

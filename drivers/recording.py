@@ -789,6 +789,12 @@ def _plan(
                 )
         for name in ("t", *(f"{p}{j + 1}" for p in ("q", "tau") for j in range(n))):
             sources[name] = name
+        # this project's own names for the controller's targets (Recording.q_target), read
+        # when the file has them for every joint
+        for kind, prefix in TARGET_KINDS.items():
+            names = tuple(f"{prefix}{j + 1}" for j in range(n))
+            if n and set(names) <= have:
+                targets[kind] = names
     for name, column in overrides.items():
         joint = int(name.removeprefix("tau").removeprefix("q")) if name != "t" else 0
         if joint > n:

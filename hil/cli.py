@@ -9,7 +9,7 @@ The other subcommands live with their capability (``COMMANDS``); the plumbing ev
 shares (common options, ``--json``, ``--out``, progress and error lines, exit status) is
 :mod:`hil.cli_options` (docs/cli.md).
 
-Errors are one line, ``hil <command>: error: ...``. Exit status (docs/interop.md):
+Errors are one line, ``hil <command>: error: ...``. Exit status (docs/faults.md, "Exit status"):
 
 =====  =========================================================================================
 0      done
@@ -140,7 +140,7 @@ def _parser(with_arguments: Collection[str] = COMMANDS) -> argparse.ArgumentPars
     )
     r.add_argument("--experiment", default="reyes-kelly", help="experiment profile or file")
     r.add_argument("--duration", type=float, default=None, help="seconds (default: experiment's)")
-    add_out_options(r, "run directory to write", required=True)
+    add_out_options(r, "run directory to write (default: a new runs/run/<date>T<time>)")
     r.add_argument(
         "--mcap",
         action="store_true",
@@ -239,29 +239,27 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def _demo_diagnose(out: Path, duration_s: float) -> tuple[dict, str]:
     """Record the diagnosis excitation (fast multisine, then slow moves with holds) over the
-    bench and diagnose it: the default robot's joint-1 Coulomb friction depends on direction."""
-    from drivers.recording import read_signals, write_json_atomic
+    bench and diagnose it as a user runs ``hil diagnose RUN --robot cicese --out DIR``: against
+    the profile's nominal model (its θ and terms), which leaves out the default robot's
+    direction-dependent joint-1 Coulomb friction."""
     from hil.bench.run import run_experiment
-    from hil.diagnose.cli import format_report
-    from hil.diagnose.plots import plot_diagnosis
-    from hil.diagnose.report import diagnose
-    from hil.model.params import robot_params
+    from hil.diagnose.cli import format_report, run_diagnose
 
     run_dir, diag_dir = out / "hil-run-diagnosis", out / "diagnose"
     say(
         "demo",
         f"{duration_s:g} s of the diagnosis excitation over virtual-slcan -> {run_dir}; "
-        f"hil diagnose -> {diag_dir}",
+        f"hil diagnose {run_dir} --robot cicese (the profile's nominal model) -> {diag_dir}",
     )
     run = run_experiment(
         "virtual-slcan", "diagnosis", run_dir, duration_s=duration_s, progress=False
     )
     require_complete("diagnosis run", run)
-    result = diagnose([read_signals(run_dir)], robot_params("cicese").theta)
-    diag_dir.mkdir(parents=True, exist_ok=True)
-    result.document["plots"] = [str(p) for p in plot_diagnosis(result, diag_dir)]
-    write_json_atomic(diag_dir / "diagnosis.json", result.document)
-    return result.document, format_report(result.document)
+    args = _parser(("diagnose",)).parse_args(
+        ["diagnose", str(run_dir), "--robot", "cicese", "--out", str(diag_dir), "-q"]
+    )
+    doc, _recordings = run_diagnose(args)
+    return doc, format_report(doc)
 
 
 def _demo_control(out: Path, params: Path, duration_s: float) -> tuple[dict, str]:
@@ -315,7 +313,7 @@ def _check_attach_channel(transport: str, channel: str) -> None:
 
     if transport == "socketcand":
         host_port(channel, "--attach")
-    elif transport in ("slcan", "serial") and not Path(channel).exists():
+    elif transport in ("slcan", "serial", "fdcanusb") and not Path(channel).exists():
         raise ValueError(
             f"--attach takes the pty that `virtual-robot serve` announced for a {transport} "
             f"bench (e.g. /dev/pts/7); {channel!r} does not exist"
@@ -342,7 +340,8 @@ def _attached_bench(args: argparse.Namespace) -> str:
 def cmd_run(args: argparse.Namespace) -> int:
     from hil.bench.run import run_experiment
 
-    prepare_out_dir(args.out, args.overwrite)
+    taken = prepare_out_dir(args.out, args.overwrite, default="run", command="run")
+    args.out = args.out or str(taken)  # --out exactly as given, else this run's new directory
     summary = run_experiment(
         _attached_bench(args) if args.attach else args.bench,
         args.experiment,

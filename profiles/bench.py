@@ -16,12 +16,14 @@ from profiles.limits import parse_limits
 from profiles.loader import Fields, ProfileError, load_toml
 from profiles.timing_faults import MAX_FEEDBACK_BUDGET_S, TimingFaults, parse_timing_faults
 
-# can: CiA 402; mit: T-Motor/CubeMars MIT mode; odrive: ODrive CANSimple
-PROTOCOLS = ("can", "mit", "odrive", "serial")
+# can: CiA 402; mit: T-Motor/CubeMars MIT mode; odrive: ODrive CANSimple; moteus: mjbots moteus
+# register protocol (CAN-FD; fdcanusb: the mjbots USB adapter's serial line protocol on a pty)
+PROTOCOLS = ("can", "mit", "odrive", "moteus", "serial")
 TRANSPORTS = {
     "can": ("slcan", "socketcan", "socketcand", "virtual"),
     "mit": ("slcan", "socketcan", "virtual"),
     "odrive": ("slcan", "socketcan", "virtual"),
+    "moteus": ("fdcanusb",),
     "serial": ("serial",),
 }
 MODES = ("lockstep", "realtime")
@@ -195,7 +197,7 @@ def check_drive_protocol(bench: BenchProfile, drives: tuple[str, ...], source: s
     or ``serial`` one)."""
     from profiles.drive import load_drive
 
-    want = bench.protocol if bench.protocol in ("mit", "odrive") else "cia402"
+    want = bench.protocol if bench.protocol in ("mit", "odrive", "moteus") else "cia402"
     for name in drives:
         drive = load_drive(name)
         if drive.protocol != want:

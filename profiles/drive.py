@@ -11,9 +11,9 @@ from profiles.loader import Fields, ProfileError, load_toml
 WATCHDOG_DEFAULT_S = 0.5  # 2× the benches' default feedback budget (docs/virtual-robot.md)
 
 
-PROTOCOLS = ("cia402", "mit", "odrive")
+PROTOCOLS = ("cia402", "mit", "odrive", "moteus")
 # protocols whose drives run their own loop (a drive period shorter than the host's)
-LOOP_PROTOCOLS = ("mit", "odrive")
+LOOP_PROTOCOLS = ("mit", "odrive", "moteus")
 
 
 @dataclass(frozen=True)
@@ -47,6 +47,18 @@ class OdriveProfile:
 
 
 @dataclass(frozen=True)
+class MoteusProfile:
+    """A moteus controller's [moteus] table (register protocol, docs/reference.md of
+    mjbots/moteus): its control loop, its velocity estimate and the position gains that the
+    commands' kp_scale and kd_scale multiply (``servo.pid_position.kp``, ``.kd``)."""
+
+    control_rate_hz: float  # how often the controller runs its position loop and samples
+    velocity_window_s: float  # the velocity: encoder counts over this window
+    kp_Nm_per_rev: float  # servo.pid_position.kp (Nm per revolution of the output)
+    kd_Nm_s_per_rev: float  # servo.pid_position.kd (Nm per revolution/s)
+
+
+@dataclass(frozen=True)
 class DriveProfile:
     model: str
     source: str
@@ -66,6 +78,7 @@ class DriveProfile:
     protocol: str = "cia402"
     mit: MitProfile | None = None
     odrive: OdriveProfile | None = None  # protocol "odrive" (ODrive CANSimple): its table
+    moteus: MoteusProfile | None = None  # protocol "moteus" (mjbots register protocol)
 
     @property
     def loop_rate_hz(self) -> float:
@@ -74,6 +87,8 @@ class DriveProfile:
             return self.mit.pd_rate_hz
         if self.odrive is not None:
             return self.odrive.control_rate_hz
+        if self.moteus is not None:
+            return self.moteus.control_rate_hz
         raise ValueError(f"{self.source}: a {self.protocol} drive runs no loop of its own")
 
     @property
@@ -119,6 +134,7 @@ def load_drive(name_or_path: str | Path) -> DriveProfile:
             "protocol",
             "mit",
             "odrive",
+            "moteus",
         }
     )
     protocol = f.string("protocol", "cia402") if f.has("protocol") else "cia402"
@@ -136,6 +152,12 @@ def load_drive(name_or_path: str | Path) -> DriveProfile:
     odrive = _odrive(f.table("odrive")) if protocol == "odrive" else None
     if odrive is not None and f.integer("node_id", lo=1, hi=127) > 63:
         raise f.error("node_id", "an ODrive node id has 6 bits (CAN id = node_id << 5 | cmd)")
+    if (protocol == "moteus") != f.has("moteus"):
+        raise f.error(
+            "moteus",
+            "a moteus controller (protocol = 'moteus') needs a [moteus] table, and only it",
+        )
+    moteus = _moteus(f.table("moteus")) if protocol == "moteus" else None
     if f.has("vendor"):
         f.string("vendor")
     if f.has("watchdog_periods"):
@@ -158,6 +180,7 @@ def load_drive(name_or_path: str | Path) -> DriveProfile:
         protocol=protocol,
         mit=mit,
         odrive=odrive,
+        moteus=moteus,
     )
 
 
@@ -204,11 +227,22 @@ def _odrive(f: Fields) -> OdriveProfile:
     )
 
 
+def _moteus(f: Fields) -> MoteusProfile:
+    f.only({"control_rate_hz", "velocity_window_s", "kp_Nm_per_rev", "kd_Nm_s_per_rev"})
+    return MoteusProfile(
+        control_rate_hz=f.number("control_rate_hz", 1000.0, lo=100.0, hi=100000.0),
+        velocity_window_s=f.number("velocity_window_s", 0.002, lo=0.0, hi=0.1),
+        kp_Nm_per_rev=f.number("kp_Nm_per_rev", lo=0.0, hi=1e4),
+        kd_Nm_s_per_rev=f.number("kd_Nm_s_per_rev", lo=0.0, hi=1e3),
+    )
+
+
 __all__ = [
     "LOOP_PROTOCOLS",
     "PROTOCOLS",
     "DriveProfile",
     "MitProfile",
+    "MoteusProfile",
     "OdriveProfile",
     "load_drive",
 ]

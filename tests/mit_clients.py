@@ -15,17 +15,18 @@ virtual robot in a thread, and the link each library opens by name, pointed at i
 
 from __future__ import annotations
 
-import contextlib
 import os
 import socket
 import stat
 import struct
-import threading
 import types
-from collections.abc import Iterator
+from collections.abc import Callable
+from contextlib import AbstractContextManager
 from pathlib import Path
 
 import can
+import numpy as np
+from loop_clients import served_on
 
 from profiles.bench import load_bench
 from virtual_robot.mit_server import MitDriveServer
@@ -81,23 +82,11 @@ def raw_can_module(sock: RawCanSocket) -> types.SimpleNamespace:
     )
 
 
-@contextlib.contextmanager
-def served(bench: str, channel: str, **build: object) -> Iterator[MitDriveServer]:
+def served(bench: str, channel: str, **build: object) -> AbstractContextManager[MitDriveServer]:
     """The bench's virtual robot served by :class:`MitDriveServer` on python-can's virtual bus
-    ``channel``, in a thread, until the block ends."""
-    profile = load_bench(bench)
-    core = build_core(profile, effects=None, mode=None, **build)  # type: ignore[arg-type]
-    bus = can.Bus(interface="virtual", channel=channel)
-    server = MitDriveServer(core, bus, idle_timeout_s=None, log=lambda line: None)
-    stop = threading.Event()
-    thread = threading.Thread(target=server.serve_forever, args=(stop,), daemon=True)
-    thread.start()
-    try:
-        yield server
-    finally:
-        stop.set()
-        thread.join()
-        bus.shutdown()
+    ``channel``, in a thread, until the block ends (tests/loop_clients.py)."""
+    core = build_core(load_bench(bench), effects=None, mode=None, **build)  # type: ignore[arg-type]
+    return served_on(MitDriveServer, core, channel, idle_timeout_s=None, log=lambda line: None)
 
 
 def socketcan_as_virtual(monkeypatch: object, tmp_path: Path) -> None:
@@ -112,3 +101,38 @@ def socketcan_as_virtual(monkeypatch: object, tmp_path: Path) -> None:
     sudo.write_text("#!/bin/sh\nexit 0\n")
     sudo.chmod(sudo.stat().st_mode | stat.S_IXUSR)
     monkeypatch.setenv("PATH", f"{shim}{os.pathsep}{os.environ['PATH']}")  # type: ignore[attr-defined]
+
+
+def run_dfki_driver(
+    setattr_: Callable[[object, str, object], None], channel: str, tau: np.ndarray
+) -> tuple[np.ndarray, RawCanSocket, MitDriveServer]:
+    """mini-cheetah-motor-driver-socketcan, as the DFKI lab's run_experiment uses it (zero,
+    enable, one torque command per period with kp = kd = 0 on each motor, reading back
+    position, velocity and torque; disable), against the `dfki-a0` pendulum served in lockstep
+    on the `virtual-mit-inprocess` bench. ``setattr_`` patches the driver module (pytest's
+    ``monkeypatch.setattr``, or a plain one that the caller undoes). Returns (rows × (p1, v1, t1,
+    p2, v2, t2) as the driver returns them, the socket with what it sent, the server)."""
+    from motor_driver import canmotorlib  # the unmodified DFKI driver
+
+    sock = RawCanSocket(channel)
+    setattr_(canmotorlib, "socket", raw_can_module(sock))
+    setattr_(canmotorlib, "set_zero_sleep", 0.0)  # its 1.5 s wait for a real motor
+    setattr_(canmotorlib.CanMotorController, "can_socket_declared", False)
+    with served("virtual-mit-inprocess", channel) as server:
+        shoulder = canmotorlib.CanMotorController("can0", 1, "AK80_6_V1p1")
+        elbow = canmotorlib.CanMotorController("can0", 2, "AK80_6_V1p1")
+        if shoulder.enable_motor() is None or elbow.enable_motor() is None:
+            raise RuntimeError("the virtual AK80-6 drives did not answer the DFKI driver's enable")
+        got = np.array(
+            [
+                (
+                    *shoulder.send_rad_command(0.0, 0.0, 0.0, 0.0, t1),
+                    *elbow.send_rad_command(0.0, 0.0, 0.0, 0.0, t2),
+                )
+                for t1, t2 in tau
+            ]
+        )
+        shoulder.disable_motor()
+        elbow.disable_motor()
+    sock.close()
+    return got, sock, server

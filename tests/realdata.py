@@ -22,19 +22,31 @@ def realdata(name: str) -> Path:
 KUKA = "kuka-lwr4-flobaroid"
 
 
-def kuka_csv(run: int, folder: str | Path) -> Path:
+def kuka_csv(run: int, folder: str | Path, *, targets: bool = False) -> Path:
     """``measurements_<run>.npz`` of the KUKA LWR4+ (LGPL-3, read from ../shared only) written as
     this project's standard CSV (t from 0, q1..q7, tau1..tau7) in ``folder``, a temporary
     directory: the data never enters the tree. The owners' velocities and accelerations are left
-    out (hil derives its own)."""
+    out (hil derives its own).
+
+    ``targets``: also q_target1..7, the files' ``target_positions`` × 180/π. As stored they are
+    the reference in rad multiplied by π/180 once more (a degree conversion applied twice): the
+    ratio of the positions' extremes to theirs is 57.28–57.32 (180/π = 57.296) on all 14
+    joint-runs; so converted, the measured positions follow them 1.406 s (run 1) and 0.709 s
+    (run 3) later within 1.2–5.6 mrad RMS (docs/real-data.md, "Closed loop").
+    ``target_velocities`` is not written: it is the derivative of the targets on run 3 but twice
+    it on run 1, and ``target_accelerations`` is exactly −``target_positions``."""
     import numpy as np
 
     data = np.load(realdata(KUKA) / f"measurements_{run}.npz")
     t = data["times"] - data["times"][0]
     q, tau = data["positions"], data["torques"]
     n = q.shape[1]
-    header = ",".join(["t", *(f"q{j + 1}" for j in range(n)), *(f"tau{j + 1}" for j in range(n))])
+    names = ["t", *(f"q{j + 1}" for j in range(n)), *(f"tau{j + 1}" for j in range(n))]
+    arrays = [t, q, tau]
+    if targets:
+        names += [f"q_target{j + 1}" for j in range(n)]
+        arrays.append(data["target_positions"] * (180.0 / np.pi))
     path = Path(folder) / f"kuka_measurements_{run}.csv"
-    np.savetxt(path, np.column_stack([t, q, tau]), delimiter=",", header=header, comments="",
+    np.savetxt(path, np.column_stack(arrays), delimiter=",", header=",".join(names), comments="",
                fmt="%.10g")  # fmt: skip
     return path

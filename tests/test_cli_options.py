@@ -241,3 +241,26 @@ def test_initial_q_and_position_limit_are_read_by_the_one_parser(capsys) -> None
         "hil excite: error: --position-limit takes 2 positive numbers Q1,Q2 in rad, "
         "comma-separated, got '1,x'"
     ), err
+
+
+def test_the_exit_status_table_of_docs_faults_md_is_the_codes():
+    """docs/faults.md's "Exit status" table lists exactly the statuses the commands return
+    (hil.cli_options.EXIT_*, 128 + N for a signal, 128 + SIGPIPE for a reader gone), with the
+    numbers of the three exit signals (drivers.process.EXIT_SIGNALS)."""
+    import re
+    import signal
+    from pathlib import Path
+
+    from drivers.process import EXIT_SIGNALS
+
+    text = (Path(__file__).resolve().parent.parent / "docs" / "faults.md").read_text()
+    section = text.split("## Exit status", 1)[1].split("\n## ", 1)[0]
+    rows = dict(re.findall(r"^\| (\d+|128 \+ N) \| (.+) \|$", section, re.M))
+    codes = {opts.EXIT_OK, opts.EXIT_FAILED, opts.EXIT_USAGE, opts.EXIT_LINK}
+    assert set(rows) == {str(c) for c in codes} | {"128 + N", str(128 + signal.SIGPIPE)}
+    for name in EXIT_SIGNALS:
+        assert (
+            f"{128 + signal.Signals[name]} {'Ctrl-C (SIGINT)' if name == 'SIGINT' else name}"
+            in (rows["128 + N"])
+        ), name
+    assert opts.EXIT_INTERRUPTED == 128 + signal.SIGINT

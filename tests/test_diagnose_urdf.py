@@ -140,7 +140,7 @@ def test_n_joint_forward_dynamics_inverts_the_torque():
 def test_panda_recording_of_gaz_et_al_ends_in_a_report(tmp_path, capsys):
     """The real 7-joint recording (21 s at about 1 kHz, closed loop): no traceback, a report
     (docs/urdf.md says what it found)."""
-    from hil.identify.urdf import read_one_per_line_log
+    from drivers.one_per_line import read_one_per_line_log
 
     folder = realdata("panda-gaz2019") / "rbt_log"
     if not folder.is_dir():

@@ -95,17 +95,20 @@ def test_a_failed_scheme_is_marked_and_its_parameters_refused(tmp_path, capsys):
     assert "parameters: none (filtered_power failed held-out validation" in text
 
 
-def test_panda_energy_schemes_are_reported_failed(tmp_path, capsys):
-    """The real Panda excitation of Gaz et al. (2019; read from ../shared only): the torque
-    scheme passes on every joint and its parameters are reported; both energy schemes are
-    no better than the mean on some joint and are reported failed, numbers shown;
-    `--params-scheme supplied_energy` is refused (exit 1)."""
+def test_panda_least_squares_not_physical_is_made_consistent(tmp_path, capsys):
+    """The real Panda excitation of Gaz et al. (2019; read from ../shared only): every scheme's
+    least squares leaves M(q) indefinite, so every θ offered is the physically consistent fit
+    (issue 29 item 2a: a non-physical θ is never offered), least squares' beside it. The torque
+    scheme passes on every joint and its parameters are reported; supplied energy is no better
+    than the mean on joint 7 and is reported failed, numbers shown; `--params-scheme
+    supplied_energy` is refused (exit 1)."""
     import gaz_reference
 
-    from hil.identify.urdf import read_one_per_line_log
+    from drivers.one_per_line import read_one_per_line_log
 
     if not gaz_reference.available():
         pytest.skip(f"Panda data of Gaz et al. not found at {gaz_reference.MODEL_DIR}")
+    panda = UrdfArmModel.from_profile("panda")
     csv = tmp_path / "panda.csv"
     read_one_per_line_log(gaz_reference.LOG_DIR).write_csv(csv)
     argv = ["identify", "--from", str(csv), "--robot", "panda", "--out", str(tmp_path / "o"),
@@ -113,13 +116,18 @@ def test_panda_energy_schemes_are_reported_failed(tmp_path, capsys):
     assert hil_main(argv) == 0
     report = json.loads(capsys.readouterr().out)
     schemes = report["schemes"]
+    for name, entry in schemes.items():
+        assert not panda.physical_consistency(np.array(entry["theta_least_squares"]))["consistent"]
+        assert entry["physical_consistency"]["consistent"], name
+        assert entry["method"].startswith("physically consistent least squares"), name
+        assert entry["usable"] == entry["validation"]["passed"], name
     assert schemes["filtered_dynamic"]["validation"]["passed"] and report["validation"]["passed"]
     assert max(schemes["filtered_dynamic"]["validation"]["torque_nrmse_upper_bound"]) < 0.5
-    for s in ("supplied_energy", "filtered_power"):
-        v = schemes[s]["validation"]
-        assert not v["passed"] and max(v["torque_nrmse"]) > 1.0, v
-        assert v["reason"].startswith("no better than the held-out mean on joint")
-    assert report["validation"]["schemes_passed"] == ["filtered_dynamic"]
+    v = schemes["supplied_energy"]["validation"]
+    assert not v["passed"] and max(v["torque_nrmse"]) > 1.0, v
+    assert v["reason"].startswith("no better than the held-out mean on joint 7")
+    assert report["selection"]["usable"] and report["standard_parameters"] is not None
+    assert "supplied_energy" not in report["validation"]["schemes_passed"]
     assert any(p["identified"] is not None for p in report["parameters"])
     refused = [*argv[:-1], "--overwrite", "--params-scheme", "supplied_energy"]
     assert hil_main(refused) == 1
@@ -134,7 +142,7 @@ def test_panda_consistent_energy_schemes_predict_the_held_out_torque(tmp_path, c
     Panda"); every scheme's θ is physically consistent. About 15 s CPU."""
     import gaz_reference
 
-    from hil.identify.urdf import read_one_per_line_log
+    from drivers.one_per_line import read_one_per_line_log
 
     if not gaz_reference.available():
         pytest.skip(f"Panda data of Gaz et al. not found at {gaz_reference.MODEL_DIR}")

@@ -23,7 +23,7 @@ from hil.model.estimators import (
     recursive_least_squares,
     weighted_least_squares,
 )
-from hil.model.params import load_params, robot_params
+from hil.model.params import ParamsError, load_params, robot_params
 from hil.model.regressors import SCHEMES, build_regression
 from profiles.effects import load_effects
 from profiles.experiment import load_experiment
@@ -217,6 +217,9 @@ def test_cli_identify_on_rows_all_near_a_stick_gives_no_torque_error_for_that_jo
     doc = json.loads(proc.stdout)
     # 0.08 s is too little to identify an arm: the θ is not physical, FAILED, exit 1 (issue 31)
     assert proc.returncode == (0 if doc["selection"]["usable"] else 1), proc.stderr
+    if not doc["selection"]["usable"]:  # nor is it read as parameters from identify.json
+        with pytest.raises(ParamsError, match=r"filtered_dynamic: (not physically|FAILED)"):
+            load_params(out / "identify.json")
     torque = doc["profile_validation"]["fit"]["torque_nrmse"]
     assert torque[1] is None and 0 < torque[0] < 1, torque
 
@@ -433,6 +436,18 @@ def test_cli_identify_from_recordings(recordings, tmp_path):
     assert params.scheme == "filtered_dynamic"
     assert np.allclose(params.theta, fd["theta"])
     assert load_params(out / "params-paper.json", scheme="filtered_power").theta.shape == (9,)
+    # identify.json holds the same θ: read as a parameter file (issue 29 item 2b)
+    from_report = load_params(out / "identify.json")
+    assert from_report.scheme == "filtered_dynamic"
+    assert np.array_equal(from_report.theta, params.theta)
+    assert np.array_equal(
+        load_params(out / "identify.json", scheme="filtered_power").theta,
+        load_params(out / "params.json", scheme="filtered_power").theta,
+    )
+    proc = _hil("diagnose", str(held.path), "--robot", "cicese", "--params",
+                str(out / "identify.json"), "--json", "--no-plots")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["summary"]
     for png in ("theta-exact-filtered_power.png", "validation-paper-supplied_energy.png"):
         assert (out / png).stat().st_size > 10_000
 

@@ -132,6 +132,39 @@ def test_virtual_robot_simulate_meta(tmp_path):
     assert check_file("meta.schema.json", out / "meta.json")["kind"] == "simulate"
 
 
+def test_virtual_robot_simulate_summary(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, "-m", "virtual_robot.cli", "simulate", "--duration", "0.3", "--out",
+         str(tmp_path / "sim"), "--no-plot", "--json"],
+        capture_output=True, text=True, timeout=120, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert check("simulate.schema.json", proc.stdout, "virtual-robot simulate --json")["rows"] > 0
+
+
+@pytest.mark.parametrize("bench", ["virtual-slcan", "virtual-socketcand", "virtual-serial"])
+def test_virtual_robot_serve_ready_line(bench):
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "virtual_robot.cli", "serve", "--bench", bench],
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+    )  # fmt: skip
+    try:
+        line = proc.stdout.readline()  # the ready line, once the transport is open
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+    doc = check("serve.schema.json", line, f"virtual-robot serve --bench {bench}")
+    assert doc["pid"] == proc.pid and doc["bench"] == bench
+
+
+def test_hil_excite_summary(tmp_path):
+    out = tmp_path / "design.toml"
+    text = hil("excite", "--starts", "1", "--time-budget", "1", "--no-simulate", "--no-plot",
+               "--out", str(out), "--json").stdout  # fmt: skip
+    doc = check("excite.schema.json", text, "hil excite --json")
+    assert doc["profile"] == str(out) and out.is_file()
+
+
 def test_hil_jitter_summary_and_meta(tmp_path):
     out = tmp_path / "jitter"
     text = run_hil("jitter", "--bench", "virtual-inprocess", "--duration", "1", "--out",

@@ -220,3 +220,37 @@ def test_the_walk_sees_every_kind_of_import():
         "hil.model.closed_form",
     ]
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [{"a", "b", "c"}]
+
+
+# Parsers of recording files: numpy's and pandas' text readers and the csv module's (issue 29
+# item 6: recording formats live in drivers/, the analyses read the one Recording type).
+RECORDING_PARSERS = {"loadtxt", "genfromtxt", "read_csv", "read_table"}
+CSV_READERS = {"reader", "DictReader"}
+
+
+def recording_parsers(source: str) -> list[int]:
+    """Lines of ``source`` that parse a file as a recording reader does."""
+    lines = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute):
+            attr, base = node.func.attr, node.func.value
+            csv_module = isinstance(base, ast.Name) and base.id == "csv"
+            if attr in RECORDING_PARSERS or (csv_module and attr in CSV_READERS):
+                lines.append(node.lineno)
+    return lines
+
+
+def test_recording_readers_live_in_drivers():
+    """No module of the host (hil) or the robot (virtual_robot) parses a recording file itself:
+    it reads drivers.recording.read_signals' Recording (drivers.one_per_line for the Panda
+    log of Gaz et al.)."""
+    found = {
+        name: lines
+        for name, path in MODULES.items()
+        if name.startswith(("hil.", "virtual_robot."))
+        and (lines := recording_parsers(path.read_text()))
+    }
+    assert not found, f"recording parsers outside drivers/ (module: lines): {found}"
+    # the check sees them
+    assert recording_parsers("import numpy as np\nnp.loadtxt(p)\n") == [2]
+    assert recording_parsers("import csv\nrows = csv.reader(f)\n") == [2]

@@ -18,7 +18,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
-from mit_clients import RawCanSocket, raw_can_module, served, socketcan_as_virtual
+from mit_clients import RawCanSocket, run_dfki_driver, served, socketcan_as_virtual
 
 from drivers.protocol import mit
 from profiles.bench import load_bench
@@ -228,33 +228,12 @@ def _dfki_commands(n: int) -> np.ndarray:
 
 
 def _dfki_run(monkeypatch, channel: str, tau: np.ndarray) -> tuple[np.ndarray, RawCanSocket]:
-    """mini-cheetah-motor-driver-socketcan, as the DFKI lab's run_experiment uses it (zero,
-    enable, one torque command per period with kp = kd = 0 on each motor, reading back
-    position, velocity and torque; disable), against the `dfki-a0` pendulum served in lockstep:
-    (rows × (p1, v1, t1, p2, v2, t2) as the driver returns them, the socket with what it sent)."""
-    canmotorlib = pytest.importorskip("motor_driver.canmotorlib")
-    sock = RawCanSocket(channel)
-    monkeypatch.setattr(canmotorlib, "socket", raw_can_module(sock))
-    monkeypatch.setattr(canmotorlib, "set_zero_sleep", 0.0)  # its 1.5 s wait for a real motor
-    monkeypatch.setattr(canmotorlib.CanMotorController, "can_socket_declared", False)
-    with served("virtual-mit-inprocess", channel) as server:
-        shoulder = canmotorlib.CanMotorController("can0", 1, "AK80_6_V1p1")
-        elbow = canmotorlib.CanMotorController("can0", 2, "AK80_6_V1p1")
-        assert shoulder.enable_motor() is not None and elbow.enable_motor() is not None
-        got = np.array(
-            [
-                (
-                    *shoulder.send_rad_command(0.0, 0.0, 0.0, 0.0, t1),
-                    *elbow.send_rad_command(0.0, 0.0, 0.0, 0.0, t2),
-                )
-                for t1, t2 in tau
-            ]
-        )
-        shoulder.disable_motor()
-        elbow.disable_motor()
-        assert not any(d.motor_mode for d in server.drives)
-        assert server.ignored == 0 and server.errors == 0
-    sock.close()
+    """The DFKI driver's run (tests/mit_clients.run_dfki_driver); the drives end disabled, no
+    frame ignored or in error."""
+    pytest.importorskip("motor_driver.canmotorlib")
+    got, sock, server = run_dfki_driver(monkeypatch.setattr, channel, tau)
+    assert not any(d.motor_mode for d in server.drives)
+    assert server.ignored == 0 and server.errors == 0
     return got, sock
 
 
@@ -458,3 +437,37 @@ def test_hil_run_over_mit_mode_realtime(tmp_path) -> None:
     proc = hil(*args, "--mode", "lockstep", "--out", str(tmp_path / "ls"), "--no-plot")
     assert proc.returncode == 2 and "realtime only" in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_dfki_arm_on_the_bench_beside_the_real_recording(tmp_path) -> None:
+    """Issue 28 item 3: a real DFKI recording's commands through the DFKI driver to the bench's
+    `dfki-a0`; the bench's recording, in the real file's layout, diagnosed against the real one
+    (tests/benchmarks/dfki_bench_vs_real.py)."""
+    pytest.importorskip("motor_driver.canmotorlib")
+    proc = subprocess.run(
+        [
+            sys.executable,
+            str(Path(__file__).parent / "benchmarks" / "dfki_bench_vs_real.py"),
+            "--out",
+            str(tmp_path),
+            "--seconds",
+            "3",
+            "--json",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+    doc = json.loads(proc.stdout)  # one document: the driver's own lines go to stderr
+    assert doc["rows"] == 1501 and doc["diagnose"]["exit"] == 0
+    real = np.genfromtxt(tmp_path / "real.csv", delimiter=",", names=True)
+    bench = np.genfromtxt(tmp_path / "bench.csv", delimiter=",", names=True)
+    assert np.array_equal(real["tau_con1"], bench["tau_con1"])  # the same commands, stored alike
+    for j in (1, 2):  # same sign, same time base: the two motions move together at first
+        a, b = real[f"pos_meas{j}"][:500], bench[f"pos_meas{j}"][:500]
+        assert np.corrcoef(a, b)[0, 1] > 0.8
+        assert np.ptp(b) > 0.1
+    assert (tmp_path / "bench_vs_real.png").stat().st_size > 10_000
+    assert isinstance(doc["summary"], str) and doc["summary"]

@@ -14,15 +14,14 @@ import json
 import math
 import subprocess
 import sys
-import threading
 import time
-from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
 import can
 import numpy as np
 import pytest
+from loop_clients import served_on
 
 from drivers.protocol import odrive as od
 from profiles.bench import load_bench
@@ -46,19 +45,10 @@ def _core() -> VirtualRobot:
     return VirtualRobot(_robot(), None, mode=LOCKSTEP, period_s=PERIOD_S)
 
 
-@contextlib.contextmanager
-def _served(channel: str, core: VirtualRobot | None = None, **kw: object) -> Iterator[OdriveServer]:
-    bus = can.Bus(interface="virtual", channel=channel)
-    server = OdriveServer(core or _core(), bus, **kw)  # type: ignore[arg-type]
-    stop = threading.Event()
-    thread = threading.Thread(target=server.serve_forever, args=(stop,), daemon=True)
-    thread.start()
-    try:
-        yield server
-    finally:
-        stop.set()
-        thread.join()
-        bus.shutdown()
+def _served(
+    channel: str, core: VirtualRobot | None = None, **kw: object
+) -> contextlib.AbstractContextManager[OdriveServer]:
+    return served_on(OdriveServer, core or _core(), channel, **kw)
 
 
 def _frame(node: int, cmd: int, data: bytes = b"", **kw: object) -> can.Message:

@@ -211,19 +211,32 @@ def test_sigterm_before_the_recording_begins_leaves_a_rerunnable_directory(
 
 
 # ---- runs without --out --------------------------------------------------------------------
-@pytest.mark.slow  # eight commands, each a process of its own: ~40 s on the loaded VM
+@pytest.mark.slow  # every command with a default output twice, each its own process: ~20 s
 def test_every_command_twice_with_defaults_keeps_both_runs(tmp_path: Path) -> None:
     """Issue 30: each command run twice without --out writes a new directory each time (both
-    kept, no error) and runs/latest points to the newest; --out stays exact."""
+    kept, no error) and runs/latest points to the newest; --out stays exact. `hil demo` takes
+    the same default (prepare_out_dir(default="demo")) and is left out for its length."""
     sim = _run([*ROBOT, "simulate", "--duration", "1.5", "--no-plot", "--out", "base"],
                cwd=tmp_path)  # fmt: skip
     assert sim.returncode == 0, sim.stderr
+    rt = _run([*ENTRY, "run", "--bench", _patient(tmp_path, "virtual-inprocess"), "--mode",
+               "realtime", "--duration", "1", "--no-plot", "--out", "rt"],
+              cwd=tmp_path)  # fmt: skip
+    assert rt.returncode == 0, rt.stderr
+    inprocess = ["--bench", "virtual-inprocess"]
+    # runs/ group -> command line
     commands = {
         "simulate": [*ROBOT, "simulate", "--duration", "0.5", "--no-plot", "--json"],
+        "run": [*ENTRY, "run", *inprocess, "--duration", "0.3", "--no-plot", "--json"],
         "identify": [*ENTRY, "identify", "--from", "base", "--no-plot", "--json"],
         "diagnose": [*ENTRY, "diagnose", "base", "--no-plots", "--json"],
-        "control-compare": [*ENTRY, "control", "--compare", "--bench", "virtual-inprocess",
+        "control-pd": [*ENTRY, "control", "--scheme", "pd", *inprocess, "--duration", "0.3",
+                       "--no-plot", "--json"],
+        "control-compare": [*ENTRY, "control", "--compare", *inprocess,
                             "--schemes", "pd,ct", "--duration", "0.3", "--no-plot", "--json"],
+        "excite": [*ENTRY, "excite", "--starts", "1", "--time-budget", "1", "--no-simulate",
+                   "--no-plot", "--json"],
+        "replay": [*ENTRY, "replay", "rt", "--no-plot", "--json"],
     }  # fmt: skip
     for name, argv in commands.items():
         for _ in range(2):
@@ -238,7 +251,11 @@ def test_every_command_twice_with_defaults_keeps_both_runs(tmp_path: Path) -> No
         latest = tmp_path / "runs" / name / "latest"
         assert latest.resolve() == runs[-1].resolve(), name
         assert (tmp_path / "runs" / "latest").resolve() == runs[-1].resolve(), name
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["base", "runs"]
+    assert sorted(p.name for p in tmp_path.iterdir() if p.suffix != ".toml") == [
+        "base",
+        "rt",
+        "runs",
+    ]
 
 
 # ---- signals and exits ---------------------------------------------------------------------

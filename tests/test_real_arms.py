@@ -74,6 +74,17 @@ def test_pendulum_file_in_the_tree_is_identified_and_diagnosed(tmp_path, capsys)
     assert code == 0
     m_cx = report["parameters"][0]["estimate"]
     assert m_cx > 2 * 0.1022, m_cx
+    # least squares puts the Coulomb level (fc1) below 0 here; what is offered is an arm: the
+    # fit bounded to friction >= 0, least squares' θ beside it (issue 29 item 2a)
+    pendulum = UrdfArmModel.from_profile("dfki-pendulum")
+    for name, scheme in report["schemes"].items():
+        theta = np.array(scheme["theta"])
+        assert scheme["usable"] == scheme["validation"]["passed"], name
+        assert pendulum.physical_consistency(theta)["consistent"], (name, theta)
+        assert np.all(theta[list(pendulum.friction_columns)] >= 0), (name, theta)
+    fd = report["schemes"]["filtered_dynamic"]
+    assert fd["theta_least_squares"][4] < 0 and fd["theta"][4] == 0.0, fd
+    assert "friction >= 0" in fd["method"] and report["selection"]["usable"]
     doc = _diagnose([PENDULUM_FILE], "dfki-pendulum", capsys, "--columns", COLUMNS)
     assert "1 joints" not in doc["summary"]
     # the profile's rotor_inertia term is in the model: not offered as a missing candidate

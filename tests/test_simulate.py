@@ -188,6 +188,10 @@ def _check_demo_summary(summary: dict, excitation_s: float, tracking_s: float) -
     # ... and the mismatch diagnosis (issue 7): joint 1's direction-dependent Coulomb friction
     found = {(f["effect"], f["joint"]) for f in summary["diagnose"]["findings"]}
     assert ("coulomb_asymmetry", 1) in found
+    # judged against the profile's nominal model, as `hil diagnose RUN --robot cicese` does
+    nominal = summary["diagnose"]["nominal"]
+    assert nominal["source"] == "profile" and nominal["used"] is True
+    assert any(f["joint"] == 1 for f in nominal["findings"])
     assert summary["diagnose"]["plots"] and all(
         Path(p).is_file() for p in summary["diagnose"]["plots"]
     )
@@ -207,6 +211,21 @@ def test_hil_demo_quick_runs_every_step_of_the_main_job(tmp_path, capsys):
     assert summary["quick"] is True
     _check_demo_summary(summary, DEMO_QUICK.excitation_s, DEMO_QUICK.tracking_s)
     assert "4 s of the Reyes & Kelly" in out.err and "14 s of the diagnosis" in out.err
+    assert "the profile's nominal model" in out.err
+    # the summary and each step's document against their schemas (docs/schemas.md)
+    jsonschema = pytest.importorskip("jsonschema", reason="the test extra's jsonschema is missing")
+    schemas = Path(__file__).resolve().parent.parent / "docs" / "schemas"
+    steps = [
+        (None, "demo"),
+        ("hil_run", "run"),
+        ("simulate", "simulate"),
+        ("identify", "identify"),
+        ("control", "compare"),
+        ("diagnose", "diagnosis"),
+    ]
+    for key, name in steps:
+        schema = json.loads((schemas / f"{name}.schema.json").read_text(encoding="utf-8"))
+        jsonschema.validate(summary if key is None else summary[key], schema)
 
 
 @pytest.mark.slow

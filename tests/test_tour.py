@@ -21,6 +21,7 @@ from cli_run import ROOT
 
 README = ROOT / "README.md"
 TUTORIAL = ROOT / "docs" / "tutorial.md"
+ADD_AN_ARM = ROOT / "docs" / "howto-add-an-arm.md"
 
 
 def section(path: Path, heading: str | None) -> str:
@@ -59,6 +60,7 @@ def tour_dir(tmp_path: Path) -> Path:
     running the tests) and ``tests`` linked in, everything written there."""
     (tmp_path / ".venv").symlink_to(Path(sys.prefix), target_is_directory=True)
     (tmp_path / "tests").symlink_to(ROOT / "tests", target_is_directory=True)
+    (tmp_path / "profiles").symlink_to(ROOT / "profiles", target_is_directory=True)
     return tmp_path
 
 
@@ -112,3 +114,19 @@ def test_tutorial_runs_from_a_fresh_clone(tmp_path):
     run_blocks(blocks, clone, timeout=3000)
     assert (clone / "runs/tutorial/identify/params.json").is_file()
     assert "coulomb_asymmetry" in (clone / "runs/tutorial/diagnosis.html").read_text()
+
+
+def test_the_add_an_arm_guide_runs_as_written(tmp_path):
+    """docs/howto-add-an-arm.md: a profile of the user's own URDF simulated, driven over a
+    bench, identified and diagnosed, each block as written (about 15 s of CPU)."""
+    import json
+
+    blocks = sh_blocks(section(ADD_AN_ARM, None))
+    assert blocks[0].startswith(". .venv/bin/activate") and len(blocks) == 4
+    cwd = tour_dir(tmp_path)
+    run_blocks(blocks, cwd, timeout=600)
+    arm = cwd / "runs/howto-arm"
+    assert json.loads((arm / "hil/meta.json").read_text())["status"] == "complete"
+    identified = json.loads((arm / "identify/identify.json").read_text())
+    assert identified["model"] == "urdf"
+    assert json.loads((arm / "diagnosis.json").read_text())["findings"] == []

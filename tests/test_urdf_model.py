@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 import hil.model.closed_form as closed_form
+from drivers.one_per_line import read_one_per_line_log
 from drivers.recording import Recording, RecordingWriter, read_signals
 from hil.identify.urdf import (
     filtered_rows,
     identify_torque,
-    read_one_per_line_log,
     smoothed_motion,
     torque_at_samples,
     torque_nrmse,
@@ -292,8 +292,12 @@ def test_panda_identification_against_the_published_model(panda):
     assert np.all(ours < 0.25), ours
     assert ours.mean() < 1.15 * reference.mean(), (ours, reference)
     assert ours.mean() < 0.5 * nominal.mean(), (ours, nominal)
-    # least squares leaves M(q) indefinite here; the consistent fit predicts as well and is not
-    assert not panda.physical_consistency(result.theta)["consistent"]
+    # least squares leaves M(q) indefinite here: what is returned is the consistent fit (issue 29
+    # item 2a), which predicts as well
+    assert result.theta_least_squares is not None
+    assert not panda.physical_consistency(result.theta_least_squares)["consistent"]
+    assert panda.physical_consistency(result.theta)["consistent"]
+    assert result.method.startswith("physically consistent least squares (least squares is not")
     feasible = identify_torque(panda, rec, consistent=True)
     assert panda.physical_consistency(feasible.theta_standard)["consistent"]
     assert panda.physical_consistency(feasible.theta)["consistent"]

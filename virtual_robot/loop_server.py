@@ -2,7 +2,7 @@
 ODrive CANSimple: virtual_robot.odrive_server): the receive loop, the frame filter, the
 lockstep period, the host-silence check and the event log.
 
-Lockstep (DESIGN.md "Time"): one host period h (``mit_substeps`` drive periods,
+Lockstep (docs/design.md, "Time"): one host period h (``mit_substeps`` drive periods,
 virtual_robot.stepping.Stepper) passes once every armed drive (motor mode, closed loop) has its
 command of the period; a second command to a drive that already has one starts the next period
 first. A host silent for ``idle_timeout_s`` of wall time makes every drive stop (torque 0).

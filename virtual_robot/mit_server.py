@@ -16,7 +16,7 @@ Ignored, counted in :attr:`MitDriveServer.ignored` and logged once per kind: rem
 extended-id and CAN FD frames, frames for ids that are no drive, and frames of another length
 than 8 (no reply: the firmware answers none either).
 
-Time (DESIGN.md "Time"; the receive loop, lockstep period and host-silence check are
+Time (docs/design.md, "Time"; the receive loop, lockstep period and host-silence check are
 virtual_robot.loop_server's, shared with the ODrive server), with the robot's drive period the
 PD loop's, ``h / mit_substeps``:
 

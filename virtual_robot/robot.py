@@ -42,6 +42,7 @@ from profiles.robot import RobotProfile, UrdfRobotProfile
 from virtual_robot.drive import DriveError, DriveModel, Emcy
 from virtual_robot.loop_drive import LoopDrive
 from virtual_robot.mit_drive import MitDrive
+from virtual_robot.moteus_drive import MoteusDrive
 from virtual_robot.odrive_drive import OdriveAxis
 from virtual_robot.plant import DEFAULT_STEP_S, Plant, PlantParams
 from virtual_robot.stepping import SteppedPlant, Stepper
@@ -115,7 +116,9 @@ class VirtualRobot:
         kinds = {p.protocol for p in self.profiles}
         if len(kinds) > 1:
             raise ValueError(f"{robot.source}: its drives speak different protocols ({kinds})")
-        self.protocol = kinds.pop()  # "cia402", "mit" or "odrive" (profiles.drive.PROTOCOLS)
+        self.protocol = (
+            kinds.pop()
+        )  # "cia402", "mit", "odrive" or "moteus" (profiles.drive.PROTOCOLS)
         # the drive period: the bench's period for CiA 402; the drives' own loop's for MIT mode
         # and ODrive, which divides the host's period into mit_substeps (one lockstep host
         # period = that many; profiles.drive.LOOP_PROTOCOLS)
@@ -127,11 +130,13 @@ class VirtualRobot:
             self.mit_substeps = max(1, round(period_s * rate))
             period_s = period_s / self.mit_substeps
             self.period_s = period_s
-        self.drives: list[DriveModel] | list[MitDrive] | list[OdriveAxis] = (
+        self.drives: list[DriveModel] | list[MitDrive] | list[OdriveAxis] | list[MoteusDrive] = (
             [MitDrive(p, period_s) for p in self.profiles]
             if self.protocol == "mit"
             else [OdriveAxis(p, period_s) for p in self.profiles]
             if self.protocol == "odrive"
+            else [MoteusDrive(p, period_s) for p in self.profiles]
+            if self.protocol == "moteus"
             else [DriveModel(p, period_s=period_s) for p in self.profiles]
         )
         self.by_node = {p.node_id: i for i, p in enumerate(self.profiles)}

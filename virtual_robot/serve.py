@@ -52,6 +52,7 @@ from profiles.timing_faults import combine
 from virtual_robot.bus_pacing import BusPacer
 from virtual_robot.can_server import CanDriveServer
 from virtual_robot.mit_server import MitDriveServer
+from virtual_robot.moteus_server import MoteusServer
 from virtual_robot.odrive_server import OdriveServer
 from virtual_robot.robot import LOCKSTEP, REALTIME, VirtualRobot
 from virtual_robot.timing_faults import EventLog, RobotTiming
@@ -199,6 +200,11 @@ def serve(
 
             bus: can.BusABC = SlcanPtyBus()
             info["channel"] = bus.channel_path
+        elif bench.transport == "fdcanusb":
+            from virtual_robot.fdcanusb_device import FdcanusbPtyBus
+
+            bus = FdcanusbPtyBus()
+            info["channel"] = bus.channel_path
         elif bench.transport == "socketcand" and bench.protocol == "can":
             from virtual_robot.socketcand_hub import SocketcandHub
 
@@ -240,8 +246,10 @@ def serve(
             raise ValueError(f"unknown CAN transport {bench.transport!r}")
         closers.insert(0, bus.shutdown)
         idle = bench.timeout_s if core.mode == LOCKSTEP else None
-        server: CanDriveServer | MitDriveServer | OdriveServer
-        if bench.protocol == "mit":
+        server: CanDriveServer | MitDriveServer | OdriveServer | MoteusServer
+        if bench.protocol == "moteus":
+            server = MoteusServer(core, bus, idle_timeout_s=idle, log=log)
+        elif bench.protocol == "mit":
             server = MitDriveServer(core, bus, idle_timeout_s=idle, log=log)
         elif bench.protocol == "odrive":
             server = OdriveServer(core, bus, idle_timeout_s=idle, log=log)

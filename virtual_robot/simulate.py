@@ -64,6 +64,10 @@ def simulate(
         from virtual_robot.odrive_simulate import simulate_odrive
 
         return simulate_odrive(robot, experiment, out_dir, effects=effects, duration_s=duration_s)
+    if drives_p[0].protocol == "moteus":  # moteus controllers: position-mode torque commands
+        from virtual_robot.moteus_simulate import simulate_moteus
+
+        return simulate_moteus(robot, experiment, out_dir, effects=effects, duration_s=duration_s)
     h = experiment.period_s
     duration = experiment.duration_s if duration_s is None else duration_s
     n_rows = max(1, round(duration / h))

@@ -228,7 +228,7 @@ def clear_drive_faults(arm: Arm) -> None:
 
 
 # the pty transports: every write crosses a kernel worker (tty flip buffer) at normal priority
-PTY_TRANSPORTS = ("slcan", "serial")
+PTY_TRANSPORTS = ("slcan", "serial", "fdcanusb")
 
 
 def stalled(reason: str | None, arm: Arm) -> bool:

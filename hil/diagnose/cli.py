@@ -95,6 +95,16 @@ def _progress(message: str) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    doc, recs = run_diagnose(args)
+    print_document(args, doc, lambda: format_report(doc))
+    write_html_report(args, "diagnose", doc, lambda: format_report(doc), recordings=recs)
+    return 0
+
+
+def run_diagnose(args: argparse.Namespace) -> tuple[dict, list[Recording]]:
+    """`hil diagnose` without its printing: the diagnosis document (written into ``--out``
+    with its plots when given) and the recordings it judged (``hil demo`` calls it as a user
+    runs the command)."""
     if args.out:
         prepare_out_dir(args.out, args.overwrite, inputs=args.recordings)
     if args.robot is None:
@@ -208,9 +218,7 @@ def main(args: argparse.Namespace) -> int:
 
             doc["plots"] = [str(p) for p in plot_diagnosis(result, out)]
             write_json_atomic(out / "diagnosis.json", doc)
-    print_document(args, doc, lambda: format_report(doc))
-    write_html_report(args, "diagnose", doc, lambda: format_report(doc), recordings=recs)
-    return 0
+    return doc, recs
 
 
 def arm_geometry(robot: str) -> dict[str, float] | None:

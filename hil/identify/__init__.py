@@ -1,17 +1,21 @@
 """Identification: θ from recordings (Reyes & Kelly 1997) and excitation design.
 
-What lives here: the three schemes, Table II and validation (:mod:`.schemes`); online RLS
-while a run records (:mod:`.online`); base parameters of a URDF arm (:mod:`.urdf`); optimal
-periodic excitation (:mod:`.excitation`); the ``hil identify`` and ``hil excite`` commands
-(:mod:`.cli`, :mod:`.excite_cli`) and their plots (:mod:`.plots`).
+What lives here: one identification API for every arm (:mod:`.identification`: ``identify``,
+``Identification``); its engines, the three schemes, Table II and validation of the 2-DOF arm
+(:mod:`.schemes`) and the base parameters of a URDF arm (:mod:`.urdf`); online RLS while a run
+records (:mod:`.online`); optimal periodic excitation (:mod:`.excitation`); instrumental
+variables on a closed-loop recording's reference (:mod:`.iv`); the ``hil identify``
+and ``hil excite`` commands (:mod:`.cli`, :mod:`.excite_cli`), the three paths of
+``hil identify`` (:mod:`.pipelines`) and their plots (:mod:`.plots`).
 
 Imports: :mod:`hil.model`, :mod:`hil.bench` (to record over a bench), :mod:`hil.cli_options`.
 
-Public API (``from hil.identify import ...``, docs/api.md): ``identify`` (the three schemes of
-the paper on one recording), ``validate`` (held-out position and torque NRMSE),
-``identify_model`` (any :class:`hil.model.ArmModel`, bounded and with uncertainty),
-``OnlineIdentifier``, ``design_excitation``, ``identify_torque`` and ``identify_energy`` (a URDF
-arm) and the rest of ``__all__``; each loads on first use.
+Public API (``from hil.identify import ...``, docs/api.md): ``identify(model, recording,
+scheme, ...)`` returning an ``Identification`` (any arm, any scheme, the paper's discretization
+an option; one ``Uncertainty`` type), ``validate`` (held-out position and torque NRMSE of a
+2-DOF θ), ``OnlineIdentifier``, ``design_excitation`` and the rest of ``__all__``; each loads on
+first use. The engines (``hil.identify.schemes.identify``, ``identify_model``,
+``hil.identify.urdf.identify_torque``, ``identify_energy``) stay importable from their modules.
 """
 
 from hil import lazy_exports
@@ -19,15 +23,14 @@ from hil import lazy_exports
 __getattr__, __dir__, __all__ = lazy_exports(
     __name__,
     {
+        "hil.identify.identification": ["identify", "Identification"],
         "hil.identify.schemes": [
-            "identify",
             "validate",
+            "Uncertainty",
             "SchemeResult",
             "table_ii_rows",
             "format_table_ii",
             "irregular_times",
-            "identify_model",
-            "ModelIdentification",
             "torque_prediction_error",
         ],
         "hil.identify.online": ["OnlineIdentifier"],
@@ -36,12 +39,6 @@ __getattr__, __dir__, __all__ = lazy_exports(
             "FourierTrajectory",
             "DesignResult",
             "design_excitation",
-        ],
-        "hil.identify.urdf": [
-            "TorqueIdentification",
-            "identify_torque",
-            "EnergyIdentification",
-            "identify_energy",
         ],
     },
 )

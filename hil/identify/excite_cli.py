@@ -26,6 +26,7 @@ from hil.cli_options import (
     add_bench_option,
     add_report_options,
     error,
+    prepare_out_dir,
     print_document,
     say,
     simulate_offline,
@@ -93,7 +94,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="harmonics of ω_f in the profile's torque series (default 200)",
     )
     p.add_argument("--duration", type=float, default=10.0, help="profile duration in s (10)")
-    p.add_argument("--out", default="runs/excite/excitation.toml", help="profile to write")
+    p.add_argument(
+        "--out",
+        default=None,
+        help="profile to write (default: excitation.toml in a new runs/excite/<date>T<time>)",
+    )
     p.add_argument("--name", default=None, help="profile name (default: the file's stem)")
     p.add_argument("--plot", default=None, help="plot to write (default: --out with .png)")
     p.add_argument(
@@ -132,7 +137,7 @@ def _check_args(args: argparse.Namespace) -> None:
         raise ValueError(f"--torque-harmonics must be >= 1, got {args.torque_harmonics}")
     if not (math.isfinite(args.duration) and args.duration > 0):
         raise ValueError(f"--duration must be > 0 s, got {args.duration}")
-    if Path(args.out).suffix != ".toml":
+    if args.out is not None and Path(args.out).suffix != ".toml":
         raise ValueError(f"--out must name a .toml file, got {args.out!r}")
     if args.plot is not None and Path(args.plot).suffix != ".png":
         raise ValueError(f"--plot must name a .png file, got {args.plot!r}")
@@ -245,6 +250,10 @@ def main(args: argparse.Namespace) -> int:
         (np.array(robot.coulomb_positive_Nm) - np.array(robot.coulomb_negative_Nm)) / 2
     ).tolist()
     h = bench.period_s
+    if args.out is None:  # each run its own directory: a rerun keeps the one before
+        args.out = str(
+            prepare_out_dir(None, False, default="excite", command="excite") / "excitation.toml"
+        )
     out = Path(args.out)
     name = args.name or out.stem
     say(

@@ -2,7 +2,8 @@
 Table II, and validation on the fitting recording and on a held-out one.
 
 Pure computation over arrays and :class:`~drivers.recording.Recording` objects; running the
-experiments over a bench and writing files is :mod:`hil.identify.cli`'s job.
+experiments over a bench and writing files is :mod:`hil.identify.pipelines` and
+:mod:`hil.identify.cli`'s job.
 """
 
 from __future__ import annotations
@@ -43,6 +44,8 @@ SCHEME_TITLES = {
     "supplied_energy": "Supplied Energy",
     "filtered_power": "Filtered Power",
     "filtered_dynamic": "Filtered Dynamic",
+    # --instruments target: the filtered dynamic rows by instrumental variables (hil.identify.iv)
+    "filtered_dynamic_iv": "Filtered Dynamic IV",
 }
 # Reyes & Kelly (1997) Table II, the real arm: "measured" column and the three schemes'
 # estimates at t = 10 s (None where the paper gives none: its supplied-energy run diverged).
@@ -401,6 +404,31 @@ COLLINEAR_VIF = 100.0
 BOOTSTRAP_DRAWS = 200
 
 
+@dataclass(frozen=True)
+class Uncertainty:
+    """Per parameter, the one uncertainty type of every arm and scheme: ``se_white``
+    (σ² (ΨᵀWΨ)⁻¹, white residuals), ``se_block`` (blocked bootstrap over ``blocks`` blocks of
+    ``block_s``; the residuals of smoothed or filtered rows are correlated), and
+    ``identified``: se_block < IDENTIFIED_MAX_RELATIVE_SE · |θ|."""
+
+    se_white: np.ndarray
+    se_block: np.ndarray
+    identified: np.ndarray
+    block_s: float
+    blocks: int
+
+    def as_json(self) -> dict:
+        return {
+            "se_white": self.se_white.tolist(),
+            "se_blocked_bootstrap": self.se_block.tolist(),
+            "identified": self.identified.tolist(),
+            "rule": f"identified when the blocked-bootstrap SE < {IDENTIFIED_MAX_RELATIVE_SE:.0%}"
+            " of |value|",
+            "block_s": self.block_s,
+            "blocks": self.blocks,
+        }
+
+
 @dataclass
 class ModelIdentification:
     """θ of a model object from one recording, with the reason when plain least squares is not
@@ -432,6 +460,11 @@ class ModelIdentification:
     channel_weights: np.ndarray
     variance_inflation: np.ndarray
     notes: list[str] = field(default_factory=list)
+
+    @property
+    def uncertainty(self) -> Uncertainty:
+        """Its standard errors and identifiability as every identification gives them."""
+        return Uncertainty(self.se_white, self.se_block, self.identified, self.block_s, self.blocks)
 
     def parameter_rows(self) -> list[dict[str, Any]]:
         """One dict per parameter: name, unit, value (None when not identified), ± both SEs."""
@@ -650,6 +683,7 @@ __all__ = [
     "SCHEME_TITLES",
     "ModelIdentification",
     "SchemeResult",
+    "Uncertainty",
     "format_table_ii",
     "identify",
     "identify_model",

@@ -1,6 +1,6 @@
 """Identification of an n-joint arm's base parameters from a torque recording, on the torque
 regressor of :class:`hil.model.urdf.UrdfArmModel` (batch least squares, filtered, on the real
-time stamps), its held-out validation, and a reader for the Gaz et al. (2019) Panda log layout.
+time stamps) and its held-out validation.
 
 Method (Gautier (1997) "parallel filtering"): positions are smoothed by a zero-phase low-pass
 that respects the real time stamps (see :func:`smoothed_motion`), velocities and accelerations
@@ -21,26 +21,30 @@ power, eq. (30)) — on the model's energy regressors (:meth:`UrdfArmModel.energ
 and the recording's real time stamps, the same code that builds the 2-DOF rows; batch least
 squares (:class:`hil.model.estimators.LeastSquaresRows`).
 
-The Panda log layout (``rbt_log/exciting_traj_{time,positions,torques}.txt``: one number a
-line, 7 joints of a sample on 7 consecutive lines) is read by :func:`read_one_per_line_log`
-into the standard recording (:class:`drivers.recording.Recording`, the one every analysis
-reads). Per-parameter uncertainty and "not identifiable" (:class:`Uncertainty`) follow the 2-DOF
-path's rule (:mod:`hil.identify.schemes`). Imports drivers.recording, hil.identify.schemes (its
-identifiability constants and bootstrap block rule), hil.model.estimators, hil.model.metrics,
-hil.model.regressors and hil.model.urdf; no plotting.
+The Panda log layout of Gaz et al. (2019) is read into the standard recording by
+:func:`drivers.one_per_line.read_one_per_line_log`. Per-parameter uncertainty and "not
+identifiable" (:class:`~hil.identify.schemes.Uncertainty`) follow the 2-DOF path's rule
+(:mod:`hil.identify.schemes`). Imports drivers.recording, hil.identify.schemes (its
+identifiability constants, uncertainty type and bootstrap block rule), hil.model.estimators,
+hil.model.metrics, hil.model.regressors and hil.model.urdf; no plotting, no file reading.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.signal import butter, sosfiltfilt
 
 from drivers.recording import Recording
-from hil.identify.schemes import BOOTSTRAP_DRAWS, IDENTIFIED_MAX_RELATIVE_SE, bootstrap_block_s
+from hil.identify.schemes import (
+    BOOTSTRAP_DRAWS,
+    IDENTIFIED_MAX_RELATIVE_SE,
+    Uncertainty,
+    bootstrap_block_s,
+)
 from hil.model.estimators import (
     BlockNormalEquations,
     LeastSquaresRows,
@@ -107,36 +111,6 @@ def torque_over_intervals(rec: Recording) -> np.ndarray:
     out = rec.tau.copy()
     out[:-1] = 0.5 * (rec.tau[:-1] + rec.tau[1:])
     return out
-
-
-def read_one_per_line_log(
-    folder: str | Path, *, n_joints: int = 7, prefix: str = "exciting_traj"
-) -> Recording:
-    """Read ``<prefix>_{time,positions,torques}.txt`` of ``folder`` (one number a line; the
-    position and torque files hold the ``n_joints`` values of a sample on consecutive lines).
-    Raises ValueError with one line naming the file for a length mismatch or bad time stamps."""
-    folder = Path(folder)
-
-    def load(kind: str) -> np.ndarray:
-        path = folder / f"{prefix}_{kind}.txt"
-        try:
-            return np.loadtxt(path, dtype=float, ndmin=1)
-        except (OSError, ValueError) as exc:
-            raise ValueError(f"{path}: cannot read: {exc}") from None
-
-    t = load("time")
-    out = {}
-    for kind in ("positions", "torques"):
-        x = load(kind)
-        if x.size != t.size * n_joints:
-            raise ValueError(
-                f"{folder / f'{prefix}_{kind}.txt'}: {x.size} numbers, expected "
-                f"{t.size} samples x {n_joints} joints = {t.size * n_joints}"
-            )
-        out[kind] = x.reshape(t.size, n_joints)
-    if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
-        raise ValueError(f"{folder / f'{prefix}_time.txt'}: time stamps not strictly increasing")
-    return Recording.from_arrays(t, out["positions"], out["torques"], source=folder)
 
 
 @dataclass(frozen=True)
@@ -294,35 +268,6 @@ def filtered_rows(
     return FilteredRows(t, both[:, :n], both[:, n:].reshape(K, n, p), near, np.ones((K, n)))
 
 
-# A parameter whose blocked-bootstrap standard error exceeds IDENTIFIED_MAX_RELATIVE_SE of its
-# magnitude is not determined by the data: reported with its uncertainty, not as a number
-# (issue 12's rule, the 2-DOF path's, hil.identify.schemes).
-
-
-@dataclass(frozen=True)
-class Uncertainty:
-    """Per base parameter: ``se_white`` (σ² (ΨᵀWΨ)⁻¹, white residuals), ``se_block`` (blocked
-    bootstrap over ``blocks`` blocks of ``block_s``; the residuals of smoothed or filtered
-    rows are correlated), and ``identified``: se_block < IDENTIFIED_MAX_RELATIVE_SE · |θ|."""
-
-    se_white: np.ndarray
-    se_block: np.ndarray
-    identified: np.ndarray
-    block_s: float
-    blocks: int
-
-    def as_json(self) -> dict:
-        return {
-            "se_white": self.se_white.tolist(),
-            "se_blocked_bootstrap": self.se_block.tolist(),
-            "identified": self.identified.tolist(),
-            "rule": f"identified when the blocked-bootstrap SE < {IDENTIFIED_MAX_RELATIVE_SE:.0%}"
-            " of |value|",
-            "block_s": self.block_s,
-            "blocks": self.blocks,
-        }
-
-
 def parameter_uncertainty(
     blocks: BlockNormalEquations, theta: np.ndarray, *, weighted: bool = True
 ) -> Uncertainty:
@@ -352,6 +297,8 @@ class TorqueIdentification:
     left_out_joints: np.ndarray | None = None
     # (n,): RMS residual of the first fit near friction steps over that away from them
     step_residual_ratio: np.ndarray | None = None
+    # the least-squares θ when its friction was negative and θ is the bounded fit, else None
+    theta_least_squares: np.ndarray | None = None
 
 
 def fit_split(rec: Recording, held_out: float) -> float:
@@ -494,10 +441,19 @@ def identify_torque(
     blocks = BlockNormalEquations(model.n_params, model.n_joints, block_s)
     blocks.add(rows.t[fit], rows.tau[fit], rows.Y[fit], weights)
     uncertainty = parameter_uncertainty(blocks, theta)
-    theta_standard, method = None, "weighted least squares"
+    theta_standard, method, theta_ls = None, "weighted least squares", None
     if consistent:
         theta_standard = consistent_fit(model, rows.Y[fit], rows.tau[fit], theta, weights)
         theta, method = model.base_theta(theta_standard), "physically consistent least squares"
+    else:
+        theta_ls, (theta, method) = theta, friction_bounded(
+            model, theta, method,
+            lambda lower: weighted_least_squares(rows.Y[fit], rows.tau[fit], weights, lower=lower),
+        )  # fmt: skip
+        if not model.physical_consistency(theta)["consistent"]:  # M(q) ≻ 0 is no linear bound
+            theta_standard = consistent_fit(model, rows.Y[fit], rows.tau[fit], theta_ls, weights)
+            theta, method = model.base_theta(theta_standard), _consistent_instead(model, theta)
+        theta_ls = None if theta is theta_ls else theta_ls
     predicted = np.einsum("knp,p->kn", rows.Y, theta)
     held = (
         torque_nrmse(theta, rows.select(held_out_rows))
@@ -505,8 +461,41 @@ def identify_torque(
         else np.full(model.n_joints, np.nan)
     )
     return TorqueIdentification(
-        theta, split, rows, predicted, held, theta_standard, method, uncertainty, left_out, ratio
-    )
+        theta, split, rows, predicted, held, theta_standard, method, uncertainty, left_out, ratio,
+        theta_ls,
+    )  # fmt: skip
+
+
+def _consistent_instead(model: UrdfArmModel, theta: np.ndarray) -> str:
+    """The method of a fit made physically consistent because ``theta`` (friction bounded) is
+    not: its violations named (M(q) not positive definite at a sampled q)."""
+    why = "; ".join(model.physical_consistency(theta)["violations"])
+    return f"physically consistent least squares (least squares is not: {why})"
+
+
+def friction_bounded(
+    model: UrdfArmModel,
+    theta: np.ndarray,
+    method: str,
+    solve_bounded: Callable[[np.ndarray], np.ndarray],
+) -> tuple[np.ndarray, str]:
+    """(θ, ``method``) itself when every viscous and Coulomb coefficient of the least-squares
+    ``theta`` is ≥ 0; else ``solve_bounded(lower)``: the same fit (same rows, same weights)
+    with those coefficients ≥ 0 (BVLS, :meth:`hil.model.estimators.LeastSquaresRows.
+    solve_bounded`), as the 2-DOF model path bounds its fit
+    (:func:`hil.identify.schemes.identify_model`). A coefficient whose true value is 0 (an arm
+    without viscous friction) comes out of least squares below 0 half the time; the bound puts
+    it at 0 and refits the rest. Base parameters are combinations of the bodies' (many
+    standard vectors share one), so friction signs are the only signs a base vector fixes;
+    M(q) ≻ 0 is no linear bound and is checked afterwards
+    (:meth:`UrdfArmModel.physical_consistency`)."""
+    negative = [i for i in model.friction_columns if not theta[i] >= 0]
+    if not negative:
+        return theta, method
+    lower = np.full(model.n_params, -np.inf)
+    lower[list(model.nonnegative_columns)] = 0.0
+    names = ", ".join(f"{model.meanings[i]} = {theta[i]:.4g}" for i in negative)
+    return solve_bounded(lower), f"{method} bounded to friction >= 0 (unbounded: {names})"
 
 
 def leave_out_friction_steps(
@@ -586,6 +575,9 @@ class EnergyIdentification:
     uncertainty: Uncertainty | None = None  # of the least-squares fit
     theta_standard: np.ndarray | None = None  # the consistent fit's standard parameters
     cutoff_hz: float | None = None  # positions smoothed at this cutoff; None: raw
+    method: str = "least squares"
+    # the least-squares θ when its friction was negative and θ is the bounded fit, else None
+    theta_least_squares: np.ndarray | None = None
 
 
 def identify_energy(
@@ -611,7 +603,8 @@ def identify_energy(
     Rows are averaged over blocks of ``decimate`` consecutive ones before the solve, as the
     torque scheme's are (:func:`filtered_rows`): a mean of exact equations is exact, and the
     QR of the least squares, most of the cost at 1 kHz, shrinks by as much. Streams the rows
-    in chunks: memory O(chunk · p) whatever the recording's length.
+    in chunks and keeps only the block-averaged ones (a ``decimate``-th of them, for the
+    consistent fit).
 
     ``cutoff_hz``: the rows are built on the positions smoothed as the torque scheme's
     (:func:`smoothed_positions`, Gautier's parallel filtering; ends EDGE_S dropped) instead of
@@ -647,24 +640,32 @@ def identify_energy(
             ls.add(Psi, y)
             blocks.add(_block_mean(c.t[fit], decimate), y, Psi, np.ones(y.shape))
             rows += len(y)
-            if consistent:
-                kept_y.append(y)
-                kept_psi.append(Psi)
+            kept_y.append(y)  # for the consistent fit, when it is asked or needed
+            kept_psi.append(Psi)
     if rows < 2 * model.n_params:
         raise ValueError(
             f"{rec.path}: {rows} {scheme} rows to fit, too few for {model.n_params} parameters"
         )
     theta = ls.solve()
     uncertainty = parameter_uncertainty(blocks, theta, weighted=False)
-    theta_standard = None
+    theta_standard, method, theta_ls = None, "least squares", None
     if consistent:
         theta_standard = consistent_fit(
             model, np.concatenate(kept_psi), np.concatenate(kept_y), theta
         )
-        theta = model.base_theta(theta_standard)
+        theta, method = model.base_theta(theta_standard), "physically consistent least squares"
+    else:
+        theta_ls, (theta, method) = theta, friction_bounded(model, theta, method, ls.solve_bounded)
+        if not model.physical_consistency(theta)["consistent"]:  # M(q) ≻ 0 is no linear bound
+            theta_standard = consistent_fit(
+                model, np.concatenate(kept_psi), np.concatenate(kept_y), theta_ls
+            )
+            theta, method = model.base_theta(theta_standard), _consistent_instead(model, theta)
+        theta_ls = None if theta is theta_ls else theta_ls
     return EnergyIdentification(
-        scheme, theta, lam, rows, float(split), uncertainty, theta_standard, cutoff_hz
-    )
+        scheme, theta, lam, rows, float(split), uncertainty, theta_standard, cutoff_hz, method,
+        theta_ls,
+    )  # fmt: skip
 
 
 def _block_mean(x: np.ndarray, size: int) -> np.ndarray:
@@ -796,13 +797,13 @@ __all__ = [
     "Uncertainty",
     "energy_rows_cutoff",
     "fit_split",
+    "friction_bounded",
     "friction_step_samples",
     "held_out_verdict",
     "identify_energy",
     "identify_torque",
     "inside_edges",
     "leave_out_friction_steps",
-    "read_one_per_line_log",
     "regression_rows",
     "smoothed_positions",
     "stuck_samples",

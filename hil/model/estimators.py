@@ -257,6 +257,12 @@ class LeastSquaresRows:
         sol, *_ = np.linalg.lstsq(R / scale, z, rcond=None)
         return sol / scale
 
+    def solve_bounded(self, lower: np.ndarray) -> np.ndarray:
+        """argmin Σ w (y − Ψᵀθ)² subject to θ ≥ ``lower`` (−inf: free), the same rows'
+        normal equations RᵀR θ = Rᵀz given to :func:`bounded_quadratic_fit` (BVLS)."""
+        R, z = self.R[:, : self.p], self.R[:, self.p]
+        return bounded_quadratic_fit(R.T @ R, R.T @ z, np.asarray(lower, dtype=float))[0]
+
 
 def least_squares(Psi: np.ndarray, y: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
     """Batch (weighted) least squares: argmin Σ w (y − Ψᵀθ)², the limit of eqs. (18)-(19) with
@@ -270,7 +276,12 @@ WLS_WINDOW = 200  # rows of the moving mean of squared residuals (feasible WLS)
 
 
 def weighted_least_squares(
-    Psi: np.ndarray, y: np.ndarray, weights: np.ndarray | None = None, *, window: int = WLS_WINDOW
+    Psi: np.ndarray,
+    y: np.ndarray,
+    weights: np.ndarray | None = None,
+    *,
+    window: int = WLS_WINDOW,
+    lower: np.ndarray | None = None,
 ) -> np.ndarray:
     """Feasible weighted least squares: fit by least squares, estimate each row's noise variance
     from the residuals (per output channel, as a moving mean of squared residuals over
@@ -279,7 +290,9 @@ def weighted_least_squares(
     For the filtered dynamic model this balances the two joints (joint 1's torques are ten
     times joint 2's, so plain least squares all but ignores joint 2's equation); for the
     scalar models it down-weights stretches where the residual is large. The same three steps
-    over rows in chunks: :class:`ResidualLevel`, :class:`WeightedRefit`.
+    over rows in chunks: :class:`ResidualLevel`, :class:`WeightedRefit`. ``lower``: the refit
+    bounded below (−inf: free; :meth:`LeastSquaresRows.solve_bounded`) on the same weighted
+    rows, when the unbounded one is not within the bounds.
     """
     Psi = np.asarray(Psi, dtype=float)
     y = np.asarray(y, dtype=float)
@@ -288,7 +301,10 @@ def weighted_least_squares(
     level.add(Psi, y, weights)
     refit = WeightedRefit(theta, level.level(), len(y), window=window)
     refit.add(Psi, y, weights)
-    return refit.solve()
+    theta = refit.solve()
+    if lower is None or np.all(theta >= lower):
+        return theta
+    return refit.ne.solve_bounded(lower)
 
 
 class ResidualLevel:

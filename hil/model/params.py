@@ -98,10 +98,57 @@ def _read_object(path: Path) -> dict:
     return doc
 
 
+def _identify_document(doc: dict[str, Any], where: str) -> dict[str, Any]:
+    """A 2-DOF arm's ``identify.json`` (`hil identify`) read as a parameter file: the entries of
+    its ``identifications`` (:meth:`hil.identify.identification.Identification.to_json`, one
+    layout for every arm; in files older than it, the Table II layout's ``discretizations`` or
+    the model-object layout's ``identification``) of the selected discretization as schemes,
+    each with ``usable`` and ``failed_reason``, the ``selection``'s scheme selected. Any other
+    document is returned as it is."""
+    if doc.get("model") == "urdf":
+        raise ParamsError(
+            f"{where}: the identification of a URDF arm ({doc.get('robot')}): its base "
+            "parameters are for that robot's model (--robot " + str(doc.get("robot")) + ")"
+        )
+    selection = doc.get("selection") if isinstance(doc.get("selection"), dict) else {}
+    if isinstance(doc.get("identifications"), list):  # the layout of every arm
+        disc = selection.get("discretization", "exact")
+        entries = [
+            e for e in doc["identifications"]
+            if isinstance(e, dict) and e.get("discretization", "exact") == disc
+        ]  # fmt: skip
+        schemes = {e.get("scheme"): e for e in entries}
+        terms = entries[0].get("terms", []) if entries else []
+        return {
+            **doc,
+            "schemes": schemes,
+            "selected": selection.get("scheme"),
+            "model_terms": terms,
+        }
+    if isinstance(doc.get("discretizations"), dict):  # older files: the Table II layout
+        disc = selection.get("discretization") or next(iter(doc["discretizations"]), None)
+        entry = doc["discretizations"].get(disc)
+        if not isinstance(entry, dict) or not isinstance(entry.get("schemes"), dict):
+            raise ParamsError(f"{where}: no schemes of discretization {disc!r}")
+        schemes = entry["schemes"]
+    elif isinstance(doc.get("identification"), dict):  # older files: the model-object layout
+        ident = doc["identification"]
+        scheme = ident.get("scheme") or selection.get("scheme") or "filtered_dynamic"
+        usable = {k: selection[k] for k in ("usable",) if k in selection}
+        reason = {"failed_reason": selection["reason"]} if selection.get("reason") else {}
+        schemes = {scheme: {**ident, **usable, **reason}}
+        doc = {**doc, "model_terms": ident.get("model_terms", [])}
+    else:
+        return doc
+    return {**doc, "schemes": schemes, "selected": selection.get("scheme")}
+
+
 def load_params(path: str | Path, scheme: str | None = None) -> ParamSet:
-    """Read a parameter file; ``scheme`` picks one of its schemes (default: its selected one)."""
+    """Read a parameter file (``params.json``, or the ``identify.json`` of a 2-DOF arm, which
+    holds the same θ: :func:`_identify_document`); ``scheme`` picks one of its schemes
+    (default: its selected one)."""
     path = Path(path)
-    doc = _read_object(path)
+    doc = _identify_document(_read_object(path), str(path))
     terms = _terms_of(doc, str(path))
     schemes = doc.get("schemes")
     if schemes is None:
@@ -122,12 +169,12 @@ def _refuse_failed(entry: dict, where: str) -> None:
     """One-line :class:`ParamsError` when `hil identify` marked the scheme's θ as no arm (its
     ``physical_consistency`` false, or ``usable`` false): a failed fit is never parameters."""
     consistency = entry.get("physical_consistency")
-    if entry.get("usable") is False or (
-        isinstance(consistency, dict) and consistency.get("consistent") is False
-    ):
-        violations = consistency.get("violations") if isinstance(consistency, dict) else None
+    if isinstance(consistency, dict) and consistency.get("consistent") is False:
+        violations = consistency.get("violations")
         why = "; ".join(violations) if isinstance(violations, list) and violations else "FAILED"
         raise ParamsError(f"{where}: not physically consistent, a failed fit ({why})")
+    if entry.get("usable") is False:
+        raise ParamsError(f"{where}: FAILED, not parameters ({entry.get('failed_reason')})")
 
 
 def check_inertia(params: ParamSet, model: Any = None) -> None:
@@ -208,12 +255,18 @@ def load_base_params(path: str | Path, model: Any) -> ParamSet:
             raise ParamsError(
                 f"{where}: model terms {terms}, robot {model.name} has {list(model.terms)}"
             )
-        validation = doc.get("validation")
+        validation, selection = doc.get("validation"), doc.get("selection")
         if isinstance(validation, dict) and validation.get("passed") is False:
             raise ParamsError(
                 f"{where}: its parameters ({doc.get('params_scheme')}) failed held-out "
                 f"validation ({validation.get('reason')}); identify with a scheme that passed: "
                 f"{', '.join(validation.get('schemes_passed') or []) or 'none did'}"
+            )
+        if isinstance(selection, dict) and selection.get("usable") is False:
+            raise ParamsError(
+                f"{where}: its parameters ({doc.get('params_scheme')}) FAILED "
+                f"({selection.get('reason')}); usable schemes: "
+                f"{', '.join(selection.get('schemes_usable') or []) or 'none'}"
             )
         entries = doc["parameters"]
         if not isinstance(entries, list) or [

@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 import hil.model.closed_form as closed_form
+from drivers.one_per_line import read_one_per_line_log
 from drivers.process import limit_blas_threads
 from drivers.recording import Recording
 from hil.identify.urdf import (
@@ -44,7 +45,6 @@ from hil.identify.urdf import (
     held_out_verdict,
     identify_energy,
     identify_torque,
-    read_one_per_line_log,
     smoothed_motion,
     smoothing_cutoff_hz,
 )

@@ -191,7 +191,7 @@ def dfki_sources(robot: str) -> list[Source]:
 
 def panda_sources() -> list[Source]:
     """The Panda recording of Gaz et al. (2019), as this project's t,q1..q7,tau1..tau7."""
-    from hil.identify.urdf import read_one_per_line_log
+    from drivers.one_per_line import read_one_per_line_log
 
     folder = realdata("panda-gaz2019") / "rbt_log"
     rec = read_one_per_line_log(folder)

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from drivers.one_per_line import read_one_per_line_log
 from drivers.process import limit_blas_threads
 from drivers.recording import Recording
 from hil.identify.urdf import (
@@ -31,7 +32,6 @@ from hil.identify.urdf import (
     identify_energy,
     identify_torque,
     inside_edges,
-    read_one_per_line_log,
     smoothed_positions,
     smoothing_cutoff_hz,
     torque_nrmse,

@@ -1,0 +1,132 @@
+"""Offline stepping of an arm on moteus controllers: position-mode commands through the
+controllers' loop into the plant, no transport and no clock.
+
+:func:`run_commands` is the lockstep sequence of
+:class:`~virtual_robot.moteus_server.MoteusServer` written against the controllers and the
+stepper directly: every controller brought up at t = 0 (:data:`BRING_UP`: position mode, no
+torque; it takes no time); in period k each is commanded
+``commands[k][j]`` and reports its state sampled at t_k (mode, position, velocity, torque: the
+float32 a default query reply carries), then the plant runs one period. A client driving the
+served robot in lockstep with the same commands (``query=True``) reads the same replies
+(tests/test_moteus.py). :func:`simulate_moteus` is ``virtual-robot simulate`` for such an arm:
+each period's torque sent as feedforward_torque (float32, kp_scale = kd_scale = 0, position
+NaN), the recording's q 2π × the reply's position at t_k.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from drivers.protocol.moteus import f32
+from drivers.recording import RecordingWriter
+from profiles.drive import load_drive
+from profiles.effects import EffectsProfile
+from profiles.experiment import ExperimentProfile
+from profiles.robot import RobotProfile, UrdfRobotProfile
+from virtual_robot import __version__
+from virtual_robot.mit_simulate import SW_ENABLED
+from virtual_robot.moteus_drive import MoteusDrive, PositionCommand
+from virtual_robot.offline import SimulationResult
+from virtual_robot.robot import LOCKSTEP, VirtualRobot
+
+TWO_PI = 2.0 * math.pi
+
+
+def torque_command(tau_Nm: float) -> PositionCommand:
+    """A pure torque command as the moteus library sends it (default F32 resolution)."""
+    return PositionCommand(
+        position_rev=math.nan, feedforward_Nm=f32(tau_Nm), kp_scale=0.0, kd_scale=0.0
+    )
+
+
+# how a client brings a controller up: position mode, the present position, no gain, no torque
+BRING_UP = PositionCommand(position_rev=math.nan, feedforward_Nm=0.0, kp_scale=0.0, kd_scale=0.0)
+
+
+def run_commands(
+    robot: RobotProfile | UrdfRobotProfile,
+    period_s: float,
+    commands: Sequence[Sequence[PositionCommand]],
+    *,
+    effects: EffectsProfile | None = None,
+    q0: Sequence[float] | None = None,
+) -> dict[str, np.ndarray]:
+    """Each period's commands (one per controller) stepped through the controllers and the
+    plant; returns ``mode``, ``position_rev``, ``velocity_rev_s``, ``torque_Nm`` (rows ×
+    controllers: the float32 replies, sampled at t_k after the command) and ``plant_steps``."""
+    core = VirtualRobot(robot, effects, mode=LOCKSTEP, period_s=period_s, q0=q0)
+    if core.protocol != "moteus":
+        raise ValueError(f"robot {robot.name}: its drives are no moteus controllers")
+    drives: list[MoteusDrive] = list(core.drives)  # type: ignore[arg-type]
+    core.stepper.sync()  # sample 0 at t = 0
+    for d in drives:
+        d.position(BRING_UP)
+    n, m = len(commands), len(drives)
+    out = {k: np.zeros((n, m)) for k in ("mode", "position_rev", "velocity_rev_s", "torque_Nm")}
+    for k, row in enumerate(commands):
+        if len(row) != m:
+            raise ValueError(f"commands row {k}: {len(row)} commands for {m} controllers")
+        for j, (d, cmd) in enumerate(zip(drives, row, strict=True)):
+            why = d.position(cmd)
+            if why:
+                raise ValueError(f"commands row {k}, controller {j + 1}: {why}")
+            out["mode"][k, j] = d.mode
+            out["position_rev"][k, j] = f32(d.position_rev)
+            out["velocity_rev_s"][k, j] = f32(d.velocity_rev_s)
+            out["torque_Nm"][k, j] = f32(d.drive_torque_Nm)
+        core.step_host_period()
+    out["plant_steps"] = np.array([getattr(core.plant, "steps", 0)])
+    return out
+
+
+def simulate_moteus(
+    robot: RobotProfile | UrdfRobotProfile,
+    experiment: ExperimentProfile,
+    out_dir: str | Path,
+    *,
+    effects: EffectsProfile | None = None,
+    duration_s: float | None = None,
+) -> SimulationResult:
+    """The experiment's torques through the robot's moteus controllers (module docstring),
+    written to ``out_dir`` as a recording (t, q, tau: the torque each controller applied)."""
+    drives = [load_drive(name) for name in robot.drives]
+    experiment.check_joints(len(drives), robot.name)
+    h = experiment.period_s
+    duration = experiment.duration_s if duration_s is None else duration_s
+    n_rows = max(1, round(duration / h))
+    torque = experiment.torque_rows(h, n_rows)
+    commands = [[torque_command(t) for t in torque[k]] for k in range(n_rows)]
+    started = time.perf_counter()
+    out = run_commands(robot, h, commands, effects=effects, q0=experiment.initial_q_rad)
+    wall = time.perf_counter() - started
+    meta = {
+        "kind": "simulate",
+        "version": __version__,
+        "robot": robot.name,
+        "robot_profile": robot.source,
+        "effects": (effects or EffectsProfile()).name,
+        "experiment": experiment.name,
+        "experiment_profile": experiment.source,
+        "mode": "offline",
+        "protocol": "moteus",
+        "period_s": h,
+        "duration_s": n_rows * h,
+        "seed": None,
+        "drives": [{"model": p.model, "protocol": "moteus"} for p in drives],
+    }
+    n = len(drives)
+    status = tuple(f"status{j}" for j in range(1, n + 1))
+    with RecordingWriter(out_dir, meta, extra_columns=status, n_joints=n) as rec:
+        for k in range(n_rows):
+            q = [TWO_PI * p for p in out["position_rev"][k]]
+            rec.write([k * h, *q, *out["torque_Nm"][k], *([SW_ENABLED] * n)])
+        rec.meta.update(wall_time_s=wall, realtime_factor=n_rows * h / wall if wall else None)
+    return SimulationResult(Path(out_dir), n_rows, wall, n_rows * h, int(out["plant_steps"][0]))
+
+
+__all__ = ["BRING_UP", "run_commands", "simulate_moteus", "torque_command"]
