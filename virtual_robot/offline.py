@@ -2,9 +2,12 @@
 closed-form plant, virtual_robot.urdf_plant for n joints): booting the drive models as a host
 would, the open-loop rows (:func:`record_open_loop`: command, step, sample, record), booking the
 drives' faults, describing them in meta.json, and the run's ending (:func:`run_open_loop`:
-the recording, its meta.json totals, the result and the plot).
+the recording, its meta.json totals, the result and the plot); for drives with their own loop
+(virtual_robot.mit_simulate, virtual_robot.odrive_simulate) the recording of their offline run
+(:func:`record_drive_loop`).
 
-Imports drivers.recording, drivers.units, profiles.drive, virtual_robot.drive and
+Imports drivers.recording, drivers.units, profiles.drive (profiles.experiment and
+profiles.robot for type hints), virtual_robot (its version), virtual_robot.drive and
 virtual_robot.stepping only.
 """
 
@@ -13,10 +16,10 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,10 +32,16 @@ from drivers.units import (
     wrap_int32,
 )
 from profiles.drive import DriveProfile
+from virtual_robot import __version__
 from virtual_robot.drive import CW_HALT, MODE_CST, DriveModel, State
 from virtual_robot.stepping import Stepper
 
+if TYPE_CHECKING:
+    from profiles.experiment import ExperimentProfile
+    from profiles.robot import RobotProfile, UrdfRobotProfile
+
 ENABLE_SEQUENCE = (0x06, 0x07, 0x0F)  # shutdown, switch on, enable operation (CiA 402)
+SW_ENABLED = 0x0637  # what a drive with its own loop that answers is recorded as (drivers.mit_arm)
 
 
 @dataclass
@@ -335,3 +344,46 @@ def run_open_loop(
             f"effects {meta['effects']}",
         )
     return result
+
+
+def record_drive_loop(
+    out_dir: str | Path,
+    *,
+    robot: RobotProfile | UrdfRobotProfile,
+    experiment: ExperimentProfile,
+    effects_name: str,
+    protocol: str,
+    drives: list[dict[str, Any]],
+    period_s: float,
+    n_rows: int,
+    rows: Iterable[tuple[Sequence[float], Sequence[float]]],
+    wall_s: float,
+    plant_steps: int,
+) -> SimulationResult:
+    """The recording of an offline run of drives with their own loop (``protocol`` "mit",
+    "odrive" or "moteus"): ``robot`` and ``experiment`` the profiles run, ``drives``
+    meta.json's drive list, ``rows`` the ``n_rows`` pairs (q, tau) at t = k ``period_s``, each
+    drive recorded as enabled (SW_ENABLED); ``wall_s`` the run's wall time."""
+    h = period_s
+    meta = {
+        "kind": "simulate",
+        "version": __version__,
+        "robot": robot.name,
+        "robot_profile": robot.source,
+        "effects": effects_name,
+        "experiment": experiment.name,
+        "experiment_profile": experiment.source,
+        "mode": "offline",
+        "protocol": protocol,
+        "period_s": h,
+        "duration_s": n_rows * h,
+        "seed": None,
+        "drives": drives,
+    }
+    n = len(drives)
+    status = tuple(f"status{j}" for j in range(1, n + 1))
+    with RecordingWriter(out_dir, meta, extra_columns=status, n_joints=n) as rec:
+        for k, (q, tau) in enumerate(rows):
+            rec.write([k * h, *q, *tau, *([SW_ENABLED] * n)])
+        rec.meta.update(wall_time_s=wall_s, realtime_factor=n_rows * h / wall_s if wall_s else None)
+    return SimulationResult(Path(out_dir), n_rows, wall_s, n_rows * h, plant_steps)
