@@ -24,12 +24,11 @@ import numpy as np
 
 from drivers.protocol import mit
 from drivers.protocol.mit import MitCommand
-from profiles.drive import load_drive
 from profiles.effects import EffectsProfile
 from profiles.experiment import ExperimentProfile
 from profiles.robot import RobotProfile, UrdfRobotProfile
 from virtual_robot.mit_drive import MitDrive
-from virtual_robot.offline import SW_ENABLED, SimulationResult, record_drive_loop
+from virtual_robot.offline import SW_ENABLED, SimulationResult, drive_loop_rows, record_drive_loop
 from virtual_robot.robot import LOCKSTEP, VirtualRobot
 
 
@@ -82,14 +81,9 @@ def simulate_mit(
     """The experiment's torques through the robot's MIT-mode drives (module docstring), written
     to ``out_dir`` as a recording (t, q, tau, status: the torque each drive applied, in the
     joint's frame)."""
-    drives = [load_drive(name) for name in robot.drives]
-    experiment.check_joints(len(drives), robot.name)
+    drives, h, n_rows, torque = drive_loop_rows(robot, experiment, duration_s)
     ranges = [mit.MitRanges.of(p.mit) for p in drives]  # type: ignore[arg-type]
     sign = [p.mit.axis_direction for p in drives]  # type: ignore[union-attr]
-    h = experiment.period_s
-    duration = experiment.duration_s if duration_s is None else duration_s
-    n_rows = max(1, round(duration / h))
-    torque = experiment.torque_rows(h, n_rows)
     commands = [
         [
             mit.unpack_command(mit.pack_command(MitCommand(0.0, 0.0, 0.0, 0.0, d * t), r), r)

@@ -19,12 +19,11 @@ from pathlib import Path
 import numpy as np
 
 from drivers.protocol import odrive as od
-from profiles.drive import load_drive
 from profiles.effects import EffectsProfile
 from profiles.experiment import ExperimentProfile
 from profiles.robot import RobotProfile, UrdfRobotProfile
 from virtual_robot.odrive_drive import OdriveAxis
-from virtual_robot.offline import SimulationResult, record_drive_loop
+from virtual_robot.offline import SimulationResult, drive_loop_rows, record_drive_loop
 from virtual_robot.robot import LOCKSTEP, VirtualRobot
 
 
@@ -76,12 +75,7 @@ def simulate_odrive(
 ) -> SimulationResult:
     """The experiment's torques through the robot's ODrive axes (module docstring), written to
     ``out_dir`` as a recording (t, q, tau: the torque each axis applied, status)."""
-    drives = [load_drive(name) for name in robot.drives]
-    experiment.check_joints(len(drives), robot.name)
-    h = experiment.period_s
-    duration = experiment.duration_s if duration_s is None else duration_s
-    n_rows = max(1, round(duration / h))
-    torque = experiment.torque_rows(h, n_rows)
+    drives, h, n_rows, torque = drive_loop_rows(robot, experiment, duration_s)
     started = time.perf_counter()
     out = run_torques(robot, h, torque, effects=effects, q0=experiment.initial_q_rad)
     wall = time.perf_counter() - started

@@ -4,7 +4,7 @@ would, the open-loop rows (:func:`record_open_loop`: command, step, sample, reco
 drives' faults, describing them in meta.json, and the run's ending (:func:`run_open_loop`:
 the recording, its meta.json totals, the result and the plot); for drives with their own loop
 (virtual_robot.mit_simulate, virtual_robot.odrive_simulate) the recording of their offline run
-(:func:`record_drive_loop`).
+(:func:`drive_loop_rows`, :func:`record_drive_loop`).
 
 Imports drivers.recording, drivers.units, profiles.drive (profiles.experiment and
 profiles.robot for type hints), virtual_robot (its version), virtual_robot.drive and
@@ -31,7 +31,7 @@ from drivers.units import (
     unwrap_int32,
     wrap_int32,
 )
-from profiles.drive import DriveProfile
+from profiles.drive import DriveProfile, load_drive
 from virtual_robot import __version__
 from virtual_robot.drive import CW_HALT, MODE_CST, DriveModel, State
 from virtual_robot.stepping import Stepper
@@ -344,6 +344,20 @@ def run_open_loop(
             f"effects {meta['effects']}",
         )
     return result
+
+
+def drive_loop_rows(
+    robot: RobotProfile | UrdfRobotProfile, experiment: ExperimentProfile, duration_s: float | None
+) -> tuple[list[DriveProfile], float, int, np.ndarray]:
+    """What an offline run of drives with their own loop steps: the robot's drive profiles (the
+    experiment checked to drive as many joints), the period h, the number of rows (``duration_s``
+    or the experiment's, at least one) and the experiment's torque of each row (rows × joints)."""
+    drives = [load_drive(name) for name in robot.drives]
+    experiment.check_joints(len(drives), robot.name)
+    h = experiment.period_s
+    duration = experiment.duration_s if duration_s is None else duration_s
+    n_rows = max(1, round(duration / h))
+    return drives, h, n_rows, experiment.torque_rows(h, n_rows)
 
 
 def record_drive_loop(
