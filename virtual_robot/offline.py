@@ -3,7 +3,8 @@ closed-form plant, virtual_robot.urdf_plant for n joints): booting the drive mod
 would, the open-loop rows (:func:`record_open_loop`: command, step, sample, record), booking the
 drives' faults, describing them in meta.json, and the run's ending (:func:`run_open_loop`:
 the recording, its meta.json totals, the result and the plot); for drives with their own loop
-(virtual_robot.mit_simulate, virtual_robot.odrive_simulate) the recording of their offline run
+(virtual_robot.mit_simulate, virtual_robot.odrive_simulate, virtual_robot.moteus_simulate) their
+rows and the recording of their offline run
 (:func:`drive_loop_rows`, :func:`record_drive_loop`).
 
 Imports drivers.recording, drivers.units, profiles.drive (profiles.experiment and
@@ -37,7 +38,7 @@ from virtual_robot.drive import CW_HALT, MODE_CST, DriveModel, State
 from virtual_robot.stepping import Stepper
 
 if TYPE_CHECKING:
-    from profiles.experiment import ExperimentProfile
+    from profiles.experiment import ExperimentProfile, TorqueRows
     from profiles.robot import RobotProfile, UrdfRobotProfile
 
 ENABLE_SEQUENCE = (0x06, 0x07, 0x0F)  # shutdown, switch on, enable operation (CiA 402)
@@ -348,10 +349,10 @@ def run_open_loop(
 
 def drive_loop_rows(
     robot: RobotProfile | UrdfRobotProfile, experiment: ExperimentProfile, duration_s: float | None
-) -> tuple[list[DriveProfile], float, int, np.ndarray]:
+) -> tuple[list[DriveProfile], float, int, TorqueRows]:
     """What an offline run of drives with their own loop steps: the robot's drive profiles (the
     experiment checked to drive as many joints), the period h, the number of rows (``duration_s``
-    or the experiment's, at least one) and the experiment's torque of each row (rows × joints)."""
+    or the experiment's, at least one) and the experiment's torque of each row, read in order."""
     drives = [load_drive(name) for name in robot.drives]
     experiment.check_joints(len(drives), robot.name)
     h = experiment.period_s
