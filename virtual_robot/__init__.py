@@ -6,7 +6,8 @@ drive model (:mod:`.drive`), the drives with their own loop (:mod:`.loop_drive`:
 one, :mod:`.mit_drive`, stepped offline by :mod:`.mit_simulate`, and the ODrive axis,
 :mod:`.odrive_drive`, stepped offline by :mod:`.odrive_simulate`), the robot behind any
 transport in lockstep or realtime (:mod:`.robot`), the transports (:mod:`.can_server`,
-:mod:`.loop_server` with :mod:`.mit_server` and :mod:`.odrive_server`, :mod:`.slcan_device`,
+:mod:`.loop_server` with :mod:`.mit_server` and :mod:`.odrive_server`, their shared host-silence
+check :mod:`.host_silence`, :mod:`.slcan_device`,
 :mod:`.socketcand_hub`, :mod:`.serial_server`, :mod:`.raw_pty`), robot-side timing faults and
 CAN bit time (:mod:`.timing_faults`, :mod:`.bus_pacing`), and the ``virtual-robot`` command
 (:mod:`.serve`, :mod:`.simulate`, :mod:`.cli`).

@@ -72,6 +72,7 @@ import can
 from drivers.protocol import cia402 as co
 from drivers.protocol.cia402 import SdoAbortError
 from virtual_robot.bus_pacing import BusPacer, RawFrame
+from virtual_robot.host_silence import HostSilence
 from virtual_robot.robot import REALTIME, VirtualRobot
 
 ERR_PDO_LENGTH = 0x8210  # CiA 301: PDO not processed due to length error
@@ -171,8 +172,7 @@ class CanDriveServer:
         self.dropped_rpdos = 0  # robot-side timing fault: command frames lost
         self._hold_until: float | None = None  # robot-side timing fault: late feedback
         self._last_heartbeat: dict[int, float] = {}
-        self._last_rx: float | None = None
-        self._idle_fired = False
+        self._silence = HostSilence(idle_timeout_s)
         self._last_recv_error = ""
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -252,8 +252,7 @@ class CanDriveServer:
     def _handle_message(self, msg: can.Message) -> None:
         if msg.is_error_frame or msg.is_fd:
             self.frames_in += 1
-            self._last_rx = time.monotonic()
-            self._idle_fired = False
+            self._silence.heard()
             self.ignored += 1
             self._send_emcys()
             return
@@ -263,8 +262,7 @@ class CanDriveServer:
 
     def _handle(self, can_id: int, data: bytes, extended: bool, remote: bool) -> None:
         self.frames_in += 1
-        self._last_rx = time.monotonic()
-        self._idle_fired = False
+        self._silence.heard()
         try:
             if remote or extended:
                 self.ignored += 1
@@ -431,13 +429,7 @@ class CanDriveServer:
                     # keep the beat on its grid unless we fell more than a period behind
                     behind = now - last >= 2 * period_s
                     self._last_heartbeat[node] = now if behind else last + period_s
-            if (
-                self.idle_timeout_s is not None
-                and self._last_rx is not None
-                and not self._idle_fired
-                and now - self._last_rx > self.idle_timeout_s
-            ):
-                self._idle_fired = True
+            if self._silence.expired(now):
                 self.core.disable_all()
                 self._log(f"host silent for {self.idle_timeout_s:g} s: drives disabled")
         except Exception as exc:

@@ -19,6 +19,7 @@ from collections.abc import Callable
 
 import can
 
+from virtual_robot.host_silence import HostSilence
 from virtual_robot.loop_drive import LoopDrive
 from virtual_robot.robot import LOCKSTEP, REALTIME, VirtualRobot
 
@@ -29,7 +30,7 @@ _logger = logging.getLogger(__name__)
 
 class LoopDriveServer:
     """Base of the servers of ``core``'s drives on ``bus`` (module docstring). A subclass
-    answers one standard data frame in :meth:`_frame`."""
+    answers one standard data frame in :meth:`_frame` and sets itself up in :meth:`_setup`."""
 
     protocol = ""  # the drives' protocol (profiles.drive.PROTOCOLS)
     label = ""  # how the log names it
@@ -56,10 +57,13 @@ class LoopDriveServer:
         self.ignored = 0
         self.errors = 0
         self._said: set[str] = set()
-        self._last_rx: float | None = None
-        self._idle_fired = False
+        self._silence = HostSilence(idle_timeout_s)
         if core.mode == LOCKSTEP and core.syncs == 0:
             core.stepper.sync()  # sample 0 at t = 0: every later step is one whole period
+        self._setup()
+
+    def _setup(self) -> None:
+        """A subclass's own set-up from ``self.core`` (called last by ``__init__``)."""
 
     # ---- life cycle ---------------------------------------------------------------------------
     def serve_forever(self, stop: threading.Event) -> None:
@@ -85,8 +89,7 @@ class LoopDriveServer:
     def handle(self, msg: can.Message) -> None:
         """Answer one received frame; never raises (errors are counted and logged)."""
         self.frames_in += 1
-        self._last_rx = time.monotonic()
-        self._idle_fired = False
+        self._silence.heard()
         if msg.is_error_frame or msg.is_extended_id or msg.is_fd:
             self.ignore(f"error, extended-id or CAN FD frames are ignored by {self.label} drives")
             return
@@ -141,13 +144,7 @@ class LoopDriveServer:
     def poll(self, now: float | None = None) -> None:
         """The host-silence check (lockstep) and the drives' events."""
         now = time.monotonic() if now is None else now
-        if (
-            self.idle_timeout_s is not None
-            and self._last_rx is not None
-            and not self._idle_fired
-            and now - self._last_rx > self.idle_timeout_s
-        ):
-            self._idle_fired = True
+        if self._silence.expired(now):
             self.core.disable_all()
             self._log(f"host silent for {self.idle_timeout_s:g} s: every drive stopped, torque 0")
         self._report_events()

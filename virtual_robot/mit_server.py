@@ -34,14 +34,12 @@ PD loop's, ``h / mit_substeps``:
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import can
 
 from drivers.protocol import mit
 from virtual_robot.loop_server import RECV_TIMEOUT_S, LoopDriveServer
 from virtual_robot.mit_drive import MitDrive
-from virtual_robot.robot import LOCKSTEP, VirtualRobot
+from virtual_robot.robot import LOCKSTEP
 
 
 class MitDriveServer(LoopDriveServer):
@@ -50,16 +48,10 @@ class MitDriveServer(LoopDriveServer):
     protocol = "mit"
     label = "MIT mode"
 
-    def __init__(
-        self,
-        core: VirtualRobot,
-        bus: can.BusABC,
-        *,
-        idle_timeout_s: float | None = None,
-        log: Callable[[str], None] | None = None,
-    ) -> None:
-        super().__init__(core, bus, idle_timeout_s=idle_timeout_s, log=log)
-        self.drives: list[MitDrive] = list(core.drives)  # type: ignore[assignment]
+    drives: list[MitDrive]  # type: ignore[assignment]
+
+    def _setup(self) -> None:
+        core = self.core
         self.ranges = [mit.MitRanges.of(p.mit) for p in core.profiles]  # type: ignore[arg-type]
         self.reply_length = [p.mit.reply_length for p in core.profiles]  # type: ignore[union-attr]
 

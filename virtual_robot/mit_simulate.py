@@ -24,17 +24,12 @@ import numpy as np
 
 from drivers.protocol import mit
 from drivers.protocol.mit import MitCommand
-from drivers.recording import RecordingWriter
-from profiles.drive import load_drive
 from profiles.effects import EffectsProfile
 from profiles.experiment import ExperimentProfile
 from profiles.robot import RobotProfile, UrdfRobotProfile
-from virtual_robot import __version__
 from virtual_robot.mit_drive import MitDrive
-from virtual_robot.offline import SimulationResult
+from virtual_robot.offline import SW_ENABLED, SimulationResult, drive_loop_rows, record_drive_loop
 from virtual_robot.robot import LOCKSTEP, VirtualRobot
-
-SW_ENABLED = 0x0637  # what a drive that answers is recorded as (drivers.mit_arm)
 
 
 def run_commands(
@@ -86,14 +81,9 @@ def simulate_mit(
     """The experiment's torques through the robot's MIT-mode drives (module docstring), written
     to ``out_dir`` as a recording (t, q, tau, status: the torque each drive applied, in the
     joint's frame)."""
-    drives = [load_drive(name) for name in robot.drives]
-    experiment.check_joints(len(drives), robot.name)
+    drives, h, n_rows, torque = drive_loop_rows(robot, experiment, duration_s)
     ranges = [mit.MitRanges.of(p.mit) for p in drives]  # type: ignore[arg-type]
     sign = [p.mit.axis_direction for p in drives]  # type: ignore[union-attr]
-    h = experiment.period_s
-    duration = experiment.duration_s if duration_s is None else duration_s
-    n_rows = max(1, round(duration / h))
-    torque = experiment.torque_rows(h, n_rows)
     commands = [
         [
             mit.unpack_command(mit.pack_command(MitCommand(0.0, 0.0, 0.0, 0.0, d * t), r), r)
@@ -104,34 +94,29 @@ def simulate_mit(
     started = time.perf_counter()
     out = run_commands(robot, h, commands, effects=effects, q0=experiment.initial_q_rad)
     wall = time.perf_counter() - started
-    meta = {
-        "kind": "simulate",
-        "version": __version__,
-        "robot": robot.name,
-        "robot_profile": robot.source,
-        "effects": (effects or EffectsProfile()).name,
-        "experiment": experiment.name,
-        "experiment_profile": experiment.source,
-        "mode": "offline",
-        "protocol": "mit",
-        "period_s": h,
-        "duration_s": n_rows * h,
-        "seed": None,
-        "drives": [
+    rows = (
+        (
+            [d * _reply_p(p, r) for p, d, r in zip(out["p"][k], sign, ranges, strict=True)],
+            [d * c.t_ff for c, d in zip(commands[k], sign, strict=True)],
+        )
+        for k in range(n_rows)
+    )
+    return record_drive_loop(
+        out_dir,
+        robot=robot,
+        experiment=experiment,
+        effects_name=(effects or EffectsProfile()).name,
+        protocol="mit",
+        drives=[
             {"model": p.model, "protocol": "mit", "t_max_Nm": r.t_max}
             for p, r in zip(drives, ranges, strict=True)
         ],
-    }
-    n = len(drives)
-    status = tuple(f"status{j}" for j in range(1, n + 1))
-    with RecordingWriter(out_dir, meta, extra_columns=status, n_joints=n) as rec:
-        for k in range(n_rows):
-            q = [d * _reply_p(p, r) for p, d, r in zip(out["p"][k], sign, ranges, strict=True)]
-            tau = [d * c.t_ff for c, d in zip(commands[k], sign, strict=True)]
-            rec.write([k * h, *q, *tau, *([SW_ENABLED] * n)])
-        rec.meta.update(wall_time_s=wall, realtime_factor=n_rows * h / wall if wall else None)
-    steps = int(out["plant_steps"][0])
-    return SimulationResult(Path(out_dir), n_rows, wall, n_rows * h, steps)
+        period_s=h,
+        n_rows=n_rows,
+        rows=rows,
+        wall_s=wall,
+        plant_steps=int(out["plant_steps"][0]),
+    )
 
 
 def _reply_p(p: float, r: mit.MitRanges) -> float:
@@ -139,4 +124,4 @@ def _reply_p(p: float, r: mit.MitRanges) -> float:
     return mit.uint_to_float(mit.float_to_uint(p, -r.p_max, r.p_max, 16), -r.p_max, r.p_max, 16)
 
 
-__all__ = ["run_commands", "simulate_mit"]
+__all__ = ["SW_ENABLED", "run_commands", "simulate_mit"]

@@ -23,15 +23,11 @@ from pathlib import Path
 import numpy as np
 
 from drivers.protocol.moteus import f32
-from drivers.recording import RecordingWriter
-from profiles.drive import load_drive
 from profiles.effects import EffectsProfile
 from profiles.experiment import ExperimentProfile
 from profiles.robot import RobotProfile, UrdfRobotProfile
-from virtual_robot import __version__
-from virtual_robot.mit_simulate import SW_ENABLED
 from virtual_robot.moteus_drive import MoteusDrive, PositionCommand
-from virtual_robot.offline import SimulationResult
+from virtual_robot.offline import SimulationResult, drive_loop_rows, record_drive_loop
 from virtual_robot.robot import LOCKSTEP, VirtualRobot
 
 TWO_PI = 2.0 * math.pi
@@ -94,39 +90,27 @@ def simulate_moteus(
 ) -> SimulationResult:
     """The experiment's torques through the robot's moteus controllers (module docstring),
     written to ``out_dir`` as a recording (t, q, tau: the torque each controller applied)."""
-    drives = [load_drive(name) for name in robot.drives]
-    experiment.check_joints(len(drives), robot.name)
-    h = experiment.period_s
-    duration = experiment.duration_s if duration_s is None else duration_s
-    n_rows = max(1, round(duration / h))
-    torque = experiment.torque_rows(h, n_rows)
+    drives, h, n_rows, torque = drive_loop_rows(robot, experiment, duration_s)
     commands = [[torque_command(t) for t in torque[k]] for k in range(n_rows)]
     started = time.perf_counter()
     out = run_commands(robot, h, commands, effects=effects, q0=experiment.initial_q_rad)
     wall = time.perf_counter() - started
-    meta = {
-        "kind": "simulate",
-        "version": __version__,
-        "robot": robot.name,
-        "robot_profile": robot.source,
-        "effects": (effects or EffectsProfile()).name,
-        "experiment": experiment.name,
-        "experiment_profile": experiment.source,
-        "mode": "offline",
-        "protocol": "moteus",
-        "period_s": h,
-        "duration_s": n_rows * h,
-        "seed": None,
-        "drives": [{"model": p.model, "protocol": "moteus"} for p in drives],
-    }
-    n = len(drives)
-    status = tuple(f"status{j}" for j in range(1, n + 1))
-    with RecordingWriter(out_dir, meta, extra_columns=status, n_joints=n) as rec:
-        for k in range(n_rows):
-            q = [TWO_PI * p for p in out["position_rev"][k]]
-            rec.write([k * h, *q, *out["torque_Nm"][k], *([SW_ENABLED] * n)])
-        rec.meta.update(wall_time_s=wall, realtime_factor=n_rows * h / wall if wall else None)
-    return SimulationResult(Path(out_dir), n_rows, wall, n_rows * h, int(out["plant_steps"][0]))
+    rows = (
+        ([TWO_PI * p for p in out["position_rev"][k]], out["torque_Nm"][k]) for k in range(n_rows)
+    )
+    return record_drive_loop(
+        out_dir,
+        robot=robot,
+        experiment=experiment,
+        effects_name=(effects or EffectsProfile()).name,
+        protocol="moteus",
+        drives=[{"model": p.model, "protocol": "moteus"} for p in drives],
+        period_s=h,
+        n_rows=n_rows,
+        rows=rows,
+        wall_s=wall,
+        plant_steps=int(out["plant_steps"][0]),
+    )
 
 
 __all__ = ["BRING_UP", "run_commands", "simulate_moteus", "torque_command"]

@@ -29,14 +29,13 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
 
 import can
 
 from drivers.protocol import odrive as od
 from virtual_robot.loop_server import RECV_TIMEOUT_S, LoopDriveServer
 from virtual_robot.odrive_drive import OdriveAxis
-from virtual_robot.robot import LOCKSTEP, REALTIME, VirtualRobot
+from virtual_robot.robot import LOCKSTEP, REALTIME
 
 _NOT_EMULATED = {
     od.SET_INPUT_POS: "Set_Input_Pos",
@@ -50,17 +49,10 @@ class OdriveServer(LoopDriveServer):
     protocol = "odrive"
     label = "ODrive CANSimple"
 
-    def __init__(
-        self,
-        core: VirtualRobot,
-        bus: can.BusABC,
-        *,
-        idle_timeout_s: float | None = None,
-        log: Callable[[str], None] | None = None,
-    ) -> None:
-        super().__init__(core, bus, idle_timeout_s=idle_timeout_s, log=log)
-        self.drives: list[OdriveAxis] = list(core.drives)  # type: ignore[assignment]
-        tables = [p.odrive for p in core.profiles]
+    drives: list[OdriveAxis]  # type: ignore[assignment]
+
+    def _setup(self) -> None:
+        tables = [p.odrive for p in self.core.profiles]
         self.heartbeat_period_s = min(t.heartbeat_period_s for t in tables)  # type: ignore[union-attr]
         self.encoder_period_s = min(t.encoder_period_s for t in tables)  # type: ignore[union-attr]
         self._next_heartbeat = 0.0

@@ -19,15 +19,11 @@ from pathlib import Path
 import numpy as np
 
 from drivers.protocol import odrive as od
-from drivers.recording import RecordingWriter
-from profiles.drive import load_drive
 from profiles.effects import EffectsProfile
 from profiles.experiment import ExperimentProfile
 from profiles.robot import RobotProfile, UrdfRobotProfile
-from virtual_robot import __version__
-from virtual_robot.mit_simulate import SW_ENABLED
 from virtual_robot.odrive_drive import OdriveAxis
-from virtual_robot.offline import SimulationResult
+from virtual_robot.offline import SimulationResult, drive_loop_rows, record_drive_loop
 from virtual_robot.robot import LOCKSTEP, VirtualRobot
 
 
@@ -79,41 +75,32 @@ def simulate_odrive(
 ) -> SimulationResult:
     """The experiment's torques through the robot's ODrive axes (module docstring), written to
     ``out_dir`` as a recording (t, q, tau: the torque each axis applied, status)."""
-    drives = [load_drive(name) for name in robot.drives]
-    experiment.check_joints(len(drives), robot.name)
-    h = experiment.period_s
-    duration = experiment.duration_s if duration_s is None else duration_s
-    n_rows = max(1, round(duration / h))
-    torque = experiment.torque_rows(h, n_rows)
+    drives, h, n_rows, torque = drive_loop_rows(robot, experiment, duration_s)
     started = time.perf_counter()
     out = run_torques(robot, h, torque, effects=effects, q0=experiment.initial_q_rad)
     wall = time.perf_counter() - started
-    meta = {
-        "kind": "simulate",
-        "version": __version__,
-        "robot": robot.name,
-        "robot_profile": robot.source,
-        "effects": (effects or EffectsProfile()).name,
-        "experiment": experiment.name,
-        "experiment_profile": experiment.source,
-        "mode": "offline",
-        "protocol": "odrive",
-        "period_s": h,
-        "duration_s": n_rows * h,
-        "seed": None,
-        "drives": [{"model": p.model, "protocol": "odrive"} for p in drives],
-    }
-    n = len(drives)
     limit = [p.rated_torque_Nm * p.max_torque_permille / 1000.0 for p in drives]
     pos = np.vstack([out["pos0_rev"], out["pos_rev"][:-1]])  # the estimate at t_k
-    status = tuple(f"status{j}" for j in range(1, n + 1))
-    with RecordingWriter(out_dir, meta, extra_columns=status, n_joints=n) as rec:
-        for k in range(n_rows):
-            q = [2.0 * math.pi * p for p in pos[k]]
-            tau = [max(-lim, min(lim, od.f32(t))) for t, lim in zip(torque[k], limit, strict=True)]
-            rec.write([k * h, *q, *tau, *([SW_ENABLED] * n)])
-        rec.meta.update(wall_time_s=wall, realtime_factor=n_rows * h / wall if wall else None)
-    return SimulationResult(Path(out_dir), n_rows, wall, n_rows * h, int(out["plant_steps"][0]))
+    rows = (
+        (
+            [2.0 * math.pi * p for p in pos[k]],
+            [max(-lim, min(lim, od.f32(t))) for t, lim in zip(torque[k], limit, strict=True)],
+        )
+        for k in range(n_rows)
+    )
+    return record_drive_loop(
+        out_dir,
+        robot=robot,
+        experiment=experiment,
+        effects_name=(effects or EffectsProfile()).name,
+        protocol="odrive",
+        drives=[{"model": p.model, "protocol": "odrive"} for p in drives],
+        period_s=h,
+        n_rows=n_rows,
+        rows=rows,
+        wall_s=wall,
+        plant_steps=int(out["plant_steps"][0]),
+    )
 
 
 __all__ = ["run_torques", "simulate_odrive"]

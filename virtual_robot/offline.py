@@ -2,9 +2,13 @@
 closed-form plant, virtual_robot.urdf_plant for n joints): booting the drive models as a host
 would, the open-loop rows (:func:`record_open_loop`: command, step, sample, record), booking the
 drives' faults, describing them in meta.json, and the run's ending (:func:`run_open_loop`:
-the recording, its meta.json totals, the result and the plot).
+the recording, its meta.json totals, the result and the plot); for drives with their own loop
+(virtual_robot.mit_simulate, virtual_robot.odrive_simulate, virtual_robot.moteus_simulate) their
+rows and the recording of their offline run
+(:func:`drive_loop_rows`, :func:`record_drive_loop`).
 
-Imports drivers.recording, drivers.units, profiles.drive, virtual_robot.drive and
+Imports drivers.recording, drivers.units, profiles.drive (profiles.experiment and
+profiles.robot for type hints), virtual_robot (its version), virtual_robot.drive and
 virtual_robot.stepping only.
 """
 
@@ -13,10 +17,10 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -28,11 +32,17 @@ from drivers.units import (
     unwrap_int32,
     wrap_int32,
 )
-from profiles.drive import DriveProfile
+from profiles.drive import DriveProfile, load_drive
+from virtual_robot import __version__
 from virtual_robot.drive import CW_HALT, MODE_CST, DriveModel, State
 from virtual_robot.stepping import Stepper
 
+if TYPE_CHECKING:
+    from profiles.experiment import ExperimentProfile, TorqueRows
+    from profiles.robot import RobotProfile, UrdfRobotProfile
+
 ENABLE_SEQUENCE = (0x06, 0x07, 0x0F)  # shutdown, switch on, enable operation (CiA 402)
+SW_ENABLED = 0x0637  # what a drive with its own loop that answers is recorded as (drivers.mit_arm)
 
 
 @dataclass
@@ -335,3 +345,60 @@ def run_open_loop(
             f"effects {meta['effects']}",
         )
     return result
+
+
+def drive_loop_rows(
+    robot: RobotProfile | UrdfRobotProfile, experiment: ExperimentProfile, duration_s: float | None
+) -> tuple[list[DriveProfile], float, int, TorqueRows]:
+    """What an offline run of drives with their own loop steps: the robot's drive profiles (the
+    experiment checked to drive as many joints), the period h, the number of rows (``duration_s``
+    or the experiment's, at least one) and the experiment's torque of each row, read in order."""
+    drives = [load_drive(name) for name in robot.drives]
+    experiment.check_joints(len(drives), robot.name)
+    h = experiment.period_s
+    duration = experiment.duration_s if duration_s is None else duration_s
+    n_rows = max(1, round(duration / h))
+    return drives, h, n_rows, experiment.torque_rows(h, n_rows)
+
+
+def record_drive_loop(
+    out_dir: str | Path,
+    *,
+    robot: RobotProfile | UrdfRobotProfile,
+    experiment: ExperimentProfile,
+    effects_name: str,
+    protocol: str,
+    drives: list[dict[str, Any]],
+    period_s: float,
+    n_rows: int,
+    rows: Iterable[tuple[Sequence[float], Sequence[float]]],
+    wall_s: float,
+    plant_steps: int,
+) -> SimulationResult:
+    """The recording of an offline run of drives with their own loop (``protocol`` "mit",
+    "odrive" or "moteus"): ``robot`` and ``experiment`` the profiles run, ``drives``
+    meta.json's drive list, ``rows`` the ``n_rows`` pairs (q, tau) at t = k ``period_s``, each
+    drive recorded as enabled (SW_ENABLED); ``wall_s`` the run's wall time."""
+    h = period_s
+    meta = {
+        "kind": "simulate",
+        "version": __version__,
+        "robot": robot.name,
+        "robot_profile": robot.source,
+        "effects": effects_name,
+        "experiment": experiment.name,
+        "experiment_profile": experiment.source,
+        "mode": "offline",
+        "protocol": protocol,
+        "period_s": h,
+        "duration_s": n_rows * h,
+        "seed": None,
+        "drives": drives,
+    }
+    n = len(drives)
+    status = tuple(f"status{j}" for j in range(1, n + 1))
+    with RecordingWriter(out_dir, meta, extra_columns=status, n_joints=n) as rec:
+        for k, (q, tau) in enumerate(rows):
+            rec.write([k * h, *q, *tau, *([SW_ENABLED] * n)])
+        rec.meta.update(wall_time_s=wall_s, realtime_factor=n_rows * h / wall_s if wall_s else None)
+    return SimulationResult(Path(out_dir), n_rows, wall_s, n_rows * h, plant_steps)
