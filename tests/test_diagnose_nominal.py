@@ -139,8 +139,7 @@ def test_the_nominal_model_options_and_refit(arm, capsys, tmp_path):
 
 def test_a_new_effect_is_one_registered_class(arm, capsys, tmp_path):
     """An effect registered from here (a velocity-squared drag c q̇|q̇| on joint 2, with the
-    registry's own drag pattern taken out) is tested, found with its size and reported, with
-    nothing else changed."""
+    registry's own drag pattern taken out) is tested, found with its size and reported, with nothing else changed."""
     c = 0.05  # Nm s²
 
     class Drag(Effect):
