@@ -182,3 +182,17 @@ def test_scorer_runs_on_dfki_cases(tmp_path):
     null = scores["cases"][2]
     assert null["pass"] and not null["extra"]
     assert scores["totals"]["dfki-a0"]["cases"] == 3
+
+
+def test_an_effect_in_the_joint_torque_goes_on_an_actuated_joint(src):
+    """A joint whose torque column is 0 throughout (a passive joint: DFKI C.0's pendubot and
+    acrobot recordings) gets no effect written into τ_j (it would leave the file unchanged);
+    an angle offset may still go there; the draws of a seed stay one per case."""
+    passive = src.with_columns({src.torques[1]: np.zeros(len(src.data))})
+    for seed in range(20):
+        rng, twin = np.random.default_rng(seed), np.random.default_rng(seed)
+        assert gen._drawn_joint(passive, "torque_gain", rng) == 0
+        twin.integers(2)
+        assert rng.random() == twin.random()  # one draw consumed, as for any other joint
+    drawn = {gen._drawn_joint(passive, "angle_offset", np.random.default_rng(s)) for s in range(20)}
+    assert drawn == {0, 1}

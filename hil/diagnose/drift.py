@@ -329,6 +329,8 @@ def _change(fit: _Fit, others: Sequence[Term], term: Term) -> float:
     rec, folds = _sizes(fit, [*others, term], fit)
     back, folds_back = _sizes(ref, [fit.on_reference(t) for t in [*others, term]], fit)
     se = float(change_se(folds[:, None], folds_back[:, None], fit.paired)[0])
+    if not (np.isfinite(rec - back) and np.isfinite(se)):
+        return 0.0  # a size the data do not bound (a gain β ≥ 1) resolves no change
     return abs(rec - back) / se if se > 0 else (np.inf if rec != back else 0.0)
 
 
@@ -694,7 +696,9 @@ def _gates(fit: _Fit, accepted: list[Term], nominal: Nominal, tests: int) -> dic
     for i, (t, (_est, size, size_se)) in enumerate(zip(accepted, estimates, strict=True)):
         others = accepted[:i] + accepted[i + 1 :]
         ev = evidence(fit.cv(others), fit.cv(accepted), t.effect.acts_on(fit.ctx, t.joint))
-        if not _drift_passes(fit, others, t, ev, tests):
+        if not (np.isfinite(size) and np.isfinite(size_se)):
+            failed[t.key] = f"the data give it no finite size ({size:.3g} ± {size_se:.2g})"
+        elif not _drift_passes(fit, others, t, ev, tests):
             failed[t.key] = "its held-out proof on top of the others failed"
         elif abs(size) < RESOLVED_SE * size_se:
             failed[t.key] = (

@@ -360,6 +360,23 @@ def _inside_repo(path: Path) -> bool:
     return True
 
 
+IN_JOINT_TORQUE = ("torque_gain", "torque_offset", "coulomb_asymmetry", "cogging",
+                   "velocity_squared_drag")  # fmt: skip  # written into τ_j alone
+
+
+def _drawn_joint(src: Source, effect: str, rng: np.random.Generator) -> int:
+    """The joint an effect is written into (0-based): for an effect written into τ_j alone,
+    one whose torque column is not 0 throughout. A passive joint (DFKI C.0's pendubot and
+    acrobot recordings log τ_con ≡ 0 on one joint) has no torque to scale, offset or add a
+    term proportional to its RMS to: the file would come out unchanged and its truth
+    unobservable. One draw either way, so the other cases of a seed stay as they were."""
+    joint = int(rng.integers(src.n_joints))
+    if effect not in IN_JOINT_TORQUE:
+        return joint
+    actuated = [j for j in range(src.n_joints) if np.any(src.tau[:, j] != 0.0)]
+    return joint if joint in actuated or not actuated else actuated[joint % len(actuated)]
+
+
 def plan_cases(robots: list[str], rng: np.random.Generator) -> list[dict[str, Any]]:
     """The cases to write: robot, source index, effect and joint of each."""
     cases = []
@@ -375,7 +392,7 @@ def plan_cases(robots: list[str], rng: np.random.Generator) -> list[dict[str, An
                 if len(sources) < 2:
                     continue
                 other = int(rng.choice([i for i in range(len(sources)) if i != k]))
-            joint = int(rng.integers(sources[k].n_joints))
+            joint = _drawn_joint(sources[k], effect, rng)
             cases.append({"robot": robot, "sources": sources, "source": k, "other": other,
                           "effect": effect, "joint": joint})  # fmt: skip
     return cases

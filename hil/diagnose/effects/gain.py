@@ -31,7 +31,12 @@ class TorqueGain(Effect):
         return on_joint(-ctx.predicted()[:, joint, None], joint, ctx.n_joints)
 
     def estimate(self, ctx, joint, beta, se, at):
-        b = min(float(beta[0]), 0.99)
+        b = float(beta[0])
+        if not b < 1.0:
+            # β = 1 − 1/g ≥ 1 has no finite positive gain g (the column explains the whole
+            # torque or more): no size, not a clamped one (a clamp at β = 0.99 read as g − 1 = 99)
+            inf = float("inf")
+            return {"gain": inf, "gain_se": inf, "relative": inf}, inf, inf
         g = 1.0 / (1.0 - b)
         g_se = float(se[0]) * g * g  # dg/dβ = 1/(1 − β)²
         return (
