@@ -45,8 +45,10 @@ bench: $(STAMP)
 	$(BIN)/python tests/benchmarks/bench_identify_memory.py --seconds 60 --tile-mb 7 --stages
 
 # issue 13's target, opt-in: a 700 MB CSV (10 M rows) through `hil identify --from`, < 4 GB
+# and issue 26's: `hil diagnose --reference` on two 60 s Panda recordings, <= 30 s CPU and 1 GB
 bench-big: $(STAMP)
 	$(BIN)/python tests/benchmarks/bench_identify_memory.py --seconds 60 --tile-mb 700
+	$(BIN)/python tests/benchmarks/bench_diagnose_reference.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check hil drivers virtual_robot profiles tests

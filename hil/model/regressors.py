@@ -417,12 +417,17 @@ def interval_integrals(
     viscous columns of joints 1..n, then the Coulomb ones), n joints."""
     ok = np.isfinite(v).all(axis=1)
     k = np.flatnonzero(ok[:-1] & ok[1:])
-    if len(k) > INTERVAL_CHUNK:
+    # An n-joint model's static regressor holds (nodes, K, n, n, 10) temporaries (∂v_j/∂q_i of
+    # every body and joint): the chunk shrinks with n² (by powers of two, so it still divides
+    # ROW_CHUNK), so a 7-joint arm's stay as small as a 2-joint arm's (the intervals'
+    # integrals are each their own: same results).
+    chunk = INTERVAL_CHUNK >> max(0, int(np.ceil(np.log2(q.shape[1] ** 2 / 4))))
+    if len(k) > chunk:
         # Every interval's integrals are its own: in chunks, so the (nodes, K, 2, p) values at
         # the quadrature nodes never exist for a whole long recording at once (issue 13).
         parts = [
-            _interval_integrals(q, v, h, model, k[i : i + INTERVAL_CHUNK], static)
-            for i in range(0, len(k), INTERVAL_CHUNK)
+            _interval_integrals(q, v, h, model, k[i : i + chunk], static)
+            for i in range(0, len(k), chunk)
         ]
         R = np.concatenate([c.R for c in parts]) if static else None
         return IntervalIntegrals(
