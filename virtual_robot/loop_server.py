@@ -160,7 +160,12 @@ class LoopDriveServer:
             self._log(text)
 
     def send(self, arbitration_id: int, data: bytes) -> None:
-        msg = can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False)
+        self.send_message(
+            can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False)
+        )
+
+    def send_message(self, msg: can.Message) -> None:
+        """Put ``msg`` on the bus; a failure is counted and said once, never raised."""
         try:
             self.bus.send(msg)
         except Exception as exc:

@@ -190,20 +190,15 @@ class MoteusServer(LoopDriveServer):
         return out + flush()
 
     def send_fd(self, arbitration_id: int, data: bytes) -> None:
-        msg = can.Message(
-            arbitration_id=arbitration_id,
-            data=data,
-            is_extended_id=arbitration_id > 0x7FF,
-            is_fd=True,
-            bitrate_switch=True,
+        self.send_message(
+            can.Message(
+                arbitration_id=arbitration_id,
+                data=data,
+                is_extended_id=arbitration_id > 0x7FF,
+                is_fd=True,
+                bitrate_switch=True,
+            )
         )
-        try:
-            self.bus.send(msg)
-        except Exception as exc:
-            self.errors += 1
-            self._once(f"send failed: {type(exc).__name__}: {exc}")
-        else:
-            self.frames_out += 1
 
 
 def _command(writes: dict[int, float | int | None]) -> PositionCommand:
