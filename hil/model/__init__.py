@@ -2,12 +2,12 @@
 
 What lives here: the closed-form 2-DOF model of Reyes & Kelly (1997) (:mod:`.closed_form`,
 ``ArmModel``) and the n-joint model of any URDF through Pinocchio (:mod:`.urdf`,
-``UrdfArmModel``) behind one interface (names, units, M(q), regressors); the regression
-builders of eqs. (24), (28), (30) (:mod:`.regressors`); RLS, batch and weighted least squares
-(:mod:`.estimators`); the open-loop simulator, rigid and with the diagnosis' extra physics
-(:mod:`.openloop`; its one stick–slip integrator :mod:`.openloop_core`, the effects
-:mod:`.openloop_effects`); fit metrics (:mod:`.metrics`); parameter files
-(:mod:`.params`).
+``UrdfArmModel``) behind one interface (:mod:`.protocol`, ``ArmDynamics``: names, units, M(q),
+regressors); the regression builders of eqs. (24), (28), (30) (:mod:`.regressors`); RLS, batch
+and weighted least squares (:mod:`.estimators`); the open-loop simulator, rigid and with the
+diagnosis' extra physics (:mod:`.openloop`; its one stick–slip integrator
+:mod:`.openloop_core`, the effects :mod:`.openloop_effects`); fit metrics (:mod:`.metrics`);
+parameter files (:mod:`.params`).
 
 Imports: numpy, scipy, pinocchio, :mod:`drivers` (recordings) and :mod:`profiles`. Nothing
 from the other ``hil`` packages: they all build on this one.
@@ -36,6 +36,7 @@ __getattr__, __dir__, __all__ = lazy_exports(
             "physical_consistency",
         ],
         "hil.model.urdf": ["UrdfArmModel", "BaseParameters"],
+        "hil.model.protocol": ["ArmDynamics"],
         "hil.model.regressors": ["SCHEMES", "DISCRETIZATIONS", "Regression", "build_regression"],
         "hil.model.estimators": [
             "RecursiveLeastSquares",

@@ -310,6 +310,7 @@ class ArmModel:
 
     terms: tuple[str, ...] = ()
     n_joints = 2  # a class constant (no annotation: not a field), as UrdfArmModel.n_joints
+    closed_form = True  # hil.model.protocol.ArmDynamics: the compiled 2-DOF simulator applies
 
     def __post_init__(self) -> None:
         terms = tuple(self.terms)
@@ -346,6 +347,30 @@ class ArmModel:
                 return slice(start, start + width)
             start += width
         raise KeyError(f"model has no term {term!r} (terms: {', '.join(self.terms) or 'none'})")
+
+    @property
+    def rigid_count(self) -> int:
+        """θ1..θ5 are the rigid-body parameters (θ6..θ9 friction, then the terms')."""
+        return 5
+
+    @property
+    def display_name(self) -> str:
+        if not self.terms:
+            return "9-parameter"
+        return f"{self.n_params}-parameter ({' and '.join(self.terms)})"
+
+    @property
+    def rigid_words(self) -> str:
+        return "θ1..θ5 of the 2-DOF arm"
+
+    @property
+    def missing_terms(self) -> tuple[str, ...]:
+        return tuple(t for t in TERMS if t not in self.terms)
+
+    @property
+    def refused_terms(self) -> dict[str, str]:
+        """Every candidate of the diagnosis applies to the closed-form model."""
+        return {}
 
     @property
     def friction_columns(self) -> tuple[int, ...]:

@@ -76,6 +76,8 @@ class UrdfArmModel:
     ``gear_ratio`` is kept for the drives; the dynamics take the armature already reflected.
     """
 
+    closed_form = False  # hil.model.protocol.ArmDynamics: simulated through forward_dynamics
+
     def __init__(
         self,
         urdf: str | Path,
@@ -298,6 +300,56 @@ class UrdfArmModel:
         """θ_base of a standard-parameter vector (default: the URDF's and the profile's)."""
         t = self.standard_theta if theta_standard is None else np.asarray(theta_standard, float)
         return self.base.expand @ t
+
+    @property
+    def rigid_count(self) -> int:
+        """Every base parameter before the friction (and term) columns."""
+        return self.n_params - self.n_friction
+
+    @property
+    def display_name(self) -> str:
+        terms = f", {' and '.join(self.terms)}" if self.terms else ""
+        joints = f"{self.n_joints} joint{'s' if self.n_joints != 1 else ''}"
+        return f"{self.n_params}-base-parameter {self.name or 'URDF'} ({joints}{terms})"
+
+    @property
+    def rigid_words(self) -> str:
+        n = self.rigid_count
+        return (
+            f"{self.names[0]}..{self.names[n - 1]}, the {n} rigid-body base parameters of the "
+            f"{self.name or 'URDF'} model"
+        )
+
+    @property
+    def missing_terms(self) -> tuple[str, ...]:
+        """The 2-DOF closed-form terms do not apply: a URDF's bodies carry their own centres
+        of mass; the armature and offset are this model's own ``terms``."""
+        return ()
+
+    @property
+    def refused_terms(self) -> dict[str, str]:
+        """The 2-DOF model terms, and the torque offset when the model already has one per
+        joint (its ``friction_offset`` term); the armature is said to be the model's own when
+        its ``rotor_inertia`` term is on."""
+        armature = (
+            "the nominal model has an armature per joint (its rotor_inertia term), fitted"
+            if "rotor_inertia" in self.terms
+            else "a 2-DOF closed-form term (θ_rotor beside θ3); an n-joint arm's armature is the "
+            "URDF model's own rotor_inertia term: identify with it in the profile's [model] terms "
+            "and compare"
+        )
+        out = {
+            "rotor_inertia": armature,
+            "com_offset": "a 2-DOF closed-form term; a URDF model's bodies carry their centres of "
+            "mass in every direction already (10 parameters per body)",
+        }
+        if "friction_offset" in self.terms:
+            out["offset"] = (
+                "the nominal model has a torque offset per joint (its friction_offset term: "
+                "asymmetric Coulomb friction), so a Coulomb asymmetry or torque offset is a "
+                "parameter of the model, fitted, not missing physics"
+            )
+        return out
 
     def term_columns(self, term: str) -> slice:
         """The base columns a model term owns: ``friction`` (f_v per joint, f_c per joint and,
