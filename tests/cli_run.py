@@ -17,6 +17,25 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
+# The emulated guest of `make test-vcan` runs Python 5-50x slower than the host (software CPU
+# emulation on a shared machine). Its tests check that the paths over vcan work end to end, so
+# they run copies of the shipped benches with generous timeouts (bench_copy); the timing figures
+# are `make bench`'s, on the host.
+SLOW_GUEST = {"timeout_s = 2.0": "timeout_s = 60.0"}
+
+
+def bench_copy(name: str, where: Path, changes: dict[str, str]) -> Path:
+    """The shipped bench ``name`` with each ``changes`` key (which must be there) replaced."""
+    from profiles import resolve
+
+    text = resolve("benches", name).read_text()
+    for old, new in changes.items():
+        assert old in text, (name, old)
+        text = text.replace(old, new)
+    path = where / f"{name}.toml"
+    path.write_text(text)
+    return path
+
 
 def hil(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     """``python -m hil.cli ARGS``: output captured as text, never raising on a non-zero exit

@@ -18,9 +18,9 @@ import can
 import numpy as np
 import pytest
 from loop_clients import serving
+from moteus_clients import MULTISINE, PERIOD_S, commands, library_run
 
 from drivers.protocol import moteus as mo
-from drivers.protocol.moteus import f32
 from profiles.bench import load_bench
 from profiles.robot import load_robot
 from virtual_robot.fdcanusb_device import FdcanusbPtyBus
@@ -30,7 +30,6 @@ from virtual_robot.moteus_simulate import run_commands, torque_command
 from virtual_robot.robot import LOCKSTEP, VirtualRobot
 from virtual_robot.serve import build_core
 
-PERIOD_S = 0.002
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -205,97 +204,24 @@ def test_offline_stepping_follows_the_torque_and_the_pd() -> None:
 
 
 # ---- the client library, unmodified -------------------------------------------------------------
-def _commands(n: int) -> list[list[PositionCommand]]:
-    """Torque first (kp_scale = kd_scale = 0), then the drive's own PD to a moving target."""
-    t = np.arange(n) * PERIOD_S
-    rows = []
-    for k in range(n):
-        if k < n // 2:
-            rows.append(
-                [
-                    torque_command(1.5 * math.sin(2 * math.pi * 2.0 * t[k])),
-                    torque_command(-0.8 * math.cos(2 * math.pi * 3.0 * t[k])),
-                ]
-            )
-        else:
-            target = f32(0.05 * math.sin(2 * math.pi * 1.0 * t[k]))
-            rows.append(
-                [
-                    PositionCommand(
-                        position_rev=target, velocity_rev_s=0.0, kp_scale=1.0, kd_scale=1.0
-                    ),
-                    PositionCommand(
-                        position_rev=math.nan,
-                        feedforward_Nm=f32(0.3),
-                        kp_scale=0.0,
-                        kd_scale=f32(0.5),
-                    ),
-                ]
-            )
-    return rows
-
-
-async def _library_run(
-    where: str, rows: list[list[PositionCommand]], via: str = "fdcanusb"
-) -> dict[str, np.ndarray]:
-    """moteus.Controller on moteus.Fdcanusb(where) (or the library's python-can transport on
-    the virtual bus ``where``): stop and bring up both, then each period set_position with
-    query=True to controller 1 then 2, the replies recorded."""
-    import moteus
-
-    if via == "fdcanusb":
-        transport = moteus.Fdcanusb(where)
-    else:
-        transport = moteus.PythonCan(interface="virtual", channel=where)
-    ctl = [moteus.Controller(id=i, transport=transport) for i in (1, 2)]
-    keys = (
-        moteus.Register.MODE,
-        moteus.Register.POSITION,
-        moteus.Register.VELOCITY,
-        moteus.Register.TORQUE,
-    )
-    out = {
-        k: np.zeros((len(rows), 2)) for k in ("mode", "position_rev", "velocity_rev_s", "torque_Nm")
-    }
-    try:
-        for c in ctl:  # stop, then bring up: position mode without torque (takes no time)
-            await c.set_stop()
-            await c.set_position(position=math.nan, kp_scale=0, kd_scale=0, feedforward_torque=0)
-        for k, row in enumerate(rows):
-            for j, (c, cmd) in enumerate(zip(ctl, row, strict=True)):
-                r = await c.set_position(
-                    position=cmd.position_rev,
-                    velocity=cmd.velocity_rev_s,
-                    feedforward_torque=cmd.feedforward_Nm,
-                    kp_scale=cmd.kp_scale,
-                    kd_scale=cmd.kd_scale,
-                    query=True,
-                )
-                for name, key in zip(out, keys, strict=True):
-                    out[name][k, j] = r.values[key]
-        for c in ctl:
-            await c.set_stop()
-        return out
-    finally:
-        transport.close()
-
-
 @pytest.mark.parametrize("via", ["fdcanusb", "pythoncan"])
 def test_moteus_library_in_lockstep_equals_the_offline_stepping(via: str) -> None:
     """The library's replies (mode, position, velocity, torque, float32) equal the offline
     stepping of the same commands bit for bit, through torque and PD phases, over both its
     transports that run here: the fdcanusb (a pty) and python-can (CAN-FD frames on
     python-can's virtual bus)."""
-    pytest.importorskip("moteus")
-    rows = _commands(200)
+    moteus = pytest.importorskip("moteus")
+    rows = commands(200)
     if via == "fdcanusb":
         bus: can.BusABC = FdcanusbPtyBus()
         where = bus.channel_path  # type: ignore[attr-defined]
+        make = lambda: moteus.Fdcanusb(where)  # noqa: E731
     else:
         where = "moteus-pythoncan"
         bus = can.Bus(interface="virtual", channel=where)
+        make = lambda: moteus.PythonCan(interface="virtual", channel=where)  # noqa: E731
     with serving(MoteusServer(_core(), bus, idle_timeout_s=2.0)) as server:
-        got = asyncio.run(_library_run(where, rows, via))
+        got = asyncio.run(library_run(make, rows))
         assert server.errors == 0 and server.ignored == 0
     ref = run_commands(_robot(), PERIOD_S, rows)
     for key in ("mode", "position_rev", "velocity_rev_s", "torque_Nm"):
@@ -304,23 +230,11 @@ def test_moteus_library_in_lockstep_equals_the_offline_stepping(via: str) -> Non
     assert np.any(ref["torque_Nm"][100:, 0] != 0)  # the PD acted
 
 
-MULTISINE = """
-name = "moteus-multisine"
-kind = "open_loop_torque"
-period_s = 0.002
-duration_s = 0.3
-[[joints]]
-sines = [{ amplitude_Nm = 2.0, omega_rad_s = 9.0, phase_rad = 0.3 }]
-[[joints]]
-sines = [{ amplitude_Nm = 0.7, omega_rad_s = 14.0, phase_rad = 1.0 }]
-"""
-
-
 def test_virtual_robot_serve_moteus_bench_equals_virtual_robot_simulate(tmp_path: Path) -> None:
     """End to end from the CLI: `virtual-robot serve --bench virtual-moteus-fdcanusb`, the
     library on the announced pty sending an experiment's torques, and `virtual-robot simulate
     --robot dfki-a0-moteus` of that experiment: the same q (2π × position) and τ, row for row."""
-    pytest.importorskip("moteus")
+    moteus = pytest.importorskip("moteus")
     from drivers.recording import read_signals
     from profiles.experiment import load_experiment
 
@@ -357,7 +271,7 @@ def test_virtual_robot_serve_moteus_bench_equals_virtual_robot_simulate(tmp_path
     try:
         info = json.loads(serve.stdout.readline())  # type: ignore[union-attr]
         assert info["event"] == "ready" and info["protocol"] == "moteus"
-        got = asyncio.run(_library_run(info["channel"], rows))
+        got = asyncio.run(library_run(lambda: moteus.Fdcanusb(info["channel"]), rows))
     finally:
         serve.terminate()
         serve.wait(10)
