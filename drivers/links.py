@@ -62,9 +62,10 @@ def open_socketcan(channel: str, *, fd: bool = False) -> Any:
     """python-can SocketCAN bus on ``channel``; a missing interface is a one-line OSError.
 
     The interface is looked up first: python-can logs a second line of its own when the bind fails.
-    ``fd``: CAN-FD frames too (moteus). The interface must then have the CAN-FD MTU (72): on a
-    classic one (MTU 16) the kernel refuses every FD frame at send with EINVAL, so it is a
-    one-line OSError here, naming the command that makes it a CAN-FD interface.
+    ``fd``: CAN-FD frames too (moteus). The interface must then have the CAN-FD MTU (72, what a
+    new vcan and a real interface set ``fd on`` have): on a classic one (MTU 16) the kernel
+    refuses every FD frame at send with EINVAL, so it is a one-line OSError here, naming the
+    command that makes it a CAN-FD interface.
     """
     import socket
 
@@ -73,9 +74,8 @@ def open_socketcan(channel: str, *, fd: bool = False) -> Any:
     try:
         socket.if_nametoindex(channel)
     except OSError:
-        if channel.startswith("vcan"):
-            mtu = f" && ip link set {channel} mtu {CANFD_MTU}" if fd else ""
-            make = f"ip link add dev {channel} type vcan{mtu} && ip link set up {channel}"
+        if channel.startswith("vcan"):  # a new vcan has the CAN-FD MTU (linux vcan.c)
+            make = f"ip link add dev {channel} type vcan && ip link set up {channel}"
             raise OSError(f"{channel} missing: run `{make}` (docs/vcan.md)") from None
         raise OSError(f"socketcan channel {channel} missing: no such network interface") from None
     if fd:

@@ -2,8 +2,9 @@
 unmodified ``moteus`` library's python-can transport, and this project's host, against
 `virtual-robot serve --bench virtual-moteus-vcan` on a vcan of the CAN-FD MTU.
 
-A vcan interface carries CAN-FD frames once its MTU is 72 (``ip link set vcanfd0 mtu 72``); the
-default, 16, is classic CAN, and the kernel refuses every FD frame sent on it (EINVAL), which
+A new vcan interface has the CAN-FD MTU, 72 (linux drivers/net/can/vcan.c), and carries CAN-FD
+frames as it is. An interface of the classic MTU, 16 (a real one without ``fd on``, or a vcan set
+so), makes the kernel refuse every FD frame sent on it (EINVAL), which
 ``drivers.links.open_socketcan(fd=True)`` reports in one line before anything is sent. The
 fixture makes ``vcanfd0``; needs root and the vcan module: `make test-vcan` runs these in its guest.
 """
@@ -22,7 +23,7 @@ import pytest
 from cli_run import ROOT, SLOW_GUEST, bench_copy, hil
 from moteus_clients import MULTISINE, PERIOD_S, commands, library_run
 
-from drivers.links import open_socketcan
+from drivers.links import interface_mtu, open_socketcan
 from drivers.recording import read_signals
 from profiles.robot import load_robot
 from virtual_robot.moteus_simulate import run_commands
@@ -48,9 +49,7 @@ def vcanfd0():
             "`make test-vcan` runs this in a VM"
         )
     try:
-        for args in (("mtu", "72"), ("up",)):
-            done = _ip("link", "set", FD_IF, *args)
-            assert done.returncode == 0, done.stderr
+        assert _ip("link", "set", "up", FD_IF).returncode == 0
         yield FD_IF
     finally:
         _ip("link", "del", FD_IF)
@@ -113,13 +112,15 @@ def test_hil_run_over_socketcan_canfd_equals_virtual_robot_simulate(vcanfd0, tmp
 
 
 def test_classic_vcan_refuses_canfd_frames_and_the_bench_says_so(vcanfd0, tmp_path):
-    """On a vcan of the classic MTU (16) the kernel refuses an FD frame at send (EINVAL):
-    open_socketcan(fd=True) says so in one line, naming the MTU command, and a moteus bench on
-    such an interface stops before the run with that line."""
+    """A new vcan has the CAN-FD MTU; set to the classic MTU (16), the kernel refuses an FD frame
+    at send (EINVAL): open_socketcan(fd=True) says so in one line, naming the MTU command, and a
+    moteus bench on such an interface stops before the run with that line."""
+    assert interface_mtu(vcanfd0) == 72
     classic = "vcanc0"
     made = _ip("link", "add", "dev", classic, "type", "vcan")
     assert made.returncode == 0, made.stderr
     try:
+        assert _ip("link", "set", classic, "mtu", "16").returncode == 0
         assert _ip("link", "set", "up", classic).returncode == 0
         raw = can.Bus(interface="socketcan", channel=classic, fd=True)
         try:
