@@ -348,6 +348,38 @@ def test_hil_run_over_the_moteus_bench_equals_virtual_robot_simulate(tmp_path: P
     assert np.ptp(host["q1"]) > 0.05
 
 
+def test_hil_identify_over_the_moteus_bench_runs_the_arms_own_excitation(tmp_path: Path) -> None:
+    """`hil identify --bench virtual-moteus-fdcanusb` with the default excitation: the arm's own
+    dfki-a0-moteus-excitation and -validation (hil excite designs within the bench's limits),
+    not reyes-kelly (the CICESE arm's 97 Nm torques, which clamped at the qdd100's 16 Nm spin
+    the light DFKI links past the bench's 20 rad/s within 0.1 s, as the first run shows): the
+    runs stay inside the bench's limits and θ1..θ5 come out within 0.5 % of the profile's."""
+    from cli_run import hil
+
+    from drivers.recording import read_signals
+    from hil.identify.pipelines import arm_experiment
+
+    assert arm_experiment("cicese", "excitation", "reyes-kelly") == "reyes-kelly"
+    bench = ["--bench", "virtual-moteus-fdcanusb"]
+    paper = hil("identify", *bench, "--experiment", "reyes-kelly", "--out", str(tmp_path / "p"))
+    assert paper.returncode != 0 and "velocity" in paper.stderr and "beyond 20.0" in paper.stderr
+    out = tmp_path / "id"
+    proc = hil("identify", *bench, "--duration", "2", "--out", str(out), "--no-plot", "--json")
+    assert proc.returncode == 0, proc.stderr
+    for run, experiment in (("fit", "excitation"), ("validation", "validation")):
+        meta = json.loads((out / run / "meta.json").read_text())
+        assert meta["experiment"] == f"dfki-a0-moteus-{experiment}"
+        rec = read_signals(out / run).columns
+        assert len(rec["t"]) == 1000
+        for q in ("q1", "q2"):
+            dq = np.diff(rec[q]) / PERIOD_S
+            assert 5.0 < np.max(np.abs(dq)) < 20.0  # excited, inside the bench's limit
+    report = json.loads(proc.stdout)
+    assert report["selection"]["usable"]
+    for row in report["discretizations"]["exact"]["table_ii"][:5]:
+        assert abs(row["filtered_dynamic_error"]) < 5e-3, row
+
+
 # ---- the fdcanusb pty, line by line -------------------------------------------------------------
 def test_fdcanusb_pty_answers_lines_and_refuses_bad_ones() -> None:
     """A `can send` is answered OK and becomes a CAN-FD frame; a wrong checksum, an unknown
