@@ -184,6 +184,77 @@ def test_modes_limits_watchdog_and_bad_frames() -> None:
         host.shutdown()
 
 
+def test_zero_velocity_damps_and_the_modes_not_run_are_refused() -> None:
+    """The library's make_zero_velocity: mode 12, τ = −kd_scale · kd · v every period, no
+    watchdog and no period's command needed; in TIMEOUT refused. make_brake, make_current,
+    make_vfoc, make_stay_within and a mode beyond the firmware's 15: write error 3 (the
+    firmware's code for a mode it lacks), logged with why, command and mode kept."""
+    moteus = pytest.importorskip("moteus")
+    from moteus.protocol import parse_registers
+
+    bus = can.Bus(interface="virtual", channel="moteus-modes")
+    host = can.Bus(interface="virtual", channel="moteus-modes")
+    lines: list[str] = []
+    server = MoteusServer(_core(), bus, idle_timeout_s=5.0, log=lines.append)
+    c1, c2 = moteus.Controller(id=1), moteus.Controller(id=2)
+    d1, d2 = server.drives
+
+    def send(arb: int, data: bytes) -> dict:
+        server.handle(can.Message(arbitration_id=arb, data=data, is_fd=True, is_extended_id=True))
+        msg = host.recv(0.5)
+        assert msg is not None
+        got = parse_registers(bytes(msg.data))
+        return got.response | {"errors": got.errors}
+
+    try:
+        torque = _pos(c1, position=math.nan, kp_scale=0, kd_scale=0, feedforward_torque=3.0)
+        send(0x8001, torque + bytes(c1.make_query().data))
+        send(0x8002, _pos(c2, feedforward_torque=0.0, kp_scale=0, kd_scale=0, query=True))
+        for _ in range(20):  # 3 Nm on joint 1 for 20 periods (controller 2 sets the pace)
+            send(0x8001, _pos(c1, feedforward_torque=3.0, kp_scale=0, kd_scale=0, query=True))
+            send(0x8002, _pos(c2, feedforward_torque=0.0, kp_scale=0, kd_scale=0, query=True))
+        r = send(0x8001, bytes(c1.make_zero_velocity(kd_scale=0.5, query=True).data))
+        assert r[0] == mo.ZERO_VELOCITY_MODE and r[2] > 0.05  # moving up
+        assert r[3] == pytest.approx(-0.5 * d1.kd * r[2], rel=1e-5)
+        t0 = server.core.t
+        rows = []
+        for _ in range(round(0.1 / PERIOD_S) + 10):  # past the 0.1 s watchdog: none in mode 12
+            send(0x8002, _pos(c2, feedforward_torque=0.0, kp_scale=0, kd_scale=0, query=True))
+            rows.append(send(0x8001, bytes(c1.make_query().data)))
+        assert server.core.t > t0  # periods passed without a command to controller 1
+        assert all(r[0] == mo.ZERO_VELOCITY_MODE for r in rows)
+        for r in rows:  # the damping law, against the velocity it reads
+            assert r[3] == pytest.approx(-0.5 * d1.kd * r[2], rel=1e-5, abs=1e-6)
+        # refused: the modes not run, each with its reason; mode 12 and its command kept
+        before = d1.command
+        for frame, name in (
+            (c1.make_brake(query=True), "brake"),
+            (c1.make_current(d_A=0.0, q_A=2.0, query=True), "current"),
+            (c1.make_vfoc(theta=0.0, voltage=1.0, query=True), "voltage foc"),
+            (c1.make_stay_within(lower_bound=-0.1, upper_bound=0.1, query=True), "stay within"),
+        ):
+            r = send(0x8001, bytes(frame.data))
+            assert r["errors"] == [(mo.MODE, 3)] and r[0] == mo.ZERO_VELOCITY_MODE, name
+            assert d1.command is before
+            assert any(f"({name}) is not emulated" in line for line in lines), name
+        no_such = mo.pack_registers(mo.WRITE_BASE, mo.MODE, mo.INT8, [16])
+        assert send(0x8001, no_such + mo.pack_read(mo.MODE, mo.INT8, 1))["errors"] == [(mo.MODE, 3)]
+        assert any("no such mode" in line for line in lines)
+        # in TIMEOUT (controller 2 silent past its watchdog): zero velocity refused until a stop
+        for _ in range(round(0.1 / PERIOD_S) + 2):
+            send(0x8001, _pos(c1, feedforward_torque=0.0, kp_scale=0, kd_scale=0, query=True))
+        assert d2.mode == mo.TIMEOUT_MODE
+        r = send(0x8002, bytes(c2.make_zero_velocity(query=True).data))
+        assert r[0] == mo.TIMEOUT_MODE and r["errors"] == [(mo.MODE, 3)]
+        send(0x8002, bytes(c2.make_stop(query=True).data))
+        r = send(0x8002, bytes(c2.make_zero_velocity(query=True).data))  # kd_scale 1
+        assert r[0] == mo.ZERO_VELOCITY_MODE and d2.command.kd_scale == 1.0
+        assert server.errors == 0
+    finally:
+        bus.shutdown()
+        host.shutdown()
+
+
 def test_offline_stepping_follows_the_torque_and_the_pd() -> None:
     """run_commands is physics, not an echo: +1 Nm accelerates the first joint that way; a
     torque beyond the 16 Nm clamp acts as 16 Nm; the position PD pulls toward its target with
