@@ -113,3 +113,33 @@ def assert_same_recording(rec: Any, reference: Any) -> None:
     assert np.array_equal(rec.t, reference.t)
     assert np.array_equal(rec.q, reference.q), np.max(np.abs(rec.q - reference.q))
     assert np.array_equal(rec.tau, reference.tau)
+
+
+def assert_hil_run_equals_simulate(
+    bench: str, robot: str, experiment_toml: str, where: Path, *, rows: int, timeout: float = 120
+) -> Any:
+    """`hil run --bench BENCH` (lockstep) and `virtual-robot simulate --robot ROBOT` of the
+    open-loop experiment ``experiment_toml`` (a profile's text), both into ``where`` (``h``,
+    ``s``): ``rows`` rows each, the same q and τ bit for bit (:func:`assert_same_recording`);
+    the host's recording."""
+    from drivers.recording import read_signals
+
+    experiment = where / "experiment.toml"
+    experiment.write_text(experiment_toml)
+    ex = ["--experiment", str(experiment), "--no-plot"]
+    for module, args in (
+        ("hil.cli", ["run", "--bench", bench, *ex, "--out", str(where / "h")]),
+        ("virtual_robot.cli", ["simulate", "--robot", robot, *ex, "--out", str(where / "s")]),
+    ):
+        proc = subprocess.run(
+            [sys.executable, "-m", module, *args],
+            capture_output=True,
+            text=True,
+            timeout=timeout,
+            check=False,
+        )
+        assert proc.returncode == 0, proc.stderr
+    host, offline = read_signals(where / "h"), read_signals(where / "s")
+    assert len(host.t) == len(offline.t) == rows
+    assert_same_recording(host, offline)
+    return host

@@ -17,6 +17,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+from cli_run import assert_hil_run_equals_simulate, hil
 from loop_clients import serving
 from moteus_clients import MULTISINE, PERIOD_S, commands, library_run
 
@@ -397,26 +398,10 @@ def test_hil_run_over_the_moteus_bench_equals_virtual_robot_simulate(tmp_path: P
     """This project's host on the register protocol (drivers/moteus_arm.py, drivers/fdcanusb.py):
     `hil run` of an experiment over the moteus bench (fdcanusb pty, lockstep) records the q and τ
     `virtual-robot simulate` writes for it, row for row, bit for bit."""
-    from drivers.recording import read_signals
-
-    experiment = tmp_path / "multisine.toml"
-    experiment.write_text(MULTISINE)
-
-    def run(*args: str) -> None:
-        proc = subprocess.run(
-            [sys.executable, "-m", *args], capture_output=True, text=True, timeout=120, check=False
-        )
-        assert proc.returncode == 0, proc.stderr
-
-    ex = ["--experiment", str(experiment)]
-    run("hil.cli", "run", "--bench", "virtual-moteus-fdcanusb", *ex, "--out", str(tmp_path / "h"))
-    sim = ["simulate", "--robot", "dfki-a0-moteus", *ex, "--no-plot"]
-    run("virtual_robot.cli", *sim, "--out", str(tmp_path / "s"))
-    host, offline = read_signals(tmp_path / "h").columns, read_signals(tmp_path / "s").columns
-    assert len(host["t"]) == len(offline["t"]) == 150
-    for key in ("q1", "q2", "tau1", "tau2"):
-        np.testing.assert_array_equal(host[key], offline[key])
-    assert np.ptp(host["q1"]) > 0.05
+    host = assert_hil_run_equals_simulate(
+        "virtual-moteus-fdcanusb", "dfki-a0-moteus", MULTISINE, tmp_path, rows=150
+    )
+    assert np.ptp(host.q[:, 0]) > 0.05
 
 
 def test_hil_identify_over_the_moteus_bench_runs_the_arms_own_excitation(tmp_path: Path) -> None:
@@ -425,8 +410,6 @@ def test_hil_identify_over_the_moteus_bench_runs_the_arms_own_excitation(tmp_pat
     not reyes-kelly (the CICESE arm's 97 Nm torques, which clamped at the qdd100's 16 Nm spin
     the light DFKI links past the bench's 20 rad/s within 0.1 s, as the first run shows): the
     runs stay inside the bench's limits and θ1..θ5 come out within 0.5 % of the profile's."""
-    from cli_run import hil
-
     from drivers.recording import read_signals
     from hil.identify.pipelines import arm_experiment
 

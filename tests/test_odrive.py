@@ -21,6 +21,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+from cli_run import assert_hil_run_equals_simulate
 from loop_clients import served_on
 
 from drivers.protocol import odrive as od
@@ -348,26 +349,10 @@ def test_hil_run_over_the_odrive_bench_equals_virtual_robot_simulate(tmp_path: P
     """This project's host on CANSimple (drivers/odrive_arm.py): `hil run` of an experiment over
     the ODrive bench (slcan, lockstep) records the q and τ `virtual-robot simulate` writes for
     it, row for row, bit for bit."""
-    from drivers.recording import read_signals
-
-    experiment = tmp_path / "multisine.toml"
-    experiment.write_text(ODRIVE_MULTISINE)
-
-    def run(*args: str) -> None:
-        proc = subprocess.run(
-            [sys.executable, "-m", *args], capture_output=True, text=True, timeout=120, check=False
-        )
-        assert proc.returncode == 0, proc.stderr
-
-    ex = ["--experiment", str(experiment)]
-    run("hil.cli", "run", "--bench", "virtual-odrive-slcan", *ex, "--out", str(tmp_path / "h"))
-    sim = ["simulate", "--robot", "dfki-a0-odrive", *ex, "--no-plot"]
-    run("virtual_robot.cli", *sim, "--out", str(tmp_path / "s"))
-    host, offline = read_signals(tmp_path / "h").columns, read_signals(tmp_path / "s").columns
-    assert len(host["t"]) == len(offline["t"]) == 150
-    for key in ("q1", "q2", "tau1", "tau2"):
-        np.testing.assert_array_equal(host[key], offline[key])
-    assert np.ptp(host["q1"]) > 0.05
+    host = assert_hil_run_equals_simulate(
+        "virtual-odrive-slcan", "dfki-a0-odrive", ODRIVE_MULTISINE, tmp_path, rows=150
+    )
+    assert np.ptp(host.q[:, 0]) > 0.05
 
 
 async def _realtime_run(channel: str) -> tuple[list[float], str, str]:
