@@ -115,31 +115,58 @@ def assert_same_recording(rec: Any, reference: Any) -> None:
     assert np.array_equal(rec.tau, reference.tau)
 
 
-def assert_hil_run_equals_simulate(
-    bench: str, robot: str, experiment_toml: str, where: Path, *, rows: int, timeout: float = 120
-) -> Any:
-    """`hil run --bench BENCH` (lockstep) and `virtual-robot simulate --robot ROBOT` of the
-    open-loop experiment ``experiment_toml`` (a profile's text), both into ``where`` (``h``,
-    ``s``): ``rows`` rows each, the same q and τ bit for bit (:func:`assert_same_recording`);
-    the host's recording."""
+def run_module(module: str, *args: str, timeout: float = 120) -> None:
+    """``python -m MODULE ARGS``, which must exit 0 (else its stderr is the failure)."""
+    proc = subprocess.run(
+        [sys.executable, "-m", module, *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+
+
+def simulate_cli(
+    robot: str, experiment_toml: str, where: Path, *, timeout: float = 120
+) -> tuple[Any, np.ndarray]:
+    """`virtual-robot simulate --robot ROBOT` of the open-loop experiment ``experiment_toml`` (a
+    profile's text, written to ``where/experiment.toml``) into ``where/s``: its recording and the
+    experiment's torque of each of its rows (rows × joints), what a client sends to redo it."""
     from drivers.recording import read_signals
+    from profiles.experiment import load_experiment
 
     experiment = where / "experiment.toml"
     experiment.write_text(experiment_toml)
-    ex = ["--experiment", str(experiment), "--no-plot"]
-    for module, args in (
-        ("hil.cli", ["run", "--bench", bench, *ex, "--out", str(where / "h")]),
-        ("virtual_robot.cli", ["simulate", "--robot", robot, *ex, "--out", str(where / "s")]),
-    ):
-        proc = subprocess.run(
-            [sys.executable, "-m", module, *args],
-            capture_output=True,
-            text=True,
-            timeout=timeout,
-            check=False,
-        )
-        assert proc.returncode == 0, proc.stderr
-    host, offline = read_signals(where / "h"), read_signals(where / "s")
+    args = [
+        "--robot",
+        robot,
+        "--experiment",
+        str(experiment),
+        "--no-plot",
+        "--out",
+        str(where / "s"),
+    ]
+    run_module("virtual_robot.cli", "simulate", *args, timeout=timeout)
+    rec = read_signals(where / "s")
+    exp = load_experiment(experiment)
+    rows = exp.torque_rows(exp.period_s, len(rec.t))
+    return rec, np.array([rows[k] for k in range(len(rec.t))])
+
+
+def assert_hil_run_equals_simulate(
+    bench: str, robot: str, experiment_toml: str, where: Path, *, rows: int, timeout: float = 120
+) -> Any:
+    """`hil run --bench BENCH` (lockstep) and `virtual-robot simulate --robot ROBOT`
+    (:func:`simulate_cli`) of the open-loop experiment ``experiment_toml``, both into ``where``
+    (``h``, ``s``): ``rows`` rows each, the same q and τ bit for bit
+    (:func:`assert_same_recording`); the host's recording."""
+    from drivers.recording import read_signals
+
+    offline, _ = simulate_cli(robot, experiment_toml, where, timeout=timeout)
+    ex = ["--experiment", str(where / "experiment.toml"), "--no-plot"]
+    run_module("hil.cli", "run", "--bench", bench, *ex, "--out", str(where / "h"), timeout=timeout)
+    host = read_signals(where / "h")
     assert len(host.t) == len(offline.t) == rows
     assert_same_recording(host, offline)
     return host

@@ -17,7 +17,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
-from cli_run import assert_hil_run_equals_simulate, hil
+from cli_run import assert_hil_run_equals_simulate, hil, simulate_cli
 from loop_clients import serving
 from moteus_clients import MULTISINE, PERIOD_S, commands, library_run
 
@@ -307,32 +307,9 @@ def test_virtual_robot_serve_moteus_bench_equals_virtual_robot_simulate(tmp_path
     library on the announced pty sending an experiment's torques, and `virtual-robot simulate
     --robot dfki-a0-moteus` of that experiment: the same q (2π × position) and τ, row for row."""
     moteus = pytest.importorskip("moteus")
-    from drivers.recording import read_signals
-    from profiles.experiment import load_experiment
-
-    experiment = tmp_path / "multisine.toml"
-    experiment.write_text(MULTISINE)
-    sim_args = ["simulate", "--robot", "dfki-a0-moteus", "--experiment", str(experiment)]
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "virtual_robot.cli",
-            *sim_args,
-            "--out",
-            str(tmp_path / "s"),
-            "--no-plot",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
-    assert proc.returncode == 0, proc.stderr
-    sim = read_signals(tmp_path / "s").columns
-    exp = load_experiment(experiment)
-    n = len(sim["t"])
-    rows = [[torque_command(t) for t in exp.torque_rows(exp.period_s, n)[k]] for k in range(n)]
+    sim, tau = simulate_cli("dfki-a0-moteus", MULTISINE, tmp_path)
+    sim = sim.columns
+    rows = [[torque_command(t) for t in row] for row in tau]
     serve = subprocess.Popen(
         [sys.executable, "-m", "virtual_robot.cli", "serve", "--bench", "virtual-moteus-fdcanusb"],
         cwd=ROOT,

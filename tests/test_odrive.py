@@ -21,7 +21,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
-from cli_run import assert_hil_run_equals_simulate
+from cli_run import assert_hil_run_equals_simulate, simulate_cli
 from loop_clients import served_on
 
 from drivers.protocol import odrive as od
@@ -318,25 +318,8 @@ def test_library_reads_what_virtual_robot_simulate_writes(tmp_path: Path) -> Non
     positions odrive-can reads when it sends that experiment's torques (row k+1 is the estimate
     after period k), to the encoder count."""
     pytest.importorskip("odrive_can")
-    from drivers.recording import read_signals
-    from profiles.experiment import load_experiment
-
-    experiment = tmp_path / "multisine.toml"
-    experiment.write_text(ODRIVE_MULTISINE)
-    out = tmp_path / "sim"
-    args = ["simulate", "--robot", "dfki-a0-odrive", "--experiment", str(experiment)]
-    proc = subprocess.run(
-        [sys.executable, "-m", "virtual_robot.cli", *args, "--out", str(out), "--no-plot"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
-    assert proc.returncode == 0, proc.stderr
-    sim = read_signals(out).columns
-    exp = load_experiment(experiment)
-    n = len(sim["t"])
-    tau = np.array([exp.torque_rows(exp.period_s, n)[k] for k in range(n)])
+    sim, tau = simulate_cli("dfki-a0-odrive", ODRIVE_MULTISINE, tmp_path)
+    sim = sim.columns
     with _served("odrive-sim", idle_timeout_s=0.5):
         pos, _vel, _notes = asyncio.run(_library_run("odrive-sim", tau))
     q = 2.0 * np.pi * pos[:-1]
