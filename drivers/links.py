@@ -55,10 +55,17 @@ def can_bus_kwargs(bench: BenchProfile, channel: dict[str, Any]) -> dict[str, An
     raise ValueError(f"{bench.source}: transport {bench.transport!r} is not a CAN transport")
 
 
-def open_socketcan(channel: str) -> Any:
+CANFD_MTU = 72  # struct canfd_frame: an interface that carries CAN-FD frames (linux/can.h)
+
+
+def open_socketcan(channel: str, *, fd: bool = False) -> Any:
     """python-can SocketCAN bus on ``channel``; a missing interface is a one-line OSError.
 
     The interface is looked up first: python-can logs a second line of its own when the bind fails.
+    ``fd``: CAN-FD frames too (moteus). The interface must then have the CAN-FD MTU (72, what a
+    new vcan and a real interface set ``fd on`` have): on a classic one (MTU 16) the kernel
+    refuses every FD frame at send with EINVAL, so it is a one-line OSError here, naming the
+    command that makes it a CAN-FD interface.
     """
     import socket
 
@@ -67,14 +74,35 @@ def open_socketcan(channel: str) -> Any:
     try:
         socket.if_nametoindex(channel)
     except OSError:
-        if channel.startswith("vcan"):
+        if channel.startswith("vcan"):  # a new vcan has the CAN-FD MTU (linux vcan.c)
             make = f"ip link add dev {channel} type vcan && ip link set up {channel}"
             raise OSError(f"{channel} missing: run `{make}` (docs/vcan.md)") from None
         raise OSError(f"socketcan channel {channel} missing: no such network interface") from None
+    if fd:
+        mtu = interface_mtu(channel)
+        if mtu is not None and mtu < CANFD_MTU:
+            make = (
+                f"ip link set {channel} down && ip link set {channel} mtu {CANFD_MTU} "
+                f"&& ip link set up {channel}"
+                if channel.startswith("vcan")
+                else f"ip link set {channel} type can bitrate 1000000 dbitrate 5000000 fd on"
+            )
+            raise OSError(
+                f"socketcan channel {channel} carries classic CAN only (MTU {mtu}), moteus needs "
+                f"CAN-FD (MTU {CANFD_MTU}): run `{make}` (docs/vcan.md)"
+            )
     try:
-        return can.Bus(interface="socketcan", channel=channel)
+        return can.Bus(interface="socketcan", channel=channel, fd=fd)
     except Exception as exc:  # CanError is not an OSError; the CLIs report OSErrors
         raise OSError(f"cannot open socketcan channel {channel}: {exc}") from exc
+
+
+def interface_mtu(channel: str) -> int | None:
+    """The network interface's MTU (sysfs), None where it cannot be read."""
+    try:
+        return int(Path(f"/sys/class/net/{channel}/mtu").read_text())
+    except (OSError, ValueError):
+        return None
 
 
 # a refused socketcand port is retried this long (a daemon just started), then reported
@@ -161,10 +189,13 @@ def open_arm(
         kwargs = can_bus_kwargs(bench, channel)
         return OdriveArm(lambda: make_can_bus(kwargs), drives, **common)
     if bench.protocol == "moteus":
-        from drivers.fdcanusb import FdcanusbBus
         from drivers.moteus_arm import MoteusArm
 
         port = str(channel.get("channel") or bench.channel)
+        if bench.transport == "socketcan":  # a CAN-FD interface (fd on, or a vcan of MTU 72)
+            return MoteusArm(lambda: open_socketcan(port, fd=True), drives, **common)
+        from drivers.fdcanusb import FdcanusbBus
+
         return MoteusArm(lambda: FdcanusbBus(port), drives, **common)
     if bench.protocol == "mit":
         from drivers.mit_arm import MitArm

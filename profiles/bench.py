@@ -23,7 +23,7 @@ TRANSPORTS = {
     "can": ("slcan", "socketcan", "socketcand", "virtual"),
     "mit": ("slcan", "socketcan", "virtual"),
     "odrive": ("slcan", "socketcan", "virtual"),
-    "moteus": ("fdcanusb",),
+    "moteus": ("fdcanusb", "socketcan"),
     "serial": ("serial",),
 }
 MODES = ("lockstep", "realtime")

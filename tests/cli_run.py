@@ -17,6 +17,25 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
+# The emulated guest of `make test-vcan` runs Python 5-50x slower than the host (software CPU
+# emulation on a shared machine). Its tests check that the paths over vcan work end to end, so
+# they run copies of the shipped benches with generous timeouts (bench_copy); the timing figures
+# are `make bench`'s, on the host.
+SLOW_GUEST = {"timeout_s = 2.0": "timeout_s = 60.0"}
+
+
+def bench_copy(name: str, where: Path, changes: dict[str, str]) -> Path:
+    """The shipped bench ``name`` with each ``changes`` key (which must be there) replaced."""
+    from profiles import resolve
+
+    text = resolve("benches", name).read_text()
+    for old, new in changes.items():
+        assert old in text, (name, old)
+        text = text.replace(old, new)
+    path = where / f"{name}.toml"
+    path.write_text(text)
+    return path
+
 
 def hil(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     """``python -m hil.cli ARGS``: output captured as text, never raising on a non-zero exit
@@ -94,3 +113,60 @@ def assert_same_recording(rec: Any, reference: Any) -> None:
     assert np.array_equal(rec.t, reference.t)
     assert np.array_equal(rec.q, reference.q), np.max(np.abs(rec.q - reference.q))
     assert np.array_equal(rec.tau, reference.tau)
+
+
+def run_module(module: str, *args: str, timeout: float = 120) -> None:
+    """``python -m MODULE ARGS``, which must exit 0 (else its stderr is the failure)."""
+    proc = subprocess.run(
+        [sys.executable, "-m", module, *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+
+
+def simulate_cli(
+    robot: str, experiment_toml: str, where: Path, *, timeout: float = 120
+) -> tuple[Any, np.ndarray]:
+    """`virtual-robot simulate --robot ROBOT` of the open-loop experiment ``experiment_toml`` (a
+    profile's text, written to ``where/experiment.toml``) into ``where/s``: its recording and the
+    experiment's torque of each of its rows (rows × joints), what a client sends to redo it."""
+    from drivers.recording import read_signals
+    from profiles.experiment import load_experiment
+
+    experiment = where / "experiment.toml"
+    experiment.write_text(experiment_toml)
+    args = [
+        "--robot",
+        robot,
+        "--experiment",
+        str(experiment),
+        "--no-plot",
+        "--out",
+        str(where / "s"),
+    ]
+    run_module("virtual_robot.cli", "simulate", *args, timeout=timeout)
+    rec = read_signals(where / "s")
+    exp = load_experiment(experiment)
+    rows = exp.torque_rows(exp.period_s, len(rec.t))
+    return rec, np.array([rows[k] for k in range(len(rec.t))])
+
+
+def assert_hil_run_equals_simulate(
+    bench: str, robot: str, experiment_toml: str, where: Path, *, rows: int, timeout: float = 120
+) -> Any:
+    """`hil run --bench BENCH` (lockstep) and `virtual-robot simulate --robot ROBOT`
+    (:func:`simulate_cli`) of the open-loop experiment ``experiment_toml``, both into ``where``
+    (``h``, ``s``): ``rows`` rows each, the same q and τ bit for bit
+    (:func:`assert_same_recording`); the host's recording."""
+    from drivers.recording import read_signals
+
+    offline, _ = simulate_cli(robot, experiment_toml, where, timeout=timeout)
+    ex = ["--experiment", str(where / "experiment.toml"), "--no-plot"]
+    run_module("hil.cli", "run", "--bench", bench, *ex, "--out", str(where / "h"), timeout=timeout)
+    host = read_signals(where / "h")
+    assert len(host.t) == len(offline.t) == rows
+    assert_same_recording(host, offline)
+    return host

@@ -18,6 +18,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+from cli_run import simulate_cli
 from mit_clients import RawCanSocket, run_dfki_driver, served, socketcan_as_virtual
 
 from drivers.protocol import mit
@@ -273,25 +274,8 @@ def test_dfki_driver_recording_equals_virtual_robot_simulate(monkeypatch, tmp_pa
     """The DFKI driver commanding an experiment's torques reads, period for period, the q
     `virtual-robot simulate` writes for that experiment on the same robot (the 16-bit reply
     field: the protocol's resolution)."""
-    from drivers.recording import read_signals
-    from profiles.experiment import load_experiment
-
-    experiment = tmp_path / "multisine.toml"
-    experiment.write_text(PENDULUM_MULTISINE)
-    out = tmp_path / "sim"
-    args = ["simulate", "--robot", "dfki-a0", "--experiment", str(experiment), "--out", str(out)]
-    proc = subprocess.run(
-        [sys.executable, "-m", "virtual_robot.cli", *args, "--no-plot"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
-    assert proc.returncode == 0, proc.stderr
-    sim = read_signals(out).columns
-    exp = load_experiment(experiment)
-    n = len(sim["t"])
-    tau = np.array([exp.torque_rows(exp.period_s, n)[k] for k in range(n)])
+    sim, tau = simulate_cli("dfki-a0", PENDULUM_MULTISINE, tmp_path)
+    sim = sim.columns
     got, _ = _dfki_run(monkeypatch, "dfki-sim", tau)
     assert got[:, 0] == pytest.approx(sim["q1"], abs=1e-12)
     assert got[:, 3] == pytest.approx(sim["q2"], abs=1e-12)

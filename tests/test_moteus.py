@@ -17,10 +17,11 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+from cli_run import assert_hil_run_equals_simulate, hil, simulate_cli
 from loop_clients import serving
+from moteus_clients import MULTISINE, PERIOD_S, commands, library_run
 
 from drivers.protocol import moteus as mo
-from drivers.protocol.moteus import f32
 from profiles.bench import load_bench
 from profiles.robot import load_robot
 from virtual_robot.fdcanusb_device import FdcanusbPtyBus
@@ -30,7 +31,6 @@ from virtual_robot.moteus_simulate import run_commands, torque_command
 from virtual_robot.robot import LOCKSTEP, VirtualRobot
 from virtual_robot.serve import build_core
 
-PERIOD_S = 0.002
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -185,6 +185,77 @@ def test_modes_limits_watchdog_and_bad_frames() -> None:
         host.shutdown()
 
 
+def test_zero_velocity_damps_and_the_modes_not_run_are_refused() -> None:
+    """The library's make_zero_velocity: mode 12, τ = −kd_scale · kd · v every period, no
+    watchdog and no period's command needed; in TIMEOUT refused. make_brake, make_current,
+    make_vfoc, make_stay_within and a mode beyond the firmware's 15: write error 3 (the
+    firmware's code for a mode it lacks), logged with why, command and mode kept."""
+    moteus = pytest.importorskip("moteus")
+    from moteus.protocol import parse_registers
+
+    bus = can.Bus(interface="virtual", channel="moteus-modes")
+    host = can.Bus(interface="virtual", channel="moteus-modes")
+    lines: list[str] = []
+    server = MoteusServer(_core(), bus, idle_timeout_s=5.0, log=lines.append)
+    c1, c2 = moteus.Controller(id=1), moteus.Controller(id=2)
+    d1, d2 = server.drives
+
+    def send(arb: int, data: bytes) -> dict:
+        server.handle(can.Message(arbitration_id=arb, data=data, is_fd=True, is_extended_id=True))
+        msg = host.recv(0.5)
+        assert msg is not None
+        got = parse_registers(bytes(msg.data))
+        return got.response | {"errors": got.errors}
+
+    try:
+        torque = _pos(c1, position=math.nan, kp_scale=0, kd_scale=0, feedforward_torque=3.0)
+        send(0x8001, torque + bytes(c1.make_query().data))
+        send(0x8002, _pos(c2, feedforward_torque=0.0, kp_scale=0, kd_scale=0, query=True))
+        for _ in range(20):  # 3 Nm on joint 1 for 20 periods (controller 2 sets the pace)
+            send(0x8001, _pos(c1, feedforward_torque=3.0, kp_scale=0, kd_scale=0, query=True))
+            send(0x8002, _pos(c2, feedforward_torque=0.0, kp_scale=0, kd_scale=0, query=True))
+        r = send(0x8001, bytes(c1.make_zero_velocity(kd_scale=0.5, query=True).data))
+        assert r[0] == mo.ZERO_VELOCITY_MODE and r[2] > 0.05  # moving up
+        assert r[3] == pytest.approx(-0.5 * d1.kd * r[2], rel=1e-5)
+        t0 = server.core.t
+        rows = []
+        for _ in range(round(0.1 / PERIOD_S) + 10):  # past the 0.1 s watchdog: none in mode 12
+            send(0x8002, _pos(c2, feedforward_torque=0.0, kp_scale=0, kd_scale=0, query=True))
+            rows.append(send(0x8001, bytes(c1.make_query().data)))
+        assert server.core.t > t0  # periods passed without a command to controller 1
+        assert all(r[0] == mo.ZERO_VELOCITY_MODE for r in rows)
+        for r in rows:  # the damping law, against the velocity it reads
+            assert r[3] == pytest.approx(-0.5 * d1.kd * r[2], rel=1e-5, abs=1e-6)
+        # refused: the modes not run, each with its reason; mode 12 and its command kept
+        before = d1.command
+        for frame, name in (
+            (c1.make_brake(query=True), "brake"),
+            (c1.make_current(d_A=0.0, q_A=2.0, query=True), "current"),
+            (c1.make_vfoc(theta=0.0, voltage=1.0, query=True), "voltage foc"),
+            (c1.make_stay_within(lower_bound=-0.1, upper_bound=0.1, query=True), "stay within"),
+        ):
+            r = send(0x8001, bytes(frame.data))
+            assert r["errors"] == [(mo.MODE, 3)] and r[0] == mo.ZERO_VELOCITY_MODE, name
+            assert d1.command is before
+            assert any(f"({name}) is not emulated" in line for line in lines), name
+        no_such = mo.pack_registers(mo.WRITE_BASE, mo.MODE, mo.INT8, [16])
+        assert send(0x8001, no_such + mo.pack_read(mo.MODE, mo.INT8, 1))["errors"] == [(mo.MODE, 3)]
+        assert any("no such mode" in line for line in lines)
+        # in TIMEOUT (controller 2 silent past its watchdog): zero velocity refused until a stop
+        for _ in range(round(0.1 / PERIOD_S) + 2):
+            send(0x8001, _pos(c1, feedforward_torque=0.0, kp_scale=0, kd_scale=0, query=True))
+        assert d2.mode == mo.TIMEOUT_MODE
+        r = send(0x8002, bytes(c2.make_zero_velocity(query=True).data))
+        assert r[0] == mo.TIMEOUT_MODE and r["errors"] == [(mo.MODE, 3)]
+        send(0x8002, bytes(c2.make_stop(query=True).data))
+        r = send(0x8002, bytes(c2.make_zero_velocity(query=True).data))  # kd_scale 1
+        assert r[0] == mo.ZERO_VELOCITY_MODE and d2.command.kd_scale == 1.0
+        assert server.errors == 0
+    finally:
+        bus.shutdown()
+        host.shutdown()
+
+
 def test_offline_stepping_follows_the_torque_and_the_pd() -> None:
     """run_commands is physics, not an echo: +1 Nm accelerates the first joint that way; a
     torque beyond the 16 Nm clamp acts as 16 Nm; the position PD pulls toward its target with
@@ -205,97 +276,24 @@ def test_offline_stepping_follows_the_torque_and_the_pd() -> None:
 
 
 # ---- the client library, unmodified -------------------------------------------------------------
-def _commands(n: int) -> list[list[PositionCommand]]:
-    """Torque first (kp_scale = kd_scale = 0), then the drive's own PD to a moving target."""
-    t = np.arange(n) * PERIOD_S
-    rows = []
-    for k in range(n):
-        if k < n // 2:
-            rows.append(
-                [
-                    torque_command(1.5 * math.sin(2 * math.pi * 2.0 * t[k])),
-                    torque_command(-0.8 * math.cos(2 * math.pi * 3.0 * t[k])),
-                ]
-            )
-        else:
-            target = f32(0.05 * math.sin(2 * math.pi * 1.0 * t[k]))
-            rows.append(
-                [
-                    PositionCommand(
-                        position_rev=target, velocity_rev_s=0.0, kp_scale=1.0, kd_scale=1.0
-                    ),
-                    PositionCommand(
-                        position_rev=math.nan,
-                        feedforward_Nm=f32(0.3),
-                        kp_scale=0.0,
-                        kd_scale=f32(0.5),
-                    ),
-                ]
-            )
-    return rows
-
-
-async def _library_run(
-    where: str, rows: list[list[PositionCommand]], via: str = "fdcanusb"
-) -> dict[str, np.ndarray]:
-    """moteus.Controller on moteus.Fdcanusb(where) (or the library's python-can transport on
-    the virtual bus ``where``): stop and bring up both, then each period set_position with
-    query=True to controller 1 then 2, the replies recorded."""
-    import moteus
-
-    if via == "fdcanusb":
-        transport = moteus.Fdcanusb(where)
-    else:
-        transport = moteus.PythonCan(interface="virtual", channel=where)
-    ctl = [moteus.Controller(id=i, transport=transport) for i in (1, 2)]
-    keys = (
-        moteus.Register.MODE,
-        moteus.Register.POSITION,
-        moteus.Register.VELOCITY,
-        moteus.Register.TORQUE,
-    )
-    out = {
-        k: np.zeros((len(rows), 2)) for k in ("mode", "position_rev", "velocity_rev_s", "torque_Nm")
-    }
-    try:
-        for c in ctl:  # stop, then bring up: position mode without torque (takes no time)
-            await c.set_stop()
-            await c.set_position(position=math.nan, kp_scale=0, kd_scale=0, feedforward_torque=0)
-        for k, row in enumerate(rows):
-            for j, (c, cmd) in enumerate(zip(ctl, row, strict=True)):
-                r = await c.set_position(
-                    position=cmd.position_rev,
-                    velocity=cmd.velocity_rev_s,
-                    feedforward_torque=cmd.feedforward_Nm,
-                    kp_scale=cmd.kp_scale,
-                    kd_scale=cmd.kd_scale,
-                    query=True,
-                )
-                for name, key in zip(out, keys, strict=True):
-                    out[name][k, j] = r.values[key]
-        for c in ctl:
-            await c.set_stop()
-        return out
-    finally:
-        transport.close()
-
-
 @pytest.mark.parametrize("via", ["fdcanusb", "pythoncan"])
 def test_moteus_library_in_lockstep_equals_the_offline_stepping(via: str) -> None:
     """The library's replies (mode, position, velocity, torque, float32) equal the offline
     stepping of the same commands bit for bit, through torque and PD phases, over both its
     transports that run here: the fdcanusb (a pty) and python-can (CAN-FD frames on
     python-can's virtual bus)."""
-    pytest.importorskip("moteus")
-    rows = _commands(200)
+    moteus = pytest.importorskip("moteus")
+    rows = commands(200)
     if via == "fdcanusb":
         bus: can.BusABC = FdcanusbPtyBus()
         where = bus.channel_path  # type: ignore[attr-defined]
+        make = lambda: moteus.Fdcanusb(where)  # noqa: E731
     else:
         where = "moteus-pythoncan"
         bus = can.Bus(interface="virtual", channel=where)
+        make = lambda: moteus.PythonCan(interface="virtual", channel=where)  # noqa: E731
     with serving(MoteusServer(_core(), bus, idle_timeout_s=2.0)) as server:
-        got = asyncio.run(_library_run(where, rows, via))
+        got = asyncio.run(library_run(make, rows))
         assert server.errors == 0 and server.ignored == 0
     ref = run_commands(_robot(), PERIOD_S, rows)
     for key in ("mode", "position_rev", "velocity_rev_s", "torque_Nm"):
@@ -304,49 +302,14 @@ def test_moteus_library_in_lockstep_equals_the_offline_stepping(via: str) -> Non
     assert np.any(ref["torque_Nm"][100:, 0] != 0)  # the PD acted
 
 
-MULTISINE = """
-name = "moteus-multisine"
-kind = "open_loop_torque"
-period_s = 0.002
-duration_s = 0.3
-[[joints]]
-sines = [{ amplitude_Nm = 2.0, omega_rad_s = 9.0, phase_rad = 0.3 }]
-[[joints]]
-sines = [{ amplitude_Nm = 0.7, omega_rad_s = 14.0, phase_rad = 1.0 }]
-"""
-
-
 def test_virtual_robot_serve_moteus_bench_equals_virtual_robot_simulate(tmp_path: Path) -> None:
     """End to end from the CLI: `virtual-robot serve --bench virtual-moteus-fdcanusb`, the
     library on the announced pty sending an experiment's torques, and `virtual-robot simulate
     --robot dfki-a0-moteus` of that experiment: the same q (2π × position) and τ, row for row."""
-    pytest.importorskip("moteus")
-    from drivers.recording import read_signals
-    from profiles.experiment import load_experiment
-
-    experiment = tmp_path / "multisine.toml"
-    experiment.write_text(MULTISINE)
-    sim_args = ["simulate", "--robot", "dfki-a0-moteus", "--experiment", str(experiment)]
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "virtual_robot.cli",
-            *sim_args,
-            "--out",
-            str(tmp_path / "s"),
-            "--no-plot",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
-    assert proc.returncode == 0, proc.stderr
-    sim = read_signals(tmp_path / "s").columns
-    exp = load_experiment(experiment)
-    n = len(sim["t"])
-    rows = [[torque_command(t) for t in exp.torque_rows(exp.period_s, n)[k]] for k in range(n)]
+    moteus = pytest.importorskip("moteus")
+    sim, tau = simulate_cli("dfki-a0-moteus", MULTISINE, tmp_path)
+    sim = sim.columns
+    rows = [[torque_command(t) for t in row] for row in tau]
     serve = subprocess.Popen(
         [sys.executable, "-m", "virtual_robot.cli", "serve", "--bench", "virtual-moteus-fdcanusb"],
         cwd=ROOT,
@@ -357,7 +320,7 @@ def test_virtual_robot_serve_moteus_bench_equals_virtual_robot_simulate(tmp_path
     try:
         info = json.loads(serve.stdout.readline())  # type: ignore[union-attr]
         assert info["event"] == "ready" and info["protocol"] == "moteus"
-        got = asyncio.run(_library_run(info["channel"], rows))
+        got = asyncio.run(library_run(lambda: moteus.Fdcanusb(info["channel"]), rows))
     finally:
         serve.terminate()
         serve.wait(10)
@@ -412,26 +375,40 @@ def test_hil_run_over_the_moteus_bench_equals_virtual_robot_simulate(tmp_path: P
     """This project's host on the register protocol (drivers/moteus_arm.py, drivers/fdcanusb.py):
     `hil run` of an experiment over the moteus bench (fdcanusb pty, lockstep) records the q and τ
     `virtual-robot simulate` writes for it, row for row, bit for bit."""
+    host = assert_hil_run_equals_simulate(
+        "virtual-moteus-fdcanusb", "dfki-a0-moteus", MULTISINE, tmp_path, rows=150
+    )
+    assert np.ptp(host.q[:, 0]) > 0.05
+
+
+def test_hil_identify_over_the_moteus_bench_runs_the_arms_own_excitation(tmp_path: Path) -> None:
+    """`hil identify --bench virtual-moteus-fdcanusb` with the default excitation: the arm's own
+    dfki-a0-moteus-excitation and -validation (hil excite designs within the bench's limits),
+    not reyes-kelly (the CICESE arm's 97 Nm torques, which clamped at the qdd100's 16 Nm spin
+    the light DFKI links past the bench's 20 rad/s within 0.1 s, as the first run shows): the
+    runs stay inside the bench's limits and θ1..θ5 come out within 0.5 % of the profile's."""
     from drivers.recording import read_signals
+    from hil.identify.pipelines import arm_experiment
 
-    experiment = tmp_path / "multisine.toml"
-    experiment.write_text(MULTISINE)
-
-    def run(*args: str) -> None:
-        proc = subprocess.run(
-            [sys.executable, "-m", *args], capture_output=True, text=True, timeout=120, check=False
-        )
-        assert proc.returncode == 0, proc.stderr
-
-    ex = ["--experiment", str(experiment)]
-    run("hil.cli", "run", "--bench", "virtual-moteus-fdcanusb", *ex, "--out", str(tmp_path / "h"))
-    sim = ["simulate", "--robot", "dfki-a0-moteus", *ex, "--no-plot"]
-    run("virtual_robot.cli", *sim, "--out", str(tmp_path / "s"))
-    host, offline = read_signals(tmp_path / "h").columns, read_signals(tmp_path / "s").columns
-    assert len(host["t"]) == len(offline["t"]) == 150
-    for key in ("q1", "q2", "tau1", "tau2"):
-        np.testing.assert_array_equal(host[key], offline[key])
-    assert np.ptp(host["q1"]) > 0.05
+    assert arm_experiment("cicese", "excitation", "reyes-kelly") == "reyes-kelly"
+    bench = ["--bench", "virtual-moteus-fdcanusb"]
+    paper = hil("identify", *bench, "--experiment", "reyes-kelly", "--out", str(tmp_path / "p"))
+    assert paper.returncode != 0 and "velocity" in paper.stderr and "beyond 20.0" in paper.stderr
+    out = tmp_path / "id"
+    proc = hil("identify", *bench, "--duration", "2", "--out", str(out), "--no-plot", "--json")
+    assert proc.returncode == 0, proc.stderr
+    for run, experiment in (("fit", "excitation"), ("validation", "validation")):
+        meta = json.loads((out / run / "meta.json").read_text())
+        assert meta["experiment"] == f"dfki-a0-moteus-{experiment}"
+        rec = read_signals(out / run).columns
+        assert len(rec["t"]) == 1000
+        for q in ("q1", "q2"):
+            dq = np.diff(rec[q]) / PERIOD_S
+            assert 5.0 < np.max(np.abs(dq)) < 20.0  # excited, inside the bench's limit
+    report = json.loads(proc.stdout)
+    assert report["selection"]["usable"]
+    for row in report["discretizations"]["exact"]["table_ii"][:5]:
+        assert abs(row["filtered_dynamic_error"]) < 5e-3, row
 
 
 # ---- the fdcanusb pty, line by line -------------------------------------------------------------

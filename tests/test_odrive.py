@@ -21,6 +21,7 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
+from cli_run import assert_hil_run_equals_simulate, simulate_cli
 from loop_clients import served_on
 
 from drivers.protocol import odrive as od
@@ -317,25 +318,8 @@ def test_library_reads_what_virtual_robot_simulate_writes(tmp_path: Path) -> Non
     positions odrive-can reads when it sends that experiment's torques (row k+1 is the estimate
     after period k), to the encoder count."""
     pytest.importorskip("odrive_can")
-    from drivers.recording import read_signals
-    from profiles.experiment import load_experiment
-
-    experiment = tmp_path / "multisine.toml"
-    experiment.write_text(ODRIVE_MULTISINE)
-    out = tmp_path / "sim"
-    args = ["simulate", "--robot", "dfki-a0-odrive", "--experiment", str(experiment)]
-    proc = subprocess.run(
-        [sys.executable, "-m", "virtual_robot.cli", *args, "--out", str(out), "--no-plot"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
-    assert proc.returncode == 0, proc.stderr
-    sim = read_signals(out).columns
-    exp = load_experiment(experiment)
-    n = len(sim["t"])
-    tau = np.array([exp.torque_rows(exp.period_s, n)[k] for k in range(n)])
+    sim, tau = simulate_cli("dfki-a0-odrive", ODRIVE_MULTISINE, tmp_path)
+    sim = sim.columns
     with _served("odrive-sim", idle_timeout_s=0.5):
         pos, _vel, _notes = asyncio.run(_library_run("odrive-sim", tau))
     q = 2.0 * np.pi * pos[:-1]
@@ -348,26 +332,10 @@ def test_hil_run_over_the_odrive_bench_equals_virtual_robot_simulate(tmp_path: P
     """This project's host on CANSimple (drivers/odrive_arm.py): `hil run` of an experiment over
     the ODrive bench (slcan, lockstep) records the q and τ `virtual-robot simulate` writes for
     it, row for row, bit for bit."""
-    from drivers.recording import read_signals
-
-    experiment = tmp_path / "multisine.toml"
-    experiment.write_text(ODRIVE_MULTISINE)
-
-    def run(*args: str) -> None:
-        proc = subprocess.run(
-            [sys.executable, "-m", *args], capture_output=True, text=True, timeout=120, check=False
-        )
-        assert proc.returncode == 0, proc.stderr
-
-    ex = ["--experiment", str(experiment)]
-    run("hil.cli", "run", "--bench", "virtual-odrive-slcan", *ex, "--out", str(tmp_path / "h"))
-    sim = ["simulate", "--robot", "dfki-a0-odrive", *ex, "--no-plot"]
-    run("virtual_robot.cli", *sim, "--out", str(tmp_path / "s"))
-    host, offline = read_signals(tmp_path / "h").columns, read_signals(tmp_path / "s").columns
-    assert len(host["t"]) == len(offline["t"]) == 150
-    for key in ("q1", "q2", "tau1", "tau2"):
-        np.testing.assert_array_equal(host[key], offline[key])
-    assert np.ptp(host["q1"]) > 0.05
+    host = assert_hil_run_equals_simulate(
+        "virtual-odrive-slcan", "dfki-a0-odrive", ODRIVE_MULTISINE, tmp_path, rows=150
+    )
+    assert np.ptp(host.q[:, 0]) > 0.05
 
 
 async def _realtime_run(channel: str) -> tuple[list[float], str, str]:

@@ -16,7 +16,6 @@ of each reply (its 16-bit field).
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -24,12 +23,13 @@ import numpy as np
 
 from drivers.protocol import mit
 from drivers.protocol.mit import MitCommand
+from profiles.drive import DriveProfile
 from profiles.effects import EffectsProfile
-from profiles.experiment import ExperimentProfile
+from profiles.experiment import ExperimentProfile, TorqueRows
 from profiles.robot import RobotProfile, UrdfRobotProfile
+from virtual_robot.loop_offline import lockstep_core, simulate_drive_loop
 from virtual_robot.mit_drive import MitDrive
-from virtual_robot.offline import SW_ENABLED, SimulationResult, drive_loop_rows, record_drive_loop
-from virtual_robot.robot import LOCKSTEP, VirtualRobot
+from virtual_robot.offline import SW_ENABLED, SimulationResult
 
 
 def run_commands(
@@ -43,12 +43,9 @@ def run_commands(
     """Each period's commands (one per joint) stepped through the MIT-mode drives and the plant;
     returns ``p``, ``v``, ``tau`` (rows × joints, the drives' frame: what their replies carry,
     sampled at t_k before the period's step), ``t`` (t_k) and ``plant_steps`` (one value)."""
-    core = VirtualRobot(robot, effects, mode=LOCKSTEP, period_s=period_s, q0=q0)
-    if core.protocol != "mit":
-        raise ValueError(f"robot {robot.name}: its drives do not speak MIT mode")
+    core = lockstep_core(robot, period_s, "mit", "do not speak MIT mode", effects=effects, q0=q0)
     drives: list[MitDrive] = list(core.drives)  # type: ignore[arg-type]
     stepper = core.stepper
-    stepper.sync()  # sample 0 at t = 0
     for d in drives:
         d.set_zero(0.0)
         d.enter_motor_mode(0.0)
@@ -81,41 +78,36 @@ def simulate_mit(
     """The experiment's torques through the robot's MIT-mode drives (module docstring), written
     to ``out_dir`` as a recording (t, q, tau, status: the torque each drive applied, in the
     joint's frame)."""
-    drives, h, n_rows, torque = drive_loop_rows(robot, experiment, duration_s)
-    ranges = [mit.MitRanges.of(p.mit) for p in drives]  # type: ignore[arg-type]
-    sign = [p.mit.axis_direction for p in drives]  # type: ignore[union-attr]
-    commands = [
-        [
-            mit.unpack_command(mit.pack_command(MitCommand(0.0, 0.0, 0.0, 0.0, d * t), r), r)
-            for t, d, r in zip(torque[k], sign, ranges, strict=True)
+
+    def run(drives: list[DriveProfile], h: float, n_rows: int, torque: TorqueRows) -> tuple:
+        ranges = [mit.MitRanges.of(p.mit) for p in drives]  # type: ignore[arg-type]
+        sign = [p.mit.axis_direction for p in drives]  # type: ignore[union-attr]
+        commands = [
+            [
+                mit.unpack_command(mit.pack_command(MitCommand(0.0, 0.0, 0.0, 0.0, d * t), r), r)
+                for t, d, r in zip(torque[k], sign, ranges, strict=True)
+            ]
+            for k in range(n_rows)
         ]
-        for k in range(n_rows)
-    ]
-    started = time.perf_counter()
-    out = run_commands(robot, h, commands, effects=effects, q0=experiment.initial_q_rad)
-    wall = time.perf_counter() - started
-    rows = (
-        (
-            [d * _reply_p(p, r) for p, d, r in zip(out["p"][k], sign, ranges, strict=True)],
-            [d * c.t_ff for c, d in zip(commands[k], sign, strict=True)],
+        out = run_commands(robot, h, commands, effects=effects, q0=experiment.initial_q_rad)
+        rows = (
+            (
+                [d * _reply_p(p, r) for p, d, r in zip(out["p"][k], sign, ranges, strict=True)],
+                [d * c.t_ff for c, d in zip(commands[k], sign, strict=True)],
+            )
+            for k in range(n_rows)
         )
-        for k in range(n_rows)
-    )
-    return record_drive_loop(
+        return rows, int(out["plant_steps"][0])
+
+    return simulate_drive_loop(
+        robot,
+        experiment,
         out_dir,
-        robot=robot,
-        experiment=experiment,
-        effects_name=(effects or EffectsProfile()).name,
         protocol="mit",
-        drives=[
-            {"model": p.model, "protocol": "mit", "t_max_Nm": r.t_max}
-            for p, r in zip(drives, ranges, strict=True)
-        ],
-        period_s=h,
-        n_rows=n_rows,
-        rows=rows,
-        wall_s=wall,
-        plant_steps=int(out["plant_steps"][0]),
+        run=run,
+        effects=effects,
+        duration_s=duration_s,
+        drive_extra=lambda p: {"t_max_Nm": mit.MitRanges.of(p.mit).t_max},  # type: ignore[arg-type]
     )
 
 

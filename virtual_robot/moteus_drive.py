@@ -6,8 +6,10 @@ with the MIT-mode drive and the ODrive axis); the drive period is the controller
 (the profile's ``[moteus] control_rate_hz``). Positions are revolutions of the output, velocities
 revolutions/s, torques Nm (the firmware's units after ``motor_position.rotor_to_output_ratio``).
 
-Modes (register 0x000): STOPPED (0, power stage off, torque 0; power-on), POSITION (10) and
-TIMEOUT (11). In position mode the torque is, every drive period (reference "Theory of
+Modes (register 0x000): STOPPED (0, power stage off, torque 0; power-on), POSITION (10),
+TIMEOUT (11) and ZERO VELOCITY (12: the position loop with kp_scale 0, velocity 0 and no
+feed-forward, i.e. τ = −kd_scale · kd · v; no watchdog, as it is itself one of the firmware's
+timeout modes). In position mode the torque is, every drive period (reference "Theory of
 Operation", position mode):
 
     τ = kp_scale · kp · (p_c − p) + kd_scale · kd · (v_c − v) + τ_ff,   |τ| ≤ min(τ_max, limit)
@@ -112,6 +114,26 @@ class MoteusDrive(LoopDrive):
         self.control_position_rev = None
         self.last_error = ""
 
+    def refuses_zero_velocity(self, kd_scale: float) -> str:
+        """Why :meth:`zero_velocity` would refuse ``kd_scale`` ("" when it applies it)."""
+        if self.mode == mo.TIMEOUT_MODE:
+            return "zero-velocity command refused in TIMEOUT: send a stop command first"
+        why = PositionCommand(kp_scale=0.0, kd_scale=kd_scale).refusal()
+        return f"zero-velocity command refused: {why}" if why else ""
+
+    def zero_velocity(self, kd_scale: float = 1.0) -> str:
+        """Mode 12 (reference "Zero velocity"): τ = −kd_scale · kd · v every drive period, no
+        watchdog; returns why it was refused ("" when applied)."""
+        why = self.refuses_zero_velocity(kd_scale)
+        if why:
+            return why
+        cmd = PositionCommand(kp_scale=0.0, kd_scale=kd_scale)
+        self.mode = mo.ZERO_VELOCITY_MODE
+        self.command = cmd
+        self.control_position_rev = None
+        self.last_error = ""
+        return ""
+
     def refuses(self, cmd: PositionCommand) -> str:
         """Why :meth:`position` would refuse ``cmd`` ("" when it applies it)."""
         if self.mode == mo.TIMEOUT_MODE:
@@ -164,7 +186,7 @@ class MoteusDrive(LoopDrive):
 
     @property
     def drive_torque_Nm(self) -> float:
-        if self.mode != mo.POSITION_MODE:
+        if self.mode not in (mo.POSITION_MODE, mo.ZERO_VELOCITY_MODE):
             return 0.0
         c = self.command
         tau = c.feedforward_Nm

@@ -4,16 +4,19 @@ CAN-FD frames (the fdcanusb pty of virtual_robot.fdcanusb_device, or python-can'
 :class:`MoteusServer` decodes the frames a host sends to the robot's moteus controllers
 (virtual_robot.moteus_drive) and answers them; the codec is :mod:`drivers.protocol.moteus`. A
 controller's id is its profile's ``node_id`` (``qdd100@k``). A frame's subframes are handled in
-order: writes of the mode register (0 stop, 10 position) with the position-mode command
-registers 0x020..0x027 written in the same frame (the rest take the firmware's defaults), then the
+order: writes of the mode register (0 stop, 10 position with the position-mode command
+registers 0x020..0x027 written in the same frame, the rest taking the firmware's defaults; 12 zero
+velocity with its kd_scale, 0x024, default 1), then the
 reads, answered in one reply (id = controller id << 8 | the host's source id, padded with nop
 subframes to a CAN-FD length) when the id asks for one (bit 15).
 
 Refused with a write-error subframe (0x30, register 0x000, after the reply's registers; logged
-once): other modes
-(PWM, voltage, current, stay-within, brake, …), the position-mode registers the emulation does not
+once, with why): other modes
+(PWM, voltage, current, stay-within, brake, …; write error 3, the firmware's answer to a mode it
+does not have), the position-mode registers the emulation does not
 run (stop_position, velocity_limit, accel_limit, fixed voltage or current, ilimit_scale) when
-finite, a non-finite feed-forward torque or kp/kd scale, a position command in TIMEOUT;
+finite, a non-finite feed-forward torque or kp/kd scale, a position or zero-velocity command in
+TIMEOUT;
 command registers written without a mode. The controller keeps its present command and mode.
 Reads of registers the emulation does not keep get a read-error subframe (0x31).
 
@@ -61,8 +64,20 @@ _NOT_RUN = {
     mo.CMD_ILIMIT_SCALE: "ilimit_scale",
     mo.CMD_FIXED_CURRENT: "fixed_current_override",
 }
-ERR_REFUSED = 3  # the write-error code the emulation sends (the firmware's codes are its own)
+# write-error codes (moteus fw/moteus_controller.cc, Write): 1 unknown register, 3 a mode the
+# firmware does not have; the emulation refuses what it does not run with 3 as well
+ERR_REFUSED = 3
 ERR_UNKNOWN = 1
+# the modes a host may write that the emulation does not run, and why (docs/protocol.md)
+_ELECTRICAL = "it drives the motor's phases directly: no electrical motor model here"
+_MODES_NOT_RUN = {
+    **dict.fromkeys((5, 6, 7, 8, 9, 14), _ELECTRICAL),
+    mo.STAY_WITHIN_MODE: "stay-within is not emulated",
+    mo.BRAKE_MODE: (
+        "brake shorts the phases: its damping (back-EMF constant over phase resistance) is not "
+        "in the drive profile"
+    ),
+}
 
 
 class MoteusServer(LoopDriveServer):
@@ -122,6 +137,14 @@ class MoteusServer(LoopDriveServer):
                         if not entering:  # bringing a controller up takes no time
                             self.commanded(i)
                         core.apply_now(now)
+                elif not why and writes[mo.MODE] == mo.ZERO_VELOCITY_MODE:
+                    kd = writes.get(mo.CMD_KD_SCALE)
+                    kd_scale = 1.0 if kd is None else float(kd)
+                    why = d.refuses_zero_velocity(kd_scale)
+                    if not why:  # takes no time, as a stop: no period's command
+                        now = core.now() if core.mode == LOCKSTEP else core.catch_up()
+                        d.zero_velocity(kd_scale)
+                        core.apply_now(now)
                 elif not why:  # mode 0
                     now = core.now() if core.mode == LOCKSTEP else core.catch_up()
                     d.stop()
@@ -144,8 +167,19 @@ class MoteusServer(LoopDriveServer):
         if mo.MODE not in writes:
             return "command registers written without a mode: not applied"
         mode = writes[mo.MODE]
-        if mode not in (mo.STOPPED, mo.POSITION_MODE):
-            return f"mode {mode} is not emulated (stop 0 and position 10 are)"
+        if mode not in (mo.STOPPED, mo.POSITION_MODE, mo.ZERO_VELOCITY_MODE):
+            if not isinstance(mode, int) or not 0 <= mode < len(mo.MODE_NAMES):
+                return f"mode {mode}: no such mode (the firmware's write error 3)"
+            why = _MODES_NOT_RUN.get(mode, "the controller enters it itself")
+            return (
+                f"mode {mode} ({mo.MODE_NAMES[mode]}) is not emulated: {why} "
+                "(stop 0, position 10 and zero velocity 12 are)"
+            )
+        if mode == mo.ZERO_VELOCITY_MODE:
+            extra = [r for r in writes if r not in (mo.MODE, mo.CMD_KD_SCALE)]
+            if extra:
+                return f"register 0x{extra[0]:03X} is no zero-velocity register: command refused"
+            return ""
         for reg, name in _NOT_RUN.items():
             v = writes.get(reg)
             if v is not None and not (isinstance(v, float) and math.isnan(v)):

@@ -16,19 +16,19 @@ NaN), the recording's q 2π × the reply's position at t_k.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from drivers.protocol.moteus import f32
+from profiles.drive import DriveProfile
 from profiles.effects import EffectsProfile
-from profiles.experiment import ExperimentProfile
+from profiles.experiment import ExperimentProfile, TorqueRows
 from profiles.robot import RobotProfile, UrdfRobotProfile
+from virtual_robot.loop_offline import lockstep_core, simulate_drive_loop
 from virtual_robot.moteus_drive import MoteusDrive, PositionCommand
-from virtual_robot.offline import SimulationResult, drive_loop_rows, record_drive_loop
-from virtual_robot.robot import LOCKSTEP, VirtualRobot
+from virtual_robot.offline import SimulationResult
 
 TWO_PI = 2.0 * math.pi
 
@@ -55,11 +55,9 @@ def run_commands(
     """Each period's commands (one per controller) stepped through the controllers and the
     plant; returns ``mode``, ``position_rev``, ``velocity_rev_s``, ``torque_Nm`` (rows ×
     controllers: the float32 replies, sampled at t_k after the command) and ``plant_steps``."""
-    core = VirtualRobot(robot, effects, mode=LOCKSTEP, period_s=period_s, q0=q0)
-    if core.protocol != "moteus":
-        raise ValueError(f"robot {robot.name}: its drives are no moteus controllers")
+    not_them = "are no moteus controllers"
+    core = lockstep_core(robot, period_s, "moteus", not_them, effects=effects, q0=q0)
     drives: list[MoteusDrive] = list(core.drives)  # type: ignore[arg-type]
-    core.stepper.sync()  # sample 0 at t = 0
     for d in drives:
         d.position(BRING_UP)
     n, m = len(commands), len(drives)
@@ -90,26 +88,24 @@ def simulate_moteus(
 ) -> SimulationResult:
     """The experiment's torques through the robot's moteus controllers (module docstring),
     written to ``out_dir`` as a recording (t, q, tau: the torque each controller applied)."""
-    drives, h, n_rows, torque = drive_loop_rows(robot, experiment, duration_s)
-    commands = [[torque_command(t) for t in torque[k]] for k in range(n_rows)]
-    started = time.perf_counter()
-    out = run_commands(robot, h, commands, effects=effects, q0=experiment.initial_q_rad)
-    wall = time.perf_counter() - started
-    rows = (
-        ([TWO_PI * p for p in out["position_rev"][k]], out["torque_Nm"][k]) for k in range(n_rows)
-    )
-    return record_drive_loop(
+
+    def run(drives: list[DriveProfile], h: float, n_rows: int, torque: TorqueRows) -> tuple:
+        commands = [[torque_command(t) for t in torque[k]] for k in range(n_rows)]
+        out = run_commands(robot, h, commands, effects=effects, q0=experiment.initial_q_rad)
+        rows = (
+            ([TWO_PI * p for p in out["position_rev"][k]], out["torque_Nm"][k])
+            for k in range(n_rows)
+        )
+        return rows, int(out["plant_steps"][0])
+
+    return simulate_drive_loop(
+        robot,
+        experiment,
         out_dir,
-        robot=robot,
-        experiment=experiment,
-        effects_name=(effects or EffectsProfile()).name,
         protocol="moteus",
-        drives=[{"model": p.model, "protocol": "moteus"} for p in drives],
-        period_s=h,
-        n_rows=n_rows,
-        rows=rows,
-        wall_s=wall,
-        plant_steps=int(out["plant_steps"][0]),
+        run=run,
+        effects=effects,
+        duration_s=duration_s,
     )
 
 

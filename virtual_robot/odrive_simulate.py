@@ -12,19 +12,19 @@ joint position of each Pos_Estimate at t_k (its encoder count).
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from drivers.protocol import odrive as od
+from profiles.drive import DriveProfile
 from profiles.effects import EffectsProfile
-from profiles.experiment import ExperimentProfile
+from profiles.experiment import ExperimentProfile, TorqueRows
 from profiles.robot import RobotProfile, UrdfRobotProfile
+from virtual_robot.loop_offline import lockstep_core, simulate_drive_loop
 from virtual_robot.odrive_drive import OdriveAxis
-from virtual_robot.offline import SimulationResult, drive_loop_rows, record_drive_loop
-from virtual_robot.robot import LOCKSTEP, VirtualRobot
+from virtual_robot.offline import SimulationResult
 
 
 def run_torques(
@@ -40,11 +40,8 @@ def run_torques(
     carries), the plant runs one period, and ``pos_rev``, ``vel_rev_s`` (rows × axes: the encoder
     estimates sent after the period, float32) and ``counts`` are recorded; ``pos0_rev`` is the
     estimate at t = 0."""
-    core = VirtualRobot(robot, effects, mode=LOCKSTEP, period_s=period_s, q0=q0)
-    if core.protocol != "odrive":
-        raise ValueError(f"robot {robot.name}: its drives are no ODrive axes")
+    core = lockstep_core(robot, period_s, "odrive", "are no ODrive axes", effects=effects, q0=q0)
     axes: list[OdriveAxis] = list(core.drives)  # type: ignore[arg-type]
-    core.stepper.sync()  # sample 0 at t = 0
     for d in axes:
         d.set_controller_mode(od.TORQUE_CONTROL, od.PASSTHROUGH)
         d.request_state(od.CLOSED_LOOP_CONTROL, 0.0)
@@ -75,31 +72,28 @@ def simulate_odrive(
 ) -> SimulationResult:
     """The experiment's torques through the robot's ODrive axes (module docstring), written to
     ``out_dir`` as a recording (t, q, tau: the torque each axis applied, status)."""
-    drives, h, n_rows, torque = drive_loop_rows(robot, experiment, duration_s)
-    started = time.perf_counter()
-    out = run_torques(robot, h, torque, effects=effects, q0=experiment.initial_q_rad)
-    wall = time.perf_counter() - started
-    limit = [p.rated_torque_Nm * p.max_torque_permille / 1000.0 for p in drives]
-    pos = np.vstack([out["pos0_rev"], out["pos_rev"][:-1]])  # the estimate at t_k
-    rows = (
-        (
-            [2.0 * math.pi * p for p in pos[k]],
-            [max(-lim, min(lim, od.f32(t))) for t, lim in zip(torque[k], limit, strict=True)],
+
+    def run(drives: list[DriveProfile], h: float, n_rows: int, torque: TorqueRows) -> tuple:
+        out = run_torques(robot, h, torque, effects=effects, q0=experiment.initial_q_rad)
+        limit = [p.rated_torque_Nm * p.max_torque_permille / 1000.0 for p in drives]
+        pos = np.vstack([out["pos0_rev"], out["pos_rev"][:-1]])  # the estimate at t_k
+        rows = (
+            (
+                [2.0 * math.pi * p for p in pos[k]],
+                [max(-lim, min(lim, od.f32(t))) for t, lim in zip(torque[k], limit, strict=True)],
+            )
+            for k in range(n_rows)
         )
-        for k in range(n_rows)
-    )
-    return record_drive_loop(
+        return rows, int(out["plant_steps"][0])
+
+    return simulate_drive_loop(
+        robot,
+        experiment,
         out_dir,
-        robot=robot,
-        experiment=experiment,
-        effects_name=(effects or EffectsProfile()).name,
         protocol="odrive",
-        drives=[{"model": p.model, "protocol": "odrive"} for p in drives],
-        period_s=h,
-        n_rows=n_rows,
-        rows=rows,
-        wall_s=wall,
-        plant_steps=int(out["plant_steps"][0]),
+        run=run,
+        effects=effects,
+        duration_s=duration_s,
     )
 
 

@@ -7,7 +7,9 @@ period), opens the transport the bench names and announces it once it is ready, 
   (e.g. /dev/pts/7), for ``can.Bus(interface="slcan", channel=..., bitrate=1000000)``.
 * ``can``/``socketcand``: :class:`SocketcandHub` on 127.0.0.1; channel = "127.0.0.1:PORT",
   interface_channel = "can0", also host and port.
-* ``can``/``socketcan``: python-can socketcan; channel = the bench's channel or "vcan0".
+* ``can``/``socketcan``: python-can socketcan; channel = the bench's channel or "vcan0"
+  (``moteus``: with CAN-FD frames, on an interface of MTU 72, drivers.links.open_socketcan).
+* ``moteus``/``fdcanusb``: :class:`FdcanusbPtyBus`, the fdcanusb line protocol on a pty.
 * ``can``/``virtual``: python-can virtual (same process only); channel = bench's or "ddbench".
 * ``serial``: :func:`virtual_robot.serial_server.serve_serial` (announces for itself).
 
@@ -19,7 +21,9 @@ The CAN links are served by :class:`CanDriveServer` (CiA 301/402, see can_server
 :class:`~virtual_robot.mit_server.MitDriveServer` on a bench with ``protocol = "mit"``
 (T-Motor/CubeMars MIT mode, mit_server.py; the same transports but socketcand), or by
 :class:`~virtual_robot.odrive_server.OdriveServer` with ``protocol = "odrive"`` (ODrive
-CANSimple, odrive_server.py; the same transports as MIT mode). In
+CANSimple, odrive_server.py; the same transports as MIT mode), or by
+:class:`~virtual_robot.moteus_server.MoteusServer` with ``protocol = "moteus"`` (mjbots
+register protocol over CAN-FD: fdcanusb or socketcan). In
 lockstep the drives' command watchdog counts SYNCs (robot time stands still without them), so
 a wall-clock host-silence watchdog of the bench's ``timeout_s`` (the time the host itself waits
 for the robot in lockstep) disables the drives when the host hangs; in realtime the drives'
@@ -236,7 +240,7 @@ def serve(
             from drivers.links import open_socketcan
 
             channel = bench.channel or "vcan0"
-            bus = open_socketcan(channel)
+            bus = open_socketcan(channel, fd=bench.protocol == "moteus")
             info["channel"] = channel
         elif bench.transport == "virtual":
             channel = bench.channel or "ddbench"

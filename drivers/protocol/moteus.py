@@ -56,8 +56,27 @@ CMD_ILIMIT_SCALE = 0x02B
 CMD_FIXED_CURRENT = 0x02C
 CMD_IGNORE_BOUNDS = 0x02D
 
-# modes (register 0x000)
+# modes (register 0x000; reference "A.2b", register 0x000)
 STOPPED, FAULT_MODE, POSITION_MODE, TIMEOUT_MODE = 0, 1, 10, 11
+CURRENT_MODE, ZERO_VELOCITY_MODE, STAY_WITHIN_MODE, BRAKE_MODE = 9, 12, 13, 15
+MODE_NAMES = (
+    "stopped",
+    "fault",
+    "enabling",
+    "calibrating",
+    "calibration complete",
+    "pwm",
+    "voltage",
+    "voltage foc",
+    "voltage dq",
+    "current",
+    "position",
+    "timeout",
+    "zero velocity",
+    "stay within",
+    "measure inductance",
+    "brake",
+)
 
 FAULT_NONE = 0  # register 0x00f: the emulation models no fault (docs/protocol.md)
 

@@ -48,13 +48,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--experiment",
         default=None,
-        help="excitation (default: eqs. 31-32, reyes-kelly; for a URDF arm <robot>-excitation)",
+        help="excitation (default: the bench arm's <robot>-excitation where one is shipped, "
+        "always for a URDF arm; else eqs. 31-32, reyes-kelly)",
     )
     p.add_argument(
         "--validation-experiment",
         default=None,
-        help="held-out excitation run over the bench ('none' to skip; default "
-        "validation-multisine; for a URDF arm none: the fit run's last quarter is held out)",
+        help="held-out excitation run over the bench ('none' to skip; default the arm's "
+        "<robot>-validation where one is shipped, else validation-multisine; for a URDF arm "
+        "none: the fit run's last quarter is held out)",
     )
     p.add_argument("--duration", type=float, default=None, help="seconds of excitation")
     add_drive_options(p)

@@ -76,6 +76,24 @@ class Outcome:
     )
 
 
+PAPER_EXCITATION, PAPER_VALIDATION = "reyes-kelly", "validation-multisine"
+
+
+def arm_experiment(robot: str, kind: str, paper: str) -> str:
+    """The default experiment of ``kind`` (excitation, validation) over a bench with ``robot``:
+    the arm's own ``<robot>-<kind>`` profile where one is shipped (designed by `hil excite
+    --bench` within that bench's limits), else ``paper`` (Reyes & Kelly's, for the CICESE arm:
+    its torques, up to 97 Nm, drive a lighter arm far past its velocity limits)."""
+    from profiles import ProfileError, resolve
+
+    own = f"{Path(robot).stem}-{kind}"
+    try:
+        resolve("experiments", own)
+    except ProfileError:
+        return paper
+    return own
+
+
 def _record(
     args: argparse.Namespace,
     bench: str,
@@ -185,8 +203,6 @@ def run_table_ii(args: argparse.Namespace) -> Outcome:
     schemes = split_list(args.schemes)
     if args.lam is None:
         args.lam = 50.0
-    args.experiment = args.experiment or "reyes-kelly"
-    args.validation_experiment = args.validation_experiment or "validation-multisine"
     discretizations = ["exact", "paper"] if args.discretization == "both" else [args.discretization]
     out = Path(args.out)
     progress = StageProgress(
@@ -213,6 +229,10 @@ def run_table_ii(args: argparse.Namespace) -> Outcome:
         from profiles.bench import load_bench
 
         robot = args.robot or load_bench(bench).robot
+        args.experiment = args.experiment or arm_experiment(robot, "excitation", PAPER_EXCITATION)
+        args.validation_experiment = args.validation_experiment or arm_experiment(
+            robot, "validation", PAPER_VALIDATION
+        )
         online = OnlineIdentifier(
             load_bench(bench).period_s, schemes=schemes, discretization=discretizations[0],
             lam=args.lam,
@@ -543,9 +563,13 @@ def record_then_identify_model(args: argparse.Namespace) -> Outcome:
     bench = args.bench or "virtual-slcan"
     args.robot = args.robot or load_bench(bench).robot
     out = Path(args.out)
-    fit = _record(args, bench, args.experiment or "reyes-kelly", out / "fit", None)
-    if not args.validate and (args.validation_experiment or "validation-multisine") != "none":
-        experiment = args.validation_experiment or "validation-multisine"
+    excitation = args.experiment or arm_experiment(args.robot, "excitation", PAPER_EXCITATION)
+    fit = _record(args, bench, excitation, out / "fit", None)
+    validation = args.validation_experiment or arm_experiment(
+        args.robot, "validation", PAPER_VALIDATION
+    )
+    if not args.validate and validation != "none":
+        experiment = validation
         args.validate = str(_record(args, bench, experiment, out / "validation", None).path)
     args.from_recording = str(fit.path)
     return run_identify_model(args)

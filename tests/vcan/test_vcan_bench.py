@@ -19,10 +19,9 @@ from pathlib import Path
 import can
 import numpy as np
 import pytest
-from cli_run import assert_same_recording, hil
+from cli_run import SLOW_GUEST, assert_same_recording, bench_copy, hil
 
 from drivers.recording import read_signals
-from profiles import resolve
 from profiles.experiment import load_experiment
 from profiles.robot import load_robot
 from virtual_robot.simulate import simulate
@@ -30,11 +29,6 @@ from virtual_robot.simulate import simulate
 DURATION_S = 2.0
 ROWS = 800  # 2 s at h = 2.5 ms
 MAKE_VCAN0 = "ip link add dev vcan0 type vcan && ip link set up vcan0"
-# The emulated guest of `make test-vcan` runs Python 5-50x slower than the host (software CPU
-# emulation on a shared machine). These tests check that the paths over vcan0 work end to end, so
-# they run copies of the shipped benches with generous timeouts; the timing figures are
-# `make bench`'s, on the host.
-SLOW_GUEST = {"timeout_s = 2.0": "timeout_s = 60.0"}
 SLOW_GUEST_REALTIME = {
     **SLOW_GUEST,
     # 50 Hz: the drives' command watchdog (8 periods) becomes 160 ms, feedback timeout 1 s
@@ -53,17 +47,6 @@ step_Nm = 20.0
 [[joints]]
 step_Nm = 3.0
 """
-
-
-def bench_copy(name: str, where: Path, changes: dict[str, str]) -> Path:
-    """The shipped bench ``name`` with each ``changes`` key (which must be there) replaced."""
-    text = resolve("benches", name).read_text()
-    for old, new in changes.items():
-        assert old in text, (name, old)
-        text = text.replace(old, new)
-    path = where / f"{name}.toml"
-    path.write_text(text)
-    return path
 
 
 @pytest.fixture(scope="module")
