@@ -4,16 +4,22 @@ Integration is fixed-step RK4 (default 0.5 ms, five steps per 2.5 ms control per
 (q, q̇) augmented with the supplied work ∫τᵀq̇ dt and the friction work ∫fᵀq̇ dt, so the energy
 balance of eq. (25) can be checked on the plant itself.
 
-Friction is a Karnopp-style stick–slip model, not a smooth tanh:
+Friction is a Karnopp-style stick–slip model, not a smooth tanh, by the one stick–slip step of
+the virtual robot (:mod:`virtual_robot.stick_slip`: the breakaway test, the located stick
+events), of which this plant is the closed-form backend (its ``StickSlipArm`` methods):
   * a joint that is stuck (q̇_i = 0) stays stuck while the friction needed to hold it,
-    found from the constrained dynamics (q̈_i = 0), is inside its static band [−F_s⁻, F_s⁺];
-    it breaks away in the direction of that torque when it leaves the band;
+    found from the constrained dynamics (q̈_i = 0, :meth:`Plant._holding_torques`), is inside
+    its static band [−F_s⁻, F_s⁺]; it breaks away in the direction of that torque when it
+    leaves the band;
   * a sliding joint feels f_i = b_i q̇_i + F_i(dir) sgn, where the direction is fixed over a step
     (so each RK4 step integrates a smooth ODE); when q̇_i reaches zero inside a step the step is
-    cut at the crossing (located by Illinois regula falsi on the RK4 flow map, to ~1e-12 rad/s),
+    cut at the crossing (Brent's method on the RK4 flow map, to ~1e-12 of the step),
     the joint sticks, and the band is checked again for the rest of the step. The small kinetic
     energy removed by clamping q̇_i to exactly zero is booked as dissipated.
 Break-away is checked at step boundaries, so it is detected up to one step (0.5 ms) late.
+The dynamics are the closed form unrolled into scalar code (:meth:`Plant._deriv`, and
+:func:`_sliding_deriv` for both joints sliding), and while both slide under a plain amplifier
+whole steps run in one local loop (:meth:`Plant._advance_sliding`): the 2-DOF speed.
 Joint 1's Coulomb level is direction-dependent by default (7.17 Nm for q̇1 > 0, 8.049 Nm for
 q̇1 < 0, Table I).
 """
@@ -36,6 +42,8 @@ from virtual_robot.effects import (
     stribeck_level,
     velocity_squared_drag,
 )
+from virtual_robot.stick_slip import advance_delayed, locate_stick
+from virtual_robot.stick_slip import step as stick_slip_step
 
 # 0.5 ms = 2 kHz, five RK4 steps per 2.5 ms control period. Halving it changes q on the 10 s
 # Reyes & Kelly run by ~1e-11 rad (round-off level; tests/test_plant.py bounds it by 1e-9 rad,
@@ -101,6 +109,7 @@ class Plant:
     ) -> None:
         if not max_step_s > 0:
             raise ValueError("max_step_s must be > 0")
+        self.n_joints = 2
         self.params = params
         self.max_step_s = max_step_s
         self.t = t0
@@ -120,6 +129,7 @@ class Plant:
         self.dissipated_J = 0.0  # ∫ fᵀ q̇ dt + stick clamping losses
         self.steps = 0
         self.stick_events = 0
+        self._step_tau: Pair = self.command_Nm  # the torque of the step (its breakaway test)
         self._delay = TransportDelay(params.transport_delay_s) if params.transport_delay_s else None
         p = params
         self._has_stribeck = p.stribeck_velocity_rad_s is not None
@@ -170,30 +180,30 @@ class Plant:
         self.powered = (bool(powered[0]), bool(powered[1]))
 
     def advance_to(self, t_end: float) -> None:
-        """Integrate from the current time to ``t_end`` with steps of at most ``max_step_s``."""
+        """Integrate from the current time to ``t_end`` with steps of at most ``max_step_s``
+        (:func:`virtual_robot.stick_slip.step`; cut where a delayed command arrives); while
+        both joints slide under a plain amplifier, by :meth:`_advance_sliding`."""
+        if self._delay is not None:
+            advance_delayed(self, self._delay, t_end, self.max_step_s)
+            return
         while self.t < t_end - 1e-12:
-            if (
-                self._fast_rk4 is not None
-                and self._delay is None
-                and self._plain_amplifier
-                and not self._mode_dirty
-            ):
+            if self._fast_rk4 is not None and self._plain_amplifier:
                 self._advance_sliding(t_end)
                 if self.t >= t_end - 1e-12:
                     break
             stop = min(t_end, self.t + self.max_step_s)
-            if self._delay is not None:
-                due = self._delay.pop_due(self.t)
-                if due is not None:
-                    self.command_Nm = due
-                nxt = self._delay.next_delivery()
-                if nxt is not None and self.t < nxt < stop:
-                    stop = nxt
-            self._step(stop - self.t)
-        if self._delay is not None:
-            due = self._delay.pop_due(self.t)
-            if due is not None:
-                self.command_Nm = due
+            stick_slip_step(self, stop - self.t)
+
+    def step(self, dt: float) -> None:
+        """Advance dt (:func:`virtual_robot.stick_slip.step`: stick events located)."""
+        stick_slip_step(self, dt)
+
+    def deliver_due(self) -> None:
+        """The newest delayed command that has arrived reaches the amplifier."""
+        assert self._delay is not None
+        due = self._delay.pop_due(self.t)
+        if due is not None:
+            self.command_Nm = due
 
     def advance(self, duration_s: float) -> None:
         self.advance_to(self.t + duration_s)
@@ -341,8 +351,7 @@ class Plant:
         )
 
     def _set_mode(self) -> None:
-        """Freeze the stick mode and the sliding friction levels for the next step."""
-        self._mode_dirty = False
+        """Freeze the stick mode and the sliding friction levels (until the mode changes)."""
         d1, d2 = self.slip_dir
         self._slip_dir1, self._slip_dir2 = d1, d2
         self._mode = (
@@ -364,79 +373,77 @@ class Plant:
             return self._fast_rk4(self.q1, self.q2, self.v1, self.v2, tau[0], tau[1], dt)
         return _rk4_step(self._active_deriv)(self.q1, self.q2, self.v1, self.v2, tau[0], tau[1], dt)
 
-    def _release_stuck_joints(self, tau: Pair) -> None:
-        """Let stuck joints whose holding torque leaves the static band break away."""
-        p = self.params
-        for _ in range(2):
-            if not (self.stuck[0] or self.stuck[1]):
-                return
-            held = self._holding_torques(tau)
-            worst = breakaway_joint(
-                held, self.stuck, p.breakaway_positive_Nm, p.breakaway_negative_Nm
-            )
-            if worst < 0:
-                return
-            self.stuck[worst] = False
-            self.slip_dir[worst] = 1.0 if held[worst] > 0 else -1.0
-            self._mode_dirty = True
+    # ---- the stick-slip step's backend (virtual_robot.stick_slip.StickSlipArm) ---------------
+    @property
+    def band_positive(self) -> Pair:
+        return self.params.breakaway_positive_Nm
 
-    def _locate_stick(
-        self,
-        joint: int,
-        dt: float,
-        v_end: float,
-    ) -> tuple[float, tuple[float, float, float, float, float, float], Pair]:
-        """Time within [0, dt] where ``joint``'s velocity reaches zero, and the state there.
+    @property
+    def band_negative(self) -> Pair:
+        return self.params.breakaway_negative_Nm
 
-        Illinois regula falsi on the RK4 flow map (re-integrating from the step start), so the
-        stick instant is located to ~1e-12 rad/s rather than to the step's linear interpolation.
-        """
-        lo, f_lo = 0.0, self.v1 if joint == 0 else self.v2
-        hi, f_hi = 1.0, v_end
-        side = 0
-        result = (self.q1, self.q2, self.v1, self.v2, 0.0, 0.0)
-        used, lag_end = 0.0, (self.amplifier_Nm[0], self.amplifier_Nm[1])
-        if f_lo == 0.0:
-            # The joint broke away at the start of this step: it first moves in its break-away
-            # direction, then reverses inside the step. The zero at s = 0 is not the crossing
-            # (taking it would stop the clock with the arm frozen); bracket the later zero.
-            alpha = 1.0
-            for _ in range(60):
-                alpha *= 0.5
-                tau, _lag = self._amplifier(alpha * dt)
-                v = self._rk4(alpha * dt, tau)[2 + joint]
-                if v * self.slip_dir[joint] > 0:
-                    lo, f_lo = alpha, v
-                    break
-            else:
-                return 0.0, result, lag_end  # no motion at all: it sticks at once
-        for _ in range(8):
-            alpha = lo + (hi - lo) * f_lo / (f_lo - f_hi) if f_lo != f_hi else lo
-            used = alpha * dt
-            if used <= 1e-12:
-                return 0.0, (self.q1, self.q2, self.v1, self.v2, 0.0, 0.0), lag_end
-            tau, lag_end = self._amplifier(used)
-            result = self._rk4(used, tau)
-            v = result[2 + joint]
-            if abs(v) < 1e-12:
-                break
-            if v * self.slip_dir[joint] > 0:  # not yet at zero
-                lo, f_lo = alpha, v
-                if side == -1:
-                    f_hi *= 0.5
-                side = -1
-            else:
-                hi, f_hi = alpha, v
-                if side == 1:
-                    f_lo *= 0.5
-                side = 1
-        return used, result, lag_end
+    def any_stuck(self) -> bool:
+        return self.stuck[0] or self.stuck[1]
+
+    def hold_torque(self, dt: float) -> None:
+        """The amplifier's mean torque over the step (the breakaway test's τ)."""
+        self._step_tau = self.command_Nm if self._plain_amplifier else self._amplifier(dt)[0]
+
+    def flow(self, s: float) -> tuple[float, float, float, float, float, float]:
+        """RK4 over s in the current stick mode under the amplifier's mean torque over s."""
+        tau = self.command_Nm if self._plain_amplifier else self._amplifier(s)[0]
+        return self._rk4(s, tau)
+
+    def start(self) -> tuple[float, float, float, float, float, float]:
+        return (self.q1, self.q2, self.v1, self.v2, 0.0, 0.0)
+
+    def velocity(self, end: tuple[float, ...], joint: int) -> float:
+        return end[2 + joint]
+
+    def crossed(self, end: tuple[float, ...]) -> tuple[int, ...]:
+        """Sliding sticky joints whose velocity changed sign over the step."""
+        sticky, stuck, d = self._sticky, self.stuck, self.slip_dir
+        one = sticky[0] and not stuck[0] and end[2] * d[0] < 0.0
+        two = sticky[1] and not stuck[1] and end[3] * d[1] < 0.0
+        if one or two:
+            return (0, 1) if one and two else (0,) if one else (1,)
+        return ()
+
+    def locate(
+        self, dt: float, crossed: Sequence[int], end: tuple[float, ...]
+    ) -> tuple[float, int, tuple[float, ...]]:
+        # the flow is a pure function of s, a lag's included (_amplifier has no side effect)
+        return locate_stick(self, dt, crossed, end)
+
+    def commit(self, end: tuple[float, ...], s: float) -> None:
+        self.q1, self.q2, self.v1, self.v2, work, diss = end
+        self.work_in_J += work
+        self.dissipated_J += diss
+        if self._has_lag:
+            lag_end = self._amplifier(s)[1]
+            self.amplifier_Nm = [lag_end[0], lag_end[1]]
+
+    def holding_torques(self) -> Pair:
+        return self._holding_torques(self._step_tau)
+
+    def rest(self, joint: int) -> None:
+        if joint == 0:
+            self.v1 = 0.0
+        else:
+            self.v2 = 0.0
+
+    def dissipate(self, energy_J: float) -> None:
+        self.dissipated_J += energy_J
+
+    def mode_changed(self) -> None:
+        self._set_mode()
 
     def _advance_sliding(self, t_end: float) -> None:
         """Whole RK4 steps while both joints slide (the common case), in one local loop.
 
-        Same arithmetic as :meth:`_step` without a stick event; stops before a step in which a
-        sticky joint's velocity would change sign, and leaves that step to :meth:`_step`.
+        Same arithmetic as :func:`virtual_robot.stick_slip.step` without a stick event; stops
+        before a step in which a sticky joint's velocity would change sign, and leaves that step
+        to it.
         """
         rk4 = self._fast_rk4
         assert rk4 is not None
@@ -459,79 +466,6 @@ class Plant:
             steps += 1
         self.t, self.q1, self.q2, self.v1, self.v2 = t, q1, q2, v1, v2
         self.work_in_J, self.dissipated_J, self.steps = work, diss, steps
-
-    def _step(self, dt: float) -> None:
-        """Advance dt, cutting the step at velocity zero crossings (stick events)."""
-        remaining = dt
-        for _ in range(8):  # at most a few stick events per step; more means a degenerate case
-            if remaining <= 1e-15:
-                return
-            if self._plain_amplifier:
-                tau = lag_end = self.command_Nm
-            else:
-                tau, lag_end = self._amplifier(remaining)
-            if self.stuck[0] or self.stuck[1]:
-                self._release_stuck_joints(tau)
-            if self._mode_dirty:
-                self._set_mode()
-            q1, q2, v1, v2, work, diss = self._rk4(remaining, tau)
-            # a sliding joint whose velocity changed sign crossed zero inside the step
-            crossing, alpha = -1, 1.0
-            if self._sticky[0] and not self.stuck[0] and v1 * self.slip_dir[0] < 0.0:
-                crossing, alpha = 0, abs(self.v1) / (abs(self.v1) + abs(v1))
-            if self._sticky[1] and not self.stuck[1] and v2 * self.slip_dir[1] < 0.0:
-                frac = abs(self.v2) / (abs(self.v2) + abs(v2))
-                if crossing < 0 or frac < alpha:
-                    crossing, alpha = 1, frac
-            used = remaining
-            if crossing >= 0:
-                used, (q1, q2, v1, v2, work, diss), lag_end = self._locate_stick(
-                    crossing, remaining, v1 if crossing == 0 else v2
-                )
-            self.q1, self.q2, self.v1, self.v2 = q1, q2, v1, v2
-            self.work_in_J += work
-            self.dissipated_J += diss
-            if self._has_lag:
-                self.amplifier_Nm = [lag_end[0], lag_end[1]]
-            self.t += used
-            self.steps += 1
-            remaining -= used
-            if crossing < 0:
-                return
-            before = self.energy_J()
-            if crossing == 0:
-                self.v1 = 0.0
-            else:
-                self.v2 = 0.0
-            self.dissipated_J += before - self.energy_J()
-            self.stuck[crossing] = True
-            self._mode_dirty = True
-            self.stick_events += 1
-        # Degenerate chattering (a joint that breaks away and reverses at once, eight times in one
-        # step): the joints stay stuck for the rest of the step; keep the clock honest.
-        self.t += remaining
-
-
-def breakaway_joint(
-    held: Sequence[float],
-    stuck: Sequence[bool],
-    band_positive: Sequence[float],
-    band_negative: Sequence[float],
-) -> int:
-    """The stuck joint that breaks away now, or −1: Karnopp's test on each stuck joint i, whose
-    holding torque ``held[i]`` (the friction that keeps q̈_i = 0) must stay inside its static band
-    [−band_negative[i], band_positive[i]]; of those outside, the one furthest outside relative to
-    its band goes first (the others are checked again once it slides). Any number of joints."""
-    worst, worst_ratio = -1, 1.0
-    for i, f in enumerate(held):
-        if not stuck[i]:
-            continue
-        band = band_positive[i] if f > 0 else band_negative[i]
-        ratio = abs(f) / band if band > 0 else (math.inf if f != 0 else 0.0)
-        if ratio > worst_ratio:
-            worst, worst_ratio = i, ratio
-    return worst
-
 
 def _sliding_deriv(
     t1: float,
