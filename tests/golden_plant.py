@@ -11,8 +11,9 @@ per-joint Coulomb levels).
                                                 # and meta.json's plant counters
 
 Run ``--write`` on the tree before a change to the plant and ``--compare`` after it: 0
-differences is the proof that the change left every recording as it was. The fast test
-(tests/test_golden_plant.py) checks a few short cases against committed sha256 digests.
+differences is the proof that the change left every recording as it was (``--only TEXT``: the
+cases whose name contains it). The fast test (tests/test_stick_slip.py) runs a few of these
+cases in-process against their sha256 digests, committed there.
 """
 
 from __future__ import annotations
@@ -56,19 +57,8 @@ _N_JOINT_EFFECTS = {
 _PYTHON = {"DDBENCH_PLANT_KERNEL": "python"}
 
 
-def cases(quick: bool = False) -> list[Case]:
-    """Every golden case; ``quick``: the short subset of the fast test."""
-    if quick:
-        return [
-            ("sim-cicese-stribeck", "virtual-robot simulate",
-             ("--robot", "cicese", "--effects", "stribeck", "--duration", "3"), {}),
-            ("sim-cicese-amplifier-lag", "virtual-robot simulate",
-             ("--robot", "cicese", "--effects", "amplifier-lag", "--duration", "2"), {}),
-            ("sim-cicese3-stribeck-python", "virtual-robot simulate",
-             ("--robot", "cicese3", "--effects", "stribeck", "--duration", "0.5"), _PYTHON),
-            ("sim-cicese3-none", "virtual-robot simulate",
-             ("--robot", "cicese3", "--duration", "1"), {}),
-        ]  # fmt: skip
+def cases() -> list[Case]:
+    """Every golden case."""
     out: list[Case] = []
     for effects in _TWO_DOF_EFFECTS:
         out.append(
@@ -126,16 +116,24 @@ def n_joint_effects(name: str, n: int, directory: Path) -> Path:
     return path
 
 
+def resolve(args: tuple[str, ...], directory: Path) -> tuple[str, ...]:
+    """The arguments with each ``@name:n`` (an n-joint effects profile) written to
+    ``directory`` and replaced by its path."""
+    out = []
+    for a in args:
+        if a.startswith("@"):
+            name, n = a[1:].split(":")
+            a = str(n_joint_effects(name, int(n), directory))
+        out.append(a)
+    return tuple(out)
+
+
 def run_case(case: Case, out: Path) -> dict[str, object]:
     """Run one case into ``out``; its signals.csv digest and meta.json's plant counters."""
     _, command, args, env = case
     tool, *sub = command.split()
     out.mkdir(parents=True, exist_ok=True)
-    args = tuple(
-        str(n_joint_effects(*a[1:].split(":")[:1], int(a.split(":")[1]), out.parent))
-        if a.startswith("@") else a
-        for a in args
-    )  # fmt: skip
+    args = resolve(args, out.parent)
     argv = [str(BIN / tool), *sub, *args, "--out", str(out), "--overwrite", "--no-plot"]
     proc = subprocess.run(
         argv, capture_output=True, text=True, env=os.environ | env, cwd=ROOT, check=False
@@ -153,24 +151,24 @@ def run_case(case: Case, out: Path) -> dict[str, object]:
     return result
 
 
-def run_all(dest: Path, quick: bool = False, only: str = "") -> dict[str, dict[str, object]]:
+def run_all(dest: Path, only: str = "") -> dict[str, dict[str, object]]:
     """Every case (whose name contains ``only``) into dest/<case>; the manifest, also written
     to dest/golden.json."""
     manifest = {}
-    for case in (c for c in cases(quick) if only in c[0]):
+    for case in (c for c in cases() if only in c[0]):
         manifest[case[0]] = run_case(case, dest / case[0])
         print(case[0], manifest[case[0]].get("sha256", manifest[case[0]].get("error")))
     (dest / "golden.json").write_text(json.dumps(manifest, indent=1, sort_keys=True) + "\n")
     return manifest
 
 
-def compare(golden: Path, quick: bool = False, only: str = "") -> int:
+def compare(golden: Path, only: str = "") -> int:
     """Run every case again and compare with ``golden`` (cmp on each signals.csv); the count
     of differences."""
     want = json.loads((golden / "golden.json").read_text())
     differences = 0
     with tempfile.TemporaryDirectory() as tmp:
-        got = run_all(Path(tmp), quick, only)
+        got = run_all(Path(tmp), only)
         for name, result in got.items():
             if name not in want:
                 print(f"{name}: not in {golden}")
@@ -195,14 +193,13 @@ def main() -> int:
     group = parser.add_mutually_exclusive_group(required=True)
     group.add_argument("--write", type=Path, metavar="DIR")
     group.add_argument("--compare", type=Path, metavar="DIR")
-    parser.add_argument("--quick", action="store_true", help="the fast test's short cases only")
     parser.add_argument("--only", default="", help="the cases whose name contains this")
     args = parser.parse_args()
     if args.write:
         args.write.mkdir(parents=True, exist_ok=True)
-        run_all(args.write, args.quick, args.only)
+        run_all(args.write, args.only)
         return 0
-    return 1 if compare(args.compare, args.quick, args.only) else 0
+    return 1 if compare(args.compare, args.only) else 0
 
 
 if __name__ == "__main__":

@@ -467,6 +467,7 @@ class Plant:
         self.t, self.q1, self.q2, self.v1, self.v2 = t, q1, q2, v1, v2
         self.work_in_J, self.dissipated_J, self.steps = work, diss, steps
 
+
 def _sliding_deriv(
     t1: float,
     t2: float,

@@ -10,10 +10,11 @@ Friction per joint i is Karnopp's stick–slip (Karnopp (1985)):
     (:func:`release_stuck_joints`, :func:`breakaway_joint`), checked at step boundaries.
 :func:`step` advances dt: the breakaway test, one RK4 step of the backend's mode (its
 :meth:`~StickSlipArm.flow`); where a sliding joint's velocity changes sign inside it, the step
-is cut where q̇_i = 0 (:func:`locate_stick`: Brent's method on the RK4 flow map, to ~1e-12 of
-the step), the joint is clamped to rest (the kinetic energy removed booked as dissipated) and
-sticks, and the rest of the step is integrated in the new mode. :func:`advance_delayed` cuts
-the steps where a delayed command arrives (the transport-delay effect, timing faults).
+is cut where q̇_i = 0 (:func:`locate_stick`: Brent's method, :func:`brent_zero`, on the RK4
+flow map, to ~1e-12 of the step), the joint is clamped to rest (the kinetic energy removed
+booked as dissipated) and sticks, and the rest of the step is integrated in the new mode.
+:func:`advance_delayed` cuts the steps where a delayed command arrives (the transport-delay
+effect, timing faults).
 
 What a backend gives (:class:`StickSlipArm`) is its dynamics in a stick mode: the RK4 flow of
 the current mode (its M(q), bias and friction: the 2-DOF closed form unrolled into scalar code,
@@ -23,17 +24,17 @@ bookkeeping (state, energy, torque path). Each backend keeps its own fast paths 
 without events (the 2-DOF plant's sliding loop, the n-joint plant's compiled periods); they
 stop before a step with an event and leave it to :func:`step`.
 
-Imports: the standard library and scipy (brentq) only.
+Imports: the standard library only (Brent's method is scipy's brentq ported, so that the 2-DOF
+plant, which needs nothing of scipy, does not load it: its import costs a served robot's start
+and, lazily, its first stick event).
 """
 
 from __future__ import annotations
 
 import math
 import sys
-from collections.abc import MutableSequence, Sequence
+from collections.abc import Callable, MutableSequence, Sequence
 from typing import Any, Protocol
-
-from scipy.optimize import brentq
 
 # Velocity below which a located crossing counts as exactly zero (rad/s; xtol of the search
 # relative to the step).
@@ -42,6 +43,8 @@ ZERO_VELOCITY = 1e-12
 MAX_EVENTS_PER_STEP = 8
 # Steps shorter than this (s) are not taken.
 MIN_STEP_S = 1e-15
+# Iterations of Brent's method at most (scipy's brentq's default maxiter)
+BRENT_ITERATIONS = 100
 
 # What a backend's flow map returns at s (its state after s, with its energy terms); opaque here.
 End = Any
@@ -144,6 +147,72 @@ def breakaway_joint(
     return worst
 
 
+def brent_zero(
+    f: Callable[[float], float],
+    a: float,
+    b: float,
+    xtol: float,
+    rtol: float = 4 * sys.float_info.epsilon,
+    maxiter: int = BRENT_ITERATIONS,
+) -> float:
+    """The zero of f in [a, b] (f(a) f(b) ≤ 0) to xtol + rtol |x|, by Brent's method (Brent
+    (1973) ch. 4) as scipy.optimize.brentq runs it (scipy/optimize/Zeros/brentq.c, C. Harris,
+    BSD-3-Clause): the same operations in the same order, so the same iterates and root
+    (tests/test_stick_slip.py compares them; rk4_aba.cpp's ``brentq`` is the same port for the
+    compiled step). ValueError where brentq raises it (same signs at the ends, a NaN),
+    RuntimeError after ``maxiter`` iterations without convergence."""
+
+    def value(x: float) -> float:
+        fx = f(x)
+        if math.isnan(fx):
+            raise ValueError(f"the function value at x={x} is NaN: Brent's method cannot continue")
+        return fx
+
+    xpre, xcur = a, b
+    xblk = fblk = spre = scur = 0.0
+    fpre = value(xpre)
+    fcur = value(xcur)
+    if fpre * fcur > 0:
+        raise ValueError("f(a) and f(b) must have different signs")
+    if fpre == 0:
+        return xpre
+    if fcur == 0:
+        return xcur
+    fabs = abs
+    for _ in range(maxiter):
+        if fpre * fcur < 0:
+            xblk, fblk = xpre, fpre
+            spre = scur = xcur - xpre
+        if fabs(fblk) < fabs(fcur):
+            xpre, xcur, xblk = xcur, xblk, xcur
+            fpre, fcur, fblk = fcur, fblk, fcur
+        delta = (xtol + rtol * fabs(xcur)) / 2
+        sbis = (xblk - xcur) / 2
+        if fcur == 0 or fabs(sbis) < delta:
+            return xcur
+        if fabs(spre) > delta and fabs(fcur) < fabs(fpre):
+            if xpre == xblk:
+                stry = -fcur * (xcur - xpre) / (fcur - fpre)  # interpolate
+            else:  # extrapolate
+                dpre = (fpre - fcur) / (xpre - xcur)
+                dblk = (fblk - fcur) / (xblk - xcur)
+                stry = -fcur * (fblk * dblk - fpre * dpre) / (dblk * dpre * (fblk - fpre))
+            bound = fabs(spre) if fabs(spre) < 3 * fabs(sbis) - delta else 3 * fabs(sbis) - delta
+            if 2 * fabs(stry) < bound:
+                spre, scur = scur, stry  # good short step
+            else:
+                spre = scur = sbis  # bisect
+        else:
+            spre = scur = sbis  # bisect
+        xpre, fpre = xcur, fcur
+        if fabs(scur) > delta:
+            xcur += scur
+        else:
+            xcur += delta if sbis > 0 else -delta
+        fcur = value(xcur)
+    raise RuntimeError(f"Brent's method did not converge in {maxiter} iterations")
+
+
 def release_stuck_joints(arm: StickSlipArm) -> None:
     """Let the stuck joints whose holding torque leaves the static band break away, one at a
     time (:func:`breakaway_joint`), in the direction of that torque; the others are tested
@@ -164,8 +233,8 @@ def locate_stick(
     arm: StickSlipArm, dt: float, crossed: Sequence[int], end: End, memo: bool = True
 ) -> tuple[float, int, End]:
     """The first of the ``crossed`` joints whose velocity reaches zero within [0, dt], the time
-    s it does and the flow map there: Brent's method (scipy's brentq) on that joint's velocity
-    along the RK4 flow map of the current mode (:meth:`StickSlipArm.flow` over s), to
+    s it does and the flow map there: Brent's method (:func:`brent_zero`) on that joint's
+    velocity along the RK4 flow map of the current mode (:meth:`StickSlipArm.flow` over s), to
     ZERO_VELOCITY · dt in s; ``end``: the map at s = dt, already taken. ``memo``: the map is a
     pure function of s (without an amplifier lag, whose mean torque the flow sets as a side
     effect), so each point is evaluated once (brentq evaluates its bracket's ends again, and
@@ -206,7 +275,7 @@ def locate_stick(
         elif velocity(dt) >= 0:
             s = dt  # |q̇_j| at the step's end is at round-off: the crossing is the end
         else:
-            s = brentq(velocity, lo, dt, xtol=ZERO_VELOCITY * dt, rtol=4 * sys.float_info.epsilon)
+            s = brent_zero(velocity, lo, dt, ZERO_VELOCITY * dt)
         if s < best_s or best_joint < 0:
             best_s, best_joint = s, int(j)
     return best_s, best_joint, state(best_s) if best_s > 0 else arm.start()

@@ -8,14 +8,17 @@ E(t) − E(0) = W_in − W_f can be checked on this plant too (τ and the Coulom
 between bookings, so their work is τᵀΔq and levelᵀΔq exactly; the viscous part is the RK4
 quadrature of bᵀq̇²).
 
-Friction per joint i is Karnopp's stick–slip, as in :mod:`virtual_robot.plant`:
+Friction per joint i is Karnopp's stick–slip, by the one stick–slip step of the virtual robot
+(:mod:`virtual_robot.stick_slip`: the breakaway test, the located stick events), of which this
+plant is the Pinocchio backend (its ``StickSlipArm`` methods) and the 2-DOF plant
+(:mod:`virtual_robot.plant`) the closed-form one:
   * sliding, f_i = b_i q̇_i + F_i(dir) dir, with the direction fixed over a step (each RK4 step
     integrates a smooth ODE); when q̇_i changes sign inside a step, the step is cut where q̇_i = 0
     (Brent's method on the RK4 flow map, to ~1e-12 of the step) and the joint sticks;
   * stuck, q̈_i = 0 and f_i is the constraint torque that holds it, from the constrained
     dynamics M_FF q̈_F = (τ − C q̇ − g − f)_F, f_S = (τ − C q̇ − g)_S − M_SF q̈_F (F sliding,
-    S stuck joints); it breaks away when f_S leaves the static band
-    (:func:`virtual_robot.plant.breakaway_joint`, shared with the 2-DOF plant).
+    S stuck joints, :meth:`UrdfPlant.holding_torques`); it breaks away when f_S leaves the
+    static band (:func:`virtual_robot.stick_slip.release_stuck_joints`).
 With every joint sliding (the common case) the accelerations are Pinocchio's ABA
 (Featherstone (2008) ch. 7) of τ − f; with joints stuck, the ABA of the arm with those joints
 locked where they stand (Pinocchio's reduced model: q̈_F = M_FF⁻¹ r_F exactly, since q_S and
@@ -26,13 +29,13 @@ control period run in C++ when the compiled step builds (:mod:`virtual_robot.com
 ``rk4_aba.cpp``): the same RK4 (:func:`_rk4_aba`), the same locked-joint models (one per
 stuck set, its placements and inertias recomputed for a new q_S by buildReducedModel's own
 expressions) and breakaway test, around Pinocchio's C++ ABA and RNEA, in one call per period
-and stick mode, returning at a velocity crossing or a breakaway, which this module handles
-as before (its single steps, accelerations and the located stick, by scipy's brentq ported,
-also come from the kernel then); bit-identical to the Python step, which runs when the
+and stick mode, returning at a velocity crossing or a breakaway, which the stick–slip step
+handles as before (its single steps, accelerations and the located stick, by scipy's brentq
+ported, also come from the kernel then); bit-identical to the Python step, which runs when the
 kernel cannot be built or ``DDBENCH_PLANT_KERNEL=python``. The offline simulation's held
 rows (:meth:`UrdfPlant.advance_periods`) give the kernel many control periods per call, each
 with its own torque, and the kernel handles their stick events and breakaways itself, by
-this module's sequence of operations, until a joint is beyond its drive's overspeed
+the stick–slip step's sequence of operations, until a joint is beyond its drive's overspeed
 threshold.
 
 Concealed effects (an effects profile, docs/effects.md) per joint, by the 2-DOF plant's equations
@@ -48,7 +51,7 @@ beyond the Coulomb levels by RK4 quadrature, so E(t) − E(0) = W_in − W_f hol
 The world builds its own Pinocchio model from the URDF file; it never imports the host's
 (``hil``) model, and the host never reads the effects profile.
 Imports profiles, drivers (recording, units), virtual_robot.plant/drive/offline/effects/
-compiled_step.
+compiled_step/stick_slip.
 """
 
 from __future__ import annotations
@@ -329,12 +332,12 @@ class UrdfPlant:
                 self.step(min(self.max_step_s, t_end - self.t))
 
     def _advance_compiled(self, t_end: float) -> None:
-        """The steps :meth:`_step` would take towards ``t_end``, by the compiled kernel
+        """The steps :meth:`step` would take towards ``t_end``, by the compiled kernel
         (rk4_aba.cpp: :func:`_rk4_aba` in C++ on the same models, the arm's or the locked
-        arm's, with Karnopp's test of :meth:`_release_stuck_joints` before each step) until
-        t_end or the first step where a watched velocity changes sign or a stuck joint breaks
-        away; that step then goes through :meth:`_step_with_events` or :meth:`_step` as in
-        :meth:`_step`."""
+        arm's, with Karnopp's test of :func:`~virtual_robot.stick_slip.release_stuck_joints`
+        before each step) until t_end or the first step where a watched velocity changes sign
+        or a stuck joint breaks away; that step then goes through :meth:`step` (with its RK4
+        already taken, or from its start)."""
         compiled = self._compiled
         stuck = None
         if self._n_stuck:
@@ -371,9 +374,9 @@ class UrdfPlant:
         command ``torques[j]`` (every amplifier powered), then :meth:`advance_to` of
         (n0 + j) · period_s, its end state into q_out[j], dq_out[j]; all of them in one kernel
         call (ddb_run_periods), which handles the stick events and breakaways as
-        :meth:`_step`, :meth:`_step_with_events` and :meth:`_release_stuck_joints` do, by the
-        same operations (the energy books to round-off: its sums run in joint order). Stops
-        after the first period that ends with some |q̇_i| > bounds[0]_i or |q_i| > bounds[1]_i
+        :func:`virtual_robot.stick_slip.step` and its breakaway test do, by the same
+        operations (the energy books to round-off: its sums run in joint order). Stops after the
+        first period that ends with some |q̇_i| > bounds[0]_i or |q_i| > bounds[1]_i
         (or a NaN). Returns (periods integrated, whether the last ended inside the bounds);
         (0, True) at once when the kernel is not running or an effect acts on the command or
         the encoders (the caller then commands each period itself). ``torques``, q_out,
