@@ -53,6 +53,10 @@ _N_JOINT_EFFECTS = {
     "delay_s = 0.0005\n",
     "miscalibrated": "[torque_gain_error]\nrelative = {g}\n[torque_offset]\noffset_Nm = {o}\n"
     "[encoder_offset]\noffset_rad = {e}\n",
+    # a slower lag on symmetric Coulomb friction (tests/test_openloop.py's actuator_lag case):
+    # joints that break away on the lag's mean torque and stick again at once
+    "lag-symmetric": "[coulomb]\npositive_Nm = {c}\nnegative_Nm = {c}\n[amplifier_lag]\n"
+    "time_constant_s = {tl}\n",
 }
 _PYTHON = {"DDBENCH_PLANT_KERNEL": "python"}
 
@@ -69,13 +73,21 @@ def cases() -> list[Case]:
             (f"run-cicese-{effects}", "hil run",
              ("--bench", "virtual-inprocess", "--effects", effects, "--duration", "4"), {})
         )  # fmt: skip
+    out.append(
+        ("sim-cicese-lag-symmetric", "virtual-robot simulate",
+         ("--robot", "cicese", "--effects", "@lag-symmetric:2"), {})
+    )  # fmt: skip
+    out.append(
+        ("run-cicese-lag-symmetric", "hil run",
+         ("--bench", "virtual-inprocess", "--effects", "@lag-symmetric:2", "--duration", "4"), {})
+    )  # fmt: skip
     for effects in ("none", "stribeck", "amplifier-lag"):
         out.append(
             (f"sim-dfki-a0-{effects}", "virtual-robot simulate",
              ("--robot", "dfki-a0", "--effects", effects, "--duration", "4"), {})
         )  # fmt: skip
     cicese3 = ("--robot", "cicese3", "--experiment", "cicese3-excitation")
-    for effects in (*_URDF_EFFECTS, "joint3-asymmetry", "joint3-gain"):
+    for effects in (*_URDF_EFFECTS, "joint3-asymmetry", "joint3-gain", "lag-symmetric"):
         fx = f"@{effects}:3" if effects in _N_JOINT_EFFECTS else effects
         for kernel, env in (("compiled", {}), ("python", _PYTHON)):
             duration = "3" if kernel == "compiled" else "1.5"
@@ -110,6 +122,8 @@ def n_joint_effects(name: str, n: int, directory: Path) -> Path:
         g=[0.04, -0.03, 0.02, 0.04, -0.03, 0.02][:n],
         o=[0.6, 0.05, 0.02, 0.3, 0.05, 0.02][:n],
         e=[0.003, -0.002, 0.001, 0.003, -0.002, 0.001][:n],
+        c=[7.6095, 1.734, 0.4, 1.0, 0.5, 0.2][:n],
+        tl=[0.003, 0.002, 0.002, 0.003, 0.002, 0.002][:n],
     )
     path = directory / f"{name}-{n}.toml"
     path.write_text(f'name = "{name}-{n}"\n' + text)

@@ -30,6 +30,8 @@ from virtual_robot.urdf_plant import UrdfPlant, UrdfPlantParams
 GOLDEN = {
     "sim-cicese-stribeck": "384e45dbb996c9eb6cb74b49d22220da069187f82b55eadd3e0f20b5f7331ab2",
     "sim-cicese-amplifier-lag": "92a014020da2cb6d1df5831fd3b465b5a20a5b6b7f62837513c8342e431c7b4d",
+    # joints that break away on the lag's mean torque and stick again at once (s = 0)
+    "sim-cicese-lag-symmetric": "34f30f6ce9a521304b3f224df72769f80aab2ca750cf1e7209910fde2039a73b",
     "sim-cicese3-stribeck-python": (
         "589ebe22d4bfd0a3fa2f0be3a8d326815aae0c8e5e9234477a34f51c4fb94177"
     ),

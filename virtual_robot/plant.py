@@ -18,8 +18,9 @@ events), of which this plant is the closed-form backend (its ``StickSlipArm`` me
     energy removed by clamping q̇_i to exactly zero is booked as dissipated.
 Break-away is checked at step boundaries, so it is detected up to one step (0.5 ms) late.
 The dynamics are the closed form unrolled into scalar code (:meth:`Plant._deriv`, and
-:func:`_sliding_deriv` for both joints sliding), and while both slide under a plain amplifier
-whole steps run in one local loop (:meth:`Plant._advance_sliding`): the 2-DOF speed.
+:func:`_sliding_rk4`, its RK4 step written out for both joints sliding), and while both slide
+under a plain amplifier whole steps run in one local loop (:meth:`Plant._advance_sliding`): the
+2-DOF speed.
 Joint 1's Coulomb level is direction-dependent by default (7.17 Nm for q̇1 > 0, 8.049 Nm for
 q̇1 < 0, Table I).
 """
@@ -99,6 +100,8 @@ class Plant:
     sees is ``measured_q`` (with the encoder-offset effect).
     """
 
+    n_joints = 2
+
     def __init__(
         self,
         params: PlantParams,
@@ -109,7 +112,6 @@ class Plant:
     ) -> None:
         if not max_step_s > 0:
             raise ValueError("max_step_s must be > 0")
-        self.n_joints = 2
         self.params = params
         self.max_step_s = max_step_s
         self.t = t0
@@ -129,7 +131,6 @@ class Plant:
         self.dissipated_J = 0.0  # ∫ fᵀ q̇ dt + stick clamping losses
         self.steps = 0
         self.stick_events = 0
-        self._step_tau: Pair = self.command_Nm  # the torque of the step (its breakaway test)
         self._delay = TransportDelay(params.transport_delay_s) if params.transport_delay_s else None
         p = params
         self._has_stribeck = p.stribeck_velocity_rad_s is not None
@@ -361,17 +362,15 @@ class Plant:
             d2 * self._friction_level(1, d2, 0.0),
         )
         if self._mode[0] or self._mode[1] or self._has_cogging or self._speed_dependent:
-            self._active_deriv = self._deriv
             self._fast_rk4 = None
+            self._mode_rk4 = _rk4_step(self._deriv)
         else:
-            self._active_deriv = _sliding_deriv(*self._constants, self._mode[2], self._mode[3])
-            self._fast_rk4 = _rk4_step(self._active_deriv)
+            self._fast_rk4 = _sliding_rk4(*self._constants, self._mode[2], self._mode[3])
+            self._mode_rk4 = self._fast_rk4
 
     def _rk4(self, dt: float, tau: Pair) -> tuple[float, float, float, float, float, float]:
         """One classical RK4 step of (q, q̇, W_in, W_f) in the current stick mode."""
-        if self._fast_rk4 is not None:
-            return self._fast_rk4(self.q1, self.q2, self.v1, self.v2, tau[0], tau[1], dt)
-        return _rk4_step(self._active_deriv)(self.q1, self.q2, self.v1, self.v2, tau[0], tau[1], dt)
+        return self._mode_rk4(self.q1, self.q2, self.v1, self.v2, tau[0], tau[1], dt)
 
     # ---- the stick-slip step's backend (virtual_robot.stick_slip.StickSlipArm) ---------------
     @property
@@ -419,7 +418,7 @@ class Plant:
         self.q1, self.q2, self.v1, self.v2, work, diss = end
         self.work_in_J += work
         self.dissipated_J += diss
-        if self._has_lag:
+        if self._has_lag and s > 0.0:  # (a stick at s = 0: no time passed, the lag stays)
             lag_end = self._amplifier(s)[1]
             self.amplifier_Nm = [lag_end[0], lag_end[1]]
 
@@ -468,7 +467,7 @@ class Plant:
         self.work_in_J, self.dissipated_J, self.steps = work, diss, steps
 
 
-def _sliding_deriv(
+def _sliding_rk4(
     t1: float,
     t2: float,
     t3: float,
@@ -479,21 +478,23 @@ def _sliding_deriv(
     level1: float,
     level2: float,
 ):
-    """:meth:`Plant._deriv` specialised to both joints sliding, without cogging or Stribeck.
-
-    The common case, unrolled with its constants bound as locals: about a third cheaper per call
-    in CPython. tests/test_plant.py checks it against the general method.
-    """
+    """:func:`_rk4_step` of :meth:`Plant._deriv` specialised to both joints sliding, without
+    cogging, Stribeck or drag (the common case): the four stages written out in one function
+    with the constants bound as locals, the same operations in the same order (the same bits:
+    tests/test_plant.py), without a call and a tuple per stage."""
     sin, cos = math.sin, math.cos
 
-    def deriv(
+    def step(
         q1: float,
         q2: float,
         v1: float,
         v2: float,
         tau1: float,
         tau2: float,
-    ) -> tuple[float, float, float, float]:
+        dt: float,
+    ) -> tuple[float, float, float, float, float, float]:
+        h2 = 0.5 * dt
+        # stage 1 at (q, v)
         s2, c2 = sin(q2), cos(q2)
         s12 = sin(q1 + q2)
         t2s2 = t2 * s2
@@ -504,14 +505,72 @@ def _sliding_deriv(
         m11 = t1 + 2.0 * t2 * c2
         m12 = t3 + t2 * c2
         det = m11 * t3 - m12 * m12
+        a1 = (t3 * e1 - m12 * e2) / det
+        a2 = (m11 * e2 - m12 * e1) / det
+        p1 = tau1 * v1 + tau2 * v2
+        w1 = f1 * v1 + f2 * v2
+        # stage 2 at (q + h/2 v, y)
+        y1, y2 = v1 + h2 * a1, v2 + h2 * a2
+        x1, x2 = q1 + h2 * v1, q2 + h2 * v2
+        s2, c2 = sin(x2), cos(x2)
+        s12 = sin(x1 + x2)
+        t2s2 = t2 * s2
+        f1 = b1 * y1 + level1
+        f2 = b2 * y2 + level2
+        e1 = tau1 + t2s2 * (2.0 * y1 * y2 + y2 * y2) - t4 * sin(x1) - t5 * s12 - f1
+        e2 = tau2 - t2s2 * y1 * y1 - t5 * s12 - f2
+        m11 = t1 + 2.0 * t2 * c2
+        m12 = t3 + t2 * c2
+        det = m11 * t3 - m12 * m12
+        bb1 = (t3 * e1 - m12 * e2) / det
+        bb2 = (m11 * e2 - m12 * e1) / det
+        p2 = tau1 * y1 + tau2 * y2
+        w2 = f1 * y1 + f2 * y2
+        # stage 3 at (q + h/2 y, z)
+        z1, z2 = v1 + h2 * bb1, v2 + h2 * bb2
+        x1, x2 = q1 + h2 * y1, q2 + h2 * y2
+        s2, c2 = sin(x2), cos(x2)
+        s12 = sin(x1 + x2)
+        t2s2 = t2 * s2
+        f1 = b1 * z1 + level1
+        f2 = b2 * z2 + level2
+        e1 = tau1 + t2s2 * (2.0 * z1 * z2 + z2 * z2) - t4 * sin(x1) - t5 * s12 - f1
+        e2 = tau2 - t2s2 * z1 * z1 - t5 * s12 - f2
+        m11 = t1 + 2.0 * t2 * c2
+        m12 = t3 + t2 * c2
+        det = m11 * t3 - m12 * m12
+        cc1 = (t3 * e1 - m12 * e2) / det
+        cc2 = (m11 * e2 - m12 * e1) / det
+        p3 = tau1 * z1 + tau2 * z2
+        w3 = f1 * z1 + f2 * z2
+        # stage 4 at (q + h z, u)
+        u1, u2 = v1 + dt * cc1, v2 + dt * cc2
+        x1, x2 = q1 + dt * z1, q2 + dt * z2
+        s2, c2 = sin(x2), cos(x2)
+        s12 = sin(x1 + x2)
+        t2s2 = t2 * s2
+        f1 = b1 * u1 + level1
+        f2 = b2 * u2 + level2
+        e1 = tau1 + t2s2 * (2.0 * u1 * u2 + u2 * u2) - t4 * sin(x1) - t5 * s12 - f1
+        e2 = tau2 - t2s2 * u1 * u1 - t5 * s12 - f2
+        m11 = t1 + 2.0 * t2 * c2
+        m12 = t3 + t2 * c2
+        det = m11 * t3 - m12 * m12
+        dd1 = (t3 * e1 - m12 * e2) / det
+        dd2 = (m11 * e2 - m12 * e1) / det
+        p4 = tau1 * u1 + tau2 * u2
+        w4 = f1 * u1 + f2 * u2
+        k = dt / 6.0
         return (
-            (t3 * e1 - m12 * e2) / det,
-            (m11 * e2 - m12 * e1) / det,
-            tau1 * v1 + tau2 * v2,
-            f1 * v1 + f2 * v2,
+            q1 + k * (v1 + 2 * y1 + 2 * z1 + u1),
+            q2 + k * (v2 + 2 * y2 + 2 * z2 + u2),
+            v1 + k * (a1 + 2 * bb1 + 2 * cc1 + dd1),
+            v2 + k * (a2 + 2 * bb2 + 2 * cc2 + dd2),
+            k * (p1 + 2 * p2 + 2 * p3 + p4),
+            k * (w1 + 2 * w2 + 2 * w3 + w4),
         )
 
-    return deriv
+    return step
 
 
 def _rk4_step(deriv):

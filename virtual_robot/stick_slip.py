@@ -101,7 +101,7 @@ class StickSlipArm(Protocol):
 
     def commit(self, end: End, s: float) -> None:
         """Take the state ``end`` the flow reached at s, with its energy terms and the torque
-        path's state after s."""
+        path's state after s (unchanged for s = 0: a joint that sticks at once)."""
         ...
 
     def holding_torques(self) -> Sequence[float]:
@@ -258,8 +258,13 @@ def locate_stick(
         def velocity(s: float, j: int = j, d: float = d) -> float:
             return arm.velocity(state(s), j) * d
 
-        lo = 0.0
-        if arm.velocity(arm.start(), j) == 0.0:
+        lo, v0 = 0.0, arm.velocity(arm.start(), j) * d
+        if v0 < 0.0:
+            # It already moves against its slip direction (it broke away on a lagged torque's
+            # mean over the step, and the torque of the step's first instants pushes it back):
+            # no zero to bracket, it sticks at once.
+            lo = -1.0
+        elif v0 == 0.0:
             # It broke away at the step start: it first moves in its breakaway direction, then
             # reverses inside the step. The zero at s = 0 is not the crossing (taking it would
             # stop the clock with the arm frozen); bracket the later zero.

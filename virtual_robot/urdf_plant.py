@@ -580,7 +580,7 @@ class UrdfPlant:
     def commit(self, end: tuple[np.ndarray, np.ndarray, float], s: float) -> None:
         self.q, self.dq, viscous = end
         self._dissipated_booked += viscous
-        if self._lag is not None:
+        if self._lag is not None and s > 0.0:  # (a stick at s = 0: no time passed, the lag stays)
             self._advance_lag(s)
 
     def holding_torques(self) -> np.ndarray:
