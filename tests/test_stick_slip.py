@@ -170,3 +170,82 @@ def test_a_stuck_arm_breaks_away_where_the_rule_says():
         assert (plant.q[0] != 0.0) == moves
         if moves:
             assert math.copysign(1.0, plant.q[0]) == math.copysign(1.0, torque)
+
+
+class Block:
+    """A third backend of the one step: a block of mass m on a table with Coulomb friction F
+    (static band F both ways) under a held force, whose RK4 flow is exact (constant
+    acceleration), so the step's events have closed forms."""
+
+    n_joints = 1
+
+    def __init__(self, mass: float, friction: float, x: float = 0.0, v: float = 0.0) -> None:
+        self.m, self.friction, self.x, self.v, self.force = mass, friction, x, v, 0.0
+        self.t, self.steps, self.stick_events, self.dissipated = 0.0, 0, 0, 0.0
+        self.stuck = [v == 0.0]
+        self.slip_dir = [1.0 if v >= 0 else -1.0]
+        self.band_positive = self.band_negative = (friction,)
+
+    def any_stuck(self) -> bool:
+        return self.stuck[0]
+
+    def hold_torque(self, dt: float) -> None:
+        pass
+
+    def flow(self, s: float) -> tuple[float, float]:
+        a = 0.0 if self.stuck[0] else (self.force - self.slip_dir[0] * self.friction) / self.m
+        return self.x + self.v * s + 0.5 * a * s * s, self.v + a * s
+
+    def start(self) -> tuple[float, float]:
+        return self.x, self.v
+
+    def velocity(self, end, joint: int) -> float:
+        return end[1]
+
+    def crossed(self, end) -> list[int]:
+        return [0] if not self.stuck[0] and end[1] * self.slip_dir[0] < 0.0 else []
+
+    def locate(self, dt, crossed, end):
+        return stick_slip.locate_stick(self, dt, crossed, end)
+
+    def commit(self, end, s: float) -> None:
+        self.x, self.v = end
+
+    def holding_torques(self) -> list[float]:
+        return [self.force if self.stuck[0] else 0.0]
+
+    def energy_J(self) -> float:
+        return 0.5 * self.m * self.v * self.v
+
+    def rest(self, joint: int) -> None:
+        self.v = 0.0
+
+    def dissipate(self, energy_J: float) -> None:
+        self.dissipated += energy_J
+
+    def mode_changed(self) -> None:
+        pass
+
+
+def test_the_step_on_a_block_with_coulomb_friction():
+    """Any arm that gives the interface takes the step: a sliding block stops where
+    v0 − (F/m) t = 0 and sticks (located to ~1e-12 of the step), stays stuck under a force
+    inside its band, breaks away in the force's direction outside it; a joint already moving
+    against its slip direction sticks at once."""
+    block = Block(mass=2.0, friction=4.0, v=1.0)
+    stick_slip.step(block, 1.0)
+    assert block.t == 1.0 and block.stuck == [True] and block.v == 0.0
+    assert block.stick_events == 1 and block.steps == 2  # cut at the stop, then the rest
+    assert block.x == pytest.approx(0.25, abs=1e-12)  # v0 t* − F t*²/(2m), t* = m v0 / F
+    block.force = -3.9  # inside the band: not a hair of motion
+    stick_slip.step(block, 0.5)
+    assert block.stuck == [True] and block.x == pytest.approx(0.25, abs=1e-12)
+    block.force = -5.0  # outside: slides backwards at (F_applied + F) / m
+    x0 = block.x
+    stick_slip.step(block, 0.5)
+    assert block.stuck == [False] and block.slip_dir == [-1.0]
+    assert block.v == pytest.approx(-0.25) and block.x == pytest.approx(x0 - 0.0625)
+    against = Block(mass=1.0, friction=1.0, v=-0.1)
+    against.slip_dir = [1.0]  # moving against its slip direction at the step start
+    s, joint, end = stick_slip.locate_stick(against, 0.01, [0], against.flow(0.01))
+    assert (s, joint, end) == (0.0, 0, (0.0, -0.1))
