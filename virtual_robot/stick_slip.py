@@ -36,12 +36,11 @@ import sys
 from collections.abc import Callable, MutableSequence, Sequence
 from typing import Any, Protocol
 
-# Velocity below which a located crossing counts as exactly zero (rad/s; xtol of the search
-# relative to the step).
+# The stick search's tolerance on the crossing time, relative to the step (xtol = this · dt).
 ZERO_VELOCITY = 1e-12
 # Stick events at most per integration step; more is chattering, and the step is closed.
 MAX_EVENTS_PER_STEP = 8
-# Steps shorter than this (s) are not taken.
+# What is left of a step after a stick event is not integrated when shorter than this (s).
 MIN_STEP_S = 1e-15
 # Iterations of Brent's method at most (scipy's brentq's default maxiter)
 BRENT_ITERATIONS = 100
@@ -53,8 +52,8 @@ End = Any
 class StickSlipArm(Protocol):
     """What :func:`step` needs of an arm: the dynamics of its current stick mode and its
     bookkeeping. ``stuck`` and ``slip_dir`` per joint are the stick mode (a sliding joint's
-    friction direction, ±1); ``sticky``: joints with a static band (the others never stick);
-    ``band_positive``/``band_negative``: the static bands [−F_s⁻, F_s⁺] of Karnopp's test."""
+    friction direction, ±1); ``band_positive``/``band_negative``: the static bands
+    [−F_s⁻, F_s⁺] of Karnopp's test."""
 
     n_joints: int
     t: float
