@@ -254,3 +254,68 @@ def test_recording_readers_live_in_drivers():
     # the check sees them
     assert recording_parsers("import numpy as np\nnp.loadtxt(p)\n") == [2]
     assert recording_parsers("import csv\nrows = csv.reader(f)\n") == [2]
+
+
+# isinstance on an arm model class outside hil/model/ (issue 29 item 1: the code outside asks
+# the model through its interface, never its class). The ones below are still there, to go
+# with the model protocol's work; the count per module may only fall, and no module may
+# start one.
+MODEL_ISINSTANCE_LEFT = {
+    "hil.diagnose.report": 8,
+    "hil.diagnose.selection": 4,
+    "hil.diagnose.drift": 1,
+}
+
+
+def model_classes() -> set[str]:
+    """The arm model classes: the classes of hil/model/ named for an arm (ArmModel,
+    UrdfArmModel, the open-loop simulator's arms)."""
+    names = set()
+    for name, path in MODULES.items():
+        if name.startswith("hil.model."):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.ClassDef) and "Arm" in node.name:
+                    names.add(node.name)
+    return names
+
+
+def isinstance_on(source: str, classes: set[str]) -> list[int]:
+    """Lines of ``source`` with isinstance/issubclass against one of ``classes`` (by name or
+    attribute, alone or in a tuple)."""
+    lines = []
+    for node in ast.walk(ast.parse(source)):
+        if not (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Name)
+            and node.func.id in ("isinstance", "issubclass")
+            and len(node.args) == 2
+        ):
+            continue
+        kinds = node.args[1].elts if isinstance(node.args[1], ast.Tuple) else [node.args[1]]
+        for kind in kinds:
+            named = kind.id if isinstance(kind, ast.Name) else getattr(kind, "attr", None)
+            if named in classes:
+                lines.append(node.lineno)
+                break
+    return lines
+
+
+def test_no_isinstance_on_model_classes_outside_hil_model():
+    """Outside hil/model/ no module branches on an arm model's class (isinstance/issubclass
+    on ArmModel, UrdfArmModel, ...): beyond the ones MODEL_ISINSTANCE_LEFT still lists, none."""
+    classes = model_classes()
+    assert {"ArmModel", "UrdfArmModel"} <= classes
+    found = {
+        name: lines
+        for name, path in MODULES.items()
+        if not name.startswith("hil.model") and (lines := isinstance_on(path.read_text(), classes))
+    }
+    over = {
+        name: lines
+        for name, lines in found.items()
+        if len(lines) > MODEL_ISINSTANCE_LEFT.get(name, 0)
+    }
+    assert not over, f"isinstance on a model class outside hil/model/ (module: lines): {over}"
+    # the check sees them, alone, as an attribute and in a tuple
+    source = "isinstance(m, ArmModel)\nisinstance(m, (int, model.UrdfArmModel))\nisinstance(m, X)\n"
+    assert isinstance_on(source, classes) == [1, 2]

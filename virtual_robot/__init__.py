@@ -1,7 +1,8 @@
 """The virtual robot: plant physics, effects, drive emulation and protocol servers.
 
 What lives here: the world (:mod:`.plant`, :mod:`.dynamics`, :mod:`.effects`; the n-joint
-:mod:`.urdf_plant` with its compiled RK4 step, :mod:`.compiled_step`), the CiA 402
+:mod:`.urdf_plant` with its compiled RK4 step, :mod:`.compiled_step`; the stick–slip step both
+plants take, :mod:`.stick_slip`), the CiA 402
 drive model (:mod:`.drive`), the drives with their own loop (:mod:`.loop_drive`: the MIT-mode
 one, :mod:`.mit_drive`, stepped offline by :mod:`.mit_simulate`, and the ODrive axis,
 :mod:`.odrive_drive`, stepped offline by :mod:`.odrive_simulate`, and the moteus controller,

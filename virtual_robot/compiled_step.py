@@ -296,10 +296,10 @@ class CompiledArm:
         v_end: np.ndarray,
         dt: float,
     ) -> tuple[float, int, tuple[np.ndarray, np.ndarray, float]]:
-        """UrdfPlant._locate_stick in the kernel (ddb_locate: scipy's Brent's method on the
-        mode's RK4 flow map, the same iterates): the first of the ``crossed`` joints whose
-        velocity times ``direction`` reaches zero within [0, dt] from (q, q̇), ``v_end`` the
-        flow's q̇ at dt. Returns (s, joint, (q, q̇, ∫bᵀq̇² dt) at s)."""
+        """virtual_robot.stick_slip.locate_stick in the kernel (ddb_locate: scipy's Brent's
+        method on the mode's RK4 flow map, the same iterates): the first of the ``crossed``
+        joints whose velocity times ``direction`` reaches zero within [0, dt] from (q, q̇),
+        ``v_end`` the flow's q̇ at dt. Returns (s, joint, (q, q̇, ∫bᵀq̇² dt) at s)."""
         a, buf = self._addr, self._buf
         b_addr = self._load(q, v, tau_minus_level, b)
         buf["direction"][:] = direction

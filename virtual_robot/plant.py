@@ -4,16 +4,23 @@ Integration is fixed-step RK4 (default 0.5 ms, five steps per 2.5 ms control per
 (q, q̇) augmented with the supplied work ∫τᵀq̇ dt and the friction work ∫fᵀq̇ dt, so the energy
 balance of eq. (25) can be checked on the plant itself.
 
-Friction is a Karnopp-style stick–slip model, not a smooth tanh:
+Friction is a Karnopp-style stick–slip model, not a smooth tanh, by the one stick–slip step of
+the virtual robot (:mod:`virtual_robot.stick_slip`: the breakaway test, the located stick
+events), of which this plant is the closed-form backend (its ``StickSlipArm`` methods):
   * a joint that is stuck (q̇_i = 0) stays stuck while the friction needed to hold it,
-    found from the constrained dynamics (q̈_i = 0), is inside its static band [−F_s⁻, F_s⁺];
-    it breaks away in the direction of that torque when it leaves the band;
+    found from the constrained dynamics (q̈_i = 0, :meth:`Plant._holding_torques`), is inside
+    its static band [−F_s⁻, F_s⁺]; it breaks away in the direction of that torque when it
+    leaves the band;
   * a sliding joint feels f_i = b_i q̇_i + F_i(dir) sgn, where the direction is fixed over a step
     (so each RK4 step integrates a smooth ODE); when q̇_i reaches zero inside a step the step is
-    cut at the crossing (located by Illinois regula falsi on the RK4 flow map, to ~1e-12 rad/s),
+    cut at the crossing (Brent's method on the RK4 flow map, to ~1e-12 of the step),
     the joint sticks, and the band is checked again for the rest of the step. The small kinetic
     energy removed by clamping q̇_i to exactly zero is booked as dissipated.
 Break-away is checked at step boundaries, so it is detected up to one step (0.5 ms) late.
+The dynamics are the closed form unrolled into scalar code (:meth:`Plant._deriv`, and
+:func:`_sliding_rk4`, its RK4 step written out for both joints sliding), and while both slide
+under a plain amplifier whole steps run in one local loop (:meth:`Plant._advance_sliding`): the
+2-DOF speed.
 Joint 1's Coulomb level is direction-dependent by default (7.17 Nm for q̇1 > 0, 8.049 Nm for
 q̇1 < 0, Table I).
 """
@@ -36,6 +43,8 @@ from virtual_robot.effects import (
     stribeck_level,
     velocity_squared_drag,
 )
+from virtual_robot.stick_slip import advance_delayed, locate_stick
+from virtual_robot.stick_slip import step as stick_slip_step
 
 # 0.5 ms = 2 kHz, five RK4 steps per 2.5 ms control period. Halving it changes q on the 10 s
 # Reyes & Kelly run by ~1e-11 rad (round-off level; tests/test_plant.py bounds it by 1e-9 rad,
@@ -90,6 +99,8 @@ class Plant:
     ``advance_to(t)`` integrates up to time t. The true state is ``q``/``dq``; what an encoder
     sees is ``measured_q`` (with the encoder-offset effect).
     """
+
+    n_joints = 2
 
     def __init__(
         self,
@@ -170,30 +181,30 @@ class Plant:
         self.powered = (bool(powered[0]), bool(powered[1]))
 
     def advance_to(self, t_end: float) -> None:
-        """Integrate from the current time to ``t_end`` with steps of at most ``max_step_s``."""
+        """Integrate from the current time to ``t_end`` with steps of at most ``max_step_s``
+        (:func:`virtual_robot.stick_slip.step`; cut where a delayed command arrives); while
+        both joints slide under a plain amplifier, by :meth:`_advance_sliding`."""
+        if self._delay is not None:
+            advance_delayed(self, self._delay, t_end, self.max_step_s)
+            return
         while self.t < t_end - 1e-12:
-            if (
-                self._fast_rk4 is not None
-                and self._delay is None
-                and self._plain_amplifier
-                and not self._mode_dirty
-            ):
+            if self._fast_rk4 is not None and self._plain_amplifier:
                 self._advance_sliding(t_end)
                 if self.t >= t_end - 1e-12:
                     break
             stop = min(t_end, self.t + self.max_step_s)
-            if self._delay is not None:
-                due = self._delay.pop_due(self.t)
-                if due is not None:
-                    self.command_Nm = due
-                nxt = self._delay.next_delivery()
-                if nxt is not None and self.t < nxt < stop:
-                    stop = nxt
-            self._step(stop - self.t)
-        if self._delay is not None:
-            due = self._delay.pop_due(self.t)
-            if due is not None:
-                self.command_Nm = due
+            stick_slip_step(self, stop - self.t)
+
+    def step(self, dt: float) -> None:
+        """Advance dt (:func:`virtual_robot.stick_slip.step`: stick events located)."""
+        stick_slip_step(self, dt)
+
+    def deliver_due(self) -> None:
+        """The newest delayed command that has arrived reaches the amplifier."""
+        assert self._delay is not None
+        due = self._delay.pop_due(self.t)
+        if due is not None:
+            self.command_Nm = due
 
     def advance(self, duration_s: float) -> None:
         self.advance_to(self.t + duration_s)
@@ -341,8 +352,7 @@ class Plant:
         )
 
     def _set_mode(self) -> None:
-        """Freeze the stick mode and the sliding friction levels for the next step."""
-        self._mode_dirty = False
+        """Freeze the stick mode and the sliding friction levels (until the mode changes)."""
         d1, d2 = self.slip_dir
         self._slip_dir1, self._slip_dir2 = d1, d2
         self._mode = (
@@ -352,91 +362,87 @@ class Plant:
             d2 * self._friction_level(1, d2, 0.0),
         )
         if self._mode[0] or self._mode[1] or self._has_cogging or self._speed_dependent:
-            self._active_deriv = self._deriv
             self._fast_rk4 = None
+            self._mode_rk4 = _rk4_step(self._deriv)
         else:
-            self._active_deriv = _sliding_deriv(*self._constants, self._mode[2], self._mode[3])
-            self._fast_rk4 = _rk4_step(self._active_deriv)
+            self._fast_rk4 = _sliding_rk4(*self._constants, self._mode[2], self._mode[3])
+            self._mode_rk4 = self._fast_rk4
 
     def _rk4(self, dt: float, tau: Pair) -> tuple[float, float, float, float, float, float]:
         """One classical RK4 step of (q, q̇, W_in, W_f) in the current stick mode."""
-        if self._fast_rk4 is not None:
-            return self._fast_rk4(self.q1, self.q2, self.v1, self.v2, tau[0], tau[1], dt)
-        return _rk4_step(self._active_deriv)(self.q1, self.q2, self.v1, self.v2, tau[0], tau[1], dt)
+        return self._mode_rk4(self.q1, self.q2, self.v1, self.v2, tau[0], tau[1], dt)
 
-    def _release_stuck_joints(self, tau: Pair) -> None:
-        """Let stuck joints whose holding torque leaves the static band break away."""
-        p = self.params
-        for _ in range(2):
-            if not (self.stuck[0] or self.stuck[1]):
-                return
-            held = self._holding_torques(tau)
-            worst = breakaway_joint(
-                held, self.stuck, p.breakaway_positive_Nm, p.breakaway_negative_Nm
-            )
-            if worst < 0:
-                return
-            self.stuck[worst] = False
-            self.slip_dir[worst] = 1.0 if held[worst] > 0 else -1.0
-            self._mode_dirty = True
+    # ---- the stick-slip step's backend (virtual_robot.stick_slip.StickSlipArm) ---------------
+    @property
+    def band_positive(self) -> Pair:
+        return self.params.breakaway_positive_Nm
 
-    def _locate_stick(
-        self,
-        joint: int,
-        dt: float,
-        v_end: float,
-    ) -> tuple[float, tuple[float, float, float, float, float, float], Pair]:
-        """Time within [0, dt] where ``joint``'s velocity reaches zero, and the state there.
+    @property
+    def band_negative(self) -> Pair:
+        return self.params.breakaway_negative_Nm
 
-        Illinois regula falsi on the RK4 flow map (re-integrating from the step start), so the
-        stick instant is located to ~1e-12 rad/s rather than to the step's linear interpolation.
-        """
-        lo, f_lo = 0.0, self.v1 if joint == 0 else self.v2
-        hi, f_hi = 1.0, v_end
-        side = 0
-        result = (self.q1, self.q2, self.v1, self.v2, 0.0, 0.0)
-        used, lag_end = 0.0, (self.amplifier_Nm[0], self.amplifier_Nm[1])
-        if f_lo == 0.0:
-            # The joint broke away at the start of this step: it first moves in its break-away
-            # direction, then reverses inside the step. The zero at s = 0 is not the crossing
-            # (taking it would stop the clock with the arm frozen); bracket the later zero.
-            alpha = 1.0
-            for _ in range(60):
-                alpha *= 0.5
-                tau, _lag = self._amplifier(alpha * dt)
-                v = self._rk4(alpha * dt, tau)[2 + joint]
-                if v * self.slip_dir[joint] > 0:
-                    lo, f_lo = alpha, v
-                    break
-            else:
-                return 0.0, result, lag_end  # no motion at all: it sticks at once
-        for _ in range(8):
-            alpha = lo + (hi - lo) * f_lo / (f_lo - f_hi) if f_lo != f_hi else lo
-            used = alpha * dt
-            if used <= 1e-12:
-                return 0.0, (self.q1, self.q2, self.v1, self.v2, 0.0, 0.0), lag_end
-            tau, lag_end = self._amplifier(used)
-            result = self._rk4(used, tau)
-            v = result[2 + joint]
-            if abs(v) < 1e-12:
-                break
-            if v * self.slip_dir[joint] > 0:  # not yet at zero
-                lo, f_lo = alpha, v
-                if side == -1:
-                    f_hi *= 0.5
-                side = -1
-            else:
-                hi, f_hi = alpha, v
-                if side == 1:
-                    f_lo *= 0.5
-                side = 1
-        return used, result, lag_end
+    def any_stuck(self) -> bool:
+        return self.stuck[0] or self.stuck[1]
+
+    def hold_torque(self, dt: float) -> None:
+        """The amplifier's mean torque over the step (the breakaway test's τ)."""
+        self._step_tau = self.command_Nm if self._plain_amplifier else self._amplifier(dt)[0]
+
+    def flow(self, s: float) -> tuple[float, float, float, float, float, float]:
+        """RK4 over s in the current stick mode under the amplifier's mean torque over s."""
+        tau = self.command_Nm if self._plain_amplifier else self._amplifier(s)[0]
+        return self._rk4(s, tau)
+
+    def start(self) -> tuple[float, float, float, float, float, float]:
+        return (self.q1, self.q2, self.v1, self.v2, 0.0, 0.0)
+
+    def velocity(self, end: tuple[float, ...], joint: int) -> float:
+        return end[2 + joint]
+
+    def crossed(self, end: tuple[float, ...]) -> tuple[int, ...]:
+        """Sliding sticky joints whose velocity changed sign over the step."""
+        sticky, stuck, d = self._sticky, self.stuck, self.slip_dir
+        one = sticky[0] and not stuck[0] and end[2] * d[0] < 0.0
+        two = sticky[1] and not stuck[1] and end[3] * d[1] < 0.0
+        if one or two:
+            return (0, 1) if one and two else (0,) if one else (1,)
+        return ()
+
+    def locate(
+        self, dt: float, crossed: Sequence[int], end: tuple[float, ...]
+    ) -> tuple[float, int, tuple[float, ...]]:
+        # the flow is a pure function of s, a lag's included (_amplifier has no side effect)
+        return locate_stick(self, dt, crossed, end)
+
+    def commit(self, end: tuple[float, ...], s: float) -> None:
+        self.q1, self.q2, self.v1, self.v2, work, diss = end
+        self.work_in_J += work
+        self.dissipated_J += diss
+        if self._has_lag and s > 0.0:  # (a stick at s = 0: no time passed, the lag stays)
+            lag_end = self._amplifier(s)[1]
+            self.amplifier_Nm = [lag_end[0], lag_end[1]]
+
+    def holding_torques(self) -> Pair:
+        return self._holding_torques(self._step_tau)
+
+    def rest(self, joint: int) -> None:
+        if joint == 0:
+            self.v1 = 0.0
+        else:
+            self.v2 = 0.0
+
+    def dissipate(self, energy_J: float) -> None:
+        self.dissipated_J += energy_J
+
+    def mode_changed(self) -> None:
+        self._set_mode()
 
     def _advance_sliding(self, t_end: float) -> None:
         """Whole RK4 steps while both joints slide (the common case), in one local loop.
 
-        Same arithmetic as :meth:`_step` without a stick event; stops before a step in which a
-        sticky joint's velocity would change sign, and leaves that step to :meth:`_step`.
+        Same arithmetic as :func:`virtual_robot.stick_slip.step` without a stick event; stops
+        before a step in which a sticky joint's velocity would change sign, and leaves that step
+        to it.
         """
         rk4 = self._fast_rk4
         assert rk4 is not None
@@ -460,80 +466,8 @@ class Plant:
         self.t, self.q1, self.q2, self.v1, self.v2 = t, q1, q2, v1, v2
         self.work_in_J, self.dissipated_J, self.steps = work, diss, steps
 
-    def _step(self, dt: float) -> None:
-        """Advance dt, cutting the step at velocity zero crossings (stick events)."""
-        remaining = dt
-        for _ in range(8):  # at most a few stick events per step; more means a degenerate case
-            if remaining <= 1e-15:
-                return
-            if self._plain_amplifier:
-                tau = lag_end = self.command_Nm
-            else:
-                tau, lag_end = self._amplifier(remaining)
-            if self.stuck[0] or self.stuck[1]:
-                self._release_stuck_joints(tau)
-            if self._mode_dirty:
-                self._set_mode()
-            q1, q2, v1, v2, work, diss = self._rk4(remaining, tau)
-            # a sliding joint whose velocity changed sign crossed zero inside the step
-            crossing, alpha = -1, 1.0
-            if self._sticky[0] and not self.stuck[0] and v1 * self.slip_dir[0] < 0.0:
-                crossing, alpha = 0, abs(self.v1) / (abs(self.v1) + abs(v1))
-            if self._sticky[1] and not self.stuck[1] and v2 * self.slip_dir[1] < 0.0:
-                frac = abs(self.v2) / (abs(self.v2) + abs(v2))
-                if crossing < 0 or frac < alpha:
-                    crossing, alpha = 1, frac
-            used = remaining
-            if crossing >= 0:
-                used, (q1, q2, v1, v2, work, diss), lag_end = self._locate_stick(
-                    crossing, remaining, v1 if crossing == 0 else v2
-                )
-            self.q1, self.q2, self.v1, self.v2 = q1, q2, v1, v2
-            self.work_in_J += work
-            self.dissipated_J += diss
-            if self._has_lag:
-                self.amplifier_Nm = [lag_end[0], lag_end[1]]
-            self.t += used
-            self.steps += 1
-            remaining -= used
-            if crossing < 0:
-                return
-            before = self.energy_J()
-            if crossing == 0:
-                self.v1 = 0.0
-            else:
-                self.v2 = 0.0
-            self.dissipated_J += before - self.energy_J()
-            self.stuck[crossing] = True
-            self._mode_dirty = True
-            self.stick_events += 1
-        # Degenerate chattering (a joint that breaks away and reverses at once, eight times in one
-        # step): the joints stay stuck for the rest of the step; keep the clock honest.
-        self.t += remaining
 
-
-def breakaway_joint(
-    held: Sequence[float],
-    stuck: Sequence[bool],
-    band_positive: Sequence[float],
-    band_negative: Sequence[float],
-) -> int:
-    """The stuck joint that breaks away now, or −1: Karnopp's test on each stuck joint i, whose
-    holding torque ``held[i]`` (the friction that keeps q̈_i = 0) must stay inside its static band
-    [−band_negative[i], band_positive[i]]; of those outside, the one furthest outside relative to
-    its band goes first (the others are checked again once it slides). Any number of joints."""
-    worst, worst_ratio = -1, 1.0
-    for i, f in enumerate(held):
-        if not stuck[i]:
-            continue
-        band = band_positive[i] if f > 0 else band_negative[i]
-        ratio = abs(f) / band if band > 0 else (math.inf if f != 0 else 0.0)
-        if ratio > worst_ratio:
-            worst, worst_ratio = i, ratio
-    return worst
-
-
-def _sliding_deriv(
+def _sliding_rk4(
     t1: float,
     t2: float,
     t3: float,
@@ -544,21 +478,23 @@ def _sliding_deriv(
     level1: float,
     level2: float,
 ):
-    """:meth:`Plant._deriv` specialised to both joints sliding, without cogging or Stribeck.
-
-    The common case, unrolled with its constants bound as locals: about a third cheaper per call
-    in CPython. tests/test_plant.py checks it against the general method.
-    """
+    """:func:`_rk4_step` of :meth:`Plant._deriv` specialised to both joints sliding, without
+    cogging, Stribeck or drag (the common case): the four stages written out in one function
+    with the constants bound as locals, the same operations in the same order (the same bits:
+    tests/test_plant.py), without a call and a tuple per stage."""
     sin, cos = math.sin, math.cos
 
-    def deriv(
+    def step(
         q1: float,
         q2: float,
         v1: float,
         v2: float,
         tau1: float,
         tau2: float,
-    ) -> tuple[float, float, float, float]:
+        dt: float,
+    ) -> tuple[float, float, float, float, float, float]:
+        h2 = 0.5 * dt
+        # stage 1 at (q, v)
         s2, c2 = sin(q2), cos(q2)
         s12 = sin(q1 + q2)
         t2s2 = t2 * s2
@@ -569,14 +505,72 @@ def _sliding_deriv(
         m11 = t1 + 2.0 * t2 * c2
         m12 = t3 + t2 * c2
         det = m11 * t3 - m12 * m12
+        a1 = (t3 * e1 - m12 * e2) / det
+        a2 = (m11 * e2 - m12 * e1) / det
+        p1 = tau1 * v1 + tau2 * v2
+        w1 = f1 * v1 + f2 * v2
+        # stage 2 at (q + h/2 v, y)
+        y1, y2 = v1 + h2 * a1, v2 + h2 * a2
+        x1, x2 = q1 + h2 * v1, q2 + h2 * v2
+        s2, c2 = sin(x2), cos(x2)
+        s12 = sin(x1 + x2)
+        t2s2 = t2 * s2
+        f1 = b1 * y1 + level1
+        f2 = b2 * y2 + level2
+        e1 = tau1 + t2s2 * (2.0 * y1 * y2 + y2 * y2) - t4 * sin(x1) - t5 * s12 - f1
+        e2 = tau2 - t2s2 * y1 * y1 - t5 * s12 - f2
+        m11 = t1 + 2.0 * t2 * c2
+        m12 = t3 + t2 * c2
+        det = m11 * t3 - m12 * m12
+        bb1 = (t3 * e1 - m12 * e2) / det
+        bb2 = (m11 * e2 - m12 * e1) / det
+        p2 = tau1 * y1 + tau2 * y2
+        w2 = f1 * y1 + f2 * y2
+        # stage 3 at (q + h/2 y, z)
+        z1, z2 = v1 + h2 * bb1, v2 + h2 * bb2
+        x1, x2 = q1 + h2 * y1, q2 + h2 * y2
+        s2, c2 = sin(x2), cos(x2)
+        s12 = sin(x1 + x2)
+        t2s2 = t2 * s2
+        f1 = b1 * z1 + level1
+        f2 = b2 * z2 + level2
+        e1 = tau1 + t2s2 * (2.0 * z1 * z2 + z2 * z2) - t4 * sin(x1) - t5 * s12 - f1
+        e2 = tau2 - t2s2 * z1 * z1 - t5 * s12 - f2
+        m11 = t1 + 2.0 * t2 * c2
+        m12 = t3 + t2 * c2
+        det = m11 * t3 - m12 * m12
+        cc1 = (t3 * e1 - m12 * e2) / det
+        cc2 = (m11 * e2 - m12 * e1) / det
+        p3 = tau1 * z1 + tau2 * z2
+        w3 = f1 * z1 + f2 * z2
+        # stage 4 at (q + h z, u)
+        u1, u2 = v1 + dt * cc1, v2 + dt * cc2
+        x1, x2 = q1 + dt * z1, q2 + dt * z2
+        s2, c2 = sin(x2), cos(x2)
+        s12 = sin(x1 + x2)
+        t2s2 = t2 * s2
+        f1 = b1 * u1 + level1
+        f2 = b2 * u2 + level2
+        e1 = tau1 + t2s2 * (2.0 * u1 * u2 + u2 * u2) - t4 * sin(x1) - t5 * s12 - f1
+        e2 = tau2 - t2s2 * u1 * u1 - t5 * s12 - f2
+        m11 = t1 + 2.0 * t2 * c2
+        m12 = t3 + t2 * c2
+        det = m11 * t3 - m12 * m12
+        dd1 = (t3 * e1 - m12 * e2) / det
+        dd2 = (m11 * e2 - m12 * e1) / det
+        p4 = tau1 * u1 + tau2 * u2
+        w4 = f1 * u1 + f2 * u2
+        k = dt / 6.0
         return (
-            (t3 * e1 - m12 * e2) / det,
-            (m11 * e2 - m12 * e1) / det,
-            tau1 * v1 + tau2 * v2,
-            f1 * v1 + f2 * v2,
+            q1 + k * (v1 + 2 * y1 + 2 * z1 + u1),
+            q2 + k * (v2 + 2 * y2 + 2 * z2 + u2),
+            v1 + k * (a1 + 2 * bb1 + 2 * cc1 + dd1),
+            v2 + k * (a2 + 2 * bb2 + 2 * cc2 + dd2),
+            k * (p1 + 2 * p2 + 2 * p3 + p4),
+            k * (w1 + 2 * w2 + 2 * w3 + w4),
         )
 
-    return deriv
+    return step
 
 
 def _rk4_step(deriv):

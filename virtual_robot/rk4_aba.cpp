@@ -8,7 +8,7 @@
 // the Python path's to round-off (tests/test_urdf_plant.py runs both against the frozen
 // reference). In one stick mode: every joint sliding (the arm's ABA), or some stuck (the ABA of
 // the arm with those locked, Pinocchio's reduced model, and before each substep Karnopp's
-// breakaway test of UrdfPlant._release_stuck_joints). ddb_advance returns at the first substep
+// breakaway test of stick_slip.release_stuck_joints). ddb_advance returns at the first substep
 // where a watched (sliding, sticky) joint's velocity changes sign, with that substep's RK4
 // result, or before the first substep where a stuck joint's holding torque leaves its static
 // band, and Python locates the stick or releases the joint; ddb_run_periods (the offline
@@ -30,7 +30,7 @@
 //   ddb_step(...), ddb_accelerations(...): one RK4 step of the mode, q̈ of the mode (for the
 //     Python code that releases a joint) -> 0, or -1 error
 //   ddb_locate(...): where a crossed velocity reaches zero within a step (Brent's method on
-//     the RK4 flow map, as UrdfPlant._locate_stick) -> 0, -1 error, -2 Brent's method failed
+//     the RK4 flow map, as stick_slip.locate_stick) -> 0, -1 error, -2 Brent's method failed
 
 #include <algorithm>
 #include <cmath>
@@ -281,7 +281,7 @@ namespace
       const double dt = std::min(max_step, t_end - t);
       if (locked)
       {
-        // Karnopp's breakaway test (UrdfPlant._release_stuck_joints): the holding torques
+        // Karnopp's breakaway test (stick_slip.release_stuck_joints): the holding torques
         // f_S = (τ − RNEA(q, q̇, q̈))_S, q̈ of the mode, against their static bands
         mode_accelerations(arm, locked, viscous);
         const Vec & inverse =
@@ -421,7 +421,7 @@ namespace
     return locked;
   }
 
-  // urdf_plant.ZERO_VELOCITY, and numpy's float64 eps
+  // stick_slip.ZERO_VELOCITY, and numpy's float64 eps
   constexpr double kZeroVelocity = 1e-12;
   constexpr double kEps = 2.220446049250313e-16;
 
@@ -523,7 +523,7 @@ namespace
     return xcur;
   }
   // Where the first of the `crossed` joints' (crossed[j] != 0) velocities reaches zero within
-  // [0, dt] of the mode's RK4 flow map from (arm.q, arm.v) (UrdfPlant._locate_stick, the Python
+  // [0, dt] of the mode's RK4 flow map from (arm.q, arm.v) (stick_slip.locate_stick, the Python
   // step's code path, to the last bit): per crossed joint j in order, the zero of
   // s -> q̇_j(s) · direction_j by Brent's method (brentq above), bracketed as there; the
   // earliest wins, the first on a tie. arm.v_end: q̇ of the flow at s = dt (already taken).
@@ -546,7 +546,10 @@ namespace
       if (crossed[j] == 0.0)
         continue;
       double lo = 0.0;
-      if (arm.v[j] == 0.0)
+      const double v0 = arm.v[j] * direction[j];
+      if (v0 < 0.0)
+        lo = -1.0;  // it already moves against its slip direction: it sticks at once
+      else if (v0 == 0.0)
       {
         // it broke away at the step start: bracket the later zero, not the one at s = 0
         lo = dt;
@@ -591,7 +594,7 @@ namespace
     return joint;
   }
 
-  // Stick events at most per integration step (urdf_plant.MAX_EVENTS_PER_STEP)
+  // Stick events at most per integration step (stick_slip.MAX_EVENTS_PER_STEP)
   constexpr int kMaxEventsPerStep = 8;
 
   // One run of control periods with its stick events (ddb_run_periods): the arm, the locked
@@ -622,7 +625,7 @@ namespace
     r.dissipated += friction;
   }
 
-  // UrdfPlant._mode_changed after its booking: from the stuck joints and slip directions, the
+  // UrdfPlant.mode_changed after its booking: from the stuck joints and slip directions, the
   // signed Coulomb levels, τ − level, the watched velocities, the stuck joints' static bands
   // [−band_neg, band_pos] and the arm with them locked where they stand.
   void set_mode(Run & r)
@@ -654,7 +657,7 @@ namespace
     }
   }
 
-  // A mode change: booked first, as UrdfPlant._mode_changed does
+  // A mode change: booked first, as UrdfPlant.mode_changed does
   void change_mode(Run & r)
   {
     book(r);
@@ -662,9 +665,9 @@ namespace
     r.modes += 1.0;
   }
 
-  // UrdfPlant._release_stuck_joints: Karnopp's test on the stuck joints, their holding torques
+  // stick_slip.release_stuck_joints: Karnopp's test on the stuck joints, their holding torques
   // f_S = (τ − RNEA(q, q̇, q̈))_S with q̈ of the mode against their static bands; the one
-  // furthest outside relative to its band slides (virtual_robot.plant.breakaway_joint), in the
+  // furthest outside relative to its band slides (stick_slip.breakaway_joint), in the
   // direction of its holding torque, and the others are tested again in the new mode.
   void release(Run & r)
   {
@@ -718,10 +721,11 @@ namespace
     return kinetic + potential;
   }
 
-  // UrdfPlant._step_with_events: the step of dt from (arm.q, arm.v) whose RK4 result (q_end,
-  // v_end, work_end) has a watched velocity changed in sign: cut where the first one reaches
-  // zero, that joint clamped to rest (the kinetic energy lost booked as dissipated) and stuck,
-  // the rest of the step in the new mode, at most kMaxEventsPerStep times.
+  // stick_slip.step given the step's first RK4 result: the step of dt from (arm.q, arm.v)
+  // whose RK4 result (q_end, v_end, work_end) has a watched velocity changed in sign: cut where
+  // the first one reaches zero, that joint clamped to rest (the kinetic energy lost booked as
+  // dissipated) and stuck, the rest of the step in the new mode, at most kMaxEventsPerStep
+  // times.
   void step_with_events(Run & r, double dt, double work_end)
   {
     Arm & arm = r.arm;
@@ -943,8 +947,8 @@ int ddb_arm_friction(
 }
 
 // Many control periods in a row, each as UrdfPlant.command(τ_j) then advance_to(t_j) take them,
-// stick events and breakaways included (advance_events: UrdfPlant._step, _step_with_events,
-// _release_stuck_joints, _locate_stick, _mode_changed, the same operations in the same order).
+// stick events and breakaways included (advance_events: stick_slip.step, release_stuck_joints,
+// locate_stick and UrdfPlant.mode_changed, the same operations in the same order).
 // At the start of period j the work since the last booking is booked (scalars[5] +=
 // τ_{j−1}ᵀΔq, scalars[1] += levelᵀΔq, Δq = q − booked; booked = q: UrdfPlant._book_work, with
 // the products summed in joint order; τ_{−1} = `command`, the torque held now), then the
@@ -1051,7 +1055,7 @@ int ddb_step(
 }
 
 // Where the first of the `crossed` joints' velocities reaches zero within [0, dt] of the mode's
-// RK4 flow map from (q, v) (locate above, UrdfPlant._locate_stick). Out: scalars [s, joint,
+// RK4 flow map from (q, v) (locate above, stick_slip.locate_stick). Out: scalars [s, joint,
 // ∫bᵀq̇² dt to s], the state at s in q_out, v_out. 0, −1 on an exception, −2 when Brent's
 // method fails (scipy raises then: the text in err).
 int ddb_locate(

@@ -8,14 +8,17 @@ E(t) − E(0) = W_in − W_f can be checked on this plant too (τ and the Coulom
 between bookings, so their work is τᵀΔq and levelᵀΔq exactly; the viscous part is the RK4
 quadrature of bᵀq̇²).
 
-Friction per joint i is Karnopp's stick–slip, as in :mod:`virtual_robot.plant`:
+Friction per joint i is Karnopp's stick–slip, by the one stick–slip step of the virtual robot
+(:mod:`virtual_robot.stick_slip`: the breakaway test, the located stick events), of which this
+plant is the Pinocchio backend (its ``StickSlipArm`` methods) and the 2-DOF plant
+(:mod:`virtual_robot.plant`) the closed-form one:
   * sliding, f_i = b_i q̇_i + F_i(dir) dir, with the direction fixed over a step (each RK4 step
     integrates a smooth ODE); when q̇_i changes sign inside a step, the step is cut where q̇_i = 0
     (Brent's method on the RK4 flow map, to ~1e-12 of the step) and the joint sticks;
   * stuck, q̈_i = 0 and f_i is the constraint torque that holds it, from the constrained
     dynamics M_FF q̈_F = (τ − C q̇ − g − f)_F, f_S = (τ − C q̇ − g)_S − M_SF q̈_F (F sliding,
-    S stuck joints); it breaks away when f_S leaves the static band
-    (:func:`virtual_robot.plant.breakaway_joint`, shared with the 2-DOF plant).
+    S stuck joints, :meth:`UrdfPlant.holding_torques`); it breaks away when f_S leaves the
+    static band (:func:`virtual_robot.stick_slip.release_stuck_joints`).
 With every joint sliding (the common case) the accelerations are Pinocchio's ABA
 (Featherstone (2008) ch. 7) of τ − f; with joints stuck, the ABA of the arm with those joints
 locked where they stand (Pinocchio's reduced model: q̈_F = M_FF⁻¹ r_F exactly, since q_S and
@@ -26,13 +29,13 @@ control period run in C++ when the compiled step builds (:mod:`virtual_robot.com
 ``rk4_aba.cpp``): the same RK4 (:func:`_rk4_aba`), the same locked-joint models (one per
 stuck set, its placements and inertias recomputed for a new q_S by buildReducedModel's own
 expressions) and breakaway test, around Pinocchio's C++ ABA and RNEA, in one call per period
-and stick mode, returning at a velocity crossing or a breakaway, which this module handles
-as before (its single steps, accelerations and the located stick, by scipy's brentq ported,
-also come from the kernel then); bit-identical to the Python step, which runs when the
+and stick mode, returning at a velocity crossing or a breakaway, which the stick–slip step
+handles as before (its single steps, accelerations and the located stick, by scipy's brentq
+ported, also come from the kernel then); bit-identical to the Python step, which runs when the
 kernel cannot be built or ``DDBENCH_PLANT_KERNEL=python``. The offline simulation's held
 rows (:meth:`UrdfPlant.advance_periods`) give the kernel many control periods per call, each
 with its own torque, and the kernel handles their stick events and breakaways itself, by
-this module's sequence of operations, until a joint is beyond its drive's overspeed
+the stick–slip step's sequence of operations, until a joint is beyond its drive's overspeed
 threshold.
 
 Concealed effects (an effects profile, docs/effects.md) per joint, by the 2-DOF plant's equations
@@ -48,7 +51,7 @@ beyond the Coulomb levels by RK4 quadrature, so E(t) − E(0) = W_in − W_f hol
 The world builds its own Pinocchio model from the URDF file; it never imports the host's
 (``hil``) model, and the host never reads the effects profile.
 Imports profiles, drivers (recording, units), virtual_robot.plant/drive/offline/effects/
-compiled_step.
+compiled_step/stick_slip.
 """
 
 from __future__ import annotations
@@ -60,7 +63,6 @@ from typing import Any
 
 import numpy as np
 import pinocchio as pin
-from scipy.optimize import brentq
 
 from profiles.drive import load_drive
 from profiles.effects import EffectsProfile
@@ -86,12 +88,10 @@ from virtual_robot.effects import (
     velocity_squared_drag,
 )
 from virtual_robot.offline import SimulationResult, drive_meta, enable_drives, run_open_loop
-from virtual_robot.plant import DEFAULT_STEP_S, breakaway_joint
+from virtual_robot.plant import DEFAULT_STEP_S
+from virtual_robot.stick_slip import advance_delayed, locate_stick
+from virtual_robot.stick_slip import step as stick_slip_step
 
-# Velocity below which a located crossing counts as exactly zero (as the 2-DOF plant's 1e-12).
-ZERO_VELOCITY = 1e-12
-# Stick events at most per integration step; more is chattering, and the step is closed.
-MAX_EVENTS_PER_STEP = 8
 # Locked-joint models (UrdfPlant._locked_arm) kept for reuse.
 LOCKED_ARMS_KEPT = 16
 
@@ -211,7 +211,7 @@ class UrdfPlant:
         self._booked_q = self.q
         self._work_booked = 0.0
         self._dissipated_booked = 0.0
-        self._mode_changed()
+        self.mode_changed()
         self.steps = 0
         self.stick_events = 0
         # The sliding-path RK4 substeps in C++ when the compiled step builds (compiled_step.py)
@@ -323,21 +323,21 @@ class UrdfPlant:
         command arrives, with the transport delay effect); while every joint slides, the
         compiled step takes them when there is one (:meth:`_advance_compiled`)."""
         if self._delay is not None:
-            self._advance_delayed(t_end)
+            advance_delayed(self, self._delay, t_end, self.max_step_s)
             return
         while self.t < t_end - 1e-12:
             if self._compiled is not None:
                 self._advance_compiled(t_end)
             else:
-                self._step(min(self.max_step_s, t_end - self.t))
+                self.step(min(self.max_step_s, t_end - self.t))
 
     def _advance_compiled(self, t_end: float) -> None:
-        """The steps :meth:`_step` would take towards ``t_end``, by the compiled kernel
+        """The steps :meth:`step` would take towards ``t_end``, by the compiled kernel
         (rk4_aba.cpp: :func:`_rk4_aba` in C++ on the same models, the arm's or the locked
-        arm's, with Karnopp's test of :meth:`_release_stuck_joints` before each step) until
-        t_end or the first step where a watched velocity changes sign or a stuck joint breaks
-        away; that step then goes through :meth:`_step_with_events` or :meth:`_step` as in
-        :meth:`_step`."""
+        arm's, with Karnopp's test of :func:`~virtual_robot.stick_slip.release_stuck_joints`
+        before each step) until t_end or the first step where a watched velocity changes sign
+        or a stuck joint breaks away; that step then goes through :meth:`step` (with its RK4
+        already taken, or from its start)."""
         compiled = self._compiled
         stuck = None
         if self._n_stuck:
@@ -357,9 +357,9 @@ class UrdfPlant:
         self.q, self.dq, self.t, self._dissipated_booked = q, v, t, dissipated
         self.steps += steps
         if outcome == CROSSED:
-            self._step_with_events(*crossing)
+            self.step(*crossing)
         elif outcome == BREAKS:
-            self._step(min(self.max_step_s, t_end - self.t))
+            self.step(min(self.max_step_s, t_end - self.t))
 
     def advance_periods(
         self,
@@ -374,9 +374,9 @@ class UrdfPlant:
         command ``torques[j]`` (every amplifier powered), then :meth:`advance_to` of
         (n0 + j) · period_s, its end state into q_out[j], dq_out[j]; all of them in one kernel
         call (ddb_run_periods), which handles the stick events and breakaways as
-        :meth:`_step`, :meth:`_step_with_events` and :meth:`_release_stuck_joints` do, by the
-        same operations (the energy books to round-off: its sums run in joint order). Stops
-        after the first period that ends with some |q̇_i| > bounds[0]_i or |q_i| > bounds[1]_i
+        :func:`virtual_robot.stick_slip.step` and its breakaway test do, by the same
+        operations (the energy books to round-off: its sums run in joint order). Stops after the
+        first period that ends with some |q̇_i| > bounds[0]_i or |q_i| > bounds[1]_i
         (or a NaN). Returns (periods integrated, whether the last ended inside the bounds);
         (0, True) at once when the kernel is not running or an effect acts on the command or
         the encoders (the caller then commands each period itself). ``torques``, q_out,
@@ -411,15 +411,11 @@ class UrdfPlant:
         return (len(torques), True) if inside else (stop + 1, False)
 
     # ---- dynamics -----------------------------------------------------------------------------
-    def _mode_changed(self) -> None:
-        """After a joint sticks or breaks away: the signed Coulomb level per joint (direction
-        frozen until the next change), which velocities to watch for a sign change, and the
-        index sets of the constrained dynamics (sliding F, stuck S)."""
-        self._book_work()
-        self._set_mode()
-
     def _set_mode(self) -> None:
-        """:meth:`_mode_changed` after its booking."""
+        """The stick mode's constants (:meth:`mode_changed` after its booking): the signed
+        Coulomb level per joint (direction frozen until the next change), which velocities to
+        watch for a sign change, and the index sets of the constrained dynamics (sliding F,
+        stuck S)."""
         self._level = self.slip_dir * np.where(
             self.slip_dir > 0, self.coulomb_pos, self.coulomb_neg
         )
@@ -485,89 +481,6 @@ class UrdfPlant:
             a[free] = pin.aba(*locked, q[free], v[free], c[free])
         return a
 
-    def _release_stuck_joints(self) -> None:
-        """Karnopp's breakaway test on the stuck joints (:func:`breakaway_joint`), one joint at a
-        time: the friction f_S = (τ − C q̇ − g)_S − M_SF q̈_F = (τ − RNEA(q, q̇, q̈))_S that keeps
-        them stuck (q̈_S = 0), against their static bands."""
-        for _ in range(self.n_joints):
-            if not self._n_stuck:
-                return
-            q, dq, tau, stuck = self.q, self.dq, self.command_Nm, self._stuck_idx
-            if self._cogging is not None:
-                tau = tau + cogging_torque(q, *self._cogging)
-            a = self._accelerations(q, dq)
-            held_s = tau[stuck] - pin.rnea(self.model, self.data, q, dq, a)[stuck]
-            # |f| ≤ its band for every stuck joint: none breaks away (breakaway_joint's test)
-            upper, lower = self._band_s
-            if not ((held_s > upper) | (held_s < lower)).any():
-                return
-            held = np.zeros(self.n_joints)
-            held[stuck] = held_s
-            worst = breakaway_joint(held, self.stuck, self.band_pos, self.band_neg)
-            if worst < 0:
-                return
-            self.stuck[worst] = False
-            self.slip_dir[worst] = 1.0 if held[worst] > 0 else -1.0
-            self._mode_changed()
-
-    def _step(self, dt: float) -> None:
-        """Advance dt, cutting the step where a sliding joint's velocity reaches zero."""
-        if self._lag is not None:
-            self._apply_lag(dt)
-        if self._n_stuck:
-            self._release_stuck_joints()
-        q, v, viscous = self._rk4_mode(dt)
-        if (v * self._watch).min() >= 0.0:  # the common case: no sliding velocity crossed 0
-            self.q, self.dq = q, v
-            self._dissipated_booked += viscous
-            self.t += dt
-            self.steps += 1
-            if self._lag is not None:
-                self._advance_lag(dt)
-            return
-        self._step_with_events(dt, (q, v, viscous))
-
-    def _step_with_events(
-        self, dt: float, first: tuple[np.ndarray, np.ndarray, float] | None = None
-    ) -> None:
-        """:meth:`_step` where a sliding joint's velocity crosses zero; ``first``: the step's
-        RK4 in the current mode, already taken (stuck joints already checked for breakaway)."""
-        remaining = dt
-        for _ in range(MAX_EVENTS_PER_STEP):
-            if remaining <= 1e-15:
-                return
-            if first is None:
-                if self._lag is not None:
-                    self._apply_lag(remaining)
-                if self._n_stuck:
-                    self._release_stuck_joints()
-                q, v, viscous = self._rk4_mode(remaining)
-            else:
-                (q, v, viscous), first = first, None
-            used, joint = remaining, -1
-            if (v * self._watch < 0.0).any():  # a sliding sticky joint's velocity crossed zero
-                crossed = v * self._watch < 0.0
-                used, joint, (q, v, viscous) = self._locate_stick(
-                    remaining, crossed, (q, v, viscous)
-                )
-            self.q, self.dq = q, v
-            self._dissipated_booked += viscous
-            self.t += used
-            self.steps += 1
-            if self._lag is not None:
-                self._advance_lag(used)
-            remaining -= used
-            if joint < 0:
-                return
-            before = self.energy_J()
-            self.dq = self.dq.copy()
-            self.dq[joint] = 0.0
-            self._dissipated_booked += before - self.energy_J()
-            self.stuck[joint] = True
-            self._mode_changed()
-            self.stick_events += 1
-        self.t += remaining  # degenerate chattering: keep the clock honest
-
     def _rk4_mode(self, dt: float) -> tuple[np.ndarray, np.ndarray, float]:
         """One RK4 step of dt in the current stick mode under the held command, by
         :func:`_rk4_aba`: every joint sliding, the arm's ABA; some stuck, the ABA of the arm
@@ -609,61 +522,90 @@ class UrdfPlant:
         q[free], v[free] = q_f, v_f
         return q, v, viscous
 
-    def _locate_stick(
-        self, dt: float, crossed: np.ndarray, end: tuple[np.ndarray, np.ndarray, float]
+    # ---- the stick-slip step's backend (virtual_robot.stick_slip.StickSlipArm) ---------------
+    def step(self, dt: float, first: tuple[np.ndarray, np.ndarray, float] | None = None) -> None:
+        """Advance dt (:func:`virtual_robot.stick_slip.step`: stick events located);
+        ``first``: the step's RK4 in the current mode, already taken (stuck joints already
+        checked for breakaway), by the compiled kernel."""
+        stick_slip_step(self, dt, first)
+
+    @property
+    def band_positive(self) -> np.ndarray:
+        return self.band_pos
+
+    @property
+    def band_negative(self) -> np.ndarray:
+        return self.band_neg
+
+    def any_stuck(self) -> bool:
+        return self._n_stuck > 0
+
+    def hold_torque(self, dt: float) -> None:
+        """With an amplifier lag, its mean over the step (:meth:`_apply_lag`)."""
+        if self._lag is not None:
+            self._apply_lag(dt)
+
+    def flow(self, s: float) -> tuple[np.ndarray, np.ndarray, float]:
+        return self._rk4_mode(s)
+
+    def start(self) -> tuple[np.ndarray, np.ndarray, float]:
+        return self.q, self.dq, 0.0
+
+    def velocity(self, end: tuple[np.ndarray, np.ndarray, float], joint: int) -> float:
+        return end[1][joint]
+
+    def crossed(self, end: tuple[np.ndarray, np.ndarray, float]) -> Sequence[int]:
+        """The sliding sticky joints whose velocity changed sign (``_watch``: their slip
+        directions, zero for the others)."""
+        turned = end[1] * self._watch
+        return () if turned.min() >= 0.0 else np.flatnonzero(turned < 0.0).tolist()
+
+    def locate(
+        self, dt: float, crossed: Sequence[int], end: tuple[np.ndarray, np.ndarray, float]
     ) -> tuple[float, int, tuple[np.ndarray, np.ndarray, float]]:
-        """The first joint whose velocity reaches zero within [0, dt], the time it does and the
-        state there: Brent's method on that joint's velocity along the RK4 flow map of the
-        current mode (:meth:`_rk4_mode` over s); ``end``: that map at s = dt, already taken.
-        With the compiled step, the same in the kernel (rk4_aba.cpp, ddb_locate: scipy's
-        brentq ported operation for operation, so the same root to the last bit)."""
-        q0, v0, d = self.q, self.dq, self.slip_dir
+        """:func:`virtual_robot.stick_slip.locate_stick`; with the compiled step, the same in
+        the kernel (rk4_aba.cpp, ddb_locate: scipy's brentq ported operation for operation, so
+        the same root to the last bit). Without an amplifier lag the flow map is a pure
+        function of s (a lag's mean torque is set as a side effect: recomputed)."""
         if self._compiled is not None:
+            mask = np.zeros(self.n_joints, dtype=bool)
+            mask[np.asarray(crossed, dtype=int)] = True
             b = self.b if self._viscous else None
             return self._compiled.locate(
-                self._compiled_locked(), q0, v0, self._tau_minus_level, b, d, crossed, end[1], dt
-            )
-        best = (dt, -1, None)
-        # The flow map at each s evaluated, shared by the crossed joints: brentq evaluates the
-        # ends of its bracket again, and the root it returns last. Without an amplifier lag the
-        # map is a pure function of s (a lag's mean torque is set as a side effect: recomputed).
-        flow: dict[float, tuple[np.ndarray, np.ndarray, float]] = {}
-        if self._lag is None:
-            flow[dt] = end
+                self._compiled_locked(), self.q, self.dq, self._tau_minus_level, b,
+                self.slip_dir, mask, end[1], dt,
+            )  # fmt: skip
+        return locate_stick(self, dt, crossed, end, memo=self._lag is None)
 
-        def state(s: float) -> tuple[np.ndarray, np.ndarray, float]:
-            at = flow.get(s)
-            if at is None:
-                at = self._rk4_mode(s)
-                if self._lag is None:
-                    flow[s] = at
-            return at
+    def commit(self, end: tuple[np.ndarray, np.ndarray, float], s: float) -> None:
+        self.q, self.dq, viscous = end
+        self._dissipated_booked += viscous
+        if self._lag is not None and s > 0.0:  # (a stick at s = 0: no time passed, the lag stays)
+            self._advance_lag(s)
 
-        for j in np.flatnonzero(crossed):
+    def holding_torques(self) -> np.ndarray:
+        """f_S = (τ − C q̇ − g)_S − M_SF q̈_F = (τ − RNEA(q, q̇, q̈))_S, the friction that keeps
+        the stuck joints at rest (q̈_S = 0); zero on the sliding joints."""
+        q, dq, tau, stuck = self.q, self.dq, self.command_Nm, self._stuck_idx
+        if self._cogging is not None:
+            tau = tau + cogging_torque(q, *self._cogging)
+        a = self._accelerations(q, dq)
+        held = np.zeros(self.n_joints)
+        held[stuck] = tau[stuck] - pin.rnea(self.model, self.data, q, dq, a)[stuck]
+        return held
 
-            def velocity(s: float, j: int = j) -> float:
-                return state(s)[1][j] * d[j]
+    def rest(self, joint: int) -> None:
+        self.dq = self.dq.copy()
+        self.dq[joint] = 0.0
 
-            lo = 0.0
-            if v0[j] == 0.0:
-                # it broke away at the step start: bracket the later zero, not the one at s = 0
-                lo = dt
-                for _ in range(60):
-                    lo *= 0.5
-                    if velocity(lo) > 0:
-                        break
-                else:
-                    lo = -1.0
-            if lo < 0:
-                s = 0.0  # no motion at all: it sticks at once
-            elif velocity(dt) >= 0:
-                s = dt  # |q̇_j| at the step's end is at round-off: the crossing is the end
-            else:
-                s = brentq(velocity, lo, dt, xtol=ZERO_VELOCITY * dt, rtol=4 * np.finfo(float).eps)
-            if s < best[0] or best[1] < 0:
-                best = (s, int(j), None)
-        s, joint, _ = best
-        return s, joint, state(s) if s > 0 else (q0, v0, 0.0)
+    def dissipate(self, energy_J: float) -> None:
+        self._dissipated_booked += energy_J
+
+    def mode_changed(self) -> None:
+        """After a joint sticks or breaks away: the work so far booked, the new mode's
+        constants (:meth:`_set_mode`)."""
+        self._book_work()
+        self._set_mode()
 
     # ---- concealed effects (virtual_robot.effects; docs/effects.md) ---------------------------
     def _init_effects(self, p: UrdfPlantParams) -> None:
@@ -706,19 +648,7 @@ class UrdfPlant:
             self._cogging is not None or self._stribeck_v is not None or self._drag is not None
         )
 
-    def _advance_delayed(self, t_end: float) -> None:
-        """:meth:`advance_to` with the transport delay: steps cut where a command arrives."""
-        assert self._delay is not None
-        while self.t < t_end - 1e-12:
-            self._deliver_due()
-            stop = min(t_end, self.t + self.max_step_s)
-            arrives = self._delay.next_delivery()
-            if arrives is not None and self.t < arrives < stop:
-                stop = arrives
-            self._step(stop - self.t)
-        self._deliver_due()
-
-    def _deliver_due(self) -> None:
+    def deliver_due(self) -> None:
         """The newest delayed command that has arrived reaches the amplifiers."""
         assert self._delay is not None
         due = self._delay.pop_due(self.t)

@@ -32,7 +32,7 @@ from hil.model.compiled_openloop import Slider, compiled
 
 # Stick events that may occur within one sub-step; after that many (a degenerate, chattering
 # case: it happens with an actuator lag) the joints stay as they are for the rest of the sub-step,
-# as the virtual robot's plant does (end of Plant._step, virtual_robot/plant.py).
+# as the virtual robot's plant does (end of virtual_robot.stick_slip.step).
 MAX_EVENTS_PER_SUBSTEP = 8
 # A located velocity zero is accepted when |q̇_i| is below this (rad/s).
 ZERO_VELOCITY_TOL = 1e-12
@@ -311,8 +311,8 @@ def _locate_zero(
     v(0) and v(dt) = ``v_end`` of opposite signs. Linear interpolation first, then Illinois
     regula falsi to |q̇_i| < ZERO_VELOCITY_TOL. A joint that already moves against its slip
     ``direction`` at the start (it broke away on a lagged torque's mean over the step, but the
-    torque of the step's first instants pushes it back) sticks at once, s = 0, as the plant's
-    regula falsi does (virtual_robot/plant.py, Plant._locate_stick).
+    torque of the step's first instants pushes it back) sticks at once, s = 0, as in the
+    plant's stick search (virtual_robot.stick_slip.locate_stick).
     """
     v = len(start) // 2 + joint  # the joint's velocity in the state
     if start[v] * direction < 0.0:
