@@ -103,9 +103,18 @@ class CanArm(NodeSetup, PowerStates, SyncCycle, BusLink, Arm):
         self._link_lost: str | None = None  # a receive error in the cycle's own thread
 
         self._emcy: dict[int, Fault] = {}  # joint → last active fault from EMCY
-        # SYNC frames received: never our own (a CAN controller does not receive its own
-        # frames), so each is from another SYNC producer (CiA 301 allows one per bus)
+        # host frames received (NMT, SYNC; RPDOs and SDO requests to our drives): never our own
+        # (a CAN controller does not receive its own frames), so each is another host's
+        # (CiA 301: one NMT master, one SYNC producer per bus); COB-ID -> what it is
+        self._host_ids = {
+            cob: name
+            for n in (0, *self.node_ids)
+            for cob in range(n, 0x680, 0x80)
+            if (name := co.host_frame_name(cob)) is not None
+        }
         self._foreign_syncs = 0
+        self._foreign_host_frames = 0
+        self._foreign_host_first = ""  # what the first of them was ("SYNC", "SDO request ...")
         self._booted: set[int] = set()
         self._counts: list[int] = [0] * self.n_joints
         self._k = 0

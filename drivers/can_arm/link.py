@@ -252,10 +252,10 @@ class BusLink:
         self.stats.frames_received += len(frames)
         network = self.network
         notify = network.notify if network is not None else None
-        routes = self._routes
+        routes, host_ids = self._routes, self._host_ids
         for cob_id, data in frames:
-            if cob_id == co.SYNC_ID:
-                self._foreign_syncs += 1  # another SYNC producer (see CanArm.__init__)
+            if cob_id in host_ids:
+                self._foreign_host(cob_id)
             if notify is not None:
                 try:  # what canopen's MessageListener does with a Message
                     notify(cob_id, bytearray(data), stamp)
@@ -282,8 +282,10 @@ class BusLink:
         now = time.monotonic()
         self._log(msg)
         self.stats.frames_received += 1
-        if msg.arbitration_id == co.SYNC_ID and not (msg.is_extended_id or msg.is_remote_frame):
-            self._foreign_syncs += 1  # another SYNC producer (see CanArm.__init__)
+        if msg.arbitration_id in self._host_ids and not (
+            msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame
+        ):
+            self._foreign_host(msg.arbitration_id)
         try:
             frame = parse_frame(
                 self._routes,
@@ -297,6 +299,15 @@ class BusLink:
                 self._handle(frame, now)
         except Exception as exc:  # never kill the receive thread
             self._dispatch_failed(msg.arbitration_id, exc)
+
+    def _foreign_host(self, cob_id: int) -> None:
+        """A host frame received: another host's (see CanArm.__init__), counted before canopen
+        sees anything after it (an SDO answer to our set-up comes after it on the bus)."""
+        if not self._foreign_host_frames:
+            self._foreign_host_first = self._host_ids[cob_id]
+        self._foreign_host_frames += 1
+        if cob_id == co.SYNC_ID:
+            self._foreign_syncs += 1
 
     def _dispatch_failed(self, cob_id: int, exc: Exception) -> None:
         """A received frame the host could not use, kept in the link's errors (both receive

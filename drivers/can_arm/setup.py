@@ -30,10 +30,13 @@ from drivers.protocol import cia402 as co
 from profiles.drive import DriveProfile
 
 SHORT_SDO_TIMEOUT_S = 0.2  # disable() and fault queries: best effort, do not hang on a dead link
-# Before it sends anything the host listens this long for SYNCs of another producer: a host
-# already cycling sends one every period (2.5 ms at 400 Hz; faster in lockstep), so 0.1 s sees
-# dozens; a bus with its SYNC producer is another host's run, which NMT and SDO set-up would ruin
-SYNC_LISTEN_S = 0.1
+# Before it sends anything the host listens this long for another host's frames (NMT, SYNC,
+# RPDOs and SDO requests to its drives): a host already cycling sends a SYNC every period
+# (2.5 ms at 400 Hz; faster in lockstep) and one setting up an SDO request per answer, so
+# 0.1 s sees dozens; they are another host's run, which NMT and SDO set-up would ruin. A host
+# that starts together with another hears it during its own set-up instead (checked after
+# every SDO transfer until open)
+HOST_LISTEN_S = 0.1
 
 
 def profile_name(p: DriveProfile) -> str:
@@ -50,7 +53,7 @@ class NodeSetup:
             return
         try:
             self._connect()
-            self._refuse_second_producer()
+            self._listen_for_another_host()
             self.opened_at = self._t0 = time.monotonic()  # the clock of Sample times, deadlines
             for j in range(self.n_joints):
                 self._confirm(j)
@@ -92,17 +95,28 @@ class NodeSetup:
         self._receiver = Receiver(self._read_frames, name="can-arm-receiver")
         network.notifier = self._receiver  # type: ignore[assignment]  # check() reads .exception
 
-    def _refuse_second_producer(self) -> None:
-        """Listen :data:`SYNC_LISTEN_S` before sending anything; SYNCs on the bus mean
-        another host is driving these drives (CiA 301: one SYNC producer per bus): refuse in one
-        line rather than reset its drives under it."""
-        deadline = time.monotonic() + SYNC_LISTEN_S
-        while time.monotonic() < deadline and not self._foreign_syncs:
+    def _listen_for_another_host(self) -> None:
+        """Listen :data:`HOST_LISTEN_S` before sending anything: another host's frames on the
+        bus mean it is driving (or setting up) these drives (CiA 301: one NMT master, one SYNC
+        producer per bus): refuse in one line rather than reset its drives under it."""
+        deadline = time.monotonic() + HOST_LISTEN_S
+        while time.monotonic() < deadline and not self._foreign_host_frames:
             time.sleep(0.005)
-        if self._foreign_syncs:
+        self._refuse_beside_another_host()
+
+    def _refuse_beside_another_host(self) -> None:
+        """Raise the one-line refusal if another host's frames were seen.
+
+        Two hosts that start together both hear a silent bus; each then hears the other's
+        set-up (on a socketcand hub, which grants the host role to the first one's frames and
+        forwards nothing of the second's, only the second hears anything: the first goes on).
+        """
+        if self._foreign_host_frames:
             raise LinkError(
-                f"another SYNC producer is on the bus ({channel_name(self.bus)}): another host "
-                "is driving these drives; not attaching (stop that run first; one host per bus)"
+                f"another host is on the bus ({channel_name(self.bus)}): "
+                f"{self._foreign_host_frames} of its frames seen (first: "
+                f"{self._foreign_host_first}); not attaching (stop that run first; one host "
+                "per bus)"
             )
 
     def _confirm(self, j: int) -> None:
@@ -111,6 +125,7 @@ class NodeSetup:
         try:
             device_type = self._sdo_read(j, 0x1000, 0)
         except LinkError:
+            self._refuse_beside_another_host()  # no answer for us: another host's doing
             # not there yet (or we missed its boot-up): wait for a boot-up, then ask once more
             with contextlib.suppress(NmtError):
                 if n not in self._booted:
@@ -118,6 +133,7 @@ class NodeSetup:
             try:
                 device_type = self._sdo_read(j, 0x1000, 0)
             except LinkError as exc:
+                self._refuse_beside_another_host()
                 raise LinkError(f"node {n} ({name}) does not answer: {exc}") from None
         if device_type & 0xFFFF != 402:
             raise LinkError(
@@ -203,16 +219,27 @@ class NodeSetup:
     def _sdo_read(self, j: int, index: int, sub: int) -> int:
         self._threaded_receive()
         try:
-            return int(self._sdo_var(j, index, sub).raw)
+            value = int(self._sdo_var(j, index, sub).raw)
         except Exception as exc:
+            self._refuse_while_opening()
             raise self._sdo_error(j, "read", index, sub, exc) from exc
+        self._refuse_while_opening()
+        return value
 
     def _sdo_write(self, j: int, index: int, sub: int, value: int) -> None:
         self._threaded_receive()
         try:
             self._sdo_var(j, index, sub).raw = value
         except Exception as exc:
+            self._refuse_while_opening()
             raise self._sdo_error(j, "write", index, sub, exc) from exc
+        self._refuse_while_opening()
+
+    def _refuse_while_opening(self) -> None:
+        """During open (set-up by SDO), another host's frames end it with the refusal: an
+        answer may have been the other host's, and its set-up would be disturbed by ours."""
+        if not self._is_open and self.bus is not None:
+            self._refuse_beside_another_host()
 
     def _sdo_error(self, j: int, op: str, index: int, sub: int, exc: Exception) -> LinkError:
         n = self.node_ids[j]
