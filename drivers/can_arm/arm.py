@@ -10,12 +10,12 @@ import math
 import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Unpack
 
 import can
 import canopen
 
-from drivers.arm import Arm, Fault, SafetyLimits
+from drivers.arm import Arm, Fault, LinkSettings
 from drivers.can_arm.cycle import SyncCycle
 from drivers.can_arm.link import BusLink, Receiver
 from drivers.can_arm.objects import frame_routes
@@ -42,23 +42,10 @@ class CanArm(NodeSetup, PowerStates, SyncCycle, BusLink, Arm):
         bus_factory: Callable[[], can.BusABC],
         drives: Sequence[DriveProfile],
         *,
-        period_s: float,
-        mode: str,
-        timeout_s: float,
-        limits: SafetyLimits,
         log_path: str | Path | None = None,
-        feedback_budget_s: float | None = None,
-        feedback_timeout_periods: int | None = None,
+        **link: Unpack[LinkSettings],
     ) -> None:
-        self._init_link(
-            drives,
-            period_s=period_s,
-            mode=mode,
-            timeout_s=timeout_s,
-            limits=limits,
-            feedback_budget_s=feedback_budget_s,
-            feedback_timeout_periods=feedback_timeout_periods,
-        )
+        self._init_link(drives, **link)
         self._bus_factory = bus_factory
         self.node_ids = tuple(p.node_id for p in self.drives)
         if len(set(self.node_ids)) != len(self.node_ids):
