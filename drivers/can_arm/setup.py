@@ -104,21 +104,6 @@ class NodeSetup:
             time.sleep(0.005)
         self._refuse_beside_another_host()
 
-    def _refuse_beside_another_host(self) -> None:
-        """Raise the one-line refusal if another host's frames were seen.
-
-        Two hosts that start together both hear a silent bus; each then hears the other's
-        set-up (on a socketcand hub, which grants the host role to the first one's frames and
-        forwards nothing of the second's, only the second hears anything: the first goes on).
-        """
-        if self._foreign_host_frames:
-            raise LinkError(
-                f"another host is on the bus ({channel_name(self.bus)}): "
-                f"{self._foreign_host_frames} of its frames seen (first: "
-                f"{self._foreign_host_first}); not attaching (stop that run first; one host "
-                "per bus)"
-            )
-
     def _confirm(self, j: int) -> None:
         """Presence (0x1000), identity (0x1018), rated torque (0x6076), encoder (0x608F:1)."""
         p, n, name = self.drives[j], self.node_ids[j], profile_name(self.drives[j])
@@ -234,12 +219,6 @@ class NodeSetup:
             self._refuse_while_opening()
             raise self._sdo_error(j, "write", index, sub, exc) from exc
         self._refuse_while_opening()
-
-    def _refuse_while_opening(self) -> None:
-        """During open (set-up by SDO), another host's frames end it with the refusal: an
-        answer may have been the other host's, and its set-up would be disturbed by ours."""
-        if not self._is_open and self.bus is not None:
-            self._refuse_beside_another_host()
 
     def _sdo_error(self, j: int, op: str, index: int, sub: int, exc: Exception) -> LinkError:
         n = self.node_ids[j]
