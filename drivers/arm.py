@@ -22,7 +22,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, NoReturn
+from typing import Any, NoReturn, NotRequired, TypedDict
 
 from drivers.process import note_drives_opened
 from profiles.bench import DEFAULT_FEEDBACK_BUDGET_S  # realtime: later feedback = link dead
@@ -125,6 +125,18 @@ class LinkStats:
             self.late_feedback += 1
         if wait_s > self.max_feedback_wait_s:
             self.max_feedback_wait_s = wait_s
+
+
+class LinkSettings(TypedDict):
+    """The keyword settings every Arm's constructor takes (``**link: Unpack[LinkSettings]``)
+    and :meth:`Arm._init_link` checks: one list of them, not one per protocol."""
+
+    period_s: float
+    mode: str  # "lockstep" | "realtime"
+    timeout_s: float
+    limits: SafetyLimits
+    feedback_budget_s: NotRequired[float | None]  # realtime: later feedback = link dead
+    feedback_timeout_periods: NotRequired[int | None]  # the older name, in periods
 
 
 class Arm(abc.ABC):
@@ -308,6 +320,7 @@ __all__ = [
     "Arm",
     "Fault",
     "LinkError",
+    "LinkSettings",
     "LinkStats",
     "SafetyLimits",
     "SafetyStop",

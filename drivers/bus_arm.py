@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable, Sequence
-from typing import Any
+from typing import Any, Unpack
 
 import can
 
-from drivers.arm import Arm, LinkError, SafetyLimits
+from drivers.arm import Arm, LinkError, LinkSettings
 from profiles.drive import DriveProfile
 
 
@@ -30,21 +30,9 @@ class BusArm(Arm):
         self,
         bus_factory: Callable[[], can.BusABC],
         drives: Sequence[DriveProfile],
-        *,
-        period_s: float,
-        mode: str,
-        timeout_s: float,
-        limits: SafetyLimits,
-        feedback_budget_s: float | None = None,
+        **link: Unpack[LinkSettings],
     ) -> None:
-        self._init_link(
-            drives,
-            period_s=period_s,
-            mode=mode,
-            timeout_s=timeout_s,
-            limits=limits,
-            feedback_budget_s=feedback_budget_s,
-        )
+        self._init_link(drives, **link)
         for p in self.drives:
             if getattr(p, self.table) is None:
                 raise ValueError(f"{p.source}: drive {p.model} does not speak {self.label}")

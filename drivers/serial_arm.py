@@ -32,11 +32,11 @@ import select
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TextIO
+from typing import TextIO, Unpack
 
 import serial
 
-from drivers.arm import LIVENESS_POLL_S, Arm, Fault, LinkError, SafetyLimits, Sample
+from drivers.arm import LIVENESS_POLL_S, Arm, Fault, LinkError, LinkSettings, Sample
 from drivers.protocol import gemini as gm
 from drivers.protocol.cia402 import (
     ERR_OVERSPEED,
@@ -65,24 +65,11 @@ class SerialArm(Arm):
         port: str,
         drives: Sequence[DriveProfile],
         *,
-        period_s: float,
-        mode: str,
-        timeout_s: float,
-        limits: SafetyLimits,
         log_path: str | Path | None = None,
         baudrate: int = 9600,
-        feedback_budget_s: float | None = None,
-        feedback_timeout_periods: int | None = None,
+        **link: Unpack[LinkSettings],
     ) -> None:
-        self._init_link(
-            drives,
-            period_s=period_s,
-            mode=mode,
-            timeout_s=timeout_s,
-            limits=limits,
-            feedback_budget_s=feedback_budget_s,
-            feedback_timeout_periods=feedback_timeout_periods,
-        )
+        self._init_link(drives, **link)
         self.port = port
         self.units = tuple(d.unit_address for d in self.drives)
         self.baudrate = baudrate

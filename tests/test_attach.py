@@ -11,6 +11,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -19,6 +20,9 @@ import can
 import pytest
 from cli_run import ROOT, start_hil, wait_rows
 
+from drivers.arm import Arm, LinkError
+from drivers.links import open_arm
+from profiles.bench import load_bench
 from virtual_robot.socketcand_hub import SocketcandHub
 
 SYNC = can.Message(arbitration_id=0x080, data=b"", is_extended_id=False)
@@ -98,7 +102,7 @@ def test_a_second_host_is_refused_and_the_first_run_goes_on(
         wait_rows(tmp_path / "a", 200, first)
         second = _hil(*_attach(tmp_path / "b", port))
         assert second.returncode == 3, second.stderr
-        assert "another SYNC producer is on the bus" in second.stderr
+        assert "another host is on the bus" in second.stderr
         assert second.stderr.count("\n") == 1, second.stderr  # one line
         rows = (tmp_path / "a" / "signals.csv").read_text().count("\n")
         wait_rows(tmp_path / "a", rows + 400, first)  # the first run was not disturbed
@@ -108,6 +112,56 @@ def test_a_second_host_is_refused_and_the_first_run_goes_on(
         first.kill()
     meta = json.loads((tmp_path / "a" / "meta.json").read_text())
     assert meta["status"] == "interrupted", meta
+    assert "faulted" not in log.read_text()
+
+
+def _open_together(arms: list[Arm]) -> list[str]:
+    """Open every arm at once (a barrier releases their threads together): each's outcome,
+    "open" or its LinkError."""
+    barrier = threading.Barrier(len(arms))
+    outcomes = [""] * len(arms)
+
+    def attach(i: int) -> None:
+        barrier.wait()
+        try:
+            arms[i].open()
+            outcomes[i] = "open"
+        except LinkError as exc:
+            outcomes[i] = str(exc)
+
+    threads = [threading.Thread(target=attach, args=(i,)) for i in range(len(arms))]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=120)
+    return outcomes
+
+
+def test_two_hosts_attaching_together_one_refuses_the_other_runs(
+    served: tuple[subprocess.Popen, int, Path],
+) -> None:
+    """Both start their listen together, hear a silent bus and send their set-up at once: the
+    hub grants the host role to one, the other hears its set-up and refuses in one line; the
+    drives never see the second host (no fault) and the first runs."""
+    _, port, log = served
+    bench = load_bench("virtual-socketcand")
+    for _ in range(3):
+        arms = [open_arm(bench, {"channel": f"127.0.0.1:{port}"}) for _ in range(2)]
+        try:
+            outcomes = _open_together(arms)
+            assert sorted(outcomes)[1] == "open", outcomes  # exactly one attached
+            refusal = sorted(outcomes)[0]
+            assert refusal.startswith("another host is on the bus"), outcomes
+            assert "\n" not in refusal
+            arm = arms[outcomes.index("open")]
+            arm.enable()
+            arm.start()
+            for _ in range(200):
+                arm.cycle((0.0, 0.0))
+            assert arm.faults() == []
+        finally:
+            for arm in arms:
+                arm.close()
     assert "faulted" not in log.read_text()
 
 
@@ -132,10 +186,10 @@ def test_a_faulted_robot_says_why_and_is_cleared(
 
 def test_a_stray_sync_gives_up_the_producer_role_once_silent() -> None:
     """The first SYNC makes its sender the producer; a SYNC from another participant within
-    SYNC_LEASE_S is a conflict, after it (the first fell silent) a hand-over."""
+    HOST_LEASE_S is a conflict, after it (the first fell silent) a hand-over."""
     conflicts: list[str] = []
     with SocketcandHub(on_sync_conflict=conflicts.append) as hub:
-        hub.SYNC_LEASE_S = 2.0  # long: a loaded machine may hold a frame a while in transit
+        hub.HOST_LEASE_S = 2.0  # long: a loaded machine may hold a frame a while in transit
         robot = hub.robot_bus()
         stray, host = (
             can.Bus(interface="socketcand", host="127.0.0.1", port=hub.port, channel="can0")

@@ -38,6 +38,7 @@ from virtual_robot.drive import CW_HALT, MODE_CST, DriveModel, State
 from virtual_robot.stepping import Stepper
 
 if TYPE_CHECKING:
+    from profiles.effects import EffectsProfile
     from profiles.experiment import ExperimentProfile, TorqueRows
     from profiles.robot import RobotProfile, UrdfRobotProfile
 
@@ -99,6 +100,55 @@ def collect_faults(drive: DriveModel, model: str, t: float, faults: list[dict[st
             f"at t = {t:.4f} s; torque zeroed",
             file=sys.stderr,
         )
+
+
+def offline_rows(experiment: ExperimentProfile, duration_s: float | None) -> tuple[float, int]:
+    """(h, rows) of an offline run: the experiment's period and ``duration_s`` (default the
+    experiment's) in whole periods, at least one."""
+    h = experiment.period_s
+    duration = experiment.duration_s if duration_s is None else duration_s
+    return h, max(1, round(duration / h))
+
+
+def simulation_meta(
+    robot: RobotProfile | UrdfRobotProfile,
+    experiment: ExperimentProfile,
+    effects: EffectsProfile | str,
+    *,
+    period_s: float,
+    n_rows: int,
+    drives: list[dict[str, Any]],
+    about_robot: dict[str, Any] | None = None,
+    about_mode: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """meta.json of an offline simulation (``virtual-robot simulate``), in one order for every
+    kind of arm: ``effects`` the profile run (name, source, the effects it enables) or only its
+    name (drives with their own loop); ``about_robot`` keys after the robot's (URDF, joints),
+    ``about_mode`` after the mode (the drives' protocol)."""
+    if isinstance(effects, str):
+        effects_keys: dict[str, Any] = {"effects": effects}
+    else:
+        effects_keys = {
+            "effects": effects.name,
+            "effects_profile": effects.source,
+            "effects_enabled": list(effects.enabled),
+        }
+    return {
+        "kind": "simulate",
+        "version": __version__,
+        "robot": robot.name,
+        "robot_profile": robot.source,
+        **(about_robot or {}),
+        **effects_keys,
+        "experiment": experiment.name,
+        "experiment_profile": experiment.source,
+        "mode": "offline",
+        **(about_mode or {}),
+        "period_s": period_s,
+        "duration_s": n_rows * period_s,
+        "seed": None,
+        "drives": drives,
+    }
 
 
 def drive_meta(profiles: Sequence[DriveProfile]) -> list[dict[str, Any]]:
@@ -355,9 +405,7 @@ def drive_loop_rows(
     or the experiment's, at least one) and the experiment's torque of each row, read in order."""
     drives = [load_drive(name) for name in robot.drives]
     experiment.check_joints(len(drives), robot.name)
-    h = experiment.period_s
-    duration = experiment.duration_s if duration_s is None else duration_s
-    n_rows = max(1, round(duration / h))
+    h, n_rows = offline_rows(experiment, duration_s)
     return drives, h, n_rows, experiment.torque_rows(h, n_rows)
 
 
@@ -380,21 +428,15 @@ def record_drive_loop(
     meta.json's drive list, ``rows`` the ``n_rows`` pairs (q, tau) at t = k ``period_s``, each
     drive recorded as enabled (SW_ENABLED); ``wall_s`` the run's wall time."""
     h = period_s
-    meta = {
-        "kind": "simulate",
-        "version": __version__,
-        "robot": robot.name,
-        "robot_profile": robot.source,
-        "effects": effects_name,
-        "experiment": experiment.name,
-        "experiment_profile": experiment.source,
-        "mode": "offline",
-        "protocol": protocol,
-        "period_s": h,
-        "duration_s": n_rows * h,
-        "seed": None,
-        "drives": drives,
-    }
+    meta = simulation_meta(
+        robot,
+        experiment,
+        effects_name,
+        period_s=h,
+        n_rows=n_rows,
+        drives=drives,
+        about_mode={"protocol": protocol},
+    )
     n = len(drives)
     status = tuple(f"status{j}" for j in range(1, n + 1))
     with RecordingWriter(out_dir, meta, extra_columns=status, n_joints=n) as rec:

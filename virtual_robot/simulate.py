@@ -17,8 +17,14 @@ from profiles.drive import DriveProfile, load_drive
 from profiles.effects import EffectsProfile
 from profiles.experiment import ExperimentProfile
 from profiles.robot import RobotProfile, UrdfRobotProfile
-from virtual_robot import __version__
-from virtual_robot.offline import SimulationResult, drive_meta, enable_drives, run_open_loop
+from virtual_robot.offline import (
+    SimulationResult,
+    drive_meta,
+    enable_drives,
+    offline_rows,
+    run_open_loop,
+    simulation_meta,
+)
 from virtual_robot.plant import DEFAULT_STEP_S, Plant, PlantParams
 
 
@@ -68,34 +74,19 @@ def simulate(
         from virtual_robot.moteus_simulate import simulate_moteus
 
         return simulate_moteus(robot, experiment, out_dir, effects=effects, duration_s=duration_s)
-    h = experiment.period_s
-    duration = experiment.duration_s if duration_s is None else duration_s
-    n_rows = max(1, round(duration / h))
+    h, n_rows = offline_rows(experiment, duration_s)
     plant = Plant(
         PlantParams.from_profiles(robot, effects),
         q0=experiment.initial_q_rad,
         max_step_s=min(step_s, h),
     )
     drives = enable_drives(drives_p, h, plant.measured_q, plant.dq)
-    meta = {
-        "kind": "simulate",
-        "version": __version__,
-        "robot": robot.name,
-        "robot_profile": robot.source,
-        "effects": effects.name,
-        "effects_profile": effects.source,
-        "effects_enabled": list(effects.enabled),
-        "experiment": experiment.name,
-        "experiment_profile": experiment.source,
-        "mode": "offline",
-        "period_s": h,
-        "duration_s": n_rows * h,
-        "seed": None,
-        "drives": drive_meta(drives_p),
-        "integrator": {
-            "method": "RK4, fixed step, stick-slip events located",
-            "step_s": plant.max_step_s,
-        },
+    meta = simulation_meta(
+        robot, experiment, effects, period_s=h, n_rows=n_rows, drives=drive_meta(drives_p)
+    )
+    meta["integrator"] = {
+        "method": "RK4, fixed step, stick-slip events located",
+        "step_s": plant.max_step_s,
     }
     commanded_Nm = experiment.torque_rows(h, n_rows)  # a block at a time: bounded memory
     return run_open_loop(

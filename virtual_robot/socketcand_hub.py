@@ -33,13 +33,20 @@ the reason logged); at most :attr:`SocketcandHub.MAX_CLIENTS` clients; the accep
 survives running out of descriptors (EMFILE) and keeps listening; non-ASCII and malformed
 elements are dropped, counted and logged at a bounded rate; a client that has not entered raw
 mode :attr:`SocketcandHub.HANDSHAKE_TIMEOUT_S` after connecting is dropped, and TCP keepalive
-finds peers gone without a FIN (half-open). The bus has one SYNC producer (the first
-participant to send a SYNC, the host; the role is free again once its SYNCs stop for
-:attr:`SocketcandHub.SYNC_LEASE_S`): a SYNC from anyone else meanwhile is not forwarded and
-``on_sync_conflict`` is told (serve.py faults the drives: a lockstep robot stepped by two SYNC
-sources would record garbage). ``on_sync_source_gone``: the producer disconnected (host gone).
-A host (drivers.can_arm) listens for SYNCs before its set-up and refuses to attach beside a
-producer, so a second `hil run --attach` does not reach this point.
+finds peers gone without a FIN (half-open).
+
+One host per bus: the hub grants the host role (NMT master, SYNC producer, SDO client; the
+frames of :func:`drivers.protocol.cia402.host_frame_name`) to the first participant that sends
+a host frame, under its lock, so of two hosts that start together exactly one gets it; the
+role is free again once that participant's host frames stop for
+:attr:`SocketcandHub.HOST_LEASE_S` or it disconnects. Host frames from anyone else meanwhile
+are not forwarded (the drives never see a second host's set-up) and counted in
+``foreign_host_frames``; a SYNC among them also tells ``on_sync_conflict`` (serve.py faults the
+drives: a robot beside a second SYNC producer is not to be trusted). A host (drivers.can_arm)
+listens before it sends and refuses once it sees another host's frames, so a second
+`hil run --attach` refuses in one line, whether it came late (it hears the first's SYNCs or
+set-up) or together with the first (its frames go nowhere and it hears the first's set-up).
+``on_sync_source_gone``: the host that had sent SYNCs disconnected (the run is over).
 """
 
 from __future__ import annotations
@@ -56,9 +63,10 @@ from typing import Any
 
 import can
 
+from drivers.protocol import cia402 as co
+
 _logger = logging.getLogger(__name__)
 MAX_ELEMENT = 200  # characters without a closing '>' before the buffer is discarded
-SYNC_ID = 0x080  # CiA 301 SYNC
 
 
 def _name(participant: object) -> str:
@@ -347,10 +355,11 @@ class SocketcandHub:
     # a client that does not read: about 2 s of a 400 Hz cycle's 7 frames, then it is dropped
     MAX_QUEUED_BYTES = 256 * 1024
     MAX_CLIENTS = 64  # more are refused (a bus of a host, a few monitors)
-    # a SYNC producer silent this long gives up the role (2x the feedback budget of the virtual
-    # benches: a host silent longer has ended its own run; a lockstep host sends hundreds a
-    # second, a realtime one one a period; stalls of an ordinary desktop stay well below)
-    SYNC_LEASE_S = 0.5
+    # a host silent this long gives up the role (2x the feedback budget of the virtual benches:
+    # a host silent longer has ended its own run; a lockstep host sends hundreds of SYNCs a
+    # second, a realtime one one a period, SDO set-up one request per answer; stalls of an
+    # ordinary desktop stay well below)
+    HOST_LEASE_S = 0.5
     # a client that has not entered raw mode this long after connecting is dropped (a
     # half-open or idle connection must not hold one of MAX_CLIENTS forever)
     HANDSHAKE_TIMEOUT_S = 10.0
@@ -384,11 +393,15 @@ class SocketcandHub:
         self.refused = 0  # connections refused (too many clients)
         self.accept_errors = 0  # accept() failures survived (EMFILE, ...)
         self.foreign_syncs = 0  # SYNCs from a second producer, not forwarded
-        # CANopen has one SYNC producer: the first participant to send one; a SYNC from anyone
-        # else would step a lockstep robot twice and corrupt the run, so it is refused
-        self._sync_source: object | None = None
-        self._sync_last = 0.0  # monotonic time of the producer's last SYNC
-        self._conflict_source: object | None = None  # the last second producer reported
+        self.foreign_host_frames = 0  # host frames (SYNCs too) from a second host, not forwarded
+        # one host per bus (CiA 301: one NMT master, one SYNC producer): the first participant
+        # to send a host frame; another host's SDO and NMT would reconfigure the drives under
+        # the first's run and its SYNCs step a lockstep robot twice, so they are refused
+        self._master: object | None = None
+        self._master_last = 0.0  # monotonic time of the host's last host frame
+        self._master_synced = False  # the host has sent SYNCs (it runs, not only sets up)
+        self._conflict_source: object | None = None  # the last second SYNC producer reported
+        self._intruder: object | None = None  # the last second host reported
         self._on_sync_conflict = on_sync_conflict
         self._on_sync_source_gone = on_sync_source_gone
         self._said: dict[
@@ -511,40 +524,51 @@ class SocketcandHub:
         with self._lock:
             self._clients = [c for c in self._clients if c.sock is not sock]
 
-    def _is_sync(self, msg: can.Message) -> bool:
-        return (
-            msg.arbitration_id == SYNC_ID
-            and not msg.is_extended_id
-            and not msg.is_remote_frame
-            and not msg.is_error_frame
-        )
+    @staticmethod
+    def _host_frame(msg: can.Message) -> str | None:
+        """What a frame only a host sends is (``co.host_frame_name``), else None."""
+        if msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame:
+            return None
+        return co.host_frame_name(msg.arbitration_id)
 
     def _dispatch(self, msg: can.Message, source: object) -> None:
-        """A frame sent by ``source`` reaches every other participant (a SYNC only if ``source``
-        is the bus's SYNC producer)."""
-        conflict = None
-        with self._lock:
-            if self._is_sync(msg):
+        """A frame sent by ``source`` reaches every other participant (a host frame only if
+        ``source`` holds the host role)."""
+        conflict = intruder = None
+        what = self._host_frame(msg)
+        with self._lock:  # the role is granted here, atomically: one of two hosts gets it
+            if what is not None:
                 now = time.monotonic()
-                if self._sync_source is None or (now - self._sync_last > self.SYNC_LEASE_S):
-                    # the first producer, or one after the last fell silent (a raw client's
-                    # stray SYNC does not lock the bus for the host that attaches later)
-                    self._sync_source = source
-                if source is self._sync_source:
-                    self._sync_last = now
+                if self._master is None or (now - self._master_last > self.HOST_LEASE_S):
+                    # the first host, or one after the last fell silent (a raw client's stray
+                    # SYNC does not lock the bus for the host that attaches later)
+                    self._master, self._master_synced = source, False
+                if source is self._master:
+                    self._master_last = now
+                    self._master_synced |= what == "SYNC"
                 else:
-                    self.foreign_syncs += 1
-                    if source is not self._conflict_source:  # said once per intruder
-                        self._conflict_source = source
-                        conflict = (
-                            f"a second SYNC producer ({_name(source)}) on the bus besides "
-                            f"{_name(self._sync_source)}: its SYNCs are not forwarded"
+                    self.foreign_host_frames += 1
+                    if what == "SYNC":
+                        self.foreign_syncs += 1
+                        if source is not self._conflict_source:  # said once per intruder
+                            self._conflict_source = source
+                            conflict = (
+                                f"a second SYNC producer ({_name(source)}) on the bus besides "
+                                f"{_name(self._master)}: its SYNCs are not forwarded"
+                            )
+                    elif source is not self._intruder:  # said once per intruder
+                        self._intruder = source
+                        intruder = (
+                            f"a second host ({_name(source)}, {what}) on the bus besides "
+                            f"{_name(self._master)}: its host frames are not forwarded"
                         )
                     msg = None  # type: ignore[assignment]
             if msg is not None:
                 clients = [c for c in self._clients if c is not source]
                 locals_ = [b for b in self._locals if b is not source]
                 self.frames += 1
+        if intruder is not None:
+            self._log(f"socketcand hub: {intruder}")
         if conflict is not None:
             self._log(f"socketcand hub: {conflict}")
             if self._on_sync_conflict is not None:
@@ -572,9 +596,9 @@ class SocketcandHub:
         with self._lock:
             if client in self._clients:
                 self._clients.remove(client)
-            was_sync_source = client is self._sync_source
-            if was_sync_source:
-                self._sync_source = None
+            was_sync_source = client is self._master and self._master_synced
+            if client is self._master:
+                self._master = None
         if was_sync_source and not self._closed.is_set():
             reason = f"the SYNC producer {client.peer} (the host) disconnected"
             self._log(f"socketcand hub: {reason}")

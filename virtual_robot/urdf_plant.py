@@ -68,7 +68,6 @@ from profiles.drive import load_drive
 from profiles.effects import EffectsProfile
 from profiles.experiment import ExperimentProfile
 from profiles.robot import UrdfRobotProfile
-from virtual_robot import __version__
 from virtual_robot.compiled_step import (
     BREAKS,
     CROSSED,
@@ -87,7 +86,14 @@ from virtual_robot.effects import (
     stribeck_level,
     velocity_squared_drag,
 )
-from virtual_robot.offline import SimulationResult, drive_meta, enable_drives, run_open_loop
+from virtual_robot.offline import (
+    SimulationResult,
+    drive_meta,
+    enable_drives,
+    offline_rows,
+    run_open_loop,
+    simulation_meta,
+)
 from virtual_robot.plant import DEFAULT_STEP_S
 from virtual_robot.stick_slip import advance_delayed, locate_stick
 from virtual_robot.stick_slip import step as stick_slip_step
@@ -822,9 +828,7 @@ def simulate_urdf(
     if robot.drives is None:
         raise ValueError(f"{robot.source}: [joints] drives: the simulation needs one per joint")
     drives_p = [load_drive(name) for name in robot.drives]
-    h = experiment.period_s
-    duration = experiment.duration_s if duration_s is None else duration_s
-    n_rows = max(1, round(duration / h))
+    h, n_rows = offline_rows(experiment, duration_s)
     effects = effects or EffectsProfile()
     plant = UrdfPlant(
         UrdfPlantParams.from_profile(robot, effects),
@@ -832,28 +836,19 @@ def simulate_urdf(
         max_step_s=min(step_s, h),
     )
     drives = enable_drives(drives_p, h, plant.measured_q, plant.dq)
-    meta = {
-        "kind": "simulate",
-        "version": __version__,
-        "robot": robot.name,
-        "robot_profile": robot.source,
-        "urdf": robot.urdf,
-        "n_joints": n,
-        "effects": effects.name,
-        "effects_profile": effects.source,
-        "effects_enabled": list(effects.enabled),
-        "experiment": experiment.name,
-        "experiment_profile": experiment.source,
-        "mode": "offline",
-        "period_s": h,
-        "duration_s": n_rows * h,
-        "seed": None,
-        "drives": drive_meta(drives_p),
-        "integrator": {
-            "method": "RK4, fixed step, stick-slip events located; Pinocchio ABA/CRBA/RNEA",
-            "step_s": plant.max_step_s,
-            "kernel": plant.kernel_summary(),
-        },
+    meta = simulation_meta(
+        robot,
+        experiment,
+        effects,
+        period_s=h,
+        n_rows=n_rows,
+        drives=drive_meta(drives_p),
+        about_robot={"urdf": robot.urdf, "n_joints": n},
+    )
+    meta["integrator"] = {
+        "method": "RK4, fixed step, stick-slip events located; Pinocchio ABA/CRBA/RNEA",
+        "step_s": plant.max_step_s,
+        "kernel": plant.kernel_summary(),
     }
     commanded_Nm = experiment.torque_rows(h, n_rows)
     result = run_open_loop(

@@ -10,12 +10,12 @@ import math
 import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Unpack
 
 import can
 import canopen
 
-from drivers.arm import Arm, Fault, SafetyLimits
+from drivers.arm import Arm, Fault, LinkSettings
 from drivers.can_arm.cycle import SyncCycle
 from drivers.can_arm.link import BusLink, Receiver
 from drivers.can_arm.objects import frame_routes
@@ -42,23 +42,10 @@ class CanArm(NodeSetup, PowerStates, SyncCycle, BusLink, Arm):
         bus_factory: Callable[[], can.BusABC],
         drives: Sequence[DriveProfile],
         *,
-        period_s: float,
-        mode: str,
-        timeout_s: float,
-        limits: SafetyLimits,
         log_path: str | Path | None = None,
-        feedback_budget_s: float | None = None,
-        feedback_timeout_periods: int | None = None,
+        **link: Unpack[LinkSettings],
     ) -> None:
-        self._init_link(
-            drives,
-            period_s=period_s,
-            mode=mode,
-            timeout_s=timeout_s,
-            limits=limits,
-            feedback_budget_s=feedback_budget_s,
-            feedback_timeout_periods=feedback_timeout_periods,
-        )
+        self._init_link(drives, **link)
         self._bus_factory = bus_factory
         self.node_ids = tuple(p.node_id for p in self.drives)
         if len(set(self.node_ids)) != len(self.node_ids):
@@ -103,9 +90,18 @@ class CanArm(NodeSetup, PowerStates, SyncCycle, BusLink, Arm):
         self._link_lost: str | None = None  # a receive error in the cycle's own thread
 
         self._emcy: dict[int, Fault] = {}  # joint → last active fault from EMCY
-        # SYNC frames received: never our own (a CAN controller does not receive its own
-        # frames), so each is from another SYNC producer (CiA 301 allows one per bus)
+        # host frames received (NMT, SYNC; RPDOs and SDO requests to our drives): never our own
+        # (a CAN controller does not receive its own frames), so each is another host's
+        # (CiA 301: one NMT master, one SYNC producer per bus); COB-ID -> what it is
+        self._host_ids = {
+            cob: name
+            for n in (0, *self.node_ids)
+            for cob in range(n, 0x680, 0x80)
+            if (name := co.host_frame_name(cob)) is not None
+        }
         self._foreign_syncs = 0
+        self._foreign_host_frames = 0
+        self._foreign_host_first = ""  # what the first of them was ("SYNC", "SDO request ...")
         self._booted: set[int] = set()
         self._counts: list[int] = [0] * self.n_joints
         self._k = 0

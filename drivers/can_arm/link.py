@@ -20,7 +20,7 @@ from collections.abc import Callable
 import can
 import canopen
 
-from drivers.arm import Fault
+from drivers.arm import Fault, LinkError
 from drivers.can_arm.objects import (
     EMCY,
     LOCKSTEP,
@@ -61,6 +61,9 @@ class ArmNetwork(canopen.Network):
         if not self.bus:
             raise RuntimeError("Not connected to CAN bus")
         self._arm._threaded_receive()  # canopen expects its answers from the receive thread
+        # a host that has heard another while opening sends nothing more (canopen's SDO retry
+        # and abort included): the refusal instead
+        self._arm._refuse_while_opening()
         msg = can.Message(
             arbitration_id=can_id,
             is_extended_id=can_id > 0x7FF,
@@ -252,10 +255,10 @@ class BusLink:
         self.stats.frames_received += len(frames)
         network = self.network
         notify = network.notify if network is not None else None
-        routes = self._routes
+        routes, host_ids = self._routes, self._host_ids
         for cob_id, data in frames:
-            if cob_id == co.SYNC_ID:
-                self._foreign_syncs += 1  # another SYNC producer (see CanArm.__init__)
+            if cob_id in host_ids:
+                self._foreign_host(cob_id)
             if notify is not None:
                 try:  # what canopen's MessageListener does with a Message
                     notify(cob_id, bytearray(data), stamp)
@@ -282,8 +285,10 @@ class BusLink:
         now = time.monotonic()
         self._log(msg)
         self.stats.frames_received += 1
-        if msg.arbitration_id == co.SYNC_ID and not (msg.is_extended_id or msg.is_remote_frame):
-            self._foreign_syncs += 1  # another SYNC producer (see CanArm.__init__)
+        if msg.arbitration_id in self._host_ids and not (
+            msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame
+        ):
+            self._foreign_host(msg.arbitration_id)
         try:
             frame = parse_frame(
                 self._routes,
@@ -297,6 +302,36 @@ class BusLink:
                 self._handle(frame, now)
         except Exception as exc:  # never kill the receive thread
             self._dispatch_failed(msg.arbitration_id, exc)
+
+    def _refuse_beside_another_host(self) -> None:
+        """Raise the one-line refusal if another host's frames were seen.
+
+        Two hosts that start together both hear a silent bus; each then hears the other's
+        set-up (on a socketcand hub, which grants the host role to the first one's frames and
+        forwards nothing of the second's, only the second hears anything: the first goes on).
+        """
+        if self._foreign_host_frames:
+            raise LinkError(
+                f"another host is on the bus ({channel_name(self.bus)}): "
+                f"{self._foreign_host_frames} of its frames seen (first: "
+                f"{self._foreign_host_first}); not attaching (stop that run first; one host "
+                "per bus)"
+            )
+
+    def _refuse_while_opening(self) -> None:
+        """During open (set-up by SDO), another host's frames end it with the refusal: an
+        answer may have been the other host's, and its set-up would be disturbed by ours."""
+        if not self._is_open and self.bus is not None:
+            self._refuse_beside_another_host()
+
+    def _foreign_host(self, cob_id: int) -> None:
+        """A host frame received: another host's (see CanArm.__init__), counted before canopen
+        sees anything after it (an SDO answer to our set-up comes after it on the bus)."""
+        if not self._foreign_host_frames:
+            self._foreign_host_first = self._host_ids[cob_id]
+        self._foreign_host_frames += 1
+        if cob_id == co.SYNC_ID:
+            self._foreign_syncs += 1
 
     def _dispatch_failed(self, cob_id: int, exc: Exception) -> None:
         """A received frame the host could not use, kept in the link's errors (both receive

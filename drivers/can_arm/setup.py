@@ -30,10 +30,13 @@ from drivers.protocol import cia402 as co
 from profiles.drive import DriveProfile
 
 SHORT_SDO_TIMEOUT_S = 0.2  # disable() and fault queries: best effort, do not hang on a dead link
-# Before it sends anything the host listens this long for SYNCs of another producer: a host
-# already cycling sends one every period (2.5 ms at 400 Hz; faster in lockstep), so 0.1 s sees
-# dozens; a bus with its SYNC producer is another host's run, which NMT and SDO set-up would ruin
-SYNC_LISTEN_S = 0.1
+# Before it sends anything the host listens this long for another host's frames (NMT, SYNC,
+# RPDOs and SDO requests to its drives): a host already cycling sends a SYNC every period
+# (2.5 ms at 400 Hz; faster in lockstep) and one setting up an SDO request per answer, so
+# 0.1 s sees dozens; they are another host's run, which NMT and SDO set-up would ruin. A host
+# that starts together with another hears it during its own set-up instead (checked after
+# every SDO transfer until open)
+HOST_LISTEN_S = 0.1
 
 
 def profile_name(p: DriveProfile) -> str:
@@ -50,7 +53,7 @@ class NodeSetup:
             return
         try:
             self._connect()
-            self._refuse_second_producer()
+            self._listen_for_another_host()
             self.opened_at = self._t0 = time.monotonic()  # the clock of Sample times, deadlines
             for j in range(self.n_joints):
                 self._confirm(j)
@@ -92,18 +95,14 @@ class NodeSetup:
         self._receiver = Receiver(self._read_frames, name="can-arm-receiver")
         network.notifier = self._receiver  # type: ignore[assignment]  # check() reads .exception
 
-    def _refuse_second_producer(self) -> None:
-        """Listen :data:`SYNC_LISTEN_S` before sending anything; SYNCs on the bus mean
-        another host is driving these drives (CiA 301: one SYNC producer per bus): refuse in one
-        line rather than reset its drives under it."""
-        deadline = time.monotonic() + SYNC_LISTEN_S
-        while time.monotonic() < deadline and not self._foreign_syncs:
+    def _listen_for_another_host(self) -> None:
+        """Listen :data:`HOST_LISTEN_S` before sending anything: another host's frames on the
+        bus mean it is driving (or setting up) these drives (CiA 301: one NMT master, one SYNC
+        producer per bus): refuse in one line rather than reset its drives under it."""
+        deadline = time.monotonic() + HOST_LISTEN_S
+        while time.monotonic() < deadline and not self._foreign_host_frames:
             time.sleep(0.005)
-        if self._foreign_syncs:
-            raise LinkError(
-                f"another SYNC producer is on the bus ({channel_name(self.bus)}): another host "
-                "is driving these drives; not attaching (stop that run first; one host per bus)"
-            )
+        self._refuse_beside_another_host()
 
     def _confirm(self, j: int) -> None:
         """Presence (0x1000), identity (0x1018), rated torque (0x6076), encoder (0x608F:1)."""
@@ -111,6 +110,7 @@ class NodeSetup:
         try:
             device_type = self._sdo_read(j, 0x1000, 0)
         except LinkError:
+            self._refuse_beside_another_host()  # no answer for us: another host's doing
             # not there yet (or we missed its boot-up): wait for a boot-up, then ask once more
             with contextlib.suppress(NmtError):
                 if n not in self._booted:
@@ -118,6 +118,7 @@ class NodeSetup:
             try:
                 device_type = self._sdo_read(j, 0x1000, 0)
             except LinkError as exc:
+                self._refuse_beside_another_host()
                 raise LinkError(f"node {n} ({name}) does not answer: {exc}") from None
         if device_type & 0xFFFF != 402:
             raise LinkError(
@@ -203,16 +204,21 @@ class NodeSetup:
     def _sdo_read(self, j: int, index: int, sub: int) -> int:
         self._threaded_receive()
         try:
-            return int(self._sdo_var(j, index, sub).raw)
+            value = int(self._sdo_var(j, index, sub).raw)
         except Exception as exc:
+            self._refuse_while_opening()
             raise self._sdo_error(j, "read", index, sub, exc) from exc
+        self._refuse_while_opening()
+        return value
 
     def _sdo_write(self, j: int, index: int, sub: int, value: int) -> None:
         self._threaded_receive()
         try:
             self._sdo_var(j, index, sub).raw = value
         except Exception as exc:
+            self._refuse_while_opening()
             raise self._sdo_error(j, "write", index, sub, exc) from exc
+        self._refuse_while_opening()
 
     def _sdo_error(self, j: int, op: str, index: int, sub: int, exc: Exception) -> LinkError:
         n = self.node_ids[j]

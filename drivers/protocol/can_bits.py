@@ -47,21 +47,37 @@ def crc15(bits: Iterable[int]) -> int:
     return crc
 
 
+def _stuff_step(level: int, run: int, bit: int) -> tuple[int, int, int]:
+    """The bit stuffing rule (ISO 11898-1 §10.5): after ``bit`` on a run of ``run`` bits at
+    ``level``, the run's (level, length) and the stuff bits inserted (0 or 1): one after every
+    run of five equal levels, and the inserted bit, of the opposite level, starts the next run."""
+    level, run = (level, run + 1) if bit == level else (bit, 1)
+    if run == STUFF_RUN:
+        return 1 - bit, 1, 1
+    return level, run, 0
+
+
 def stuff_bit_count(bits: Sequence[int]) -> int:
-    """Stuff bits a transmitter inserts into ``bits`` (one after every run of five equal
-    levels; the inserted bit is the first of the next run)."""
-    count = 0
-    run = 0
-    level = -1
+    """Stuff bits a transmitter inserts into ``bits`` (:func:`_stuff_step` bit by bit)."""
+    level, run, count = -1, 0, 0
     for bit in bits:
-        if bit == level:
-            run += 1
-        else:
-            level, run = bit, 1
-        if run == STUFF_RUN:
-            count += 1
-            level, run = 1 - bit, 1  # the stuff bit, of the opposite level, starts a run
+        level, run, stuffed = _stuff_step(level, run, bit)
+        count += stuffed
     return count
+
+
+def _checked_head(
+    can_id: int, data: bytes, extended: bool, remote: bool, dlc: int | None
+) -> tuple[int, int]:
+    """(DLC, RTR bit) of a classical CAN frame, or a ValueError saying what does not fit."""
+    n = len(data) if dlc is None else dlc
+    if not 0 <= n <= 8 or (not remote and len(data) != n):
+        raise ValueError(f"a classical CAN frame has 0..8 data bytes and a matching DLC, got {n}")
+    if extended and not 0 <= can_id <= 0x1FFFFFFF:
+        raise ValueError(f"extended id 0x{can_id:X} beyond 29 bits")
+    if not extended and not 0 <= can_id <= 0x7FF:
+        raise ValueError(f"standard id 0x{can_id:X} beyond 11 bits")
+    return n, 1 if remote else 0
 
 
 def stuffed_region(
@@ -73,17 +89,10 @@ def stuffed_region(
     dlc: int | None = None,
 ) -> list[int]:
     """The bits of a frame from SOF to the end of the CRC sequence, before stuffing."""
-    n = len(data) if dlc is None else dlc
-    if not 0 <= n <= 8 or (not remote and len(data) != n):
-        raise ValueError(f"a classical CAN frame has 0..8 data bytes and a matching DLC, got {n}")
-    rtr = 1 if remote else 0
+    n, rtr = _checked_head(can_id, data, extended, remote, dlc)
     if extended:
-        if not 0 <= can_id <= 0x1FFFFFFF:
-            raise ValueError(f"extended id 0x{can_id:X} beyond 29 bits")
         head = [0, *_bits(can_id >> 18, 11), 1, 1, *_bits(can_id & 0x3FFFF, 18), rtr, 0, 0]
     else:
-        if not 0 <= can_id <= 0x7FF:
-            raise ValueError(f"standard id 0x{can_id:X} beyond 11 bits")
         head = [0, *_bits(can_id, 11), rtr, 0, 0]
     bits = head + _bits(n, 4)
     if not remote:
@@ -111,11 +120,8 @@ def _stuff_table() -> dict[tuple[int, int], tuple[tuple[int, int, int], ...]]:
             for byte in range(256):
                 lv, rn, count = level, run, 0
                 for i in range(7, -1, -1):
-                    bit = (byte >> i) & 1
-                    lv, rn = (lv, rn + 1) if bit == lv else (bit, 1)
-                    if rn == STUFF_RUN:
-                        count += 1
-                        lv, rn = 1 - bit, 1
+                    lv, rn, stuffed = _stuff_step(lv, rn, (byte >> i) & 1)
+                    count += stuffed
                 row.append((lv, rn, count))
             table[(level, run)] = tuple(row)
     return table
@@ -138,19 +144,12 @@ def frame_bits(
     The same count as ``len(r) + stuff_bit_count(r) + TAIL_BITS`` for ``r =``
     :func:`stuffed_region` (tested), computed a byte at a time: a few µs per frame.
     """
-    n = len(data) if dlc is None else dlc
-    if not 0 <= n <= 8 or (not remote and len(data) != n):
-        raise ValueError(f"a classical CAN frame has 0..8 data bytes and a matching DLC, got {n}")
-    rtr = 1 if remote else 0
+    n, rtr = _checked_head(can_id, data, extended, remote, dlc)
     if extended:
-        if not 0 <= can_id <= 0x1FFFFFFF:
-            raise ValueError(f"extended id 0x{can_id:X} beyond 29 bits")
         # SOF, base id, SRR, IDE, id extension, RTR, r1, r0, DLC: 39 bits (SOF = 0 leads)
         head = (can_id >> 18) << 27 | 3 << 25 | (can_id & 0x3FFFF) << 7 | rtr << 6 | n
         length = 39
     else:
-        if not 0 <= can_id <= 0x7FF:
-            raise ValueError(f"standard id 0x{can_id:X} beyond 11 bits")
         head = can_id << 7 | rtr << 6 | n  # SOF, id, RTR, IDE, r0, DLC: 19 bits
         length = 19
     if not remote and n:
@@ -166,11 +165,8 @@ def frame_bits(
     lead = length % 8
     level, run, count = -1, 0, 0
     for i in range(length - 1, length - 1 - lead, -1):
-        bit = (region >> i) & 1
-        level, run = (level, run + 1) if bit == level else (bit, 1)
-        if run == STUFF_RUN:
-            count += 1
-            level, run = 1 - bit, 1
+        level, run, stuffed = _stuff_step(level, run, (region >> i) & 1)
+        count += stuffed
     rest = length - lead
     for byte in (region & ((1 << rest) - 1)).to_bytes(rest // 8, "big"):
         level, run, stuffed = _STUFF_TABLE[(level, run)][byte]

@@ -25,6 +25,23 @@ SDO_TX_BASE = 0x580  # server (drive) -> client (host)
 SDO_RX_BASE = 0x600  # client -> server
 HEARTBEAT_BASE = 0x700
 
+# Frames only a host (the NMT master, SYNC producer and SDO client) sends, by function code
+# (COB-ID >> 7) of the CiA 301 predefined connection set: RPDO1-4 (0x200, 0x300, 0x400,
+# 0x500 + n) and SDO client→server (0x600 + n); NMT and SYNC are bus-wide
+_HOST_FUNCTIONS = {4: "RPDO1", 6: "RPDO2", 8: "RPDO3", 10: "RPDO4", 12: "SDO request"}
+
+
+def host_frame_name(cob_id: int) -> str | None:
+    """What a frame only a host sends is ("SYNC", "NMT", "SDO request to node 3", ...), or
+    None for a frame a drive (or anyone) sends: TPDOs, SDO answers, EMCY, heartbeats."""
+    if cob_id == NMT_ID:
+        return "NMT"
+    if cob_id == SYNC_ID:
+        return "SYNC"
+    node, what = cob_id & 0x7F, _HOST_FUNCTIONS.get(cob_id >> 7)
+    return f"{what} to node {node}" if what is not None and node > 0 else None
+
+
 # NMT command specifiers (CiA 301)
 NMT_START = 0x01
 NMT_STOP = 0x02

@@ -67,18 +67,6 @@ from hil.model.openloop_core import (
 )
 from hil.model.openloop_effects import OpenLoopExtras, integrate_with_extras
 
-__all__ = [
-    "ModelArm",
-    "OpenLoopExtras",
-    "OpenLoopResult",
-    "rk4_held",
-    "simulate_open_loop",
-    "simulate_open_loop_chunks",
-    "simulate_segments",
-    "simulate_windows",
-    "simulation_refusal",
-]
-
 
 def simulate_open_loop(
     theta: ArrayLike,
@@ -529,4 +517,5 @@ __all__ = [
     "simulate_open_loop_chunks",
     "simulate_segments",
     "simulate_windows",
+    "simulation_refusal",
 ]
