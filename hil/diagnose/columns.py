@@ -281,6 +281,49 @@ def _momentum_rows(
     return k, y, psi, stuck, v_all
 
 
+class _TorqueOf:
+    """``model`` with θ fixed, as a model of 1 + 2n parameters for :func:`_momentum_rows`: its
+    column 0 holds P θ and R θ without the viscous and Coulomb terms (the model's ``momentum``
+    and ``static_torque``: one torque per sample, not p regressor columns), the friction
+    columns stay the model's own (the interval integrals write them exactly), so that
+    Ψ' ``theta`` = Ψ θ with ``theta`` = [1, θ_friction]."""
+
+    terms: tuple[str, ...] = ()
+
+    def __init__(self, model: ArmModel, theta: np.ndarray) -> None:
+        self._model = model
+        friction = list(model.friction_columns)
+        self._rigid = np.array(theta, float)  # θ without viscous and Coulomb friction
+        self._rigid[friction] = 0.0
+        self.theta = np.concatenate([[1.0], np.asarray(theta, float)[friction]])
+        self.n_params = len(self.theta)
+        self.friction_columns = tuple(range(1, self.n_params))
+
+    def _columns(self, torque: np.ndarray) -> np.ndarray:
+        out = np.zeros((*torque.shape, self.n_params))
+        out[..., 0] = torque
+        return out
+
+    def momentum_regressor(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        return self._columns(self._model.momentum(self._rigid, q, dq))
+
+    def static_regressor(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        return self._columns(self._model.static_torque(self._rigid, q, dq))
+
+
+def model_torque_rows(
+    rows: RecordingRows, theta: np.ndarray, q: np.ndarray | None = None
+) -> np.ndarray:
+    """Ψ θ (K, n) of ``rows``' intervals before the filter F, with the encoder readings ``q``
+    (default the recording's): the model's torque rows, built from its torques (:class:`_TorqueOf`)
+    over the same intervals, velocities and time stamps as Ψ, not from Ψ's p columns (an
+    n-joint arm's regressor is its costliest step)."""
+    fixed = _TorqueOf(rows.model, np.asarray(theta, float)[: rows.model.n_params])
+    args = (rows.h, rows.stamps, rows.half_window, fixed)
+    psi = _momentum_rows(rows.q if q is None else q, rows.tau, *args)[2]
+    return psi @ fixed.theta
+
+
 def row_weights(still: np.ndarray, h: float, window: int) -> np.ndarray:
     """Weights (K, n) of the filtered rows: 0 for a row whose window holds an interval that is
     ``still`` (K, n) or within STICK_GUARD_S of one, and for the first ``window`` − 1 rows
@@ -556,11 +599,9 @@ def angle_offset_column(
     A constant shift leaves every velocity unchanged, so the rows are rebuilt exactly."""
     shift = np.zeros(rows.q.shape[1])
     shift[joint] = step_rad
-    args = (rows.h, rows.stamps, rows.half_window, rows.model)
-    th = np.asarray(theta, float)[: rows.model.n_params]
     # Ψθ before the filter (F is linear): (K, 2), not two (K, 2, 9) filtered copies
-    plus = _momentum_rows(rows.q + shift, rows.tau, *args)[2] @ th
-    minus = _momentum_rows(rows.q - shift, rows.tau, *args)[2] @ th
+    plus = model_torque_rows(rows, theta, rows.q + shift)
+    minus = model_torque_rows(rows, theta, rows.q - shift)
     return -moving_average((plus - minus) / (2 * step_rad), rows.window)[:, :, None]
 
 
