@@ -12,12 +12,11 @@ message when the Panda recording is absent. ``--profile FILE``: the child runs u
 and writes its statistics there (``python -m pstats FILE``; the CPU time then includes the
 profiler's own).
 
-Measured (seed 0, the shared two cores under a load of ~12, so both figures run high): 78.3 s
-CPU (56.6 user + 21.7 system) and 826 MB before the encoder-offset rows were built from the
-model's torques (84 % of the time was in them: 14 rebuilds of the 64-column regressor, its
-kinetic-energy gradient a Python loop per sample), 31.2 s (23.1 + 8.1) and 719 MB after; the
-three regressors of the nominal problems (reference, recording, the refit) are most of what is
-left.
+Measured (seed 0, the shared two cores at a load of 16–18, both runs side by side): 31.4 s
+CPU and 653 MB; the tree that built the encoder-offset rows from the 64-column regressor (84 %
+of its time: 14 rebuilds, the kinetic-energy gradient a Python loop per node) took 83.5 s and
+738 MB. What is left is mostly the regressors of the three nominal problems (docs/diagnosis.md,
+"Cost").
 """
 
 from __future__ import annotations
