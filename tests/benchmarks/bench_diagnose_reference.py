@@ -13,10 +13,10 @@ and writes its statistics there (``python -m pstats FILE``; the CPU time then in
 profiler's own).
 
 Measured (seed 0, the shared two cores at a load of 16–18, both runs side by side): 31.4 s
-CPU and 653 MB; the tree that built the encoder-offset rows from the 64-column regressor (69–84 %
-of its time in profiles: 14 rebuilds, the kinetic-energy gradient a Python loop per node) took 83.5 s and
-738 MB. What is left is mostly the regressors of the three nominal problems (docs/diagnosis.md,
-"Cost").
+CPU and 653 MB; the tree that built the encoder-offset rows from the 64-column regressor
+(69–84 % of its time in profiles: 14 rebuilds, the kinetic-energy gradient a Python loop per
+node) took 83.5 s and 738 MB. What is left is mostly the regressors of the three nominal
+problems (docs/diagnosis.md, "Cost").
 """
 
 from __future__ import annotations
