@@ -249,6 +249,7 @@ def _momentum_rows(
     t: np.ndarray | None = None,
     half_window: int = 1,
     model: ArmModel = NINE_PARAMETERS,
+    torque_side: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Unfiltered interval rows: k, τ_k + (b_{k+1} − b_k)/h_k (K, 2) (b the held torque's bias
     of the estimated momentum, :func:`hil.model.regressors.held_torque_momentum_bias`),
@@ -256,14 +257,15 @@ def _momentum_rows(
     parameters, interval stuck (K, 2), sample velocities (N, 2). ``t``: real time stamps (each
     interval its own h_k). Built ROW_CHUNK samples at a time, each piece with enough neighbours
     either side for its velocities (an interval's row depends only on the samples around it),
-    so memory is O(N·p)."""
+    so memory is O(N·p). ``torque_side`` False: the y returned is τ_k alone (for a caller of
+    Ψ only: the bias takes a local fit per sample)."""
     n = len(q)
     margin = half_window + 2
     parts = []
     v_all = np.full(q.shape, np.nan)
     # The held torque's corners in q̈ bias M v̂ by b_k (hil.model.regressors): moved to the
     # torque side, y_k = τ_k + (b_{k+1} − b_k)/h_k, so Ψ keeps the velocities it had.
-    bias = held_torque_momentum_bias(tau, h, t, half_window)
+    bias = held_torque_momentum_bias(tau, h, t, half_window) if torque_side else None
     for a in range(0, n, ROW_CHUNK):
         b = min(a + ROW_CHUNK, n)
         lo, hi = max(0, a - margin), min(n, b + margin)
@@ -274,7 +276,7 @@ def _momentum_rows(
         k = kin.intervals.k + lo
         keep = (k >= a) & (k < b)
         hk = h if t is None else (t[k + 1] - t[k])[:, None]
-        y = raw.y + (bias[k + 1] - bias[k]) / hk
+        y = raw.y if bias is None else raw.y + (bias[k + 1] - bias[k]) / hk
         parts.append((k[keep], y[keep], raw.parts[0][1][keep], kin.intervals.stuck[keep]))
         v_all[a:b] = kin.v[a - lo : b - lo]
     k, y, psi, stuck = (np.concatenate([p[i] for p in parts]) for i in range(4))
@@ -320,7 +322,7 @@ def model_torque_rows(
     n-joint arm's regressor is its costliest step)."""
     fixed = _TorqueOf(rows.model, np.asarray(theta, float)[: rows.model.n_params])
     args = (rows.h, rows.stamps, rows.half_window, fixed)
-    psi = _momentum_rows(rows.q if q is None else q, rows.tau, *args)[2]
+    psi = _momentum_rows(rows.q if q is None else q, rows.tau, *args, torque_side=False)[2]
     return psi @ fixed.theta
 
 
@@ -611,5 +613,6 @@ def model_term_columns(rows: RecordingRows, term: str) -> np.ndarray:
     ``ArmModel(rows.model.terms + (term,))`` appends, over the same intervals and through the
     same filter F (the terms are linear in their parameters), (K, 2, width)."""
     extended = rows.model.with_terms((term,))
-    psi = _momentum_rows(rows.q, rows.tau, rows.h, rows.stamps, rows.half_window, extended)[2]
+    args = (rows.h, rows.stamps, rows.half_window, extended)
+    psi = _momentum_rows(rows.q, rows.tau, *args, torque_side=False)[2]
     return moving_average(psi[:, :, extended.term_columns(term)], rows.window)
