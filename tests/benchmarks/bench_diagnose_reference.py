@@ -12,11 +12,11 @@ message when the Panda recording is absent. ``--profile FILE``: the child runs u
 and writes its statistics there (``python -m pstats FILE``; the CPU time then includes the
 profiler's own).
 
-Measured (seed 0, the shared two cores at a load of 16–18, both runs side by side): 31.4 s
-CPU and 653 MB; the tree that built the encoder-offset rows from the 64-column regressor
+Measured (seed 0, the shared two cores at a load of 12–18): 31–33 s CPU and 650–720 MB
+(three runs); the tree that built the encoder-offset rows from the 64-column regressor
 (69–84 % of its time in profiles: 14 rebuilds, the kinetic-energy gradient a Python loop per
-node) took 83.5 s and 738 MB. What is left is mostly the regressors of the three nominal
-problems (docs/diagnosis.md, "Cost").
+node) took 78–84 s and 740–830 MB (two runs, one side by side with one of the three). What is
+left is mostly the regressors of the three nominal problems (docs/diagnosis.md, "Cost").
 """
 
 from __future__ import annotations
