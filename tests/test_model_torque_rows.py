@@ -103,7 +103,7 @@ def test_encoder_column_equals_its_regressor_definition(cicese3, irregular):
     difference of each row, divided by STEP_RAD: 1e-16 · 1e3 / 1e-4 ≈ 1e-9 of P's size)."""
     rows = _rows(cicese3, irregular=irregular)
     theta = _theta(cicese3)
-    psi = _momentum_rows(rows.q, rows.tau, rows.h, rows.stamps, rows.half_window, cicese3)[2]
+    psi = rows.Psi  # the filtered design, as the drift stage's Problem.Psi_raw
     ctx = Context([rows], cicese3, theta, psi)
     effect = encoder.EncoderOffset()
     s = encoder.STEP_RAD
@@ -131,9 +131,7 @@ def test_memo_keeps_every_joints_start_through_a_refinement(panda, monkeypatch):
     """A 7-joint selection builds every joint's first column, refines candidates (two rows per
     Gauss–Newton point) and starts again: the first columns and the latest points are kept."""
     rows = _rows(panda, N=400)
-    theta = panda.base_theta()
-    psi = _momentum_rows(rows.q, rows.tau, rows.h, rows.stamps, rows.half_window, panda)[2]
-    ctx = Context([rows], panda, theta, psi)
+    ctx = Context([rows], panda, panda.base_theta(), rows.Psi)
     built = []
 
     def counted(r, th, q=None):
