@@ -249,6 +249,7 @@ def _momentum_rows(
     t: np.ndarray | None = None,
     half_window: int = 1,
     model: ArmModel = NINE_PARAMETERS,
+    torque_side: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Unfiltered interval rows: k, τ_k + (b_{k+1} − b_k)/h_k (K, 2) (b the held torque's bias
     of the estimated momentum, :func:`hil.model.regressors.held_torque_momentum_bias`),
@@ -256,14 +257,15 @@ def _momentum_rows(
     parameters, interval stuck (K, 2), sample velocities (N, 2). ``t``: real time stamps (each
     interval its own h_k). Built ROW_CHUNK samples at a time, each piece with enough neighbours
     either side for its velocities (an interval's row depends only on the samples around it),
-    so memory is O(N·p)."""
+    so memory is O(N·p). ``torque_side`` False: the y returned is τ_k alone (for a caller of
+    Ψ only: the bias takes a local fit per sample)."""
     n = len(q)
     margin = half_window + 2
     parts = []
     v_all = np.full(q.shape, np.nan)
     # The held torque's corners in q̈ bias M v̂ by b_k (hil.model.regressors): moved to the
     # torque side, y_k = τ_k + (b_{k+1} − b_k)/h_k, so Ψ keeps the velocities it had.
-    bias = held_torque_momentum_bias(tau, h, t, half_window)
+    bias = held_torque_momentum_bias(tau, h, t, half_window) if torque_side else None
     for a in range(0, n, ROW_CHUNK):
         b = min(a + ROW_CHUNK, n)
         lo, hi = max(0, a - margin), min(n, b + margin)
@@ -274,11 +276,54 @@ def _momentum_rows(
         k = kin.intervals.k + lo
         keep = (k >= a) & (k < b)
         hk = h if t is None else (t[k + 1] - t[k])[:, None]
-        y = raw.y + (bias[k + 1] - bias[k]) / hk
+        y = raw.y if bias is None else raw.y + (bias[k + 1] - bias[k]) / hk
         parts.append((k[keep], y[keep], raw.parts[0][1][keep], kin.intervals.stuck[keep]))
         v_all[a:b] = kin.v[a - lo : b - lo]
     k, y, psi, stuck = (np.concatenate([p[i] for p in parts]) for i in range(4))
     return k, y, psi, stuck, v_all
+
+
+class _TorqueOf:
+    """``model`` with θ fixed, as a model of 1 + 2n parameters for :func:`_momentum_rows`: its
+    column 0 holds P θ and R θ without the viscous and Coulomb terms (the model's ``momentum``
+    and ``static_torque``: one torque per sample, not p regressor columns), the friction
+    columns stay the model's own (the interval integrals write them exactly), so that
+    Ψ' ``theta`` = Ψ θ with ``theta`` = [1, θ_friction]."""
+
+    terms: tuple[str, ...] = ()
+
+    def __init__(self, model: ArmModel, theta: np.ndarray) -> None:
+        self._model = model
+        friction = list(model.friction_columns)
+        self._rigid = np.array(theta, float)  # θ without viscous and Coulomb friction
+        self._rigid[friction] = 0.0
+        self.theta = np.concatenate([[1.0], np.asarray(theta, float)[friction]])
+        self.n_params = len(self.theta)
+        self.friction_columns = tuple(range(1, self.n_params))
+
+    def _columns(self, torque: np.ndarray) -> np.ndarray:
+        out = np.zeros((*torque.shape, self.n_params))
+        out[..., 0] = torque
+        return out
+
+    def momentum_regressor(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        return self._columns(self._model.momentum(self._rigid, q, dq))
+
+    def static_regressor(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        return self._columns(self._model.static_torque(self._rigid, q, dq))
+
+
+def model_torque_rows(
+    rows: RecordingRows, theta: np.ndarray, q: np.ndarray | None = None
+) -> np.ndarray:
+    """Ψ θ (K, n) of ``rows``' intervals before the filter F, with the encoder readings ``q``
+    (default the recording's): the model's torque rows, built from its torques (:class:`_TorqueOf`)
+    over the same intervals, velocities and time stamps as Ψ, not from Ψ's p columns (an
+    n-joint arm's regressor is its costliest step)."""
+    fixed = _TorqueOf(rows.model, np.asarray(theta, float)[: rows.model.n_params])
+    args = (rows.h, rows.stamps, rows.half_window, fixed)
+    psi = _momentum_rows(rows.q if q is None else q, rows.tau, *args, torque_side=False)[2]
+    return psi @ fixed.theta
 
 
 def row_weights(still: np.ndarray, h: float, window: int) -> np.ndarray:
@@ -556,11 +601,9 @@ def angle_offset_column(
     A constant shift leaves every velocity unchanged, so the rows are rebuilt exactly."""
     shift = np.zeros(rows.q.shape[1])
     shift[joint] = step_rad
-    args = (rows.h, rows.stamps, rows.half_window, rows.model)
-    th = np.asarray(theta, float)[: rows.model.n_params]
     # Ψθ before the filter (F is linear): (K, 2), not two (K, 2, 9) filtered copies
-    plus = _momentum_rows(rows.q + shift, rows.tau, *args)[2] @ th
-    minus = _momentum_rows(rows.q - shift, rows.tau, *args)[2] @ th
+    plus = model_torque_rows(rows, theta, rows.q + shift)
+    minus = model_torque_rows(rows, theta, rows.q - shift)
     return -moving_average((plus - minus) / (2 * step_rad), rows.window)[:, :, None]
 
 
@@ -570,5 +613,6 @@ def model_term_columns(rows: RecordingRows, term: str) -> np.ndarray:
     ``ArmModel(rows.model.terms + (term,))`` appends, over the same intervals and through the
     same filter F (the terms are linear in their parameters), (K, 2, width)."""
     extended = rows.model.with_terms((term,))
-    psi = _momentum_rows(rows.q, rows.tau, rows.h, rows.stamps, rows.half_window, extended)[2]
+    args = (rows.h, rows.stamps, rows.half_window, extended)
+    psi = _momentum_rows(rows.q, rows.tau, *args, torque_side=False)[2]
     return moving_average(psi[:, :, extended.term_columns(term)], rows.window)

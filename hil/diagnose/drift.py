@@ -36,6 +36,7 @@ from scipy.stats import t as student_t
 
 from drivers.recording import Recording
 from hil.diagnose.effects import REGISTRY, Context, Effect, SimInput
+from hil.diagnose.effects.base import REFINE_STEPS
 from hil.diagnose.findings import Finding
 from hil.diagnose.report import (
     HELD_OUT_FRACTION,
@@ -76,7 +77,6 @@ from hil.model.metrics import nrmse
 # describe this arm (another arm, another load case), and its drift would be a wrong story.
 NOMINAL_TOLERANCE = 1.5
 RESOLVED_SE = 2.0  # a finding's size must exceed this many of its standard errors
-REFINE_STEPS = 4  # Gauss–Newton steps of the nonlinear patterns (encoder angle, payload centre)
 GATE_ROUNDS = 4  # selections run again after a term failed a gate
 # The recording runs the reference's motion again (its regressor rows within this fraction of the
 # reference's, block for block): the model's error then falls in the same blocks on both sides

@@ -409,6 +409,14 @@ class ArmModel:
         """R(q, q̇) = −∂φ_L/∂q + φ_F with τ = d/dt[P θ] + R θ, shape (..., 2, p)."""
         return self._with_terms(static_regressor(q, dq), _term_static, q, dq)
 
+    def momentum(self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
+        """P(q, q̇) θ = M(q) q̇, shape (..., 2) (as :meth:`UrdfArmModel.momentum`)."""
+        return self.momentum_regressor(q, dq) @ self._theta(theta)
+
+    def static_torque(self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
+        """R(q, q̇) θ, shape (..., 2) (as :meth:`UrdfArmModel.static_torque`)."""
+        return self.static_regressor(q, dq) @ self._theta(theta)
+
     def dynamic_regressor(self, q: ArrayLike, dq: ArrayLike, ddq: ArrayLike) -> np.ndarray:
         """Y(q, q̇, q̈) with Y θ = M q̈ + C q̇ + g + f, shape (..., 2, p)."""
         base = dynamic_regressor(q, dq, ddq)

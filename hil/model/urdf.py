@@ -53,6 +53,12 @@ BASE_SAMPLES = 400
 RANK_TOL = 1e-9
 # Configurations at which a base-parameter vector's M(q) must be positive definite.
 CONSISTENCY_SAMPLES = 256
+# The bodies that carry a base vector θ (UrdfArmModel._theta_bodies) must give the regressors'
+# products within this fraction of their largest, at this many random states: they differ by
+# rounding (1e-15) where θ is representable; a body whose mass is tiny against its first
+# moment loses digits in Pinocchio's centre h/m.
+THETA_BODIES_TOL = 1e-10
+THETA_BODIES_CHECKS = 8
 
 
 @dataclass(frozen=True)
@@ -143,6 +149,7 @@ class UrdfArmModel:
         )
         self.base = self._base_parameters(np.random.default_rng(seed))
         self._set_names()
+        self._bodies_of: tuple[bytes, tuple | None] = (b"", None)  # _theta_bodies' last θ
 
     @classmethod
     def from_profile(
@@ -484,6 +491,94 @@ class UrdfArmModel:
         M = self.mass_matrix(t, q)
         ddq = np.linalg.solve(M, (tau - rest)[..., None])[..., 0]
         return ddq.reshape(*lead, self.n_joints)
+
+    # --- the torques of one θ, through Pinocchio's recursive algorithms --------------------------
+
+    def momentum(self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
+        """P(q, q̇) θ = M(q) q̇ (with the armature's I_a q̇), shape (..., n): the momentum
+        regressor's product, from one RNEA per sample (at rest without gravity, q̈ = q̇) on
+        bodies that carry θ (:meth:`_theta_bodies`), not from its 10n columns."""
+        (q, dq), lead = self._samples(q, dq)
+        t = np.asarray(theta, dtype=float)
+        bodies = self._theta_bodies(t)
+        if bodies is None:
+            out = self._to_base(self._standard_momentum(q, dq)) @ t
+        else:
+            free, data, _, _, armature = bodies
+            out = np.empty_like(q)
+            zero = np.zeros(self.n_joints)
+            for k in range(len(q)):
+                out[k] = pin.rnea(free, data, q[k], zero, dq[k])
+            out += armature * dq
+        return out.reshape(*lead, self.n_joints)
+
+    def static_torque(self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
+        """R(q, q̇) θ = −∂K/∂q + g(q) + f(q̇), shape (..., n) (τ = d/dt[P θ] + R θ, Reyes &
+        Kelly (1997) eq. (13)), the static regressor's product without its columns. With
+        Pinocchio's Coriolis matrix, Ṁ = C + Cᵀ, and Lagrange's τ = M q̈ + Ṁ q̇ − ∂K/∂q + g =
+        M q̈ + C q̇ + g give ∂K/∂q = Ṁ q̇ − C q̇ = Cᵀ q̇: R θ = g(q) − C(q, q̇)ᵀ q̇ + f(q̇)."""
+        (q, dq), lead = self._samples(q, dq)
+        t = np.asarray(theta, dtype=float)
+        bodies = self._theta_bodies(t)
+        if bodies is None:
+            out = self._to_base(self._standard_static(q, dq)) @ t
+        else:
+            free, data, heavy, heavy_data, _ = bodies
+            C = np.empty((len(q), self.n_joints, self.n_joints))
+            out = np.empty_like(q)
+            for k in range(len(q)):
+                C[k] = pin.computeCoriolisMatrix(free, data, q[k], dq[k])
+                out[k] = pin.computeGeneralizedGravity(heavy, heavy_data, q[k])
+            out -= np.einsum("kji,kj->ki", C, dq)
+            out += self.friction_torque(t, dq)
+        return out.reshape(*lead, self.n_joints)
+
+    def _theta_bodies(self, theta: np.ndarray):
+        """Pinocchio models whose bodies carry the base parameters ``theta``: the standard
+        vector θ_std with θ_std[dependent] the URDF's and θ_std[independent] = θ₁ − K θ₂
+        (so expand θ_std = θ, :class:`BaseParameters`), each body's inertia from its ten
+        numbers. Returns (free model, data, model with gravity, data, armature), or None where
+        an inertia cannot carry them (a body's mass ≤ 0: Pinocchio keeps the centre h/m) or
+        the models miss the regressors' products at a few random states by more than
+        THETA_BODIES_TOL (then the regressors serve). Kept for the last θ asked."""
+        key = theta.tobytes()
+        if self._bodies_of[0] == key:
+            return self._bodies_of[1]
+        r = len(self.base.K)
+        std = self.standard_theta.copy()
+        std[self.base.independent[:r]] = theta[:r] - self.base.K @ std[self.base.dependent]
+        bodies = None
+        if len(theta) == self.n_params and np.all(std[0 : self.n_body_params : 10] > 0):
+            free = pin.Model(self._free)
+            for j in range(1, free.njoints):
+                free.inertias[j] = pin.Inertia.FromDynamicParameters(std[10 * (j - 1) : 10 * j])
+            heavy = pin.Model(free)
+            heavy.gravity = self._model.gravity
+            armature = (
+                std[self.n_body_params : self.n_rigid_standard]
+                if "rotor_inertia" in self.terms
+                else np.zeros(self.n_joints)
+            )
+            bodies = (free, free.createData(), heavy, heavy.createData(), armature)
+        self._bodies_of = (key, bodies)
+        if bodies is not None and not self._bodies_agree(theta):
+            self._bodies_of = (key, None)
+        return self._bodies_of[1]
+
+    def _bodies_agree(self, theta: np.ndarray) -> bool:
+        """Whether :meth:`momentum` and :meth:`static_torque` through the θ bodies give the
+        regressors' products (relative THETA_BODIES_TOL) at random states."""
+        rng = np.random.default_rng(0)
+        q = rng.uniform(-np.pi, np.pi, (THETA_BODIES_CHECKS, self.n_joints))
+        dq = rng.normal(size=q.shape)
+        for fast, slow in (
+            (self.momentum(theta, q, dq), self._standard_momentum(q, dq)),
+            (self.static_torque(theta, q, dq), self._standard_static(q, dq)),
+        ):
+            exact = self._to_base(slow) @ theta
+            if not np.all(np.abs(fast - exact) <= THETA_BODIES_TOL * np.abs(exact).max()):
+                return False
+        return True
 
     # --- physical consistency ------------------------------------------------------------------
 

@@ -19,6 +19,8 @@ import numpy as np
 
 from hil.diagnose.columns import RecordingRows, moving_average
 
+REFINE_STEPS = 4  # Gauss–Newton steps of the nonlinear patterns (encoder angle, payload centre)
+
 
 @dataclass
 class Context:

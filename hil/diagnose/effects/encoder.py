@@ -11,41 +11,44 @@ apart.
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
-from hil.diagnose.columns import _momentum_rows, moving_average
-from hil.diagnose.effects.base import Context, Effect, SimInput, r4, register
-
-
-def _shifted(r, joint: int, delta: float):
-    q = r.q.copy()
-    q[:, joint] -= delta
-    return replace(r, q=q)
-
+from hil.diagnose.columns import model_torque_rows, moving_average
+from hil.diagnose.effects.base import REFINE_STEPS, Context, Effect, SimInput, r4, register
 
 STEP_RAD = 1e-4  # the forward difference of ∂(Ψθ₀)/∂q_j
 
 
+def memo_size(n_joints: int) -> int:
+    """Shifted rows kept on a context: every joint's first column (its rows at STEP_RAD, where
+    each selection, its repeats after a failed gate and the confounding checks start again:
+    never evicted) and the two rows of each of the REFINE_STEPS + 1 points of a Gauss–Newton
+    refinement, the least recently used evicted first. 7 joints: 17 arrays (K, 7), 3.4 MB
+    each per minute at 1 kHz."""
+    return n_joints + 2 * (REFINE_STEPS + 1)
+
+
 def model_torque_at(ctx: Context, joint: int, delta: float) -> np.ndarray:
-    """F[Ψ(q − δ e_j) θ₀] (K, n): the nominal model's rows at the true angles (kept on the
-    context: the column and the shift at one point share it; an n-joint arm's rows are its
-    costliest step)."""
+    """F[Ψ(q − δ e_j) θ₀] (K, n): the nominal model's rows at the true angles, from the
+    model's torques (:func:`hil.diagnose.columns.model_torque_rows`), kept on the context:
+    the column and the shift at one point share them, and the next selection starts again
+    from STEP_RAD."""
     if delta == 0.0:
         return ctx.Psi_raw @ ctx.theta0
     key = ("encoder", joint, float(delta))
     if key in ctx.memo:
+        ctx.memo[key] = ctx.memo.pop(key)  # the most recently used last
         return ctx.memo[key]
 
     def rows(r):
-        s = _shifted(r, joint, delta)
-        psi = _momentum_rows(s.q, s.tau, s.h, s.stamps, s.half_window, s.model)[2]
-        return moving_average(psi @ ctx.theta0, r.window)
+        q = r.q.copy()
+        q[:, joint] -= delta
+        return moving_average(model_torque_rows(r, ctx.theta0, q), r.window)
 
-    if len(ctx.memo) > 16:
-        ctx.memo.clear()
+    while len(ctx.memo) >= memo_size(ctx.n_joints):  # the least recently used goes, but
+        del ctx.memo[next(k for k in ctx.memo if k[2] != STEP_RAD)]  # never a first column
     out = ctx.memo[key] = ctx.stack(rows)
     return out
 
