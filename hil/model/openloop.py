@@ -371,8 +371,8 @@ def rk4_held(
 
 
 class ModelArm:
-    """A model object with regressors and M(q) (an n-joint :class:`hil.model.urdf.UrdfArmModel`)
-    at base parameters θ as the stick–slip integrator's arm
+    """A model object with ``dynamics(θ)`` (M(q) and C q̇ + g at one state: an n-joint
+    :class:`hil.model.urdf.UrdfArmModel`) at base parameters θ as the stick–slip integrator's arm
     (:class:`hil.model.openloop_core.StickSlipArm`): the one scheme of the 2-DOF simulation
     (module docstring) over n joints, in place of Coulomb friction as f_c sgn q̇.
 
@@ -397,20 +397,18 @@ class ModelArm:
             )
         self.model, self.theta, self.n_joints = model, th, n
         self.offset = friction[2 * n : 3 * n] if len(friction) > 2 * n else np.zeros(n)
-        # θ without the Coulomb levels and offsets: its torque at q̈ = 0 is C q̇ + g + f_v q̇
-        self._smooth_theta = th.copy()
-        self._smooth_theta[np.arange(th.size)[columns][n:]] = 0.0
+        self.viscous = friction[:n]
+        self.dynamics = model.dynamics(th)  # M(q), C q̇ + g of θ
         levels = tuple(float(c) for c in coulomb)
         self.friction = Friction(levels, levels)
         self.shaft_torque = shaft_torque
-        self._zero = np.zeros(n)
 
     def _residual(self, q: np.ndarray, v: np.ndarray, tau: Sequence[float]) -> np.ndarray:
         """r = τ + τ_shaft − f_o − C(q, q̇) q̇ − g(q) − f_v q̇: all but the Coulomb friction."""
         r = np.asarray(tau, dtype=float) - self.offset
         if self.shaft_torque is not None:
             r = r + self.shaft_torque(q[None], v[None])[0]
-        return r - self.model.torque_regressor(q, v, self._zero) @ self._smooth_theta
+        return r - self.dynamics.rigid_bias(q, v) - self.viscous * v
 
     def mode_step(self, stuck: tuple[bool, ...], direction: tuple[float, ...]) -> Callable:
         """RK4 in one stick mode: q̈_S = 0, M_FF q̈_F = (r − d F^d)_F (F sliding, S stuck)."""
@@ -423,7 +421,7 @@ class ModelArm:
             a = np.zeros(n)
             if free.size:
                 r = self._residual(q, v, tau) - levels
-                M = self.model.mass_matrix(self.theta, q)
+                M = self.dynamics.mass_matrix(q)
                 a[free] = np.linalg.solve(M[block], r[free])
             return a
 
@@ -472,7 +470,7 @@ class ModelArm:
         free = np.flatnonzero(~s)
         held[s] = r[s]
         if free.size:
-            M = self.model.mass_matrix(self.theta, q)
+            M = self.dynamics.mass_matrix(q)
             levels = np.array([self.friction.level(int(i), direction[i]) for i in free])
             try:
                 a_free = np.linalg.solve(M[np.ix_(free, free)], r[free] - levels)
