@@ -33,7 +33,7 @@ re-exported) and :func:`simulate_windows`; the integrator is
 effects, which :mod:`hil.model.openloop_effects` brings in as a torque path (delay, lag, gain,
 offset), a friction law (Stribeck) and a shaft torque (cogging). The same scheme simulates an
 n-joint model object (:class:`ModelArm`, :func:`simulate_segments`: the URDF models of
-:mod:`hil.model.urdf`), through :func:`hil.model.openloop_core.integrate_arm`. Imports: numpy,
+:mod:`hil.model.urdf`), through :func:`hil.model.openloop_core.integrate_arm`. Imports: numpy, scipy's LAPACK,
 :mod:`hil.model.closed_form`, :mod:`hil.model.openloop_core`, :mod:`hil.model.openloop_effects`
 (and, inside :func:`simulate_windows`, :mod:`hil.model.metrics` and :mod:`hil.model.regressors`).
 
@@ -53,6 +53,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.linalg import lapack
 
 from hil.model.closed_form import N_PARAMS, ArmModel
 from hil.model.openloop_core import (
@@ -370,6 +371,16 @@ def rk4_held(
     return x_q, x_v, bad
 
 
+def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """x with a x = b by LAPACK's dgesv, as :func:`numpy.linalg.solve` does it, without its
+    checks and conversions (they cost more than the solve of an n ≤ 7 system, four times per RK4
+    step); a singular ``a`` raises :class:`numpy.linalg.LinAlgError` as there."""
+    _, _, x, info = lapack.dgesv(a, b)
+    if info > 0:
+        raise np.linalg.LinAlgError("Singular matrix")
+    return x
+
+
 class ModelArm:
     """A model object with ``dynamics(θ)`` (M(q) and C q̇ + g at one state: an n-joint
     :class:`hil.model.urdf.UrdfArmModel`) at base parameters θ as the stick–slip integrator's arm
@@ -422,7 +433,7 @@ class ModelArm:
             if free.size:
                 r = self._residual(q, v, tau) - levels
                 M = self.dynamics.mass_matrix(q)
-                a[free] = np.linalg.solve(M[block], r[free])
+                a[free] = _solve(M[block], r[free])
             return a
 
         def step(state: tuple[float, ...], tau: Sequence[float], dt: float) -> tuple[float, ...]:
@@ -473,7 +484,7 @@ class ModelArm:
             M = self.dynamics.mass_matrix(q)
             levels = np.array([self.friction.level(int(i), direction[i]) for i in free])
             try:
-                a_free = np.linalg.solve(M[np.ix_(free, free)], r[free] - levels)
+                a_free = _solve(M[np.ix_(free, free)], r[free] - levels)
             except np.linalg.LinAlgError:
                 return [0.0] * n
             held[s] -= M[np.ix_(np.flatnonzero(s), free)] @ a_free

@@ -553,16 +553,14 @@ class UrdfDynamics:
         armature = std[model.n_body_params : model.n_rigid_standard] if arm else np.zeros(n)
         self._armature = np.diag(armature)
         self._zero = np.zeros(n)
+        self._jacobians = np.zeros((6 * n, n))  # the bodies' Jacobians stacked, filled per call
 
     def mass_matrix(self, q: ArrayLike) -> np.ndarray:
         """M(q), (n, n), at one configuration q (n,)."""
-        m, d = self._free, self._free_data
-        qk = np.asarray(q, dtype=float)
-        pin.computeJointJacobians(m, d, qk)
-        n = self.n_joints  # (6, n) each; one joint's comes back as a vector
-        J = np.vstack(
-            [pin.getJointJacobian(m, d, j, pin.LOCAL).reshape(6, n) for j in range(1, n + 1)]
-        )
+        m, d, n, J = self._free, self._free_data, self.n_joints, self._jacobians
+        pin.computeJointJacobians(m, d, np.asarray(q, dtype=float))
+        for j in range(n):  # body j's Jacobian, (6, n); one joint's comes back as a vector
+            J[6 * j : 6 * j + 6] = pin.getJointJacobian(m, d, j + 1, pin.LOCAL).reshape(6, n)
         return J.T @ (self._spatial @ J) + self._armature
 
     def rigid_bias(self, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
