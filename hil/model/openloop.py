@@ -33,9 +33,10 @@ re-exported) and :func:`simulate_windows`; the integrator is
 effects, which :mod:`hil.model.openloop_effects` brings in as a torque path (delay, lag, gain,
 offset), a friction law (Stribeck) and a shaft torque (cogging). The same scheme simulates an
 n-joint model object (:class:`ModelArm`, :func:`simulate_segments`: the URDF models of
-:mod:`hil.model.urdf`), through :func:`hil.model.openloop_core.integrate_arm`. Imports: numpy, scipy's LAPACK,
-:mod:`hil.model.closed_form`, :mod:`hil.model.openloop_core`, :mod:`hil.model.openloop_effects`
-(and, inside :func:`simulate_windows`, :mod:`hil.model.metrics` and :mod:`hil.model.regressors`).
+:mod:`hil.model.urdf`), through :func:`hil.model.openloop_core.integrate_arm`. Imports: numpy,
+scipy's LAPACK, :mod:`hil.model.closed_form`, :mod:`hil.model.openloop_core`,
+:mod:`hil.model.openloop_effects` (and, inside :func:`simulate_windows`,
+:mod:`hil.model.metrics` and :mod:`hil.model.regressors`).
 
 Written on purpose without reference to the virtual robot's plant (the world): the host's model
 and the world are separate code, and tests/test_openloop.py checks that they agree. Scalar
