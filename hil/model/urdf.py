@@ -436,8 +436,9 @@ class UrdfArmModel:
         self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike, tau: ArrayLike
     ) -> np.ndarray:
         """q̈ = M(q)⁻¹ (τ − C(q, q̇) q̇ − g(q) − f(q̇)) of base parameters θ, shape (..., n)
-        (Coulomb friction as f_c sgn q̇, no stiction). From the regressors, not ABA: a base
-        vector need not come from standard parameters with positive masses."""
+        (Coulomb friction as f_c sgn q̇, no stiction). From the regressor and
+        :meth:`mass_matrix` (linear in θ), not ABA: a base vector need not come from standard
+        parameters with positive masses."""
         (q, dq, tau), lead = self._samples(q, dq, tau)
         t = np.asarray(theta, dtype=float)
         rest = self.torque_regressor(q, dq, np.zeros_like(q)) @ t  # C q̇ + g + f
