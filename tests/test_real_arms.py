@@ -130,8 +130,8 @@ def test_kuka_runs_identified_against_each_other_and_diagnosed(tmp_path, capsys)
     on measurements_3, it predicts every joint's held-out torque better than the profile's a
     priori URDF. Diagnosed, run 1 alone and each run against the other (`--reference`, the
     .npz files read with `--format kuka-lwr4`) end in a report that says what the model leaves
-    out or why it cannot tell; the two runs of the unchanged arm give no finding. About 60 s
-    CPU (docs/real-data.md)."""
+    out or why it cannot tell; the two runs of the unchanged arm give no finding. About 65 s
+    CPU (55 s user), 100 s wall on the 2-core VM under a load of 8 (docs/real-data.md)."""
     if not (realdata(KUKA) / "measurements_1.npz").is_file():
         pytest.skip(f"{realdata(KUKA)} not present (LGPL-3 data, kept out of the tree)")
     runs = [kuka_csv(r, tmp_path) for r in (1, 3)]
