@@ -141,6 +141,7 @@ class UrdfArmModel:
         )
         self.base = self._base_parameters(np.random.default_rng(seed))
         self._set_names()
+        self._kept_dynamics: tuple[bytes, UrdfDynamics] | None = None  # mass_matrix's last θ
 
     @classmethod
     def from_profile(
@@ -395,7 +396,11 @@ class UrdfArmModel:
         """M(q), shape (..., n, n): Σ_j J_jᵀ I_j J_j + diag(I_a) (:class:`UrdfDynamics`),
         equal to the momentum regressor's columns P(q, e_i) θ."""
         (q,), lead = self._samples(q)
-        dyn = self.dynamics(theta)
+        t = np.asarray(theta, dtype=float)
+        kept = self._kept_dynamics  # a controller calls it with one θ every period
+        if kept is None or kept[0] != t.tobytes():
+            kept = self._kept_dynamics = (t.tobytes(), self.dynamics(t))
+        dyn = kept[1]
         M = np.array([dyn.mass_matrix(qk) for qk in q]).reshape(len(q), self.n_joints, -1)
         return M.reshape(*lead, self.n_joints, self.n_joints)
 
