@@ -107,7 +107,7 @@ def test_every_pendulum_recording_ends_in_reports(tmp_path, capsys):
     samples): no traceback, a report each; DDP and PD diagnosed together (either held out): no
     finding. The gravity-compensation run's torque is its
     controller's m·l·g·sin q: its gravity moment is 0.338 kg m, three times the owners'
-    identified 0.1022 (docs/real-data.md). About 40 s."""
+    identified 0.1022 (docs/real-data.md). About 15 s CPU."""
     records = _pendulum_records()
     for path in records:
         _, report = _identify(
