@@ -474,12 +474,7 @@ def read_signals(
     if isinstance(min_rows, bool) or not isinstance(min_rows, int) or min_rows < 0:
         raise ValueError(f"min_rows must be an integer >= 0, got {min_rows!r}")
     options = (columns, torque, loop_delay, effort_scale, leave_out, ignore)
-    if path.suffix.lower() in (".npz", ".mcap") or (
-        fmt is not None
-        and path.is_dir()
-        and not (path / SIGNALS).exists()
-        and any(layout.streams for layout in load_format(fmt).layouts)
-    ):
+    if _is_container(path, fmt):
         return _read_container(path, fmt, options, extra_columns, min_rows)
     csv_path = path / SIGNALS if path.is_dir() else path
     meta = _read_meta(path / META) if path.is_dir() and (path / META).is_file() else {}
@@ -505,6 +500,45 @@ def read_signals(
     where = csv_path.parent if path.is_dir() else csv_path
     rec = _assemble(where, csv_path, data, keep, plan, meta, dropped)
     return _enough(rec, csv_path, min_rows)
+
+
+def _is_container(path: Path, fmt: str | Path | None) -> bool:
+    """Whether :func:`read_signals` reads ``path`` as a container (:func:`_read_container`): an
+    .npz, an .mcap, or a directory of one CSV per quantity that the format names."""
+    return path.suffix.lower() in (".npz", ".mcap") or (
+        fmt is not None
+        and path.is_dir()
+        and not (path / SIGNALS).exists()
+        and any(layout.streams for layout in load_format(fmt).layouts)
+    )
+
+
+def recording_names(path: str | Path, fmt: str | Path | None = None) -> list[str]:
+    """The column names :func:`read_signals` sees in ``path`` read with the format ``fmt``: a
+    CSV's (or a run directory's signals.csv's) header, a container's columns (an .npz array's
+    ``NAME[k]``, an MCAP field's, the joined streams'), before any column map. Raises
+    :class:`RecordingError` in one line when it cannot be read."""
+    path = Path(path)
+    if _is_container(path, fmt):
+        if not path.exists():
+            raise RecordingError(f"{path}: cannot read (No such file or directory)")
+        is_mcap = path.suffix.lower() == ".mcap"
+        name = fmt if fmt is not None else (DEFAULT_MCAP_FORMAT if is_mcap else None)
+        form = load_format(name) if name is not None else None
+        try:
+            if is_mcap:
+                return list(containers.mcap_table(path, form).names)
+            if path.is_dir():
+                return list(containers.csv_streams_table(path, form, _csv_table).names)
+            return list(containers.npz_table(path).names)
+        except containers.ContainerError as exc:
+            raise RecordingError(str(exc)) from None
+    csv_path = path / SIGNALS if path.is_dir() else path
+    with _open_csv(csv_path) as f:
+        try:
+            return _read_header(f, csv_path)
+        except UnicodeDecodeError as exc:
+            raise RecordingError(f"{csv_path}: not UTF-8 text ({exc})") from None
 
 
 def _enough(rec: Recording, label: Path, min_rows: int) -> Recording:
@@ -1343,6 +1377,7 @@ __all__ = [
     "plot_positions",
     "read_signals",
     "reassemble",
+    "recording_names",
     "strict_json",
     "write_json_atomic",
     "write_run_mcap",

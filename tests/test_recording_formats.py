@@ -569,3 +569,30 @@ def test_recording_options_reach_the_reader(tmp_path, capsys):
     args = parser.parse_args(["--format", str(fmt), "--ignore-columns", "qd_ref"])
     with pytest.raises(RecordingError, match=r"qd_ref\[0\] is both read and ignored"):
         read_recording(args, path, command="identify")
+
+
+def test_torque_path_of_an_npz_with_two_torque_sources(tmp_path):
+    """The diagnosis's commanded → measured torque path reads the sources a format offers from
+    the container's own column names (an .npz is no text: its header was read as a CSV line)."""
+    from drivers.recording import recording_names
+    from hil.diagnose.torque_path import torque_path_of, torque_sources
+
+    t, q, tau = motion()
+    path = tmp_path / "two.npz"
+    np.savez(path, stamps=t, q=q, cmd=tau, meas=0.9 * tau + 0.1)
+    fmt = tmp_path / "two.toml"
+    fmt.write_text(
+        'name = "two"\n[[layouts]]\ntime = "stamps"\npositions = "q"\n'
+        'default_torque = "commanded"\n'
+        '[layouts.torques.commanded]\ncolumns = "cmd"\nloop_delay = 0\n'
+        '[layouts.torques.measured]\ncolumns = "meas"\nloop_delay = 0\n'
+    )
+    assert recording_names(path, str(fmt))[:2] == ["stamps", "q[0]"]
+    assert set(torque_sources(path, str(fmt))) == {"commanded", "measured"}
+    doc = torque_path_of(read_signals(path, fmt=str(fmt)), str(fmt))
+    assert doc is not None and doc["judged"] == "commanded"
+    gains = [j["gain"] for j in doc["joints"]]
+    np.testing.assert_allclose(gains, 0.9, rtol=1e-6)
+    csv = tmp_path / "plain.csv"
+    csv.write_text("t,q1,tau1\n0,0,0\n")
+    assert recording_names(csv) == ["t", "q1", "tau1"]

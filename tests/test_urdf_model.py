@@ -202,6 +202,37 @@ def test_rotor_inertia_term_adds_armature_columns(cicese):
     assert np.allclose(M - M0, np.diag([0.0, 0.05]), atol=1e-12)
 
 
+@pytest.mark.parametrize(
+    ("profile", "terms"),
+    [
+        ("cicese3", ("rotor_inertia", "friction_offset")),
+        ("kuka-lwr4", None),
+        ("dfki-pendulum", None),
+    ],
+)
+def test_dynamics_of_any_base_vector_equal_its_regressors(profile, terms):
+    """UrdfArmModel.dynamics(θ) (M(q) = Σ J_jᵀ I_j J_j + diag(I_a), C q̇ + g by one regressor
+    call: the open-loop simulation's accelerations) equals the regressor definitions, M's
+    column i = P(q, e_i) θ and C q̇ + g = Y(q, q̇, 0) θ without friction, for random base
+    vectors that are no arm (zero and negative masses among their bodies)."""
+    model = UrdfArmModel.from_profile(profile, terms=terms)
+    n = model.n_joints
+    q, dq, _ = _samples(n, N=12)
+    friction = np.zeros(model.n_params, bool)
+    friction[model.term_columns("friction")] = True
+    for _ in range(3):
+        theta = RNG.normal(size=model.n_params)
+        unit = np.broadcast_to(np.eye(n)[:, None], (n, len(q), n))
+        reference = np.stack([model.momentum_regressor(q, e) @ theta for e in unit], axis=-1)
+        scale = np.abs(reference).max()
+        assert np.allclose(model.mass_matrix(theta, q), reference, rtol=0, atol=1e-12 * scale)
+        dyn = model.dynamics(theta)
+        bias = model.torque_regressor(q, dq, np.zeros_like(q)) @ np.where(friction, 0.0, theta)
+        got = np.array([dyn.rigid_bias(a, b) for a, b in zip(q, dq, strict=True)])
+        assert np.allclose(got, bias, rtol=0, atol=1e-12 * np.abs(bias).max())
+        assert np.array_equal(model.standard_of_base(theta)[model.base.independent], theta)
+
+
 def test_profile_errors_are_one_line(tmp_path):
     p = tmp_path / "arm.toml"
     p.write_text('name = "arm"\ngravity_m_s2 = 9.81\nurdf = "nowhere.urdf"\n[joints]\ncount = 2\n')

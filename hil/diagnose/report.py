@@ -1160,10 +1160,23 @@ def summary_words(
         > MODEL_EXPLAINS
     ):
         before = fit["before"]["torque_nrmse"]
+        left = f"a held-out torque NRMSE of {' / '.join(percent(x) for x in before)}"
+        if all(x is None for x in before):  # e.g. a free swing held out: τ = 0 throughout
+            position = fit["before"]["position_nrmse"]
+            left = (
+                "a held-out torque that cannot be scored on any joint (too few usable rows, or "
+                "a constant torque with no spread to scale by, as when the motors are off)"
+                + (
+                    f" and a held-out simulated position NRMSE of "
+                    f"{' / '.join(percent(x) for x in position)}"
+                    if position and any(x is not None for x in position)
+                    else ""
+                )
+            )
         lines = [
-            "No finding, and I cannot say the model is complete: it leaves a held-out torque "
-            f"NRMSE of {' / '.join(percent(x) for x in before)}, and nothing in the "
-            "vocabulary explains that residual on held-out data with a physical refit."
+            f"No finding, and I cannot say the model is complete: it leaves {left}, and "
+            "nothing in the vocabulary explains that residual on held-out data with a "
+            "physical refit."
         ]
     elif not findings:
         lines = [

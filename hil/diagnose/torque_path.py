@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.recording import Recording, read_signals
+from drivers.recording import Recording, read_signals, recording_names
 from hil.diagnose.findings import RESOLVABLE_INTERVALS
 from hil.diagnose.selection import MIN_REDUCTION
 from profiles.recording_format import load_format
@@ -185,10 +185,7 @@ def torque_sources(path: str | Path, fmt: str | None) -> tuple[str, ...]:
     """The torque sources the format offers for this file's header (empty without a format)."""
     if not fmt:
         return ()
-    csv_path = Path(path) / "signals.csv" if Path(path).is_dir() else Path(path)
-    with open(csv_path, encoding="utf-8") as f:
-        header = [h.strip() for h in f.readline().split(",")]
-    layout = load_format(fmt).layout_for(header)
+    layout = load_format(fmt).layout_for(recording_names(path, fmt))
     return () if layout is None else tuple(layout.torques)
 
 

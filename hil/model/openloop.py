@@ -34,8 +34,9 @@ effects, which :mod:`hil.model.openloop_effects` brings in as a torque path (del
 offset), a friction law (Stribeck) and a shaft torque (cogging). The same scheme simulates an
 n-joint model object (:class:`ModelArm`, :func:`simulate_segments`: the URDF models of
 :mod:`hil.model.urdf`), through :func:`hil.model.openloop_core.integrate_arm`. Imports: numpy,
-:mod:`hil.model.closed_form`, :mod:`hil.model.openloop_core`, :mod:`hil.model.openloop_effects`
-(and, inside :func:`simulate_windows`, :mod:`hil.model.metrics` and :mod:`hil.model.regressors`).
+scipy's LAPACK, :mod:`hil.model.closed_form`, :mod:`hil.model.openloop_core`,
+:mod:`hil.model.openloop_effects` (and, inside :func:`simulate_windows`,
+:mod:`hil.model.metrics` and :mod:`hil.model.regressors`).
 
 Written on purpose without reference to the virtual robot's plant (the world): the host's model
 and the world are separate code, and tests/test_openloop.py checks that they agree. Scalar
@@ -53,6 +54,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.linalg import lapack
 
 from hil.model.closed_form import N_PARAMS, ArmModel
 from hil.model.openloop_core import (
@@ -358,9 +360,19 @@ def rk4_held(
     return x_q, x_v, bad
 
 
+def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """x with a x = b by LAPACK's dgesv, as :func:`numpy.linalg.solve` does it, without its
+    checks and conversions (they cost more than the solve of an n ≤ 7 system, four times per RK4
+    step); a singular ``a`` raises :class:`numpy.linalg.LinAlgError` as there."""
+    _, _, x, info = lapack.dgesv(a, b)
+    if info > 0:
+        raise np.linalg.LinAlgError("Singular matrix")
+    return x
+
+
 class ModelArm:
-    """A model object with regressors and M(q) (an n-joint :class:`hil.model.urdf.UrdfArmModel`)
-    at base parameters θ as the stick–slip integrator's arm
+    """A model object with ``dynamics(θ)`` (M(q) and C q̇ + g at one state: an n-joint
+    :class:`hil.model.urdf.UrdfArmModel`) at base parameters θ as the stick–slip integrator's arm
     (:class:`hil.model.openloop_core.StickSlipArm`): the one scheme of the 2-DOF simulation
     (module docstring) over n joints, in place of Coulomb friction as f_c sgn q̇.
 
@@ -385,20 +397,18 @@ class ModelArm:
             )
         self.model, self.theta, self.n_joints = model, th, n
         self.offset = friction[2 * n : 3 * n] if len(friction) > 2 * n else np.zeros(n)
-        # θ without the Coulomb levels and offsets: its torque at q̈ = 0 is C q̇ + g + f_v q̇
-        self._smooth_theta = th.copy()
-        self._smooth_theta[np.arange(th.size)[columns][n:]] = 0.0
+        self.viscous = friction[:n]
+        self.dynamics = model.dynamics(th)  # M(q), C q̇ + g of θ
         levels = tuple(float(c) for c in coulomb)
         self.friction = Friction(levels, levels)
         self.shaft_torque = shaft_torque
-        self._zero = np.zeros(n)
 
     def _residual(self, q: np.ndarray, v: np.ndarray, tau: Sequence[float]) -> np.ndarray:
         """r = τ + τ_shaft − f_o − C(q, q̇) q̇ − g(q) − f_v q̇: all but the Coulomb friction."""
         r = np.asarray(tau, dtype=float) - self.offset
         if self.shaft_torque is not None:
             r = r + self.shaft_torque(q[None], v[None])[0]
-        return r - self.model.torque_regressor(q, v, self._zero) @ self._smooth_theta
+        return r - self.dynamics.rigid_bias(q, v) - self.viscous * v
 
     def mode_step(self, stuck: tuple[bool, ...], direction: tuple[float, ...]) -> Callable:
         """RK4 in one stick mode: q̈_S = 0, M_FF q̈_F = (r − d F^d)_F (F sliding, S stuck)."""
@@ -411,8 +421,8 @@ class ModelArm:
             a = np.zeros(n)
             if free.size:
                 r = self._residual(q, v, tau) - levels
-                M = self.model.mass_matrix(self.theta, q)
-                a[free] = np.linalg.solve(M[block], r[free])
+                M = self.dynamics.mass_matrix(q)
+                a[free] = _solve(M[block], r[free])
             return a
 
         def step(state: tuple[float, ...], tau: Sequence[float], dt: float) -> tuple[float, ...]:
@@ -460,10 +470,10 @@ class ModelArm:
         free = np.flatnonzero(~s)
         held[s] = r[s]
         if free.size:
-            M = self.model.mass_matrix(self.theta, q)
+            M = self.dynamics.mass_matrix(q)
             levels = np.array([self.friction.level(int(i), direction[i]) for i in free])
             try:
-                a_free = np.linalg.solve(M[np.ix_(free, free)], r[free] - levels)
+                a_free = _solve(M[np.ix_(free, free)], r[free] - levels)
             except np.linalg.LinAlgError:
                 return [0.0] * n
             held[s] -= M[np.ix_(np.flatnonzero(s), free)] @ a_free

@@ -150,6 +150,7 @@ class UrdfArmModel:
         self.base = self._base_parameters(np.random.default_rng(seed))
         self._set_names()
         self._bodies_of: tuple[bytes, tuple | None] = (b"", None)  # _theta_bodies' last θ
+        self._kept_dynamics: tuple[bytes, UrdfDynamics] | None = None  # mass_matrix's last θ
 
     @classmethod
     def from_profile(
@@ -433,18 +434,34 @@ class UrdfArmModel:
         out[:, self.term_columns("friction")] = np.concatenate(power, axis=-1)
         return out.reshape(*lead, -1)
 
+    def standard_of_base(self, theta: ArrayLike) -> np.ndarray:
+        """A standard-parameter vector whose base vector is θ: θ on the independent standard
+        columns, zero on the dependent ones. The base regressor is the standard regressor's
+        independent columns, so Y_std θ_std = Y θ exactly for any θ; the bodies it gives need
+        not be physical (a zero or negative mass is exact here)."""
+        t = np.asarray(theta, dtype=float)
+        if t.shape != (self.n_params,):
+            raise ValueError(f"theta must hold {self.n_params} numbers, got shape {t.shape}")
+        out = np.zeros(len(self.standard_names))
+        out[self.base.independent] = t
+        return out
+
+    def dynamics(self, theta: ArrayLike) -> UrdfDynamics:
+        """M(q) and C(q, q̇) q̇ + g(q) of the base vector θ, one configuration at a time
+        (:class:`UrdfDynamics`): what an integrator calls at every stage."""
+        return UrdfDynamics(self, theta)
+
     def mass_matrix(self, theta: ArrayLike, q: ArrayLike) -> np.ndarray:
-        """M(q), shape (..., n, n): column i is the regressor at rest with q̈ = e_i, times θ
-        (all n columns of all samples in one pass: the controllers call it every period)."""
+        """M(q), shape (..., n, n): Σ_j J_jᵀ I_j J_j + diag(I_a) (:class:`UrdfDynamics`),
+        equal to the momentum regressor's columns P(q, e_i) θ."""
         (q,), lead = self._samples(q)
-        t, n = np.asarray(theta, dtype=float), self.n_joints
-        N = len(q)
-        # row k·n + i: sample k with q̈ = e_i
-        cols = self._to_base(
-            self._standard_momentum(np.repeat(q, n, axis=0), np.tile(np.eye(n), (N, 1)))
-        )
-        M = (cols @ t).reshape(N, n, n).transpose(0, 2, 1)  # [k, i, j] -> M[k, j, i]
-        return M.reshape(*lead, n, n)
+        t = np.asarray(theta, dtype=float)
+        kept = self._kept_dynamics  # a controller calls it with one θ every period
+        if kept is None or kept[0] != t.tobytes():
+            kept = self._kept_dynamics = (t.tobytes(), self.dynamics(t))
+        dyn = kept[1]
+        M = np.array([dyn.mass_matrix(qk) for qk in q]).reshape(len(q), self.n_joints, -1)
+        return M.reshape(*lead, self.n_joints, self.n_joints)
 
     def gravity_vector(self, theta: ArrayLike, q: ArrayLike) -> np.ndarray:
         """g(q) = ∂U/∂q, shape (..., n)."""
@@ -483,8 +500,9 @@ class UrdfArmModel:
         self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike, tau: ArrayLike
     ) -> np.ndarray:
         """q̈ = M(q)⁻¹ (τ − C(q, q̇) q̇ − g(q) − f(q̇)) of base parameters θ, shape (..., n)
-        (Coulomb friction as f_c sgn q̇, no stiction). From the regressors, not ABA: a base
-        vector need not come from standard parameters with positive masses."""
+        (Coulomb friction as f_c sgn q̇, no stiction). From the regressor and
+        :meth:`mass_matrix` (linear in θ), not ABA: a base vector need not come from standard
+        parameters with positive masses."""
         (q, dq, tau), lead = self._samples(q, dq, tau)
         t = np.asarray(theta, dtype=float)
         rest = self.torque_regressor(q, dq, np.zeros_like(q)) @ t  # C q̇ + g + f
@@ -645,6 +663,75 @@ class UrdfArmModel:
             if not t[i] >= 0:
                 violations.append(f"negative {self.standard_names[i]} = {t[i]:.4g}")
         return {"consistent": not violations, "violations": violations}
+
+
+class UrdfDynamics:
+    """M(q) and C(q, q̇) q̇ + g(q) of one base vector θ of a :class:`UrdfArmModel`, at one
+    configuration, by Pinocchio's kinematics: the open-loop simulation's accelerations.
+
+    θ is carried to the standard vector :meth:`UrdfArmModel.standard_of_base` (exact for any θ).
+    The mass matrix is the kinetic energy's Hessian, M(q) = Σ_j J_jᵀ I_j J_j + diag(I_a), with
+    J_j body j's Jacobian in its joint frame (one ``computeJointJacobians`` pass) and I_j its
+    6×6 spatial inertia, linear in the ten dynamic parameters π_j (Featherstone (2008)
+    eq. (2.63), Pinocchio's order: linear then angular),
+
+        I_j = [[m 1, −[h]×], [[h]×, I_O]],  h = m c,  I_O the inertia about the joint frame,
+
+    built once per θ, so a zero or negative mass needs no centre of mass (Pinocchio's own CRBA
+    and ABA divide by the mass, and clamp a composite mass at zero: not exact for a base vector).
+    C q̇ + g is the joint torque regressor at q̈ = 0 times the bodies' parameters: one call."""
+
+    def __init__(self, model: UrdfArmModel, theta: ArrayLike) -> None:
+        n = model.n_joints
+        std = model.standard_of_base(theta)
+        self.n_joints = n
+        self._model, self._data = model._model, model._data
+        self._free, self._free_data = model._free, model._free_data
+        self._bodies = std[: model.n_body_params]
+        pi = self._bodies.reshape(n, 10)
+        blocks = np.zeros((n, 6, 6))
+        blocks[:, :3, :3] = pi[:, :1, None] * np.eye(3)
+        h = _skew(pi[:, 1:4])
+        blocks[:, :3, 3:] = -h
+        blocks[:, 3:, :3] = h
+        Ixx, Ixy, Iyy, Ixz, Iyz, Izz = pi[:, 4:].T
+        blocks[:, 3:, 3:] = np.stack(
+            [np.stack([Ixx, Ixy, Ixz], -1), np.stack([Ixy, Iyy, Iyz], -1),
+             np.stack([Ixz, Iyz, Izz], -1)], axis=1,
+        )  # fmt: skip
+        self._spatial = np.zeros((6 * n, 6 * n))  # block diagonal: body j's I_j at block j
+        for j in range(n):
+            self._spatial[6 * j : 6 * j + 6, 6 * j : 6 * j + 6] = blocks[j]
+        arm = model.n_rigid_standard - model.n_body_params
+        armature = std[model.n_body_params : model.n_rigid_standard] if arm else np.zeros(n)
+        self._armature = np.diag(armature)
+        self._zero = np.zeros(n)
+        self._jacobians = np.zeros((6 * n, n))  # the bodies' Jacobians stacked, filled per call
+
+    def mass_matrix(self, q: ArrayLike) -> np.ndarray:
+        """M(q), (n, n), at one configuration q (n,)."""
+        m, d, n, J = self._free, self._free_data, self.n_joints, self._jacobians
+        pin.computeJointJacobians(m, d, np.asarray(q, dtype=float))
+        for j in range(n):  # body j's Jacobian, (6, n); one joint's comes back as a vector
+            J[6 * j : 6 * j + 6] = pin.getJointJacobian(m, d, j + 1, pin.LOCAL).reshape(6, n)
+        return J.T @ (self._spatial @ J) + self._armature
+
+    def rigid_bias(self, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
+        """C(q, q̇) q̇ + g(q), (n,), at one state: the rigid bodies' torque at q̈ = 0."""
+        Y = pin.computeJointTorqueRegressor(
+            self._model, self._data, np.asarray(q, float), np.asarray(dq, float), self._zero
+        )
+        return (Y @ self._bodies).reshape(self.n_joints)
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """[v]× of each row of v (N, 3): [v]× w = v × w, shape (N, 3, 3)."""
+    x, y, z = v.T
+    zero = np.zeros_like(x)
+    return np.stack(
+        [np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)],
+        axis=1,
+    )
 
 
 def _build(urdf: str) -> pin.Model:
