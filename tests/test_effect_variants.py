@@ -19,3 +19,17 @@ def test_gain_not_tested_on_an_unactuated_joint() -> None:
     assert REGISTRY["torque_gain"].variants(_ctx(tau)) == [0]
     tau[3, 1] = 0.2
     assert REGISTRY["torque_gain"].variants(_ctx(tau)) == [0, 1]
+
+
+def test_drag_column_is_the_interval_mean_of_v_abs_v() -> None:
+    from hil.diagnose.columns import drag_column
+
+    k = 6
+    v_nodes = np.zeros((4, k, 2))  # the Gauss–Legendre nodes of each interval
+    v_nodes[:, :, 1] = -2.0
+    rows = SimpleNamespace(v_nodes=v_nodes, window=1, n_joints=2, rows=k)
+    col = drag_column(rows, 1)
+    assert col.shape == (k, 2, 1)
+    np.testing.assert_allclose(col[:, 1, 0], -4.0)  # q̇|q̇| at −2 rad/s
+    np.testing.assert_allclose(col[:, 0, 0], 0.0)
+    assert "velocity_squared_drag" in REGISTRY
