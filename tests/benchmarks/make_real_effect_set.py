@@ -376,6 +376,12 @@ def plan_cases(robots: list[str], rng: np.random.Generator) -> list[dict[str, An
                     continue
                 other = int(rng.choice([i for i in range(len(sources)) if i != k]))
             joint = int(rng.integers(sources[k].n_joints))
+            # an unactuated joint (DFKI C.0's second, τ = 0 on every row) has no torque path: a
+            # gain there leaves the file unchanged; the next actuated joint takes the effect
+            src = sources[k]
+            driven = [j for j in range(src.n_joints) if np.any(src.col(src.torques[j]) != 0)]
+            if driven and joint not in driven and effect != "angle_offset":
+                joint = min(driven, key=lambda j: (j - joint) % src.n_joints)
             cases.append({"robot": robot, "sources": sources, "source": k, "other": other,
                           "effect": effect, "joint": joint})  # fmt: skip
     return cases
