@@ -710,6 +710,17 @@ def _gates(fit: _Fit, accepted: list[Term], nominal: Nominal, tests: int) -> dic
     return failed
 
 
+def _refit_ratio(fit: _Fit, prob: Any, terms: list[Term]) -> float:
+    """Leave-one-block-out torque error of θ₀ + ``terms`` over that of θ refitted from the
+    rows of ``prob`` alone (RMS ratio)."""
+    own = cross_validate(
+        block_stats(
+            prob.Psi_raw / fit.scale[None, :, None], prob.y_raw / fit.scale, prob.w, prob.blocks
+        )
+    ).held_out_sse.sum()
+    return float(np.sqrt(fit.cv(terms).held_out_sse.sum() / max(own, 1e-300)))
+
+
 def judge(
     recordings: Sequence[Recording],
     nominal: Nominal,
@@ -786,19 +797,23 @@ def judge(
         )
     errors = _torque_errors(fit, kept)
     # held-out error of every block (leave-one-block-out), θ₀ + drift against a refit of θ
-    own = cross_validate(
-        block_stats(
-            prob.Psi_raw / fit.scale[None, :, None], prob.y_raw / fit.scale, prob.w, prob.blocks
-        )
-    ).held_out_sse.sum()
-    ratio = float(np.sqrt(fit.cv(kept).held_out_sse.sum() / max(own, 1e-300)))
-    used = not (ratio > NOMINAL_TOLERANCE)
+    ratio = _refit_ratio(fit, prob, kept)
+    # the reference model is a bounded fit of its own recording: the error it already has
+    # there against an unbounded refit (≥ 1) is no sign that it fails to describe this one
+    own_ratio = (
+        1.0
+        if fit.reference is None
+        else max(_refit_ratio(fit.reference, nominal.reference, []), 1.0)
+    )
+    used = not (ratio > NOMINAL_TOLERANCE * own_ratio)
     decision = (
         f"the {nominal.source} model with the drift found predicts the recording's held-out "
         f"blocks with {ratio:.3g} times the torque error of θ refitted from the recording alone"
         f" (last {int(100 * HELD_OUT_FRACTION)} %: {_words(errors['nominal_with_drift'])} "
         f"against {_words(errors['refit'])})"
     )
+    if own_ratio > 1.0:
+        decision += f"; on its own reference recording {own_ratio:.3g} times"
     if used:
         decision += ": judged against it"
     else:

@@ -11,6 +11,7 @@ Imports: :mod:`hil.diagnose.columns`, :mod:`hil.model`; never the pipeline or th
 
 from hil.diagnose.effects import (  # noqa: F401  (each module registers its effect)
     com_offset,
+    drag,
     encoder,
     friction,
     gain,

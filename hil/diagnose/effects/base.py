@@ -43,6 +43,11 @@ class Context:
     def n_joints(self) -> int:
         return self.Psi_raw.shape[1]
 
+    def driven(self) -> list[int]:
+        """Joints whose recorded torque is not zero on every row: an unactuated joint (DFKI
+        design C.0's second joint records τ = 0) has no torque a gain could scale."""
+        return [j for j in range(self.n_joints) if any(np.any(r.tau[:, j] != 0) for r in self.rows)]
+
     @property
     def closed_form(self) -> bool:
         """The 2-DOF closed-form model (no Pinocchio body parameters)."""
