@@ -71,7 +71,7 @@ from hil.model.estimators import blocked_bootstrap, bounded_quadratic_fit
 from hil.model.metrics import nrmse
 
 # The nominal model is judged against when its held-out torque error with the drift patterns is
-# at most this factor of the error of θ refitted from the recording alone (mean over joints): a
+# at most this factor of the error of θ refitted from the recording alone on every joint: a
 # model that predicts the recording that much worse than the recording's own fit does not
 # describe this arm (another arm, another load case), and its drift would be a wrong story.
 NOMINAL_TOLERANCE = 1.5
@@ -245,10 +245,29 @@ class _Fit:
         return out
 
     def refine(self, terms: list[Term], only: Term | None = None) -> None:
-        """Gauss–Newton steps of the nonlinear terms (``only``: of that one), all terms
+        """Gauss–Newton steps of the nonlinear terms (``only``: of that one, from each of its
+        starting points, :meth:`Effect.starts`, the one that fits best kept), all terms
         refitted each step."""
         if not any(t.effect.nonlinear for t in terms):
             return
+        if only is not None and only.effect.nonlinear:
+            starts = only.effect.starts(self.ctx, only.joint)
+            if len(starts) > 1:
+                best = None
+                for s in starts:
+                    only.at = s
+                    self.build(only)
+                    self._steps(terms, only)
+                    sse = float(self.cv(terms).sse.sum())
+                    if np.isfinite(sse) and (best is None or sse < best[0]):
+                        best = (sse, only.at)
+                if best is not None:
+                    only.at = best[1]
+                    self.build(only)
+                return
+        self._steps(terms, only)
+
+    def _steps(self, terms: list[Term], only: Term | None) -> None:
         for _ in range(REFINE_STEPS):
             beta = self.cv(terms).beta
             for t, b in zip(terms, self.split(beta, terms), strict=True):
@@ -439,7 +458,7 @@ def _estimates(
         se = np.hypot(
             change_se(cv.fold_beta, back.fold_beta, fit.paired), _nominal_spread(fit, terms, draws)
         )
-        ats = [t.effect.start(fit.ctx, t.joint) for t in terms]
+        ats = [t.effect.change_point(fit.ctx, t.joint, t.at) for t in terms]
     out = [
         t.effect.estimate(fit.ctx, t.joint, b, s, at)
         for t, b, s, at in zip(
@@ -462,7 +481,7 @@ def _confounded(fit: _Fit, accepted: list[Term], cands: list[Term], tests: int) 
                 continue
             b = fit.build(Term(c.effect, c.joint, c.effect.start(fit.ctx, c.joint)))
             with_b = [*others, b]
-            fit.refine(with_b)
+            fit.refine(with_b, only=b)
             cv_b = fit.cv(with_b)
             ev_b = evidence(base, cv_b, b.effect.acts_on(fit.ctx, b.joint))
             if not _drift_passes(fit, others, b, ev_b, tests):
@@ -520,7 +539,14 @@ def _simulation_gate(
     fit: _Fit, terms: list[Term], say: Callable[[str], None]
 ) -> tuple[list[Term], dict[str, str], dict[str, Any]]:
     """Drop, one at a time, the term whose removal most improves a joint's held-out simulated
-    position that it made worse; the patterns are fitted on the training rows only."""
+    position that it made worse; the patterns are fitted on the training rows only. Against a
+    reference, a joint's position is no worse than θ₀ simulates its own reference recording
+    (:func:`_own_position`): a true change written into a copy of the reference gives the
+    recording, with the change, the reference's torque exactly, so its simulation can do no
+    better than the reference's (an A.0 file whose open-loop simulation under θ₀ is off by
+    110 % on joint 1: the true 12 % gain on joint 2 "worsened" it from 45 %, the reduced torque's
+    error, to those 110 %)."""
+    own = _own_position(fit)
     train, _test, spans = _masks(fit.prob)
     dropped: dict[str, str] = {}
     rec_i, first, last = spans[-1]
@@ -562,7 +588,10 @@ def _simulation_gate(
                 (now[j] - wo[j], j)
                 for j in range(len(now))
                 if worse_beyond_noise(
-                    now[j], wo[j], sensitivity[j], own_joint=j in t.effect.acts_on(fit.ctx, t.joint)
+                    now[j],
+                    max(wo[j], own[j]),
+                    sensitivity[j],
+                    own_joint=j in t.effect.acts_on(fit.ctx, t.joint),
                 )
             ]
             if harm:
@@ -580,6 +609,25 @@ def _simulation_gate(
         dropped[worst[0].key] = worst[2]
         terms = [u for u in terms if u is not worst[0]]
     return terms, dropped, {"before": before, "after": before}
+
+
+def _own_position(fit: _Fit) -> list[float]:
+    """Per joint, the held-out simulated-position NRMSE of θ₀ (with its baseline terms) on
+    its own reference recording's rows (the last one's held-out segments); zeros without a
+    reference or where θ₀ cannot be simulated there."""
+    n = fit.ctx.n_joints
+    ref = fit.reference
+    if ref is None:
+        return [0.0] * n
+    _train, _test, spans = _masks(ref.prob)
+    rec_i, first, last = spans[-1]
+    r = ref.prob.rows[rec_i]
+    segments = simulated_segments(r.h, first, last, r.stamps, len(r.q))
+    index = np.concatenate([np.arange(a, b) for a, b in segments])
+    out = _simulate(ref, _sim_inputs(ref, [], []), rec_i, segments)
+    if out is None:
+        return [0.0] * n
+    return [float(x) for x in np.nan_to_num(nrmse(r.q[index], out), nan=0.0)]
 
 
 def _sensitivity(
@@ -654,6 +702,10 @@ def _torque_errors(fit: _Fit, terms: Sequence[Term]) -> dict[str, list[float | N
     return out
 
 
+def _times(x: np.ndarray) -> str:
+    return " / ".join(f"{v:.3g}" for v in x)
+
+
 def _words(x: Sequence[float | None]) -> str:
     return " / ".join("n/a" if e is None or not np.isfinite(e) else f"{100 * e:.3g} %" for e in x)
 
@@ -676,7 +728,7 @@ def _reverse_check(
     forward = _estimates(fit, kept)[0]
     for t, (_e, size, _s) in zip(kept, forward, strict=True):
         term = back.build(Term(t.effect, t.joint, t.effect.start(back.ctx, t.joint)))
-        back.refine([term])
+        back.refine([term], only=term)
         _est, size_back, se_back = _estimates(back, [term])[0][0]
         if size_back * size > 0:
             out[t.key] = (
@@ -710,15 +762,20 @@ def _gates(fit: _Fit, accepted: list[Term], nominal: Nominal, tests: int) -> dic
     return failed
 
 
-def _refit_ratio(fit: _Fit, prob: Any, terms: list[Term]) -> float:
-    """Leave-one-block-out torque error of θ₀ + ``terms`` over that of θ refitted from the
-    rows of ``prob`` alone (RMS ratio)."""
+def _refit_ratio(fit: _Fit, prob: Any, terms: list[Term]) -> np.ndarray:
+    """Per joint, the leave-one-block-out torque error of θ₀ + ``terms`` over that of θ
+    refitted from the rows of ``prob`` alone (RMS ratio, (n,)). Per joint, not pooled: the
+    rows are scaled by θ₀'s own residual scale, so a pooled ratio weighs each joint by
+    1/scale² and the joint θ₀ describes worst counts least (an A.0 recording judged against
+    another one's model: 86 % held-out NRMSE on joint 1 against a refit's 10 %, a pooled ratio
+    of 1.2)."""
     own = cross_validate(
         block_stats(
             prob.Psi_raw / fit.scale[None, :, None], prob.y_raw / fit.scale, prob.w, prob.blocks
         )
-    ).held_out_sse.sum()
-    return float(np.sqrt(fit.cv(terms).held_out_sse.sum() / max(own, 1e-300)))
+    ).held_out_sse.sum(axis=0)
+    mine = fit.cv(terms).held_out_sse.sum(axis=0)
+    return np.sqrt(mine / np.maximum(own, 1e-300))
 
 
 def judge(
@@ -797,29 +854,34 @@ def judge(
         )
     errors = _torque_errors(fit, kept)
     # held-out error of every block (leave-one-block-out), θ₀ + drift against a refit of θ
-    ratio = _refit_ratio(fit, prob, kept)
+    ratios = _refit_ratio(fit, prob, kept)
     # the reference model is a bounded fit of its own recording: the error it already has
     # there against an unbounded refit (≥ 1) is no sign that it fails to describe this one
-    own_ratio = (
-        1.0
+    own_ratios = (
+        np.ones_like(ratios)
         if fit.reference is None
-        else max(_refit_ratio(fit.reference, nominal.reference, []), 1.0)
+        else np.maximum(_refit_ratio(fit.reference, nominal.reference, []), 1.0)
     )
+    # θ₀ must describe every joint: the worst joint against its own tolerance decides
+    worst = int(np.argmax(ratios / own_ratios))
+    ratio, own_ratio = float(ratios[worst]), float(own_ratios[worst])
     used = not (ratio > NOMINAL_TOLERANCE * own_ratio)
     decision = (
         f"the {nominal.source} model with the drift found predicts the recording's held-out "
-        f"blocks with {ratio:.3g} times the torque error of θ refitted from the recording alone"
-        f" (last {int(100 * HELD_OUT_FRACTION)} %: {_words(errors['nominal_with_drift'])} "
+        f"blocks with {_times(ratios)} times the torque error of θ refitted from the recording "
+        f"alone (last {int(100 * HELD_OUT_FRACTION)} %: {_words(errors['nominal_with_drift'])} "
         f"against {_words(errors['refit'])})"
     )
-    if own_ratio > 1.0:
-        decision += f"; on its own reference recording {own_ratio:.3g} times"
+    if fit.reference is not None and own_ratios.max() > 1.0:
+        decision += f"; on its own reference recording {_times(own_ratios)} times"
     if used:
         decision += ": judged against it"
     else:
         decision += (
-            f" (more than {NOMINAL_TOLERANCE:g} times worse): it does not describe this "
-            "recording, so no drift against it is reported; the diagnosis below refits θ"
+            f" (joint {worst + 1}: more than {NOMINAL_TOLERANCE:g} times "
+            f"{'that' if own_ratio == 1.0 else f'its own {own_ratio:.3g}'}): it does not "
+            "describe this recording, so no drift against it is reported; the diagnosis below "
+            "refits θ"
         )
         findings = []
     doc = {
@@ -843,6 +905,7 @@ def judge(
             for name, joint, at, beta in nominal.terms
         ],
         "held_out_error_ratio": ratio,
+        "held_out_error_ratios": [float(x) for x in ratios],
         "held_out_torque_nrmse": errors,
         "held_out_position_nrmse": position,
         "findings": [f.as_dict() for f in findings],

@@ -105,6 +105,17 @@ class Effect:
         """The linearisation point before any fit (nonlinear effects)."""
         return None
 
+    def starts(self, ctx: Context, joint: int | None) -> list[Any]:
+        """Linearisation points the Gauss–Newton steps start from (nonlinear effects whose fit
+        has more than one stationary point); the one that fits best is kept."""
+        return [self.start(ctx, joint)]
+
+    def change_point(self, ctx: Context, joint: int | None, at: Any) -> Any:
+        """Where a change since the reference, the difference of the coefficients fitted on
+        both sides at ``at``, is read: the starting point where β is an increment of the
+        point (an encoder angle), ``at`` where β holds the size itself."""
+        return self.start(ctx, joint)
+
     def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
         """X (K, n, width) in Nm per unit coefficient."""
         raise NotImplementedError
