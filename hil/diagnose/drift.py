@@ -112,6 +112,7 @@ class Term:
     at: Any = None
     cols: np.ndarray | None = None  # raw (K, n, width)
     shift: np.ndarray | None = None  # raw (K, n): the model's change at ``at``
+    searched: bool = False  # its starting points (:meth:`Effect.starts`) have been tried
 
     @property
     def width(self) -> int:
@@ -273,26 +274,28 @@ class _Fit:
         return out
 
     def refine(self, terms: list[Term], only: Term | None = None) -> None:
-        """Gauss–Newton steps of the nonlinear terms (``only``: of that one, from each of its
-        starting points, :meth:`Effect.starts`, the one that fits best kept), all terms
+        """Gauss–Newton steps of the nonlinear terms (``only``: of that one, the first time
+        from the best-fitting of its starting points, :meth:`Effect.starts`), all terms
         refitted each step."""
         if not any(t.effect.nonlinear for t in terms):
             return
-        if only is not None and only.effect.nonlinear:
+        if only is not None and only.effect.nonlinear and not only.searched:
+            only.searched = True
             starts = only.effect.starts(self.ctx, only.joint)
             if len(starts) > 1:
                 best = None
                 for s in starts:
                     only.at = s
                     self.build(only)
-                    self._steps(terms, only)
-                    sse = float(self.cv(terms).sse.sum())
+                    sse = float(self.judged_cv(terms).sse.sum())
                     if np.isfinite(sse) and (best is None or sse < best[0]):
-                        best = (sse, only.at)
-                if best is not None:
-                    only.at = best[1]
-                    self.build(only)
-                return
+                        best = (sse, s)
+                only.at = starts[0] if best is None else best[1]
+                self.build(only)
+                if self.reference is not None:  # the reference's rows of the starts not kept
+                    self._ref_terms = {
+                        k: v for k, v in self._ref_terms.items() if not k.startswith(only.key + "@")
+                    }
         self._steps(terms, only)
 
     def _steps(self, terms: list[Term], only: Term | None) -> None:
@@ -392,12 +395,49 @@ def _change(fit: _Fit, others: Sequence[Term], term: Term) -> float:
     outweighs c²|Ψθ₀|² block by block, though not in total."""
     ref = fit.reference
     assert ref is not None
+    if term.effect.sized_by_amplitude:
+        return _amplitude_change(fit, others, term)
     rec, folds = _sizes(fit, [*others, term], fit)
     back, folds_back = _sizes(ref, [fit.on_reference(t) for t in [*others, term]], fit)
     se = float(change_se(folds[:, None], folds_back[:, None], fit.paired)[0])
     if not (np.isfinite(rec - back) and np.isfinite(se)):
         return 0.0  # a size the data do not bound (a gain β ≥ 1) resolves no change
     return abs(rec - back) / se if se > 0 else (np.inf if rec != back else 0.0)
+
+
+def _amplitude_change(fit: _Fit, others: Sequence[Term], term: Term) -> float:
+    """:func:`_change` of a pattern whose size is an amplitude (no sign: a cogging's): the size
+    of the change of its coefficients, recording minus reference, over its blocked-jackknife
+    standard error (block-paired: the size of each fold pair's difference; else the two sides'
+    jackknives combined as independent). A difference of two amplitudes would miss a change of
+    phase and take the reference's own misfit amplitude off the change."""
+    ref = fit.reference
+    assert ref is not None
+    terms = [*others, term]
+    cv, back = fit.cv(terms), ref.cv([fit.on_reference(t) for t in terms])
+    zero = np.zeros(term.width)
+
+    def size(b_rec: np.ndarray, b_ref: np.ndarray) -> float:
+        b = fit.split(b_rec, terms)[-1] - fit.split(b_ref, terms)[-1]
+        return term.effect.estimate(fit.ctx, term.joint, b, zero, term.at)[1]
+
+    full = size(cv.beta, back.beta)
+    if fit.paired and len(cv.fold_beta) == len(back.fold_beta):
+        se = float(
+            jackknife_se(
+                np.array([size(a, b) for a, b in zip(cv.fold_beta, back.fold_beta, strict=True)])
+            )
+        )
+    else:
+        se = float(
+            np.hypot(
+                jackknife_se(np.array([size(a, back.beta) for a in cv.fold_beta])),
+                jackknife_se(np.array([size(cv.beta, b) for b in back.fold_beta])),
+            )
+        )
+    if not (np.isfinite(full) and np.isfinite(se)):
+        return 0.0
+    return abs(full) / se if se > 0 else (np.inf if full != 0 else 0.0)
 
 
 def _drift_passes(fit: _Fit, others: Sequence[Term], term: Term, ev: Evidence, tests: int) -> bool:
@@ -451,6 +491,8 @@ def _select(
                 built[c.key] = fit.build(Term(c.effect, c.joint, c.at))
             term = built[c.key]
             joints = term.effect.acts_on(fit.ctx, c.joint)
+            if term.effect.nonlinear and not term.searched:
+                fit.refine([*accepted, term], only=term)  # from its best starting point
             ev = evidence(base, fit.judged_cv([*accepted, term]), joints)
             if term.effect.nonlinear and _drift_passes(fit, accepted, term, ev, len(cands)):
                 # compared at its best linearisation point, not at the nominal one (an encoder
@@ -787,11 +829,14 @@ def _reverse_check(
     back.paired = fit.paired
     out: dict[str, str] = {}
     forward = _estimates(fit, kept)[0]
-    for t, (_e, size, _s) in zip(kept, forward, strict=True):
-        term = back.build(Term(t.effect, t.joint, t.effect.start(back.ctx, t.joint)))
+    for t, (est, size, _s) in zip(kept, forward, strict=True):
+        # from the point the recording gave where that is the pattern's own choice (a cogging's
+        # periods, a payload's centre), else from its start (an encoder angle's increment)
+        at = t.effect.change_point(back.ctx, t.joint, t.at)
+        term = back.build(Term(t.effect, t.joint, at, searched=True))
         back.refine([term], only=term)
-        _est, size_back, se_back = _estimates(back, [term])[0][0]
-        if size_back * size > 0:
+        est_back, size_back, se_back = _estimates(back, [term])[0][0]
+        if not t.effect.opposed(est, est_back, size, size_back):
             out[t.key] = (
                 f"the reverse comparison (the reference judged against the recording's own θ) "
                 f"shows the same sign ({size_back:+.3g} ± {se_back:.2g} against {size:+.3g}): a "

@@ -89,6 +89,9 @@ class Effect:
     in_reference: bool = False
     # the smallest size worth naming (absolute, in the unit of :meth:`estimate`'s size)
     floor: float = 0.0
+    # its size is an amplitude of several coefficients (no sign): a change since the reference
+    # is the size of the coefficients' difference, not the difference of two sizes
+    sized_by_amplitude: bool = False
 
     def applies(self, ctx: Context) -> bool:
         return True
@@ -115,6 +118,15 @@ class Effect:
         both sides at ``at``, is read: the starting point where β is an increment of the
         point (an encoder angle), ``at`` where β holds the size itself."""
         return self.start(ctx, joint)
+
+    def opposed(
+        self, forward: dict[str, Any], back: dict[str, Any], size: float, size_back: float
+    ) -> bool:
+        """Whether the reverse comparison (the reference judged against the recording's θ,
+        :func:`hil.diagnose.drift._reverse_check`) shows the change with the opposite sign, as
+        a real change does: ``forward`` / ``back`` the two :meth:`estimate` dicts, ``size`` /
+        ``size_back`` their sizes. By default the signs of the sizes."""
+        return size * size_back < 0
 
     def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
         """X (K, n, width) in Nm per unit coefficient."""
