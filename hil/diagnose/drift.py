@@ -457,8 +457,21 @@ def _drift_passes(fit: _Fit, others: Sequence[Term], term: Term, ev: Evidence, t
         return False
     if ev.reduction < MIN_REDUCTION or 2 * ev.blocks_improved <= ev.blocks:
         return False
+    if fit.paired and ev.drop < MIN_REDUCTION * _change_energy(fit, term):
+        return False
     crit = float(student_t.isf(FAMILY_ALPHA / tests / 2, max(len(fit.starts) - 1, 1)))
     return _change(fit, others, term) >= crit
+
+
+def _change_energy(fit: _Fit, term: Term) -> float:
+    """The held-out error of the paired difference with no pattern, on ``term``'s joints: the
+    whole change since the reference. Block-paired, a pattern on top of others must lower it by
+    :data:`MIN_REDUCTION` of this, not of what the others leave: with the model error gone a
+    leftover of the written effect that its pattern's columns do not carry exactly (a drag
+    written on smoothed velocities) is resolved many times over, and another pattern would be
+    named for a part of the change too small to be one."""
+    joints = term.effect.acts_on(fit.ctx, term.joint)
+    return float(fit.judged_cv([]).held_out_sse[:, joints].sum())
 
 
 def _candidates(ctx: Context, reference: bool = False) -> list[Term]:
