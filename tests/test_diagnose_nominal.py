@@ -138,9 +138,9 @@ def test_the_nominal_model_options_and_refit(arm, capsys, tmp_path):
 
 
 def test_a_new_effect_is_one_registered_class(arm, capsys, tmp_path):
-    """An effect registered from here (a velocity-squared drag c q̇|q̇| on joint 2, not in the
+    """An effect registered from here (a cubic drag c q̇³ on joint 2, not in the
     registry) is tested, found with its size and reported, with nothing else changed."""
-    c = 0.05  # Nm s²
+    c = 0.05  # Nm s³
 
     class Drag(Effect):
         name = "test_drag"
@@ -151,7 +151,7 @@ def test_a_new_effect_is_one_registered_class(arm, capsys, tmp_path):
         def columns(self, ctx, joint, at):
             def build(r):
                 v = r.v_mean[:, joint : joint + 1]
-                return moving_average(-on_joint(v * np.abs(v), joint, ctx.n_joints), r.window)
+                return moving_average(-on_joint(v**3, joint, ctx.n_joints), r.window)
 
             return ctx.stack(build)
 
@@ -169,7 +169,7 @@ def test_a_new_effect_is_one_registered_class(arm, capsys, tmp_path):
     head, data = rows[0], np.array(rows[1:], float)
     t, q2, tau2 = (head.index(k) for k in ("t", "q2", "tau2"))
     v = np.gradient(data[:, q2], data[:, t])
-    data[:, tau2] -= c * v * np.abs(v)  # τ_shaft = τ + c q̇|q̇|: the recorded τ is that less
+    data[:, tau2] -= c * v**3  # τ_shaft = τ + c q̇³: the recorded τ is that less
     out = tmp_path / "drag.csv"
     with out.open("w", newline="") as fh:
         csv.writer(fh).writerows([head, *data.tolist()])

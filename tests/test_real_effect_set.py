@@ -196,3 +196,24 @@ def test_an_effect_in_the_joint_torque_goes_on_an_actuated_joint(src):
         assert rng.random() == twin.random()  # one draw consumed, as for any other joint
     drawn = {gen._drawn_joint(passive, "angle_offset", np.random.default_rng(s)) for s in range(20)}
     assert drawn == {0, 1}
+
+
+@pytest.mark.slow
+def test_c0_gain_and_drag_found_against_the_reference(tmp_path):
+    """DFKI C.0 (joint 2 unactuated, τ = 0): the gain on joint 1 is found against
+    ``--reference`` (the bounded reference fit's own gap to a refit is not taken for a model
+    that fails the recording), and a v·|v| drag is named as drag, not as a torque gain."""
+    if not (realdata("dfki-double-pendulum") / "records").is_dir():
+        pytest.skip("../shared/realdata/dfki-double-pendulum not present")
+    scorer = _load("score_real_effect_set")
+    # the set of docs/real-data-diagnosis.md (both designs, seed 0): its C.0 gain is on the
+    # actuated joint 1 (a C.0-only set draws one on the unactuated joint 2, where τ/g = 0 = τ)
+    gen.write_set(tmp_path / "set", ["dfki-a0", "dfki-c0"], seed=0)
+    truth = json.loads((tmp_path / "set" / "truth.json").read_text())
+    effects = ("torque_gain", "velocity_squared_drag", "null:same")
+    keep = [c for c in truth["cases"] if c["robot"] == "dfki-c0" and c["effect"] in effects]
+    (tmp_path / "set" / "truth.json").write_text(json.dumps({**truth, "cases": keep}))
+    assert scorer.main([str(tmp_path / "set"), "--json", str(tmp_path / "score.json")]) == 0
+    scores = json.loads((tmp_path / "score.json").read_text())
+    for case in scores["cases"]:
+        assert case["pass"] and not case["extra"], case

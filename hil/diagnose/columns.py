@@ -425,6 +425,13 @@ def offset_column(rows: RecordingRows, joint: int) -> np.ndarray:
     return _on_joint(-_filtered(rows, np.ones((rows.rows, 1))), joint, rows.n_joints)
 
 
+def drag_column(rows: RecordingRows, joint: int) -> np.ndarray:
+    """Velocity-squared drag c q̇|q̇| on ``joint`` (fluid or fan drag, τ = Ψθ + c q̇|q̇|):
+    X = F[q̇|q̇|], the interval mean at the Gauss–Legendre nodes like Ψ's viscous column."""
+    v = rows.v_nodes[:, :, joint]
+    return _on_joint(_filtered(rows, _node_average(v * np.abs(v))[:, None]), joint, rows.n_joints)
+
+
 def gain_column(rows: RecordingRows, joint: int) -> np.ndarray:
     """Torque gain error r on ``joint`` (τ_a = (1 + r) τ): X = −F[τ_j] = −y_j."""
     return _on_joint(-rows.y[:, joint : joint + 1], joint, rows.n_joints)

@@ -3,7 +3,7 @@
 
     python tests/benchmarks/make_real_effect_set.py --out /tmp/real_set
     python tests/benchmarks/score_real_effect_set.py /tmp/real_set [--json FILE] [--jobs 1]
-        [--nominal auto|reference|params|profile]
+        [--nominal auto|reference|params|profile] [--only case-03,case-10]
 
 Each case's modified recording is diagnosed against the unmodified one's model:
 ``--reference reference.csv`` where `hil diagnose --help` offers it; else ``--params`` from
@@ -131,8 +131,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--nominal", choices=("auto", "reference", "params", "profile"),
                     default="auto", help="the nominal model (auto: --reference if offered, "
                     "else --params, else the profile)")  # fmt: skip
+    ap.add_argument(
+        "--only", default=None, help="comma-separated case names to score (default: every case)"
+    )
     args = ap.parse_args(argv)
     cases = json.loads((args.set_dir / "truth.json").read_text(encoding="utf-8"))["cases"]
+    if args.only:
+        wanted = set(args.only.split(","))
+        unknown = wanted - {e["case"] for e in cases}
+        if unknown:
+            ap.error(f"--only: no case named {', '.join(sorted(unknown))} in {args.set_dir}")
+        cases = [e for e in cases if e["case"] in wanted]
     mode = args.nominal
     if mode == "auto":
         mode = "reference" if offers_reference() else "params"

@@ -6,11 +6,16 @@ registered effects with blocked cross-validation against the residual of the nom
 reads each accepted one as a finding, and simulates it on held-out data. Adding a pattern is one
 file here plus its import below (the registry order is the order the effects are tested in).
 
-Imports: :mod:`hil.diagnose.columns`, :mod:`hil.model`; never the pipeline or the report.
+Imports: :mod:`hil.diagnose.columns`, :mod:`hil.model`, the resolution floor of
+:mod:`hil.diagnose.findings` and the cogging periods of :mod:`hil.diagnose.selection`;
+never the pipeline or the report.
 """
 
 from hil.diagnose.effects import (  # noqa: F401  (each module registers its effect)
+    cogging,
     com_offset,
+    delay,
+    drag,
     encoder,
     friction,
     gain,

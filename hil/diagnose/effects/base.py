@@ -45,6 +45,11 @@ class Context:
     def n_joints(self) -> int:
         return self.Psi_raw.shape[1]
 
+    def driven(self) -> list[int]:
+        """Joints whose recorded torque is not zero on every row: an unactuated joint (DFKI
+        design C.0's second joint records τ = 0) has no torque a gain could scale."""
+        return [j for j in range(self.n_joints) if any(np.any(r.tau[:, j] != 0) for r in self.rows)]
+
     @property
     def closed_form(self) -> bool:
         """The 2-DOF closed-form model (no Pinocchio body parameters)."""
@@ -86,6 +91,9 @@ class Effect:
     in_reference: bool = False
     # the smallest size worth naming (absolute, in the unit of :meth:`estimate`'s size)
     floor: float = 0.0
+    # its size is an amplitude of several coefficients (no sign): a change since the reference
+    # is the size of the coefficients' difference, not the difference of two sizes
+    sized_by_amplitude: bool = False
 
     def applies(self, ctx: Context) -> bool:
         return True
@@ -101,6 +109,26 @@ class Effect:
     def start(self, ctx: Context, joint: int | None) -> Any:
         """The linearisation point before any fit (nonlinear effects)."""
         return None
+
+    def starts(self, ctx: Context, joint: int | None) -> list[Any]:
+        """Linearisation points the Gauss–Newton steps start from (nonlinear effects whose fit
+        has more than one stationary point); the one that fits best is kept."""
+        return [self.start(ctx, joint)]
+
+    def change_point(self, ctx: Context, joint: int | None, at: Any) -> Any:
+        """Where a change since the reference, the difference of the coefficients fitted on
+        both sides at ``at``, is read: the starting point where β is an increment of the
+        point (an encoder angle), ``at`` where β holds the size itself."""
+        return self.start(ctx, joint)
+
+    def opposed(
+        self, forward: dict[str, Any], back: dict[str, Any], size: float, size_back: float
+    ) -> bool:
+        """Whether the reverse comparison (the reference judged against the recording's θ,
+        :func:`hil.diagnose.drift._reverse_check`) shows the change with the opposite sign, as
+        a real change does: ``forward`` / ``back`` the two :meth:`estimate` dicts, ``size`` /
+        ``size_back`` their sizes. By default the signs of the sizes."""
+        return size * size_back < 0
 
     def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
         """X (K, n, width) in Nm per unit coefficient."""

@@ -27,6 +27,11 @@ class TorqueGain(Effect):
     )
     floor = 0.005  # relative: below this, within what a profile's numbers are known to
 
+    def variants(self, ctx: Context) -> list[int | None]:
+        # a gain scales the recorded torque: on a joint that records none (unactuated) its
+        # column is the whole model torque against y = 0, β → 1, g → ∞ (a "gain of 100")
+        return list(ctx.driven())
+
     def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
         return on_joint(-ctx.predicted()[:, joint, None], joint, ctx.n_joints)
 

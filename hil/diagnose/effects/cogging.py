@@ -1,0 +1,86 @@
+"""Cogging on joint j: a torque periodic in the joint angle, A sin(N q_j + φ), that the nominal
+model lacks (a new motor, a magnet that moved, a damaged gear tooth).
+
+τ_shaft = τ + A sin(N q_j + φ): y_j = Ψ_j θ₀ − A sin(N q_j + φ), X = −F[sin N q_j, cos N q_j]
+(:func:`hil.diagnose.columns.cogging_columns`, the refit's own columns), β = (A cos φ, A sin φ).
+The number of periods per revolution N is the linearisation point: every N the refit searches
+(:func:`hil.diagnose.selection.cogging_periods`: at least two periods over the joint's angle
+range) is a start, and the one that fits best is kept (:meth:`Effect.starts`); N does not move
+after that. Its size is A relative to the joint's RMS model torque (one floor for a 0.5 Nm
+pendulum and an 87 Nm arm, like a gain's).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from hil.diagnose.columns import cogging_columns
+from hil.diagnose.effects.base import Context, Effect, r4, register
+from hil.diagnose.selection import cogging_periods
+
+
+def _rms_torque(ctx: Context, joint: int) -> float:
+    tau = ctx.predicted()[:, joint]
+    return max(float(np.sqrt(np.mean(tau[np.isfinite(tau)] ** 2))), 1e-12)
+
+
+class Cogging(Effect):
+    name = "cogging"
+    width = 2
+    nonlinear = True
+    partners = ("encoder_offset",)
+    separate = "a slow constant-speed sweep of the joint (cogging repeats with the angle)"
+    floor = 0.02  # of the joint's RMS torque
+    sized_by_amplitude = True
+
+    def variants(self, ctx: Context) -> list[int | None]:
+        return list(ctx.driven())
+
+    def start(self, ctx: Context, joint: int | None) -> Any:
+        return float(self.starts(ctx, joint)[0])
+
+    def starts(self, ctx: Context, joint: int | None) -> list[Any]:
+        assert joint is not None
+        span = max(float(np.ptp(r.q[:, joint])) for r in ctx.rows)
+        return [float(n) for n in cogging_periods(span)]
+
+    def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
+        return ctx.stack(lambda r: cogging_columns(r, joint, float(at)))
+
+    def change_point(self, ctx: Context, joint: int | None, at: Any) -> Any:
+        return at  # β holds the amplitude itself at N
+
+    def estimate(self, ctx, joint, beta, se, at):
+        a, b = float(beta[0]), float(beta[1])
+        amp = float(np.hypot(a, b))
+        # the standard error of the amplitude (delta method, the two coefficients independent)
+        amp_se = float(np.hypot(a * se[0], b * se[1]) / amp) if amp > 0 else float(np.hypot(*se))
+        rms = _rms_torque(ctx, joint)
+        return (
+            {
+                "amplitude_Nm": r4(amp),
+                "amplitude_se_Nm": r4(amp_se),
+                "periods_per_rev": float(at),
+                "phase_rad": r4(float(np.arctan2(b, a))),
+                "relative": r4(amp / rms),
+            },
+            amp / rms,
+            amp_se / rms,
+        )
+
+    def opposed(self, forward, back, size, size_back) -> bool:
+        # an amplitude has no sign: a change shows the other way round half a period out of
+        # phase
+        return bool(np.cos(forward["phase_rad"] - back["phase_rad"]) < 0)
+
+    def words(self, e: dict[str, Any]) -> str:
+        return (
+            f"a torque periodic in the joint angle, {e['amplitude_Nm']:.3g} ± "
+            f"{e['amplitude_se_Nm']:.2g} Nm with {e['periods_per_rev']:g} periods per revolution "
+            "(cogging: a motor's magnets or a gear)"
+        )
+
+
+register(Cogging())

@@ -1,0 +1,90 @@
+"""Transport delay: the torque reaches the shaft d seconds after the recorded one, on every joint.
+
+τ_shaft(t) = τ(t − d) (a loop delay, a bus, a filter's group delay). The nominal model holds for
+the delayed torque: Ψ θ₀ = F[τ_d], so the residual is r = y − Ψ θ₀ = F[τ] − F[τ_d] (y = F[τ]),
+the exact held-torque means of :func:`hil.diagnose.columns.delayed_torque_means`. It is
+linearised in d at d̂ (Gauss–Newton): the model's change F[τ] − F[τ_d̂] is taken off r (both
+held-torque means, so that it is zero at d̂ = 0), the
+column is its derivative −∂F[τ_d]/∂d (a central difference over half a sample either side),
+β = δd. One delay for the whole arm: the lag that best aligns the recorded torque with the
+model's, judged against the reference as every pattern is (the change since the reference:
+the delay found on the recording minus the one found on the reference's rows, at the same d̂).
+
+A delay rewrites no row of the motion, but the set that writes one into a recording drops its
+last rows; the comparison with the reference is then not block-paired (:func:`hil.diagnose.
+drift.same_motion`), and the sign test over blocks applies as well. Its size is in sample
+intervals (the shortest recording's median), so that one floor, a quarter of a sample
+(:data:`hil.diagnose.findings.RESOLVABLE_INTERVALS`, the same the refit's lag and delay have),
+holds for 1 ms and 5 ms samples.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from hil.diagnose.columns import RecordingRows, delayed_torque_means, moving_average
+from hil.diagnose.effects.base import Context, Effect, r4, register
+from hil.diagnose.findings import RESOLVABLE_INTERVALS
+
+
+def _delayed(r: RecordingRows, delay_s: float) -> np.ndarray:
+    """F[τ_d] of one recording's rows (K, n)."""
+    t = r.stamps if r.stamps is not None else np.arange(len(r.tau)) * r.h
+    return moving_average(delayed_torque_means(r.tau, r.h, delay_s, t)[r.k], r.window)
+
+
+def _interval(ctx: Context) -> float:
+    return min(float(r.h) for r in ctx.rows)
+
+
+class TransportDelay(Effect):
+    name = "transport_delay"
+    nonlinear = True
+    partners = ()
+    separate = "a step of the command with the shaft torque measured (a delay shifts it whole)"
+    floor = RESOLVABLE_INTERVALS  # in sample intervals
+
+    def variants(self, ctx: Context) -> list[int | None]:
+        return [None] if ctx.driven() else []
+
+    def acts_on(self, ctx: Context, joint: int | None) -> list[int]:
+        return ctx.driven()
+
+    def start(self, ctx: Context, joint: int | None) -> Any:
+        return 0.0
+
+    def shift(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray | None:
+        d = float(at)
+        if d == 0.0:
+            return None
+        return ctx.stack(lambda r: _delayed(r, 0.0) - _delayed(r, d))
+
+    def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
+        d, eps = float(at), 0.5 * _interval(ctx)
+        col = ctx.stack(lambda r: (_delayed(r, d - eps) - _delayed(r, d + eps)) / (2 * eps))
+        return col[:, :, None]
+
+    def update(self, ctx, joint, beta, at):
+        h = _interval(ctx)
+        return float(at) + float(np.clip(beta[0], -2 * h, 2 * h))  # at most two samples a step
+
+    def estimate(self, ctx, joint, beta, se, at):
+        h = _interval(ctx)
+        d, s = float(at) + float(beta[0]), float(se[0])
+        return (
+            {"delay_s": r4(d), "delay_se_s": r4(s), "sample_interval_s": r4(h)},
+            d / h,
+            s / h,
+        )
+
+    def words(self, e: dict[str, Any]) -> str:
+        return (
+            f"the torque reaches the shaft {1e3 * e['delay_s']:+.3g} ± "
+            f"{1e3 * e['delay_se_s']:.2g} ms after the recorded one (a loop, bus or filter delay; "
+            f"{e['delay_s'] / e['sample_interval_s']:.2g} samples)"
+        )
+
+
+register(TransportDelay())

@@ -1,0 +1,56 @@
+"""Velocity-squared drag on joint j: τ = Ψθ₀ + c q̇_j|q̇_j| (fluid, fan or seal drag that grows
+with the square of speed). Without this pattern its torque is taken by the pattern nearest to
+it, a torque gain (whose column, the model torque, grows with speed on a fast trajectory) or a
+viscous friction change; with it, the held-out selection names the one that explains the rows
+better. Its size is the drag torque at the joint's RMS speed relative to the joint's RMS model
+torque (one floor for a 0.5 Nm pendulum and an 87 Nm arm, like a gain's).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from hil.diagnose.columns import drag_column
+from hil.diagnose.effects.base import Context, Effect, r4, register
+from hil.diagnose.effects.friction import rms_speed
+
+
+class VelocitySquaredDrag(Effect):
+    name = "velocity_squared_drag"
+    partners = ("friction_change", "torque_gain")
+    separate = (
+        "constant-speed sweeps at several speeds (drag grows with speed², viscous friction "
+        "with speed, a gain with the torque)"
+    )
+    floor = 0.02  # of the joint's RMS torque, at the RMS speed
+
+    def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
+        return ctx.stack(lambda r: drag_column(r, joint))
+
+    def estimate(self, ctx, joint, beta, se, at):
+        c, s = float(beta[0]), float(se[0])
+        v2 = rms_speed(ctx, joint) ** 2
+        tau = ctx.predicted()[:, joint]
+        rms = max(float(np.sqrt(np.mean(tau[np.isfinite(tau)] ** 2))), 1e-12)
+        return (
+            {
+                "coefficient_Nms2": r4(c),
+                "coefficient_se_Nms2": r4(s),
+                "at_rms_speed_Nm": r4(c * v2),
+                "relative": r4(c * v2 / rms),
+            },
+            c * v2 / rms,
+            s * v2 / rms,
+        )
+
+    def words(self, e: dict[str, Any]) -> str:
+        return (
+            f"a drag growing with the square of speed, {e['coefficient_Nms2']:.3g} ± "
+            f"{e['coefficient_se_Nms2']:.2g} Nm s²/rad² ({e['at_rms_speed_Nm']:+.3g} Nm at the "
+            "RMS speed)"
+        )
+
+
+register(VelocitySquaredDrag())

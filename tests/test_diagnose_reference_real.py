@@ -1,0 +1,116 @@
+"""`hil diagnose --reference` on the committed DFKI A.0 recording (BSD-3, tests/data/dfki) with
+one effect written in by the real-effect set's generator (tests/benchmarks/
+make_real_effect_set.py): the drift stage alone (hil.diagnose.drift), as the CLI runs it. The
+payload needs the owners' URDF from ../shared (skipped without it); the slow test judges one
+shared A.0 recording against another's model (docs/real-data-diagnosis.md, seed 1
+``null:other``)."""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from realdata import realdata
+
+from hil.cli_options import read_recording
+from hil.diagnose.cli import add_arguments, arm_geometry
+from hil.diagnose.drift import judge, nominal_from_reference
+from hil.model.closed_form import ArmModel
+from hil.model.params import robot_params
+
+BENCH = Path(__file__).parent / "benchmarks"
+DFKI_FILE = (
+    Path(__file__).parent / "data" / "dfki" / "design_A.0__20220815__sys_id__trajectory_00.csv"
+)
+WITHIN = 0.35  # the issue's size tolerance on real recordings
+
+
+def _generator():
+    sys.path.insert(0, str(BENCH))
+    spec = importlib.util.spec_from_file_location(
+        "make_real_effect_set", BENCH / "make_real_effect_set.py"
+    )
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["make_real_effect_set"] = module  # its dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def _judge(recording: Path, reference: Path, robot: str = "dfki-a0"):
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    args = p.parse_args([str(recording), "--format", "dfki", "--robot", robot])
+    profile = robot_params(robot)
+    model, geometry = ArmModel(profile.terms), arm_geometry(robot)
+
+    def read(path: Path):
+        return read_recording(args, path, command="diagnose", min_rows=2, joints=2, allow_gaps=True)
+
+    nominal = nominal_from_reference([read(reference)], model, "test", geometry=geometry)
+    return judge([read(recording)], nominal)
+
+
+def _written(tmp_path: Path, effect: str, joint: int, seed: int) -> tuple[Path, Path, dict]:
+    gen = _generator()
+    src = gen.dfki_source(DFKI_FILE, "dfki-a0")
+    out, truth = gen.make_effect(src, effect, joint, np.random.default_rng(seed))
+    rec, ref = tmp_path / "recording.csv", tmp_path / "reference.csv"
+    out.write(rec)
+    src.write(ref)
+    return rec, ref, truth
+
+
+def _only(result, effect: str) -> dict:
+    assert result.used, result.document["decision"]
+    names = [f.effect for f in result.findings]
+    assert names == [effect], (names, result.document["not_findings"])
+    return result.findings[0].estimate
+
+
+def test_transport_delay_is_found_block_paired(tmp_path):
+    """A delay written into a copy drops its last rows: the reference's rows over the
+    recording's length are its pair, and the delay pattern gives the delay's size (old code:
+    no delay pattern, and the comparison was never paired)."""
+    rec, ref, truth = _written(tmp_path, "transport_delay", 0, seed=3)
+    est = _only(_judge(rec, ref), "transport_delay")
+    delay = truth["magnitude"]["delay_s"]
+    assert abs(est["delay_s"] - delay) <= WITHIN * delay, (est, delay)
+
+
+def test_unchanged_copy_gives_no_delay_or_other_change(tmp_path):
+    _rec, ref, _truth = _written(tmp_path, "torque_gain", 0, seed=3)
+    result = _judge(ref, ref)
+    assert result.used and not result.findings, result.document["not_findings"]
+
+
+def test_payload_is_found_with_its_sign(tmp_path):
+    """A point mass on link 2 (Pinocchio's RNEA at the recorded motion): found as a payload
+    of the right sign and size (old code: its centre held at a fixed point of (m, m l) that
+    gave a negative mass on A.0)."""
+    if not _generator()._dfki_urdf_xml("dfki-a0"):
+        pytest.skip("the payload torque needs the owners' URDF in ../shared/realdata")
+    rec, ref, truth = _written(tmp_path, "payload", 0, seed=4)
+    est = _only(_judge(rec, ref), "payload")
+    mass = truth["magnitude"]["mass_kg"]
+    assert est["mass_kg"] > 0 and abs(est["mass_kg"] - mass) <= WITHIN * mass, (est, mass)
+
+
+@pytest.mark.slow
+def test_another_recording_of_the_arm_is_not_a_change():
+    """A.0 20220812-055032 judged against a model identified from 20220812-055640: the
+    reference model leaves joint 1 at 86 % held-out NRMSE against a refit's 10 %, which a
+    pooled ratio over the joints (weighted by θ₀'s own residual scale) let through as a torque
+    gain on joint 2 and a drag on joint 1. Per joint, the model is refused and nothing is
+    reported."""
+    records = realdata("dfki-double-pendulum") / "records"
+    stem = "design_A.0__20220812__sys_id__20220812-{}-PM_measured.csv"
+    rec, ref = records / stem.format("055032"), records / stem.format("055640")
+    if not (rec.is_file() and ref.is_file()):
+        pytest.skip("../shared/realdata/dfki-double-pendulum not present")
+    result = _judge(rec, ref)
+    assert not result.findings, [f.effect for f in result.findings]
