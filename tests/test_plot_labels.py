@@ -88,8 +88,8 @@ def test_diagnosis_torque_error_is_drawn_against_time(monkeypatch, tmp_path):
     beside them, not against the row index; lines break where the held-out rows skip."""
     from matplotlib.figure import Figure
 
+    from hil.diagnose.pipeline import DiagnosisResult
     from hil.diagnose.plots import plot_diagnosis
-    from hil.diagnose.report import DiagnosisResult
 
     rng = np.random.default_rng(0)
     rows = 400

@@ -22,7 +22,7 @@ from hil import lazy_exports
 __getattr__, __dir__, __all__ = lazy_exports(
     __name__,
     {
-        "hil.diagnose.report": ["diagnose", "DiagnosisResult"],
+        "hil.diagnose.pipeline": ["diagnose", "DiagnosisResult"],
         "hil.diagnose.selection": ["DiagnosisError"],
         "hil.diagnose.findings": ["Finding"],
         "hil.diagnose.plots": ["plot_diagnosis"],

@@ -39,7 +39,8 @@ from hil.cli_options import (
     write_html_report,
 )
 from hil.diagnose.drift import DriftResult, Nominal, judge, nominal_from_reference
-from hil.diagnose.report import diagnose, percent
+from hil.diagnose.pipeline import diagnose
+from hil.diagnose.report import percent
 from hil.diagnose.torque_path import describe as describe_torque_path
 from hil.diagnose.torque_path import torque_path_of
 from hil.model.closed_form import ArmModel

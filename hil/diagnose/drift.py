@@ -37,16 +37,15 @@ from scipy.stats import t as student_t
 from drivers.recording import Recording
 from hil.diagnose.effects import REGISTRY, Context, Effect, SimInput
 from hil.diagnose.findings import Finding
-from hil.diagnose.report import (
+from hil.diagnose.gates import SIMULATION_NOISE_FLOOR, worse_beyond_noise
+from hil.diagnose.heldout import (
     HELD_OUT_FRACTION,
-    SIMULATION_NOISE_FLOOR,
     _extras,
     _masks,
     _segment_simulation,
     _torque_spread,
     simulated_segments,
     simulation_sensitivity,
-    worse_beyond_noise,
 )
 from hil.diagnose.selection import (
     FAMILY_ALPHA,
