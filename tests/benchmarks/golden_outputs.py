@@ -54,7 +54,7 @@ COMMANDS: list[tuple[str, list[str]]] = [
         (
             "sim-cicese3",
             "virtual-robot simulate --robot cicese3 --experiment cicese3-excitation "
-            "--effects stribeck --duration 12 --no-plot",
+            "--effects joint3-gain --duration 12 --no-plot",
         ),
         ("diag-cicese3", "hil diagnose {OUT}/sim-cicese3 --robot cicese3"),
         (
@@ -114,6 +114,7 @@ def run(out: Path) -> None:
                 continue
         proc = subprocess.run(args, cwd=ROOT, capture_output=True, text=True, check=False)
         (out / f"{name}.stdout.txt").write_text(proc.stdout)
+        (out / f"{name}.stderr").write_text(proc.stderr)  # progress lines: read, not compared
         (out / f"{name}.text-status").write_text(f"{proc.returncode}\n")
         print(f"{name}: exit {proc.returncode}", flush=True)
 
