@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -126,6 +126,15 @@ def _free_reading_failed(findings: Sequence[Finding], term: str) -> str:
     )
 
 
+class GateResult(NamedTuple):
+    """The simulation gate's result (:func:`simulation_gate`)."""
+
+    accepted: list[Accepted]  # the terms kept
+    findings: list[Finding]  # their findings, a gain's reading as judged
+    dropped: dict[str, str]  # per dropped term, why
+    shaft: np.ndarray | None  # the shaft torque rows, None when the lag or delay was dropped
+
+
 def simulation_gate(
     prob: Problem,
     accepted: list[Accepted],
@@ -136,7 +145,7 @@ def simulation_gate(
     shaft: np.ndarray | None = None,
     memo: dict | None = None,
     reference: np.ndarray | None = None,
-) -> tuple[list[Accepted], list[Finding], dict[str, str], np.ndarray | None]:
+) -> GateResult:
     """A finding must improve the held-out simulated motion too, or it is not one: every term
     is taken out in turn and the held-out open-loop simulation rerun; a term without which the
     held-out torque of its joint(s) is no worse, the torque of another joint is better by more
@@ -308,4 +317,4 @@ def simulation_gate(
         ]
         findings = [f for f in findings if f.term != worst]
         shaft = None if worst == "rate" else shaft
-    return accepted, findings, dropped, shaft
+    return GateResult(accepted, findings, dropped, shaft)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -41,6 +41,24 @@ from hil.diagnose.selection import (
     term_width,
 )
 from hil.diagnose.stats import block_stats, cross_validate, evidence, extend_stats_many
+
+
+class Reading(NamedTuple):
+    """The accepted terms read as findings (:func:`interpret`)."""
+
+    findings: list[Finding]
+    confounded: list[list[str]]  # pairs of effects the data cannot tell apart
+    shaft: np.ndarray | None  # the exact shaft torque rows (Nm) of a found lag or delay
+
+
+class Interpretation(NamedTuple):
+    """The interpretation stage's result (:func:`interpret_with_rate`): the terms that stand,
+    their findings, the confounded pairs, the shaft torque rows of a found lag or delay."""
+
+    accepted: list[Accepted]
+    findings: list[Finding]
+    confounded: list[list[str]]
+    shaft: np.ndarray | None
 
 
 def _estimate(
@@ -164,7 +182,7 @@ def settle_gain_joint(
 
 def interpret(
     prob: Problem, accepted: Sequence[Accepted], library: Sequence[Candidate], reference: np.ndarray
-) -> tuple[list[Finding], list[list[str]], np.ndarray | None]:
+) -> Reading:
     """Findings and confounded pairs of the accepted terms; the exact shaft torque rows when a
     lag or delay was found (None otherwise)."""
     fit = final_fit(prob, accepted)
@@ -231,7 +249,7 @@ def interpret(
     for f in findings:  # which term each finding stands on (the simulation gate drops terms)
         if not f.term:
             f.term = "rate" if f.effect in ("actuator_lag", "transport_delay") else ""
-    return cogging_at_true_angle(findings), confounded, shaft
+    return Reading(cogging_at_true_angle(findings), confounded, shaft)
 
 
 RATE_EFFECTS = ("actuator_lag", "transport_delay")
@@ -282,17 +300,17 @@ def _interpret_resolved(
     library: Sequence[Candidate],
     reference: np.ndarray,
     rejected: dict[str, str],
-) -> tuple[list[Accepted], list[Finding], list[list[str]], np.ndarray | None]:
+) -> Interpretation:
     """:func:`interpret` without the rate terms whose lag or delay the samples cannot resolve
     (:func:`hil.diagnose.findings.unresolved_rate_terms`; the reason goes to ``rejected``)."""
     while True:
         findings, confounded, shaft = interpret(prob, accepted, library, reference)
         unresolved = unresolved_rate_terms(prob, findings)
         if not unresolved:
-            return accepted, findings, confounded, shaft
+            return Interpretation(accepted, findings, confounded, shaft)
         kept = [a for a in accepted if a.cand.key not in unresolved]
         if len(kept) == len(accepted):  # not from a rate term of its own: nothing to drop
-            return accepted, findings, confounded, shaft
+            return Interpretation(accepted, findings, confounded, shaft)
         rejected.update({a.cand.key: unresolved[a.cand.key] for a in accepted if a not in kept})
         accepted = kept
 
@@ -304,7 +322,7 @@ def interpret_with_rate(
     reference: np.ndarray,
     rejected: dict[str, str],
     log: Callable[[str], None] | None = None,
-) -> tuple[list[Accepted], list[Finding], list[list[str]], np.ndarray | None]:
+) -> Interpretation:
     """:func:`interpret`, and when a lag or delay is found, the rest of the vocabulary selected
     again (:func:`reselect_on_shaft`) and every other term's size fitted against the exact shaft
     torque, not beside the first-order rate terms, whose approximation error the other terms'
@@ -313,24 +331,24 @@ def interpret_with_rate(
         prob, accepted, library, reference, rejected
     )
     if shaft is None:
-        return accepted, findings, confounded, shaft
+        return Interpretation(accepted, findings, confounded, shaft)
     more = reselect_on_shaft(prob, accepted, library, shaft, reference, rejected, log)
     if more != accepted:
         accepted, findings, confounded, shaft = _interpret_resolved(
             prob, more, library, reference, rejected
         )
         if shaft is None:  # the rate terms did not survive the gates
-            return accepted, findings, confounded, shaft
+            return Interpretation(accepted, findings, confounded, shaft)
     others = [a for a in accepted if a.cand.kind != "rate"]
     if not others:
-        return accepted, findings, confounded, shaft
+        return Interpretation(accepted, findings, confounded, shaft)
     exact, exact_confounded, _ = interpret(shaft_problem(prob, shaft), others, library, reference)
     rate = sorted(RATE_EFFECTS)
     # the lag/delay findings of the rate terms (term "rate"); a rival of another term that is
     # named actuator_lag (a rate term in its place) is in ``exact`` already, refitted there
     findings = exact + [f for f in findings if f.term == "rate"]
     confounded = exact_confounded + [c for c in confounded if sorted(c) == rate]
-    return accepted, findings, confounded, shaft
+    return Interpretation(accepted, findings, confounded, shaft)
 
 
 # --- structure no candidate explains -------------------------------------------------------------
