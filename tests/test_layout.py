@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-TOP = ("hil", "drivers", "virtual_robot", "profiles")
+TOP = ("hil", "drivers", "virtual_robot", "profiles", "plots")
 HIL_PACKAGES = ("model", "bench", "identify", "diagnose", "control", "timing", "report")
 SHARED = "hil.<shared>"  # top-level hil modules the commands share (hil/cli_options.py):
 # above model and bench, below the capability packages that build commands on it
@@ -21,13 +21,14 @@ BASE = {"hil", "drivers", "profiles"}
 MAY_IMPORT: dict[str, set[str]] = {
     "profiles": set(),
     "drivers": {"profiles"},
-    "virtual_robot": {"drivers", "profiles"},
+    "plots": {"drivers", "profiles"},  # plots of recordings, for hil run and virtual-robot simulate
+    "virtual_robot": {"drivers", "profiles", "plots"},
     "hil": set(),  # hil/__init__.py: the version and lazy_exports, standard library only
     # hil.model, hil.bench: their error types, for exit statuses; hil.report: --report
     SHARED: BASE | {"hil.model", "hil.bench", "hil.report"},
     "hil.report": BASE,  # HTML reports from the commands' documents (docs/reports.md)
     "hil.model": BASE,
-    "hil.bench": BASE,
+    "hil.bench": BASE | {"plots"},  # hil run's positions.png
     "hil.identify": BASE | {SHARED, "hil.model", "hil.bench"},
     "hil.diagnose": BASE | {SHARED, "hil.model"},
     "hil.control": BASE | {SHARED, "hil.model", "hil.bench"},
@@ -254,3 +255,4 @@ def test_recording_readers_live_in_drivers():
     # the check sees them
     assert recording_parsers("import numpy as np\nnp.loadtxt(p)\n") == [2]
     assert recording_parsers("import csv\nrows = csv.reader(f)\n") == [2]
+

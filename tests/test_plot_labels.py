@@ -9,7 +9,8 @@ import matplotlib
 import numpy as np
 import pytest
 
-from drivers.recording import Recording, plot_positions
+from drivers.recording import Recording
+from plots.positions import plot_positions
 
 matplotlib.use("Agg")
 

@@ -61,7 +61,7 @@ class DiagnosisResult:
     arrays: dict[str, Any]  # residuals, states, simulations: for plots
 
 
-# What the reader noticed in the time stamps (drivers/recording.py, ``findings_on_read``), by
+# What the reader noticed in the time stamps (drivers/recording/, ``findings_on_read``), by
 # the words its notes start with or contain, and the timing finding each is.
 TIMING_NOTES = (
     ("irregular sampling", "irregular_sampling"),
