@@ -3,6 +3,8 @@
 Fast tests run a null and the default robot (joint 1's direction-dependent Coulomb friction);
 the whole catalogue of concealed effects, each on either joint, is marked slow
 (`make test-slow`; tests/benchmarks/score_diagnose_set.py runs a blind-like set).
+The module is longer than 800 lines because its end-to-end tests share module-scoped recordings
+(each simulated once per module): split, each file would simulate them again.
 """
 
 from __future__ import annotations
