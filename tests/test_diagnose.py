@@ -836,10 +836,10 @@ def test_before_after_reuses_its_fits_and_simulations_and_changes_nothing(
     assert len(calls) == 1  # "after"
     final, arrays = heldout.before_after(prob, accepted, findings, None, memo=memo)
     assert len(calls) == 2  # "before" only: "after" is the gate's
-    assert final["after"] == gate["after"]
+    assert final.after.as_dict() == gate.after.as_dict()
     fresh, fresh_arrays = heldout.before_after(prob, accepted, findings, None)
     assert len(calls) == 4
-    assert json.dumps(final) == json.dumps(fresh)
+    assert json.dumps(final.as_dict()) == json.dumps(fresh.as_dict())
     for name in ("before", "after"):
         np.testing.assert_array_equal(arrays["simulation"][name], fresh_arrays["simulation"][name])
 

@@ -19,7 +19,7 @@ from hil.diagnose.findings import (
     AT_REFERENCE,
     Finding,
 )
-from hil.diagnose.heldout import before_after
+from hil.diagnose.heldout import HeldOutFit, before_after
 from hil.diagnose.report import percent
 from hil.diagnose.selection import (
     MIN_REDUCTION,
@@ -72,7 +72,7 @@ def _term_joints(prob: Problem, accepted: Sequence[Accepted], term: str) -> list
     return _joints(a.cand)
 
 
-def _own_gain(fit: dict[str, Any], fit_wo: dict[str, Any], joints: list[int], name: str) -> float:
+def _own_gain(fit: HeldOutFit, fit_wo: HeldOutFit, joints: list[int], name: str) -> float:
     """How much a term lowers the held-out NRMSE of its own joints, summed, in the measure
     ``name`` ("torque" or "simulated position"; 0 when it cannot be scored). On an n-joint
     arm every term moves the rigid-body parameters all joints share, so each other joint's
@@ -81,7 +81,7 @@ def _own_gain(fit: dict[str, Any], fit_wo: dict[str, Any], joints: list[int], na
     joint 3 of cicese3 lowers its torque NRMSE 2.9 % → 0.5 % and moved joint 1's
     0.69 % → 0.72 %, on 20 s of cicese3-excitation)."""
     key = "torque_nrmse" if name == "torque" else "position_nrmse"
-    with_, without = fit["after"][key], fit_wo["after"][key]
+    with_, without = getattr(fit.after, key), getattr(fit_wo.after, key)
     pairs = [(without[j], with_[j]) for j in joints if j < len(with_) and j < len(without)]
     return sum(b - a for b, a in pairs if None not in (a, b))
 
@@ -170,9 +170,9 @@ def simulation_gate(
             memo=memo,
             rigid_reference=pinned_rigid_body(prob, findings, reference),
         )
-        with_all = fit["after"]["position_nrmse"]
+        with_all = fit.after.position_nrmse
         noise = arrays["simulation"].get("position_sensitivity") or [0.0] * len(with_all)
-        if "after" in fit.get("unphysical", {}):
+        if "after" in fit.unphysical:
             # the refit on the training part cannot be simulated: the terms cannot be shown to
             # improve the motion, so the last accepted goes (the others stood without it)
             last = accepted[-1].cand.key
@@ -185,7 +185,7 @@ def simulation_gate(
             )
             dropped[group] = (
                 lead
-                + "; ".join(fit["unphysical"]["after"])
+                + "; ".join(fit.unphysical["after"])
                 + "), so it cannot be shown to improve the simulated motion"
             )
             say(f"diagnose: dropped {group}: {dropped[group]}")
@@ -225,8 +225,8 @@ def simulation_gate(
             )
             joints = _term_joints(prob, accepted, term)
             # the held-out torque first: a term whose refit predicts it no better is no finding
-            tq_with = [fit["after"]["torque_nrmse"][j] for j in joints]
-            tq_without = [fit_wo["after"]["torque_nrmse"][j] for j in joints]
+            tq_with = [fit.after.torque_nrmse[j] for j in joints]
+            tq_without = [fit_wo.after.torque_nrmse[j] for j in joints]
             pairs = [(a, b) for a, b in zip(tq_with, tq_without, strict=True) if None not in (a, b)]
             # at least the CV test's MIN_REDUCTION of squared error: half of it in NRMSE
             if pairs and sum(a for a, _ in pairs) > (1 - MIN_REDUCTION / 2) * sum(
@@ -244,7 +244,7 @@ def simulation_gate(
                 continue
             # nor may it make another joint worse: a finding on one joint that costs another
             # joint held-out torque or motion is no improvement of the model
-            others = [j for j in range(len(fit["after"]["torque_nrmse"])) if j not in joints]
+            others = [j for j in range(len(fit.after.torque_nrmse)) if j not in joints]
             harmed = [
                 (j, name, b, a)
                 for j in others
@@ -252,7 +252,7 @@ def simulation_gate(
                     ("torque", "torque_nrmse"),
                     ("simulated position", "position_nrmse"),
                 )
-                for a, b in [(fit["after"][key][j], fit_wo["after"][key][j])]
+                for a, b in [(getattr(fit.after, key)[j], getattr(fit_wo.after, key)[j])]
                 if None not in (a, b)
                 and (
                     worse_beyond_noise(a, b, noise[j] or 0.0)
@@ -272,7 +272,7 @@ def simulation_gate(
                         for j, name, b, a in harmed
                     )
                 continue
-            without = fit_wo["after"]["position_nrmse"]
+            without = fit_wo.after.position_nrmse
             if not simulated or not without or None in without:
                 continue
             e_with = sum(with_all[j] for j in joints)

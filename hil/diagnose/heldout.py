@@ -6,13 +6,16 @@ last recording), the findings as the open-loop simulators take them (:func:`simu
 restarted segment simulations (:func:`simulated_segments`, :func:`_segment_simulation`), and
 :func:`before_after`: torque NRMSE and simulated-position NRMSE per joint, nominal model and
 with the accepted terms.
+
+Typed result: :class:`HeldOutFit` (one :class:`ModelFit` per model); its ``as_dict`` is the
+diagnosis document's ``fit``.
 """
 
 from __future__ import annotations
 
 import itertools
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -398,6 +401,50 @@ def read_at_reference(
     return _training_findings(accepted, beta, findings, prob.model)
 
 
+@dataclass
+class ModelFit:
+    """One model on the held-out data: per joint its torque NRMSE and simulated-position NRMSE
+    (None where it cannot be scored; the positions empty when it was not simulated), and its θ."""
+
+    torque_nrmse: list[float | None]
+    position_nrmse: list[float | None]
+    theta: np.ndarray
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "torque_nrmse": self.torque_nrmse,
+            "position_nrmse": self.position_nrmse,
+            "theta": self.theta.tolist(),
+        }
+
+
+@dataclass
+class HeldOutFit:
+    """:func:`before_after`'s comparison: the nominal model (``before``) and the model with the
+    accepted terms (``after``) on the held-out data (``held_out`` says which); ``unphysical``:
+    per model ("before", "after") the reasons its fit is not physical (then not simulated)."""
+
+    held_out: str
+    before: ModelFit
+    after: ModelFit
+    unphysical: dict[str, list[str]] = field(default_factory=dict)
+
+    def model(self, name: str) -> ModelFit:
+        """``before`` or ``after`` by name."""
+        return {"before": self.before, "after": self.after}[name]
+
+    def as_dict(self) -> dict[str, Any]:
+        """The document's ``fit``."""
+        doc: dict[str, Any] = {
+            "held_out": self.held_out,
+            "before": self.before.as_dict(),
+            "after": self.after.as_dict(),
+        }
+        if self.unphysical:
+            doc["unphysical"] = self.unphysical
+        return doc
+
+
 def before_after(
     prob: Problem,
     accepted: Sequence[Accepted],
@@ -409,7 +456,7 @@ def before_after(
     sensitivity: bool = False,
     memo: dict | None = None,
     rigid_reference: np.ndarray | None = None,
-) -> tuple[dict[str, Any], dict[str, Any]]:
+) -> tuple[HeldOutFit, dict[str, Any]]:
     """Torque NRMSE and open-loop position NRMSE per joint on held-out data, nominal model
     (``nominal_theta`` when given, else fitted on the training part) and with the accepted terms.
     A fit that is not physical is not simulated (its position NRMSE stays empty) and is named
@@ -502,22 +549,13 @@ def before_after(
         if len(prob.rows) > 1
         else f"the last {HELD_OUT_FRACTION:.0%} of the recording, not used for fitting"
     )
-    doc = {
-        "held_out": held,
-        "before": {
-            "torque_nrmse": torque["before"],
-            "position_nrmse": position["before"],
-            "theta": theta0.tolist(),
-        },
-        "after": {
-            "torque_nrmse": torque["after"],
-            "position_nrmse": position["after"],
-            "theta": theta1.tolist(),
-        },
-    }
-    if unphysical_fit:
-        doc["unphysical"] = unphysical_fit
-    return doc, {
+    fit = HeldOutFit(
+        held,
+        ModelFit(torque["before"], position["before"], theta0),
+        ModelFit(torque["after"], position["after"], theta1),
+        unphysical_fit,
+    )
+    return fit, {
         "torque": y,
         "pred_before": pred0,
         "pred_after": pred1,

@@ -257,7 +257,7 @@ def diagnose(
         "findings": [f.as_dict() for f in findings],
         "timing": timing,
         "confounded": confounded,
-        "fit": fit,
+        "fit": fit.as_dict(),
         "summary": summary,
         "location": where.document,
         "nominal_theta": theta_fit.tolist(),

@@ -17,7 +17,7 @@ from hil.diagnose.findings import (
     AT_REFERENCE,
     Finding,
 )
-from hil.diagnose.heldout import SEGMENT_S
+from hil.diagnose.heldout import SEGMENT_S, HeldOutFit
 from hil.diagnose.selection import (
     Problem,
     rigid_count,
@@ -201,22 +201,21 @@ def model_name(model: Any) -> str:
 
 def summary_words(
     findings: Sequence[Finding],
-    fit: dict[str, Any],
+    fit: HeldOutFit,
     notes: Sequence[str],
     nominal: str = "9-parameter",
     rigid: str = "θ1..θ5 of the 2-DOF arm",
 ) -> str:
     """The summary in words; ``nominal``: the model's name (:func:`model_name`), ``rigid``: its
     rigid-body parameters' (:func:`rigid_body_words`)."""
-    n_joints = len(fit["before"]["torque_nrmse"])
+    n_joints = len(fit.before.torque_nrmse)
     if not findings and any(n.startswith("I cannot tell") for n in notes):
         lines = []  # the note says why, and that is all there is to say
     elif not findings and (
         any(n.startswith("Not a finding") for n in notes)
-        or max((x for x in fit["before"]["torque_nrmse"] if x is not None), default=0.0)
-        > MODEL_EXPLAINS
+        or max((x for x in fit.before.torque_nrmse if x is not None), default=0.0) > MODEL_EXPLAINS
     ):
-        before = fit["before"]["torque_nrmse"]
+        before = fit.before.torque_nrmse
         lines = [
             "No finding, and I cannot say the model is complete: it leaves a held-out torque "
             f"NRMSE of {' / '.join(percent(x) for x in before)}, and nothing in the "
@@ -257,8 +256,8 @@ def summary_words(
             lines.append(
                 f"{said} — or, equally well, {alt}. The data cannot tell these apart: {why}."
             )
-        b, a = fit["before"]["torque_nrmse"], fit["after"]["torque_nrmse"]
-        pb, pa = fit["before"]["position_nrmse"], fit["after"]["position_nrmse"]
+        b, a = fit.before.torque_nrmse, fit.after.torque_nrmse
+        pb, pa = fit.before.position_nrmse, fit.after.position_nrmse
         parts = []
         for j in range(len(b)):
             parts.append(f"joint {j + 1} torque {percent(b[j])} → {percent(a[j])}")
@@ -268,9 +267,7 @@ def summary_words(
                     f"joint {j + 1} simulated position {percent(pb[j])} → {percent(pa[j])}"
                 )
         lines.append(
-            f"Modelling it changes the held-out error ({fit['held_out']}): "
-            + "; ".join(parts)
-            + "."
+            f"Modelling it changes the held-out error ({fit.held_out}): " + "; ".join(parts) + "."
         )
     lines += list(notes)
     return " ".join(lines)
@@ -336,15 +333,15 @@ _NAMES = {
 }
 
 
-def simulation_notes(fit: dict[str, Any], model: Any) -> list[str]:
+def simulation_notes(fit: HeldOutFit, model: Any) -> list[str]:
     """Say when an n-joint model's held-out open-loop simulation could not be scored: then the
     findings stand on the held-out torque alone (:func:`simulation_gate`)."""
     if isinstance(model, ArmModel):
         return []
     if all(
-        fit[name]["position_nrmse"] and None not in fit[name]["position_nrmse"]
+        fit.model(name).position_nrmse and None not in fit.model(name).position_nrmse
         for name in ("before", "after")
-        if name not in fit.get("unphysical", {})
+        if name not in fit.unphysical
     ):
         return []
     return [

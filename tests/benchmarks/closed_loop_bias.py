@@ -126,7 +126,7 @@ def reference_reading(run: Path, reference: np.ndarray) -> dict[str, list]:
         fit = heldout.before_after(
             prob, terms, finds, nominal, False, se, shaft, rigid_reference=pinned
         )[0]
-        out[name] = fit["after"]["position_nrmse"]
+        out[name] = fit.after.position_nrmse
     return out
 
 
