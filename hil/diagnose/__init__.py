@@ -12,8 +12,8 @@ drift patterns (:mod:`.effects`, one module per pattern, a registry) and the ``h
 command (:mod:`.cli`).
 
 Imports: :mod:`hil.model`, :mod:`hil.cli_options`; plots import the pipeline's result, never the
-reverse; the stages import the ones before them (interpret <- heldout <- gates <- pipeline;
-report <- gates, pipeline); the drift imports the held-out stage, the gate and the effects,
+reverse; each stage imports only those before it (interpret, heldout, report, gates,
+pipeline, in that order); the drift imports the held-out stage, the gate and the effects,
 the effects only :mod:`.columns` and :mod:`hil.model`.
 
 Public API (``from hil.diagnose import ...``, docs/api.md): ``diagnose(recordings,
