@@ -16,16 +16,18 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
 
 from drivers.process import release_freed_heap
 from drivers.recording import Recording
+from hil.diagnose.findings import Finding
 from hil.diagnose.gates import pinned_rigid_body, simulation_gate
-from hil.diagnose.heldout import before_after, read_at_reference
+from hil.diagnose.heldout import HeldOutFit, before_after, read_at_reference
 from hil.diagnose.interpret import interpret_with_rate, lack_of_fit, settle_gain_joint, unexplained
-from hil.diagnose.locate import locate
+from hil.diagnose.locate import Location, locate
 from hil.diagnose.report import (
     _NAMES,
     _rejection_notes,
@@ -51,14 +53,70 @@ from hil.diagnose.selection import (
     select,
     usable_speeds,
 )
-from hil.diagnose.stats import block_stats, cross_validate
+from hil.diagnose.stats import Evidence, block_stats, cross_validate
 from hil.model.closed_form import ArmModel
 
 
 @dataclass
+class Diagnosis:
+    """What :func:`diagnose` found, as the stages gave it (typed; the JSON document is built
+    from it by :meth:`document`, when the command writes or prints it)."""
+
+    findings: list[Finding]
+    timing: list[dict[str, str]]  # the time stamps' findings (:func:`timing_findings`)
+    confounded: list[list[str]]
+    fit: HeldOutFit  # before/after on the held-out data
+    summary: str  # in words (:func:`hil.diagnose.report.summary_words`)
+    location: Location  # where the nominal residual lives
+    nominal_theta: np.ndarray  # the nominal model fitted to the recordings
+    model: ArmModel
+    rows: list[Any]  # the recordings' rows (their noise models)
+    candidates_tested: dict[str, Evidence]  # the selection's first round
+    not_findings: dict[str, str]  # per term, why it is not a finding
+    not_tested: dict[str, str]  # per candidate kind, why it was not tested
+    nominal_violations: list[str]  # why the nominal fit is not physical (empty: it is)
+    recordings: list[str]
+    notes: list[str]
+    timing_s: float  # seconds the diagnosis took
+
+    def document(self) -> dict[str, Any]:
+        """The diagnosis document (diagnosis.json, ``hil diagnose --json``)."""
+        model = self.model
+        return {
+            "findings": [f.as_dict() for f in self.findings],
+            "timing": self.timing,
+            "confounded": self.confounded,
+            "fit": self.fit.as_dict(),
+            "summary": self.summary,
+            "location": self.location.document,
+            "nominal_theta": self.nominal_theta.tolist(),
+            **({"nominal_model": _model_document(model)} if model.terms else {}),
+            "noise": [r.noise.as_dict(r.h) if r.noise else None for r in self.rows],
+            "candidates_tested": {k: ev.as_dict() for k, ev in self.candidates_tested.items()},
+            "not_findings": self.not_findings,
+            **({"not_tested": self.not_tested} if self.not_tested else {}),
+            "physical": {
+                "nominal_consistent": not self.nominal_violations,
+                "nominal_violations": list(self.nominal_violations),
+            },
+            "recordings": self.recordings,
+            "notes": self.notes,
+            "timing_s": self.timing_s,
+        }
+
+
+@dataclass
 class DiagnosisResult:
-    document: dict[str, Any]
+    """:func:`diagnose`'s result: the typed :class:`Diagnosis`, the arrays for plots, and the
+    JSON ``document``, built from the diagnosis when first asked and kept (``hil diagnose``
+    adds the drift and the torque path to it)."""
+
+    diagnosis: Diagnosis
     arrays: dict[str, Any]  # residuals, states, simulations: for plots
+
+    @cached_property
+    def document(self) -> dict[str, Any]:
+        return self.diagnosis.document()
 
 
 # What the reader noticed in the time stamps (drivers/recording/, ``findings_on_read``), by
@@ -253,25 +311,22 @@ def diagnose(
     if timing:
         kinds = sorted({t["kind"].replace("_", " ") for t in timing})
         summary += f" Timing, from the time stamps: {', '.join(kinds)} (see timing)."
-    doc = {
-        "findings": [f.as_dict() for f in findings],
-        "timing": timing,
-        "confounded": confounded,
-        "fit": fit.as_dict(),
-        "summary": summary,
-        "location": where.document,
-        "nominal_theta": theta_fit.tolist(),
-        **({"nominal_model": _model_document(model)} if model.terms else {}),
-        "noise": [r.noise.as_dict(r.h) if r.noise else None for r in prob.rows],
-        "candidates_tested": {k: ev.as_dict() for k, ev in first.items()},
-        "not_findings": rejected,
-        **({"not_tested": refused} if refused else {}),
-        "physical": {
-            "nominal_consistent": not nominal_unphysical,
-            "nominal_violations": list(nominal_unphysical),
-        },
-        "recordings": [str(r.path) for r in recordings],
-        "notes": notes,
-        "timing_s": round(time.perf_counter() - started, 2),
-    }
-    return DiagnosisResult(doc, {"location": where.arrays, **fit_arrays})
+    diagnosis = Diagnosis(
+        findings=findings,
+        timing=timing,
+        confounded=confounded,
+        fit=fit,
+        summary=summary,
+        location=where,
+        nominal_theta=theta_fit,
+        model=model,
+        rows=prob.rows,
+        candidates_tested=first,
+        not_findings=rejected,
+        not_tested=refused,
+        nominal_violations=list(nominal_unphysical),
+        recordings=[str(r.path) for r in recordings],
+        notes=notes,
+        timing_s=round(time.perf_counter() - started, 2),
+    )
+    return DiagnosisResult(diagnosis, {"location": where.arrays, **fit_arrays})
