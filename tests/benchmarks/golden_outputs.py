@@ -82,19 +82,22 @@ COMMANDS: list[tuple[str, list[str]]] = [
 ]
 NO_PLOTS = {"hil diagnose": "--no-plots", "hil identify": ""}
 
-# keys whose values are times, CPU or memory figures, host facts or paths: not compared
+# keys whose values are wall-clock or CPU times, or facts of the process that ran: not compared
+# (two runs of the same tree differ in these and nothing else; paths are compared, normalized)
 IGNORED_KEY = re.compile(
-    r"(^|_)(time|times|started|finished|created|date|datetime|wall|cpu|elapsed|seconds_cpu|"
-    r"rss|memory|peak|realtime|host|hostname|pid|version|python|platform|path|paths|out|dir|directory|"
-    r"file|files|run_dir|duration_s|timing_ms)($|_)"
+    r"^(wall_time_s|cpu_time_s|cpu_s|realtime_factor|timing_s|started_unix|finished_unix|"
+    r"start_ticks|pid|host)$"
 )
 TIME_TEXT = re.compile(
     r"\d{4}-\d\d-\d\dT\d\d[:\d.]*\S*|\d+(\.\d+)? ?(s|ms) (of )?CPU|\bin \d+(\.\d+)? s\b"
+    r"|\d+(\.\d+)?x real ?time"
 )
+ROOT_FILE = "root.txt"
 
 
 def run(out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
+    (out / ROOT_FILE).write_text(str(ROOT))  # the tree that ran: its paths are normalized
     bin_dir = Path(sys.executable).parent
     for name, cmd in COMMANDS:
         args = [a.replace("{OUT}", str(out)) for a in cmd]
@@ -120,7 +123,8 @@ def run(out: Path) -> None:
 
 
 def _normal_text(text: str, base: Path) -> str:
-    text = text.replace(str(base), "<OUT>").replace(str(ROOT), "<ROOT>")
+    root = (base / ROOT_FILE).read_text() if (base / ROOT_FILE).exists() else str(ROOT)
+    text = text.replace(str(base), "<OUT>").replace(root, "<ROOT>")
     text = re.sub(r"/work/wt/[^/\s]+", "<ROOT>", text)
     return TIME_TEXT.sub("<TIME>", text)
 
@@ -152,12 +156,16 @@ def compare(before: Path, after: Path) -> list[str]:
     files = sorted(
         p.relative_to(before)
         for p in before.rglob("*")
-        if p.is_file() and p.suffix in (".json", ".txt", ".csv", ".status", ".text-status")
+        if p.is_file()
+        and p.suffix in (".json", ".txt", ".csv", ".status", ".text-status")
+        and p.name != ROOT_FILE
     )
     after_files = {
         p.relative_to(after)
         for p in after.rglob("*")
-        if p.is_file() and p.suffix in (".json", ".txt", ".csv", ".status", ".text-status")
+        if p.is_file()
+        and p.suffix in (".json", ".txt", ".csv", ".status", ".text-status")
+        and p.name != ROOT_FILE
     }
     for rel in sorted(after_files - set(files)):
         diffs.append(f"{rel}: only in after")
