@@ -330,3 +330,10 @@ def diagnose(
         timing_s=round(time.perf_counter() - started, 2),
     )
     return DiagnosisResult(diagnosis, {"location": where.arrays, **fit_arrays})
+
+
+__all__ = [
+    "Diagnosis",
+    "DiagnosisResult",
+    "diagnose",
+]
