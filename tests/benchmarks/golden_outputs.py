@@ -86,11 +86,12 @@ NO_PLOTS = {"hil diagnose": "--no-plots", "hil identify": ""}
 # (two runs of the same tree differ in these and nothing else; paths are compared, normalized)
 IGNORED_KEY = re.compile(
     r"^(wall_time_s|cpu_time_s|cpu_s|realtime_factor|timing_s|started_unix|finished_unix|"
-    r"start_ticks|pid|host)$"
+    r"start_ticks|pid|host|cost_per_cycle_us)$"
 )
 TIME_TEXT = re.compile(
     r"\d{4}-\d\d-\d\dT\d\d[:\d.]*\S*|\d+(\.\d+)? ?(s|ms) (of )?CPU|\bin \d+(\.\d+)? s\b"
-    r"|\d+(\.\d+)?x real ?time"
+    r"|\d+(\.\d+)?x real ?time|\d+ µs per cycle"
+    r"|ddbench-\d+-\d+"  # the in-process bench's channel: process id and object id
 )
 ROOT_FILE = "root.txt"
 
