@@ -21,7 +21,7 @@ demo: $(STAMP)
 	$(BIN)/hil demo
 
 test: $(STAMP)
-	$(BIN)/ruff check hil drivers virtual_robot profiles tests
+	$(BIN)/ruff check hil drivers virtual_robot profiles plots tests
 	$(BIN)/python -m pytest -q -m "not slow" -n 2
 
 test-slow: $(STAMP)
@@ -51,12 +51,12 @@ bench-big: $(STAMP)
 	$(BIN)/python tests/benchmarks/bench_diagnose_reference.py
 
 lint: $(STAMP)
-	$(BIN)/ruff check hil drivers virtual_robot profiles tests
-	$(BIN)/ruff format --check hil drivers virtual_robot profiles tests
+	$(BIN)/ruff check hil drivers virtual_robot profiles plots tests
+	$(BIN)/ruff format --check hil drivers virtual_robot profiles plots tests
 
 format: $(STAMP)
-	$(BIN)/ruff format hil drivers virtual_robot profiles tests
-	$(BIN)/ruff check --fix hil drivers virtual_robot profiles tests
+	$(BIN)/ruff format hil drivers virtual_robot profiles plots tests
+	$(BIN)/ruff check --fix hil drivers virtual_robot profiles plots tests
 
 # the docs site (mkdocs.yml) into site/, strict: a broken link, anchor or missing page fails
 DOCS_STAMP := $(VENV)/.docs-stamp

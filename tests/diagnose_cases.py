@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 
 from drivers.recording import META, Recording, write_json_atomic
-from hil.diagnose import report
+from hil.diagnose import pipeline
 from hil.diagnose.selection import VOCABULARY as DIAGNOSIS_VOCABULARY
 from hil.model.closed_form import TERMS as MODEL_TERMS
 from profiles.effects import load_effects
@@ -377,10 +377,10 @@ def diagnose_capturing_gate(
     rec: Recording, reference: np.ndarray, gate: Callable[..., Any] | None = None
 ) -> tuple[dict[str, Any], tuple]:
     """``diagnose([rec], reference)`` with ``gate`` (called with the simulation gate's arguments;
-    None: the gate itself) in place of :func:`hil.diagnose.report.simulation_gate`. The
+    None: the gate itself) in place of :func:`hil.diagnose.gates.simulation_gate`. The
     diagnosis document and the gate's inputs ``(prob, accepted, findings, nominal_theta, se,
     shaft)``."""
-    real_gate = report.simulation_gate
+    real_gate = pipeline.simulation_gate
     use = gate or real_gate
     captured: dict[str, tuple] = {}
 
@@ -388,9 +388,9 @@ def diagnose_capturing_gate(
         captured["args"] = (prob, list(accepted), list(findings), nominal_theta, se, shaft)
         return use(prob, accepted, findings, nominal_theta, say, se, shaft, **kw)
 
-    report.simulation_gate = capture
+    pipeline.simulation_gate = capture
     try:
-        doc = report.diagnose([rec], reference).document
+        doc = pipeline.diagnose([rec], reference).document
     finally:
-        report.simulation_gate = real_gate
+        pipeline.simulation_gate = real_gate
     return doc, captured["args"]

@@ -3,6 +3,8 @@
 Fast tests run a null and the default robot (joint 1's direction-dependent Coulomb friction);
 the whole catalogue of concealed effects, each on either joint, is marked slow
 (`make test-slow`; tests/benchmarks/score_diagnose_set.py runs a blind-like set).
+The module is longer than 800 lines because its end-to-end tests share module-scoped recordings
+(each simulated once per module): split, each file would simulate them again.
 """
 
 from __future__ import annotations
@@ -29,7 +31,8 @@ from hil.diagnose.columns import (
     recording_rows,
     window_intervals,
 )
-from hil.diagnose.report import RATE_EFFECTS, diagnose
+from hil.diagnose.interpret import RATE_EFFECTS
+from hil.diagnose.pipeline import diagnose
 from hil.diagnose.selection import DiagnosisError, build_problem, candidates, select, unphysical
 from hil.diagnose.stats import (
     CrossValidation,
@@ -399,7 +402,7 @@ def test_effect_beside_a_delay_is_selected_and_sized_on_the_exact_shaft_torque(t
     torque-rate terms; with both joints' in, what they leave of the delay turned the asymmetry's
     held-out reduction from +10 % to −29 %, and it was missed (an `unexplained` on joint 1's
     velocity instead). Against the exact delayed torque it is selected and sized there
-    (hil.diagnose.report.interpret_with_rate); beside the rate terms it came out −0.29 Nm."""
+    (hil.diagnose.interpret.interpret_with_rate); beside the rate terms it came out −0.29 Nm."""
     parts = [
         ("coulomb_asymmetry", 1, {"positive_Nm": 7.388609, "negative_Nm": 7.830391}),
         ("transport_delay", None, {"delay_s": 0.00395}),
@@ -570,7 +573,7 @@ def test_a_rival_rate_term_is_listed_once_beside_a_found_lag(monkeypatch):
     listed twice (DFKI A.0 trajectory 03 fitted, 04 held out, without the rotor term, before
     the held torque's corners were allowed for; on that pair no lag is found any more, so the
     merge is checked here on the findings themselves)."""
-    import hil.diagnose.report as report
+    import hil.diagnose.interpret as interpret_stage
     from hil.diagnose.findings import Finding
 
     rival = Finding("actuator_lag", 1, {"time_constant_s": 0.002}, {})  # term "": not a rate term
@@ -588,11 +591,11 @@ def test_a_rival_rate_term_is_listed_once_beside_a_found_lag(monkeypatch):
             return [rival, rotor, lag], [["rotor_inertia", "actuator_lag"]], shaft
         return [rotor, rival], [["rotor_inertia", "actuator_lag"]], None  # against the shaft
 
-    monkeypatch.setattr(report, "interpret", interpret)
-    monkeypatch.setattr(report, "reselect_on_shaft", lambda prob, acc, *_: acc)
-    monkeypatch.setattr(report, "shaft_problem", lambda prob, shaft: prob)
+    monkeypatch.setattr(interpret_stage, "interpret", interpret)
+    monkeypatch.setattr(interpret_stage, "reselect_on_shaft", lambda prob, acc, *_: acc)
+    monkeypatch.setattr(interpret_stage, "shaft_problem", lambda prob, shaft: prob)
     prob = SimpleNamespace(rows=[SimpleNamespace(h=0.002)])  # the sample interval the lag needs
-    _, findings, _, _ = report.interpret_with_rate(prob, accepted, [], np.zeros(9), {})
+    _, findings, _, _ = interpret_stage.interpret_with_rate(prob, accepted, [], np.zeros(9), {})
     listed = [(f.effect, f.joint) for f in findings]
     assert calls == [["rotor", "rate"], ["rotor"]]
     assert sorted(listed) == [("actuator_lag", 1), ("actuator_lag", 2), ("rotor_inertia", 2)]
@@ -636,7 +639,7 @@ def test_a_long_recording_has_at_most_max_blocks_and_max_simulated_segments():
     """Cost bounds of a long recording (issue 12, performance): blocks grow instead of
     multiplying past MAX_BLOCKS, and the held-out simulation runs at most MAX_SEGMENTS
     one-second segments, spread over the whole held-out part and cut at a gap."""
-    from hil.diagnose.report import MAX_SEGMENTS, SEGMENT_S, simulated_segments
+    from hil.diagnose.heldout import MAX_SEGMENTS, SEGMENT_S, simulated_segments
     from hil.diagnose.selection import MAX_BLOCKS
 
     h, n = 0.0025, 100_000  # 250 s at 400 Hz: 500 blocks of 0.5 s without the bound
@@ -734,7 +737,7 @@ def test_design_statistics_are_kept_per_scale_and_terms_and_released_after_selec
 def test_held_out_nrmse_without_spread_is_none_not_nan():
     """A held-out joint whose torque has no spread beyond rounding has no scale for an NRMSE
     (nrmse gives nan): reported as None, as too few rows are (JSON has no nan)."""
-    from hil.diagnose.report import _nrmse_or_none
+    from hil.diagnose.heldout import _nrmse_or_none
 
     y = np.zeros((200, 2))
     y[:, 0] = 1.0 + np.arange(200) * 1e-18  # spread below rounding
@@ -815,35 +818,35 @@ def test_before_after_reuses_its_fits_and_simulations_and_changes_nothing(
     """The simulation gate's last round and the final comparison refit and simulate the same
     model: with one memo the second call simulates only what is new (the nominal model) and
     gives the document a call without the memo gives (issue 12, performance)."""
-    from hil.diagnose import report
+    from hil.diagnose import heldout, interpret
 
     rec = read_signals(default_recording)
     prob, theta = build_problem([(rec.q, rec.tau, rec.period_s)])
     library = candidates(theta, np.ptp(rec.q, axis=0))
     accepted, _first = select(prob, library, reference=REFERENCE)
     assert accepted  # joint 1's asymmetry
-    findings, _confounded, shaft = report.interpret(prob, accepted, library, REFERENCE)
+    findings, _confounded, shaft = interpret.interpret(prob, accepted, library, REFERENCE)
     calls = []
-    simulate = report._segment_simulation
+    simulate = heldout._segment_simulation
     monkeypatch.setattr(
-        report, "_segment_simulation", lambda *a, **k: calls.append(1) or simulate(*a, **k)
+        heldout, "_segment_simulation", lambda *a, **k: calls.append(1) or simulate(*a, **k)
     )
     memo: dict = {}
-    gate, _ = report.before_after(prob, accepted, findings, None, False, None, shaft, memo=memo)
+    gate, _ = heldout.before_after(prob, accepted, findings, None, False, None, shaft, memo=memo)
     assert len(calls) == 1  # "after"
-    final, arrays = report.before_after(prob, accepted, findings, None, memo=memo)
+    final, arrays = heldout.before_after(prob, accepted, findings, None, memo=memo)
     assert len(calls) == 2  # "before" only: "after" is the gate's
-    assert final["after"] == gate["after"]
-    fresh, fresh_arrays = report.before_after(prob, accepted, findings, None)
+    assert final.after.as_dict() == gate.after.as_dict()
+    fresh, fresh_arrays = heldout.before_after(prob, accepted, findings, None)
     assert len(calls) == 4
-    assert json.dumps(final) == json.dumps(fresh)
+    assert json.dumps(final.as_dict()) == json.dumps(fresh.as_dict())
     for name in ("before", "after"):
         np.testing.assert_array_equal(arrays["simulation"][name], fresh_arrays["simulation"][name])
 
 
 def test_the_columns_kept_after_the_selection_are_the_terms_and_their_rivals():
     """keep_only keeps the accepted terms' columns and their rivals' at the rival's variant
-    (report.interpret refits each rival in its term's place; a model term's column rebuilt is
+    (interpret.interpret refits each rival in its term's place; a model term's column rebuilt is
     a pass over every interval's regressor: issue 12, performance)."""
     from hil.diagnose.selection import Accepted, Candidate, _kept_columns
 

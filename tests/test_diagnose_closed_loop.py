@@ -19,9 +19,11 @@ from types import SimpleNamespace
 import pytest
 
 from drivers.recording import read_signals
-from hil.diagnose import report
+from hil.diagnose import gates
 from hil.diagnose.findings import AT_REFERENCE, Finding, gain_at_reference
-from hil.diagnose.report import _phrase, diagnose, simulated_effects
+from hil.diagnose.heldout import simulated_effects
+from hil.diagnose.pipeline import diagnose
+from hil.diagnose.report import _phrase
 from hil.diagnose.selection import build_problem
 from hil.model.closed_form import ArmModel
 from hil.model.params import robot_params
@@ -138,15 +140,15 @@ def test_the_reading_reported_is_the_one_simulated_and_judged():
     words = _phrase(at_ref)
     assert words.startswith("the torque gain is off by +4.99 % (read with the rigid-body")
     assert "with θ free the estimate is +2.85 %, biased toward zero" in words and why in words
-    assert report.pinned_rigid_body(prob, [free], REFERENCE) is None
-    assert list(report.pinned_rigid_body(prob, [at_ref], REFERENCE)) == list(REFERENCE[:5])
-    assert report.pinned_rigid_body(prob, [at_ref], None) is None
-    assert report._read_at_reference([free], "gain:1", REFERENCE)
-    assert not report._read_at_reference([at_ref], "gain:1", REFERENCE)  # judged there already
-    assert not report._read_at_reference([free], "gain:1", None)
+    assert gates.pinned_rigid_body(prob, [free], REFERENCE) is None
+    assert list(gates.pinned_rigid_body(prob, [at_ref], REFERENCE)) == list(REFERENCE[:5])
+    assert gates.pinned_rigid_body(prob, [at_ref], None) is None
+    assert gates._read_at_reference([free], "gain:1", REFERENCE)
+    assert not gates._read_at_reference([at_ref], "gain:1", REFERENCE)  # judged there already
+    assert not gates._read_at_reference([free], "gain:1", None)
     no_ref = replace(free, estimate={"relative": 0.0285, AT_REFERENCE: None})
-    assert not report._read_at_reference([no_ref], "gain:1", REFERENCE)
+    assert not gates._read_at_reference([no_ref], "gain:1", REFERENCE)
     either = replace(free, confounded_with=["torque_gain"])  # simulated on neither joint
-    assert not report._read_at_reference([either], "gain:1", REFERENCE)
-    assert report._free_reading_failed([at_ref], "gain:1").startswith("not identifiable")
-    assert report._free_reading_failed([free], "gain:1") == ""
+    assert not gates._read_at_reference([either], "gain:1", REFERENCE)
+    assert gates._free_reading_failed([at_ref], "gain:1").startswith("not identifiable")
+    assert gates._free_reading_failed([free], "gain:1") == ""

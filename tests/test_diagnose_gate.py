@@ -1,7 +1,7 @@
 """The diagnosis's simulation gate (issue 12, "Never a confident wrong answer"): a finding must
 improve the held-out simulated motion, judged beyond noise (docs/diagnosis.md, 4b).
 
-The gate's statistic is :func:`hil.diagnose.report.worse_beyond_noise`: a rise of the held-out
+The gate's statistic is :func:`hil.diagnose.gates.worse_beyond_noise`: a rise of the held-out
 simulated-position NRMSE is a worsening only beyond the relative tolerance plus the
 simulation's sensitivity to the model's own held-out torque error. With a bare 2 % relative
 test, four true blind-set terms and a closed-loop gain were dropped for rises of 0.07-0.53
@@ -17,13 +17,10 @@ from diagnose_cases import diagnose_capturing_gate, make_recording
 
 from drivers.recording import read_signals
 from hil.diagnose.findings import Finding
-from hil.diagnose.report import (
-    SIMULATION_TOLERANCE,
-    before_after,
-    cogging_at_true_angle,
-    diagnose,
-    worse_beyond_noise,
-)
+from hil.diagnose.gates import SIMULATION_TOLERANCE, worse_beyond_noise
+from hil.diagnose.heldout import before_after
+from hil.diagnose.interpret import cogging_at_true_angle
+from hil.diagnose.pipeline import diagnose
 from hil.model.params import robot_params
 
 REFERENCE = robot_params("cicese").theta

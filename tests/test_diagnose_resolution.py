@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from hil.diagnose import report
+from hil.diagnose import interpret as interpret_stage
 from hil.diagnose.findings import RESOLVABLE_INTERVALS, Finding, unresolved_rate_terms
 
 H = 0.0015  # the 1.5 ms samples of the DFKI pair
@@ -54,10 +54,10 @@ def test_interpret_with_rate_drops_an_unresolved_lag(monkeypatch, seconds, kept)
             return [lag], [], shaft
         return [], [], None
 
-    monkeypatch.setattr(report, "interpret", interpret)
-    monkeypatch.setattr(report, "reselect_on_shaft", lambda prob, acc, *a: acc)
+    monkeypatch.setattr(interpret_stage, "interpret", interpret)
+    monkeypatch.setattr(interpret_stage, "reselect_on_shaft", lambda prob, acc, *a: acc)
     rejected: dict[str, str] = {}
-    accepted, findings, _, out_shaft = report.interpret_with_rate(
+    accepted, findings, _, out_shaft = interpret_stage.interpret_with_rate(
         _prob(), [_rate(1)], [], np.zeros(9), rejected
     )
     assert bool(findings) == kept and bool(accepted) == kept

@@ -21,7 +21,7 @@ from realdata import realdata
 from drivers.recording import read_signals
 from hil.cli import main as hil_main
 from hil.diagnose.columns import model_term_columns, noise_model, recording_rows
-from hil.diagnose.report import diagnose
+from hil.diagnose.pipeline import diagnose
 from hil.diagnose.selection import candidates
 from hil.model.closed_form import ArmModel
 from hil.model.openloop import simulate_open_loop

@@ -155,7 +155,7 @@ def test_panda_recording_of_gaz_et_al_ends_in_a_report(tmp_path, capsys):
 def test_repeated_samples_are_counted_in_motion_only():
     """A logger's stale sample (every joint's position repeated while all move) is a timing
     finding; a hold (positions repeated over many rows) is not."""
-    from hil.diagnose.report import repeated_samples
+    from hil.diagnose.pipeline import repeated_samples
 
     t = np.arange(40) * 1e-3
     q = np.column_stack([np.sin(5 * t), np.cos(3 * t) + t])

@@ -388,7 +388,7 @@ def test_hil_identify_over_the_moteus_bench_runs_the_arms_own_excitation(tmp_pat
     the light DFKI links past the bench's 20 rad/s within 0.1 s, as the first run shows): the
     runs stay inside the bench's limits and θ1..θ5 come out within 0.5 % of the profile's."""
     from drivers.recording import read_signals
-    from hil.identify.pipelines import arm_experiment
+    from hil.identify.outcome import arm_experiment
 
     assert arm_experiment("cicese", "excitation", "reyes-kelly") == "reyes-kelly"
     bench = ["--bench", "virtual-moteus-fdcanusb"]

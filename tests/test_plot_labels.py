@@ -4,12 +4,14 @@ marked as such on its plot, panel titles without raw identifiers."""
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import matplotlib
 import numpy as np
 import pytest
 
-from drivers.recording import Recording, plot_positions
+from drivers.recording import Recording
+from plots.positions import plot_positions
 
 matplotlib.use("Agg")
 
@@ -89,7 +91,6 @@ def test_diagnosis_torque_error_is_drawn_against_time(monkeypatch, tmp_path):
     from matplotlib.figure import Figure
 
     from hil.diagnose.plots import plot_diagnosis
-    from hil.diagnose.report import DiagnosisResult
 
     rng = np.random.default_rng(0)
     rows = 400
@@ -104,7 +105,7 @@ def test_diagnosis_torque_error_is_drawn_against_time(monkeypatch, tmp_path):
     doc = {"findings": [], "fit": {**fit, "held_out": "the last 20 %"}}
     drawn: dict[str, Figure] = {}
     monkeypatch.setattr(Figure, "savefig", lambda fig, path, **kw: drawn.update({path.name: fig}))
-    plot_diagnosis(DiagnosisResult(doc, arrays), tmp_path)
+    plot_diagnosis(SimpleNamespace(document=doc, arrays=arrays), tmp_path)  # what it reads
     torque_axes = drawn["fit.png"].axes[0::2]  # joint j: (torque, position)
     for ax in torque_axes:
         assert ax.get_xlabel() == "t [s]"

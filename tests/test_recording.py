@@ -1,4 +1,4 @@
-"""Tests for the recording format (drivers/recording.py): writer, reader, partial and bad files."""
+"""Tests for the recording format (drivers/recording/): writer, reader, partial and bad files."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Reading recordings, real and our own (drivers/recording.py read_signals; docs/recordings.md):
+"""Reading recordings, real and our own (drivers/recording/ read_signals; docs/recordings.md):
 format profiles, column maps, torque sources, loop delay, real time stamps, the checks on read
 (t, meta.json, duplicates, gaps, NaN), the shared CLI options and ``--out`` reuse."""
 
@@ -360,7 +360,7 @@ def test_header_only_and_one_row_with_min_rows(tmp_path):
 
 
 def test_chunked_parse_equals_one_pass(tmp_path, monkeypatch):
-    import drivers.recording as recording
+    import drivers.recording.reader as recording
 
     rows = lockstep_rows(1000)
     run = write_run(tmp_path / "run", rows)

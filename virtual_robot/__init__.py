@@ -17,8 +17,8 @@ CAN bit time (:mod:`.timing_faults`, :mod:`.bus_pacing`), and the ``virtual-robo
 (:mod:`.serve`, :mod:`.simulate`, :mod:`.cli`).
 
 Imports: :mod:`drivers` (the protocol codecs, units, the recording format, transports) and
-:mod:`profiles`; never ``hil``, and ``hil`` never imports it (the plant is the world; the
-in-process bench loads :mod:`.serve` by name).
+:mod:`profiles`, :mod:`plots` (a simulation's positions.png); never ``hil``, and ``hil`` never
+imports it (the plant is the world; the in-process bench loads :mod:`.serve` by name).
 """
 
 __version__ = "0.1.0"

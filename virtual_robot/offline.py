@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from drivers.recording import RecordingWriter, plot_positions, read_signals
+from drivers.recording import RecordingWriter, read_signals
 from drivers.units import (
     position_to_rad,
     torque_to_permille,
@@ -32,6 +32,7 @@ from drivers.units import (
     unwrap_int32,
     wrap_int32,
 )
+from plots.positions import plot_positions
 from profiles.drive import DriveProfile, load_drive
 from virtual_robot import __version__
 from virtual_robot.drive import CW_HALT, MODE_CST, DriveModel, State

@@ -2,6 +2,10 @@
 joint, the stick–slip friction of the 2-DOF plant (:mod:`virtual_robot.plant`), and the offline
 simulation that writes an n-joint recording (``virtual-robot simulate --robot cicese3``).
 
+This module is longer than 800 lines because it is one plant: its Pinocchio dynamics, the
+locked-joint models of its stuck joints, the bridge to its compiled step (which must match the
+Python step bit for bit, so both sit side by side) and its offline simulation.
+
 Integration is fixed-step RK4 (default 0.5 ms) on (q, q̇), with the supplied work ∫τᵀq̇ dt and
 the friction work ∫fᵀq̇ dt kept as in the 2-DOF plant, so the energy balance
 E(t) − E(0) = W_in − W_f can be checked on this plant too (τ and the Coulomb levels are constant

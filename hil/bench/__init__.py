@@ -8,8 +8,8 @@ What lives here: the loop (:mod:`.loop`, one command per period over any
 fields changed (:mod:`.variant`); serial, process-pool and Dask executors for batches of runs
 (:mod:`.jobs`, :mod:`.executors`, :mod:`.executors_dask`).
 
-Imports: :mod:`drivers`, :mod:`profiles`; nothing from the other ``hil`` packages (they all
-run over a bench through this one).
+Imports: :mod:`drivers`, :mod:`profiles`, :mod:`plots` (a run's positions.png); nothing from
+the other ``hil`` packages (they all run over a bench through this one).
 
 Public API (``from hil.bench import ...``, docs/api.md): ``run_experiment`` (record an
 experiment over a bench, as ``hil run`` does), ``run_loop`` (any command function over any

@@ -15,11 +15,12 @@ from drivers.fault_injection import TimingFaultArm, with_host_faults
 from drivers.links import open_arm
 from drivers.protocol.cia402 import ERR_RPDO_TIMEOUT
 from drivers.realtime_times import ROBOT_EVENTS
-from drivers.recording import RecordingWriter, plot_positions, read_signals, write_run_mcap
+from drivers.recording import RecordingWriter, read_signals, write_run_mcap
 from hil import __version__
 from hil.bench.launch import VirtualRobotProcess
 from hil.bench.loop import Command, LoopResult, extra_columns, run_loop
 from hil.bench.scheduler import realtime_scheduling
+from plots.positions import plot_positions
 from profiles.bench import BenchProfile, bench_for_robot, load_bench
 from profiles.experiment import check_duration, load_experiment
 

@@ -39,11 +39,13 @@ from hil.cli_options import (
     write_html_report,
 )
 from hil.diagnose.drift import DriftResult, Nominal, judge, nominal_from_reference
-from hil.diagnose.report import diagnose, percent
+from hil.diagnose.pipeline import diagnose
+from hil.diagnose.report import percent
 from hil.diagnose.torque_path import describe as describe_torque_path
 from hil.diagnose.torque_path import torque_path_of
 from hil.model.closed_form import ArmModel
 from hil.model.params import check_inertia, load_params, robot_params
+from hil.model.protocol import ArmDynamics
 from profiles.robot import describes_urdf_only
 
 
@@ -129,7 +131,7 @@ def run_diagnose(args: argparse.Namespace) -> tuple[dict, list[Recording]]:
         # reference
         from hil.model.urdf import UrdfArmModel  # Pinocchio: loaded only for a URDF arm
 
-        model: Any = UrdfArmModel.from_profile(args.robot)
+        model: ArmDynamics = UrdfArmModel.from_profile(args.robot)
         if args.params:
             model, nominal = urdf_params(args.params, args.robot, model)
         reference, joints = (model.base_theta() if nominal is None else nominal), model.n_joints
@@ -231,7 +233,7 @@ def arm_geometry(robot: str) -> dict[str, float] | None:
     return {"link1_m": float(p.link1.length_m), "gravity_m_s2": float(p.gravity_m_s2)}
 
 
-def urdf_params(path: str, robot: str, model: Any) -> tuple[Any, np.ndarray]:
+def urdf_params(path: str, robot: str, model: ArmDynamics) -> tuple[Any, np.ndarray]:
     """The model and θ of a URDF arm's ``hil identify`` output (identify.json): its selected
     scheme's base parameters, in the model of its terms."""
     from hil.model.params import _read_object

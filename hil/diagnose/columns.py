@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
-from hil.model.closed_form import ArmModel
+from hil.model.protocol import ArmDynamics
 from hil.model.regressors import (
     _GL_NODES,
     _GL_WEIGHTS,
@@ -194,7 +194,7 @@ class RecordingRows:
     stamps: np.ndarray | None = None  # real sample times when the rows use them (else k·h)
     half_window: int = 1  # samples either side of each velocity estimate
     noise: NoiseModel | None = None
-    model: ArmModel = NINE_PARAMETERS  # whose columns Ψ holds
+    model: ArmDynamics = NINE_PARAMETERS  # whose columns Ψ holds
 
     @property
     def rows(self) -> int:
@@ -248,7 +248,7 @@ def _momentum_rows(
     h: float,
     t: np.ndarray | None = None,
     half_window: int = 1,
-    model: ArmModel = NINE_PARAMETERS,
+    model: ArmDynamics = NINE_PARAMETERS,
     torque_side: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Unfiltered interval rows: k, τ_k + (b_{k+1} − b_k)/h_k (K, 2) (b the held torque's bias
@@ -292,7 +292,7 @@ class _TorqueOf:
 
     terms: tuple[str, ...] = ()
 
-    def __init__(self, model: ArmModel, theta: np.ndarray) -> None:
+    def __init__(self, model: ArmDynamics, theta: np.ndarray) -> None:
         self._model = model
         friction = list(model.friction_columns)
         self._rigid = np.array(theta, float)  # θ without viscous and Coulomb friction
@@ -345,7 +345,7 @@ def recording_rows(
     h: float,
     window: int | None = None,
     t: np.ndarray | None = None,
-    model: ArmModel = NINE_PARAMETERS,
+    model: ArmDynamics = NINE_PARAMETERS,
 ) -> RecordingRows:
     """The nominal regression of one recording and its interval nodes (``window``: intervals
     of F, default from the data's noise, :func:`noise_model`). ``t``: the real sample times;

@@ -38,9 +38,9 @@ from drivers.recording import Recording
 from hil.diagnose.effects import REGISTRY, Context, Effect, SimInput
 from hil.diagnose.effects.base import REFINE_STEPS
 from hil.diagnose.findings import Finding
-from hil.diagnose.report import (
+from hil.diagnose.gates import SIMULATION_NOISE_FLOOR, worse_beyond_noise
+from hil.diagnose.heldout import (
     HELD_OUT_FRACTION,
-    SIMULATION_NOISE_FLOOR,
     _extras,
     _masks,
     _nrmse_or_none,
@@ -48,7 +48,6 @@ from hil.diagnose.report import (
     _torque_spread,
     simulated_segments,
     simulation_sensitivity,
-    worse_beyond_noise,
 )
 from hil.diagnose.selection import (
     FAMILY_ALPHA,
@@ -68,9 +67,9 @@ from hil.diagnose.stats import (
     cross_validate,
     evidence,
 )
-from hil.model.closed_form import ArmModel
 from hil.model.estimators import blocked_bootstrap, bounded_quadratic_fit
 from hil.model.metrics import nrmse
+from hil.model.protocol import ArmDynamics
 
 # The nominal model is judged against when its held-out torque error with the drift patterns is
 # at most this factor of the error of θ refitted from the recording alone on every joint: a
@@ -91,7 +90,7 @@ class Nominal:
     from (``source``: profile | params | reference) and why it is the one used."""
 
     theta: np.ndarray
-    model: Any
+    model: ArmDynamics
     source: str
     why: str
     theta_se: np.ndarray | None = None
@@ -137,7 +136,7 @@ def _problem_inputs(recordings: Sequence[Recording]) -> list[tuple[np.ndarray, .
 
 
 def _bounded_fit(
-    prob: Problem, model: Any, extra: np.ndarray | None, target: np.ndarray, draws: int
+    prob: Problem, model: ArmDynamics, extra: np.ndarray | None, target: np.ndarray, draws: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """[θ, β] of Ψ θ + ``extra`` β ≈ ``target`` (scaled rows), θ's physical signs bounded, and
     its blocked-bootstrap draws (draws, p)."""
@@ -154,7 +153,7 @@ def _bounded_fit(
 
 def nominal_from_reference(
     recordings: Sequence[Recording],
-    model: Any,
+    model: ArmDynamics,
     why: str,
     *,
     draws: int = 200,
@@ -310,7 +309,7 @@ class _Fit:
 
 def _make_fit(
     prob: Problem,
-    model: Any,
+    model: ArmDynamics,
     theta0: np.ndarray,
     baseline: Sequence[tuple] = (),
     geometry: dict[str, float] | None = None,
@@ -365,7 +364,7 @@ def same_motion(a: Problem, b: Problem) -> bool:
     return bool(np.linalg.norm(a.Psi_raw - b.Psi_raw) <= SAME_MOTION * np.linalg.norm(b.Psi_raw))
 
 
-def _common_prefix(prob: Problem, reference: Problem, model: Any) -> Problem:
+def _common_prefix(prob: Problem, reference: Problem, model: ArmDynamics) -> Problem:
     """The reference's rows over the recording's length when the recording is the reference's
     motion cut short (one recording each, the same sampling, the recording's angles those of
     the reference's first samples: a transport delay written into a copy drops its last rows),
@@ -648,7 +647,7 @@ def _simulate(fit: _Fit, sim: SimInput, rec_i: int, segments) -> np.ndarray | No
     for j, c in sim.offset.items():
         tau[:, j] += c
     angles = [Finding("angle_offset", j + 1, {"offset_rad": d}, {}) for j, d in sim.angle.items()]
-    extras: Any = _extras(angles) if isinstance(ctx.model, ArmModel) else angles
+    extras: Any = _extras(angles) if ctx.model.closed_form else angles
     return _segment_simulation(theta, extras, r.q, tau, r.h, segments, r.stamps, ctx.model)
 
 

@@ -31,17 +31,17 @@ from hil.diagnose.selection import (
     evidence,
     fit_theta_at,
     rigid_body_deviation,
-    rigid_count,
     term_width,
 )
 from hil.diagnose.stats import CrossValidation, block_stats, cross_validate
+from hil.model.protocol import ArmDynamics
 
 SEPARATE_REDUCTION = 0.05  # held-out reduction needed to call lag vs delay (see classify_rate)
 SAME_DELAY = 0.25  # two joints' delays this close (relative) are reported as one, joint null
 THETA_FC = {0: 7, 1: 8}  # index of θ8, θ9: the Coulomb level of each joint (2-DOF model)
 
 
-def coulomb_column(model: Any, joint: int) -> int:
+def coulomb_column(model: ArmDynamics, joint: int) -> int:
     """Index in θ of ``joint``'s Coulomb level: θ8, θ9 of the 2-DOF model; of a URDF model
     (:class:`hil.model.urdf.UrdfArmModel`), its f_c column of that joint."""
     if model is None or not hasattr(model, "n_friction"):
@@ -267,7 +267,7 @@ def resolve_gain(
     i = next(i for i, a in enumerate(accepted) if a.cand.kind == "gain")
     j = accepted[i].cand.joint
     y = prob.y_raw
-    n_rigid = rigid_count(prob.model)
+    n_rigid = prob.model.rigid_count
     if prob.n_joints > 2:
         # More than two joints: a gain on one joint is not the inverse gain on another single
         # joint (that would be the inverse gain on all the others at once), so it stays where
@@ -332,7 +332,7 @@ def gain_at_reference(
     1) and 4.3 % (joint 2); held at the reference, 4.97 % and 4.99 %
     (tests/benchmarks/closed_loop_bias.py, docs/diagnosis.md "Closed loop"). Only as good as the
     reference, which the choice of joint already trusts."""
-    n = len(reference_rigid)  # θ1..θ5, or a URDF model's rigid base parameters (rigid_count)
+    n = len(reference_rigid)  # θ1..θ5, or a URDF model's rigid base parameters (its rigid_count)
     col = np.zeros((len(y_raw), prob.n_joints, 1))
     col[:, joint, 0] = -y_raw[:, joint] / prob.scale[joint]
     cols = [prob.chosen(a) for k, a in enumerate(accepted) if k != i] + [col]

@@ -10,7 +10,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from hil.diagnose.report import DiagnosisResult, percent
+from hil.diagnose.pipeline import DiagnosisResult
+from hil.diagnose.report import percent
 
 
 def broken_at_gaps(t: np.ndarray) -> np.ndarray:

@@ -51,6 +51,7 @@ from hil.diagnose.stats import (
 )
 from hil.model.closed_form import TERMS, ArmModel
 from hil.model.estimators import require_finite
+from hil.model.protocol import ArmDynamics
 
 VOCABULARY = (
     "coulomb_asymmetry",
@@ -154,54 +155,22 @@ def usable_speeds(prob: Problem) -> list[np.ndarray]:
 MODEL_TERM_JOINT = {"rotor_inertia": 1, "com_offset": 0}
 
 
-def model_term_candidates(model: ArmModel) -> list[Candidate]:
+def model_term_candidates(model: ArmDynamics) -> list[Candidate]:
     """The model terms ``model`` lacks, as candidates: their columns are the regressor columns
     the model with the term appends (:func:`hil.diagnose.columns.model_term_columns`)."""
-    if not isinstance(model, ArmModel):
-        return []  # a URDF model's bodies carry their own centres of mass (refused_candidates)
     return [
         Candidate(
             term, MODEL_TERM_JOINT[term], (None,), lambda r, _v, t=term: model_term_columns(r, t)
         )
-        for term in TERMS
-        if term not in model.terms
+        for term in model.missing_terms  # none for a URDF model (its refused_terms say why)
     ]
-
-
-def refused_candidates(model: Any) -> dict[str, str]:
-    """Candidates of the vocabulary not tested against ``model``, with the reason: none for
-    the closed-form 2-DOF model; for an n-joint model from a URDF
-    (:class:`hil.model.urdf.UrdfArmModel`) the 2-DOF model terms, and the torque offset when
-    the model already has one per joint (its ``friction_offset`` term); the armature is said
-    to be the model's own when its ``rotor_inertia`` term is on."""
-    if isinstance(model, ArmModel):
-        return {}
-    armature = (
-        "the nominal model has an armature per joint (its rotor_inertia term), fitted"
-        if "rotor_inertia" in model.terms
-        else "a 2-DOF closed-form term (θ_rotor beside θ3); an n-joint arm's armature is the "
-        "URDF model's own rotor_inertia term: identify with it in the profile's [model] terms "
-        "and compare"
-    )
-    out = {
-        "rotor_inertia": armature,
-        "com_offset": "a 2-DOF closed-form term; a URDF model's bodies carry their centres of "
-        "mass in every direction already (10 parameters per body)",
-    }
-    if "friction_offset" in model.terms:
-        out["offset"] = (
-            "the nominal model has a torque offset per joint (its friction_offset term: "
-            "asymmetric Coulomb friction), so a Coulomb asymmetry or torque offset is a "
-            "parameter of the model, fitted, not missing physics"
-        )
-    return out
 
 
 def candidates(
     theta: np.ndarray,
     angle_range_rad: Sequence[float] = (np.pi, np.pi),
     speeds: Sequence[np.ndarray] | None = None,
-    model: ArmModel | None = None,
+    model: ArmDynamics | None = None,
 ) -> list[Candidate]:
     """The candidate library, both joints. ``speeds``: per joint, |q̇| of the usable rows
     (limits the Stribeck velocities tried; without it all are). ``model``: the nominal model
@@ -209,7 +178,7 @@ def candidates(
     others."""
     out: list[Candidate] = []
     model = ArmModel(()) if model is None else model
-    refused = refused_candidates(model)
+    refused = model.refused_terms
     for j in range(model.n_joints):
         stribeck = stribeck_velocities(None if speeds is None else speeds[j])
         if stribeck:
@@ -233,7 +202,7 @@ def candidates(
                 j,
                 (None,),
                 lambda r, _v, j=j, th=theta: angle_offset_column(r, j, th),
-                acts_on=None if isinstance(model, ArmModel) else tuple(range(model.n_joints)),
+                acts_on=None if model.closed_form else tuple(range(model.n_joints)),
             ),
         ]
     return out + model_term_candidates(model)
@@ -272,7 +241,7 @@ class Problem:
     )
 
     @property
-    def model(self) -> ArmModel:
+    def model(self) -> ArmDynamics:
         """The nominal model whose columns Ψ holds (every recording's rows use the same)."""
         return self.rows[0].model
 
@@ -573,7 +542,7 @@ def check_recording(name: str, t: np.ndarray, q: np.ndarray, tau: np.ndarray) ->
 
 def build_problem(
     recordings: Sequence[tuple[np.ndarray, ...]],
-    model: ArmModel | None = None,
+    model: ArmDynamics | None = None,
 ) -> tuple[Problem, np.ndarray]:
     """Nominal regression of (q, τ, h) or (q, τ, h, t) recordings (t: the real sample times)
     and its fit θ̂, in ``model``'s parameters (default the 9 of the 2-DOF model)."""
@@ -708,7 +677,7 @@ def jackknife_se(fold_beta: np.ndarray) -> np.ndarray:
 
 
 def physical_theta(
-    theta: np.ndarray, se: np.ndarray | None = None, model: ArmModel | None = None
+    theta: np.ndarray, se: np.ndarray | None = None, model: ArmDynamics | None = None
 ) -> tuple[np.ndarray, list[str]]:
     """θ of ``model`` (default the 9-parameter one; its first parameters of ``theta``) with
     coefficients that must be ≥ 0 (friction, a rotor inertia) but are negative within
@@ -726,7 +695,7 @@ def physical_theta(
     return th, list(model.physical_consistency(th)["violations"])
 
 
-def model_columns(model: ArmModel, cands: Sequence[Candidate]) -> tuple[ArmModel, np.ndarray]:
+def model_columns(model: ArmDynamics, cands: Sequence[Candidate]) -> tuple[ArmDynamics, np.ndarray]:
     """The model a fit of the nominal ``model`` with the terms ``cands`` (in design order,
     after Ψ) describes: ``model`` with the model terms among ``cands`` appended, and which
     coefficients of the fit's β are its θ."""
@@ -744,7 +713,7 @@ def model_columns(model: ArmModel, cands: Sequence[Candidate]) -> tuple[ArmModel
 def unphysical(
     cand: Candidate | None,
     cv: CrossValidation,
-    model: ArmModel | None = None,
+    model: ArmDynamics | None = None,
     terms: Sequence[Candidate] = (),
 ) -> list[str]:
     """Why a fit of the nominal ``model`` (default the 9-parameter one) + the columns of
@@ -772,12 +741,6 @@ def _joints(cand: Candidate) -> list[int]:
     if cand.acts_on is not None:
         return list(cand.acts_on)
     return [0, 1] if cand.kind in ("angle", "com_offset") else [cand.joint]
-
-
-def rigid_count(model: Any) -> int:
-    """How many of ``model``'s first parameters are rigid-body ones: θ1..θ5 of the 2-DOF
-    model; every base parameter before the friction columns of a URDF model."""
-    return 5 if isinstance(model, ArmModel) else model.n_params - model.n_friction
 
 
 def rigid_body_deviation(theta: np.ndarray, reference: np.ndarray, n_rigid: int = 5) -> float:
@@ -813,7 +776,7 @@ def _gain_supported(
     if other is None:  # the other joint is not tested: nothing to weigh the gain against
         return False
     there = _cv(prob, extra, other)
-    n = rigid_count(prob.model)
+    n = prob.model.rigid_count
     best = rigid_body_deviation(cv.beta, reference, n)
     if prob.n_joints == 2:  # only the ratio of the two gains is known: either hypothesis
         best = min(best, rigid_body_deviation(there.beta, reference, n))

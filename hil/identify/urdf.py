@@ -27,6 +27,9 @@ identifiable" (:class:`~hil.identify.schemes.Uncertainty`) follow the 2-DOF path
 (:mod:`hil.identify.schemes`). Imports drivers.recording, hil.identify.schemes (its
 identifiability constants, uncertainty type and bootstrap block rule), hil.model.estimators,
 hil.model.metrics, hil.model.regressors and hil.model.urdf; no plotting, no file reading.
+The module is longer than 800 lines because the torque and energy schemes and the physically
+consistent fit are read on one smoothing of the recording (its cutoff, stuck samples and
+held-out split), which they share.
 """
 
 from __future__ import annotations

@@ -49,6 +49,11 @@ model) whose columns it fills; p = ``model.n_params``. Any model with the same m
 schemes for n joints, q and τ of shape (N, n): the momentum and energy balances above are the
 paper's n-joint equations (eqs. (11)-(13), (25)-(30)); only the 9-parameter closed form is
 2-DOF.
+
+The module is longer than 800 lines because the three models' rows are built by one pipeline
+(interval integrals -> raw rows -> one row filter -> whole or chunked regressions) whose steps
+share private pieces (the Hermite interpolant, the stick memory, the row checks); split, each
+piece would be public for one caller.
 """
 
 from __future__ import annotations

@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from diagnose_cases import CASES, make_recording
 
 from drivers.recording import read_signals
-from hil.diagnose.report import diagnose
+from hil.diagnose.pipeline import diagnose
 from hil.model.params import robot_params
 
 TARGET_S = 30.0
@@ -61,7 +61,8 @@ def long_case(minutes: float, recording: str | None = None) -> None:
         code = (
             "from drivers.process import limit_blas_threads; limit_blas_threads(); "
             "import sys, time; from drivers.recording import read_signals; "
-            "from hil.diagnose.report import diagnose; from hil.model.params import robot_params; "
+            "from hil.diagnose.pipeline import diagnose; "
+            "from hil.model.params import robot_params; "
             "rec = read_signals(sys.argv[1]); t = time.perf_counter(); "
             "doc = diagnose([rec], robot_params('cicese').theta).document; "
             "print(len(rec), round(time.perf_counter() - t, 1), "

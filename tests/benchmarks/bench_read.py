@@ -1,4 +1,4 @@
-"""Benchmark: reading a large recording (drivers/recording.py read_signals) in bounded memory.
+"""Benchmark: reading a large recording (drivers/recording/ read_signals) in bounded memory.
 
 Generates a CSV of this bench's format (t = k·h at 1 kHz, q1, q2, tau1, tau2 and the realtime
 timing columns, every value a float repr as the writer writes it) of about ``--mb`` megabytes,

@@ -32,10 +32,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/, for diag
 from diagnose_cases import diagnose_capturing_gate
 
 from drivers.recording import read_signals
-from hil.diagnose import report
+from hil.diagnose import gates, heldout
 from hil.diagnose.columns import gain_column, recording_rows
 from hil.diagnose.findings import AT_REFERENCE
-from hil.diagnose.report import diagnose
+from hil.diagnose.pipeline import diagnose
 from hil.model.params import robot_params
 
 CASES = {
@@ -105,7 +105,7 @@ def reference_reading(run: Path, reference: np.ndarray) -> dict[str, list]:
     """Held-out simulated position NRMSE per joint of the accepted model (the gate switched
     off) read three ways: θ free with the gain (the gate's first reading), θ free without the
     gain, and the gain's reference reading (θ1..θ5 held at ``reference``, r =
-    `relative_at_reference_theta`: the gate's second reading, report.pinned_rigid_body)."""
+    `relative_at_reference_theta`: the gate's second reading, gates.pinned_rigid_body)."""
     _, args = diagnose_capturing_gate(read_signals(run), reference, _keep_all)
     prob, accepted, findings, nominal, se, shaft = args
     no_gain = [a for a in accepted if a.cand.kind != "gain"]
@@ -122,11 +122,11 @@ def reference_reading(run: Path, reference: np.ndarray) -> dict[str, list]:
         ("no gain", no_gain, rest),
         ("reference", accepted, at_ref),
     ):
-        pinned = report.pinned_rigid_body(prob, finds, reference)
-        fit = report.before_after(
+        pinned = gates.pinned_rigid_body(prob, finds, reference)
+        fit = heldout.before_after(
             prob, terms, finds, nominal, False, se, shaft, rigid_reference=pinned
         )[0]
-        out[name] = fit["after"]["position_nrmse"]
+        out[name] = fit.after.position_nrmse
     return out
 
 
@@ -147,7 +147,7 @@ def gate_at_each_reading(run: Path, reference: np.ndarray) -> dict[str, str]:
             for f in findings
         ]
         say = lambda _m: None  # noqa: E731
-        _, _, dropped, _ = report.simulation_gate(
+        _, _, dropped, _ = gates.simulation_gate(
             prob, list(accepted), finds, nominal, say, se, shaft, reference=ref
         )
         gain = [k for k in dropped if k.startswith("gain")]

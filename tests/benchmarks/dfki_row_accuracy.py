@@ -25,7 +25,8 @@ from realdata import realdata
 
 import hil.diagnose.columns as columns
 from drivers.recording import read_signals
-from hil.diagnose.report import HELD_OUT_FRACTION, diagnose
+from hil.diagnose.heldout import HELD_OUT_FRACTION
+from hil.diagnose.pipeline import diagnose
 from hil.model.closed_form import ArmModel
 from hil.model.metrics import nrmse
 from hil.model.params import robot_params

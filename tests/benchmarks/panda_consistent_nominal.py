@@ -30,7 +30,7 @@ from realdata import realdata  # tests/realdata.py
 
 from drivers.one_per_line import read_one_per_line_log
 from hil.cli_options import read_recording
-from hil.diagnose.report import _masks, _nrmse_or_none
+from hil.diagnose.heldout import _masks, _nrmse_or_none
 from hil.diagnose.selection import build_problem, fit_theta
 from hil.identify.urdf import consistent_fit
 from hil.model.urdf import UrdfArmModel

@@ -43,7 +43,7 @@ def main() -> int:
     args = ap.parse_args()
     limit_blas_threads()
     from drivers.recording import read_signals
-    from hil.diagnose.report import diagnose
+    from hil.diagnose.pipeline import diagnose
     from hil.model.params import robot_params
 
     peak = {"mb": 0.0, "stack": ""}

@@ -47,7 +47,7 @@ WITHIN = 0.25  # a size counts when within this fraction of the truth's
 
 def _diagnose(path: str) -> tuple[str, dict, float]:
     from drivers.recording import read_signals
-    from hil.diagnose.report import diagnose
+    from hil.diagnose.pipeline import diagnose
     from hil.model.params import robot_params
 
     t0 = time.perf_counter()

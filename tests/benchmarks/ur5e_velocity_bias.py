@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the tree
 import hil.diagnose.columns as columns
 import hil.model.regressors as regressors
 from drivers.recording import read_signals
-from hil.diagnose.report import _bin_columns
+from hil.diagnose.interpret import _bin_columns
 from hil.diagnose.selection import build_problem
 from hil.diagnose.stats import block_stats, cross_validate, evidence, extend_stats_many
 from hil.model.urdf import UrdfArmModel

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from hil.diagnose.columns import RecordingRows, moving_average
+from hil.model.protocol import ArmDynamics
 
 REFINE_STEPS = 4  # Gauss–Newton steps of the nonlinear patterns (encoder angle, payload centre)
 
@@ -28,7 +29,7 @@ class Context:
     model object and its θ₀ (in the model's parameters)."""
 
     rows: list[RecordingRows]
-    model: Any
+    model: ArmDynamics
     theta0: np.ndarray
     Psi_raw: np.ndarray  # (K, n, p), the stacked nominal design
     # the nominal model's torque rows (K, n): Ψ θ₀ with the nominal model's own departures
