@@ -91,7 +91,7 @@ IGNORED_KEY = re.compile(
 TIME_TEXT = re.compile(
     r"\d{4}-\d\d-\d\dT\d\d[:\d.]*\S*|\d+(\.\d+)? ?(s|ms) (of )?CPU|\bin \d+(\.\d+)? s\b"
     r"|\d+(\.\d+)?x real ?time|\d+ µs per cycle"
-    r"|ddbench-\d+-\d+"  # the in-process bench's channel: process id and object id
+    r"|ddbench-\d+-\d+|/dev/pts/\d+"  # the bench channel: process and object id, pty
 )
 ROOT_FILE = "root.txt"
 
