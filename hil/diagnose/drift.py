@@ -14,7 +14,7 @@ finding only when
 2. its size exceeds twice its own blocked-jackknife standard error and the pattern's floor
    (never a finding below what the data can resolve);
 3. the held-out simulated position of no joint gets worse with it (open-loop segments of the
-   held-out part, :func:`hil.diagnose.report.simulated_segments`, the patterns fitted on the
+   held-out part, :func:`hil.diagnose.heldout.simulated_segments`, the patterns fitted on the
    training part only).
 
 A pattern whose declared partner fits as well in its place and adds nothing on top of it is
@@ -750,7 +750,7 @@ def _sensitivity(
     fit: _Fit, terms: Sequence[Term], rec_i: int, segments, index: np.ndarray, q: np.ndarray
 ) -> list[float]:
     """Per joint, how far the held-out simulation with ``terms`` moves when its torque is off
-    by the model's own held-out torque error (:func:`hil.diagnose.report.simulation_sensitivity`,
+    by the model's own held-out torque error (:func:`hil.diagnose.heldout.simulation_sensitivity`,
     as the refit's gate measures it): two models closer than that in torque cannot be told
     apart by simulated motion closer than this."""
     n = fit.ctx.n_joints
