@@ -17,6 +17,8 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike
 
+__all__ = ["ArmDynamics"]
+
 
 @runtime_checkable
 class ArmDynamics(Protocol):
