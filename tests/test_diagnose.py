@@ -874,15 +874,15 @@ def test_summary_says_why_a_held_out_torque_is_not_scored():
     """A held-out part whose torque has no spread on any joint (DFKI A.0 trajectory_05: the
     motors are off in its last 40 %, the arm swings free) has no torque NRMSE: the summary says
     why and gives the held-out simulation's error instead of "n/a / n/a"."""
+    from hil.diagnose.heldout import HeldOutFit, ModelFit
     from hil.diagnose.report import summary_words
 
-    fit = {
-        "held_out": "the last 25% of the recording, not used for fitting",
-        "before": {"torque_nrmse": [None, None], "position_nrmse": [0.0625, 0.17]},
-        "after": {"torque_nrmse": [None, None], "position_nrmse": [0.0625, 0.17]},
-    }
+    def model() -> ModelFit:
+        return ModelFit([None, None], [0.0625, 0.17], np.zeros(9))
+
+    fit = HeldOutFit("the last 25% of the recording, not used for fitting", model(), model())
     words = summary_words([], fit, ["Not a finding: torque_gain on joint 1: not physical."])
     assert "n/a" not in words and "cannot be scored on any joint" in words, words
     assert "simulated position NRMSE of 6.25 % / 17.00 %" in words, words
-    fit["before"]["torque_nrmse"] = [0.3, None]
+    fit.before.torque_nrmse = [0.3, None]
     assert "torque NRMSE of 30.00 % / n/a" in summary_words([], fit, ["Not a finding: x"])
