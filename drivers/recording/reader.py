@@ -126,19 +126,7 @@ def recording_names(path: str | Path, fmt: str | Path | None = None) -> list[str
     :class:`RecordingError` in one line when it cannot be read."""
     path = Path(path)
     if _is_container(path, fmt):
-        if not path.exists():
-            raise RecordingError(f"{path}: cannot read (No such file or directory)")
-        is_mcap = path.suffix.lower() == ".mcap"
-        name = fmt if fmt is not None else (DEFAULT_MCAP_FORMAT if is_mcap else None)
-        form = load_format(name) if name is not None else None
-        try:
-            if is_mcap:
-                return list(containers.mcap_table(path, form).names)
-            if path.is_dir():
-                return list(containers.csv_streams_table(path, form, _csv_table).names)
-            return list(containers.npz_table(path).names)
-        except containers.ContainerError as exc:
-            raise RecordingError(str(exc)) from None
+        return list(_container_table(path, fmt)[0].names)
     csv_path = path / SIGNALS if path.is_dir() else path
     with _open_csv(csv_path) as f:
         try:
@@ -157,6 +145,25 @@ def _enough(rec: Recording, label: Path, min_rows: int) -> Recording:
 DEFAULT_MCAP_FORMAT = "ros2-joint-state"  # an .mcap read without --format (hil run --mcap)
 
 
+def _container_table(path: Path, fmt: str | Path | None) -> tuple[containers.Table, Any]:
+    """An .npz, .mcap or a directory of one CSV per quantity as a :class:`containers.Table`
+    (its columns named, nothing loaded yet), with the format profile it is read by (None for an
+    .npz without ``fmt``)."""
+    if not path.exists():
+        raise RecordingError(f"{path}: cannot read (No such file or directory)")
+    is_mcap = path.suffix.lower() == ".mcap"
+    name = fmt if fmt is not None else (DEFAULT_MCAP_FORMAT if is_mcap else None)
+    form = load_format(name) if name is not None else None
+    try:
+        if is_mcap:
+            return containers.mcap_table(path, form), form
+        if path.is_dir():
+            return containers.csv_streams_table(path, form, _csv_table), form
+        return containers.npz_table(path), form
+    except containers.ContainerError as exc:
+        raise RecordingError(str(exc)) from None
+
+
 def _read_container(
     path: Path,
     fmt: str | Path | None,
@@ -167,20 +174,7 @@ def _read_container(
     """An .npz, .mcap or a directory of one CSV per quantity: a :class:`containers.Table`, then
     the plan and the checks of every recording (:func:`_plan`, :func:`_assemble`)."""
     columns, torque, loop_delay, effort_scale, leave_out, ignore = options
-    if not path.exists():
-        raise RecordingError(f"{path}: cannot read (No such file or directory)")
-    is_mcap = path.suffix.lower() == ".mcap"
-    name = fmt if fmt is not None else (DEFAULT_MCAP_FORMAT if is_mcap else None)
-    form = load_format(name) if name is not None else None
-    try:
-        if is_mcap:
-            table = containers.mcap_table(path, form)
-        elif path.is_dir():
-            table = containers.csv_streams_table(path, form, _csv_table)
-        else:
-            table = containers.npz_table(path)
-    except containers.ContainerError as exc:
-        raise RecordingError(str(exc)) from None
+    table, form = _container_table(path, fmt)
     plan = _plan(
         table.label,
         table.names,
