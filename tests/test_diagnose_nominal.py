@@ -1,4 +1,4 @@
-"""Diagnosis against the model the user has (hil/diagnose/drift.py, hil/diagnose/effects):
+"""Diagnosis against the model the user has (hil/diagnose/drift/, hil/diagnose/effects):
 the profile's θ, ``--params`` of any arm, ``--reference`` recordings; drift patterns with their
 sizes, uncertainty and held-out proof; nulls give nothing.
 
@@ -265,7 +265,7 @@ def test_urdf_params_from_hil_identify_is_the_nominal_model(cicese3, capsys, tmp
 
 def test_a_gain_column_that_explains_the_whole_torque_has_no_finite_size():
     """β = 1 − 1/g of the gain column at or beyond 1 has no finite positive gain: its size is
-    unbounded (and no finding: :func:`hil.diagnose.drift._gates`), not a clamped 0.99 read as a
+    unbounded (and no finding: :func:`hil.diagnose.drift.judge.size_gates`), not a clamped 0.99 read as a
     gain of 100 (the "gain size 99" seen on DFKI C.0 joint 2); below 1 the size is g − 1."""
     gain = REGISTRY["torque_gain"]
     for b in (1.0, 3.0):

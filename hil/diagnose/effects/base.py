@@ -126,7 +126,7 @@ class Effect:
         self, forward: dict[str, Any], back: dict[str, Any], size: float, size_back: float
     ) -> bool:
         """Whether the reverse comparison (the reference judged against the recording's θ,
-        :func:`hil.diagnose.drift._reverse_check`) shows the change with the opposite sign, as
+        :func:`hil.diagnose.drift.judge.reverse_check`) shows the change with the opposite sign, as
         a real change does: ``forward`` / ``back`` the two :meth:`estimate` dicts, ``size`` /
         ``size_back`` their sizes. By default the signs of the sizes."""
         return size * size_back < 0

@@ -1,0 +1,260 @@
+"""The regression of a recording's rows against θ₀ (:class:`Fit`): the residual r = y − Ψ θ₀,
+the drift patterns' columns on it, blocked cross-validation of the recording's residual or of
+the paired difference against the reference's rows (:meth:`Fit.judged_cv`), the Gauss–Newton
+refinement of nonlinear patterns, and the held-out torque errors of θ₀ with the patterns.
+
+Imports :mod:`hil.diagnose.drift.terms`, the effects, the held-out stage and the selection's
+problem and statistics.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hil.diagnose.drift.terms import SAME_MOTION, Term
+from hil.diagnose.effects import REGISTRY, Context
+from hil.diagnose.effects.base import REFINE_STEPS
+from hil.diagnose.heldout import (
+    _masks,
+    _nrmse_or_none,
+)
+from hil.diagnose.selection import (
+    Problem,
+    build_problem,
+    fit_theta,
+    jackknife_se,
+    robust_scale,
+)
+from hil.diagnose.stats import (
+    CrossValidation,
+    block_stats,
+    cross_validate,
+)
+from hil.model.protocol import ArmDynamics
+
+
+@dataclass
+class Fit:
+    prob: Problem
+    ctx: Context
+    residual: np.ndarray  # raw (K, n): y − Ψ θ₀
+    scale: np.ndarray  # (n,)
+    starts: np.ndarray
+    baseline: list[tuple] = field(default_factory=list)  # Nominal.terms
+    # the reference recordings' rows against the same θ₀ (:func:`change_in_se`), when θ₀ was
+    # identified from them
+    reference: Fit | None = None
+    paired: bool = False  # the reference ran the same motion, block for block (SAME_MOTION)
+    _ref_terms: dict[str, Term] = field(default_factory=dict)
+
+    def on_reference(self, term: Term) -> Term:
+        """``term`` (same effect, joint and linearisation point) built on the reference rows."""
+        assert self.reference is not None
+        key = f"{term.key}@{term.at!r}"
+        if key not in self._ref_terms:
+            self._ref_terms[key] = self.reference.build(Term(term.effect, term.joint, term.at))
+        return self._ref_terms[key]
+
+    def target(self, terms: Sequence[Term]) -> np.ndarray:
+        r = self.residual
+        shifts = [t.shift for t in terms if t.shift is not None]
+        if shifts:
+            r = r - sum(shifts)
+        return r / self.scale
+
+    def design(self, terms: Sequence[Term]) -> np.ndarray:
+        cols = [t.cols / self.scale[None, :, None] for t in terms]
+        return np.concatenate(cols, axis=-1)
+
+    def cv(self, terms: Sequence[Term], w: np.ndarray | None = None) -> CrossValidation:
+        w = self.prob.w if w is None else w
+        y = self.target(terms)
+        if not terms:  # nothing fitted: every block's error is its own residual
+            held = np.add.reduceat(w * y * y, self.starts, axis=0)
+            B = len(self.starts)
+            return CrossValidation(
+                held, np.zeros(B, int), np.zeros((B, 0)), 0, np.zeros(0), held.sum(axis=0)
+            )
+        return cross_validate(block_stats(self.design(terms), y, w, self.prob.blocks))
+
+    def judged_cv(self, terms: Sequence[Term]) -> CrossValidation:
+        """The cross-validation a pattern's held-out proof is read from: of the recording's
+        residual; when the recording reruns the reference's motion (:attr:`paired`), of the
+        paired difference r_rec − r_ref (each less its terms' model change at their
+        linearisation point) against the recording's columns, where the model error both
+        share cancels row by row and what is left is the change (a 5 ms delay lowers the
+        error of a DFKI recording against θ₀ by 0.5 % in 12 of 39 blocks: the model error, not
+        the delay, decides each block there)."""
+        if not (self.paired and self.reference is not None):
+            return self.cv(terms)
+        ref = self.reference
+        w = np.minimum(self.prob.w, ref.prob.w)
+        r = self.residual - ref.residual
+        for t in terms:
+            back = self.on_reference(t)
+            if t.shift is not None:
+                r = r - t.shift
+            if back.shift is not None:
+                r = r + back.shift
+        y = r / self.scale
+        if not terms:
+            held = np.add.reduceat(w * y * y, self.starts, axis=0)
+            B = len(self.starts)
+            return CrossValidation(
+                held, np.zeros(B, int), np.zeros((B, 0)), 0, np.zeros(0), held.sum(axis=0)
+            )
+        return cross_validate(block_stats(self.design(terms), y, w, self.prob.blocks))
+
+    def build(self, term: Term) -> Term:
+        term.cols = np.nan_to_num(term.effect.columns(self.ctx, term.joint, term.at))
+        term.shift = term.effect.shift(self.ctx, term.joint, term.at)
+        return term
+
+    def split(self, beta: np.ndarray, terms: Sequence[Term]) -> list[np.ndarray]:
+        out, at = [], 0
+        for t in terms:
+            out.append(beta[at : at + t.width])
+            at += t.width
+        return out
+
+    def refine(self, terms: list[Term], only: Term | None = None) -> None:
+        """Gauss–Newton steps of the nonlinear terms (``only``: of that one, the first time
+        from the best-fitting of its starting points, :meth:`Effect.starts`), all terms
+        refitted each step."""
+        if not any(t.effect.nonlinear for t in terms):
+            return
+        if only is not None and only.effect.nonlinear and not only.searched:
+            only.searched = True
+            starts = only.effect.starts(self.ctx, only.joint)
+            if len(starts) > 1:
+                best = None
+                for s in starts:
+                    only.at = s
+                    self.build(only)
+                    sse = float(self.judged_cv(terms).sse.sum())
+                    if np.isfinite(sse) and (best is None or sse < best[0]):
+                        best = (sse, s)
+                only.at = starts[0] if best is None else best[1]
+                self.build(only)
+                if self.reference is not None:  # the reference's rows of the starts not kept
+                    self._ref_terms = {
+                        k: v for k, v in self._ref_terms.items() if not k.startswith(only.key + "@")
+                    }
+        self._steps(terms, only)
+
+    def _steps(self, terms: list[Term], only: Term | None) -> None:
+        for _ in range(REFINE_STEPS):
+            beta = self.cv(terms).beta
+            for t, b in zip(terms, self.split(beta, terms), strict=True):
+                if t.effect.nonlinear and (only is None or t is only):
+                    t.at = t.effect.update(self.ctx, t.joint, b, t.at)
+                    self.build(t)
+
+
+def make_fit(
+    prob: Problem,
+    model: ArmDynamics,
+    theta0: np.ndarray,
+    baseline: Sequence[tuple] = (),
+    geometry: dict[str, float] | None = None,
+) -> Fit:
+    """The regression of ``prob``'s rows against θ₀ (with the ``baseline`` terms of the nominal
+    model, :attr:`Nominal.terms`, taken off the residual)."""
+    ctx = Context(prob.rows, model, theta0, prob.Psi_raw, geometry=geometry)
+    residual = prob.y_raw - prob.Psi_raw @ theta0
+    for name, joint, at, beta in baseline:
+        effect = REGISTRY[name]
+        residual = residual - effect.columns(ctx, joint, at) @ beta
+        shift = effect.shift(ctx, joint, at)
+        if shift is not None:
+            residual = residual - shift
+    ctx.prediction = prob.y_raw - residual
+    scale = robust_scale(residual, prob.w)
+    starts = np.flatnonzero(np.r_[True, np.diff(prob.blocks) != 0])
+    return Fit(prob, ctx, residual, scale, starts, list(baseline))
+
+
+def term_sizes(fit: Fit, terms: Sequence[Term], judged: Fit) -> tuple[float, np.ndarray]:
+    """The last term's size (:meth:`Effect.estimate`, read in ``judged``'s context so that both
+    sides of a comparison use one scale) fitted on ``fit``'s rows with the other ``terms``, and
+    its size in every leave-one-block-out fit (B,)."""
+    cv = fit.cv(terms)
+    last = terms[-1]
+    zero = np.zeros(last.width)
+
+    def size(beta: np.ndarray) -> float:
+        b = fit.split(beta, terms)[-1]
+        return last.effect.estimate(judged.ctx, last.joint, b, zero, last.at)[1]
+
+    return size(cv.beta), np.array([size(b) for b in cv.fold_beta])
+
+
+def change_se(folds: np.ndarray, folds_back: np.ndarray, paired: bool) -> np.ndarray:
+    """Blocked-jackknife standard error of a difference of two fits' coefficients (rows: the
+    leave-one-block-out fits of each). ``paired`` (the same motion on both sides, block for
+    block): block b is left out of both at once (the delete-a-pair jackknife), which keeps the
+    covariance of the model error that falls in the same block on both sides and cancels in the
+    difference; else the two jackknives combined as independent."""
+    if paired and folds.shape[0] == folds_back.shape[0]:
+        return jackknife_se(folds - folds_back)
+    return np.hypot(jackknife_se(folds), jackknife_se(folds_back))
+
+
+def same_motion(a: Problem, b: Problem) -> bool:
+    """Whether ``a``'s rows run ``b``'s motion again: the same blocks, and regressor rows that
+    differ by at most :data:`SAME_MOTION` of ``b``'s (the torque may differ: that is judged)."""
+    if a.Psi_raw.shape != b.Psi_raw.shape or not np.array_equal(a.blocks, b.blocks):
+        return False
+    return bool(np.linalg.norm(a.Psi_raw - b.Psi_raw) <= SAME_MOTION * np.linalg.norm(b.Psi_raw))
+
+
+def common_prefix(prob: Problem, reference: Problem, model: ArmDynamics) -> Problem:
+    """The reference's rows over the recording's length when the recording is the reference's
+    motion cut short (one recording each, the same sampling, the recording's angles those of
+    the reference's first samples: a transport delay written into a copy drops its last rows),
+    so that the two are compared block for block (:func:`same_motion`); else ``reference``."""
+    if len(prob.rows) != 1 or len(reference.rows) != 1:
+        return reference
+    a, b = prob.rows[0], reference.rows[0]
+    n = len(a.q)
+    if not (n < len(b.q) and a.h == b.h and np.array_equal(a.q, b.q[:n])):
+        return reference
+    if (a.stamps is None) != (b.stamps is None) or (
+        a.stamps is not None and not np.array_equal(a.stamps, b.stamps[:n])
+    ):
+        return reference
+    t = None if b.stamps is None else b.stamps[:n]
+    return build_problem([(b.q[:n], b.tau[:n], b.h, t)], model)[0]
+
+
+def torque_errors(fit: Fit, terms: Sequence[Term]) -> dict[str, list[float | None]]:
+    """Held-out torque NRMSE per joint of θ₀, θ₀ with ``terms`` (fitted on the training rows)
+    and θ refitted on the training rows alone."""
+    prob = fit.prob
+    train, test, _ = _masks(prob)
+    w_train = prob.w * train[:, None]
+    y = prob.y_raw
+    pred0 = prob.y_raw - fit.residual  # θ₀ with the nominal model's baseline terms
+    preds = {"nominal": pred0}
+    if terms:
+        cv = fit.cv(terms, w_train)
+        drift = sum(
+            (t.cols @ b + (0 if t.shift is None else t.shift))
+            for t, b in zip(terms, fit.split(cv.beta, terms), strict=True)
+        )
+        preds["nominal_with_drift"] = pred0 + drift
+    else:
+        preds["nominal_with_drift"] = pred0
+    theta = fit_theta(prob.Psi, prob.y, w_train)
+    preds["refit"] = prob.Psi_raw @ theta
+    out: dict[str, list[float | None]] = {}
+    for name, pred in preds.items():
+        # None where the refit's report has none: too few usable held-out rows (a joint that
+        # barely moves: 41 rows of a Panda joint gave "1.21e+03 %") or no spread
+        out[name] = [
+            _nrmse_or_none(y, pred, test & (prob.w[:, j] > 0), j) for j in range(prob.n_joints)
+        ]
+    return out

@@ -1,0 +1,260 @@
+"""Selection of drift patterns against θ₀: a pattern's gate (its held-out proof, and against a
+reference its change in standard errors, :func:`change_in_se`), greedy forward selection
+(:func:`select_terms`), the patterns' sizes and standard errors (:func:`term_estimates`, θ₀'s
+own uncertainty included) and the partners a pattern is confounded with.
+
+Imports :mod:`hil.diagnose.drift.fit` and :mod:`hil.diagnose.drift.terms`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+from scipy.stats import t as student_t
+
+from hil.diagnose.drift.fit import Fit, change_se, term_sizes
+from hil.diagnose.drift.terms import Term
+from hil.diagnose.effects import REGISTRY, Context
+from hil.diagnose.selection import (
+    FAMILY_ALPHA,
+    MAX_ROUNDS,
+    MIN_REDUCTION,
+    _passes,
+    jackknife_se,
+)
+from hil.diagnose.stats import (
+    CrossValidation,
+    Evidence,
+    evidence,
+)
+
+
+def change_in_se(fit: Fit, others: Sequence[Term], term: Term) -> float:
+    """How many standard errors ``term``'s size on the recording lies from its size on the
+    reference rows, both fitted against the same θ₀ with the same ``others``: the change since
+    the reference. A misfit of the model that both recordings share (a departure θ's terms
+    cannot express, or the part of the reference residual that the bounded fit of θ₀ leaves
+    along a pattern's column) has the same size on both sides and cancels; the per-block sign
+    of the held-out improvement cannot tell that apart from a change, and on a model whose
+    error is large against the change (30–50 % torque NRMSE on real arms) it misses changes
+    that the coefficient resolves many times over: the cross term 2c⟨Ψθ₀, r⟩ of a gain c
+    outweighs c²|Ψθ₀|² block by block, though not in total."""
+    ref = fit.reference
+    assert ref is not None
+    if term.effect.sized_by_amplitude:
+        return amplitude_change_in_se(fit, others, term)
+    rec, folds = term_sizes(fit, [*others, term], fit)
+    back, folds_back = term_sizes(ref, [fit.on_reference(t) for t in [*others, term]], fit)
+    se = float(change_se(folds[:, None], folds_back[:, None], fit.paired)[0])
+    if not (np.isfinite(rec - back) and np.isfinite(se)):
+        return 0.0  # a size the data do not bound (a gain β ≥ 1) resolves no change
+    return abs(rec - back) / se if se > 0 else (np.inf if rec != back else 0.0)
+
+
+def amplitude_change_in_se(fit: Fit, others: Sequence[Term], term: Term) -> float:
+    """:func:`change_in_se` of a pattern whose size is an amplitude (no sign: a cogging's): the size
+    of the change of its coefficients, recording minus reference, over its blocked-jackknife
+    standard error (block-paired: the size of each fold pair's difference; else the two sides'
+    jackknives combined as independent). A difference of two amplitudes would miss a change of
+    phase and take the reference's own misfit amplitude off the change."""
+    ref = fit.reference
+    assert ref is not None
+    terms = [*others, term]
+    cv, back = fit.cv(terms), ref.cv([fit.on_reference(t) for t in terms])
+    zero = np.zeros(term.width)
+
+    def size(b_rec: np.ndarray, b_ref: np.ndarray) -> float:
+        b = fit.split(b_rec, terms)[-1] - fit.split(b_ref, terms)[-1]
+        return term.effect.estimate(fit.ctx, term.joint, b, zero, term.at)[1]
+
+    full = size(cv.beta, back.beta)
+    if fit.paired and len(cv.fold_beta) == len(back.fold_beta):
+        se = float(
+            jackknife_se(
+                np.array([size(a, b) for a, b in zip(cv.fold_beta, back.fold_beta, strict=True)])
+            )
+        )
+    else:
+        se = float(
+            np.hypot(
+                jackknife_se(np.array([size(a, back.beta) for a in cv.fold_beta])),
+                jackknife_se(np.array([size(cv.beta, b) for b in back.fold_beta])),
+            )
+        )
+    if not (np.isfinite(full) and np.isfinite(se)):
+        return 0.0
+    return abs(full) / se if se > 0 else (np.inf if full != 0 else 0.0)
+
+
+def drift_passes(fit: Fit, others: Sequence[Term], term: Term, ev: Evidence, tests: int) -> bool:
+    """The gate of a drift pattern. Against a profile or ``--params`` (no reference rows to
+    difference against): the sign test over blocks of :func:`hil.diagnose.selection._passes`.
+    Against a nominal model identified from reference rows: the held-out error of its joints
+    drops (:data:`MIN_REDUCTION`, as everywhere, and in more blocks than it rises: a change of
+    the arm acts on all its motion, not on a few fast blocks carrying another term's misfit),
+    and its size differs from the reference's (:func:`change_in_se`) beyond the two-sided Student-t
+    quantile at :data:`FAMILY_ALPHA`, Bonferroni-corrected over the ``tests`` (a jackknife over
+    B blocks: B − 1 degrees of freedom). Unless the recording runs the reference's motion again
+    (:attr:`Fit.paired`), the sign test must pass as well: another motion projects the model's
+    error onto a pattern differently, a difference the blocks' spread does not measure."""
+    if fit.reference is None:
+        return _passes(ev, tests)
+    if not fit.paired and not _passes(ev, tests):
+        return False
+    if ev.reduction < MIN_REDUCTION or 2 * ev.blocks_improved <= ev.blocks:
+        return False
+    if fit.paired and ev.drop < MIN_REDUCTION * change_energy(fit, term):
+        return False
+    crit = float(student_t.isf(FAMILY_ALPHA / tests / 2, max(len(fit.starts) - 1, 1)))
+    return change_in_se(fit, others, term) >= crit
+
+
+def change_energy(fit: Fit, term: Term) -> float:
+    """The held-out error of the paired difference with no pattern, on ``term``'s joints: the
+    whole change since the reference. Block-paired, a pattern on top of others must lower it by
+    :data:`MIN_REDUCTION` of this, not of what the others leave: with the model error gone a
+    leftover of the written effect that its pattern's columns do not carry exactly (a drag
+    written on smoothed velocities) is resolved many times over, and another pattern would be
+    named for a part of the change too small to be one."""
+    joints = term.effect.acts_on(fit.ctx, term.joint)
+    return float(fit.judged_cv([]).held_out_sse[:, joints].sum())
+
+
+def drift_candidates(ctx: Context, reference: bool = False) -> list[Term]:
+    """Every variant of every registered effect that applies (``reference``: those a reference
+    identification keeps, :attr:`Effect.in_reference`); partners only included."""
+    return [
+        Term(e, j, e.start(ctx, j))
+        for e in REGISTRY.values()
+        if e.applies(ctx) and (e.in_reference or not reference)
+        for j in e.variants(ctx)
+    ]
+
+
+def select_terms(
+    fit: Fit, cands: list[Term], say: Callable[[str], None]
+) -> tuple[list[Term], dict[str, dict]]:
+    """Greedy forward selection: each round the candidate that lowers the held-out error of
+    its joints most, among those that pass the gates of :func:`hil.diagnose.selection._passes`."""
+    accepted: list[Term] = []
+    tested: dict[str, dict] = {}
+    built: dict[str, Term] = {}
+    for _ in range(MAX_ROUNDS + 2):
+        base = fit.judged_cv(accepted)
+        best = None
+        keys = {t.key for t in accepted}
+        for c in cands:
+            if c.key in keys or not c.effect.primary:
+                continue
+            if c.key not in built:
+                built[c.key] = fit.build(Term(c.effect, c.joint, c.at))
+            term = built[c.key]
+            joints = term.effect.acts_on(fit.ctx, c.joint)
+            if term.effect.nonlinear and not term.searched:
+                fit.refine([*accepted, term], only=term)  # from its best starting point
+            ev = evidence(base, fit.judged_cv([*accepted, term]), joints)
+            if term.effect.nonlinear and drift_passes(fit, accepted, term, ev, len(cands)):
+                # compared at its best linearisation point, not at the nominal one (an encoder
+                # angle linearised at zero loses to the three linear columns it explains)
+                fit.refine([*accepted, term], only=term)
+                ev = evidence(base, fit.judged_cv([*accepted, term]), joints)
+            tested.setdefault(term.key, ev.as_dict())
+            if (best is None or ev.drop > best[1].drop) and drift_passes(
+                fit, accepted, term, ev, len(cands)
+            ):
+                best = (term, ev)
+        if best is None:
+            break
+        accepted.append(best[0])
+        built.pop(best[0].key)
+        fit.refine(accepted)
+        say(f"diagnose: against the nominal model: accepted {best[0].key}")
+    return accepted, tested
+
+
+def nominal_spread(fit: Fit, terms: Sequence[Term], draws: np.ndarray | None) -> np.ndarray:
+    """Standard deviation of the terms' coefficients over the draws of θ₀: the residual moves
+    by Ψ (θ₀ − θ_b), which the terms' least squares projects onto their columns."""
+    if draws is None or not terms:
+        return np.zeros(sum(t.width for t in terms))
+    Z = fit.design(terms)  # (K, n, P) scaled
+    w = fit.prob.w
+    G = np.einsum("kn,knp,knq->pq", w, Z, Z)
+    moved = fit.prob.Psi_raw @ (fit.ctx.theta0[None, :] - draws).T  # (K, n, D) Nm
+    moved /= fit.scale[None, :, None]
+    rhs = np.einsum("kn,knp,knd->pd", w, Z, moved)
+    scale = np.maximum(np.diag(G), 1e-300)
+    beta = np.linalg.solve(G + 1e-10 * np.diag(scale), rhs)  # (P, D)
+    if fit.paired and fit.reference is not None:
+        # the same motion on both sides: θ₀'s error moves both residuals alike, and the
+        # change is the difference of the two projections
+        ref = fit.reference
+        Zr = (
+            ref.design([fit.on_reference(t) for t in terms])
+            * (ref.scale / fit.scale)[None, :, None]
+        )
+        wr = ref.prob.w
+        Gr = np.einsum("kn,knp,knq->pq", wr, Zr, Zr)
+        moved_r = ref.prob.Psi_raw @ (fit.ctx.theta0[None, :] - draws).T / fit.scale[None, :, None]
+        rhs_r = np.einsum("kn,knp,knd->pd", wr, Zr, moved_r)
+        scale_r = np.maximum(np.diag(Gr), 1e-300)
+        beta = beta - np.linalg.solve(Gr + 1e-10 * np.diag(scale_r), rhs_r)
+    return beta.std(axis=1)
+
+
+def term_estimates(
+    fit: Fit, terms: Sequence[Term], draws: np.ndarray | None = None
+) -> tuple[list[tuple[dict, float, float]], CrossValidation]:
+    """Each term's finding numbers, size and SE: the blocked jackknife of the recording's
+    rows and, when θ₀ was identified, the spread its own draws cause, combined. With
+    reference rows (:attr:`Fit.reference`): the change since the reference, the coefficients
+    of the same terms fitted there subtracted (a shared misfit is no part of the change), its
+    jackknife that of the difference (:func:`change_se`); a nonlinear term's change is read
+    at its starting point (an encoder angle: the difference of the two angles)."""
+    cv = fit.cv(terms)
+    se = np.hypot(jackknife_se(cv.fold_beta), nominal_spread(fit, terms, draws))
+    beta, ats = cv.beta, [t.at for t in terms]
+    if fit.reference is not None and terms:
+        back = fit.reference.cv([fit.on_reference(t) for t in terms])
+        beta = beta - back.beta
+        se = np.hypot(
+            change_se(cv.fold_beta, back.fold_beta, fit.paired), nominal_spread(fit, terms, draws)
+        )
+        ats = [t.effect.change_point(fit.ctx, t.joint, t.at) for t in terms]
+    out = [
+        t.effect.estimate(fit.ctx, t.joint, b, s, at)
+        for t, b, s, at in zip(
+            terms, fit.split(beta, terms), fit.split(se, terms), ats, strict=True
+        )
+    ]
+    return out, cv
+
+
+def confounded_partners(
+    fit: Fit, accepted: list[Term], cands: list[Term], tests: int
+) -> dict[str, list]:
+    """For each accepted term, its declared partners that fit as well in its place and to which
+    it adds nothing: {term key: [(partner key, partner estimate)]}."""
+    out: dict[str, list] = {}
+    keys = {t.key for t in accepted}
+    for i, a in enumerate(accepted):
+        others = accepted[:i] + accepted[i + 1 :]
+        base = fit.judged_cv(others)
+        for c in cands:
+            if c.effect.name not in a.effect.partners or c.key in keys:
+                continue
+            b = fit.build(Term(c.effect, c.joint, c.effect.start(fit.ctx, c.joint)))
+            with_b = [*others, b]
+            fit.refine(with_b, only=b)
+            cv_b = fit.judged_cv(with_b)
+            ev_b = evidence(base, cv_b, b.effect.acts_on(fit.ctx, b.joint))
+            if not drift_passes(fit, others, b, ev_b, tests):
+                continue
+            on_top = fit.judged_cv([*with_b, a])
+            ev_a = evidence(cv_b, on_top, a.effect.acts_on(fit.ctx, a.joint))
+            if drift_passes(fit, with_b, a, ev_a, tests):
+                continue  # a explains something b does not: not confounded
+            est = term_estimates(fit, with_b)[0][-1]
+            out.setdefault(a.key, []).append((b, est))
+    return out
