@@ -82,6 +82,64 @@ def test_transport_delay_is_found_block_paired(tmp_path):
     assert abs(est["delay_s"] - delay) <= WITHIN * delay, (est, delay)
 
 
+@pytest.mark.parametrize("seed", [3, 5])
+def test_torque_gain_is_sized_by_product_and_simulated_as_the_change(tmp_path, seed):
+    """A gain written on joint 1 of A.0, whose model torque carries only part of the recorded
+    one along itself: the change is the ratio of the two sides' gains (the difference of their
+    coefficients under-read it by that part), the simulation gate simulates the change (not
+    the recording's own gain against θ₀, which made the position worse and dropped the true
+    finding), and nothing else is named (the model's error the model torque's column left
+    behind in the paired difference was taken by an encoder angle)."""
+    rec, ref, truth = _written(tmp_path, "torque_gain", 0, seed=seed)
+    est = _only(_judge(rec, ref), "torque_gain")
+    assert abs(est["relative"] - truth["size"]) <= 0.05 * abs(truth["size"]), (est, truth)
+
+
+@pytest.mark.parametrize(("joint", "seed"), [(0, 3), (1, 4)])
+def test_coulomb_asymmetry_is_found_with_its_direction(tmp_path, joint, seed):
+    """Extra Coulomb friction for motion in one direction of one joint: named as such, with
+    its direction and size (old code: no such pattern; a drag, a gain or an encoder angle took
+    half of it each)."""
+    rec, ref, truth = _written(tmp_path, "coulomb_asymmetry", joint, seed=seed)
+    result = _judge(rec, ref)
+    est = _only(result, "coulomb_asymmetry")
+    assert result.findings[0].joint == joint + 1
+    want = truth["magnitude"]
+    assert est["direction"] == ("positive" if want["positive_Nm"] else "negative"), est
+    got = est["negative_Nm"] - est["positive_Nm"]
+    assert abs(got - truth["size"]) <= 0.1 * abs(truth["size"]), (est, truth)
+
+
+class _Draws:
+    """The generator's draws held at one value (its size as a fraction of the joint's level)."""
+
+    def __init__(self, value: float) -> None:
+        self.value = value
+
+    def uniform(self, low: float, high: float) -> float:
+        return self.value
+
+    def choice(self, values):
+        return values[0]
+
+
+def test_a_change_below_the_floor_is_not_named_and_nothing_stands_in(tmp_path):
+    """A Coulomb asymmetry of 0.1 % of the joint's torque level: proven (it explains the
+    change), below the smallest size worth naming, so not named; and kept in the fit, so that
+    no other pattern takes its place (old code: left out, then a gain, an encoder angle and a
+    rotor inertia each explained a part of it above their own floors)."""
+    gen = _generator()
+    src = gen.dfki_source(DFKI_FILE, "dfki-a0")
+    out, _truth = gen.make_effect(src, "coulomb_asymmetry", 0, _Draws(0.001))
+    rec, ref = tmp_path / "recording.csv", tmp_path / "reference.csv"
+    out.write(rec)
+    src.write(ref)
+    result = _judge(rec, ref)
+    assert result.used and not result.findings, [f.effect for f in result.findings]
+    why = result.document["not_findings"].get("coulomb_asymmetry:1", "")
+    assert "below the smallest size worth naming" in why and "kept in the fit" in why, why
+
+
 def test_unchanged_copy_gives_no_delay_or_other_change(tmp_path):
     _rec, ref, _truth = _written(tmp_path, "torque_gain", 0, seed=3)
     result = _judge(ref, ref)

@@ -106,7 +106,32 @@ class Fit:
             return CrossValidation(
                 held, np.zeros(B, int), np.zeros((B, 0)), 0, np.zeros(0), held.sum(axis=0)
             )
-        return cross_validate(block_stats(self.design(terms), y, w, self.prob.blocks))
+        recorded = ref.prob.y_raw
+        cols = []
+        for t in terms:
+            c = t.effect.paired_columns(self.ctx, t.joint, t.at, recorded)
+            cols.append((t.cols if c is None else c) / self.scale[None, :, None])
+        return cross_validate(block_stats(np.concatenate(cols, axis=-1), y, w, self.prob.blocks))
+
+    def change(
+        self, terms: Sequence[Term], beta: np.ndarray, beta_back: np.ndarray, se: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The coefficients of ``terms``' change since the reference and their SE, term by term
+        (:meth:`hil.diagnose.effects.base.Effect.change`), from the recording's ``beta``, the
+        reference's ``beta_back`` and ``se`` (of their difference)."""
+        parts = [
+            t.effect.change(b, b_back, s)
+            for t, b, b_back, s in zip(
+                terms,
+                self.split(beta, terms),
+                self.split(beta_back, terms),
+                self.split(se, terms),
+                strict=True,
+            )
+        ]
+        if not parts:
+            return beta - beta_back, se
+        return np.concatenate([b for b, _ in parts]), np.concatenate([s for _, s in parts])
 
     def build(self, term: Term) -> Term:
         term.cols = np.nan_to_num(term.effect.columns(self.ctx, term.joint, term.at))

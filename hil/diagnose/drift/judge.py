@@ -145,6 +145,9 @@ def reverse_check(
     return out
 
 
+BELOW_FLOOR = "below the smallest size worth naming"
+
+
 def size_gates(fit: Fit, accepted: list[Term], nominal: Nominal, tests: int) -> dict[str, str]:
     """Each term's own held-out proof on top of the others, and its size against its SE and
     the effect's floor: {key: why it is not a finding}."""
@@ -164,8 +167,8 @@ def size_gates(fit: Fit, accepted: list[Term], nominal: Nominal, tests: int) -> 
                 f"smaller than its own uncertainty ({size:.3g} ± {size_se:.2g}): below what "
                 "the data resolve"
             )
-        elif abs(size) < t.effect.floor:
-            failed[t.key] = f"below the smallest size worth naming ({t.effect.floor:g})"
+        elif abs(size) < (smallest := t.effect.smallest(fit.ctx, t.joint)):
+            failed[t.key] = f"{BELOW_FLOOR} ({smallest:.3g})"
     return failed
 
 
@@ -209,25 +212,38 @@ def judge(
     say(f"diagnose: against the {nominal.source} model: testing {len(cands)} drift patterns")
     not_findings: dict[str, str] = {}
     tested: dict[str, dict] = {}
+    # terms below the smallest size worth naming but proven otherwise: kept in the fit and not
+    # named, so that no other pattern stands in for them (a 0.01 Nm Coulomb asymmetry that
+    # explained 99.99 % of the change was left out, and a gain, an encoder angle and a rotor
+    # inertia took its place, each above its own floor)
+    silent: list[Term] = []
     for _ in range(GATE_ROUNDS):
         # a term that fails a gate is left out and the selection run again: it may have stood
         # in the way of one that passes (an encoder angle that beat a gain in the torque and
         # then worsened the simulated motion)
+        before = {t.key for t in silent}
         pool = [c for c in cands if c.key not in not_findings]
-        accepted, seen = select_terms(fit, pool, say)
+        accepted, seen = select_terms(fit, pool, say, start=silent)
         for k, v in seen.items():
             tested.setdefault(k, v)
         failed = size_gates(fit, accepted, nominal, len(cands))
-        kept = [t for t in accepted if t.key not in failed]
+        silent = [t for t in accepted if failed.get(t.key, "").startswith(BELOW_FLOOR)]
+        quiet = {t.key for t in silent}
+        kept = [t for t in accepted if t.key not in failed or t.key in quiet]
         if len(kept) < len(accepted):
             fit.refine(kept)
         kept, dropped, position = drift_simulation_gate(fit, kept, say)
         failed.update(dropped)
+        silent = [t for t in kept if t.key in quiet]
         not_findings.update(failed)
-        if not failed:
+        if not set(failed) - before:
             break
+    quiet = {t.key for t in silent}
+    for t in silent:
+        not_findings[t.key] += "; kept in the fit, so that no other pattern stands in for it"
     if nominal.reference is not None and kept:
-        reversed_ = reverse_check(fit, kept, fit.reference.prob, say)
+        named = [t for t in kept if t.key not in quiet]
+        reversed_ = reverse_check(fit, named, fit.reference.prob, say) if named else {}
         not_findings.update(reversed_)
         kept = [t for t in kept if t.key not in reversed_]
         fit.refine(kept)
@@ -235,6 +251,8 @@ def judge(
     confounded = confounded_partners(fit, kept, cands, len(cands))
     findings = []
     for i, (t, (est, _size, _se)) in enumerate(zip(kept, estimates, strict=True)):
+        if t.key in quiet:
+            continue
         others = kept[:i] + kept[i + 1 :]
         ev = evidence(
             fit.judged_cv(others), fit.judged_cv(kept), t.effect.acts_on(ctx, t.joint)

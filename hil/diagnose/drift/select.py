@@ -133,11 +133,12 @@ def drift_candidates(ctx: Context, reference: bool = False) -> list[Term]:
 
 
 def select_terms(
-    fit: Fit, cands: list[Term], say: Callable[[str], None]
+    fit: Fit, cands: list[Term], say: Callable[[str], None], start: Sequence[Term] = ()
 ) -> tuple[list[Term], dict[str, dict]]:
-    """Greedy forward selection: each round the candidate that lowers the held-out error of
-    its joints most, among those that pass the gates of :func:`hil.diagnose.selection._passes`."""
-    accepted: list[Term] = []
+    """Greedy forward selection from the terms ``start``: each round the candidate that lowers
+    the held-out error of its joints most, among those that pass the gates of
+    :func:`hil.diagnose.selection._passes`."""
+    accepted: list[Term] = list(start)
     tested: dict[str, dict] = {}
     built: dict[str, Term] = {}
     for _ in range(MAX_ROUNDS + 2):
@@ -217,10 +218,10 @@ def term_estimates(
     beta, ats = cv.beta, [t.at for t in terms]
     if fit.reference is not None and terms:
         back = fit.reference.cv([fit.on_reference(t) for t in terms])
-        beta = beta - back.beta
-        se = np.hypot(
-            change_se(cv.fold_beta, back.fold_beta, fit.paired), nominal_spread(fit, terms, draws)
+        beta, se = fit.change(
+            terms, beta, back.beta, change_se(cv.fold_beta, back.fold_beta, fit.paired)
         )
+        se = np.hypot(se, nominal_spread(fit, terms, draws))
         ats = [t.effect.change_point(fit.ctx, t.joint, t.at) for t in terms]
     out = [
         t.effect.estimate(fit.ctx, t.joint, b, s, at)

@@ -51,6 +51,32 @@ def sim_inputs(fit: Fit, terms: Sequence[Term], estimates: Sequence[dict]) -> Si
     return total
 
 
+def trained_estimates(fit: Fit, terms: Sequence[Term]) -> list[dict]:
+    """Each term's estimate fitted on the training rows only (the held-out rows are what the
+    simulation judges). Against a reference: the change since the reference, the same terms'
+    coefficients on the reference's training rows subtracted and read at the change point, as
+    :func:`hil.diagnose.drift.select.term_estimates` reports it. The recording's coefficients
+    alone carry the reference's own misfit along the pattern (a 9.5 % gain written on A.0's
+    joint 1 fits as a 56 % gain against its reference's bounded θ₀, and the simulation with
+    that gain threw the true finding out)."""
+    if not terms:
+        return []
+    train = _masks(fit.prob)[0]
+    beta = fit.cv(terms, fit.prob.w * train[:, None]).beta
+    ats = [t.at for t in terms]
+    if fit.reference is not None:
+        ref = fit.reference
+        back = ref.cv(
+            [fit.on_reference(t) for t in terms], ref.prob.w * _masks(ref.prob)[0][:, None]
+        )
+        beta, _se = fit.change(terms, beta, back.beta, np.zeros_like(beta))
+        ats = [t.effect.change_point(fit.ctx, t.joint, t.at) for t in terms]
+    return [
+        t.effect.estimate(fit.ctx, t.joint, b, np.zeros_like(b), at)[0]
+        for t, b, at in zip(terms, fit.split(beta, terms), ats, strict=True)
+    ]
+
+
 def simulate_position(fit: Fit, sim: SimInput, rec_i: int, segments) -> np.ndarray | None:
     ctx, r = fit.ctx, fit.prob.rows[rec_i]
     theta = ctx.theta0 + sim.dtheta
@@ -78,25 +104,16 @@ def drift_simulation_gate(
     110 % on joint 1: the true 12 % gain on joint 2 "worsened" it from 45 %, the reduced torque's
     error, to those 110 %)."""
     own = own_position(fit)
-    train, _test, spans = _masks(fit.prob)
+    _train, _test, spans = _masks(fit.prob)
     dropped: dict[str, str] = {}
     rec_i, first, last = spans[-1]
     r = fit.prob.rows[rec_i]
     segments = simulated_segments(r.h, first, last, r.stamps, len(r.q))
     index = np.concatenate([np.arange(a, b) for a, b in segments])
     q = r.q[index]
-    w_train = fit.prob.w * train[:, None]
 
     def position(ts: Sequence[Term]) -> list[float] | None:
-        if ts:
-            cv = fit.cv(ts, w_train)
-            est = [
-                t.effect.estimate(fit.ctx, t.joint, b, np.zeros_like(b), t.at)[0]
-                for t, b in zip(ts, fit.split(cv.beta, ts), strict=True)
-            ]
-        else:
-            est = []
-        sim = sim_inputs(fit, ts, est)
+        sim = sim_inputs(fit, ts, trained_estimates(fit, ts))
         out = simulate_position(fit, sim, rec_i, segments)
         return None if out is None else [float(x) for x in nrmse(q, out)]
 
@@ -171,12 +188,7 @@ def position_sensitivity(
     n = fit.ctx.n_joints
     errors = torque_errors(fit, terms)["nominal_with_drift"]
     err = np.array([1.0 if e is None or not np.isfinite(e) else e for e in errors])
-    cv = fit.cv(terms, fit.prob.w * _masks(fit.prob)[0][:, None]) if terms else None
-    est = [
-        t.effect.estimate(fit.ctx, t.joint, b, np.zeros_like(b), t.at)[0]
-        for t, b in zip(terms, fit.split(cv.beta, terms) if cv else [], strict=True)
-    ]
-    sim = sim_inputs(fit, terms, est)
+    sim = sim_inputs(fit, terms, trained_estimates(fit, terms))
     base = simulate_position(fit, sim, rec_i, segments)
     r = fit.prob.rows[rec_i]
     spread = _torque_spread(r.tau[index])

@@ -12,6 +12,7 @@ never the pipeline or the report.
 """
 
 from hil.diagnose.effects import (  # noqa: F401  (each module registers its effect)
+    asymmetry,
     cogging,
     com_offset,
     delay,

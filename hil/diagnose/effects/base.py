@@ -42,6 +42,12 @@ class Context:
     def predicted(self) -> np.ndarray:
         return self.Psi_raw @ self.theta0 if self.prediction is None else self.prediction
 
+    def rms_torque(self, joint: int) -> float:
+        """The RMS of the nominal model's torque on ``joint``'s rows: the scale a size in Nm is
+        read against (one floor for a 0.5 Nm pendulum and an 87 Nm arm)."""
+        tau = self.predicted()[:, joint]
+        return max(float(np.sqrt(np.mean(tau[np.isfinite(tau)] ** 2))), 1e-12)
+
     @property
     def n_joints(self) -> int:
         return self.Psi_raw.shape[1]
@@ -90,8 +96,11 @@ class Effect:
     # kept in a nominal model identified from reference recordings when they show it: only a
     # departure θ cannot take up (a gain, a friction level, a mass are θ's own business there)
     in_reference: bool = False
-    # the smallest size worth naming (absolute, in the unit of :meth:`estimate`'s size)
+    # the smallest size worth naming, in the unit of :meth:`estimate`'s size (:meth:`smallest`)
     floor: float = 0.0
+    # the size is in Nm and :attr:`floor` a fraction of the joint's RMS torque: an absolute Nm
+    # floor names a 2 % offset on an 87 Nm joint and refuses a 10 % one on a 0.2 Nm joint
+    floor_of_torque: bool = False
     # its size is an amplitude of several coefficients (no sign): a change since the reference
     # is the size of the coefficients' difference, not the difference of two sizes
     sized_by_amplitude: bool = False
@@ -121,6 +130,31 @@ class Effect:
         both sides at ``at``, is read: the starting point where β is an increment of the
         point (an encoder angle), ``at`` where β holds the size itself."""
         return self.start(ctx, joint)
+
+    def paired_columns(
+        self, ctx: Context, joint: int | None, at: Any, recorded: np.ndarray
+    ) -> np.ndarray | None:
+        """X (K, n, width) of the paired difference r_rec − r_ref when the recording reruns the
+        reference's motion (``recorded``: the reference's recorded torque (K, n) on the same
+        rows), where a pattern that scales the recorded torque is exact in it; None: its
+        :meth:`columns`, the same on both sides for a pattern of the motion alone."""
+        return None
+
+    def smallest(self, ctx: Context, joint: int | None) -> float:
+        """The smallest size worth naming, in the size's units: :attr:`floor`, or that fraction
+        of the joint's RMS torque where :attr:`floor_of_torque` (a size in Nm)."""
+        if self.floor_of_torque and joint is not None:
+            return self.floor * ctx.rms_torque(joint)
+        return self.floor
+
+    def change(
+        self, beta: np.ndarray, beta_back: np.ndarray, se: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The coefficients of the change since the reference from ``beta`` (the recording's)
+        and ``beta_back`` (the same term's on the reference rows), and the change's standard
+        error from ``se``, that of ``beta − beta_back``. By default the difference: an additive
+        pattern's shared misfit adds the same to both sides."""
+        return beta - beta_back, se
 
     def opposed(
         self, forward: dict[str, Any], back: dict[str, Any], size: float, size_back: float

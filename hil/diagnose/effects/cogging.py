@@ -21,11 +21,6 @@ from hil.diagnose.effects.base import Context, Effect, r4, register
 from hil.diagnose.selection import cogging_periods
 
 
-def _rms_torque(ctx: Context, joint: int) -> float:
-    tau = ctx.predicted()[:, joint]
-    return max(float(np.sqrt(np.mean(tau[np.isfinite(tau)] ** 2))), 1e-12)
-
-
 class Cogging(Effect):
     name = "cogging"
     width = 2
@@ -57,7 +52,7 @@ class Cogging(Effect):
         amp = float(np.hypot(a, b))
         # the standard error of the amplitude (delta method, the two coefficients independent)
         amp_se = float(np.hypot(a * se[0], b * se[1]) / amp) if amp > 0 else float(np.hypot(*se))
-        rms = _rms_torque(ctx, joint)
+        rms = ctx.rms_torque(joint)
         return (
             {
                 "amplitude_Nm": r4(amp),

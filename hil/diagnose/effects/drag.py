@@ -32,8 +32,7 @@ class VelocitySquaredDrag(Effect):
     def estimate(self, ctx, joint, beta, se, at):
         c, s = float(beta[0]), float(se[0])
         v2 = rms_speed(ctx, joint) ** 2
-        tau = ctx.predicted()[:, joint]
-        rms = max(float(np.sqrt(np.mean(tau[np.isfinite(tau)] ** 2))), 1e-12)
+        rms = ctx.rms_torque(joint)
         return (
             {
                 "coefficient_Nms2": r4(c),

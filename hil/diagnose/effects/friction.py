@@ -33,7 +33,8 @@ class FrictionLevel(Effect):
     width = 2
     partners = ("torque_offset",)
     separate = "slow constant-speed sweeps in both directions (friction against speed)"
-    floor = 0.02  # Nm at the RMS speed
+    floor = 0.005  # of the joint's RMS torque (a 0.2 Nm offset on an arm of 41 Nm RMS)
+    floor_of_torque = True
 
     def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
         return ctx.Psi_raw[:, :, list(friction_index(ctx, joint))]

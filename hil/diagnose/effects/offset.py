@@ -25,7 +25,8 @@ class TorqueOffset(Effect):
         "hold the joint still against a known torque (an offset acts at rest, a Coulomb "
         "asymmetry only in motion)"
     )
-    floor = 0.02  # Nm
+    floor = 0.005  # of the joint's RMS torque (a 0.2 Nm offset on an arm of 41 Nm RMS)
+    floor_of_torque = True
 
     def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
         return ctx.stack(lambda r: offset_column(r, joint))
