@@ -32,15 +32,32 @@ import numpy as np
 from hil.diagnose.drift.fit import Fit
 from hil.diagnose.drift.terms import Term
 from hil.diagnose.selection import jackknife_se
-from hil.diagnose.stats import CrossValidation, block_stats, cross_validate
+from hil.diagnose.stats import RIDGE, BlockStats, CrossValidation, block_stats, cross_validate
+
+# A pattern whose columns keep less than this fraction of their energy outside θ's columns
+# (unit-norm columns) is θ's own direction: with θ free its coefficient is set by the fit's
+# ridge (:data:`hil.diagnose.stats.RIDGE`), not by the data, and resolves nothing
+OUTSIDE_THETA = 100 * RIDGE
 
 
-def _with_theta(fit: Fit, terms: Sequence[Term]) -> CrossValidation:
+def _with_theta(fit: Fit, terms: Sequence[Term]) -> tuple[CrossValidation, BlockStats]:
     """The terms fitted together with a free change of θ (Ψ's columns, scaled as the rows) on
-    ``fit``'s rows: coefficients [δθ, β]."""
+    ``fit``'s rows: coefficients [δθ, β]; and the statistics of that design."""
     Psi = fit.prob.Psi_raw / fit.scale[None, :, None]
     Z = np.concatenate([Psi, fit.design(terms)], axis=-1)
-    return cross_validate(block_stats(Z, fit.target(terms), fit.prob.w, fit.prob.blocks))
+    stats = block_stats(Z, fit.target(terms), fit.prob.w, fit.prob.blocks)
+    return cross_validate(stats), stats
+
+
+def outside_theta(stats: BlockStats, width: int) -> float:
+    """The smallest fraction of the last ``width`` columns' energy (unit-norm columns) that
+    θ's columns, the others, cannot take up: the Schur complement's least eigenvalue."""
+    G = stats.G.sum(axis=(0, 1))
+    d = np.sqrt(np.maximum(np.diag(G), 1e-300))
+    G = G / np.outer(d, d)
+    a, b = G[:-width, :-width], G[:-width, -width:]
+    schur = G[-width:, -width:] - b.T @ np.linalg.pinv(a, rcond=1e-12, hermitian=True) @ b
+    return float(np.linalg.eigvalsh(0.5 * (schur + schur.T)).min())
 
 
 def free_change_in_se(fit: Fit, others: Sequence[Term], term: Term) -> float:
@@ -50,9 +67,11 @@ def free_change_in_se(fit: Fit, others: Sequence[Term], term: Term) -> float:
     ref = fit.reference
     assert ref is not None
     terms = [*others, term]
-    rec = _with_theta(fit, terms)
-    back = _with_theta(ref, [fit.on_reference(t) for t in terms])
+    rec, stats = _with_theta(fit, terms)
+    back, stats_back = _with_theta(ref, [fit.on_reference(t) for t in terms])
     w = term.width
+    if min(outside_theta(stats, w), outside_theta(stats_back, w)) < OUTSIDE_THETA:
+        return 0.0  # θ's own direction: another θ explains it exactly
     d = rec.beta[-w:] - back.beta[-w:]
     norm = float(np.linalg.norm(d))
     if not np.isfinite(norm) or norm == 0.0:
