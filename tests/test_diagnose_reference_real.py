@@ -133,6 +133,21 @@ def test_another_motion_of_the_unchanged_arm_is_no_rotor_inertia_change():
     assert not result.findings, [(f.effect, f.joint) for f in result.findings]
 
 
+@pytest.mark.slow
+def test_no_gain_since_a_reference_that_records_no_torque_on_the_joint():
+    """C.0 trajectory 04 drives joint 2 only, 06 joint 1 only: judged against 06's model, a
+    joint-2 torque gain of the recording has no "since" (the reference shows no torque path on
+    joint 2) and is not tested (old code: ``torque_gain:2`` on 03 and 04 against 06)."""
+    records = realdata("dfki-double-pendulum") / "records"
+    stem = "design_C.0__20220914__sys_id__trajectory_{}.csv"
+    rec, ref = records / stem.format("04"), records / stem.format("06")
+    if not (rec.is_file() and ref.is_file()):
+        pytest.skip("../shared/realdata/dfki-double-pendulum not present")
+    result = _judge(rec, ref, "dfki-c0")
+    assert "torque_gain:2" not in result.document["tested"], result.document["tested"]
+    assert not result.findings, [(f.effect, f.joint) for f in result.findings]
+
+
 def test_a_pattern_inside_thetas_columns_resolves_nothing_unpaired():
     """On the committed A.0 recording: the 2-DOF payload's columns are θ1..θ5's own (a point
     mass on link 2 is a change of θ), so with θ free their coefficient is set by the fit's
