@@ -15,6 +15,7 @@ from scipy.stats import t as student_t
 
 from hil.diagnose.drift.fit import Fit, change_se, term_sizes
 from hil.diagnose.drift.terms import Term
+from hil.diagnose.drift.unpaired import free_change_in_se
 from hil.diagnose.effects import REGISTRY, Context
 from hil.diagnose.selection import (
     FAMILY_ALPHA,
@@ -107,7 +108,10 @@ def drift_passes(fit: Fit, others: Sequence[Term], term: Term, ev: Evidence, tes
     if fit.paired and ev.drop < MIN_REDUCTION * change_energy(fit, term):
         return False
     crit = float(student_t.isf(FAMILY_ALPHA / tests / 2, max(len(fit.starts) - 1, 1)))
-    return change_in_se(fit, others, term) >= crit
+    if change_in_se(fit, others, term) < crit:
+        return False
+    # another motion: θ refitted is the competitor (:mod:`hil.diagnose.drift.unpaired`)
+    return fit.paired or free_change_in_se(fit, others, term) >= crit
 
 
 def change_energy(fit: Fit, term: Term) -> float:
