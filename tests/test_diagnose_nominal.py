@@ -265,8 +265,9 @@ def test_urdf_params_from_hil_identify_is_the_nominal_model(cicese3, capsys, tmp
 
 def test_a_gain_column_that_explains_the_whole_torque_has_no_finite_size():
     """β = 1 − 1/g of the gain column at or beyond 1 has no finite positive gain: its size is
-    unbounded (and no finding: :func:`hil.diagnose.drift.judge.size_gates`), not a clamped 0.99 read as a
-    gain of 100 (the "gain size 99" seen on DFKI C.0 joint 2); below 1 the size is g − 1."""
+    unbounded (and no finding: :func:`hil.diagnose.drift.judge.size_gates`), not a clamped
+    0.99 read as a gain of 100 (the "gain size 99" seen on DFKI C.0 joint 2); below 1 the size
+    is g − 1."""
     gain = REGISTRY["torque_gain"]
     for b in (1.0, 3.0):
         est, size, se = gain.estimate(None, 1, np.array([b]), np.array([0.01]), None)
