@@ -276,3 +276,28 @@ def test_a_gain_column_that_explains_the_whole_torque_has_no_finite_size():
     est, size, se = gain.estimate(None, 1, np.array([0.5]), np.array([0.01]), None)
     assert est["gain"] == pytest.approx(2.0) and size == pytest.approx(1.0)
     assert se == pytest.approx(0.04)
+
+
+def test_reference_diagnosis_builds_each_recordings_rows_once(arm, capsys, monkeypatch):
+    """``--reference``: the judge reuses the rows the diagnosis built (issue 26, the Panda
+    pair's CPU time): one regressor per recording and per reference, and the same document as
+    when the judge builds its own."""
+    import hil.diagnose.cli as cli
+    import hil.diagnose.selection as selection
+
+    args = (str(arm["gain_b"]), "--robot", "cicese", "--reference", str(arm["null_a"]))
+    built = []
+    real_rows = selection.recording_rows
+    monkeypatch.setattr(
+        selection, "recording_rows", lambda *a, **k: built.append(1) or real_rows(*a, **k)
+    )
+    doc = _diagnose(capsys, *args)
+    assert len(built) == 2  # the recording's and the reference's
+    real_judge = cli.judge
+    monkeypatch.setattr(cli, "judge", lambda *a, rows=None, **k: real_judge(*a, **k))
+    again = _diagnose(capsys, *args)
+    assert len(built) == 2 + 3  # the judge built the recording's rows again
+    for d in (doc, again):
+        d.pop("timing_s", None)
+        d["nominal"].pop("timing_s", None)
+    assert json.dumps(doc, sort_keys=True) == json.dumps(again, sort_keys=True)

@@ -204,7 +204,10 @@ def run_diagnose(args: argparse.Namespace) -> tuple[dict, list[Recording]]:
         if any(paths):
             doc["torque_path"] = [p for p in paths if p]
     if judged_against is not None:
-        merge_drift(doc, judge(recs, judged_against, progress=_progress))
+        # the rows diagnose built, when in the nominal model's parameters: not built again
+        same = all(r.model is judged_against.model for r in result.diagnosis.rows)
+        rows = result.diagnosis.rows if same else None
+        merge_drift(doc, judge(recs, judged_against, progress=_progress, rows=rows))
     else:
         doc["nominal"] = {
             "source": "refit",

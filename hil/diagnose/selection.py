@@ -543,14 +543,26 @@ def check_recording(name: str, t: np.ndarray, q: np.ndarray, tau: np.ndarray) ->
 def build_problem(
     recordings: Sequence[tuple[np.ndarray, ...]],
     model: ArmDynamics | None = None,
+    *,
+    rows: Sequence[RecordingRows] | None = None,
 ) -> tuple[Problem, np.ndarray]:
     """Nominal regression of (q, τ, h) or (q, τ, h, t) recordings (t: the real sample times)
-    and its fit θ̂, in ``model``'s parameters (default the 9 of the 2-DOF model)."""
+    and its fit θ̂, in ``model``'s parameters (default the 9 of the 2-DOF model). ``rows``:
+    the recordings' rows already built in ``model`` (a :class:`Problem`'s, which does not
+    change them): used as they are, the regressor not built again."""
     model = ArmModel(()) if model is None else model
-    rows = [
-        recording_rows(r[0], r[1], r[2], t=r[3] if len(r) > 3 else None, model=model)
-        for r in recordings
-    ]
+    if rows is not None and (
+        len(rows) != len(recordings) or any(r.model is not model for r in rows)
+    ):
+        raise ValueError("build_problem: the rows given are not the recordings' in this model")
+    rows = (
+        list(rows)
+        if rows is not None
+        else [
+            recording_rows(r[0], r[1], r[2], t=r[3] if len(r) > 3 else None, model=model)
+            for r in recordings
+        ]
+    )
     y, Psi, w = _stack(rows)
     theta = fit_theta(Psi, y, w)
     scale = robust_scale(y - Psi @ theta, w)

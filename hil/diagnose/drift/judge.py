@@ -192,8 +192,12 @@ def judge(
     recordings: Sequence[Recording],
     nominal: Nominal,
     progress: Callable[[str], None] | None = None,
+    *,
+    rows: Sequence[Any] | None = None,
 ) -> DriftResult:
-    """Judge ``recordings`` against ``nominal`` (module doc)."""
+    """Judge ``recordings`` against ``nominal`` (module doc). ``rows``: the recordings' rows in
+    ``nominal.model`` already built (:func:`hil.diagnose.pipeline.diagnose`'s
+    ``Diagnosis.rows``): the regressor is then not built a second time."""
     say = progress or (lambda _m: None)
     model = nominal.model
     theta0 = np.asarray(nominal.theta, float)
@@ -201,7 +205,7 @@ def judge(
         raise ValueError(
             f"the nominal θ holds {len(theta0)} numbers; the model has {model.n_params}"
         )
-    prob, _ = build_problem(problem_inputs(recordings), model)
+    prob, _ = build_problem(problem_inputs(recordings), model, rows=rows)
     fit = make_fit(prob, model, theta0, nominal.terms, nominal.geometry)
     if nominal.reference is not None:
         ref_prob = common_prefix(prob, nominal.reference, model)
