@@ -249,7 +249,7 @@ def unresolved_rate_terms(prob: Problem, findings: Sequence[Finding]) -> dict[st
         return {}
     h = min(float(r.h) for r in prob.rows)
     floor = RESOLVABLE_INTERVALS * h
-    return {
+    out = {
         f"rate:{j}": (
             f"a lag or delay of {1e3 * max(ts):.3g} ms is under {RESOLVABLE_INTERVALS:g} of the "
             f"{1e3 * h:.3g} ms sample interval: the samples cannot resolve it"
@@ -257,6 +257,41 @@ def unresolved_rate_terms(prob: Problem, findings: Sequence[Finding]) -> dict[st
         for j, ts in times.items()
         if ts and max(ts) < floor
     }
+    # the other end: a search that ends on its longest time bracketed no minimum, so the size is
+    # the grid's, not the data's (a DFKI A.0 copy with an offset written in: joint 2's "lag" and
+    # "delay" both at 30 ms, a slow misfit of the model that any long response smooths)
+    ceiling = RANGE_END * float(LAG_GRID_S[-1])
+    # a lag or delay makes the shaft torque follow the recorded one: a rate term whose
+    # first-order time is negative (the shaft would lead) is no lag or delay, whatever the
+    # searches over positive times return (a DFKI A.0 copy: −0.23 ms, then a "16 ms lag")
+    lead = {}
+    for f in findings:
+        for j, v in (f.evidence.get("first_order_time_s") or {}).items():
+            if v is not None and float(v) <= 0:
+                lead[int(j)] = float(v)
+    out.update(
+        {
+            f"rate:{j}": (
+                f"its first-order time is {1e3 * v:.3g} ms: the shaft torque would lead the "
+                "recorded one, which no lag or delay does"
+            )
+            for j, v in lead.items()
+        }
+    )
+    out.update(
+        {
+            f"rate:{j}": (
+                f"a lag or delay of {1e3 * min(ts):.3g} ms sits at the end of the searched range "
+                f"({1e3 * float(LAG_GRID_S[-1]):.3g} ms): the data place no optimum inside it"
+            )
+            for j, ts in times.items()
+            if ts and min(ts) >= ceiling
+        }
+    )
+    return out
+
+
+RANGE_END = 0.999  # a lag or delay at this fraction of the longest time searched sits at its end
 
 
 def resolve_gain(

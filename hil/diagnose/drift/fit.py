@@ -173,10 +173,17 @@ class Fit:
     def _steps(self, terms: list[Term], only: Term | None) -> None:
         for _ in range(REFINE_STEPS):
             beta = self.cv(terms).beta
+            moved = False
             for t, b in zip(terms, self.split(beta, terms), strict=True):
                 if t.effect.nonlinear and (only is None or t is only):
-                    t.at = t.effect.update(self.ctx, t.joint, b, t.at)
+                    at = t.effect.update(self.ctx, t.joint, b, t.at)
+                    if t.effect.settled(t.at, at):
+                        continue  # its columns stand: a rebuild gives them again
+                    t.at = at
                     self.build(t)
+                    moved = True
+            if not moved:
+                break  # nothing moved: the next step's fit is this one's
 
 
 def make_fit(

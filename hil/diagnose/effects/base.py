@@ -101,6 +101,8 @@ class Effect:
     # the size is in Nm and :attr:`floor` a fraction of the joint's RMS torque: an absolute Nm
     # floor names a 2 % offset on an 87 Nm joint and refuses a 10 % one on a 0.2 Nm joint
     floor_of_torque: bool = False
+    # a Gauss–Newton step of the linearisation point smaller than this is converged (its unit)
+    step_tolerance: float = 0.0
     # its size is an amplitude of several coefficients (no sign): a change since the reference
     # is the size of the coefficients' difference, not the difference of two sizes
     sized_by_amplitude: bool = False
@@ -146,6 +148,12 @@ class Effect:
         if self.floor_of_torque and joint is not None:
             return self.floor * ctx.rms_torque(joint)
         return self.floor
+
+    def settled(self, at: Any, new: Any) -> bool:
+        """Whether a Gauss–Newton step from ``at`` to ``new`` is below :attr:`step_tolerance`
+        (0: only no step at all, a cogging's periods, an asymmetry's direction)."""
+        step = np.abs(np.asarray(new, dtype=float) - np.asarray(at, dtype=float))
+        return bool(np.all(step <= self.step_tolerance))
 
     def change(
         self, beta: np.ndarray, beta_back: np.ndarray, se: np.ndarray

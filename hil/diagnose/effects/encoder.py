@@ -63,6 +63,7 @@ class EncoderOffset(Effect):
         "offset moves every reading, a centre-of-mass offset only the gravity torque"
     )
     floor = 3e-4  # rad
+    step_tolerance = 1e-7  # rad: 0.03 % of the floor
 
     def acts_on(self, ctx: Context, joint: int | None) -> list[int]:
         return list(range(ctx.n_joints))  # gravity and inertia of every joint move with q_j

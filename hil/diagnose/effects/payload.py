@@ -79,6 +79,8 @@ class Payload(Effect):
     def variants(self, ctx: Context) -> list[int | None]:
         return [None]
 
+    step_tolerance = 1e-7  # m of the centre
+
     def start(self, ctx: Context, joint: int | None) -> Any:
         return np.zeros(1 if ctx.closed_form else 3)
 
