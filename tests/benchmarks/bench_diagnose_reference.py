@@ -12,11 +12,8 @@ message when the Panda recording is absent. ``--profile FILE``: the child runs u
 and writes its statistics there (``python -m pstats FILE``; the CPU time then includes the
 profiler's own).
 
-Measured (seed 0, the shared two cores at a load of 12–18): 31–33 s CPU and 650–720 MB
-(three runs); the tree that built the encoder-offset rows from the 64-column regressor
-(69–84 % of its time in profiles: 14 rebuilds, the kinetic-energy gradient a Python loop per
-node) took 78–84 s and 740–830 MB (two runs, one side by side with one of the three). What is
-left is mostly the regressors of the three nominal problems (docs/diagnosis.md, "Cost").
+Measured (seed 0, load 1–3): 107 s CPU and 1.31 GB (one run; 115 s under cProfile): the target is not met;
+where the time goes: docs/diagnosis.md, "Cost".
 """
 
 from __future__ import annotations

@@ -146,6 +146,10 @@ def reverse_check(
 
 
 BELOW_FLOOR = "below the smallest size worth naming"
+BELOW_SE = "smaller than its own uncertainty"
+# a term whose held-out proof passed but whose size is not resolved (within its SE or under its
+# floor): real structure of the change, not named, kept in the fit (module doc)
+UNRESOLVED = (BELOW_FLOOR, BELOW_SE)
 
 
 def size_gates(fit: Fit, accepted: list[Term], nominal: Nominal, tests: int) -> dict[str, str]:
@@ -163,10 +167,7 @@ def size_gates(fit: Fit, accepted: list[Term], nominal: Nominal, tests: int) -> 
         elif not drift_passes(fit, others, t, ev, tests):
             failed[t.key] = "its held-out proof on top of the others failed"
         elif abs(size) < RESOLVED_SE * size_se:
-            failed[t.key] = (
-                f"smaller than its own uncertainty ({size:.3g} ± {size_se:.2g}): below what "
-                "the data resolve"
-            )
+            failed[t.key] = f"{BELOW_SE} ({size:.3g} ± {size_se:.2g}): below what the data resolve"
         elif abs(size) < (smallest := t.effect.smallest(fit.ctx, t.joint)):
             failed[t.key] = f"{BELOW_FLOOR} ({smallest:.3g})"
     return failed
@@ -222,10 +223,12 @@ def judge(
     say(f"diagnose: against the {nominal.source} model: testing {len(cands)} drift patterns")
     not_findings: dict[str, str] = {}
     tested: dict[str, dict] = {}
-    # terms below the smallest size worth naming but proven otherwise: kept in the fit and not
-    # named, so that no other pattern stands in for them (a 0.01 Nm Coulomb asymmetry that
-    # explained 99.99 % of the change was left out, and a gain, an encoder angle and a rotor
-    # inertia took its place, each above its own floor)
+    # terms proven (their held-out proof passed) but with a size the data do not resolve (under
+    # twice its SE or under the smallest size worth naming): kept in the fit and not named, so
+    # that no other pattern stands in for them (a 0.01 Nm Coulomb asymmetry that explained
+    # 99.99 % of the change was left out, and a gain, an encoder angle and a rotor inertia took
+    # its place, each above its own floor; a 0.05 rad encoder angle on A.0's joint 1 at 1.9 SE
+    # left out, and a 0.017 Nm offset on joint 2, part of its gravity torque, was named)
     silent: list[Term] = []
     for _ in range(GATE_ROUNDS):
         # a term that fails a gate is left out and the selection run again: it may have stood
@@ -237,7 +240,7 @@ def judge(
         for k, v in seen.items():
             tested.setdefault(k, v)
         failed = size_gates(fit, accepted, nominal, len(cands))
-        silent = [t for t in accepted if failed.get(t.key, "").startswith(BELOW_FLOOR)]
+        silent = [t for t in accepted if failed.get(t.key, "").startswith(UNRESOLVED)]
         quiet = {t.key for t in silent}
         kept = [t for t in accepted if t.key not in failed or t.key in quiet]
         if len(kept) < len(accepted):
