@@ -230,11 +230,17 @@ RESOLVABLE_INTERVALS = 0.25
 
 
 def unresolved_rate_terms(prob: Problem, findings: Sequence[Finding]) -> dict[str, str]:
-    """The rate terms (Candidate keys ``rate:j``) whose every lag and delay finding is shorter
-    than :data:`RESOLVABLE_INTERVALS` of the sample interval (the shortest recording's median),
-    each with its reason. A delay found on all joints (joint None) counts for each joint tested
-    with its own per-joint value."""
+    """The rate terms (Candidate keys ``rate:j``) whose lag and delay findings the data do not
+    resolve, each with its reason: every one shorter than :data:`RESOLVABLE_INTERVALS` of the
+    sample interval (the shortest recording's median); a first-order time ≤ 0 (the shaft torque
+    would lead the recorded one, which no lag or delay does, whatever the searches over
+    positive times return: a DFKI A.0 copy gave −0.23 ms, then a "16 ms lag"); or every one at
+    the end of the searched range (the search bracketed no minimum, so the size is the grid's,
+    not the data's: an A.0 copy with an offset written in gave joint 2 a 30 ms "lag" and
+    "delay", a slow misfit of the model that any long response smooths). A delay found on all
+    joints (joint None) counts for each joint tested with its own per-joint value."""
     times: dict[int, list[float]] = {}
+    lead: dict[int, float] = {}
     for f in findings:
         if f.effect == "actuator_lag":
             times.setdefault(f.joint, []).append(float(f.estimate["time_constant_s"]))
@@ -245,49 +251,32 @@ def unresolved_rate_terms(prob: Problem, findings: Sequence[Finding]) -> dict[st
             tested = f.evidence.get("joints_tested") or list(range(1, len(per) + 1))
             for j, d in zip(tested, per, strict=False):
                 times.setdefault(j, []).append(float(d))
+        for j, v in (f.evidence.get("first_order_time_s") or {}).items():
+            if v is not None and float(v) <= 0:
+                lead[int(j)] = float(v)
     if not times:
         return {}
     h = min(float(r.h) for r in prob.rows)
     floor = RESOLVABLE_INTERVALS * h
-    out = {
-        f"rate:{j}": (
-            f"a lag or delay of {1e3 * max(ts):.3g} ms is under {RESOLVABLE_INTERVALS:g} of the "
-            f"{1e3 * h:.3g} ms sample interval: the samples cannot resolve it"
-        )
-        for j, ts in times.items()
-        if ts and max(ts) < floor
-    }
-    # the other end: a search that ends on its longest time bracketed no minimum, so the size is
-    # the grid's, not the data's (a DFKI A.0 copy with an offset written in: joint 2's "lag" and
-    # "delay" both at 30 ms, a slow misfit of the model that any long response smooths)
-    ceiling = RANGE_END * float(LAG_GRID_S[-1])
-    # a lag or delay makes the shaft torque follow the recorded one: a rate term whose
-    # first-order time is negative (the shaft would lead) is no lag or delay, whatever the
-    # searches over positive times return (a DFKI A.0 copy: −0.23 ms, then a "16 ms lag")
-    lead = {}
-    for f in findings:
-        for j, v in (f.evidence.get("first_order_time_s") or {}).items():
-            if v is not None and float(v) <= 0:
-                lead[int(j)] = float(v)
-    out.update(
-        {
-            f"rate:{j}": (
-                f"its first-order time is {1e3 * v:.3g} ms: the shaft torque would lead the "
-                "recorded one, which no lag or delay does"
-            )
-            for j, v in lead.items()
-        }
-    )
-    out.update(
-        {
-            f"rate:{j}": (
+    longest = float(LAG_GRID_S[-1])
+    out = {}
+    for j in [*times, *(j for j in lead if j not in times)]:  # the order the reasons were found
+        ts = times.get(j, [])
+        if ts and min(ts) >= RANGE_END * longest:
+            out[f"rate:{j}"] = (
                 f"a lag or delay of {1e3 * min(ts):.3g} ms sits at the end of the searched range "
-                f"({1e3 * float(LAG_GRID_S[-1]):.3g} ms): the data place no optimum inside it"
+                f"({1e3 * longest:.3g} ms): the data place no optimum inside it"
             )
-            for j, ts in times.items()
-            if ts and min(ts) >= ceiling
-        }
-    )
+        elif j in lead:
+            out[f"rate:{j}"] = (
+                f"its first-order time is {1e3 * lead[j]:.3g} ms: the shaft torque would lead "
+                "the recorded one, which no lag or delay does"
+            )
+        elif ts and max(ts) < floor:
+            out[f"rate:{j}"] = (
+                f"a lag or delay of {1e3 * max(ts):.3g} ms is under {RESOLVABLE_INTERVALS:g} of "
+                f"the {1e3 * h:.3g} ms sample interval: the samples cannot resolve it"
+            )
     return out
 
 

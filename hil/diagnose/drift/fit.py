@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -132,6 +133,20 @@ class Fit:
         if not parts:
             return beta - beta_back, se
         return np.concatenate([b for b, _ in parts]), np.concatenate([s for _, s in parts])
+
+    def since_reference(
+        self, terms: Sequence[Term], cv: CrossValidation, w_back: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, list[Any]]:
+        """The change since the reference of ``terms`` fitted in ``cv`` (the recording's rows):
+        the same terms fitted on the reference's rows (weights ``w_back``; None: all), their
+        coefficients taken off term by term (:meth:`change`), the SE that of the difference
+        (:func:`change_se`), and where each change is read (:meth:`Effect.change_point`)."""
+        assert self.reference is not None
+        back = self.reference.cv([self.on_reference(t) for t in terms], w_back)
+        se = change_se(cv.fold_beta, back.fold_beta, self.paired)
+        beta, se = self.change(terms, cv.beta, back.beta, se)
+        ats = [t.effect.change_point(self.ctx, t.joint, t.at) for t in terms]
+        return beta, se, ats
 
     def build(self, term: Term) -> Term:
         term.cols = np.nan_to_num(term.effect.columns(self.ctx, term.joint, term.at))

@@ -221,12 +221,8 @@ def term_estimates(
     se = np.hypot(jackknife_se(cv.fold_beta), nominal_spread(fit, terms, draws))
     beta, ats = cv.beta, [t.at for t in terms]
     if fit.reference is not None and terms:
-        back = fit.reference.cv([fit.on_reference(t) for t in terms])
-        beta, se = fit.change(
-            terms, beta, back.beta, change_se(cv.fold_beta, back.fold_beta, fit.paired)
-        )
+        beta, se, ats = fit.since_reference(terms, cv)
         se = np.hypot(se, nominal_spread(fit, terms, draws))
-        ats = [t.effect.change_point(fit.ctx, t.joint, t.at) for t in terms]
     out = [
         t.effect.estimate(fit.ctx, t.joint, b, s, at)
         for t, b, s, at in zip(

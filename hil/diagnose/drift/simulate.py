@@ -61,16 +61,11 @@ def trained_estimates(fit: Fit, terms: Sequence[Term]) -> list[dict]:
     that gain threw the true finding out)."""
     if not terms:
         return []
-    train = _masks(fit.prob)[0]
-    beta = fit.cv(terms, fit.prob.w * train[:, None]).beta
-    ats = [t.at for t in terms]
+    cv = fit.cv(terms, fit.prob.w * _masks(fit.prob)[0][:, None])
+    beta, ats = cv.beta, [t.at for t in terms]
     if fit.reference is not None:
         ref = fit.reference
-        back = ref.cv(
-            [fit.on_reference(t) for t in terms], ref.prob.w * _masks(ref.prob)[0][:, None]
-        )
-        beta, _se = fit.change(terms, beta, back.beta, np.zeros_like(beta))
-        ats = [t.effect.change_point(fit.ctx, t.joint, t.at) for t in terms]
+        beta, _se, ats = fit.since_reference(terms, cv, ref.prob.w * _masks(ref.prob)[0][:, None])
     return [
         t.effect.estimate(fit.ctx, t.joint, b, np.zeros_like(b), at)[0]
         for t, b, at in zip(terms, fit.split(beta, terms), ats, strict=True)
