@@ -11,6 +11,7 @@ import argparse
 import importlib.util
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -55,14 +56,29 @@ def _judge(recording: Path, reference: Path, robot: str = "dfki-a0"):
     return judge([read(recording)], nominal)
 
 
-def _written(tmp_path: Path, effect: str, joint: int, seed: int) -> tuple[Path, Path, dict]:
+def _written(
+    tmp_path: Path, effect: str, joint: int, seed: int | None = None, draws: Any = None
+) -> tuple[Path, Path, dict]:
+    """``effect`` written into a copy of the committed A.0 file, its size drawn by the generator
+    from ``seed`` (or from ``draws``, an object with its ``uniform`` and ``choice``)."""
     gen = _generator()
     src = gen.dfki_source(DFKI_FILE, "dfki-a0")
-    out, truth = gen.make_effect(src, effect, joint, np.random.default_rng(seed))
+    rng = np.random.default_rng(seed) if draws is None else draws
+    out, truth = gen.make_effect(src, effect, joint, rng)
     rec, ref = tmp_path / "recording.csv", tmp_path / "reference.csv"
     out.write(rec)
     src.write(ref)
     return rec, ref, truth
+
+
+def _records(stem: str, recording: str, reference: str) -> tuple[Path, Path]:
+    """Two recordings of ../shared/realdata/dfki-double-pendulum (``stem`` formatted with each
+    name); the test is skipped with a message when they are absent."""
+    records = realdata("dfki-double-pendulum") / "records"
+    rec, ref = records / stem.format(recording), records / stem.format(reference)
+    if not (rec.is_file() and ref.is_file()):
+        pytest.skip("../shared/realdata/dfki-double-pendulum not present")
+    return rec, ref
 
 
 def _only(result, effect: str) -> dict:
@@ -128,12 +144,7 @@ def test_a_change_below_the_floor_is_not_named_and_nothing_stands_in(tmp_path):
     change), below the smallest size worth naming, so not named; and kept in the fit, so that
     no other pattern takes its place (old code: left out, then a gain, an encoder angle and a
     rotor inertia each explained a part of it above their own floors)."""
-    gen = _generator()
-    src = gen.dfki_source(DFKI_FILE, "dfki-a0")
-    out, _truth = gen.make_effect(src, "coulomb_asymmetry", 0, _Draws(0.001))
-    rec, ref = tmp_path / "recording.csv", tmp_path / "reference.csv"
-    out.write(rec)
-    src.write(ref)
+    rec, ref, _truth = _written(tmp_path, "coulomb_asymmetry", 0, draws=_Draws(0.001))
     result = _judge(rec, ref)
     assert result.used and not result.findings, [f.effect for f in result.findings]
     why = result.document["not_findings"].get("coulomb_asymmetry:1", "")
@@ -165,11 +176,9 @@ def test_another_recording_of_the_arm_is_not_a_change():
     pooled ratio over the joints (weighted by θ₀'s own residual scale) let through as a torque
     gain on joint 2 and a drag on joint 1. Per joint, the model is refused and nothing is
     reported."""
-    records = realdata("dfki-double-pendulum") / "records"
-    stem = "design_A.0__20220812__sys_id__20220812-{}-PM_measured.csv"
-    rec, ref = records / stem.format("055032"), records / stem.format("055640")
-    if not (rec.is_file() and ref.is_file()):
-        pytest.skip("../shared/realdata/dfki-double-pendulum not present")
+    rec, ref = _records(
+        "design_A.0__20220812__sys_id__20220812-{}-PM_measured.csv", "055032", "055640"
+    )
     result = _judge(rec, ref)
     assert not result.findings, [f.effect for f in result.findings]
 
@@ -182,11 +191,7 @@ def test_another_motion_of_the_unchanged_arm_is_no_rotor_inertia_change():
     +0.0064 ± 0.0011 kg m² passed every gate (old code). With θ refitted on both sides as its
     competitor (hil/diagnose/drift/unpaired.py) the change is not resolved, and nothing is
     reported."""
-    records = realdata("dfki-double-pendulum") / "records"
-    stem = "design_C.0__20220914__sys_id__trajectory_{}.csv"
-    rec, ref = records / stem.format("01"), records / stem.format("02")
-    if not (rec.is_file() and ref.is_file()):
-        pytest.skip("../shared/realdata/dfki-double-pendulum not present")
+    rec, ref = _records("design_C.0__20220914__sys_id__trajectory_{}.csv", "01", "02")
     result = _judge(rec, ref, "dfki-c0")
     assert not result.findings, [(f.effect, f.joint) for f in result.findings]
 
@@ -196,11 +201,7 @@ def test_no_gain_since_a_reference_that_records_no_torque_on_the_joint():
     """C.0 trajectory 04 drives joint 2 only, 06 joint 1 only: judged against 06's model, a
     joint-2 torque gain of the recording has no "since" (the reference shows no torque path on
     joint 2) and is not tested (old code: ``torque_gain:2`` on 03 and 04 against 06)."""
-    records = realdata("dfki-double-pendulum") / "records"
-    stem = "design_C.0__20220914__sys_id__trajectory_{}.csv"
-    rec, ref = records / stem.format("04"), records / stem.format("06")
-    if not (rec.is_file() and ref.is_file()):
-        pytest.skip("../shared/realdata/dfki-double-pendulum not present")
+    rec, ref = _records("design_C.0__20220914__sys_id__trajectory_{}.csv", "04", "06")
     result = _judge(rec, ref, "dfki-c0")
     assert "torque_gain:2" not in result.document["tested"], result.document["tested"]
     assert not result.findings, [(f.effect, f.joint) for f in result.findings]
