@@ -14,7 +14,8 @@ from pathlib import Path
 
 import can
 import pytest
-from cli_run import start_hil
+from cli_run import finish_all, start_hil
+from hosts import open_together
 
 from drivers.arm import LinkError, SafetyLimits
 from drivers.can_arm import CanArm
@@ -70,28 +71,6 @@ def bus() -> Iterator[Bus]:
         b.close()
 
 
-def _open_together(arms: list[CanArm]) -> list[str]:
-    """Open every arm at once (a barrier releases their threads together): "open" or the
-    LinkError of each."""
-    barrier = threading.Barrier(len(arms))
-    outcomes = [""] * len(arms)
-
-    def attach(i: int) -> None:
-        barrier.wait()
-        try:
-            arms[i].open()
-            outcomes[i] = "open"
-        except LinkError as exc:
-            outcomes[i] = str(exc)
-
-    threads = [threading.Thread(target=attach, args=(i,)) for i in range(len(arms))]
-    for thread in threads:
-        thread.start()
-    for thread in threads:
-        thread.join(timeout=60)
-    return outcomes
-
-
 def _runs(arm: CanArm, periods: int = 200) -> None:
     arm.enable()
     arm.start()
@@ -103,7 +82,7 @@ def _runs(arm: CanArm, periods: int = 200) -> None:
 @pytest.mark.parametrize("attempt", range(3))
 def test_two_hosts_attaching_together_one_refuses_the_other_runs(bus, attempt):
     arms = [bus.host(), bus.host()]
-    outcomes = _open_together(arms)
+    outcomes = open_together(arms)
     assert sorted(outcomes)[1] == "open", outcomes  # exactly one attached
     refusal = sorted(outcomes)[0]
     assert refusal.startswith(REFUSAL) and "\n" not in refusal, outcomes
@@ -170,13 +149,7 @@ def test_two_host_processes_on_a_bus_without_a_hub(tmp_path, attempt):
         server.start()
         try:
             procs = [start_hil(*_attach(tmp_path / name, hub.port)) for name in "ab"]
-            results = []
-            for proc in procs:
-                try:
-                    _, err = proc.communicate(timeout=120)
-                finally:
-                    proc.kill()
-                results.append((proc.returncode, err))
+            results = [(code, err) for code, _, err in finish_all(procs, timeout=120)]
         finally:
             server.stop()
             bus.shutdown()
