@@ -55,36 +55,30 @@ def _regressor_rows(rows, theta, q) -> np.ndarray:
 
 # a tree (link1 carries two branches) with a prismatic joint and an unaligned revolute one:
 # the joint types and the shape UrdfArmModel's batched kinematics (urdf_dynamics.Chain) must follow
-TREE_URDF = """<?xml version="1.0"?>
-<robot name="tree">
-  <link name="base"/>
-  {links}
-  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/>
-    <origin xyz="0.1 0 0.3" rpy="0.2 0 0"/><axis xyz="0 0 1"/>
-    <limit lower="-3" upper="3" effort="10" velocity="5"/></joint>
-  <joint name="j2" type="prismatic"><parent link="l1"/><child link="l2"/>
-    <origin xyz="0 0.2 0.1" rpy="0 0.4 0.1"/><axis xyz="1 0 0"/>
-    <limit lower="-1" upper="1" effort="10" velocity="5"/></joint>
-  <joint name="j3" type="revolute"><parent link="l2"/><child link="l3"/>
-    <origin xyz="0.3 0 0" rpy="0 0 0.5"/><axis xyz="0.3 0.5 0.8"/>
-    <limit lower="-3" upper="3" effort="10" velocity="5"/></joint>
-  <joint name="j4" type="revolute"><parent link="l1"/><child link="l4"/>
-    <origin xyz="0 -0.2 0.1" rpy="0.3 0 0"/><axis xyz="0 1 0"/>
-    <limit lower="-3" upper="3" effort="10" velocity="5"/></joint>
-</robot>
-"""
+# (name, type, parent, child, origin xyz, origin rpy, axis)
+TREE_JOINTS = (
+    ("j1", "revolute", "base", "l1", "0.1 0 0.3", "0.2 0 0", "0 0 1"),
+    ("j2", "prismatic", "l1", "l2", "0 0.2 0.1", "0 0.4 0.1", "1 0 0"),
+    ("j3", "revolute", "l2", "l3", "0.3 0 0", "0 0 0.5", "0.3 0.5 0.8"),
+    ("j4", "revolute", "l1", "l4", "0 -0.2 0.1", "0.3 0 0", "0 1 0"),
+)
+JOINT = """<joint name="{}" type="{}"><parent link="{}"/><child link="{}"/>
+  <origin xyz="{}" rpy="{}"/><axis xyz="{}"/>
+  <limit lower="-1" upper="1" effort="10" velocity="5"/></joint>"""
 LINK = """<link name="{name}"><inertial><origin xyz="{c}" rpy="0.1 0.2 0.3"/><mass value="{m}"/>
   <inertia ixx="{i}" ixy="0.001" ixz="0.002" iyy="{i}" iyz="0.001" izz="{i}"/></inertial></link>"""
 
 
 @pytest.fixture(scope="module")
 def tree(tmp_path_factory) -> UrdfArmModel:
-    links = "\n  ".join(
+    links = [
         LINK.format(name=f"l{j}", c=f"{0.05 * j} 0.02 {0.1 - 0.01 * j}", m=1.0 + j, i=0.02 * j)
         for j in range(1, 5)
-    )
+    ]
+    joints = [JOINT.format(*joint) for joint in TREE_JOINTS]
+    body = "\n".join(['<link name="base"/>', *links, *joints])
     path = tmp_path_factory.mktemp("urdf") / "tree.urdf"
-    path.write_text(TREE_URDF.format(links=links))
+    path.write_text(f'<?xml version="1.0"?>\n<robot name="tree">\n{body}\n</robot>\n')
     return UrdfArmModel(path, viscous=np.full(4, 0.1), coulomb=np.full(4, 0.2))
 
 
