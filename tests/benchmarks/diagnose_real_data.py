@@ -61,14 +61,21 @@ HEADER = (
 )
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def table_arguments(doc: str, prefix: str) -> tuple[argparse.Namespace, Path]:
+    """The options of a real-data table script (--records, --out, --table-only) and its
+    output directory (--out, or a new temporary one named ``prefix``...)."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
     ap.add_argument("--records", type=Path, default=RECORDS)
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--table-only", action="store_true", help="format the documents in --out")
     args = ap.parse_args()
-    out = args.out or Path(tempfile.mkdtemp(prefix="ddbench-dfki-diagnosis-"))
+    out = args.out or Path(tempfile.mkdtemp(prefix=prefix))
     out.mkdir(parents=True, exist_ok=True)
+    return args, out
+
+
+def main() -> int:
+    args, out = table_arguments(__doc__, "ddbench-dfki-diagnosis-")
     files = sorted(args.records.glob("*.csv"))
     print(HEADER)
     for f in files:
