@@ -61,6 +61,18 @@ HEADER = (
 )
 
 
+def diagnose_to(target: Path, recordings: list[Path], robot: str) -> str | None:
+    """`hil diagnose RECORDINGS --format dfki --robot ROBOT --json`, its document written to
+    ``target``; the last line of its error when it fails, else None."""
+    argv = [sys.executable, "-m", "hil.cli", "diagnose", *map(str, recordings), "--format",
+            "dfki", "--robot", robot, "--json", "--no-plots"]  # fmt: skip
+    done = subprocess.run(argv, capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        return done.stderr.strip().splitlines()[-1]
+    target.write_text(done.stdout)
+    return None
+
+
 def table_arguments(doc: str, prefix: str) -> tuple[argparse.Namespace, Path]:
     """The options of a real-data table script (--records, --out, --table-only) and its
     output directory (--out, or a new temporary one named ``prefix``...)."""
@@ -82,13 +94,10 @@ def main() -> int:
         target = out / f"{f.stem}.json"
         if not args.table_only:
             robot = "dfki-a0" if f.name.startswith("design_A") else "dfki-c0"
-            argv = [sys.executable, "-m", "hil.cli", "diagnose", str(f), "--format", "dfki"]
-            argv += ["--robot", robot, "--json", "--no-plots"]
-            done = subprocess.run(argv, capture_output=True, text=True, check=False)
-            if done.returncode != 0:
-                print(f"| {f.stem} | error: {done.stderr.strip().splitlines()[-1]} |||||")
+            error = diagnose_to(target, [f], robot)
+            if error:
+                print(f"| {f.stem} | fails: `{error}` |||||")
                 continue
-            target.write_text(done.stdout)
         if target.exists() and target.stat().st_size:
             print(row(f.stem, json.loads(target.read_text())))
     return 0
