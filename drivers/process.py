@@ -186,15 +186,33 @@ def _boot_id() -> str:
         return ""
 
 
-def _start_ticks(pid: int) -> int | None:
-    """Start time of process ``pid`` (clock ticks since boot, /proc/PID/stat field 22)."""
+def _stat_fields(pid: int) -> list[bytes] | None:
+    """/proc/PID/stat's fields from the third (state) on, or None (no such process, not
+    Linux)."""
     try:
         with open(f"/proc/{pid}/stat", "rb") as f:
             stat = f.read()
     except OSError:
         return None
-    try:  # the command name (field 2) may hold spaces and parentheses: split after its ')'
-        return int(stat[stat.rindex(b")") + 2 :].split()[19])
+    # the command name (field 2) may hold spaces and parentheses: split after its ')'
+    return stat[stat.rindex(b")") + 2 :].split() if b")" in stat else None
+
+
+def _start_ticks(pid: int) -> int | None:
+    """Start time of process ``pid`` (clock ticks since boot, /proc/PID/stat field 22)."""
+    fields = _stat_fields(pid)
+    try:
+        return int(fields[19]) if fields else None
+    except (ValueError, IndexError):
+        return None
+
+
+def cpu_ticks(pid: int) -> int | None:
+    """CPU time process ``pid`` has used, user + system (clock ticks, /proc/PID/stat fields 14
+    and 15), or None where it cannot be read: whether a process is still working."""
+    fields = _stat_fields(pid)
+    try:
+        return int(fields[11]) + int(fields[12]) if fields else None
     except (ValueError, IndexError):
         return None
 

@@ -85,6 +85,19 @@ def start_hil(*args: str, module: str = "hil.entry") -> subprocess.Popen:
     )
 
 
+def finish_all(procs: Sequence[subprocess.Popen], timeout: float) -> list[tuple[int, str, str]]:
+    """Wait for each process in turn (each killed if it outlives ``timeout``): its exit status,
+    stdout and stderr."""
+    results = []
+    for proc in procs:
+        try:
+            stdout, stderr = proc.communicate(timeout=timeout)
+        finally:
+            proc.kill()
+        results.append((proc.returncode, stdout, stderr))
+    return results
+
+
 def run_with_robot_paused(
     args: Sequence[str], out: Path, pause_s: float, *, after_rows: int = 100, timeout: float = 60
 ) -> subprocess.CompletedProcess:

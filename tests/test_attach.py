@@ -11,7 +11,6 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -19,8 +18,8 @@ from pathlib import Path
 import can
 import pytest
 from cli_run import ROOT, start_hil, wait_rows
+from hosts import open_together
 
-from drivers.arm import Arm, LinkError
 from drivers.links import open_arm
 from profiles.bench import load_bench
 from virtual_robot.socketcand_hub import SocketcandHub
@@ -115,28 +114,6 @@ def test_a_second_host_is_refused_and_the_first_run_goes_on(
     assert "faulted" not in log.read_text()
 
 
-def _open_together(arms: list[Arm]) -> list[str]:
-    """Open every arm at once (a barrier releases their threads together): each's outcome,
-    "open" or its LinkError."""
-    barrier = threading.Barrier(len(arms))
-    outcomes = [""] * len(arms)
-
-    def attach(i: int) -> None:
-        barrier.wait()
-        try:
-            arms[i].open()
-            outcomes[i] = "open"
-        except LinkError as exc:
-            outcomes[i] = str(exc)
-
-    threads = [threading.Thread(target=attach, args=(i,)) for i in range(len(arms))]
-    for thread in threads:
-        thread.start()
-    for thread in threads:
-        thread.join(timeout=120)
-    return outcomes
-
-
 def test_two_hosts_attaching_together_one_refuses_the_other_runs(
     served: tuple[subprocess.Popen, int, Path],
 ) -> None:
@@ -148,7 +125,7 @@ def test_two_hosts_attaching_together_one_refuses_the_other_runs(
     for _ in range(3):
         arms = [open_arm(bench, {"channel": f"127.0.0.1:{port}"}) for _ in range(2)]
         try:
-            outcomes = _open_together(arms)
+            outcomes = open_together(arms)
             assert sorted(outcomes)[1] == "open", outcomes  # exactly one attached
             refusal = sorted(outcomes)[0]
             assert refusal.startswith("another host is on the bus"), outcomes

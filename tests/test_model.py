@@ -134,16 +134,21 @@ def test_momentum_regressor_is_the_generalized_momentum(theta, states):
     assert np.all(P[..., 3:] == 0)  # gravity and friction have no momentum
 
 
+EPS = 1e-5  # the central difference's step along a trajectory, s
+
+
+def _trajectory_and_neighbours():
+    """(q, q̇, q̈) of :func:`trajectory` at 41 instants in [0.1, 1.9] s, and at each ± EPS."""
+    t = np.linspace(0.1, 1.9, 41)
+    return trajectory(t), trajectory(t + EPS), trajectory(t - EPS)
+
+
 def test_momentum_derivative_plus_static_regressor_is_the_dynamic_regressor():
     """τ = d/dt[P(q, q̇) θ] + R(q, q̇) θ = Y(q, q̇, q̈) θ, eqs. (11)-(13), along a trajectory."""
     rng = np.random.default_rng(11)
-    t = np.linspace(0.1, 1.9, 41)
-    eps = 1e-5
-    q, dq, ddq = trajectory(t)
-    qp, dqp, _ = trajectory(t + eps)
-    qm, dqm, _ = trajectory(t - eps)
+    (q, dq, ddq), (qp, dqp, _), (qm, dqm, _) = _trajectory_and_neighbours()
     for th in (robot_params().theta, random_theta(rng)):
-        dP = (model.momentum_regressor(qp, dqp) - model.momentum_regressor(qm, dqm)) / (2 * eps)
+        dP = (model.momentum_regressor(qp, dqp) - model.momentum_regressor(qm, dqm)) / (2 * EPS)
         lhs = dP @ th + model.static_regressor(q, dq) @ th
         rhs = model.dynamic_regressor(q, dq, ddq) @ th
         np.testing.assert_allclose(lhs, rhs, rtol=1e-7, atol=1e-7)
@@ -167,15 +172,11 @@ def test_energy_regressor_gives_kinetic_plus_potential_energy(theta, states):
 def test_energy_rate_is_the_power_supplied_minus_friction_power():
     """d/dt ℰ = q̇ᵀ(τ − f), eq. (25), with τ from the inverse dynamics along a trajectory."""
     rng = np.random.default_rng(5)
-    t = np.linspace(0.1, 1.9, 41)
-    eps = 1e-5
-    q, dq, ddq = trajectory(t)
-    qp, dqp, _ = trajectory(t + eps)
-    qm, dqm, _ = trajectory(t - eps)
+    (q, dq, ddq), (qp, dqp, _), (qm, dqm, _) = _trajectory_and_neighbours()
     for th in (robot_params().theta, random_theta(rng)):
         tau = model.inverse_dynamics(th, q, dq, ddq)
         f = model.friction_torque(th, dq)
-        rate = (model.total_energy(th, qp, dqp) - model.total_energy(th, qm, dqm)) / (2 * eps)
+        rate = (model.total_energy(th, qp, dqp) - model.total_energy(th, qm, dqm)) / (2 * EPS)
         power = np.sum(dq * (tau - f), axis=-1)
         np.testing.assert_allclose(rate, power, rtol=1e-7, atol=1e-6)
         assert np.max(np.abs(power)) > 1.0  # the check is not vacuous

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import hil.diagnose.effects.encoder as encoder
-import hil.model.urdf as urdf
+import hil.model.urdf_dynamics as urdf_dynamics
 from hil.diagnose.columns import _momentum_rows, model_torque_rows, moving_average, recording_rows
 from hil.diagnose.effects.base import REFINE_STEPS, Context
 from hil.model.closed_form import ArmModel
@@ -53,10 +53,43 @@ def _regressor_rows(rows, theta, q) -> np.ndarray:
     return _momentum_rows(q, rows.tau, *args)[2] @ theta
 
 
-@pytest.mark.parametrize("name", ["cicese3", "panda"])
-def test_urdf_torques_are_the_regressor_products(name, cicese3, panda):
-    model = {"cicese3": cicese3, "panda": panda}[name]
-    theta = _theta(model)
+# a tree (link1 carries two branches) with a prismatic joint and an unaligned revolute one:
+# the joint types and the shape UrdfArmModel's batched kinematics (urdf_dynamics.Chain) must follow
+# (name, type, parent, child, origin xyz, origin rpy, axis)
+TREE_JOINTS = (
+    ("j1", "revolute", "base", "l1", "0.1 0 0.3", "0.2 0 0", "0 0 1"),
+    ("j2", "prismatic", "l1", "l2", "0 0.2 0.1", "0 0.4 0.1", "1 0 0"),
+    ("j3", "revolute", "l2", "l3", "0.3 0 0", "0 0 0.5", "0.3 0.5 0.8"),
+    ("j4", "revolute", "l1", "l4", "0 -0.2 0.1", "0.3 0 0", "0 1 0"),
+)
+JOINT = """<joint name="{}" type="{}"><parent link="{}"/><child link="{}"/>
+  <origin xyz="{}" rpy="{}"/><axis xyz="{}"/>
+  <limit lower="-1" upper="1" effort="10" velocity="5"/></joint>"""
+LINK = """<link name="{name}"><inertial><origin xyz="{c}" rpy="0.1 0.2 0.3"/><mass value="{m}"/>
+  <inertia ixx="{i}" ixy="0.001" ixz="0.002" iyy="{i}" iyz="0.001" izz="{i}"/></inertial></link>"""
+
+
+@pytest.fixture(scope="module")
+def tree(tmp_path_factory) -> UrdfArmModel:
+    links = [
+        LINK.format(name=f"l{j}", c=f"{0.05 * j} 0.02 {0.1 - 0.01 * j}", m=1.0 + j, i=0.02 * j)
+        for j in range(1, 5)
+    ]
+    joints = [JOINT.format(*joint) for joint in TREE_JOINTS]
+    body = "\n".join(['<link name="base"/>', *links, *joints])
+    path = tmp_path_factory.mktemp("urdf") / "tree.urdf"
+    path.write_text(f'<?xml version="1.0"?>\n<robot name="tree">\n{body}\n</robot>\n')
+    return UrdfArmModel(path, viscous=np.full(4, 0.1), coulomb=np.full(4, 0.2))
+
+
+@pytest.mark.parametrize("name", ["cicese3", "panda", "tree"])
+@pytest.mark.parametrize("which", ["near the URDF", "any base vector"])
+def test_urdf_torques_are_the_regressor_products(name, which, cicese3, panda, tree):
+    """M(q) q̇ and g − Cᵀq̇ + f on the bodies that carry θ equal the regressors' products for
+    any θ: also one whose standard vector has zero or negative masses (no Pinocchio
+    inertia can hold it)."""
+    model = {"cicese3": cicese3, "panda": panda, "tree": tree}[name]
+    theta = _theta(model) if which == "near the URDF" else RNG.normal(size=model.n_params)
     q = RNG.uniform(-np.pi, np.pi, (3, 20, model.n_joints))
     dq = RNG.normal(0, 2, q.shape)
     for fast, regressor in (
@@ -66,19 +99,23 @@ def test_urdf_torques_are_the_regressor_products(name, cicese3, panda):
         exact = regressor(q, dq) @ theta
         assert fast(theta, q, dq).shape == exact.shape
         np.testing.assert_allclose(fast(theta, q, dq), exact, rtol=0, atol=1e-12 * abs(exact).max())
-    assert model._theta_bodies(theta) is not None  # through Pinocchio's bodies, not the fallback
+    # and M(q) q̇ is the mass matrix's product (one mechanism: UrdfDynamics)
+    M = model.mass_matrix(theta, q[0])
+    np.testing.assert_allclose(
+        model.momentum(theta, q[0], dq[0]), np.einsum("kij,kj->ki", M, dq[0]), rtol=0,
+        atol=1e-12 * abs(M).max() * abs(dq[0]).max(),
+    )  # fmt: skip
 
 
-def test_bodies_that_miss_the_regressors_fall_back_to_them(cicese3, monkeypatch):
-    theta = _theta(cicese3)
-    q, dq = RNG.normal(size=(2, 30, 3))
-    monkeypatch.setattr(urdf, "THETA_BODIES_TOL", -1.0)  # no bodies ever agree
-    monkeypatch.setattr(cicese3, "_bodies_of", (b"", None))
-    assert cicese3._theta_bodies(theta) is None
-    assert np.array_equal(
-        cicese3.static_torque(theta, q, dq), cicese3.static_regressor(q, dq) @ theta
-    )
-    assert np.array_equal(cicese3.momentum(theta, q, dq), cicese3.momentum_regressor(q, dq) @ theta)
+def test_only_revolute_and_prismatic_joints(tmp_path):
+    """A 1-DOF joint that is neither (a helical one: Pinocchio's JointModelHZ has nq = 1)
+    is refused with one line, not computed wrong."""
+    import pinocchio as pin
+
+    model = pin.Model()
+    model.addJoint(0, pin.JointModelHZ(0.1), pin.SE3.Identity(), "screw")
+    with pytest.raises(ValueError, match="only revolute and prismatic"):
+        urdf_dynamics.Chain(model)
 
 
 @pytest.mark.parametrize("irregular", [False, True])

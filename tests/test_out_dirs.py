@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 import pytest
-from cli_run import ROOT, wait_rows
+from cli_run import ROOT, finish_all, wait_rows
 
 from drivers import process
 from drivers.outdir import OutDirBusyError, release_out_dirs, take_out_dir
@@ -126,13 +126,7 @@ def test_two_runs_started_together_do_not_share_a_directory(tmp_path: Path) -> N
     argv = [*ENTRY, "run", "--bench", "virtual-inprocess", "--duration", "60", "--out",
             str(out), "--no-plot"]  # fmt: skip
     procs = [_start(argv), _start(argv)]
-    results = []
-    for proc in procs:
-        try:
-            stdout, stderr = proc.communicate(timeout=300)
-        finally:
-            proc.kill()
-        results.append((proc.returncode, stdout, stderr, proc.pid))
+    results = [(*r, p.pid) for r, p in zip(finish_all(procs, timeout=300), procs, strict=True)]
     codes = sorted(r[0] for r in results)
     assert codes == [0, 2], results
     (_, winner_out, _, winner), (_, _, loser_err, _) = sorted(results, key=lambda r: r[0])

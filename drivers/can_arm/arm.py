@@ -102,6 +102,15 @@ class CanArm(NodeSetup, PowerStates, SyncCycle, BusLink, Arm):
         self._foreign_syncs = 0
         self._foreign_host_frames = 0
         self._foreign_host_first = ""  # what the first of them was ("SYNC", "SDO request ...")
+        # the host's heartbeat (co.host_heartbeat): 0x700 + a node-ID no drive here has; our
+        # claim (node-ID, nonce) once sent, whether we hold the bus, and why another host's
+        # heartbeat won it (drivers.can_arm.setup: NodeSetup._claim_the_bus)
+        self._heartbeat_ids = frozenset(
+            co.HEARTBEAT_BASE + k for k in range(1, 128) if k not in self.node_ids
+        )
+        self._claim: tuple[int, bytes] | None = None
+        self._holding = False
+        self._claim_lost = ""
         self._booted: set[int] = set()
         self._counts: list[int] = [0] * self.n_joints
         self._k = 0

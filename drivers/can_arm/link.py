@@ -255,10 +255,12 @@ class BusLink:
         self.stats.frames_received += len(frames)
         network = self.network
         notify = network.notify if network is not None else None
-        routes, host_ids = self._routes, self._host_ids
+        routes, host_ids, heartbeats = self._routes, self._host_ids, self._heartbeat_ids
         for cob_id, data in frames:
             if cob_id in host_ids:
                 self._foreign_host(cob_id)
+            elif cob_id in heartbeats:
+                self._host_heartbeat(cob_id, data)
             if notify is not None:
                 try:  # what canopen's MessageListener does with a Message
                     notify(cob_id, bytearray(data), stamp)
@@ -285,10 +287,11 @@ class BusLink:
         now = time.monotonic()
         self._log(msg)
         self.stats.frames_received += 1
-        if msg.arbitration_id in self._host_ids and not (
-            msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame
-        ):
-            self._foreign_host(msg.arbitration_id)
+        if not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame):
+            if msg.arbitration_id in self._host_ids:
+                self._foreign_host(msg.arbitration_id)
+            elif msg.arbitration_id in self._heartbeat_ids:
+                self._host_heartbeat(msg.arbitration_id, bytes(msg.data))
         try:
             frame = parse_frame(
                 self._routes,
@@ -310,13 +313,49 @@ class BusLink:
         set-up (on a socketcand hub, which grants the host role to the first one's frames and
         forwards nothing of the second's, only the second hears anything: the first goes on).
         """
-        if self._foreign_host_frames:
-            raise LinkError(
-                f"another host is on the bus ({channel_name(self.bus)}): "
+        if self._foreign_host_frames or self._claim_lost:
+            seen = (
                 f"{self._foreign_host_frames} of its frames seen (first: "
-                f"{self._foreign_host_first}); not attaching (stop that run first; one host "
-                "per bus)"
+                f"{self._foreign_host_first})"
+                if self._foreign_host_frames
+                else self._claim_lost
             )
+            raise LinkError(
+                f"another host is on the bus ({channel_name(self.bus)}): {seen}; not attaching "
+                "(stop that run first; one host per bus)"
+            )
+
+    def _another_host(self) -> bool:
+        """Whether another host's frames, or a heartbeat that wins the bus, were seen."""
+        return bool(self._foreign_host_frames or self._claim_lost)
+
+    def _send_heartbeat(self) -> None:
+        """Send the host's heartbeat (co.host_heartbeat): claiming, or holding the bus."""
+        assert self._claim is not None
+        node, nonce = self._claim
+        data = co.host_heartbeat(self._holding, nonce)
+        self._send(can.Message(arbitration_id=co.HEARTBEAT_BASE + node, data=data,
+                               is_extended_id=False))  # fmt: skip
+
+    def _host_heartbeat(self, cob_id: int, data: bytes) -> None:
+        """Another host's heartbeat (a device's is ignored): while we hold the bus, answered
+        with ours, so that a host attaching beside an idle one hears it; before, it wins the
+        bus if that host holds it already, if we have not claimed yet, or if its claim is the
+        lower (node-ID, nonce): the same outcome on both hosts, whichever frame came first."""
+        parsed = co.parse_host_heartbeat(data)
+        if parsed is None:
+            return
+        holding, nonce = parsed
+        if self._holding:
+            try:
+                self._send_heartbeat()
+            except (can.CanError, RuntimeError, OSError) as exc:
+                self._note_error(f"host heartbeat: {exc}")
+            return
+        theirs = (cob_id - co.HEARTBEAT_BASE, nonce)
+        if not self._claim_lost and (holding or self._claim is None or theirs < self._claim):
+            what = "holding the bus" if holding else "claiming it"
+            self._claim_lost = f"its heartbeat 0x{cob_id:03X} seen ({what})"
 
     def _refuse_while_opening(self) -> None:
         """During open (set-up by SDO), another host's frames end it with the refusal: an

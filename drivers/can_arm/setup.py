@@ -12,6 +12,7 @@ Imports: :mod:`drivers.can_arm.objects`, :mod:`drivers.can_arm.link`, :mod:`driv
 from __future__ import annotations
 
 import contextlib
+import secrets
 import time
 from pathlib import Path
 from typing import Any
@@ -37,6 +38,12 @@ SHORT_SDO_TIMEOUT_S = 0.2  # disable() and fault queries: best effort, do not ha
 # that starts together with another hears it during its own set-up instead (checked after
 # every SDO transfer until open)
 HOST_LISTEN_S = 0.1
+# Then it claims the bus with its heartbeat and listens this long for a rival's (two hosts that
+# started together both heard a silent bus): the lower claim wins, the other refuses before it
+# has sent any set-up, and a host that holds the bus answers every claim (co.host_heartbeat).
+# Longer than a heartbeat's round trip over any of the transports (a 1 Mbit/s frame takes
+# 0.13 ms; an slcan adapter or a socketcand hop adds milliseconds).
+HOST_CLAIM_S = 0.1
 
 
 def profile_name(p: DriveProfile) -> str:
@@ -53,7 +60,7 @@ class NodeSetup:
             return
         try:
             self._connect()
-            self._listen_for_another_host()
+            self._claim_the_bus()
             self.opened_at = self._t0 = time.monotonic()  # the clock of Sample times, deadlines
             for j in range(self.n_joints):
                 self._confirm(j)
@@ -95,12 +102,23 @@ class NodeSetup:
         self._receiver = Receiver(self._read_frames, name="can-arm-receiver")
         network.notifier = self._receiver  # type: ignore[assignment]  # check() reads .exception
 
-    def _listen_for_another_host(self) -> None:
+    def _claim_the_bus(self) -> None:
         """Listen :data:`HOST_LISTEN_S` before sending anything: another host's frames on the
         bus mean it is driving (or setting up) these drives (CiA 301: one NMT master, one SYNC
-        producer per bus): refuse in one line rather than reset its drives under it."""
-        deadline = time.monotonic() + HOST_LISTEN_S
-        while time.monotonic() < deadline and not self._foreign_host_frames:
+        producer per bus): refuse in one line rather than reset its drives under it. Then claim
+        the bus with the host's heartbeat (a random node-ID no drive has, a random nonce) and
+        listen :data:`HOST_CLAIM_S` for a rival's: on a bus without a hub, of two hosts that
+        start together exactly one keeps it (``BusLink._host_heartbeat``)."""
+        self._listen(HOST_LISTEN_S)
+        free = [k for k in range(1, 128) if k not in self.node_ids]
+        self._claim = (secrets.choice(free), secrets.token_bytes(4))
+        self._send_heartbeat()
+        self._listen(HOST_CLAIM_S)
+        self._holding = True
+
+    def _listen(self, seconds: float) -> None:
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline and not self._another_host():
             time.sleep(0.005)
         self._refuse_beside_another_host()
 
@@ -169,7 +187,8 @@ class NodeSetup:
     def close(self) -> None:
         """Stop the receive thread, shut the bus down, close the log. Idempotent; commands
         nothing."""
-        self._is_open = False
+        self._is_open = self._holding = False
+        self._claim, self._claim_lost = None, ""
         self._direct = self._direct_refused = False
         receiver, self._receiver = self._receiver, None
         if receiver is not None:

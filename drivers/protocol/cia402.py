@@ -42,6 +42,27 @@ def host_frame_name(cob_id: int) -> str | None:
     return f"{what} to node {node}" if what is not None and node > 0 else None
 
 
+# The host's heartbeat (CiA 302: an NMT master produces a heartbeat on 0x700 + its node-ID): how
+# two hosts on one bus settle which of them is its host before either sends set-up. 8 bytes:
+# its state (claiming: pre-operational; holding the bus: operational), the tag b"ddb" (a
+# device's heartbeat is 1 byte) and a random nonce. Of two claims the lower (node-ID, nonce)
+# wins; a holding host answers any claim with its own heartbeat.
+HOST_HEARTBEAT_TAG = b"ddb"
+
+
+def host_heartbeat(holding: bool, nonce: bytes) -> bytes:
+    """The data of the host's heartbeat (``nonce``: 4 bytes)."""
+    state = NMT_STATE_OPERATIONAL if holding else NMT_STATE_PRE_OPERATIONAL
+    return bytes([state]) + HOST_HEARTBEAT_TAG + nonce
+
+
+def parse_host_heartbeat(data: bytes) -> tuple[bool, bytes] | None:
+    """(holding, nonce) of a host's heartbeat, or None for any other frame (a device's)."""
+    if len(data) != 8 or bytes(data[1:4]) != HOST_HEARTBEAT_TAG:
+        return None
+    return data[0] == NMT_STATE_OPERATIONAL, bytes(data[4:8])
+
+
 # NMT command specifiers (CiA 301)
 NMT_START = 0x01
 NMT_STOP = 0x02

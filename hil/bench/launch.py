@@ -25,15 +25,49 @@ from importlib import import_module
 from pathlib import Path
 from typing import Any
 
+from drivers.process import cpu_ticks
 from profiles.bench import BenchProfile
 
-# A robot that dies is noticed at once (poll); this only bounds a slow start. 20 s was too short
-# for a cold start in the emulated guest of `make test-vcan` on a loaded machine.
+# A robot that dies is noticed at once (poll). One that is alive but does not announce is given
+# READY_TIMEOUT_S, and as long again each time it has used CPU meanwhile (it is still starting:
+# its imports take seconds, and many times that in a software-emulated guest on a loaded
+# machine, where no wall-clock bound holds), up to READY_MAX_S in all: one that neither
+# announces nor works for READY_TIMEOUT_S has hung.
 READY_TIMEOUT_S = 60.0
+READY_MAX_S = 600.0
 
 
 class LaunchError(RuntimeError):
     """The virtual robot did not start (its last stderr line is in the message)."""
+
+
+class StartWait:
+    """How long to wait for a started process (READY_TIMEOUT_S and READY_MAX_S): ``more()`` is
+    true until it has neither announced nor used CPU for READY_TIMEOUT_S, or READY_MAX_S have
+    passed. Without /proc (not Linux) its CPU time is unknown: READY_TIMEOUT_S in all."""
+
+    def __init__(self, pid: int) -> None:
+        self.pid = pid
+        self.started = time.monotonic()
+        self.deadline = self.started + READY_TIMEOUT_S
+        self.cpu = cpu_ticks(pid)
+
+    def more(self) -> bool:
+        now = time.monotonic()
+        if now < self.deadline:
+            return True
+        cpu = cpu_ticks(self.pid)
+        if cpu is None or self.cpu is None or cpu == self.cpu:
+            return False  # no work since the last deadline: hung (or unknown)
+        self.cpu = cpu
+        self.deadline = min(now + READY_TIMEOUT_S, self.started + READY_MAX_S)
+        return now < self.deadline
+
+    def why(self) -> str:
+        waited = time.monotonic() - self.started
+        if waited >= READY_MAX_S:
+            return f"still starting after {waited:.0f} s"
+        return f"no CPU used for {READY_TIMEOUT_S:.0f} s, {waited:.0f} s after its start"
 
 
 class VirtualRobotProcess:
@@ -138,9 +172,9 @@ class VirtualRobotProcess:
             start_new_session=True,  # a Ctrl-C at the terminal goes to the host, which stops us
         )
         assert self.proc.stdout is not None
-        deadline = time.monotonic() + READY_TIMEOUT_S
+        waited = StartWait(self.proc.pid)
         fd = self.proc.stdout.fileno()
-        while time.monotonic() < deadline:
+        while waited.more():
             ready, _, _ = select.select([fd], [], [], 0.1)
             if ready:
                 line = self.proc.stdout.readline()
@@ -149,7 +183,7 @@ class VirtualRobotProcess:
                     return
             if self.proc.poll() is not None:
                 break
-        reason = self._last_log_line() or "no announcement"
+        reason = self._last_log_line() or f"no announcement ({waited.why()})"
         self.stop()
         raise LaunchError(f"virtual robot for bench {self.bench.name} did not start: {reason}")
 

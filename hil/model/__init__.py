@@ -2,8 +2,9 @@
 
 What lives here: the closed-form 2-DOF model of Reyes & Kelly (1997) (:mod:`.closed_form`,
 ``ArmModel``) and the n-joint model of any URDF through Pinocchio (:mod:`.urdf`,
-``UrdfArmModel``) behind one interface (:mod:`.protocol`, ``ArmDynamics``: names, units, M(q),
-regressors); the regression builders of eqs. (24), (28), (30) (:mod:`.regressors`); RLS, batch
+``UrdfArmModel``; the bodies of one θ and their torques, :mod:`.urdf_dynamics`) behind one
+interface (:mod:`.protocol`, ``ArmDynamics``: names, units, M(q), regressors); the regression
+builders of eqs. (24), (28), (30) (:mod:`.regressors`); RLS, batch
 and weighted least squares (:mod:`.estimators`); the open-loop simulator, rigid and with the
 diagnosis' extra physics (:mod:`.openloop`; its one stick–slip integrator
 :mod:`.openloop_core`, the effects :mod:`.openloop_effects`); fit metrics (:mod:`.metrics`);

@@ -40,6 +40,7 @@ import pinocchio as pin
 from numpy.typing import ArrayLike
 from scipy.linalg import qr
 
+from hil.model.urdf_dynamics import Chain, UrdfDynamics
 from profiles.robot import UrdfRobotProfile, load_urdf_robot
 
 TERMS = ("rotor_inertia", "friction_offset")
@@ -53,12 +54,6 @@ BASE_SAMPLES = 400
 RANK_TOL = 1e-9
 # Configurations at which a base-parameter vector's M(q) must be positive definite.
 CONSISTENCY_SAMPLES = 256
-# The bodies that carry a base vector θ (UrdfArmModel._theta_bodies) must give the regressors'
-# products within this fraction of their largest, at this many random states: they differ by
-# rounding (1e-15) where θ is representable; a body whose mass is tiny against its first
-# moment loses digits in Pinocchio's centre h/m.
-THETA_BODIES_TOL = 1e-10
-THETA_BODIES_CHECKS = 8
 
 
 @dataclass(frozen=True)
@@ -117,6 +112,7 @@ class UrdfArmModel:
         self._free = pin.Model(m)  # the same arm without gravity: M q̈ and C q̇ alone
         self._free.gravity.linear = np.zeros(3)
         self._free_data = self._free.createData()
+        self._chain = Chain(m)
 
         def per_joint(x: ArrayLike | None, default: float, what: str) -> np.ndarray:
             a = np.full(n, default) if x is None else np.asarray(x, dtype=float)
@@ -149,8 +145,7 @@ class UrdfArmModel:
         )
         self.base = self._base_parameters(np.random.default_rng(seed))
         self._set_names()
-        self._bodies_of: tuple[bytes, tuple | None] = (b"", None)  # _theta_bodies' last θ
-        self._kept_dynamics: tuple[bytes, UrdfDynamics] | None = None  # mass_matrix's last θ
+        self._kept_dynamics: tuple[bytes, UrdfDynamics] | None = None  # the last θ's bodies
 
     @classmethod
     def from_profile(
@@ -455,13 +450,18 @@ class UrdfArmModel:
         """M(q), shape (..., n, n): Σ_j J_jᵀ I_j J_j + diag(I_a) (:class:`UrdfDynamics`),
         equal to the momentum regressor's columns P(q, e_i) θ."""
         (q,), lead = self._samples(q)
-        t = np.asarray(theta, dtype=float)
-        kept = self._kept_dynamics  # a controller calls it with one θ every period
-        if kept is None or kept[0] != t.tobytes():
-            kept = self._kept_dynamics = (t.tobytes(), self.dynamics(t))
-        dyn = kept[1]
+        dyn = self._dynamics_of(theta)
         M = np.array([dyn.mass_matrix(qk) for qk in q]).reshape(len(q), self.n_joints, -1)
         return M.reshape(*lead, self.n_joints, self.n_joints)
+
+    def _dynamics_of(self, theta: ArrayLike) -> UrdfDynamics:
+        """:meth:`dynamics` of θ, kept for the last θ asked (a controller calls
+        :meth:`mass_matrix` with one θ every period, the diagnosis its torques with one θ)."""
+        t = np.asarray(theta, dtype=float)
+        kept = self._kept_dynamics
+        if kept is None or kept[0] != t.tobytes():
+            kept = self._kept_dynamics = (t.tobytes(), self.dynamics(t))
+        return kept[1]
 
     def gravity_vector(self, theta: ArrayLike, q: ArrayLike) -> np.ndarray:
         """g(q) = ∂U/∂q, shape (..., n)."""
@@ -510,93 +510,22 @@ class UrdfArmModel:
         ddq = np.linalg.solve(M, (tau - rest)[..., None])[..., 0]
         return ddq.reshape(*lead, self.n_joints)
 
-    # --- the torques of one θ, through Pinocchio's recursive algorithms --------------------------
+    # --- the torques of one θ, on the bodies that carry it (UrdfDynamics) ----------------------
 
     def momentum(self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
         """P(q, q̇) θ = M(q) q̇ (with the armature's I_a q̇), shape (..., n): the momentum
-        regressor's product, from one RNEA per sample (at rest without gravity, q̈ = q̇) on
-        bodies that carry θ (:meth:`_theta_bodies`), not from its 10n columns."""
+        regressor's product, Σ_j J_jᵀ I_j J_j q̇ on the bodies that carry θ
+        (:meth:`UrdfDynamics.momentum`), not from its 10n columns."""
         (q, dq), lead = self._samples(q, dq)
-        t = np.asarray(theta, dtype=float)
-        bodies = self._theta_bodies(t)
-        if bodies is None:
-            out = self._to_base(self._standard_momentum(q, dq)) @ t
-        else:
-            free, data, _, _, armature = bodies
-            out = np.empty_like(q)
-            zero = np.zeros(self.n_joints)
-            for k in range(len(q)):
-                out[k] = pin.rnea(free, data, q[k], zero, dq[k])
-            out += armature * dq
-        return out.reshape(*lead, self.n_joints)
+        return self._dynamics_of(theta).momentum(q, dq).reshape(*lead, self.n_joints)
 
     def static_torque(self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
         """R(q, q̇) θ = −∂K/∂q + g(q) + f(q̇), shape (..., n) (τ = d/dt[P θ] + R θ, Reyes &
-        Kelly (1997) eq. (13)), the static regressor's product without its columns. With
-        Pinocchio's Coriolis matrix, Ṁ = C + Cᵀ, and Lagrange's τ = M q̈ + Ṁ q̇ − ∂K/∂q + g =
-        M q̈ + C q̇ + g give ∂K/∂q = Ṁ q̇ − C q̇ = Cᵀ q̇: R θ = g(q) − C(q, q̇)ᵀ q̇ + f(q̇)."""
+        Kelly (1997) eq. (13)), the static regressor's product without its columns: g and
+        ∂K/∂q (= C(q, q̇)ᵀ q̇) on the bodies that carry θ (:class:`UrdfDynamics`)."""
         (q, dq), lead = self._samples(q, dq)
-        t = np.asarray(theta, dtype=float)
-        bodies = self._theta_bodies(t)
-        if bodies is None:
-            out = self._to_base(self._standard_static(q, dq)) @ t
-        else:
-            free, data, heavy, heavy_data, _ = bodies
-            C = np.empty((len(q), self.n_joints, self.n_joints))
-            out = np.empty_like(q)
-            for k in range(len(q)):
-                C[k] = pin.computeCoriolisMatrix(free, data, q[k], dq[k])
-                out[k] = pin.computeGeneralizedGravity(heavy, heavy_data, q[k])
-            out -= np.einsum("kji,kj->ki", C, dq)
-            out += self.friction_torque(t, dq)
+        out = self._dynamics_of(theta).static_torque(q, dq) + self.friction_torque(theta, dq)
         return out.reshape(*lead, self.n_joints)
-
-    def _theta_bodies(self, theta: np.ndarray):
-        """Pinocchio models whose bodies carry the base parameters ``theta``: the standard
-        vector θ_std with θ_std[dependent] the URDF's and θ_std[independent] = θ₁ − K θ₂
-        (so expand θ_std = θ, :class:`BaseParameters`), each body's inertia from its ten
-        numbers. Returns (free model, data, model with gravity, data, armature), or None where
-        an inertia cannot carry them (a body's mass ≤ 0: Pinocchio keeps the centre h/m) or
-        the models miss the regressors' products at a few random states by more than
-        THETA_BODIES_TOL (then the regressors serve). Kept for the last θ asked."""
-        key = theta.tobytes()
-        if self._bodies_of[0] == key:
-            return self._bodies_of[1]
-        r = len(self.base.K)
-        std = self.standard_theta.copy()
-        std[self.base.independent[:r]] = theta[:r] - self.base.K @ std[self.base.dependent]
-        bodies = None
-        if len(theta) == self.n_params and np.all(std[0 : self.n_body_params : 10] > 0):
-            free = pin.Model(self._free)
-            for j in range(1, free.njoints):
-                free.inertias[j] = pin.Inertia.FromDynamicParameters(std[10 * (j - 1) : 10 * j])
-            heavy = pin.Model(free)
-            heavy.gravity = self._model.gravity
-            armature = (
-                std[self.n_body_params : self.n_rigid_standard]
-                if "rotor_inertia" in self.terms
-                else np.zeros(self.n_joints)
-            )
-            bodies = (free, free.createData(), heavy, heavy.createData(), armature)
-        self._bodies_of = (key, bodies)
-        if bodies is not None and not self._bodies_agree(theta):
-            self._bodies_of = (key, None)
-        return self._bodies_of[1]
-
-    def _bodies_agree(self, theta: np.ndarray) -> bool:
-        """Whether :meth:`momentum` and :meth:`static_torque` through the θ bodies give the
-        regressors' products (relative THETA_BODIES_TOL) at random states."""
-        rng = np.random.default_rng(0)
-        q = rng.uniform(-np.pi, np.pi, (THETA_BODIES_CHECKS, self.n_joints))
-        dq = rng.normal(size=q.shape)
-        for fast, slow in (
-            (self.momentum(theta, q, dq), self._standard_momentum(q, dq)),
-            (self.static_torque(theta, q, dq), self._standard_static(q, dq)),
-        ):
-            exact = self._to_base(slow) @ theta
-            if not np.all(np.abs(fast - exact) <= THETA_BODIES_TOL * np.abs(exact).max()):
-                return False
-        return True
 
     # --- physical consistency ------------------------------------------------------------------
 
@@ -663,75 +592,6 @@ class UrdfArmModel:
             if not t[i] >= 0:
                 violations.append(f"negative {self.standard_names[i]} = {t[i]:.4g}")
         return {"consistent": not violations, "violations": violations}
-
-
-class UrdfDynamics:
-    """M(q) and C(q, q̇) q̇ + g(q) of one base vector θ of a :class:`UrdfArmModel`, at one
-    configuration, by Pinocchio's kinematics: the open-loop simulation's accelerations.
-
-    θ is carried to the standard vector :meth:`UrdfArmModel.standard_of_base` (exact for any θ).
-    The mass matrix is the kinetic energy's Hessian, M(q) = Σ_j J_jᵀ I_j J_j + diag(I_a), with
-    J_j body j's Jacobian in its joint frame (one ``computeJointJacobians`` pass) and I_j its
-    6×6 spatial inertia, linear in the ten dynamic parameters π_j (Featherstone (2008)
-    eq. (2.63), Pinocchio's order: linear then angular),
-
-        I_j = [[m 1, −[h]×], [[h]×, I_O]],  h = m c,  I_O the inertia about the joint frame,
-
-    built once per θ, so a zero or negative mass needs no centre of mass (Pinocchio's own CRBA
-    and ABA divide by the mass, and clamp a composite mass at zero: not exact for a base vector).
-    C q̇ + g is the joint torque regressor at q̈ = 0 times the bodies' parameters: one call."""
-
-    def __init__(self, model: UrdfArmModel, theta: ArrayLike) -> None:
-        n = model.n_joints
-        std = model.standard_of_base(theta)
-        self.n_joints = n
-        self._model, self._data = model._model, model._data
-        self._free, self._free_data = model._free, model._free_data
-        self._bodies = std[: model.n_body_params]
-        pi = self._bodies.reshape(n, 10)
-        blocks = np.zeros((n, 6, 6))
-        blocks[:, :3, :3] = pi[:, :1, None] * np.eye(3)
-        h = _skew(pi[:, 1:4])
-        blocks[:, :3, 3:] = -h
-        blocks[:, 3:, :3] = h
-        Ixx, Ixy, Iyy, Ixz, Iyz, Izz = pi[:, 4:].T
-        blocks[:, 3:, 3:] = np.stack(
-            [np.stack([Ixx, Ixy, Ixz], -1), np.stack([Ixy, Iyy, Iyz], -1),
-             np.stack([Ixz, Iyz, Izz], -1)], axis=1,
-        )  # fmt: skip
-        self._spatial = np.zeros((6 * n, 6 * n))  # block diagonal: body j's I_j at block j
-        for j in range(n):
-            self._spatial[6 * j : 6 * j + 6, 6 * j : 6 * j + 6] = blocks[j]
-        arm = model.n_rigid_standard - model.n_body_params
-        armature = std[model.n_body_params : model.n_rigid_standard] if arm else np.zeros(n)
-        self._armature = np.diag(armature)
-        self._zero = np.zeros(n)
-        self._jacobians = np.zeros((6 * n, n))  # the bodies' Jacobians stacked, filled per call
-
-    def mass_matrix(self, q: ArrayLike) -> np.ndarray:
-        """M(q), (n, n), at one configuration q (n,)."""
-        m, d, n, J = self._free, self._free_data, self.n_joints, self._jacobians
-        pin.computeJointJacobians(m, d, np.asarray(q, dtype=float))
-        for j in range(n):  # body j's Jacobian, (6, n); one joint's comes back as a vector
-            J[6 * j : 6 * j + 6] = pin.getJointJacobian(m, d, j + 1, pin.LOCAL).reshape(6, n)
-        return J.T @ (self._spatial @ J) + self._armature
-
-    def rigid_bias(self, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
-        """C(q, q̇) q̇ + g(q), (n,), at one state: the rigid bodies' torque at q̈ = 0."""
-        Y = pin.computeJointTorqueRegressor(
-            self._model, self._data, np.asarray(q, float), np.asarray(dq, float), self._zero
-        )
-        return (Y @ self._bodies).reshape(self.n_joints)
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """[v]× of each row of v (N, 3): [v]× w = v × w, shape (N, 3, 3)."""
-    x, y, z = v.T
-    zero = np.zeros_like(x)
-    return np.stack(
-        [np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)],
-        axis=1,
-    )
 
 
 def _build(urdf: str) -> pin.Model:

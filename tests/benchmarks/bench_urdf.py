@@ -1,7 +1,8 @@
 """Benchmark: arms from a URDF through Pinocchio (hil/model/urdf.py, hil/identify/urdf.py).
 
-1. µs per sample of M(q) and the regressors, 2 joints (cicese.urdf; the closed form beside it)
-   and 7 joints (panda.urdf).
+1. µs per sample of M(q), of one θ's M(q) q̇ and g − Cᵀq̇ (``momentum``, ``static_torque``)
+   and of the regressors, 2 joints (cicese.urdf; the closed form beside it) and 7 joints
+   (panda.urdf).
 2. Identification of 60 s of 7-joint data at 1 kHz (jittered stamps), all three schemes, batch:
    filtered dynamic (torque regressor, parallel filtering, weighted least squares), supplied
    energy and filtered power (exact energy rows, least squares): target under 10 s for the
@@ -75,6 +76,9 @@ def model_timings(model: UrdfArmModel, rng: np.random.Generator) -> dict[str, fl
     b = model.base_theta()
     return {
         "mass_matrix": per_sample_us(lambda: model.mass_matrix(b, q), SAMPLES),
+        # one θ's torques (the diagnosis's torque rows) beside the regressors they replace
+        "momentum": per_sample_us(lambda: model.momentum(b, q, dq), SAMPLES),
+        "static_torque": per_sample_us(lambda: model.static_torque(b, q, dq), SAMPLES),
         "torque_regressor": per_sample_us(lambda: model.torque_regressor(q, dq, ddq), SAMPLES),
         "momentum_regressor": per_sample_us(lambda: model.momentum_regressor(q, dq), SAMPLES),
         "static_regressor": per_sample_us(lambda: model.static_regressor(q, dq), SAMPLES),
@@ -324,6 +328,7 @@ def main() -> int:
     parser.add_argument("--no-panda", action="store_true", help="skip the real-data table")
     parser.add_argument("--only-simulate", action="store_true", help="part 4 only")
     parser.add_argument("--only-identify", action="store_true", help="parts 1 and 2 only")
+    parser.add_argument("--only-timings", action="store_true", help="part 1 only")
     parser.add_argument("--no-simulate", action="store_true", help="skip part 4")
     parser.add_argument(
         "--noise", type=float, default=0.01, help="part 2: torque noise per joint (of its spread)"
@@ -347,6 +352,9 @@ def main() -> int:
             "urdf_7 (panda)": model_timings(panda, rng),
         }
     }
+    if args.only_timings:
+        print(json.dumps(doc, indent=2) if args.json else _timing_lines(doc["us_per_sample"]))
+        return 0
     rec, truth = synthetic_panda(panda, rng, noise=args.noise)
     doc["identify_60s_7joints_1kHz"] = ident = identify_speed(panda, rec, truth)
     cpu = ident["cpu_seconds"]
@@ -363,8 +371,7 @@ def main() -> int:
     if args.json:
         print(json.dumps(doc, indent=2))
     else:
-        for name, timings in doc["us_per_sample"].items():
-            print(f"{name:18s} " + "  ".join(f"{k} {v:7.1f} µs" for k, v in timings.items()))
+        print(_timing_lines(doc["us_per_sample"]))
         print(_identify_lines(doc["identify_60s_7joints_1kHz"]))
         table = doc.get("panda_gaz2019")
         if isinstance(table, dict):
@@ -437,6 +444,13 @@ def identify_speed(model: UrdfArmModel, rec: Recording, truth: np.ndarray) -> di
         "target_s": TARGET_IDENTIFY_S,
         "schemes": schemes,
     }
+
+
+def _timing_lines(us_per_sample: dict[str, dict[str, float]]) -> str:
+    return "\n".join(
+        f"{name:18s} " + "  ".join(f"{k} {v:7.1f} µs" for k, v in timings.items())
+        for name, timings in us_per_sample.items()
+    )
 
 
 def _identify_lines(ident: dict) -> str:

@@ -61,27 +61,43 @@ HEADER = (
 )
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def diagnose_to(target: Path, recordings: list[Path], robot: str) -> str | None:
+    """`hil diagnose RECORDINGS --format dfki --robot ROBOT --json`, its document written to
+    ``target``; the last line of its error when it fails, else None."""
+    argv = [sys.executable, "-m", "hil.cli", "diagnose", *map(str, recordings), "--format",
+            "dfki", "--robot", robot, "--json", "--no-plots"]  # fmt: skip
+    done = subprocess.run(argv, capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        return done.stderr.strip().splitlines()[-1]
+    target.write_text(done.stdout)
+    return None
+
+
+def table_arguments(doc: str, prefix: str) -> tuple[argparse.Namespace, Path]:
+    """The options of a real-data table script (--records, --out, --table-only) and its
+    output directory (--out, or a new temporary one named ``prefix``...)."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
     ap.add_argument("--records", type=Path, default=RECORDS)
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--table-only", action="store_true", help="format the documents in --out")
     args = ap.parse_args()
-    out = args.out or Path(tempfile.mkdtemp(prefix="ddbench-dfki-diagnosis-"))
+    out = args.out or Path(tempfile.mkdtemp(prefix=prefix))
     out.mkdir(parents=True, exist_ok=True)
+    return args, out
+
+
+def main() -> int:
+    args, out = table_arguments(__doc__, "ddbench-dfki-diagnosis-")
     files = sorted(args.records.glob("*.csv"))
     print(HEADER)
     for f in files:
         target = out / f"{f.stem}.json"
         if not args.table_only:
             robot = "dfki-a0" if f.name.startswith("design_A") else "dfki-c0"
-            argv = [sys.executable, "-m", "hil.cli", "diagnose", str(f), "--format", "dfki"]
-            argv += ["--robot", robot, "--json", "--no-plots"]
-            done = subprocess.run(argv, capture_output=True, text=True, check=False)
-            if done.returncode != 0:
-                print(f"| {f.stem} | error: {done.stderr.strip().splitlines()[-1]} |||||")
+            error = diagnose_to(target, [f], robot)
+            if error:
+                print(f"| {f.stem} | fails: `{error}` |||||")
                 continue
-            target.write_text(done.stdout)
         if target.exists() and target.stat().st_size:
             print(row(f.stem, json.loads(target.read_text())))
     return 0

@@ -15,15 +15,12 @@ held-out torque NRMSE. Slow: tens of seconds per pair on a loaded machine.
 
 from __future__ import annotations
 
-import argparse
 import itertools
 import json
-import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
-from diagnose_real_data import RECORDS, _pct  # this directory: run as a script
+from diagnose_real_data import _pct, diagnose_to, table_arguments  # this directory: run as a script
 
 RIGID = Path(__file__).resolve().parents[1] / "data" / "dfki"
 DESIGNS = {"A.0": ("design_A.0__20220815__sys_id__trajectory_0", "a0"),
@@ -65,13 +62,7 @@ HEADER = (
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--records", type=Path, default=RECORDS)
-    ap.add_argument("--out", type=Path, default=None)
-    ap.add_argument("--table-only", action="store_true", help="format the documents in --out")
-    args = ap.parse_args()
-    out = args.out or Path(tempfile.mkdtemp(prefix="ddbench-dfki-terms-"))
-    out.mkdir(parents=True, exist_ok=True)
+    args, out = table_arguments(__doc__, "ddbench-dfki-terms-")
     print(HEADER)
     for design, (stem, short) in DESIGNS.items():
         files = sorted(args.records.glob(stem + "*.csv"))
@@ -81,13 +72,10 @@ def main() -> int:
                 name = Path(profile).stem
                 target = out / f"{first.stem}__{second.stem[-2:]}__{name}.json"
                 if not args.table_only:
-                    argv = [sys.executable, "-m", "hil.cli", "diagnose", str(first), str(second)]
-                    argv += ["--format", "dfki", "--robot", profile, "--json", "--no-plots"]
-                    done = subprocess.run(argv, capture_output=True, text=True, check=False)
-                    if done.returncode != 0:
-                        print(f"| {pair} | {name} | error: {done.stderr.strip()[-200:]} ||||||")
+                    error = diagnose_to(target, [first, second], profile)
+                    if error:
+                        print(f"| {pair} | {name} | fails: `{error}` ||||||")
                         continue
-                    target.write_text(done.stdout)
                 if target.exists() and target.stat().st_size:
                     print(row(pair, name, json.loads(target.read_text())), flush=True)
     return 0
