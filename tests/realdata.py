@@ -6,6 +6,10 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 def realdata(name: str) -> Path:
@@ -20,6 +24,18 @@ def realdata(name: str) -> Path:
 
 
 KUKA = "kuka-lwr4-flobaroid"
+
+
+def kuka_columns(run: int) -> tuple[list[str], np.ndarray]:
+    """``measurements_<run>.npz`` of the KUKA LWR4+ as the standard CSV's columns: the header
+    (t, q1..q7, tau1..tau7) and the (rows, 15) array, t from 0 (what :func:`kuka_csv` writes)."""
+    import numpy as np
+
+    data = np.load(realdata(KUKA) / f"measurements_{run}.npz")
+    q, tau = data["positions"], data["torques"]
+    n = q.shape[1]
+    names = ["t", *(f"q{j + 1}" for j in range(n)), *(f"tau{j + 1}" for j in range(n))]
+    return names, np.column_stack([data["times"] - data["times"][0], q, tau])
 
 
 def kuka_csv(run: int, folder: str | Path, *, targets: bool = False) -> Path:
@@ -37,15 +53,13 @@ def kuka_csv(run: int, folder: str | Path, *, targets: bool = False) -> Path:
     it on run 1, and ``target_accelerations`` is exactly −``target_positions``."""
     import numpy as np
 
-    data = np.load(realdata(KUKA) / f"measurements_{run}.npz")
-    t = data["times"] - data["times"][0]
-    q, tau = data["positions"], data["torques"]
-    n = q.shape[1]
-    names = ["t", *(f"q{j + 1}" for j in range(n)), *(f"tau{j + 1}" for j in range(n))]
-    arrays = [t, q, tau]
+    names, data = kuka_columns(run)
+    n = (len(names) - 1) // 2
+    arrays = [data]
     if targets:
         names += [f"q_target{j + 1}" for j in range(n)]
-        arrays.append(data["target_positions"] * (180.0 / np.pi))
+        arrays.append(np.load(realdata(KUKA) / f"measurements_{run}.npz")["target_positions"]
+                      * (180.0 / np.pi))  # fmt: skip
     path = Path(folder) / f"kuka_measurements_{run}.csv"
     np.savetxt(path, np.column_stack(arrays), delimiter=",", header=",".join(names), comments="",
                fmt="%.10g")  # fmt: skip

@@ -234,3 +234,37 @@ def test_a_pattern_inside_thetas_columns_resolves_nothing_unpaired():
 
     assert outside("payload", None) < OUTSIDE_THETA
     assert outside("cogging", 1) > 1e3 * OUTSIDE_THETA
+
+
+def test_the_refit_that_judges_theta0_does_not_depend_on_theta0():
+    """Whether θ₀ describes a recording is decided against θ refitted from the recording alone
+    (:func:`hil.diagnose.drift.judge.refit_ratio`); that refit weighs the joints by the
+    recording's own noise, so its held-out error is the same whatever θ₀ is. Weighted by θ₀'s
+    residual scale (which carries the change judged), a KUKA encoder angle on joint 2 made the
+    refit buy joint 5's fit and θ₀ with the exact angle was ruled not to describe the recording."""
+    from hil.diagnose.drift.fit import make_fit
+    from hil.diagnose.drift.judge import refit_ratio
+
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    args = p.parse_args([str(DFKI_FILE), "--format", "dfki", "--robot", "dfki-a0"])
+    rec = read_recording(args, DFKI_FILE, command="diagnose", min_rows=2, joints=2, allow_gaps=True)
+    nominal = nominal_from_reference(
+        [rec], ArmModel(robot_params("dfki-a0").terms), "test", draws=0,
+        geometry=arm_geometry("dfki-a0"),
+    )  # fmt: skip
+    prob = nominal.reference
+    theta = np.asarray(nominal.theta, float)
+    wrong = theta.copy()
+    wrong[0] *= 1.5  # θ1 (joint 1's inertia): θ₀'s residual scale 6.5× on joint 1, same on 2
+    own = []
+    scales = []
+    for th in (theta, wrong):
+        fit = make_fit(prob, nominal.model, th, (), nominal.geometry)
+        ratio = refit_ratio(fit, prob, [])
+        mine = fit.cv([]).held_out_sse.sum(axis=0)  # θ₀'s own error, fit.scale's units
+        own.append(mine / ratio**2 * fit.scale**2)  # the refit's error in N·m²
+        scales.append(fit.scale)
+    relative = scales[1] / scales[0]
+    assert relative.max() > 3 * relative.min()  # the wrong θ₀ moves the joints' scales apart
+    assert np.allclose(own[0], own[1], rtol=1e-9), own

@@ -3,7 +3,7 @@ unmodified recording, the same recording with exactly one known effect written i
 ``truth.json`` saying which (effect, joint, size).
 
     .venv/bin/python tests/benchmarks/make_real_effect_set.py --out DIR [--seed 0]
-        [--robot dfki-a0,dfki-c0,panda] [--only K]
+        [--robot dfki-a0,dfki-c0,panda,kuka-lwr4] [--only K]
 
 Sources (``SOURCES``; the real data of ../shared/realdata, tests/realdata.py):
   * ``dfki-a0``, ``dfki-c0``: the DFKI double pendulum's system-identification recordings of
@@ -12,8 +12,9 @@ Sources (``SOURCES``; the real data of ../shared/realdata, tests/realdata.py):
     other torque columns are kept as they are.
   * ``panda``: the Panda recording of Gaz et al. (2019) (GPL-3), written as this project's
     ``t,q1..q7,tau1..tau7`` CSV (the joint-torque sensors' torque).
-  * The KUKA LWR4+ (``kuka-lwr4-flobaroid``, LGPL-3) joins as one more :class:`Source` reader in
-    ``SOURCES`` once its npz is readable as a recording.
+  * ``kuka-lwr4``: the two runs of FloBaRoID's KUKA LWR4+ (``kuka-lwr4-flobaroid``, LGPL-3;
+    ~25 s at 200 Hz), each written as the standard CSV (tests/realdata.py ``kuka_columns``: the
+    joint-torque sensors' torque); the payload on the profile's a priori URDF.
 The files made from Panda or KUKA data must stay out of the repository: write them to a
 temporary or runs directory only (``--out`` under the repository is refused for them).
 
@@ -97,10 +98,14 @@ EFFECTS = (
     "velocity_squared_drag",
     "payload",
 )
-# what each arm's part of the default set holds (the issue's "x of 10" and "5 of 5")
+# what each arm's part of the default set holds (the issue's "x of 10" and "5 of 5"); a 7-joint
+# arm with two runs also gets the other run as a null
+SEVEN_JOINT = ("torque_gain", "angle_offset", "payload", "transport_delay")
 PLAN = {
-    "dfki": (*EFFECTS, "null:same", "null:other"),
-    "panda": ("torque_gain", "angle_offset", "payload", "transport_delay", "null:same"),
+    "dfki-a0": (*EFFECTS, "null:same", "null:other"),
+    "dfki-c0": (*EFFECTS, "null:same", "null:other"),
+    "panda": (*SEVEN_JOINT, "null:same"),
+    "kuka-lwr4": (*SEVEN_JOINT, "coulomb_asymmetry", "null:same", "null:other"),
 }
 DEAD_BAND_RAD_S = 0.01  # sgn(q̇) = 0 below this smoothed speed (a Coulomb law's sticking band)
 
@@ -205,12 +210,33 @@ def panda_sources() -> list[Source]:
                    profile.gravity_m_s2, None)]  # fmt: skip
 
 
-# robot -> its recordings; the KUKA LWR4+ joins here with a reader of its npz
+def kuka_sources() -> list[Source]:
+    """The two runs of the KUKA LWR4+ (FloBaRoID), as this project's t,q1..q7,tau1..tau7."""
+    from realdata import KUKA, kuka_columns
+
+    runs = sorted(int(p.stem.rsplit("_", 1)[1]) for p in realdata(KUKA).glob("measurements_*.npz"))
+    profile = load_any_robot("kuka-lwr4")
+    xml = Path(profile.urdf).read_text(encoding="utf-8")
+    sources = []
+    for run in runs:
+        header, data = kuka_columns(run)
+        n = (len(header) - 1) // 2
+        sources.append(Source(f"kuka-measurements_{run}", "kuka-lwr4",
+                              realdata(KUKA) / f"measurements_{run}.npz", "LGPL-3.0", header,
+                              data, "t", tuple(header[1:n + 1]), tuple(header[n + 1:]), 0, xml,
+                              profile.gravity_m_s2, None))  # fmt: skip
+    return sources
+
+
+# robot -> its recordings
 SOURCES: dict[str, Callable[[], list[Source]]] = {
     "dfki-a0": lambda: dfki_sources("dfki-a0"),
     "dfki-c0": lambda: dfki_sources("dfki-c0"),
     "panda": panda_sources,
+    "kuka-lwr4": kuka_sources,
 }
+# the recordings whose licence keeps them (and every file made from them) out of the tree
+OUTSIDE_TREE = ("panda", "kuka-lwr4")
 
 
 # --- the motion and the effects --------------------------------------------------------------
@@ -384,8 +410,7 @@ def plan_cases(robots: list[str], rng: np.random.Generator) -> list[dict[str, An
         sources = SOURCES[robot]()
         if not sources:
             raise SystemExit(f"make_real_effect_set: no recordings of {robot} found")
-        kind = "panda" if robot == "panda" else "dfki"
-        for effect in PLAN[kind]:
+        for effect in PLAN[robot]:
             k = int(rng.integers(len(sources)))
             other = None
             if effect == "null:other":
@@ -403,10 +428,10 @@ def write_set(out: Path, robots: list[str], seed: int, only: int | None = None) 
     its truth document."""
     if any(r not in SOURCES for r in robots):
         raise SystemExit(f"make_real_effect_set: robots are {', '.join(SOURCES)}")
-    if any(r == "panda" for r in robots) and _inside_repo(out):
+    if any(r in OUTSIDE_TREE for r in robots) and _inside_repo(out):
         raise SystemExit(
-            f"make_real_effect_set: {out} is inside the repository; the Panda data (GPL-3) "
-            "must not enter it: write to a temporary or runs directory"
+            f"make_real_effect_set: {out} is inside the repository; the Panda (GPL-3) and KUKA "
+            "(LGPL-3) data must not enter it: write to a temporary or runs directory"
         )
     if out.exists():
         if (out / "truth.json").is_file():
@@ -450,7 +475,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", required=True, help="directory of the set (outside the repo "
                         "for Panda/KUKA data)")  # fmt: skip
     parser.add_argument("--seed", type=int, default=0, help="seed of the set's random draws")
-    parser.add_argument("--robot", default="dfki-a0,dfki-c0,panda",
+    parser.add_argument("--robot", default="dfki-a0,dfki-c0,panda",  # kuka-lwr4 by name
                         help=f"comma-separated, of {', '.join(SOURCES)}")  # fmt: skip
     parser.add_argument("--only", type=int, default=None, help="write the first K cases")
     args = parser.parse_args(argv)

@@ -179,12 +179,21 @@ def refit_ratio(fit: Fit, prob: Any, terms: list[Term]) -> np.ndarray:
     rows are scaled by θ₀'s own residual scale, so a pooled ratio weighs each joint by
     1/scale² and the joint θ₀ describes worst counts least (an A.0 recording judged against
     another one's model: 86 % held-out NRMSE on joint 1 against a refit's 10 %, a pooled ratio
-    of 1.2)."""
+    of 1.2).
+
+    The refit weighs each joint by the recording's own noise (``prob.scale``, the scale of its
+    own least-squares residual, as ``hil identify`` does), not by θ₀'s residual scale: θ₀'s
+    residual carries the very change judged, so its scale would weigh the changed joints down
+    and the shared θ would buy the other joints' fit with them (a 0.057 rad encoder angle on a
+    KUKA LWR4+'s joint 2 scaled joint 2's rows by 1/3.2: the refit then predicted joint 5's
+    held-out blocks 1.75 times better than the same refit of the unmodified recording, and θ₀
+    with the exact angle was ruled not to describe the recording). Its per-joint error is then
+    put in ``fit.scale``'s units, the same as θ₀'s."""
     own = cross_validate(
         block_stats(
-            prob.Psi_raw / fit.scale[None, :, None], prob.y_raw / fit.scale, prob.w, prob.blocks
+            prob.Psi_raw / prob.scale[None, :, None], prob.y_raw / prob.scale, prob.w, prob.blocks
         )
-    ).held_out_sse.sum(axis=0)
+    ).held_out_sse.sum(axis=0) * np.square(prob.scale / fit.scale)
     mine = fit.cv(terms).held_out_sse.sum(axis=0)
     return np.sqrt(mine / np.maximum(own, 1e-300))
 
