@@ -47,7 +47,7 @@ import numpy as np
 
 from drivers.recording import META, Recording, write_json_atomic
 from hil.diagnose import pipeline
-from hil.diagnose.selection import VOCABULARY as DIAGNOSIS_VOCABULARY
+from hil.diagnose.candidates import VOCABULARY as DIAGNOSIS_VOCABULARY
 from hil.model.closed_form import TERMS as MODEL_TERMS
 from profiles.effects import load_effects
 from profiles.experiment import ExperimentProfile, load_experiment

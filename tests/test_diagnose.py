@@ -22,6 +22,7 @@ from realdata import realdata
 
 from drivers.recording import Recording, read_signals
 from hil.cli import main as hil_main
+from hil.diagnose.candidates import candidates
 from hil.diagnose.columns import (
     delayed_torque_rows,
     lagged_torque_rows,
@@ -32,8 +33,10 @@ from hil.diagnose.columns import (
     window_intervals,
 )
 from hil.diagnose.interpret import RATE_EFFECTS
+from hil.diagnose.physical import unphysical
 from hil.diagnose.pipeline import diagnose
-from hil.diagnose.selection import DiagnosisError, build_problem, candidates, select, unphysical
+from hil.diagnose.problem import DiagnosisError, build_problem
+from hil.diagnose.selection import select
 from hil.diagnose.stats import (
     CrossValidation,
     block_index,
@@ -606,7 +609,8 @@ def test_cached_grid_statistics_match_the_columns_built_anew(null_recording):
     performance); they must give the cross-validation the columns themselves give, with terms
     already in the model (one on the grid's joint, one that moves both joints) and after the
     noise scale changed."""
-    from hil.diagnose.selection import Accepted, _cv_terms, _design, _rewhiten
+    from hil.diagnose.candidates import Accepted
+    from hil.diagnose.problem import design_matrix, rewhiten, terms_cv
     from hil.diagnose.stats import extend_stats_many
 
     rec = read_signals(null_recording)
@@ -617,8 +621,8 @@ def test_cached_grid_statistics_match_the_columns_built_anew(null_recording):
     for step, add in enumerate(("offset:1", "angle:2", None)):
         for key in ("cogging:1", "stribeck:2"):
             cand = library[key]
-            got = _cv_terms(prob, terms, cand)
-            base = _design(prob, [prob.chosen(a) for a in terms])
+            got = terms_cv(prob, terms, cand)
+            base = design_matrix(prob, [prob.chosen(a) for a in terms])
             stats = block_stats(base, prob.y, prob.w, prob.blocks)
             columns = np.stack([prob.column(cand, i) for i in range(len(cand.variants))], axis=2)
             want = cross_validate(
@@ -631,7 +635,7 @@ def test_cached_grid_statistics_match_the_columns_built_anew(null_recording):
         if add is not None:
             prob.column(library[add], 0)
             terms.append(Accepted(library[add], None, evidence(got, got, [0])))
-            _rewhiten(prob, terms)  # a new noise scale: the cached sums must follow it
+            rewhiten(prob, terms)  # a new noise scale: the cached sums must follow it
     assert set(prob.grids) == {"cogging:1", "stribeck:2"}
 
 
@@ -640,7 +644,7 @@ def test_a_long_recording_has_at_most_max_blocks_and_max_simulated_segments():
     multiplying past MAX_BLOCKS, and the held-out simulation runs at most MAX_SEGMENTS
     one-second segments, spread over the whole held-out part and cut at a gap."""
     from hil.diagnose.heldout import MAX_SEGMENTS, SEGMENT_S, simulated_segments
-    from hil.diagnose.selection import MAX_BLOCKS
+    from hil.diagnose.problem import MAX_BLOCKS
 
     h, n = 0.0025, 100_000  # 250 s at 400 Hz: 500 blocks of 0.5 s without the bound
     t = np.arange(n) * h
@@ -706,7 +710,7 @@ def test_design_statistics_are_kept_per_scale_and_terms_and_released_after_selec
     equal to summing them anew; an array the problem did not serve, or a new scale, is summed
     anew; after the selection only the accepted terms' columns stay, and a dropped column asked
     for again is rebuilt identical."""
-    from hil.diagnose.selection import _design
+    from hil.diagnose.problem import design_matrix
 
     rec = read_signals(null_recording)
     prob, theta = build_problem([(rec.q, rec.tau, rec.period_s)])
@@ -717,7 +721,7 @@ def test_design_statistics_are_kept_per_scale_and_terms_and_released_after_selec
         col[0, 0, 0] = 1.0  # served columns are read-only: their statistics may be kept
     first = prob.design_stats([col])
     assert prob.design_stats([col]) is first
-    want = block_stats(_design(prob, [col]), prob.y, prob.w, prob.blocks)
+    want = block_stats(design_matrix(prob, [col]), prob.y, prob.w, prob.blocks)
     for got, exp in ((first.G, want.G), (first.r, want.r), (first.s, want.s)):
         np.testing.assert_array_equal(got, exp)
     copy = col.copy()  # not served: not kept, same numbers
@@ -725,7 +729,7 @@ def test_design_statistics_are_kept_per_scale_and_terms_and_released_after_selec
     np.testing.assert_array_equal(prob.design_stats([copy]).G, first.G)
     prob.scale = prob.scale * np.array([1.5, 0.5])
     rescaled = prob.design_stats([prob.column(offset, 0)])
-    want = block_stats(_design(prob, [prob.column(offset, 0)]), prob.y, prob.w, prob.blocks)
+    want = block_stats(design_matrix(prob, [prob.column(offset, 0)]), prob.y, prob.w, prob.blocks)
     np.testing.assert_array_equal(rescaled.G, want.G)
     assert not np.allclose(rescaled.G, first.G)
     before = np.array(prob.column(gain, 0))
@@ -848,7 +852,8 @@ def test_the_columns_kept_after_the_selection_are_the_terms_and_their_rivals():
     """keep_only keeps the accepted terms' columns and their rivals' at the rival's variant
     (interpret.interpret refits each rival in its term's place; a model term's column rebuilt is
     a pass over every interval's regressor: issue 12, performance)."""
-    from hil.diagnose.selection import Accepted, Candidate, _kept_columns
+    from hil.diagnose.candidates import Accepted, Candidate
+    from hil.diagnose.selection import _kept_columns
 
     def cols(_rows, _variant):
         raise AssertionError("not built")

@@ -23,8 +23,8 @@ from hil.diagnose import gates
 from hil.diagnose.findings import AT_REFERENCE, Finding, gain_at_reference
 from hil.diagnose.heldout import simulated_effects
 from hil.diagnose.pipeline import diagnose
+from hil.diagnose.problem import build_problem
 from hil.diagnose.report import _phrase
-from hil.diagnose.selection import build_problem
 from hil.model.closed_form import ArmModel
 from hil.model.params import robot_params
 

@@ -283,13 +283,13 @@ def test_reference_diagnosis_builds_each_recordings_rows_once(arm, capsys, monke
     pair's CPU time): one regressor per recording and per reference, and the same document as
     when the judge builds its own."""
     import hil.diagnose.cli as cli
-    import hil.diagnose.selection as selection
+    import hil.diagnose.problem as problem
 
     args = (str(arm["gain_b"]), "--robot", "cicese", "--reference", str(arm["null_a"]))
     built = []
-    real_rows = selection.recording_rows
+    real_rows = problem.recording_rows
     monkeypatch.setattr(
-        selection, "recording_rows", lambda *a, **k: built.append(1) or real_rows(*a, **k)
+        problem, "recording_rows", lambda *a, **k: built.append(1) or real_rows(*a, **k)
     )
     doc = _diagnose(capsys, *args)
     assert len(built) == 2  # the recording's and the reference's

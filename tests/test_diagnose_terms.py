@@ -20,9 +20,9 @@ from realdata import realdata
 
 from drivers.recording import read_signals
 from hil.cli import main as hil_main
+from hil.diagnose.candidates import candidates
 from hil.diagnose.columns import model_term_columns, noise_model, recording_rows
 from hil.diagnose.pipeline import diagnose
-from hil.diagnose.selection import candidates
 from hil.model.closed_form import ArmModel
 from hil.model.openloop import simulate_open_loop
 from hil.model.params import robot_params

@@ -266,7 +266,7 @@ def test_cross_validation_of_the_6_joint_design_is_its_least_squares_fit(tmp_pat
     design's mean diagonal it was not (joint 2's error 15 % above least squares on these 5 s,
     2.3× on the 20 s run), and the `unexplained` bins took up that bias: three false
     structures on the effect-free run (test below)."""
-    from hil.diagnose.selection import build_problem
+    from hil.diagnose.problem import build_problem
     from hil.diagnose.stats import block_stats, cross_validate
 
     simulate_urdf(load_urdf_robot(ROBOT), load_experiment(EXPERIMENT), tmp_path, duration_s=5.0,

@@ -20,20 +20,12 @@ from typing import Any
 
 import numpy as np
 
+from hil.diagnose.candidates import LAG_GRID_S, Accepted, term_width
 from hil.diagnose.columns import delayed_torque_rows, gain_column, lagged_torque_rows
-from hil.diagnose.selection import (
-    LAG_GRID_S,
-    Accepted,
-    FinalFit,
-    Problem,
-    _design,
-    _passes,
-    evidence,
-    fit_theta_at,
-    rigid_body_deviation,
-    term_width,
-)
-from hil.diagnose.stats import CrossValidation, block_stats, cross_validate
+from hil.diagnose.physical import FinalFit, rigid_body_deviation
+from hil.diagnose.problem import Problem, design_matrix, fit_theta_at
+from hil.diagnose.selection import passes
+from hil.diagnose.stats import CrossValidation, block_stats, cross_validate, evidence
 from hil.model.protocol import ArmDynamics
 
 SEPARATE_REDUCTION = 0.05  # held-out reduction needed to call lag vs delay (see classify_rate)
@@ -101,7 +93,7 @@ def _cv_with(
             cols.append(col)
         else:
             cols.append(prob.chosen(a))
-    base = _design(prob, [*cols, *extra])
+    base = design_matrix(prob, [*cols, *extra])
     return cross_validate(block_stats(base, y_raw / prob.scale, prob.w, prob.blocks))
 
 
@@ -158,7 +150,7 @@ def classify_rate(
         return [], None
     joints = [accepted[i].cand.joint for i in idx]
     skip = set(idx)
-    design = _design(prob, _cols(prob, accepted, skip))
+    design = design_matrix(prob, _cols(prob, accepted, skip))
     sse_of = _least_squares_sse(prob, design)
     # One time constant (lag) or delay per joint, each searched with the other's as found so
     # far: the two hypotheses get the same freedom, so only the shape of the response decides.
@@ -197,8 +189,8 @@ def classify_rate(
     # Separating them needs more than the usual 1 %: the interval model's velocity estimates err
     # a little more around a torque that switches inside an interval (a delay) than around a
     # smooth one (a lag), which on its own favours the lag by ~1-2 % on a pure delay.
-    lag_wins = _passes(lag_better, n_tests) and lag_better.reduction >= SEPARATE_REDUCTION
-    delay_wins = _passes(delay_better, n_tests) and delay_better.reduction >= SEPARATE_REDUCTION
+    lag_wins = passes(lag_better, n_tests) and lag_better.reduction >= SEPARATE_REDUCTION
+    delay_wins = passes(delay_better, n_tests) and delay_better.reduction >= SEPARATE_REDUCTION
     lag_ok, delay_ok = not delay_wins, not lag_wins  # neither wins: both, confounded
     if lag_ok:
         for j in joints:
@@ -361,7 +353,7 @@ def gain_at_reference(
     col[:, joint, 0] = -y_raw[:, joint] / prob.scale[joint]
     cols = [prob.chosen(a) for k, a in enumerate(accepted) if k != i] + [col]
     fixed = np.asarray(reference_rigid, float)[:n]
-    return float(fit_theta_at(_design(prob, cols), prob.y, prob.w, fixed, True)[-1])
+    return float(fit_theta_at(design_matrix(prob, cols), prob.y, prob.w, fixed, True)[-1])
 
 
 __all__ = [

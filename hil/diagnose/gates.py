@@ -15,18 +15,15 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from hil.diagnose.candidates import Accepted, joints_of
 from hil.diagnose.findings import (
     AT_REFERENCE,
     Finding,
 )
 from hil.diagnose.heldout import HeldOutFit, before_after
+from hil.diagnose.problem import Problem
 from hil.diagnose.report import percent
-from hil.diagnose.selection import (
-    MIN_REDUCTION,
-    Accepted,
-    Problem,
-    _joints,
-)
+from hil.diagnose.selection import MIN_REDUCTION
 
 # The held-out simulated position with a term may be this much worse (relative, summed over the
 # term's joints) than without it before the term is dropped: below that, two simulations of
@@ -67,7 +64,7 @@ def _term_joints(prob: Problem, accepted: Sequence[Accepted], term: str) -> list
     if term == "rate":
         return sorted({a.cand.joint for a in accepted if a.cand.kind == "rate"})
     a = next(a for a in accepted if a.cand.key == term)
-    return _joints(a.cand)
+    return joints_of(a.cand)
 
 
 def _own_gain(fit: HeldOutFit, fit_wo: HeldOutFit, joints: list[int], name: str) -> float:

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from hil.diagnose.candidates import Accepted, term_key, term_width
 from hil.diagnose.columns import (
     GAP_FACTOR,
     delayed_torque_means,
@@ -30,17 +31,8 @@ from hil.diagnose.findings import (
     Finding,
 )
 from hil.diagnose.interpret import _estimate, cogging_at_true_angle
-from hil.diagnose.selection import (
-    Accepted,
-    Problem,
-    _design,
-    _term_key,
-    fit_theta,
-    fit_theta_at,
-    model_columns,
-    physical_theta,
-    term_width,
-)
+from hil.diagnose.physical import model_columns, physical_theta
+from hil.diagnose.problem import Problem, design_matrix, fit_theta, fit_theta_at
 from hil.model.closed_form import TERMS
 from hil.model.metrics import nrmse
 from hil.model.openloop import OpenLoopExtras, simulate_open_loop, simulate_segments
@@ -378,8 +370,10 @@ def _refit(
     fitted (:func:`hil.diagnose.findings.gain_at_reference`'s model). The design is weighted
     in place by the fit: on a long recording a (K, 2, p) copy fewer at the memory peak."""
     if rigid_reference is None:
-        return fit_theta(_design(prob, cols), target, w, overwrite_design=True)
-    return fit_theta_at(_design(prob, cols), target, w, rigid_reference, overwrite_design=True)
+        return fit_theta(design_matrix(prob, cols), target, w, overwrite_design=True)
+    return fit_theta_at(
+        design_matrix(prob, cols), target, w, rigid_reference, overwrite_design=True
+    )
 
 
 def read_at_reference(
@@ -490,13 +484,13 @@ def before_after(
     # new array) and by the rigid-body parameters it holds
     pinned = None if rigid_reference is None else np.asarray(rigid_reference, float).tobytes()
     key1 = ("refit", tuple(a.cand.key for a in accepted), prob.scale.tobytes(), pinned)
-    inputs = (shaft, *(prob.cache[_term_key(a)] for a in accepted))
+    inputs = (shaft, *(prob.cache[term_key(a)] for a in accepted))
     kept = memo.get(key1)
     if kept is None or any(x is not y for x, y in zip(kept[0], inputs, strict=True)):
         beta = _refit(prob, cols, target, w_train, rigid_reference)
         kept = memo[key1] = (inputs, beta)
     beta = kept[1].copy()
-    Z = _design(prob, cols)
+    Z = design_matrix(prob, cols)
     y = prob.y_raw
     pred0 = prob.Psi_raw @ theta0
     # the model's torque prediction: what it leaves of the measured side, on the recorded rows

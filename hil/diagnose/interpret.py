@@ -16,6 +16,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from hil.diagnose.candidates import Accepted, Candidate, term_width
 from hil.diagnose.columns import (
     moving_average,
 )
@@ -27,19 +28,9 @@ from hil.diagnose.findings import (
     resolve_gain,
     unresolved_rate_terms,
 )
-from hil.diagnose.selection import (
-    FAMILY_ALPHA,
-    MIN_REDUCTION,
-    Accepted,
-    Candidate,
-    Problem,
-    _rewhiten,
-    final_fit,
-    physical_gate,
-    relinearise_angle,
-    select,
-    term_width,
-)
+from hil.diagnose.physical import final_fit, physical_gate
+from hil.diagnose.problem import Problem, rewhiten
+from hil.diagnose.selection import FAMILY_ALPHA, MIN_REDUCTION, relinearise_angle, select
 from hil.diagnose.stats import block_stats, cross_validate, evidence, extend_stats_many
 from hil.model.protocol import ArmDynamics
 
@@ -260,7 +251,7 @@ def shaft_problem(prob: Problem, shaft: np.ndarray) -> Problem:
     """``prob`` with the exact shaft torque rows of a found lag or delay (:func:`classify_rate`)
     as its target, its noise scale that of the nominal model against them."""
     exact = Problem(prob.rows, shaft, prob.Psi_raw, prob.w, prob.scale.copy(), prob.blocks)
-    _rewhiten(exact, [])
+    rewhiten(exact, [])
     return exact
 
 

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from hil.diagnose.selection import Problem
+from hil.diagnose.problem import Problem
 
 # A grouping that explains less than this share of the residual variance is not reported as
 # carrying it.

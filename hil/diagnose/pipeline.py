@@ -23,11 +23,20 @@ import numpy as np
 
 from drivers.process import release_freed_heap
 from drivers.recording import Recording
+from hil.diagnose.candidates import candidates, joints_of
 from hil.diagnose.findings import Finding
 from hil.diagnose.gates import pinned_rigid_body, simulation_gate
 from hil.diagnose.heldout import HeldOutFit, before_after, read_at_reference
 from hil.diagnose.interpret import interpret_with_rate, lack_of_fit, settle_gain_joint, unexplained
 from hil.diagnose.locate import Location, locate
+from hil.diagnose.physical import jackknife_se, physical_gate, physical_theta
+from hil.diagnose.problem import (
+    MIN_USABLE_ROWS,
+    DiagnosisError,
+    build_problem,
+    check_recording,
+    usable_speeds,
+)
 from hil.diagnose.report import (
     _NAMES,
     _rejection_notes,
@@ -36,20 +45,7 @@ from hil.diagnose.report import (
     simulation_notes,
     summary_words,
 )
-from hil.diagnose.selection import (
-    MIN_USABLE_ROWS,
-    DiagnosisError,
-    _joints,
-    build_problem,
-    candidates,
-    check_recording,
-    jackknife_se,
-    physical_gate,
-    physical_theta,
-    relinearise_angle,
-    select,
-    usable_speeds,
-)
+from hil.diagnose.selection import relinearise_angle, select
 from hil.diagnose.stats import Evidence, block_stats, cross_validate
 from hil.model.closed_form import ArmModel
 from hil.model.protocol import ArmDynamics
@@ -225,7 +221,7 @@ def diagnose(
         c
         for c in candidates(theta_fit, ranges, usable_speeds(prob), model)
         # a gain error shows only as the ratio of the joints' gains (docs/diagnosis.md, 4)
-        if all(j in live for j in _joints(c)) and (c.kind != "gain" or len(live) >= 2)
+        if all(j in live for j in joints_of(c)) and (c.kind != "gain" or len(live) >= 2)
     ]
     nominal_se = jackknife_se(
         cross_validate(block_stats(prob.Psi, prob.y, prob.w, prob.blocks)).fold_beta

@@ -18,9 +18,7 @@ from hil.diagnose.findings import (
     Finding,
 )
 from hil.diagnose.heldout import SEGMENT_S, HeldOutFit
-from hil.diagnose.selection import (
-    Problem,
-)
+from hil.diagnose.problem import Problem
 from hil.model.closed_form import TERMS
 from hil.model.protocol import ArmDynamics
 

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from hil.cli_options import read_recording
-from hil.diagnose import selection
+from hil.diagnose import candidates, problem
 from hil.diagnose.columns import torque_rate_column
 from hil.diagnose.stats import evidence
 from hil.model.closed_form import ArmModel
@@ -56,7 +56,7 @@ def main() -> int:
     ]
     profile = robot_params(str(RIGID))
     model = ArmModel(profile.terms)
-    prob, theta = selection.build_problem([(r.q, r.tau, r.period_s, r.t) for r in recs], model)
+    prob, theta = problem.build_problem([(r.q, r.tau, r.period_s, r.t) for r in recs], model)
     for name, rec, rows in zip((args.fit, args.held_out), recs, prob.rows, strict=True):
         dt = np.diff(rec.t)
         x = torque_rate_column(rows, 1)[:, 1, :]
@@ -79,21 +79,21 @@ def main() -> int:
             at += rows.rows
     ranges = np.ptp(np.concatenate([r.q for r in recs]), axis=0)
     library = {
-        c.key: c for c in selection.candidates(theta, ranges, selection.usable_speeds(prob), model)
+        c.key: c for c in candidates.candidates(theta, ranges, problem.usable_speeds(prob), model)
     }
     rate = library["rate:2"]
     median = replace(
         rate, columns=lambda rows, _v: torque_rate_column(replace(rows, stamps=None), 1)
     )
     first_blocks = [0, int(prob.blocks[prob.rows[0].rows])]
-    base = selection._cv(prob, [])
+    base = problem.design_cv(prob, [])
     for label, cand in (
         ("rate:2, real intervals", rate),
         ("rate:2, median interval", median),
         ("rotor_inertia", library["rotor_inertia"]),
     ):
         prob.forget((cand.key, 0))  # both rate:2 variants share the key: built afresh
-        cv = selection._cv_terms(prob, [], cand)
+        cv = problem.terms_cv(prob, [], cand)
         ev = evidence(base, cv, [1])
         ratio = cv.held_out_sse[first_blocks, 1] / base.held_out_sse[first_blocks, 1]
         print(

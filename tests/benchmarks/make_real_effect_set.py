@@ -41,7 +41,7 @@ Effect: what is written (truth magnitude; size drawn, and why):
     20–60 % of the last body's mass, at 0.8–1.2 times its centre of mass).
 
 Cogging's N is an integer with at least two periods over the swept range (the diagnosis's own
-rule, hil.diagnose.selection.cogging_periods) and a spatial frequency at the joint's RMS speed
+rule, hil.diagnose.candidates.cogging_periods) and a spatial frequency at the joint's RMS speed
 under half the smoothing cutoff: higher N would be low-passed away before any model sees it.
 Sizes are relative to the joint's RMS torque so the same rule fits a 0.5 Nm pendulum and a
 87 Nm arm: an effect smaller than ~3 % is under the recordings' own model error (the owners'

@@ -5,7 +5,7 @@ recording").
     python tests/benchmarks/panda_consistent_nominal.py
 
 The diagnosis's nominal least-squares fit of that recording is not physical, so it says "I cannot
-tell" and tests nothing. This script builds the diagnosis's own rows (hil.diagnose.selection.
+tell" and tests nothing. This script builds the diagnosis's own rows (hil.diagnose.problem.
 build_problem, real stamps), fits the training part (the first 75 %) twice, by weighted least
 squares and by identification's physically consistent fit (hil.identify.urdf.consistent_fit:
 every body's pseudo-inertia positive definite, friction ≥ 0), and prints for each whether it is
@@ -31,7 +31,7 @@ from realdata import realdata  # tests/realdata.py
 from drivers.one_per_line import read_one_per_line_log
 from hil.cli_options import read_recording
 from hil.diagnose.heldout import _masks, _nrmse_or_none
-from hil.diagnose.selection import build_problem, fit_theta
+from hil.diagnose.problem import build_problem, fit_theta
 from hil.identify.urdf import consistent_fit
 from hil.model.urdf import UrdfArmModel
 

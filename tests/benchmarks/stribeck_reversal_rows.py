@@ -25,7 +25,7 @@ import numpy as np
 
 from drivers.recording import read_signals
 from hil.diagnose.columns import moving_average, recording_rows, row_weights, stribeck_column
-from hil.diagnose.selection import fit_theta
+from hil.diagnose.problem import fit_theta
 from hil.model.regressors import _sign_and_abs_integrals, central_difference
 
 

@@ -31,7 +31,7 @@ import hil.diagnose.columns as columns
 import hil.model.regressors as regressors
 from drivers.recording import read_signals
 from hil.diagnose.interpret import _bin_columns
-from hil.diagnose.selection import build_problem
+from hil.diagnose.problem import build_problem
 from hil.diagnose.stats import block_stats, cross_validate, evidence, extend_stats_many
 from hil.model.urdf import UrdfArmModel
 from profiles.experiment import load_experiment

@@ -22,13 +22,8 @@ from hil.diagnose.heldout import (
     _masks,
     _nrmse_or_none,
 )
-from hil.diagnose.selection import (
-    Problem,
-    build_problem,
-    fit_theta,
-    jackknife_se,
-    robust_scale,
-)
+from hil.diagnose.physical import jackknife_se
+from hil.diagnose.problem import Problem, build_problem, fit_theta, robust_scale
 from hil.diagnose.stats import (
     CrossValidation,
     block_stats,

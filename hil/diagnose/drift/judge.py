@@ -36,10 +36,7 @@ from hil.diagnose.findings import Finding
 from hil.diagnose.heldout import (
     HELD_OUT_FRACTION,
 )
-from hil.diagnose.selection import (
-    Problem,
-    build_problem,
-)
+from hil.diagnose.problem import Problem, build_problem
 from hil.diagnose.stats import (
     block_stats,
     cross_validate,

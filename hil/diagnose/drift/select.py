@@ -17,13 +17,8 @@ from hil.diagnose.drift.fit import Fit, change_se, term_sizes
 from hil.diagnose.drift.terms import Term
 from hil.diagnose.drift.unpaired import free_change_in_se
 from hil.diagnose.effects import REGISTRY, Context
-from hil.diagnose.selection import (
-    FAMILY_ALPHA,
-    MAX_ROUNDS,
-    MIN_REDUCTION,
-    _passes,
-    jackknife_se,
-)
+from hil.diagnose.physical import jackknife_se
+from hil.diagnose.selection import FAMILY_ALPHA, MAX_ROUNDS, MIN_REDUCTION, passes
 from hil.diagnose.stats import (
     CrossValidation,
     Evidence,
@@ -90,7 +85,7 @@ def amplitude_change_in_se(fit: Fit, others: Sequence[Term], term: Term) -> floa
 
 def drift_passes(fit: Fit, others: Sequence[Term], term: Term, ev: Evidence, tests: int) -> bool:
     """The gate of a drift pattern. Against a profile or ``--params`` (no reference rows to
-    difference against): the sign test over blocks of :func:`hil.diagnose.selection._passes`.
+    difference against): the sign test over blocks of :func:`hil.diagnose.selection.passes`.
     Against a nominal model identified from reference rows: the held-out error of its joints
     drops (:data:`MIN_REDUCTION`, as everywhere, and in more blocks than it rises: a change of
     the arm acts on all its motion, not on a few fast blocks carrying another term's misfit),
@@ -100,8 +95,8 @@ def drift_passes(fit: Fit, others: Sequence[Term], term: Term, ev: Evidence, tes
     (:attr:`Fit.paired`), the sign test must pass as well: another motion projects the model's
     error onto a pattern differently, a difference the blocks' spread does not measure."""
     if fit.reference is None:
-        return _passes(ev, tests)
-    if not fit.paired and not _passes(ev, tests):
+        return passes(ev, tests)
+    if not fit.paired and not passes(ev, tests):
         return False
     if ev.reduction < MIN_REDUCTION or 2 * ev.blocks_improved <= ev.blocks:
         return False
@@ -141,7 +136,7 @@ def select_terms(
 ) -> tuple[list[Term], dict[str, dict]]:
     """Greedy forward selection from the terms ``start``: each round the candidate that lowers
     the held-out error of its joints most, among those that pass the gates of
-    :func:`hil.diagnose.selection._passes`."""
+    :func:`hil.diagnose.selection.passes`."""
     accepted: list[Term] = list(start)
     tested: dict[str, dict] = {}
     built: dict[str, Term] = {}

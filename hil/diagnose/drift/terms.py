@@ -1,7 +1,7 @@
 """The drift stage's vocabulary: the nominal model (:class:`Nominal`), a drift pattern's term in
 a fit (:class:`Term`), the stage's result (:class:`DriftResult`) and its constants.
 
-Imports the effect registry's types and :mod:`hil.diagnose.selection`'s problem only.
+Imports the effect registry's types and :mod:`hil.diagnose.problem`'s problem only.
 """
 
 from __future__ import annotations
@@ -13,9 +13,7 @@ import numpy as np
 
 from hil.diagnose.effects import Effect
 from hil.diagnose.findings import Finding
-from hil.diagnose.selection import (
-    Problem,
-)
+from hil.diagnose.problem import Problem
 from hil.model.protocol import ArmDynamics
 
 # The nominal model is judged against when its held-out torque error with the drift patterns is

@@ -31,7 +31,7 @@ import numpy as np
 
 from hil.diagnose.drift.fit import Fit
 from hil.diagnose.drift.terms import Term
-from hil.diagnose.selection import jackknife_se
+from hil.diagnose.physical import jackknife_se
 from hil.diagnose.stats import RIDGE, BlockStats, CrossValidation, block_stats, cross_validate
 
 # A pattern whose columns keep less than this fraction of their energy outside θ's columns

@@ -7,7 +7,7 @@ reads each accepted one as a finding, and simulates it on held-out data. Adding 
 file here plus its import below (the registry order is the order the effects are tested in).
 
 Imports: :mod:`hil.diagnose.columns`, :mod:`hil.model`, the resolution floor of
-:mod:`hil.diagnose.findings` and the cogging periods of :mod:`hil.diagnose.selection`;
+:mod:`hil.diagnose.findings` and the cogging periods of :mod:`hil.diagnose.candidates`;
 never the pipeline or the report.
 """
 

@@ -4,7 +4,7 @@ model lacks (a new motor, a magnet that moved, a damaged gear tooth).
 τ_shaft = τ + A sin(N q_j + φ): y_j = Ψ_j θ₀ − A sin(N q_j + φ), X = −F[sin N q_j, cos N q_j]
 (:func:`hil.diagnose.columns.cogging_columns`, the refit's own columns), β = (A cos φ, A sin φ).
 The number of periods per revolution N is the linearisation point: every N the refit searches
-(:func:`hil.diagnose.selection.cogging_periods`: at least two periods over the joint's angle
+(:func:`hil.diagnose.candidates.cogging_periods`: at least two periods over the joint's angle
 range) is a start, and the one that fits best is kept (:meth:`Effect.starts`); N does not move
 after that. Its size is A relative to the joint's RMS model torque (one floor for a 0.5 Nm
 pendulum and an 87 Nm arm, like a gain's).
@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
+from hil.diagnose.candidates import cogging_periods
 from hil.diagnose.columns import cogging_columns
 from hil.diagnose.effects.base import Context, Effect, r4, register
-from hil.diagnose.selection import cogging_periods
 
 
 class Cogging(Effect):

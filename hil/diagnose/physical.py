@@ -1,0 +1,160 @@
+"""The physical gate of the mismatch diagnosis: is a fit a physical arm?
+
+A fit of the nominal model plus term columns is physical when M(q) is positive definite for
+every q and friction and rotor inertia are not negative beyond their blocked jackknife
+standard errors (:func:`physical_theta`, :func:`unphysical`), and no torque gain removes most
+of the torque. :func:`final_fit` fits the nominal model with the accepted terms on all rows,
+:func:`physical_gate` drops accepted terms until that fit is physical,
+:func:`rigid_body_deviation` measures a fit's rigid-body parameters against a reference.
+
+Imports: :mod:`hil.diagnose.candidates`, :mod:`hil.diagnose.problem`,
+:mod:`hil.diagnose.stats`, :mod:`hil.model`; never the selection or the stages after it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from hil.diagnose.candidates import Accepted, Candidate, term_width
+from hil.diagnose.problem import Problem, design_cv
+from hil.diagnose.stats import CrossValidation
+from hil.model.closed_form import TERMS, ArmModel
+from hil.model.protocol import ArmDynamics
+
+# A torque gain error below this (the shaft gets less than half the command) is not a gain
+# error but a model that has stopped describing the arm.
+MIN_GAIN = -0.5
+
+
+# A friction coefficient is called negative only when it is below zero by more than this many
+# of its own (blocked jackknife) standard errors: a viscous term the recording cannot determine
+# scatters around zero, and -0.002 ± 0.004 Nm s is not a verdict on the arm.
+SE_TOLERANCE = 2.0
+
+
+def jackknife_se(fold_beta: np.ndarray) -> np.ndarray:
+    """Standard error of each coefficient from the leave-one-block-out fits."""
+    n = fold_beta.shape[0]
+    return np.sqrt((n - 1) / n * np.sum((fold_beta - fold_beta.mean(0)) ** 2, axis=0))
+
+
+def physical_theta(
+    theta: np.ndarray, se: np.ndarray | None = None, model: ArmDynamics | None = None
+) -> tuple[np.ndarray, list[str]]:
+    """θ of ``model`` (default the 9-parameter one; its first parameters of ``theta``) with
+    coefficients that must be ≥ 0 (friction, a rotor inertia) but are negative within
+    SE_TOLERANCE of their standard errors ``se`` set to zero, and what is still not physical
+    about it (``model.physical_consistency``: M(q) positive definite for every q, friction and
+    rotor inertia ≥ 0)."""
+    model = ArmModel(()) if model is None else model
+    th = np.array(theta[: model.n_params], float)
+    if se is not None:
+        cols = [i for i in model.nonnegative_columns if i < len(se)]
+        bound = -SE_TOLERANCE * np.asarray(se, float)[cols]
+        fr = th[cols]
+        fr[(fr < 0) & (fr >= bound)] = 0.0
+        th[cols] = fr
+    return th, list(model.physical_consistency(th)["violations"])
+
+
+def model_columns(model: ArmDynamics, cands: Sequence[Candidate]) -> tuple[ArmDynamics, np.ndarray]:
+    """The model a fit of the nominal ``model`` with the terms ``cands`` (in design order,
+    after Ψ) describes: ``model`` with the model terms among ``cands`` appended, and which
+    coefficients of the fit's β are its θ."""
+    p = model.n_params
+    index, terms, at = list(range(p)), [], p
+    for c in cands:
+        width = term_width(c)
+        if c.kind in TERMS:
+            terms.append(c.kind)
+            index += range(at, at + width)
+        at += width
+    return (model.with_terms(tuple(terms)) if terms else model), np.array(index)
+
+
+def unphysical(
+    cand: Candidate | None,
+    cv: CrossValidation,
+    model: ArmDynamics | None = None,
+    terms: Sequence[Candidate] = (),
+) -> list[str]:
+    """Why a fit of the nominal ``model`` (default the 9-parameter one) + the columns of
+    ``terms`` (+ ``cand``) is not physical (empty when it is): M(q) not positive definite or
+    negative friction in θ beyond its uncertainty (:func:`physical_theta`, with the model terms
+    among ``terms`` and ``cand`` in θ), or a gain that removes most of the torque."""
+    cands = [*terms, cand] if cand is not None else list(terms)
+    full, index = model_columns(ArmModel(()) if model is None else model, cands)
+    se = jackknife_se(cv.fold_beta)
+    reasons = physical_theta(cv.beta[index], se[index], full)[1]
+    if cand is not None and cand.kind == "gain":
+        r = float(cv.beta[-1])
+        if r <= MIN_GAIN:
+            reasons.append(f"a torque gain of {100 * r:+.0f} % removes most of the torque")
+    return reasons
+
+
+def rigid_body_deviation(theta: np.ndarray, reference: np.ndarray, n_rigid: int = 5) -> float:
+    """‖(θ_rigid − reference)/reference‖: how far a fit's rigid-body parameters (θ1..θ5 of
+    the 2-DOF model, the first ``n_rigid``) are from the reference's (robot profile or
+    --params)."""
+    ref = np.asarray(reference, float)[:n_rigid]
+    # a URDF arm's base parameters can be zero (the offset moment of a symmetric link): those
+    # are measured against the parameters' RMS instead
+    scale = np.where(np.abs(ref) > 0, np.abs(ref), np.sqrt(np.mean(ref**2)))
+    return float(np.linalg.norm((np.asarray(theta, float)[:n_rigid] - ref) / scale))
+
+
+# --- the final model ---------------------------------------------------------------------------
+
+
+@dataclass
+class FinalFit:
+    """Nominal + accepted terms fitted on all rows: θ, each term's coefficients, their spread
+    over the leave-one-block-out fits (a jackknife standard error)."""
+
+    theta: np.ndarray
+    coefficients: list[np.ndarray]
+    standard_errors: list[np.ndarray]
+    cv: CrossValidation
+
+
+def final_fit(prob: Problem, accepted: Sequence[Accepted]) -> FinalFit:
+    cols = [prob.chosen(a) for a in accepted]
+    cv = design_cv(prob, cols)
+    n_blocks = cv.fold_beta.shape[0]
+    jack = np.sqrt(
+        (n_blocks - 1) / n_blocks * np.sum((cv.fold_beta - cv.fold_beta.mean(0)) ** 2, 0)
+    )
+    coefs, ses, at = [], [], prob.n_params
+    for c in cols:
+        p = c.shape[-1]
+        coefs.append(cv.beta[at : at + p])
+        ses.append(jack[at : at + p])
+        at += p
+    return FinalFit(cv.beta[: prob.n_params], coefs, ses, cv)
+
+
+def physical_gate(
+    prob: Problem, accepted: list[Accepted], rejected: dict[str, str]
+) -> list[Accepted]:
+    """The final model must be physical too: a term accepted early can drift once others join
+    (a gain error that ends up removing most of the torque). While the refit with every
+    accepted term is not physical, the last accepted term goes (the others stood without it),
+    with the reason in ``rejected``."""
+    accepted = list(accepted)
+    while accepted:
+        fit = final_fit(prob, accepted)
+        reasons = unphysical(None, fit.cv, prob.model, [a.cand for a in accepted])
+        for a, coef in zip(accepted, fit.coefficients, strict=True):
+            if a.cand.kind == "gain" and float(coef[0]) <= MIN_GAIN:
+                reasons.append(
+                    f"a torque gain of {100 * float(coef[0]):+.0f} % removes most of the torque"
+                )
+        if not reasons:
+            break
+        last = accepted.pop()
+        rejected[last.cand.key] = "its refit is not physical: " + "; ".join(reasons)
+    return accepted
