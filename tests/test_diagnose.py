@@ -741,14 +741,14 @@ def test_design_statistics_are_kept_per_scale_and_terms_and_released_after_selec
 def test_held_out_nrmse_without_spread_is_none_not_nan():
     """A held-out joint whose torque has no spread beyond rounding has no scale for an NRMSE
     (nrmse gives nan): reported as None, as too few rows are (JSON has no nan)."""
-    from hil.diagnose.heldout import _nrmse_or_none
+    from hil.diagnose.heldout import nrmse_or_none
 
     y = np.zeros((200, 2))
     y[:, 0] = 1.0 + np.arange(200) * 1e-18  # spread below rounding
     y[:, 1] = np.sin(np.arange(200) / 10)
     rows = np.ones(200, dtype=bool)
-    assert _nrmse_or_none(y, y + 0.01, rows, 0) is None
-    assert _nrmse_or_none(y, y + 0.01, rows, 1) == pytest.approx(0.01 / np.std(y[:, 1]), rel=1e-9)
+    assert nrmse_or_none(y, y + 0.01, rows, 0) is None
+    assert nrmse_or_none(y, y + 0.01, rows, 1) == pytest.approx(0.01 / np.std(y[:, 1]), rel=1e-9)
 
 
 def test_stribeck_interval_mean_is_exact_across_a_velocity_reversal():
@@ -760,8 +760,8 @@ def test_stribeck_interval_mean_is_exact_across_a_velocity_reversal():
 
     from hil.diagnose.columns import stribeck_shape
     from hil.model.regressors import (
-        _hermite,
         has_velocity_reversal,
+        hermite,
         interval_mean_across_reversals,
     )
 
@@ -774,9 +774,7 @@ def test_stribeck_interval_mean_is_exact_across_a_velocity_reversal():
     want, roots = [], []
     for i in range(4):
         s = np.linspace(0, 1, 7)
-        dqds = np.polynomial.Polynomial.fit(
-            s, _hermite(q0[i], q1[i], h * v0[i], h * v1[i], s)[1], 2
-        )
+        dqds = np.polynomial.Polynomial.fit(s, hermite(q0[i], q1[i], h * v0[i], h * v1[i], s)[1], 2)
         inside = [r.real for r in dqds.roots() if abs(r.imag) < 1e-12 and 0 < r.real < 1]
         roots.append(len(inside))
         want.append(
@@ -792,7 +790,7 @@ def test_stribeck_interval_mean_is_exact_across_a_velocity_reversal():
     assert list(has_velocity_reversal(q0, q1, v0, v1, h)) == [True, True, False, True]
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-6)  # 8 nodes a piece
     nodes, weights = np.polynomial.legendre.leggauss(4)
-    v_nodes = _hermite(q0, q1, h * v0, h * v1, 0.5 * (nodes[:, None] + 1))[1] / h
+    v_nodes = hermite(q0, q1, h * v0, h * v1, 0.5 * (nodes[:, None] + 1))[1] / h
     across = 0.5 * weights @ stribeck_shape(v_nodes, vs)
     assert np.max(np.abs(across - want)[[0, 1]]) > 0.3 * np.max(np.abs(np.array(want)[[0, 1]]))
 
@@ -831,9 +829,9 @@ def test_before_after_reuses_its_fits_and_simulations_and_changes_nothing(
     assert accepted  # joint 1's asymmetry
     findings, _confounded, shaft = interpret.interpret(prob, accepted, library, REFERENCE)
     calls = []
-    simulate = heldout._segment_simulation
+    simulate = heldout.segment_simulation
     monkeypatch.setattr(
-        heldout, "_segment_simulation", lambda *a, **k: calls.append(1) or simulate(*a, **k)
+        heldout, "segment_simulation", lambda *a, **k: calls.append(1) or simulate(*a, **k)
     )
     memo: dict = {}
     gate, _ = heldout.before_after(prob, accepted, findings, None, False, None, shaft, memo=memo)

@@ -363,3 +363,85 @@ def test_drivers_draw_nothing():
         if unit(name) == "drivers" and "matplotlib" in MODULES[name].read_text()
     ]
     assert not found, f"matplotlib in drivers/: {found}"
+
+
+# A name one module uses from another is public API of its module (issue 29): no module of hil/
+# imports a sibling's ``_private`` name (``from hil.diagnose.heldout import _masks``) or reads
+# one through an imported module (``heldout._masks``). An exception is listed here, as
+# "importing module: module._name" with its reason.
+PRIVATE_IMPORTS_ALLOWED: dict[str, str] = {}
+
+
+def private_imports(name: str, source: str | None = None) -> list[str]:
+    """``line: module.name`` for every ``_private`` name of another project module that module
+    ``name`` (its file, or ``source``) imports or reads as an attribute of a module it
+    imported; dunder names (``__version__``) are public."""
+    path = MODULES.get(name, ROOT / (name.replace(".", "/") + ".py"))
+    tree = ast.parse(path.read_text() if source is None else source, str(path))
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+
+    def private(attr: str) -> bool:
+        return attr.startswith("_") and not attr.startswith("__")
+
+    found, bound = [], {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parent = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                base = f"{parent}.{base}" if base else parent
+            if base.split(".")[0] not in TOP:
+                continue
+            for a in node.names:
+                if f"{base}.{a.name}" in MODULES:
+                    bound[a.asname or a.name] = f"{base}.{a.name}"
+                elif private(a.name) and base != name:
+                    found.append(f"{node.lineno}: {base}.{a.name}")
+        elif isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name.split(".")[0] in TOP and a.asname:
+                    bound[a.asname] = a.name
+    for node in ast.walk(tree):
+        if (
+            isinstance(node, ast.Attribute)
+            and isinstance(node.value, ast.Name)
+            and node.value.id in bound
+            and private(node.attr)
+        ):
+            found.append(f"{node.lineno}: {bound[node.value.id]}.{node.attr}")
+    return found
+
+
+def test_no_module_of_hil_imports_a_private_name_of_another():
+    """A ``_name`` is its module's own: what a sibling module needs has a public name."""
+    found = {
+        f"{MODULES[m].relative_to(ROOT)}:{hit}"
+        for m in MODULES
+        if m.startswith("hil")
+        for hit in private_imports(m)
+        if f"{m}: {hit.partition(': ')[2]}" not in PRIVATE_IMPORTS_ALLOWED
+    }
+    assert not found, "private names imported from another module:\n" + "\n".join(sorted(found))
+    stale = [
+        k
+        for k in PRIVATE_IMPORTS_ALLOWED
+        if not any(
+            hit.partition(": ")[2] == k.partition(": ")[2]
+            for hit in private_imports(k.partition(": ")[0])
+        )
+    ]
+    assert not stale, f"allowed private imports no longer made: take them off: {stale}"
+    # the check sees them: from-imports (relative too, inside functions), module attributes
+    source = (
+        "from hil.diagnose.heldout import _masks, simulated_segments\n"
+        "from . import heldout\n"
+        "from .heldout import __doc__\n"
+        "def f():\n"
+        "    from ..model.params import _read_object\n"
+        "    return heldout._extras, heldout.simulated_segments\n"
+    )
+    assert private_imports("hil.diagnose.example", source=source) == [
+        "1: hil.diagnose.heldout._masks",
+        "5: hil.model.params._read_object",
+        "6: hil.diagnose.heldout._extras",
+    ]

@@ -239,10 +239,10 @@ def arm_geometry(robot: str) -> dict[str, float] | None:
 def urdf_params(path: str, robot: str, model: ArmDynamics) -> tuple[Any, np.ndarray]:
     """The model and θ of a URDF arm's ``hil identify`` output (identify.json): its selected
     scheme's base parameters, in the model of its terms."""
-    from hil.model.params import _read_object
+    from hil.model.params import read_json_object
     from hil.model.urdf import UrdfArmModel
 
-    doc = _read_object(Path(path))
+    doc = read_json_object(Path(path))
     if doc.get("model") != "urdf":
         raise ValueError(
             f"--params {path}: not the identification of a URDF arm ({robot} is one): "

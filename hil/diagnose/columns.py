@@ -37,13 +37,13 @@ from scipy.signal import lfilter
 
 from hil.model.protocol import ArmDynamics
 from hil.model.regressors import (
-    _GL_NODES,
-    _GL_WEIGHTS,
+    GL_NODES,
+    GL_WEIGHTS,
     NINE_PARAMETERS,
-    _hermite,
     central_difference,
     has_velocity_reversal,
     held_torque_momentum_bias,
+    hermite,
     interval_mean_across_reversals,
     kinematics,
     quantized_stick,
@@ -380,8 +380,8 @@ def recording_rows(
         hk = dt[k][None, :, None]
         stamps = times
     weights = row_weights(still, h, window)
-    nodes = _GL_NODES[:, None, None]
-    qs, ds = _hermite(q[k][None], q[k + 1][None], hk * v[k][None], hk * v[k + 1][None], nodes)
+    nodes = GL_NODES[:, None, None]
+    qs, ds = hermite(q[k][None], q[k + 1][None], hk * v[k][None], hk * v[k + 1][None], nodes)
     return RecordingRows(
         moving_average(y_raw, window),
         moving_average(psi_raw, window),
@@ -408,7 +408,7 @@ def _filtered(rows: RecordingRows, raw: np.ndarray) -> np.ndarray:
 
 def _node_average(values: np.ndarray) -> np.ndarray:
     """(1/h)∫ over each interval by Gauss–Legendre on the nodes: (nodes, K, ...) → (K, ...)."""
-    return np.tensordot(_GL_WEIGHTS, values, axes=(0, 0))
+    return np.tensordot(GL_WEIGHTS, values, axes=(0, 0))
 
 
 def _on_joint(column: np.ndarray, joint: int, n_joints: int) -> np.ndarray:
@@ -464,7 +464,7 @@ def cogging_column_chunks(
             if i:
                 step = n[i] - n[i - 1]
                 z *= once if step == 1 else np.exp(1j * step * q)
-            np.matmul(_GL_WEIGHTS, z, out=mean)
+            np.matmul(GL_WEIGHTS, z, out=mean)
             raw[:, i - lo] = sin_cos
         # F (as _filtered), its sums taken in raw's place: one chunk-sized array fewer at the
         # selection's peak

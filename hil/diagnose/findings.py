@@ -69,7 +69,7 @@ class Finding:
         return out
 
 
-def _r(x: float, digits: int = 4) -> float:
+def rounded(x: float, digits: int = 4) -> float:
     return float(f"{x:.{digits}g}")
 
 
@@ -178,11 +178,11 @@ def classify_rate(
     out: list[Finding] = []
     ev = {
         "joints_tested": [j + 1 for j in joints],
-        "first_order_time_s": {str(j + 1): _r(v) for j, v in first_order.items()},
-        "lag_vs_delay_held_out_reduction": _r(lag_better.reduction),
-        "lag_vs_delay_sign_test_p": _r(lag_better.sign_p, 3),
-        "delay_vs_lag_held_out_reduction": _r(delay_better.reduction),
-        "delay_vs_lag_sign_test_p": _r(delay_better.sign_p, 3),
+        "first_order_time_s": {str(j + 1): rounded(v) for j, v in first_order.items()},
+        "lag_vs_delay_held_out_reduction": rounded(lag_better.reduction),
+        "lag_vs_delay_sign_test_p": rounded(lag_better.sign_p, 3),
+        "delay_vs_lag_held_out_reduction": rounded(delay_better.reduction),
+        "delay_vs_lag_sign_test_p": rounded(delay_better.sign_p, 3),
     }
     for i in idx:
         ev.setdefault("term_" + accepted[i].cand.key, accepted[i].evidence.as_dict())
@@ -194,16 +194,20 @@ def classify_rate(
     lag_ok, delay_ok = not delay_wins, not lag_wins  # neither wins: both, confounded
     if lag_ok:
         for j in joints:
-            out.append(Finding("actuator_lag", j + 1, {"time_constant_s": _r(lags[j])}, dict(ev)))
+            out.append(
+                Finding("actuator_lag", j + 1, {"time_constant_s": rounded(lags[j])}, dict(ev))
+            )
     if delay_ok:
         ds = [delays[j] for j in joints]
         if len(joints) >= 2 and max(ds) - min(ds) <= SAME_DELAY * max(ds):
             # one delay on all of them, as a bus or a shared drive clock gives
-            est = {"delay_s": _r(float(np.mean(ds))), "per_joint_s": [_r(d) for d in ds]}
+            est = {"delay_s": rounded(float(np.mean(ds))), "per_joint_s": [rounded(d) for d in ds]}
             out.append(Finding("transport_delay", None, est, dict(ev)))
         else:
             for j in joints:
-                out.append(Finding("transport_delay", j + 1, {"delay_s": _r(delays[j])}, dict(ev)))
+                out.append(
+                    Finding("transport_delay", j + 1, {"delay_s": rounded(delays[j])}, dict(ev))
+                )
     if lag_ok and delay_ok:
         for f in out:
             f.confounded_with = [
@@ -293,10 +297,10 @@ def resolve_gain(
         ev = {
             "decided_by": "the selection (one joint's gain is identifiable with n > 2 joints)",
             "rigid_body_deviation_from_reference": {
-                str(j + 1): _r(rigid_body_deviation(here.beta, ref, n_rigid))
+                str(j + 1): rounded(rigid_body_deviation(here.beta, ref, n_rigid))
             },
             "relative_at_reference_theta": {
-                str(j + 1): _r(gain_at_reference(prob, accepted, i, j, y, ref))
+                str(j + 1): rounded(gain_at_reference(prob, accepted, i, j, y, ref))
             },
         }
         r_here = float(here.beta[prob.n_params + sum(term_width(a.cand) for a in accepted[:i])])
@@ -315,8 +319,8 @@ def resolve_gain(
     ev = {
         "decided_by": "rigid-body parameters θ1..θ5 against the reference",
         "rigid_body_deviation_from_reference": {
-            str(j + 1): _r(dev_here),
-            str(other + 1): _r(dev_there),
+            str(j + 1): rounded(dev_here),
+            str(other + 1): rounded(dev_there),
         },
     }
     # The accepted gain term is the last column of ``here`` only if it was accepted last.
@@ -329,7 +333,7 @@ def resolve_gain(
     else:
         gains = {j: r_here, other: r_there}
     ev["relative_at_reference_theta"] = {
-        str(k + 1): _r(gain_at_reference(prob, accepted, i, k, y, ref)) for k in gains
+        str(k + 1): rounded(gain_at_reference(prob, accepted, i, k, y, ref)) for k in gains
     }
     return gains, ev
 

@@ -1,9 +1,9 @@
 """The held-out stage of the diagnosis: the before/after fit on data no fit has seen.
 
-The training and held-out rows (:func:`_masks`: a single recording's last quarter, else the
+The training and held-out rows (:func:`held_out_masks`: a single recording's last quarter, else the
 last recording), the findings as the open-loop simulators take them (:func:`simulated_effects`,
-:func:`_extras` for the 2-DOF simulator, :func:`_shaft_effects` for an n-joint model), the
-restarted segment simulations (:func:`simulated_segments`, :func:`_segment_simulation`), and
+:func:`openloop_extras` for the 2-DOF simulator, :func:`_shaft_effects` for an n-joint model), the
+restarted segment simulations (:func:`simulated_segments`, :func:`segment_simulation`), and
 :func:`before_after`: torque NRMSE and simulated-position NRMSE per joint, nominal model and
 with the accepted terms.
 
@@ -30,7 +30,7 @@ from hil.diagnose.columns import (
 from hil.diagnose.findings import (
     Finding,
 )
-from hil.diagnose.interpret import _estimate, cogging_at_true_angle
+from hil.diagnose.interpret import cogging_at_true_angle, term_findings
 from hil.diagnose.physical import model_columns, physical_theta
 from hil.diagnose.problem import Problem, design_matrix, fit_theta, fit_theta_at
 from hil.model.closed_form import TERMS
@@ -96,7 +96,7 @@ def simulated_effects(findings: Sequence[Finding], n_joints: int) -> SimulatedEf
     return fx
 
 
-def _extras(findings: Sequence[Finding]) -> OpenLoopExtras:
+def openloop_extras(findings: Sequence[Finding]) -> OpenLoopExtras:
     """The findings as the 2-DOF open-loop simulator's extras (:func:`simulated_effects`)."""
     fx = simulated_effects(findings, 2)
     stribeck = (
@@ -129,7 +129,7 @@ def _finite(values: Sequence[float]) -> list[float | None]:
 MIN_HELD_OUT_ROWS = 50
 
 
-def _nrmse_or_none(y: np.ndarray, pred: np.ndarray, rows: np.ndarray, j: int) -> float | None:
+def nrmse_or_none(y: np.ndarray, pred: np.ndarray, rows: np.ndarray, j: int) -> float | None:
     """NRMSE of joint j over ``rows``; None when the held-out part has too few usable rows for
     it (the joint stood still throughout) or no spread to scale by (:func:`nrmse` gives nan:
     DFKI A.0 trajectory_05's joint 1 printed 1e17 %, then nan, and JSON has no nan)."""
@@ -160,16 +160,16 @@ def _training_findings(
         at += width
         if a.cand.kind in ("rate", "gain", *TERMS):  # a model term is simulated in θ itself
             continue
-        fresh = {f.effect: f for f in _estimate(a.cand, a.variant, coef, beta[:p], model)}
+        fresh = {f.effect: f for f in term_findings(a.cand, a.variant, coef, beta[:p], model)}
         for i, f in enumerate(out):
             if f.effect in fresh and f.joint == a.cand.joint + 1:
                 out[i] = replace(f, estimate=fresh[f.effect].estimate)
                 refreshed.add(i)
-    # the fresh cogging phases are on the recorded angle, as _estimate gives them
+    # the fresh cogging phases are on the recorded angle, as term_findings gives them
     return cogging_at_true_angle(out, refreshed)
 
 
-def _masks(prob: Problem) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, int]]]:
+def held_out_masks(prob: Problem) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, int]]]:
     """Training and held-out row masks, and the held-out spans (recording, first, last sample)."""
     n_rec = len(prob.rows)
     sizes = [r.rows for r in prob.rows]
@@ -201,7 +201,7 @@ def simulated_segments(
     """The [a, b) sample ranges the held-out simulation runs over: SEGMENT_S long, also cut at
     every gap (an interval over GAP_FACTOR × h: a stall, dropped samples), at most MAX_SEGMENTS
     of them evenly spread over samples first..last. Inside a segment the simulation runs on the
-    real intervals (:func:`_segment_simulation`)."""
+    real intervals (:func:`segment_simulation`)."""
     step = max(4, round(SEGMENT_S / h))
     # interval i (samples i → i+1) is a gap
     gaps = np.zeros(0, int) if stamps is None else np.flatnonzero(np.diff(stamps) > GAP_FACTOR * h)
@@ -214,7 +214,7 @@ def simulated_segments(
     return pairs
 
 
-def _segment_simulation(
+def segment_simulation(
     theta: np.ndarray,
     extras: OpenLoopExtras | Sequence[Finding] | None,
     q: np.ndarray,
@@ -265,27 +265,27 @@ def _kept_simulation(
     segments: Sequence[tuple[int, int]],
     model: ArmDynamics,
 ) -> np.ndarray:
-    """:func:`_segment_simulation` of recording ``rec_i``'s rows ``r``, kept in ``memo`` by its
+    """:func:`segment_simulation` of recording ``rec_i``'s rows ``r``, kept in ``memo`` by its
     inputs (:func:`before_after`): the simulation gate's last round and the final comparison
     simulate the same model, and so do "before" and "after" when nothing is accepted. An
     n-joint model's simulation takes the findings, and is kept by what it takes of them
     (:func:`simulated_effects`, as :func:`_shaft_effects` reads them)."""
     if model.closed_form:
         if not (extras is None or isinstance(extras, OpenLoopExtras)):
-            return _segment_simulation(theta, extras, r.q, r.tau, r.h, segments, r.stamps, model)
+            return segment_simulation(theta, extras, r.q, r.tau, r.h, segments, r.stamps, model)
         how: Any = (model.terms, extras)
     else:  # one diagnosis's memo: one robot, its model named by its terms
         effects = simulated_effects(extras or (), r.q.shape[1])
         how = (model.name, model.terms, model.n_params, repr(effects))
     key = ("simulation", rec_i, tuple(segments), theta.tobytes(), how)
     if key not in memo:
-        simulated = _segment_simulation(theta, extras, r.q, r.tau, r.h, segments, r.stamps, model)
+        simulated = segment_simulation(theta, extras, r.q, r.tau, r.h, segments, r.stamps, model)
         simulated.flags.writeable = False  # shared by the calls that reuse it
         memo[key] = simulated
     return memo[key]
 
 
-def _torque_spread(tau: np.ndarray) -> np.ndarray:
+def torque_spread(tau: np.ndarray) -> np.ndarray:
     """Per joint, std(τ) / rms(τ): a gain of ε times this moves τ by ε of its spread in RMS, the
     scale an NRMSE of ε is measured in."""
     rms = np.sqrt(np.mean(tau**2, axis=0))
@@ -298,10 +298,11 @@ def _shaft_effects(
     h: float,
     stamps: np.ndarray | None = None,
 ) -> tuple[np.ndarray, Callable[[np.ndarray, np.ndarray], np.ndarray] | None, np.ndarray]:
-    """The findings as an n-joint simulation takes them (what :func:`_extras` is for the 2-DOF
-    simulator, by the same choices among confounded findings): the shaft torque of the torque
-    path (delay or lag, then gain, then offset) for every recorded row, the state-dependent
-    shaft torque (cogging, minus the Stribeck excess of friction) and the angle offsets.
+    """The findings as an n-joint simulation takes them (what :func:`openloop_extras` is for the
+    2-DOF simulator, by the same choices among confounded findings): the shaft torque of the
+    torque path (delay or lag, then gain, then offset) for every recorded row, the
+    state-dependent shaft torque (cogging, minus the Stribeck excess of friction) and the angle
+    offsets.
     ``stamps``: the real sample times (the delay and lag over each true interval)."""
     n = tau.shape[1]
     fx = simulated_effects(findings or (), n)
@@ -339,7 +340,7 @@ def _segment_simulation_n(
     model: ArmDynamics,
     stamps: np.ndarray | None = None,
 ) -> np.ndarray:
-    """:func:`_segment_simulation` of an n-joint model object (a URDF model): each segment
+    """:func:`segment_simulation` of an n-joint model object (a URDF model): each segment
     from the recorded state, the findings as :func:`_shaft_effects` gives them, integrated by
     :func:`hil.model.openloop.simulate_segments` (the 2-DOF simulation's stick–slip over the
     model object)."""
@@ -466,7 +467,7 @@ def before_after(
     holds fixed, the rest fitted: the model of a torque gain read at the reference
     (:func:`simulation_gate`)."""
     memo = {} if memo is None else memo
-    train, test, spans = _masks(prob)
+    train, test, spans = held_out_masks(prob)
     if shaft is not None:
         accepted = [a for a in accepted if a.cand.kind != "rate"]
     cols = [prob.chosen(a) for a in accepted]
@@ -498,11 +499,11 @@ def before_after(
     torque = {}
     for name, pred in (("before", pred0), ("after", pred1)):
         torque[name] = [
-            _nrmse_or_none(y, pred, test & (prob.w[:, j] > 0), j) for j in range(prob.n_joints)
+            nrmse_or_none(y, pred, test & (prob.w[:, j] > 0), j) for j in range(prob.n_joints)
         ]
     trained = _training_findings(accepted, beta, findings, prob.model)
     # the 2-DOF simulator's extras; an n-joint model's simulation takes the findings
-    extras = _extras(trained) if prob.model.closed_form else trained
+    extras = openloop_extras(trained) if prob.model.closed_form else trained
     # the model the refit describes: the nominal one with the accepted model terms in θ
     # (friction_se: the nominal fit's standard errors, for θ's first columns)
     model1, index1 = model_columns(prob.model, [a.cand for a in accepted])
@@ -536,8 +537,8 @@ def before_after(
         if sensitivity and "after" in sims:
             # the same simulation driven by a torque off by the model's own held-out error
             error = np.array([np.nan if e is None else e for e in torque["after"]])
-            tau = r.tau * (1.0 + np.nan_to_num(error * _torque_spread(r.tau[index])))
-            moved = _segment_simulation(theta1, extras, r.q, tau, h, segments, r.stamps, model1)
+            tau = r.tau * (1.0 + np.nan_to_num(error * torque_spread(r.tau[index])))
+            moved = segment_simulation(theta1, extras, r.q, tau, h, segments, r.stamps, model1)
             sims["position_sensitivity"] = _finite(simulation_sensitivity(moved, sims["after"], q))
     held = (
         f"recording {len(prob.rows)}, not used for fitting"

@@ -22,10 +22,10 @@ from hil.diagnose.columns import (
 )
 from hil.diagnose.findings import (
     Finding,
-    _r,
     classify_rate,
     coulomb_column,
     resolve_gain,
+    rounded,
     unresolved_rate_terms,
 )
 from hil.diagnose.physical import final_fit, physical_gate
@@ -53,7 +53,7 @@ class Interpretation(NamedTuple):
     shaft: np.ndarray | None
 
 
-def _estimate(
+def term_findings(
     cand: Candidate, variant: Any, coef: np.ndarray, theta: np.ndarray, model: ArmDynamics = None
 ) -> list[Finding]:
     """Findings of one accepted term (its coefficients ``coef``), in the vocabulary
@@ -67,15 +67,15 @@ def _estimate(
                 "coulomb_asymmetry",
                 j + 1,
                 {
-                    "positive_Nm": _r(fc - c),
-                    "negative_Nm": _r(fc + c),
-                    "difference_Nm": _r(2 * c),
-                    "symmetric_model_Nm": _r(fc),
+                    "positive_Nm": rounded(fc - c),
+                    "negative_Nm": rounded(fc + c),
+                    "difference_Nm": rounded(2 * c),
+                    "symmetric_model_Nm": rounded(fc),
                 },
                 {},
                 ["torque_offset"],
             ),
-            Finding("torque_offset", j + 1, {"offset_Nm": _r(c)}, {}, ["coulomb_asymmetry"]),
+            Finding("torque_offset", j + 1, {"offset_Nm": rounded(c)}, {}, ["coulomb_asymmetry"]),
         ]
     if cand.kind == "cogging":
         a, b = float(coef[0]), float(coef[1])
@@ -85,8 +85,8 @@ def _estimate(
                 j + 1,
                 {
                     "periods_per_rev": int(variant),
-                    "amplitude_Nm": _r(math.hypot(a, b)),
-                    "phase_rad": _r(math.atan2(b, a)),
+                    "amplitude_Nm": rounded(math.hypot(a, b)),
+                    "phase_rad": rounded(math.atan2(b, a)),
                 },
                 {},
             )
@@ -99,30 +99,35 @@ def _estimate(
                 "stribeck",
                 j + 1,
                 {
-                    "breakaway_excess_Nm": _r(dF),
-                    "breakaway_ratio": _r(1 + dF / fc) if fc > 0 else None,
-                    "velocity_rad_s": _r(float(variant)),
+                    "breakaway_excess_Nm": rounded(dF),
+                    "breakaway_ratio": rounded(1 + dF / fc) if fc > 0 else None,
+                    "velocity_rad_s": rounded(float(variant)),
                     "exponent": 2.0,
                 },
                 {},
             )
         ]
     if cand.kind == "angle":
-        return [Finding("angle_offset", j + 1, {"offset_rad": _r(float(coef[0]))}, {})]
+        return [Finding("angle_offset", j + 1, {"offset_rad": rounded(float(coef[0]))}, {})]
     if cand.kind == "gain":
-        return [Finding("torque_gain", j + 1, {"relative": _r(float(coef[0]))}, {})]
+        return [Finding("torque_gain", j + 1, {"relative": rounded(float(coef[0]))}, {})]
     if cand.kind == "rate":  # only as a rival here: its first order, lag and delay undecided
-        return [Finding("actuator_lag", j + 1, {"time_constant_s": _r(float(np.sum(coef)))}, {})]
+        return [
+            Finding("actuator_lag", j + 1, {"time_constant_s": rounded(float(np.sum(coef)))}, {})
+        ]
     if cand.kind == "rotor_inertia":
         # hil.model.closed_form: M22 − M12's constant part beyond θ3 (gr² Ir ∓ gr Ir)
         rot = float(coef[0])
-        est = {"theta_rotor_kgm2": _r(rot), "share_of_M22": _r(rot / (float(theta[2]) + rot))}
+        est = {
+            "theta_rotor_kgm2": rounded(rot),
+            "share_of_M22": rounded(rot / (float(theta[2]) + rot)),
+        }
         return [Finding("rotor_inertia", 2, est, {})]
     if cand.kind == "com_offset":
         est = {
-            "theta2_perp_kgm2": _r(float(coef[0])),
-            "theta4_perp_Nm": _r(float(coef[1])),
-            "theta5_perp_Nm": _r(float(coef[2])),
+            "theta2_perp_kgm2": rounded(float(coef[0])),
+            "theta4_perp_Nm": rounded(float(coef[1])),
+            "theta5_perp_Nm": rounded(float(coef[2])),
         }
         return [Finding("com_offset", None, est, {})]
     raise ValueError(cand.kind)
@@ -146,7 +151,7 @@ def cogging_at_true_angle(
             continue
         e = f.estimate
         phase = math.remainder(e["phase_rad"] + e["periods_per_rev"] * offset[f.joint], math.tau)
-        out[i] = replace(f, estimate={**e, "phase_rad": _r(phase)})
+        out[i] = replace(f, estimate={**e, "phase_rad": rounded(phase)})
     return out
 
 
@@ -182,7 +187,10 @@ def interpret(
     findings: list[Finding] = []
     confounded: list[list[str]] = []
     for i, a in enumerate(accepted):
-        ev = {**a.evidence.as_dict(), "standard_error": [_r(x) for x in fit.standard_errors[i]]}
+        ev = {
+            **a.evidence.as_dict(),
+            "standard_error": [rounded(x) for x in fit.standard_errors[i]],
+        }
         if a.cand.kind == "rate":
             continue
         if a.cand.kind == "gain":
@@ -192,7 +200,10 @@ def interpret(
                 Finding(
                     "torque_gain",
                     j + 1,
-                    {"relative": _r(r), "relative_at_reference_theta": at_reference[str(j + 1)]},
+                    {
+                        "relative": rounded(r),
+                        "relative_at_reference_theta": at_reference[str(j + 1)],
+                    },
                     {**ev, **gev},
                 )
                 for j, r in gains.items()
@@ -204,7 +215,7 @@ def interpret(
                 f.term = a.cand.key
             findings += new
             continue
-        new = _estimate(a.cand, a.variant, fit.coefficients[i], fit.theta, prob.model)
+        new = term_findings(a.cand, a.variant, fit.coefficients[i], fit.theta, prob.model)
         for f in new:
             f.term = a.cand.key
         for f in new:
@@ -216,7 +227,7 @@ def interpret(
             variant = a.rival_variants.get(key, rival.variants[0])
             swapped = [*accepted[:i], Accepted(rival, variant, a.evidence), *accepted[i + 1 :]]
             rfit = final_fit(prob, swapped)
-            for f in _estimate(rival, variant, rfit.coefficients[i], rfit.theta, prob.model):
+            for f in term_findings(rival, variant, rfit.coefficients[i], rfit.theta, prob.model):
                 f.evidence = dict(ev)
                 f.term = a.cand.key
                 f.confounded_with = [new[0].effect]
@@ -225,9 +236,9 @@ def interpret(
             confounded.append(
                 [
                     new[0].effect,
-                    _estimate(rival, variant, np.zeros(term_width(rival)), fit.theta, prob.model)[
-                        0
-                    ].effect,
+                    term_findings(
+                        rival, variant, np.zeros(term_width(rival)), fit.theta, prob.model
+                    )[0].effect,
                 ]
             )
         findings += new

@@ -38,10 +38,10 @@ from hil.diagnose.problem import (
     usable_speeds,
 )
 from hil.diagnose.report import (
-    _NAMES,
-    _rejection_notes,
+    KIND_NAMES,
     burst_notes,
     detectability_notes,
+    rejection_notes,
     simulation_notes,
     summary_words,
 )
@@ -294,9 +294,9 @@ def diagnose(
     notes = (
         cannot
         + dead_notes
-        + [f"Not tested: {_NAMES.get(k, k)}: {why}." for k, why in refused.items()]
+        + [f"Not tested: {KIND_NAMES.get(k, k)}: {why}." for k, why in refused.items()]
         + simulation_notes(fit, model)
-        + _rejection_notes(rejected)
+        + rejection_notes(rejected)
         + detectability_notes(prob)
         + burst_notes(where.document)
     )

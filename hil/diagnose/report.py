@@ -1,6 +1,6 @@
 """The diagnosis's report text: findings, confounded groups and the before/after fit in words
 (:func:`summary_words`), what a recording could not show (:func:`detectability_notes`,
-:func:`burst_notes`), why a candidate is not a finding (:func:`_rejection_notes`) and how the
+:func:`burst_notes`), why a candidate is not a finding (:func:`rejection_notes`) and how the
 nominal model is named (``ArmDynamics.display_name``). Pure formatting of the stages' results
 (:mod:`hil.diagnose.pipeline` calls it); the JSON document is built in the pipeline.
 """
@@ -308,7 +308,7 @@ def detectability_notes(prob: Problem) -> list[str]:
 
 
 # the vocabulary's names of each candidate kind
-_NAMES = {
+KIND_NAMES = {
     "offset": "coulomb_asymmetry / torque_offset",
     "gain": "torque_gain",
     "cogging": "cogging",
@@ -339,10 +339,10 @@ def simulation_notes(fit: HeldOutFit, model: ArmDynamics) -> list[str]:
     ]
 
 
-def _rejection_notes(rejected: dict[str, str]) -> list[str]:
+def rejection_notes(rejected: dict[str, str]) -> list[str]:
     out = []
     for key, why in rejected.items():
         kind, _, joint = key.partition(":")
         where = f" on joint {joint}" if joint else ""
-        out.append(f"Not a finding: {_NAMES.get(kind, kind)}{where}: {why}.")
+        out.append(f"Not a finding: {KIND_NAMES.get(kind, kind)}{where}: {why}.")
     return out

@@ -85,7 +85,7 @@ def _theta_of(entry: Any, where: str, terms: tuple[str, ...] = ()) -> np.ndarray
     return np.array(theta, dtype=float)
 
 
-def _read_object(path: Path) -> dict:
+def read_json_object(path: Path) -> dict:
     """The JSON object in ``path``; one-line :class:`ParamsError` if unreadable or not one."""
     try:
         doc = json.loads(path.read_text())
@@ -148,7 +148,7 @@ def load_params(path: str | Path, scheme: str | None = None) -> ParamSet:
     holds the same θ: :func:`_identify_document`); ``scheme`` picks one of its schemes
     (default: its selected one)."""
     path = Path(path)
-    doc = _identify_document(_read_object(path), str(path))
+    doc = _identify_document(read_json_object(path), str(path))
     terms = _terms_of(doc, str(path))
     schemes = doc.get("schemes")
     if schemes is None:
@@ -245,7 +245,7 @@ def load_base_params(path: str | Path, model: Any) -> ParamSet:
     ``identify.json`` must be of the same robot and terms, with the same combination per name
     (``meaning``); one-line :class:`ParamsError` otherwise."""
     path = Path(path)
-    doc = _read_object(path)
+    doc = read_json_object(path)
     names, where = tuple(model.names), str(path)
     if "parameters" in doc:
         robot, terms = doc.get("robot"), doc.get("terms", [])

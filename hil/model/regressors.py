@@ -289,9 +289,9 @@ def velocity_half_window(lam: float, t: np.ndarray) -> int:
     return max(1, round(1.0 / (4.0 * lam * h)))
 
 
-_GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(4)
-_GL_NODES = 0.5 * (_GL_NODES + 1.0)  # on [0, 1]
-_GL_WEIGHTS = 0.5 * _GL_WEIGHTS
+GL_NODES, GL_WEIGHTS = np.polynomial.legendre.leggauss(4)
+GL_NODES = 0.5 * (GL_NODES + 1.0)  # on [0, 1]
+GL_WEIGHTS = 0.5 * GL_WEIGHTS
 # Nodes per smooth piece of an interval cut at a velocity reversal
 # (:func:`interval_mean_across_reversals`), on [0, 1].
 _PIECE_NODES, _PIECE_WEIGHTS = np.polynomial.legendre.leggauss(8)
@@ -299,7 +299,7 @@ _PIECE_NODES = 0.5 * (_PIECE_NODES + 1.0)
 _PIECE_WEIGHTS = 0.5 * _PIECE_WEIGHTS
 
 
-def _hermite(
+def hermite(
     q0: np.ndarray, q1: np.ndarray, d0: np.ndarray, d1: np.ndarray, s: float | np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Cubic Hermite q(s), dq/ds(s) on s ∈ [0, 1] from end values and end slopes (× h)."""
@@ -346,7 +346,7 @@ def _sign_and_abs_integrals(
     cuts = hermite_velocity_cuts(q0, q1, d0, d1)
     sgn_int = np.zeros_like(q0)
     abs_int = np.zeros_like(q0)
-    q_at = [_hermite(q0, q1, d0, d1, c)[0] for c in cuts]
+    q_at = [hermite(q0, q1, d0, d1, c)[0] for c in cuts]
     for i in range(3):
         lo, hi = cuts[i], cuts[i + 1]
         mid = 0.5 * (lo + hi)
@@ -376,7 +376,7 @@ def interval_mean_across_reversals(
     nodes = _PIECE_NODES.reshape((-1,) + (1,) * np.ndim(q0))
     for lo, hi in pairwise(cuts):
         s = lo + (hi - lo) * nodes
-        v = _hermite(q0, q1, d0, d1, s)[1] / h
+        v = hermite(q0, q1, d0, d1, s)[1] / h
         out += (hi - lo) * np.tensordot(_PIECE_WEIGHTS, f(v), axes=(0, 0))
     return out
 
@@ -460,19 +460,19 @@ def _interval_integrals(
         hk = np.asarray(h, dtype=float)[k]
         d0, d1 = hk[:, None] * v[k], hk[:, None] * v[k + 1]
     # All Gauss–Legendre nodes at once: shape (nodes, K, 2).
-    nodes = _GL_NODES[:, None, None]
-    qs, ds = _hermite(q0[None], q1[None], d0[None], d1[None], nodes)
+    nodes = GL_NODES[:, None, None]
+    qs, ds = hermite(q0[None], q1[None], d0[None], d1[None], nodes)
     R = None
     if np.ndim(hk) == 0:
         if static:
-            R = np.tensordot(_GL_WEIGHTS * hk, model.static_regressor(qs, ds / hk), axes=(0, 0))
-        sq = np.tensordot(_GL_WEIGHTS * hk, (ds / hk) ** 2, axes=(0, 0))  # degree 4: exact
+            R = np.tensordot(GL_WEIGHTS * hk, model.static_regressor(qs, ds / hk), axes=(0, 0))
+        sq = np.tensordot(GL_WEIGHTS * hk, (ds / hk) ** 2, axes=(0, 0))  # degree 4: exact
     else:
         hn = hk[None, :, None]
         if static:
-            R = np.einsum("n,nkmp->kmp", _GL_WEIGHTS, model.static_regressor(qs, ds / hn))
+            R = np.einsum("n,nkmp->kmp", GL_WEIGHTS, model.static_regressor(qs, ds / hn))
             R *= hk[:, None, None]
-        sq = np.einsum("n,nkj->kj", _GL_WEIGHTS, (ds / hn) ** 2) * hk[:, None]
+        sq = np.einsum("n,nkj->kj", GL_WEIGHTS, (ds / hn) ** 2) * hk[:, None]
     sgn_int, abs_int = _sign_and_abs_integrals(q0, q1, d0, d1)
     dq = q1 - q0
     if R is not None:

@@ -30,7 +30,7 @@ from realdata import realdata  # tests/realdata.py
 
 from drivers.one_per_line import read_one_per_line_log
 from hil.cli_options import read_recording
-from hil.diagnose.heldout import _masks, _nrmse_or_none
+from hil.diagnose.heldout import held_out_masks, nrmse_or_none
 from hil.diagnose.problem import build_problem, fit_theta
 from hil.identify.urdf import consistent_fit
 from hil.model.urdf import UrdfArmModel
@@ -50,7 +50,7 @@ def main() -> int:
         rec = read_recording(options, csv, command="diagnose", allow_gaps=True)
     model = UrdfArmModel.from_profile("panda")
     prob, _ = build_problem([(rec.q, rec.tau, rec.period_s, rec.t)], model)
-    train, test, _ = _masks(prob)
+    train, test, _ = held_out_masks(prob)
     w_train = prob.w * train[:, None]
     theta_ls = fit_theta(prob.Psi_raw, prob.y_raw, w_train)
     rows = train & (prob.w.sum(axis=1) > 0)
@@ -63,7 +63,7 @@ def main() -> int:
     print(f"usable rows per joint: {usable}; consistent fit {cpu:.1f} s CPU")
     for name, theta in (("least squares", theta_ls), ("consistent", model.base_theta(standard))):
         pred = prob.Psi_raw @ theta
-        nrmse = [_nrmse_or_none(prob.y_raw, pred, test & (prob.w[:, j] > 0), j) for j in range(7)]
+        nrmse = [nrmse_or_none(prob.y_raw, pred, test & (prob.w[:, j] > 0), j) for j in range(7)]
         check = model.physical_consistency(theta)
         cells = " / ".join("n/a" if x is None else f"{100 * x:.1f}" for x in nrmse)
         print(f"{name}: held-out torque NRMSE % {cells}")

@@ -19,8 +19,8 @@ from hil.diagnose.drift.terms import SAME_MOTION, Term
 from hil.diagnose.effects import REGISTRY, Context
 from hil.diagnose.effects.base import REFINE_STEPS
 from hil.diagnose.heldout import (
-    _masks,
-    _nrmse_or_none,
+    held_out_masks,
+    nrmse_or_none,
 )
 from hil.diagnose.physical import jackknife_se
 from hil.diagnose.problem import Problem, build_problem, fit_theta, robust_scale
@@ -276,7 +276,7 @@ def torque_errors(fit: Fit, terms: Sequence[Term]) -> dict[str, list[float | Non
     """Held-out torque NRMSE per joint of θ₀, θ₀ with ``terms`` (fitted on the training rows)
     and θ refitted on the training rows alone."""
     prob = fit.prob
-    train, test, _ = _masks(prob)
+    train, test, _ = held_out_masks(prob)
     w_train = prob.w * train[:, None]
     y = prob.y_raw
     pred0 = prob.y_raw - fit.residual  # θ₀ with the nominal model's baseline terms
@@ -297,6 +297,6 @@ def torque_errors(fit: Fit, terms: Sequence[Term]) -> dict[str, list[float | Non
         # None where the refit's report has none: too few usable held-out rows (a joint that
         # barely moves: 41 rows of a Panda joint gave "1.21e+03 %") or no spread
         out[name] = [
-            _nrmse_or_none(y, pred, test & (prob.w[:, j] > 0), j) for j in range(prob.n_joints)
+            nrmse_or_none(y, pred, test & (prob.w[:, j] > 0), j) for j in range(prob.n_joints)
         ]
     return out

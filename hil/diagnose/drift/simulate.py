@@ -19,12 +19,12 @@ from hil.diagnose.effects import REGISTRY, SimInput
 from hil.diagnose.findings import Finding
 from hil.diagnose.gates import SIMULATION_NOISE_FLOOR, worse_beyond_noise
 from hil.diagnose.heldout import (
-    _extras,
-    _masks,
-    _segment_simulation,
-    _torque_spread,
+    held_out_masks,
+    openloop_extras,
+    segment_simulation,
     simulated_segments,
     simulation_sensitivity,
+    torque_spread,
 )
 from hil.model.metrics import nrmse
 
@@ -61,11 +61,13 @@ def trained_estimates(fit: Fit, terms: Sequence[Term]) -> list[dict]:
     that gain threw the true finding out)."""
     if not terms:
         return []
-    cv = fit.cv(terms, fit.prob.w * _masks(fit.prob)[0][:, None])
+    cv = fit.cv(terms, fit.prob.w * held_out_masks(fit.prob)[0][:, None])
     beta, ats = cv.beta, [t.at for t in terms]
     if fit.reference is not None:
         ref = fit.reference
-        beta, _se, ats = fit.since_reference(terms, cv, ref.prob.w * _masks(ref.prob)[0][:, None])
+        beta, _se, ats = fit.since_reference(
+            terms, cv, ref.prob.w * held_out_masks(ref.prob)[0][:, None]
+        )
     return [
         t.effect.estimate(fit.ctx, t.joint, b, np.zeros_like(b), at)[0]
         for t, b, at in zip(terms, fit.split(beta, terms), ats, strict=True)
@@ -83,8 +85,8 @@ def simulate_position(fit: Fit, sim: SimInput, rec_i: int, segments) -> np.ndarr
     for j, c in sim.offset.items():
         tau[:, j] += c
     angles = [Finding("angle_offset", j + 1, {"offset_rad": d}, {}) for j, d in sim.angle.items()]
-    extras: Any = _extras(angles) if ctx.model.closed_form else angles
-    return _segment_simulation(theta, extras, r.q, tau, r.h, segments, r.stamps, ctx.model)
+    extras: Any = openloop_extras(angles) if ctx.model.closed_form else angles
+    return segment_simulation(theta, extras, r.q, tau, r.h, segments, r.stamps, ctx.model)
 
 
 def drift_simulation_gate(
@@ -99,7 +101,7 @@ def drift_simulation_gate(
     110 % on joint 1: the true 12 % gain on joint 2 "worsened" it from 45 %, the reduced torque's
     error, to those 110 %)."""
     own = own_position(fit)
-    _train, _test, spans = _masks(fit.prob)
+    _train, _test, spans = held_out_masks(fit.prob)
     dropped: dict[str, str] = {}
     rec_i, first, last = spans[-1]
     r = fit.prob.rows[rec_i]
@@ -162,7 +164,7 @@ def own_position(fit: Fit) -> list[float]:
     ref = fit.reference
     if ref is None:
         return [0.0] * n
-    _train, _test, spans = _masks(ref.prob)
+    _train, _test, spans = held_out_masks(ref.prob)
     rec_i, first, last = spans[-1]
     r = ref.prob.rows[rec_i]
     segments = simulated_segments(r.h, first, last, r.stamps, len(r.q))
@@ -186,7 +188,7 @@ def position_sensitivity(
     sim = sim_inputs(fit, terms, trained_estimates(fit, terms))
     base = simulate_position(fit, sim, rec_i, segments)
     r = fit.prob.rows[rec_i]
-    spread = _torque_spread(r.tau[index])
+    spread = torque_spread(r.tau[index])
     moved_sim = SimInput(sim.dtheta, dict(sim.gain), dict(sim.offset), dict(sim.angle))
     for j in range(n):
         moved_sim.gain[j] = moved_sim.gain.get(j, 1.0) * (1.0 + err[j] * spread[j])
