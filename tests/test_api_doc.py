@@ -51,6 +51,36 @@ def test_api_doc_example_runs_and_identifies(tmp_path, monkeypatch, capsys):
     assert printed.count("theta") == 9 and "open-loop position NRMSE per joint" in printed
 
 
+DIAGNOSIS_DOC = ROOT / "docs" / "diagnosis.md"
+
+
+def test_diagnosis_doc_example_calls_the_stages_as_the_command_does(monkeypatch, capsys):
+    """docs/diagnosis.md, "From Python: the stages": the example runs as written on the shipped
+    DFKI pendulum, its own selection is the one the diagnosis made, and the document it builds
+    is the one ``hil diagnose --json`` prints for the same file (apart from the time taken)."""
+    from hil.cli import main as hil_main
+
+    (code,) = python_blocks(DIAGNOSIS_DOC.read_text())  # one runnable example, the stages'
+    monkeypatch.chdir(ROOT)  # it reads tests/data/... from the repository's root
+    ns: dict = {"__name__": "diagnosis_doc_example"}
+    exec(compile(code, str(DIAGNOSIS_DOC), "exec"), ns)
+    printed = capsys.readouterr().out
+    doc = ns["doc"]
+    assert {k: ev.as_dict() for k, ev in ns["tested"].items()} == doc["candidates_tested"]
+    assert len(doc["candidates_tested"]) == len(ns["library"]) > 0
+    assert {a.cand.key for a in ns["accepted"]} <= set(doc["candidates_tested"])
+    assert printed.startswith("tested: {") and "\nMismatch diagnosis\n" in printed
+    assert doc["nominal"]["source"] == "profile" and "decision" in doc["nominal"]
+    columns = "t=time,q1=position,tau1=torque"
+    command = ["diagnose", ns["path"], "--robot", "dfki-pendulum", "--columns", columns]
+    assert hil_main([*command, "--json", "--no-plots"]) == 0
+    printed_doc = json.loads(capsys.readouterr().out)
+    built = json.loads(json.dumps(doc))
+    for d in (built, printed_doc):
+        d.pop("timing_s")
+    assert built == printed_doc
+
+
 @pytest.mark.parametrize("package", PACKAGES)
 def test_every_exported_name_is_its_modules_public_object(package):
     pkg = importlib.import_module(package)
