@@ -124,10 +124,7 @@ class FinalFit:
 def final_fit(prob: Problem, accepted: Sequence[Accepted]) -> FinalFit:
     cols = [prob.chosen(a) for a in accepted]
     cv = design_cv(prob, cols)
-    n_blocks = cv.fold_beta.shape[0]
-    jack = np.sqrt(
-        (n_blocks - 1) / n_blocks * np.sum((cv.fold_beta - cv.fold_beta.mean(0)) ** 2, 0)
-    )
+    jack = jackknife_se(cv.fold_beta)
     coefs, ses, at = [], [], prob.n_params
     for c in cols:
         p = c.shape[-1]
