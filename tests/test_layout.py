@@ -445,3 +445,25 @@ def test_no_module_of_hil_imports_a_private_name_of_another():
         "5: hil.model.params._read_object",
         "6: hil.diagnose.heldout._extras",
     ]
+
+
+# hil/diagnose's selection, split by capability (issue 29): each module imports only those
+# before it, and none the diagnosis stages built on it (their docstrings say so).
+SELECTION_MODULES = (
+    "hil.diagnose.candidates",
+    "hil.diagnose.problem",
+    "hil.diagnose.physical",
+    "hil.diagnose.selection",
+)
+DIAGNOSIS_STAGES = ("interpret", "heldout", "gates", "report", "pipeline", "drift", "effects")
+
+
+def test_the_selection_modules_import_only_those_before_them():
+    wrong = []
+    for i, m in enumerate(SELECTION_MODULES):
+        for target, line in module_imports(m, False):
+            later = target in SELECTION_MODULES[i + 1 :]
+            stage = target.split(".")[2:3] and target.split(".")[2] in DIAGNOSIS_STAGES
+            if target.startswith("hil.diagnose.") and (later or stage):
+                wrong.append(f"{MODULES[m].relative_to(ROOT)}:{line} imports {target}")
+    assert not wrong, "\n".join(wrong)

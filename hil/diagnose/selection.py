@@ -4,7 +4,7 @@
 The nominal model is the ``exact`` filtered dynamic regression (eq. (24) over sample intervals,
 :mod:`hil.model.regressors`) of an :class:`hil.model.closed_form.ArmModel`; the model terms it
 lacks (rotor inertia, centre-of-mass offset) are candidates like the effects. Every candidate
-of the vocabulary (:mod:`hil.diagnose.columns`) adds columns to it; a candidate is accepted when
+of the vocabulary (:mod:`hil.diagnose.candidates`) adds columns to it; a candidate is accepted when
 it lowers the held-out error of its joint block after block (:mod:`hil.diagnose.stats`),
 greedily, strongest first, each later candidate tested on top of those already accepted. Two
 candidates that each explain the same residual and neither adds anything on top of the other are
