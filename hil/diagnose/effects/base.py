@@ -127,6 +127,14 @@ class Effect:
         has more than one stationary point); the one that fits best is kept."""
         return [self.start(ctx, joint)]
 
+    def point_columns(self, ctx: Context, cols: np.ndarray) -> np.ndarray:
+        """Of its columns at a linearisation point, those of the pattern at that very point:
+        without the columns of the Gauss–Newton step, which can fit what no point of the
+        pattern fits. Starting points (:meth:`starts`) are compared by these. All of them
+        when the columns are exact at every point (a cogging's periods, an asymmetry's
+        direction)."""
+        return cols
+
     def change_point(self, ctx: Context, joint: int | None, at: Any) -> Any:
         """Where a change since the reference, the difference of the coefficients fitted on
         both sides at ``at``, is read: the starting point where β is an increment of the
