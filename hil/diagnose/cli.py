@@ -283,7 +283,8 @@ REPLACED = {"encoder_offset": ("angle_offset", "com_offset")}
 def merge_drift(doc: dict, drift: DriftResult) -> None:
     """The drift against the nominal model into the refit's document: its findings beside the
     refit's (the same physics on the same joint joined, those it names better replaced, those
-    the references already show set aside), the decision in the summary."""
+    the references already show set aside, the refit's others on joints a change found reaches
+    set aside: ``within_change``), the decision in the summary."""
     doc["nominal"] = drift.document
     head = f"Judged against {drift.document['why']}; {drift.document['decision']}."
     if drift.used:
@@ -296,6 +297,10 @@ def merge_drift(doc: dict, drift: DriftResult) -> None:
         for b in drift.document["baseline"]:  # the references show it: not a change
             for old in (*SAME.get(b["effect"], ()), *REPLACED.get(b["effect"], ())):
                 known |= {(old, b["joint"]), (old, None)}
+        # the joints whose torque a change found reaches: there the refit of the recording
+        # alone (θ free, no vocabulary of changes) takes the change as whatever it can name (an
+        # encoder angle on A.0's joint 2 became a lag and a delay on joint 1)
+        reached = {j for f in drift.findings for j in f.evidence.get("joints", [f.joint])}
         kept, joined = [], set()
         for f in doc["findings"]:
             key = (f["effect"], f["joint"])
@@ -305,7 +310,11 @@ def merge_drift(doc: dict, drift: DriftResult) -> None:
                 kept.append(f)
             elif key in known and key not in gone:
                 drift.document.setdefault("in_reference", []).append(f)
-            elif key not in gone:
+            elif key in gone:
+                continue
+            elif f["joint"] in reached or (f["joint"] is None and reached):
+                drift.document.setdefault("within_change", []).append(f)
+            else:
                 kept.append(f)
         doc["findings"] = kept + [f.as_dict() for f in drift.findings if id(f) not in joined]
         if drift.findings:
@@ -329,6 +338,16 @@ def merge_drift(doc: dict, drift: DriftResult) -> None:
                     for f in drift.document["in_reference"]
                 )
                 + " as well: not a change."
+            )
+        if drift.document.get("within_change"):
+            head += (
+                " The refit of the recording alone also takes "
+                + ", ".join(
+                    f"{f['effect'].replace('_', ' ')}"
+                    + (f" on joint {f['joint']}" if f["joint"] else "")
+                    for f in drift.document["within_change"]
+                )
+                + ", where the change found reaches: not told apart from it, not named."
             )
     # after the refit's summary, which keeps its first words (a null's "No missing physics
     # found: ..." is about the model's structure; this is about what changed)
