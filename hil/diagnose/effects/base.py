@@ -106,6 +106,10 @@ class Effect:
     # its size is an amplitude of several coefficients (no sign): a change since the reference
     # is the size of the coefficients' difference, not the difference of two sizes
     sized_by_amplitude: bool = False
+    # its coefficients are tested for a change together (Hotelling's T² of their change): its
+    # size is one coefficient beside the Gauss–Newton step's, whose trade-off inflates the size's
+    # own SE (a C.0 payload's change: 3.8 SE in its mass, 13.6 jointly)
+    tested_jointly: bool = False
 
     def applies(self, ctx: Context) -> bool:
         return True

@@ -83,6 +83,7 @@ class Payload(Effect):
         return [None]
 
     step_tolerance = 1e-7  # m of the centre
+    tested_jointly = True  # the mass beside the centre's step (Effect.tested_jointly)
 
     def start(self, ctx: Context, joint: int | None) -> Any:
         return np.zeros(1 if ctx.closed_form else 3)
