@@ -46,8 +46,8 @@ def test_noise_level_rise_is_kept_and_a_real_worsening_is_not(gate_inputs):
     (dropped). With the bare relative test the first was a worsening too."""
     doc, fit, arrays = gate_inputs
     assert [f["effect"] for f in doc["findings"]] == ["coulomb_asymmetry", "torque_offset"]
-    near = fit["after"]["position_nrmse"]
-    far = fit["before"]["position_nrmse"]
+    near = fit.after.position_nrmse
+    far = fit.before.position_nrmse
     noise = arrays["simulation"]["position_sensitivity"]
     for j in (0, 1):
         assert near[j] < 0.005, near  # a near-perfect fit

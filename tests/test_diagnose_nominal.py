@@ -64,7 +64,7 @@ def _one(doc: dict, effect: str) -> dict:
     itself, or beside the refit's finding of the same physics on the same joint."""
     found = [f for f in doc["nominal"]["findings"] if f["effect"] == effect]
     assert len(found) == 1, doc["summary"]
-    listed = [g.get("against_nominal", g) for g in doc["findings"]]
+    listed = [{k: v for k, v in g.items() if k != "refit_findings"} for g in doc["findings"]]
     assert found[0] in listed, doc["findings"]
     return found[0]
 
@@ -301,3 +301,37 @@ def test_reference_diagnosis_builds_each_recordings_rows_once(arm, capsys, monke
         d.pop("timing_s", None)
         d["nominal"].pop("timing_s", None)
     assert json.dumps(doc, sort_keys=True) == json.dumps(again, sort_keys=True)
+
+
+def test_refit_findings_on_joints_a_change_reaches_are_set_aside():
+    """Against a reference, the refit of the recording alone (θ free, no vocabulary of changes)
+    takes a change as whatever it can name: an encoder angle on DFKI A.0's joint 2 became a lag
+    and a delay on joint 1 beside it. A refit finding on a joint the change found reaches is
+    set aside (``within_change``) and said in the summary; one on another joint stays, and of
+    the same physics found by both the drift's is listed, the refit's beside it."""
+    from hil.diagnose.cli import merge_drift
+    from hil.diagnose.drift.terms import DriftResult
+    from hil.diagnose.findings import Finding
+
+    def refit(effect: str, joint: int) -> dict:
+        return {"effect": effect, "joint": joint, "estimate": {}, "evidence": {}}
+
+    doc = {
+        "findings": [refit("actuator_lag", 1), refit("stribeck", 3), refit("torque_gain", 2)],
+        "summary": "Refit.",
+    }
+    encoder = Finding("encoder_offset", 2, {"offset_rad": 0.05}, {"joints": [1, 2], "words": "e"})
+    gain = Finding("torque_gain", 2, {"gain": 0.9}, {"joints": [2], "words": "g"})
+    drift = DriftResult({"why": "w", "decision": "d", "baseline": []}, [encoder, gain])
+    merge_drift(doc, drift)
+    names = [(f["effect"], f["joint"]) for f in doc["findings"]]
+    assert names == [("stribeck", 3), ("encoder_offset", 2), ("torque_gain", 2)], names
+    # the drift's gain is listed (the change), the refit's beside it
+    assert doc["findings"][2]["estimate"] == {"gain": 0.9}
+    assert doc["findings"][2]["refit_findings"] == [refit("torque_gain", 2)]
+    assert [f["effect"] for f in drift.document["within_change"]] == ["actuator_lag"]
+    assert "actuator lag on joint 1" in doc["summary"]
+    # nothing changed: the refit's findings all stay
+    doc = {"findings": [refit("actuator_lag", 1)], "summary": "Refit."}
+    merge_drift(doc, DriftResult({"why": "w", "decision": "d", "baseline": []}, []))
+    assert [f["effect"] for f in doc["findings"]] == ["actuator_lag"]

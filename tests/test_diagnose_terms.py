@@ -198,3 +198,27 @@ def test_dfki_rotor_inertia_found_without_it_and_not_again_with_it(capsys):
     doc = docs["dfki-a0"]
     assert "rotor_inertia" not in doc["candidates_tested"]
     assert not any(f["effect"] == "rotor_inertia" for f in doc["findings"])
+
+
+def test_residual_bursts_are_timed_from_the_recordings_start():
+    """A recording stamped in Unix time (an .npz log's 1.66e9 s) with a torque burst 5–6 s in:
+    the burst's window is reported in seconds from the recording's first sample (it was
+    reported at 1660000005 s), the origin stated, and the burst note says so."""
+    from hil.diagnose.locate import TIME_ORIGIN, locate
+    from hil.diagnose.report import burst_notes
+    from hil.diagnose.selection import build_problem
+
+    h = 0.002
+    t = np.arange(5000) * h
+    q = np.stack([0.8 * np.sin(1.3 * t), 0.6 * np.sin(2.1 * t + 0.4)], axis=1)
+    tau = np.stack([0.5 * np.sin(1.3 * t + 0.2), 0.2 * np.cos(2.1 * t)], axis=1)
+    tau += 0.002 * np.random.default_rng(0).standard_normal(tau.shape)
+    burst = (t >= 5.0) & (t < 6.0)
+    tau[burst, 0] += 0.5 * np.sin(2 * np.pi * 7 * t[burst])
+    prob, theta = build_problem([(q, tau, h, 1.66e9 + t)])
+    where = locate(prob, theta).document
+    assert where["time_origin"] == TIME_ORIGIN
+    windows = where["joints"][0]["time_windows"]
+    assert windows and 4.0 <= windows[0]["t_s"][0] <= windows[0]["t_s"][1] <= 7.0, windows
+    notes = burst_notes(where)
+    assert notes and "from the start" in notes[0] and "1660000" not in notes[0], notes

@@ -269,7 +269,9 @@ def urdf_params(path: str, robot: str, model: ArmDynamics) -> tuple[Any, np.ndar
 
 
 # The refit's findings of the same physics as a drift against the nominal model, on the same
-# joint: they stay, with the drift's reading beside them ("against_nominal") ...
+# joint: the drift's finding is listed (what changed against that model), theirs beside it
+# ("refit_findings": the recording's own departure with θ refitted, which carries the model's
+# error along the pattern: an A.0 offset of −0.042 Nm read −0.081 there, beside an asymmetry) ...
 SAME = {
     "torque_gain": ("torque_gain",),
     "torque_offset": ("torque_offset", "coulomb_asymmetry"),
@@ -282,8 +284,10 @@ REPLACED = {"encoder_offset": ("angle_offset", "com_offset")}
 
 def merge_drift(doc: dict, drift: DriftResult) -> None:
     """The drift against the nominal model into the refit's document: its findings beside the
-    refit's (the same physics on the same joint joined, those it names better replaced, those
-    the references already show set aside), the decision in the summary."""
+    refit's (the refit's of the same physics on the same joint under the drift's as
+    ``refit_findings``, those it names better replaced, those the references already show set
+    aside, the refit's others on joints a change found reaches set aside: ``within_change``),
+    the decision in the summary."""
     doc["nominal"] = drift.document
     head = f"Judged against {drift.document['why']}; {drift.document['decision']}."
     if drift.used:
@@ -296,18 +300,25 @@ def merge_drift(doc: dict, drift: DriftResult) -> None:
         for b in drift.document["baseline"]:  # the references show it: not a change
             for old in (*SAME.get(b["effect"], ()), *REPLACED.get(b["effect"], ())):
                 known |= {(old, b["joint"]), (old, None)}
-        kept, joined = [], set()
+        # the joints whose torque a change found reaches: there the refit of the recording
+        # alone (θ free, no vocabulary of changes) takes the change as whatever it can name (an
+        # encoder angle on A.0's joint 2 became a lag and a delay on joint 1)
+        reached = {j for f in drift.findings for j in f.evidence.get("joints", [f.joint])}
+        changes = {id(f): f.as_dict() for f in drift.findings}
+        kept = []
         for f in doc["findings"]:
             key = (f["effect"], f["joint"])
             if key in same:
-                f["against_nominal"] = same[key].as_dict()
-                joined.add(id(same[key]))
-                kept.append(f)
+                changes[id(same[key])].setdefault("refit_findings", []).append(f)
             elif key in known and key not in gone:
                 drift.document.setdefault("in_reference", []).append(f)
-            elif key not in gone:
+            elif key in gone:
+                continue
+            elif f["joint"] in reached or (f["joint"] is None and reached):
+                drift.document.setdefault("within_change", []).append(f)
+            else:
                 kept.append(f)
-        doc["findings"] = kept + [f.as_dict() for f in drift.findings if id(f) not in joined]
+        doc["findings"] = kept + [changes[id(f)] for f in drift.findings]
         if drift.findings:
             head += (
                 " What changed: "
@@ -329,6 +340,16 @@ def merge_drift(doc: dict, drift: DriftResult) -> None:
                     for f in drift.document["in_reference"]
                 )
                 + " as well: not a change."
+            )
+        if drift.document.get("within_change"):
+            head += (
+                " The refit of the recording alone also takes "
+                + ", ".join(
+                    f"{f['effect'].replace('_', ' ')}"
+                    + (f" on joint {f['joint']}" if f["joint"] else "")
+                    for f in drift.document["within_change"]
+                )
+                + ", where the change found reaches: not told apart from it, not named."
             )
     # after the refit's summary, which keeps its first words (a null's "No missing physics
     # found: ..." is about the model's structure; this is about what changed)

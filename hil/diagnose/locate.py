@@ -20,6 +20,7 @@ from hil.diagnose.problem import Problem
 # carrying it.
 MIN_ETA2 = 0.02
 NEAR_STILL_S = 0.1
+TIME_ORIGIN = "seconds from the first sample of each recording"
 
 
 @dataclass
@@ -47,7 +48,10 @@ def _terciles(x: np.ndarray) -> np.ndarray:
 def locate(prob: Problem, theta: np.ndarray) -> Location:
     """The residual of θ̂ on every joint, grouped (module doc)."""
     e_all = prob.y_raw - prob.Psi_raw @ theta
-    t = np.concatenate([r.t for r in prob.rows])
+    # seconds from each recording's first sample: a recording stamped in Unix time (an .npz
+    # log's 1.6e9 s) would otherwise report its bursts at 1660000000.12 s
+    t = np.concatenate([r.t - (0.0 if r.stamps is None else r.stamps[0]) for r in prob.rows])
+    recording = np.concatenate([np.full(r.rows, i) for i, r in enumerate(prob.rows)])
     v, q, tau = prob.v_mean, prob.q_mean, prob.y_raw
     # time since the joint last stood still or reversed (the rows the fit leaves out)
     since = np.concatenate([_since_still(r.weights, r.h) for r in prob.rows])
@@ -91,12 +95,13 @@ def locate(prob: Problem, theta: np.ndarray) -> Location:
             if not present[b] or med <= 0 or block_rms[b] < 1.5 * med:
                 continue
             tb = t[ok][blocks == b]
-            windows.append(
-                {
-                    "t_s": [round(float(tb[0]), 3), round(float(tb[-1]), 3)],
-                    "rms_over_median": round(float(block_rms[b] / med), 2),
-                }
-            )
+            window = {
+                "t_s": [round(float(tb[0]), 3), round(float(tb[-1]), 3)],
+                "rms_over_median": round(float(block_rms[b] / med), 2),
+            }
+            if len(prob.rows) > 1:  # blocks lie within one recording
+                window["recording"] = int(recording[ok][blocks == b][0]) + 1
+            windows.append(window)
         joints.append(
             {
                 "joint": j + 1,
@@ -109,7 +114,7 @@ def locate(prob: Problem, theta: np.ndarray) -> Location:
             }
         )
     arrays = {"t": t, "residual": e_all, "v": v, "q": q, "usable": prob.w > 0}
-    return Location({"joints": joints}, arrays)
+    return Location({"joints": joints, "time_origin": TIME_ORIGIN}, arrays)
 
 
 def _since_still(weights: np.ndarray, h: float) -> np.ndarray:

@@ -40,7 +40,7 @@ def plot_diagnosis(result: DiagnosisResult, out: Path) -> list[Path]:
         e = loc["residual"][ok, j]
         axes[j, 0].plot(loc["t"][ok], e, ".", ms=1)
         axes[j, 0].set(
-            xlabel="t [s] (concatenated recordings)", ylabel=f"joint {j + 1} residual [Nm]"
+            xlabel="t [s] from each recording's start", ylabel=f"joint {j + 1} residual [Nm]"
         )
         axes[j, 1].plot(loc["v"][ok, j], e, ".", ms=1, alpha=0.4)
         axes[j, 1].set(xlabel=f"q̇{j + 1} [rad/s]")

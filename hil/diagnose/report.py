@@ -269,7 +269,12 @@ def burst_notes(location: dict[str, Any]) -> list[str]:
     for j in location["joints"]:
         bursts = [w for w in j["time_windows"] if w["rms_over_median"] >= BURST_RATIO]
         if bursts:
-            when = ", ".join(f"{w['t_s'][0]:.2f}-{w['t_s'][1]:.2f} s" for w in bursts)
+            when = ", ".join(
+                f"{w['t_s'][0]:.2f}-{w['t_s'][1]:.2f} s"
+                + (f" of recording {w['recording']}" if "recording" in w else "")
+                for w in bursts
+            )
+            when += " from the start"
             notes.append(
                 f"Joint {j['joint']}: the residual comes in bursts ({when}, over "
                 f"{BURST_RATIO:g}x the median); check those seconds for a timing stall, a "

@@ -31,6 +31,8 @@ from hil.diagnose.stats import (
 )
 from hil.model.protocol import ArmDynamics
 
+STEP_HALVINGS = 4  # a Gauss–Newton step that raises the fit's error is halved at most this often
+
 
 @dataclass
 class Fit:
@@ -169,6 +171,7 @@ class Fit:
                 for s in starts:
                     only.at = s
                     self.build(only)
+                    only.cols = only.effect.point_columns(self.ctx, only.cols)
                     sse = float(self.judged_cv(terms).sse.sum())
                     if np.isfinite(sse) and (best is None or sse < best[0]):
                         best = (sse, s)
@@ -181,19 +184,44 @@ class Fit:
         self._steps(terms, only)
 
     def _steps(self, terms: list[Term], only: Term | None) -> None:
+        # the steps fit what the terms are judged on (:meth:`judged_cv`): against the
+        # reference's rerun of the motion, the paired difference, where the model error both
+        # sides share cancels (on the recording's own residual that error moved a DFKI C.0
+        # payload's centre from 0.37 m to 0.007 m)
+        cv = self.judged_cv(terms)
         for _ in range(REFINE_STEPS):
-            beta = self.cv(terms).beta
-            moved = False
-            for t, b in zip(terms, self.split(beta, terms), strict=True):
+            moved = []
+            for t, b in zip(terms, self.split(cv.beta, terms), strict=True):
                 if t.effect.nonlinear and (only is None or t is only):
                     at = t.effect.update(self.ctx, t.joint, b, t.at)
                     if t.effect.settled(t.at, at):
                         continue  # its columns stand: a rebuild gives them again
-                    t.at = at
-                    self.build(t)
-                    moved = True
+                    moved.append((t, t.at, at))
             if not moved:
                 break  # nothing moved: the next step's fit is this one's
+            # a step that raises the fit's error is halved (Gauss–Newton has no descent
+            # guarantee: on a DFKI C.0 recording the 2-DOF payload's (m, m δl) stepped from
+            # 0.2 m to a stationary point at 0.04 m that fitted three times worse)
+            for _half in range(STEP_HALVINGS + 1):
+                for t, _old, at in moved:
+                    t.at = at
+                    self.build(t)
+                trial = self.judged_cv(terms)
+                if float(trial.sse.sum()) <= float(cv.sse.sum()):
+                    break
+                moved = [(t, old, _midpoint(old, at)) for t, old, at in moved]
+            else:
+                for t, old, _at in moved:  # no step lowers the error: the point stands
+                    t.at = old
+                    self.build(t)
+                break
+            cv = trial
+
+
+def _midpoint(a: Any, b: Any) -> Any:
+    """Half-way between two linearisation points (a number or an array, as ``a``)."""
+    mid = 0.5 * (np.asarray(a, dtype=float) + np.asarray(b, dtype=float))
+    return float(mid) if np.ndim(a) == 0 and not isinstance(a, np.ndarray) else mid
 
 
 def make_fit(

@@ -277,6 +277,7 @@ def judge(
             fit.judged_cv(others), fit.judged_cv(kept), t.effect.acts_on(ctx, t.joint)
         ).as_dict()
         ev["against"] = nominal.source
+        ev["joints"] = [j + 1 for j in t.effect.acts_on(ctx, t.joint)]  # whose torque it reaches
         rivals = confounded.get(t.key, [])
         words = t.effect.words(est)
         if rivals:

@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import numpy as np
+from scipy.stats import f as f_dist
 from scipy.stats import t as student_t
 
 from hil.diagnose.drift.fit import Fit, change_se, term_sizes
@@ -40,12 +41,50 @@ def change_in_se(fit: Fit, others: Sequence[Term], term: Term) -> float:
     assert ref is not None
     if term.effect.sized_by_amplitude:
         return amplitude_change_in_se(fit, others, term)
+    if term.effect.tested_jointly and term.width > 1:
+        return joint_change_in_se(fit, others, term)
     rec, folds = term_sizes(fit, [*others, term], fit)
     back, folds_back = term_sizes(ref, [fit.on_reference(t) for t in [*others, term]], fit)
     se = float(change_se(folds[:, None], folds_back[:, None], fit.paired)[0])
     if not (np.isfinite(rec - back) and np.isfinite(se)):
         return 0.0  # a size the data do not bound (a gain β ≥ 1) resolves no change
     return abs(rec - back) / se if se > 0 else (np.inf if rec != back else 0.0)
+
+
+def joint_change_in_se(fit: Fit, others: Sequence[Term], term: Term) -> float:
+    """:func:`change_in_se` of a pattern whose coefficients are tested together
+    (:attr:`Effect.tested_jointly`): Hotelling's T² of the change of its k coefficients,
+    recording minus reference, over their blocked-jackknife covariance (block-paired: of each
+    fold pair's difference; else the two sides' covariances added as independent), given as the
+    Student-t quantile (B − 1 degrees of freedom) of the same two-sided p-value, so that one
+    critical value judges every pattern."""
+    ref = fit.reference
+    assert ref is not None
+    terms = [*others, term]
+    cv, back = fit.cv(terms), ref.cv([fit.on_reference(t) for t in terms])
+
+    def own(beta: np.ndarray) -> np.ndarray:
+        return fit.split(beta, terms)[-1]
+
+    change = own(cv.beta) - own(back.beta)
+
+    def covariance(folds: np.ndarray) -> np.ndarray:
+        dev = folds - folds.mean(axis=0)
+        return (len(folds) - 1) / len(folds) * dev.T @ dev  # the blocked jackknife's
+
+    rec = np.array([own(b) for b in cv.fold_beta])
+    ref_folds = np.array([own(b) for b in back.fold_beta])
+    if fit.paired and len(rec) == len(ref_folds):
+        cov = covariance(rec - ref_folds)
+    else:
+        cov = covariance(rec) + covariance(ref_folds)
+    k, blocks = len(change), len(rec)
+    if blocks <= k + 1 or not np.all(np.isfinite(change)) or not np.all(np.isfinite(cov)):
+        return 0.0
+    t2 = float(change @ np.linalg.lstsq(cov, change, rcond=None)[0])
+    f = t2 * (blocks - k) / (k * (blocks - 1))  # Hotelling's T² as F(k, B − k)
+    p = float(f_dist.sf(f, k, blocks - k))
+    return float(student_t.isf(max(p, 1e-300) / 2, blocks - 1))
 
 
 def amplitude_change_in_se(fit: Fit, others: Sequence[Term], term: Term) -> float:
