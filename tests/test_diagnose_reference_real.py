@@ -195,7 +195,7 @@ def test_payload_centre_search_on_an_acrobot_swing_keeps_the_sign(tmp_path):
     from hil.diagnose.drift.judge import problem_inputs
     from hil.diagnose.drift.terms import Term
     from hil.diagnose.effects import REGISTRY
-    from hil.diagnose.selection import build_problem
+    from hil.diagnose.problem import build_problem
 
     gen = _generator()
     if not gen._dfki_urdf_xml("dfki-c0"):

@@ -205,8 +205,8 @@ def test_residual_bursts_are_timed_from_the_recordings_start():
     the burst's window is reported in seconds from the recording's first sample (it was
     reported at 1660000005 s), the origin stated, and the burst note says so."""
     from hil.diagnose.locate import TIME_ORIGIN, locate
+    from hil.diagnose.problem import build_problem
     from hil.diagnose.report import burst_notes
-    from hil.diagnose.selection import build_problem
 
     h = 0.002
     t = np.arange(5000) * h
