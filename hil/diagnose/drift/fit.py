@@ -184,11 +184,16 @@ class Fit:
         self._steps(terms, only)
 
     def _steps(self, terms: list[Term], only: Term | None) -> None:
-        # the steps fit what the terms are judged on (:meth:`judged_cv`): against the
-        # reference's rerun of the motion, the paired difference, where the model error both
-        # sides share cancels (on the recording's own residual that error moved a DFKI C.0
-        # payload's centre from 0.37 m to 0.007 m)
-        cv = self.judged_cv(terms)
+        # a point that enters only its pattern's columns (a payload's centre) is stepped on
+        # what the terms are judged on (:meth:`judged_cv`): against the reference's rerun of the
+        # motion, the paired difference, where the model error both sides share cancels (on the
+        # recording's own residual that error moved a DFKI C.0 payload's centre from 0.37 m to
+        # 0.007 m). One with an exact model change at the point (an encoder angle, a delay:
+        # :attr:`Term.shift`) is stepped on the recording's own residual: the paired difference
+        # takes that change off both sides alike and does not see the point
+        stepped = [t for t in terms if t.effect.nonlinear and (only is None or t is only)]
+        objective = self.judged_cv if all(t.shift is None for t in stepped) else self.cv
+        cv = objective(terms)
         for _ in range(REFINE_STEPS):
             moved = []
             for t, b in zip(terms, self.split(cv.beta, terms), strict=True):
@@ -206,7 +211,7 @@ class Fit:
                 for t, _old, at in moved:
                     t.at = at
                     self.build(t)
-                trial = self.judged_cv(terms)
+                trial = objective(terms)
                 if float(trial.sse.sum()) <= float(cv.sse.sum()):
                     break
                 moved = [(t, old, _midpoint(old, at)) for t, old, at in moved]
