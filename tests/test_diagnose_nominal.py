@@ -64,7 +64,10 @@ def _one(doc: dict, effect: str) -> dict:
     itself, or beside the refit's finding of the same physics on the same joint."""
     found = [f for f in doc["nominal"]["findings"] if f["effect"] == effect]
     assert len(found) == 1, doc["summary"]
-    listed = [{k: v for k, v in g.items() if k != "refit_findings"} for g in doc["findings"]]
+    listed = [
+        {k: v for k, v in g.get("against_nominal", g).items() if k != "refit_findings"}
+        for g in doc["findings"]
+    ]
     assert found[0] in listed, doc["findings"]
     return found[0]
 
@@ -304,7 +307,7 @@ def test_reference_diagnosis_builds_each_recordings_rows_once(arm, capsys, monke
 
 
 def test_refit_findings_on_joints_a_change_reaches_are_set_aside():
-    """Against a reference, the refit of the recording alone (θ free, no vocabulary of changes)
+    """Against references, the refit of the recording alone (θ free, no vocabulary of changes)
     takes a change as whatever it can name: an encoder angle on DFKI A.0's joint 2 became a lag
     and a delay on joint 1 beside it. A refit finding on a joint the change found reaches is
     set aside (``within_change``) and said in the summary; one on another joint stays, and of
@@ -322,7 +325,9 @@ def test_refit_findings_on_joints_a_change_reaches_are_set_aside():
     }
     encoder = Finding("encoder_offset", 2, {"offset_rad": 0.05}, {"joints": [1, 2], "words": "e"})
     gain = Finding("torque_gain", 2, {"gain": 0.9}, {"joints": [2], "words": "g"})
-    drift = DriftResult({"why": "w", "decision": "d", "baseline": []}, [encoder, gain])
+    drift = DriftResult(
+        {"source": "reference", "why": "w", "decision": "d", "baseline": []}, [encoder, gain]
+    )
     merge_drift(doc, drift)
     names = [(f["effect"], f["joint"]) for f in doc["findings"]]
     assert names == [("stribeck", 3), ("encoder_offset", 2), ("torque_gain", 2)], names
@@ -333,5 +338,14 @@ def test_refit_findings_on_joints_a_change_reaches_are_set_aside():
     assert "actuator lag on joint 1" in doc["summary"]
     # nothing changed: the refit's findings all stay
     doc = {"findings": [refit("actuator_lag", 1)], "summary": "Refit."}
-    merge_drift(doc, DriftResult({"why": "w", "decision": "d", "baseline": []}, []))
+    merge_drift(doc, DriftResult({"source": "reference", "why": "w", "decision": "d",
+                                  "baseline": []}, []))  # fmt: skip
     assert [f["effect"] for f in doc["findings"]] == ["actuator_lag"]
+    # against a profile the refit's findings answer what the model leaves out: all stay, the
+    # drift's reading beside the one of the same physics
+    doc = {"findings": [refit("actuator_lag", 1), refit("torque_gain", 2)], "summary": "Refit."}
+    merge_drift(doc, DriftResult({"source": "profile", "why": "w", "decision": "d",
+                                  "baseline": []}, [encoder, gain]))  # fmt: skip
+    names = [(f["effect"], f["joint"]) for f in doc["findings"]]
+    assert names == [("actuator_lag", 1), ("torque_gain", 2), ("encoder_offset", 2)], names
+    assert doc["findings"][1]["against_nominal"]["estimate"] == {"gain": 0.9}

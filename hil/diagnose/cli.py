@@ -269,7 +269,8 @@ def urdf_params(path: str, robot: str, model: ArmDynamics) -> tuple[Any, np.ndar
 
 
 # The refit's findings of the same physics as a drift against the nominal model, on the same
-# joint: the drift's finding is listed (what changed against that model), theirs beside it
+# joint: against a profile they stay, with the drift's reading beside them ("against_nominal");
+# against reference recordings the drift's finding is listed (what changed), theirs beside it
 # ("refit_findings": the recording's own departure with θ refitted, which carries the model's
 # error along the pattern: an A.0 offset of −0.042 Nm read −0.081 there, beside an asymmetry) ...
 SAME = {
@@ -284,10 +285,11 @@ REPLACED = {"encoder_offset": ("angle_offset", "com_offset")}
 
 def merge_drift(doc: dict, drift: DriftResult) -> None:
     """The drift against the nominal model into the refit's document: its findings beside the
-    refit's (the refit's of the same physics on the same joint under the drift's as
-    ``refit_findings``, those it names better replaced, those the references already show set
-    aside, the refit's others on joints a change found reaches set aside: ``within_change``),
-    the decision in the summary."""
+    refit's (of the same physics on the same joint: against a profile the refit's with the
+    drift's as ``against_nominal``, against references the drift's with the refit's as
+    ``refit_findings``; those it names better replaced, those the references already show set
+    aside; against references the refit's others on joints a change found reaches set aside:
+    ``within_change``), the decision in the summary."""
     doc["nominal"] = drift.document
     head = f"Judged against {drift.document['why']}; {drift.document['decision']}."
     if drift.used:
@@ -303,13 +305,26 @@ def merge_drift(doc: dict, drift: DriftResult) -> None:
         # the joints whose torque a change found reaches: there the refit of the recording
         # alone (θ free, no vocabulary of changes) takes the change as whatever it can name (an
         # encoder angle on A.0's joint 2 became a lag and a delay on joint 1)
-        reached = {j for f in drift.findings for j in f.evidence.get("joints", [f.joint])}
+        # Against reference recordings the question is what changed since them, which the
+        # drift alone measures (the refit of the recording carries the model error both share).
+        # Against a profile or --params the refit's findings answer what the model leaves out,
+        # the drift's numbers stand beside them.
+        since = drift.document["source"] == "reference"
+        reached = (
+            {j for f in drift.findings for j in f.evidence.get("joints", [f.joint])}
+            if since
+            else set()
+        )
         changes = {id(f): f.as_dict() for f in drift.findings}
-        kept = []
+        kept, joined = [], set()
         for f in doc["findings"]:
             key = (f["effect"], f["joint"])
-            if key in same:
+            if key in same and since:
                 changes[id(same[key])].setdefault("refit_findings", []).append(f)
+            elif key in same:
+                f["against_nominal"] = changes[id(same[key])]
+                joined.add(id(same[key]))
+                kept.append(f)
             elif key in known and key not in gone:
                 drift.document.setdefault("in_reference", []).append(f)
             elif key in gone:
@@ -318,7 +333,7 @@ def merge_drift(doc: dict, drift: DriftResult) -> None:
                 drift.document.setdefault("within_change", []).append(f)
             else:
                 kept.append(f)
-        doc["findings"] = kept + [changes[id(f)] for f in drift.findings]
+        doc["findings"] = kept + [changes[id(f)] for f in drift.findings if id(f) not in joined]
         if drift.findings:
             head += (
                 " What changed: "
