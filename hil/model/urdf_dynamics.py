@@ -7,6 +7,7 @@ Imports numpy and Pinocchio only (:mod:`hil.model.urdf` imports this module).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -87,6 +88,9 @@ class UrdfDynamics:
         """M(q) q̇ at states (N, n), shape (N, n): S_iᵀ H_i + I_a q̇_i, with H_i the momentum of
         the bodies that joint i moves (:meth:`Chain.subtree_sums`; CRBA's M q̇, Featherstone
         (2008) §6.2)."""
+        return _by_chunks(self._momentum, q, dq)
+
+    def _momentum(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         chain = self._chain
         X = chain.transforms(q)
         H = chain.subtree_sums(X, self._blocks, chain.motions(X, dq.T))
@@ -102,6 +106,9 @@ class UrdfDynamics:
         frame-free product, taken in joint i's frame). Gravity is the bodies' force at the base
         acceleration −g: g_i = S_iᵀ G_i, G_i the subtree sum of I_j a_j (the RNEA at rest,
         Featherstone (2008) §5.3). The armature's ½ I_a q̇² does not depend on q."""
+        return _by_chunks(self._static_torque, q, dq)
+
+    def _static_torque(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         chain = self._chain
         X = chain.transforms(q)
         V = chain.motions(X, dq.T)
@@ -190,6 +197,26 @@ class Chain:
                 out[parent, :3] += force
                 out[parent, 3:] += _rotate(L, out[j, 3:]) + _cross(p, force)
         return out
+
+
+# states per pass of the recursions: their arrays hold ~200 floats a state (7 joints), so 60 s
+# of a 7-joint arm at 1 kHz (480,000 Gauss–Legendre nodes) at once peaked near 0.8 GB
+STATES_PER_CHUNK = 32768
+
+
+def _by_chunks(
+    fn: Callable[[np.ndarray, np.ndarray], np.ndarray], q: np.ndarray, dq: np.ndarray
+) -> np.ndarray:
+    """``fn`` (states (N, n) → (N, n)) over ``STATES_PER_CHUNK`` states at a time (each state's
+    result depends on that state alone)."""
+    if len(q) <= STATES_PER_CHUNK:
+        return fn(q, dq)
+    return np.concatenate(
+        [
+            fn(q[i : i + STATES_PER_CHUNK], dq[i : i + STATES_PER_CHUNK])
+            for i in range(0, len(q), STATES_PER_CHUNK)
+        ]
+    )
 
 
 def _rotate(L: np.ndarray, v: np.ndarray) -> np.ndarray:
