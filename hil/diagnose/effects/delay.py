@@ -4,11 +4,15 @@
 the delayed torque: Ψ θ₀ = F[τ_d], so the residual is r = y − Ψ θ₀ = F[τ] − F[τ_d] (y = F[τ]),
 the exact held-torque means of :func:`hil.diagnose.columns.delayed_torque_means`. It is
 linearised in d at d̂ (Gauss–Newton): the model's change F[τ] − F[τ_d̂] is taken off r (both
-held-torque means, so that it is zero at d̂ = 0), the
-column is its derivative −∂F[τ_d]/∂d (a central difference over half a sample either side),
-β = δd. One delay for the whole arm: the lag that best aligns the recorded torque with the
-model's, judged against the reference as every pattern is (the change since the reference:
-the delay found on the recording minus the one found on the reference's rows, at the same d̂).
+held-torque means, so that it is zero at d̂ = 0), the column is its derivative −∂F[τ_d]/∂d (a
+central difference over half a sample either side), β = δd, of the recorded torque smoothed by a
+centred moving average of F's length: the recorded torque's own noise differenced into the
+column would shrink the delay (errors in variables: a Panda's 5.1 ms was read as 3.1 ms, its
+joint-torque sensors' noise differenced over 1 ms), and the smoothing leaves the slow torque of
+the motion as it is; the model's change at d̂ stays that of the recorded torque, exactly. One
+delay for the whole arm: the lag that best aligns the recorded torque with the model's, judged
+against the reference as every pattern is (the change since the reference: the delay found on
+the recording minus the one found on the reference's rows, at the same d̂).
 
 A delay rewrites no row of the motion, but the set that writes one into a recording drops its
 last rows; the comparison with the reference is then not block-paired (:func:`hil.diagnose.
@@ -23,16 +27,23 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from scipy.ndimage import uniform_filter1d
 
 from hil.diagnose.columns import RecordingRows, delayed_torque_means, moving_average
 from hil.diagnose.effects.base import Context, Effect, r4, register
 from hil.diagnose.findings import RESOLVABLE_INTERVALS
 
 
-def _delayed(r: RecordingRows, delay_s: float) -> np.ndarray:
-    """F[τ_d] of one recording's rows (K, n)."""
+def _delayed(r: RecordingRows, delay_s: float, tau: np.ndarray | None = None) -> np.ndarray:
+    """F[τ_d] of one recording's rows (K, n) (``tau``: of that torque, else the recorded)."""
     t = r.stamps if r.stamps is not None else np.arange(len(r.tau)) * r.h
-    return moving_average(delayed_torque_means(r.tau, r.h, delay_s, t)[r.k], r.window)
+    tau = r.tau if tau is None else tau
+    return moving_average(delayed_torque_means(tau, r.h, delay_s, t)[r.k], r.window)
+
+
+def _smoothed(r: RecordingRows) -> np.ndarray:
+    """The recorded torque through a centred (zero-phase) moving average of F's length."""
+    return uniform_filter1d(np.asarray(r.tau, float), size=r.window, axis=0, mode="nearest")
 
 
 def _interval(ctx: Context) -> float:
@@ -63,7 +74,12 @@ class TransportDelay(Effect):
 
     def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
         d, eps = float(at), 0.5 * _interval(ctx)
-        col = ctx.stack(lambda r: (_delayed(r, d - eps) - _delayed(r, d + eps)) / (2 * eps))
+
+        def column(r: RecordingRows) -> np.ndarray:
+            tau = _smoothed(r)
+            return (_delayed(r, d - eps, tau) - _delayed(r, d + eps, tau)) / (2 * eps)
+
+        col = ctx.stack(column)
         return col[:, :, None]
 
     def update(self, ctx, joint, beta, at):
