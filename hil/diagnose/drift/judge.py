@@ -31,6 +31,7 @@ from hil.diagnose.drift.terms import (
     Nominal,
     Term,
 )
+from hil.diagnose.drift.unpaired import spread_check
 from hil.diagnose.effects import REGISTRY
 from hil.diagnose.findings import Finding
 from hil.diagnose.heldout import (
@@ -266,6 +267,16 @@ def judge(
         not_findings.update(reversed_)
         kept = [t for t in kept if t.key not in reversed_]
         fit.refine(kept)
+        if not fit.paired and len(nominal.reference.rows) > 1:
+            named = [t for t in kept if t.key not in quiet]
+            spread = spread_check(
+                fit, named, term_estimates(fit, named, nominal.theta_draws)[0], nominal
+            )
+            for key in spread:
+                say(f"diagnose: against the nominal model: {key} within the references' spread")
+            not_findings.update(spread)
+            kept = [t for t in kept if t.key not in spread]
+            fit.refine(kept)
     estimates, _cv = term_estimates(fit, kept, nominal.theta_draws)
     confounded = confounded_partners(fit, kept, cands, len(cands))
     findings = []

@@ -20,6 +20,14 @@ What θ can take up is then "cannot tell": another θ explains it as well. What 
 joints share) keeps its power. Block-paired comparisons (the same motion on both sides) do not
 need it: the model error cancels row by row there.
 
+Where the reference is two or more recordings, the spread itself is measured
+(:func:`motion_spread`): each pattern found is fitted against θ₀ on every reference recording
+alone; those sizes differ by what the model's error projects onto the pattern under each
+motion, and a change must stand out of that spread (:func:`spread_check`). One recording's
+blocks cannot show it (DFKI A.0: the angle of joint 2's gravity torque, fitted with θ on each of
+ten recordings of one arm, spreads by 0.045 rad against a 0.008 rad SE; within one recording
+its eight segments agree within ±0.017 rad; tests/benchmarks/dfki_pattern_scatter.py).
+
 Imports :mod:`hil.diagnose.drift.fit` and :mod:`hil.diagnose.drift.terms`.
 """
 
@@ -28,10 +36,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+from scipy.stats import t as student_t
 
-from hil.diagnose.drift.fit import Fit
-from hil.diagnose.drift.terms import Term
+from hil.diagnose.drift.fit import Fit, make_fit
+from hil.diagnose.drift.terms import Nominal, Term
 from hil.diagnose.physical import jackknife_se
+from hil.diagnose.problem import build_problem
 from hil.diagnose.stats import RIDGE, BlockStats, CrossValidation, block_stats, cross_validate
 
 # A pattern whose columns keep less than this fraction of their energy outside θ's columns
@@ -81,3 +91,60 @@ def free_change_in_se(fit: Fit, others: Sequence[Term], term: Term) -> float:
         np.hypot(jackknife_se(rec.fold_beta[:, -w:] @ u), jackknife_se(back.fold_beta[:, -w:] @ u))
     )
     return norm / se if se > 0 else np.inf
+
+
+# the spread's test: two-sided at this level over the patterns checked (Bonferroni)
+SPREAD_ALPHA = 0.05
+
+
+def motion_spread(fit: Fit, term: Term, nominal: Nominal) -> np.ndarray | None:
+    """``term``'s size (:meth:`Effect.estimate`) fitted against θ₀ (with the nominal model's
+    own departures) on each reference recording alone, at ``term``'s point, Gauss–Newton
+    steps from there for a nonlinear pattern: (R,). None with fewer than two reference
+    recordings, or for a pattern sized by an amplitude (no sign to spread)."""
+    ref = nominal.reference
+    if ref is None or len(ref.rows) < 2 or term.effect.sized_by_amplitude:
+        return None
+    model = fit.ctx.model
+    sizes = []
+    for r in ref.rows:
+        prob, _ = build_problem([(r.q, r.tau, r.h, r.stamps)], model)
+        one = make_fit(prob, model, fit.ctx.theta0, nominal.terms, nominal.geometry)
+        t = one.build(Term(term.effect, term.joint, term.at, searched=True))
+        one.refine([t], only=t)
+        beta = one.cv([t]).beta
+        sizes.append(t.effect.estimate(one.ctx, t.joint, beta, 0 * beta, t.at)[1])
+    return np.asarray(sizes, float)
+
+
+def spread_check(
+    fit: Fit,
+    kept: Sequence[Term],
+    estimates: Sequence[tuple[dict, float, float]],
+    nominal: Nominal,
+) -> dict[str, str]:
+    """{key: why it is not a finding} for each of ``kept`` (with its change's ``estimates``:
+    numbers, size, SE) whose change does not stand out of the pattern's spread over the
+    reference recordings (:func:`motion_spread`): |size| under the Student-t quantile (R − 1
+    degrees of freedom, two-sided at :data:`SPREAD_ALPHA` over the patterns checked) of its SE
+    combined with the spread's SD × √(1 + 1/R) (a new motion's draw against the references'
+    mean)."""
+    out: dict[str, str] = {}
+    if not kept:
+        return out
+    for t, (_est, size, size_se) in zip(kept, estimates, strict=True):
+        sizes = motion_spread(fit, t, nominal)
+        if sizes is None or not np.all(np.isfinite(sizes)):
+            continue
+        R = len(sizes)
+        sd = float(np.std(sizes, ddof=1))
+        se = float(np.hypot(size_se, sd * np.sqrt(1.0 + 1.0 / R)))
+        crit = float(student_t.isf(SPREAD_ALPHA / len(kept) / 2, R - 1))
+        if abs(size) < crit * se:
+            out[t.key] = (
+                f"the pattern's size on the {R} reference recordings alone spreads by "
+                f"{sd:.3g} (SD; {', '.join(f'{x:+.3g}' for x in sizes)}): a change of "
+                f"{size:+.3g} does not stand out of what another motion of the same arm gives "
+                f"({crit:.3g} × {se:.2g} needed); cannot tell"
+            )
+    return out
