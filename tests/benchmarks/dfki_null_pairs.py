@@ -3,6 +3,11 @@ one design, the recording judged with ``--reference`` the other (the same arm, n
 in), through the drift stage as `hil diagnose` runs it. Every drift finding is a false one.
 
     python tests/benchmarks/dfki_null_pairs.py [--robot dfki-c0] [--glob 'design_C.0*sys_id*']
+        [--references K]
+
+``--references K`` (K ≥ 2): each recording judged once, against the K recordings that follow
+it (in name order, cyclically) together, as a user with several recordings of the arm would
+(the change must then also stand out of the references' spread: docs/diagnosis.md, gate 5).
 
 Reads ../shared/realdata/dfki-double-pendulum/records (tests/realdata.py); prints one line per
 pair (whether the reference model was used, the findings) and the totals.
@@ -34,6 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--robot", default="dfki-c0", choices=sorted(DESIGN_GLOB))
     ap.add_argument("--glob", default=None, help="recordings of the design (default: its sys_id)")
+    ap.add_argument("--references", type=int, default=1, help="references per judgement (K)")
     opts = ap.parse_args(argv)
     records = realdata("dfki-double-pendulum") / "records"
     files = sorted(records.glob(opts.glob or DESIGN_GLOB[opts.robot]))
@@ -53,22 +59,38 @@ def main(argv: list[str] | None = None) -> int:
 
     recs = {f: read(f) for f in files}
     pairs = used = wrong = 0
-    for ref in files:
-        nominal = nominal_from_reference([recs[ref]], model, "null pair", geometry=geometry)
-        for rec in files:
-            if rec == ref:
-                continue
-            started = time.perf_counter()
-            result = judge([recs[rec]], nominal)
-            keys = [f.term or f.effect for f in result.findings]
-            pairs, used, wrong = pairs + 1, used + result.used, wrong + bool(keys)
-            print(
-                f"{rec.stem[-24:]:>24} against {ref.stem[-24:]:>24}: "
-                f"{'used' if result.used else 'not used'}, findings {keys or 'none'} "
-                f"({time.perf_counter() - started:.0f} s)",
-                flush=True,
+
+    def one(rec: Path, refs: list[Path], nominal) -> None:
+        nonlocal pairs, used, wrong
+        started = time.perf_counter()
+        result = judge([recs[rec]], nominal)
+        keys = [f.term or f.effect for f in result.findings]
+        pairs, used, wrong = pairs + 1, used + result.used, wrong + bool(keys)
+        names = " + ".join(r.stem[-24:] for r in refs)
+        print(
+            f"{rec.stem[-24:]:>24} against {names:>24}: "
+            f"{'used' if result.used else 'not used'}, findings {keys or 'none'} "
+            f"({time.perf_counter() - started:.0f} s)",
+            flush=True,
+        )
+
+    if opts.references > 1:
+        if opts.references >= len(files):
+            print(f"--references must be under {len(files)}", file=sys.stderr)
+            return 2
+        for i, rec in enumerate(files):
+            refs = [files[(i + k) % len(files)] for k in range(1, opts.references + 1)]
+            nominal = nominal_from_reference(
+                [recs[r] for r in refs], model, "null", geometry=geometry
             )
-    print(f"{pairs} pairs, reference model used on {used}, a false finding on {wrong}")
+            one(rec, refs, nominal)
+    else:
+        for ref in files:
+            nominal = nominal_from_reference([recs[ref]], model, "null pair", geometry=geometry)
+            for rec in files:
+                if rec != ref:
+                    one(rec, [ref], nominal)
+    print(f"{pairs} judgements, reference model used on {used}, a false finding on {wrong}")
     return 0
 
 
