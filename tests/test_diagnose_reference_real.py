@@ -293,8 +293,8 @@ def test_a_change_within_the_references_spread_over_motions_is_not_named():
     (20220812-060143, 20220812-055903, 20220815 trajectory 05): nothing changed, but the angle
     of joint 2's gravity torque moves with the motion (tests/benchmarks/dfki_pattern_scatter.py:
     0.045 rad SD over ten recordings against a 0.008 rad SE) and a −0.095 rad encoder angle
-    passed every gate (old code). Measured on the three references alone its spread is 0.034
-    rad, and the change does not stand out of it: not named, the reason given."""
+    passed every gate (old code). Measured on each reference against θ from the other two, its
+    spread is 0.051 rad, and the change does not stand out of it: not named, the reason given."""
     stem = "design_A.0__{}.csv"
     rec, ref_a = _records(
         stem, "20220815__sys_id__trajectory_04", "20220812__sys_id__20220812-060143-PM_measured"
@@ -319,10 +319,10 @@ def test_the_spread_check_weighs_a_change_against_the_references_spread(monkeypa
     spreads = {"encoder_offset:2": np.array([0.01, -0.01, 0.0]), "torque_gain:1": None}
     monkeypatch.setattr(unpaired, "motion_spread", lambda fit, t, nominal: spreads[t.key])
     enc, gain = Term(REGISTRY["encoder_offset"], 1), Term(REGISTRY["torque_gain"], 0)
-    # SD 0.01 × √(4/3) ⊕ 0.002 ≈ 0.0117; t(2 dof, 0.05 / 2 / 2) ≈ 6.2: 0.073 needed
-    kept = unpaired.spread_check(None, [enc, gain], [({}, 0.2, 0.002), ({}, 0.5, 0.01)], None)
+    # SD 0.01 × √(4/3) ⊕ 0.002 ≈ 0.0117; t(2 dof, 1e-3 / 2 / 2) ≈ 44.7: 0.52 needed
+    kept = unpaired.spread_check(None, [enc, gain], [({}, 0.8, 0.002), ({}, 0.5, 0.01)], None)
     assert kept == {}
-    out = unpaired.spread_check(None, [enc, gain], [({}, 0.05, 0.002), ({}, 0.5, 0.01)], None)
+    out = unpaired.spread_check(None, [enc, gain], [({}, 0.3, 0.002), ({}, 0.5, 0.01)], None)
     assert list(out) == ["encoder_offset:2"] and "spreads by 0.01" in out["encoder_offset:2"]
 
 

@@ -21,12 +21,13 @@ joints share) keeps its power. Block-paired comparisons (the same motion on both
 need it: the model error cancels row by row there.
 
 Where the reference is two or more recordings, the spread itself is measured
-(:func:`motion_spread`): each pattern found is fitted against θ₀ on every reference recording
-alone; those sizes differ by what the model's error projects onto the pattern under each
-motion, and a change must stand out of that spread (:func:`spread_check`). One recording's
-blocks cannot show it (DFKI A.0: the angle of joint 2's gravity torque, fitted with θ on each of
-ten recordings of one arm, spreads by 0.045 rad against a 0.008 rad SE; within one recording
-its eight segments agree within ±0.017 rad; tests/benchmarks/dfki_pattern_scatter.py).
+(:func:`motion_spread`): each pattern found is fitted on every reference recording alone,
+against θ identified from the other references; those sizes differ by what the model's error
+projects onto the pattern under each motion, and a change must stand out of that spread
+(:func:`spread_check`). One recording's blocks cannot show it (DFKI A.0: the angle of joint 2's
+gravity torque, fitted with θ on each of ten recordings of one arm, spreads by 0.045 rad against
+a 0.008 rad SE; within one recording its eight segments agree within ±0.017 rad;
+tests/benchmarks/dfki_pattern_scatter.py).
 
 Imports :mod:`hil.diagnose.drift.fit` and :mod:`hil.diagnose.drift.terms`.
 """
@@ -34,6 +35,7 @@ Imports :mod:`hil.diagnose.drift.fit` and :mod:`hil.diagnose.drift.terms`.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from itertools import pairwise
 
 import numpy as np
 from scipy.stats import t as student_t
@@ -42,7 +44,9 @@ from hil.diagnose.drift.fit import Fit, make_fit
 from hil.diagnose.drift.terms import Nominal, Term
 from hil.diagnose.physical import jackknife_se
 from hil.diagnose.problem import build_problem
+from hil.diagnose.selection import FAMILY_ALPHA
 from hil.diagnose.stats import RIDGE, BlockStats, CrossValidation, block_stats, cross_validate
+from hil.model.estimators import bounded_quadratic_fit
 
 # A pattern whose columns keep less than this fraction of their energy outside θ's columns
 # (unit-norm columns) is θ's own direction: with θ free its coefficient is set by the fit's
@@ -93,23 +97,40 @@ def free_change_in_se(fit: Fit, others: Sequence[Term], term: Term) -> float:
     return norm / se if se > 0 else np.inf
 
 
-# the spread's test: two-sided at this level over the patterns checked (Bonferroni)
-SPREAD_ALPHA = 0.05
-
-
 def motion_spread(fit: Fit, term: Term, nominal: Nominal) -> np.ndarray | None:
-    """``term``'s size (:meth:`Effect.estimate`) fitted against θ₀ (with the nominal model's
-    own departures) on each reference recording alone, at ``term``'s point, Gauss–Newton
-    steps from there for a nonlinear pattern: (R,). None with fewer than two reference
-    recordings, or for a pattern sized by an amplitude (no sign to spread)."""
+    """``term``'s size (:meth:`Effect.estimate`) on each reference recording alone against θ
+    identified from the other references (with the nominal model's own departures held), at
+    ``term``'s point, Gauss–Newton steps from there for a nonlinear pattern: (R,). Left out of
+    θ's fit, each reference is a new motion to θ, as the recording is (against θ₀ fitted on it
+    too, five A.0 references' spread was read small enough that the most extreme of ten
+    recordings stood out of it). None with fewer than two reference recordings, or for a
+    pattern sized by an amplitude (no sign to spread)."""
     ref = nominal.reference
     if ref is None or len(ref.rows) < 2 or term.effect.sized_by_amplitude:
         return None
     model = fit.ctx.model
+    theta0 = np.asarray(fit.ctx.theta0, float)
+    # the references' torque less the nominal model's own departures, and each one's share of
+    # the normal equations of θ (rows scaled to unit noise per joint)
+    pooled = make_fit(ref, model, theta0, nominal.terms, nominal.geometry)
+    target = (ref.Psi_raw @ theta0 + pooled.residual) / ref.scale
+    Z, w = ref.Psi, ref.w
+    ends = np.cumsum([0] + [len(r.y) for r in ref.rows])
+    parts = [
+        (
+            np.einsum("knp,knq,kn->pq", Z[a:b], Z[a:b], w[a:b], optimize=True),
+            np.einsum("knp,kn,kn->p", Z[a:b], target[a:b], w[a:b], optimize=True),
+        )
+        for a, b in pairwise(ends)
+    ]
+    H, g = sum(h for h, _ in parts), sum(v for _, v in parts)
+    lower = np.full(model.n_params, -np.inf)
+    lower[list(model.nonnegative_columns)] = 0.0
     sizes = []
-    for r in ref.rows:
+    for r, (H_i, g_i) in zip(ref.rows, parts, strict=True):
+        theta_out, _method = bounded_quadratic_fit(H - H_i, g - g_i, lower)
         prob, _ = build_problem([(r.q, r.tau, r.h, r.stamps)], model)
-        one = make_fit(prob, model, fit.ctx.theta0, nominal.terms, nominal.geometry)
+        one = make_fit(prob, model, theta_out, nominal.terms, nominal.geometry)
         t = one.build(Term(term.effect, term.joint, term.at, searched=True))
         one.refine([t], only=t)
         beta = one.cv([t]).beta
@@ -126,7 +147,8 @@ def spread_check(
     """{key: why it is not a finding} for each of ``kept`` (with its change's ``estimates``:
     numbers, size, SE) whose change does not stand out of the pattern's spread over the
     reference recordings (:func:`motion_spread`): |size| under the Student-t quantile (R − 1
-    degrees of freedom, two-sided at :data:`SPREAD_ALPHA` over the patterns checked) of its SE
+    degrees of freedom, two-sided at the drift gates' family-wise
+    :data:`hil.diagnose.selection.FAMILY_ALPHA` over the patterns checked) of its SE
     combined with the spread's SD × √(1 + 1/R) (a new motion's draw against the references'
     mean)."""
     out: dict[str, str] = {}
@@ -139,10 +161,11 @@ def spread_check(
         R = len(sizes)
         sd = float(np.std(sizes, ddof=1))
         se = float(np.hypot(size_se, sd * np.sqrt(1.0 + 1.0 / R)))
-        crit = float(student_t.isf(SPREAD_ALPHA / len(kept) / 2, R - 1))
+        crit = float(student_t.isf(FAMILY_ALPHA / len(kept) / 2, R - 1))
         if abs(size) < crit * se:
             out[t.key] = (
-                f"the pattern's size on the {R} reference recordings alone spreads by "
+                f"the pattern's size on each of the {R} reference recordings, against θ "
+                f"identified from the others, spreads by "
                 f"{sd:.3g} (SD; {', '.join(f'{x:+.3g}' for x in sizes)}): a change of "
                 f"{size:+.3g} does not stand out of what another motion of the same arm gives "
                 f"({crit:.3g} × {se:.2g} needed); cannot tell"
