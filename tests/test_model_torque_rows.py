@@ -48,9 +48,28 @@ def _rows(model, N: int = 700, irregular: bool = False):
 
 
 def _regressor_rows(rows, theta, q) -> np.ndarray:
-    """Ψ(q) θ before F from the regressor rows (the definition)."""
+    """Ψ(q) θ before F from the regressor rows (the definition), with the recording's
+    velocities: readings shifted by a constant per joint (an encoder offset) move no velocity
+    (estimated again from the shifted readings, they differ by rounding only, which the
+    interval rows' 1/h² lifts to 1e-8 of a row: `test_a_constant_shift_moves_no_velocity`)."""
     args = (rows.h, rows.stamps, rows.half_window, rows.model)
-    return _momentum_rows(q, rows.tau, *args)[2] @ theta
+    return _momentum_rows(q, rows.tau, *args, v=rows.v)[2] @ theta
+
+
+@pytest.mark.parametrize("irregular", [False, True])
+def test_a_constant_shift_moves_no_velocity(cicese3, irregular):
+    """The velocities estimated from readings shifted by a constant per joint are those of
+    the readings (to rounding), which :func:`model_torque_rows` reuses instead of estimating
+    them again."""
+    rows = _rows(cicese3, irregular=irregular)
+    offset = np.array([0.03, -0.05, 0.2])[: rows.q.shape[1]]
+    args = (rows.h, rows.stamps, rows.half_window, rows.model)
+    v = _momentum_rows(rows.q + offset, rows.tau, *args)[4]
+    finite = np.isfinite(rows.v)
+    assert finite.any() and np.array_equal(finite, np.isfinite(v))
+    np.testing.assert_allclose(
+        v[finite], rows.v[finite], rtol=0, atol=1e-12 * abs(rows.v[finite]).max()
+    )
 
 
 # a tree (link1 carries two branches) with a prismatic joint and an unaligned revolute one:
@@ -126,9 +145,11 @@ def test_model_torque_rows_equal_the_regressor_rows(name, irregular, cicese3, pa
     theta = _theta(model) if name != "closed_form" else np.linspace(0.05, 0.5, model.n_params)
     q = rows.q.copy()
     q[:, -1] -= 0.04
-    exact = _regressor_rows(rows, theta, q)
+    offset = np.zeros(rows.q.shape[1])
+    offset[-1] = -0.04
+    exact = _regressor_rows(rows, theta, q)  # the velocities estimated again from q
     np.testing.assert_allclose(
-        model_torque_rows(rows, theta, q), exact, rtol=0, atol=1e-12 * abs(exact).max()
+        model_torque_rows(rows, theta, offset), exact, rtol=0, atol=1e-12 * abs(exact).max()
     )
 
 
@@ -171,9 +192,9 @@ def test_memo_keeps_every_joints_start_through_a_refinement(panda, monkeypatch):
     ctx = Context([rows], panda, panda.base_theta(), rows.Psi)
     built = []
 
-    def counted(r, th, q=None):
+    def counted(r, th, offset=None):
         built.append(1)
-        return model_torque_rows(r, th, q)
+        return model_torque_rows(r, th, offset)
 
     monkeypatch.setattr(encoder, "model_torque_rows", counted)
     effect = encoder.EncoderOffset()

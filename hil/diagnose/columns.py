@@ -250,6 +250,7 @@ def _momentum_rows(
     half_window: int = 1,
     model: ArmDynamics = NINE_PARAMETERS,
     torque_side: bool = True,
+    v: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Unfiltered interval rows: k, τ_k + (b_{k+1} − b_k)/h_k (K, 2) (b the held torque's bias
     of the estimated momentum, :func:`hil.model.regressors.held_torque_momentum_bias`),
@@ -258,7 +259,8 @@ def _momentum_rows(
     interval its own h_k). Built ROW_CHUNK samples at a time, each piece with enough neighbours
     either side for its velocities (an interval's row depends only on the samples around it),
     so memory is O(N·p). ``torque_side`` False: the y returned is τ_k alone (for a caller of
-    Ψ only: the bias takes a local fit per sample)."""
+    Ψ only: the bias takes a local fit per sample); ``v``: the sample velocities (N, n), when
+    known (:func:`hil.model.regressors.kinematics`)."""
     n = len(q)
     margin = half_window + 2
     parts = []
@@ -270,7 +272,15 @@ def _momentum_rows(
         b = min(a + ROW_CHUNK, n)
         lo, hi = max(0, a - margin), min(n, b + margin)
         piece_t = None if t is None else t[lo:hi]
-        kin = kinematics("exact", q[lo:hi], h, model=model, t=piece_t, half_window=half_window)
+        kin = kinematics(
+            "exact",
+            q[lo:hi],
+            h,
+            model=model,
+            t=piece_t,
+            half_window=half_window,
+            v=None if v is None else v[lo:hi],
+        )
         raw = raw_rows("filtered_dynamic", "exact", q[lo:hi], tau[lo:hi], h, kin)
         assert kin.intervals is not None
         k = kin.intervals.k + lo
@@ -314,15 +324,20 @@ class _TorqueOf:
 
 
 def model_torque_rows(
-    rows: RecordingRows, theta: np.ndarray, q: np.ndarray | None = None
+    rows: RecordingRows, theta: np.ndarray, offset: np.ndarray | None = None
 ) -> np.ndarray:
-    """Ψ θ (K, n) of ``rows``' intervals before the filter F, with the encoder readings ``q``
-    (default the recording's): the model's torque rows, built from its torques (:class:`_TorqueOf`)
-    over the same intervals, velocities and time stamps as Ψ, not from Ψ's p columns (an
-    n-joint arm's regressor is its costliest step)."""
+    """Ψ θ (K, n) of ``rows``' intervals before the filter F, with the encoder readings shifted
+    by the constant ``offset`` (n,) (default none): the model's torque rows, built from its
+    torques (:class:`_TorqueOf`) over the same intervals, velocities and time stamps as Ψ, not
+    from Ψ's p columns (an n-joint arm's regressor is its costliest step). A constant shift
+    leaves every velocity as it is: the recording's are used, not estimated again."""
     fixed = _TorqueOf(rows.model, np.asarray(theta, float)[: rows.model.n_params])
     args = (rows.h, rows.stamps, rows.half_window, fixed)
-    psi = _momentum_rows(rows.q if q is None else q, rows.tau, *args, torque_side=False)[2]
+    if offset is None:
+        q, v = rows.q, None
+    else:
+        q, v = rows.q + np.asarray(offset, float)[None, :], rows.v
+    psi = _momentum_rows(q, rows.tau, *args, torque_side=False, v=v)[2]
     return psi @ fixed.theta
 
 
@@ -609,8 +624,8 @@ def angle_offset_column(
     shift = np.zeros(rows.q.shape[1])
     shift[joint] = step_rad
     # Ψθ before the filter (F is linear): (K, 2), not two (K, 2, 9) filtered copies
-    plus = model_torque_rows(rows, theta, rows.q + shift)
-    minus = model_torque_rows(rows, theta, rows.q - shift)
+    plus = model_torque_rows(rows, theta, shift)
+    minus = model_torque_rows(rows, theta, -shift)
     return -moving_average((plus - minus) / (2 * step_rad), rows.window)[:, :, None]
 
 

@@ -546,6 +546,7 @@ def kinematics(
     half_window: int = 1,
     keep: tuple[int, int] | None = None,
     static: bool = True,
+    v: np.ndarray | None = None,
 ) -> Kinematics:
     """Velocities (backward difference for ``paper``, central for ``exact``) and, for
     ``exact``, the integrals over every interval with both end velocities known. ``t``: the
@@ -553,18 +554,21 @@ def kinematics(
     sample's own interval); ``half_window`` > 1: velocities
     by :func:`local_polynomial_velocity` over 2·half_window + 1 samples (real times only);
     ``keep`` = (i, j): only intervals i..j−1 of the window (chunked building); ``static``
-    False: without ∫ R dt (rows of the energy and power schemes only)."""
+    False: without ∫ R dt (rows of the energy and power schemes only); ``v``: the sample
+    velocities, when known (``exact``): positions shifted by a constant per joint (an encoder
+    offset) have the velocities of the unshifted ones, and estimating them again cost a
+    7-joint arm's encoder search a third of its row builds."""
     if discretization == "paper":
         if t is None:
             return Kinematics(backward_difference(q, h), None, model)
         dt = np.diff(np.asarray(t, dtype=float))
         return Kinematics(backward_difference(q, dt), None, model, dt)
     if t is None:
-        v = central_difference(q, h)
+        v = central_difference(q, h) if v is None else v
         return Kinematics(v, interval_integrals(q, v, h, model, static=static), model)
     t = np.asarray(t, dtype=float)
     dt = np.diff(t)
-    v = sample_velocities(q, h, t, half_window)
+    v = sample_velocities(q, h, t, half_window) if v is None else np.array(v, dtype=float)
     if keep is not None:  # intervals outside keep lose an end velocity, hence their rows
         v[: keep[0]] = np.nan
         v[keep[1] + 1 :] = np.nan

@@ -43,9 +43,9 @@ def model_torque_at(ctx: Context, joint: int, delta: float) -> np.ndarray:
         return ctx.memo[key]
 
     def rows(r):
-        q = r.q.copy()
-        q[:, joint] -= delta
-        return moving_average(model_torque_rows(r, ctx.theta0, q), r.window)
+        offset = np.zeros(r.q.shape[1])
+        offset[joint] = -delta
+        return moving_average(model_torque_rows(r, ctx.theta0, offset), r.window)
 
     while len(ctx.memo) >= memo_size(ctx.n_joints):  # the least recently used goes, but
         del ctx.memo[next(k for k in ctx.memo if k[2] != STEP_RAD)]  # never a first column
