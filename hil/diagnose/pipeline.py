@@ -224,7 +224,7 @@ def diagnose(
         if all(j in live for j in joints_of(c)) and (c.kind != "gain" or len(live) >= 2)
     ]
     nominal_se = jackknife_se(
-        cross_validate(block_stats(prob.Psi, prob.y, prob.w, prob.blocks)).fold_beta
+        cross_validate(block_stats(prob.design_groups([]), prob.y, prob.w, prob.blocks)).fold_beta
     )
     nominal_unphysical = physical_theta(theta_fit, nominal_se, model)[1]
     rejected: dict[str, str] = {}

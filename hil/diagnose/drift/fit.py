@@ -336,7 +336,7 @@ def torque_errors(fit: Fit, terms: Sequence[Term]) -> dict[str, list[float | Non
         preds["nominal_with_drift"] = pred0 + drift
     else:
         preds["nominal_with_drift"] = pred0
-    theta = fit_theta(prob.Psi, prob.y, w_train)
+    theta = fit_theta(prob.Psi, prob.y, w_train, overwrite_design=True)  # Psi: a fresh copy
     preds["refit"] = prob.Psi_raw @ theta
     out: dict[str, list[float | None]] = {}
     for name, pred in preds.items():

@@ -45,7 +45,14 @@ from hil.diagnose.drift.terms import Nominal, Term
 from hil.diagnose.physical import jackknife_se
 from hil.diagnose.problem import build_problem
 from hil.diagnose.selection import FAMILY_ALPHA
-from hil.diagnose.stats import RIDGE, BlockStats, CrossValidation, block_stats, cross_validate
+from hil.diagnose.stats import (
+    RIDGE,
+    BlockStats,
+    CrossValidation,
+    ScaledRows,
+    block_stats,
+    cross_validate,
+)
 from hil.model.estimators import bounded_quadratic_fit
 
 # A pattern whose columns keep less than this fraction of their energy outside θ's columns
@@ -57,8 +64,7 @@ OUTSIDE_THETA = 100 * RIDGE
 def _with_theta(fit: Fit, terms: Sequence[Term]) -> tuple[CrossValidation, BlockStats]:
     """The terms fitted together with a free change of θ (Ψ's columns, scaled as the rows) on
     ``fit``'s rows: coefficients [δθ, β]; and the statistics of that design."""
-    Psi = fit.prob.Psi_raw / fit.scale[None, :, None]
-    Z = np.concatenate([Psi, fit.design(terms)], axis=-1)
+    Z = [ScaledRows(fit.prob.Psi_raw, fit.scale), fit.design(terms)]  # no joined copy
     stats = block_stats(Z, fit.target(terms), fit.prob.w, fit.prob.blocks)
     return cross_validate(stats), stats
 
@@ -114,15 +120,16 @@ def motion_spread(fit: Fit, term: Term, nominal: Nominal) -> np.ndarray | None:
     # the normal equations of θ (rows scaled to unit noise per joint)
     pooled = make_fit(ref, model, theta0, nominal.terms, nominal.geometry)
     target = (ref.Psi_raw @ theta0 + pooled.residual) / ref.scale
-    Z, w = ref.Psi, ref.w
-    ends = np.cumsum([0] + [len(r.y) for r in ref.rows])
-    parts = [
-        (
-            np.einsum("knp,knq,kn->pq", Z[a:b], Z[a:b], w[a:b], optimize=True),
-            np.einsum("knp,kn,kn->p", Z[a:b], target[a:b], w[a:b], optimize=True),
+    w, ends = ref.w, np.cumsum([0] + [len(r.y) for r in ref.rows])
+    parts = []
+    for a, b in pairwise(ends):
+        Z = ref.Psi_raw[a:b] / ref.scale[None, :, None]  # one reference's rows at a time
+        parts.append(
+            (
+                np.einsum("knp,knq,kn->pq", Z, Z, w[a:b], optimize=True),
+                np.einsum("knp,kn,kn->p", Z, target[a:b], w[a:b], optimize=True),
+            )
         )
-        for a, b in pairwise(ends)
-    ]
     H, g = sum(h for h, _ in parts), sum(v for _, v in parts)
     lower = np.full(model.n_params, -np.inf)
     lower[list(model.nonnegative_columns)] = 0.0
