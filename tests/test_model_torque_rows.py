@@ -1,6 +1,7 @@
 """The nominal model's torque rows from its torques, not its regressor (issue 26, performance):
-UrdfArmModel.momentum / static_torque against the regressors' products, the encoder-offset
-column against its definition from the rebuilt regressor rows, and the memo of shifted rows."""
+UrdfArmModel.momentum / static_torque against the regressors' products, the encoder offset's
+rows at any angle against their definition from the rebuilt regressor rows, and the builds
+they take."""
 
 from __future__ import annotations
 
@@ -9,7 +10,13 @@ import pytest
 
 import hil.diagnose.effects.encoder as encoder
 import hil.model.urdf_dynamics as urdf_dynamics
-from hil.diagnose.columns import _momentum_rows, model_torque_rows, moving_average, recording_rows
+from hil.diagnose.columns import (
+    _momentum_rows,
+    model_torque_rows,
+    moving_average,
+    recording_rows,
+    rigid_torque_rows,
+)
 from hil.diagnose.effects.base import REFINE_STEPS, Context
 from hil.model.closed_form import ArmModel
 from hil.model.urdf import UrdfArmModel
@@ -59,8 +66,8 @@ def _regressor_rows(rows, theta, q) -> np.ndarray:
 @pytest.mark.parametrize("irregular", [False, True])
 def test_a_constant_shift_moves_no_velocity(cicese3, irregular):
     """The velocities estimated from readings shifted by a constant per joint are those of
-    the readings (to rounding), which :func:`model_torque_rows` reuses instead of estimating
-    them again."""
+    the readings (to rounding), which the shifted rows reuse instead of estimating them
+    again."""
     rows = _rows(cicese3, irregular=irregular)
     offset = np.array([0.03, -0.05, 0.2])[: rows.q.shape[1]]
     args = (rows.h, rows.stamps, rows.half_window, rows.model)
@@ -147,71 +154,85 @@ def test_model_torque_rows_equal_the_regressor_rows(name, irregular, cicese3, pa
     q[:, -1] -= 0.04
     offset = np.zeros(rows.q.shape[1])
     offset[-1] = -0.04
-    exact = _regressor_rows(rows, theta, q)  # the velocities estimated again from q
+    exact = _regressor_rows(rows, theta, q)
     np.testing.assert_allclose(
         model_torque_rows(rows, theta, offset), exact, rtol=0, atol=1e-12 * abs(exact).max()
     )
 
 
 @pytest.mark.parametrize("irregular", [False, True])
-def test_encoder_column_equals_its_regressor_definition(cicese3, irregular):
-    """The column d/dδ F[Ψ(q − δ e_j) θ₀] (forward difference at δ̂) and the shift at δ̂, as
-    they were defined from the rebuilt regressor rows, on every joint: the rows agree to
-    1e-13, the column to 1e-8 of its size, its own rounding (ε |P|/h of the momentum
-    difference of each row, divided by STEP_RAD: 1e-16 · 1e3 / 1e-4 ≈ 1e-9 of P's size)."""
-    rows = _rows(cicese3, irregular=irregular)
-    theta = _theta(cicese3)
+@pytest.mark.parametrize("name", ["cicese3", "panda", "tree", "closed_form"])
+def test_encoder_rows_at_any_angle_equal_the_rebuilt_regressor_rows(
+    name, irregular, cicese3, panda, tree
+):
+    """The shift F[Ψ(q − δ e_j) θ₀] − F[Ψ(q) θ₀] from the few builds of :func:`shifted_rows`
+    (a trigonometric polynomial of degree 2 in a revolute joint's δ, a quadratic in a
+    prismatic one's) equals the regressor rows rebuilt at the shifted readings, at angles
+    small and large, on every joint (the tree: a prismatic joint, an unaligned axis and two
+    branches; the closed form with both of its terms), to 1e-10 of the rows' size (rounding:
+    the builds are at angles up to 144°); the column, its derivative, equals their central
+    difference to the difference's own error."""
+    model = {
+        "cicese3": cicese3,
+        "panda": panda,
+        "tree": tree,
+        "closed_form": ArmModel(("rotor_inertia", "com_offset")),
+    }[name]
+    rows = _rows(model, N=300, irregular=irregular)
+    theta = _theta(model) if name != "closed_form" else np.linspace(0.05, 0.5, model.n_params)
     psi = rows.Psi  # the filtered design, as the drift stage's Problem.Psi_raw
-    ctx = Context([rows], cicese3, theta, psi)
+    ctx = Context([rows], model, theta, psi)
     effect = encoder.EncoderOffset()
-    s = encoder.STEP_RAD
+    size = abs(psi @ theta).max()
 
-    def old(joint: int, delta: float) -> np.ndarray:
-        if delta == 0.0:
-            return psi @ theta
+    def rebuilt(joint: int, delta: float) -> np.ndarray:
         q = rows.q.copy()
         q[:, joint] -= delta
         return moving_average(_regressor_rows(rows, theta, q), rows.window)
 
-    for joint in range(cicese3.n_joints):
-        for at in (0.0, 0.03):
-            column = (old(joint, at + s) - old(joint, at)) / s
-            got = effect.columns(ctx, joint, at)[:, :, 0]
-            assert abs(column).max() > 0
-            np.testing.assert_allclose(got, column, rtol=0, atol=1e-8 * abs(column).max())
-        shift = old(joint, 0.03) - psi @ theta
-        np.testing.assert_allclose(
-            effect.shift(ctx, joint, 0.03), shift, rtol=0, atol=1e-13 * abs(psi @ theta).max()
-        )
+    moved = []
+    for joint in range(model.n_joints):
+        at_zero = rebuilt(joint, 0.0)
+        for at in (0.03, -0.4, 2.5):
+            shift = rebuilt(joint, at) - at_zero
+            moved.append(abs(shift).max())  # none about the Panda's vertical first axis
+            np.testing.assert_allclose(
+                effect.shift(ctx, joint, at), shift, rtol=0, atol=1e-10 * size
+            )
+            s = 1e-4  # central difference: error s² |f'''| / 6 and ε |f| / s
+            central = (rebuilt(joint, at + s) - rebuilt(joint, at - s)) / (2 * s)
+            np.testing.assert_allclose(
+                effect.columns(ctx, joint, at)[:, :, 0], central, rtol=0,
+                atol=1e-7 * abs(central).max() + 1e-10 * size,
+            )  # fmt: skip
+        assert effect.shift(ctx, joint, 0.0) is None
+    assert max(moved) > 0.01 * size
 
 
-def test_memo_keeps_every_joints_start_through_a_refinement(panda, monkeypatch):
-    """A 7-joint selection builds every joint's first column, refines candidates (two rows per
-    Gauss–Newton point) and starts again: the first columns and the latest points are kept."""
+def test_encoder_rows_are_built_once_per_joint(panda, monkeypatch):
+    """A selection builds every joint's column, refines (Gauss–Newton points) and starts
+    again: the model's torques are built once unshifted and four times per joint (the
+    Fourier angles), and no more however many points are asked."""
     rows = _rows(panda, N=400)
     ctx = Context([rows], panda, panda.base_theta(), rows.Psi)
     built = []
 
-    def counted(r, th, offset=None):
+    def counted(r, th, shift=None):
         built.append(1)
-        return model_torque_rows(r, th, offset)
+        return rigid_torque_rows(r, th, shift)
 
-    monkeypatch.setattr(encoder, "model_torque_rows", counted)
+    monkeypatch.setattr(encoder, "rigid_torque_rows", counted)
     effect = encoder.EncoderOffset()
     for joint in range(7):
         effect.columns(ctx, joint, 0.0)
-    assert len(built) == 7
-    for refined in (2, 4):  # two candidates refined, 16 shifted rows
+    assert len(built) == 1 + 4 * 7
+    for refined in (2, 4):
         for step in range(1, REFINE_STEPS + 1):
             effect.columns(ctx, refined, 0.01 * step)
             effect.shift(ctx, refined, 0.01 * step)
-    assert len(built) == 7 + 4 * REFINE_STEPS
     for joint in range(7):
         effect.columns(ctx, joint, 0.0)
-    assert len(built) == 7 + 4 * REFINE_STEPS  # nothing rebuilt
-    effect.columns(ctx, 4, 0.01 * REFINE_STEPS)  # the last point: still kept
-    assert len(built) == 7 + 4 * REFINE_STEPS
-    assert len(ctx.memo) <= encoder.memo_size(7)
+    assert len(built) == 1 + 4 * 7
 
 
 def test_many_states_are_computed_in_chunks_with_the_same_result(panda, monkeypatch):

@@ -341,6 +341,33 @@ def model_torque_rows(
     return psi @ fixed.theta
 
 
+def rigid_torque_rows(
+    rows: RecordingRows, theta: np.ndarray, shift: np.ndarray | None = None
+) -> np.ndarray:
+    """The rigid bodies' part of Ψ θ (K, n) before F, at the readings q + ``shift`` (n,):
+    [P(q_{k+1}, q̇_{k+1}) − P(q_k, q̇_k)]/h_k + Σ_g w_g R(q_g, q̇_g), the momentum balance of
+    :func:`_momentum_rows` (Reyes & Kelly (1997) eq. (24) over each interval) on the rows' own
+    samples, velocities and Gauss–Legendre nodes, with θ's friction left out (a constant shift
+    of the readings leaves every velocity, hence the friction columns, as they are). The
+    model's torques alone: the intervals' kinematics are not built again."""
+    model = rows.model
+    rigid = np.array(theta, float)[: model.n_params]
+    rigid[list(model.friction_columns)] = 0.0
+    d = np.zeros(rows.q.shape[1]) if shift is None else np.asarray(shift, float)
+    k = rows.k
+    at = np.union1d(
+        k, k + 1
+    )  # each sample's momentum once: the end of one interval, the next's start
+    P = model.momentum(rigid, rows.q[at] + d, rows.v[at])
+    P0, P1 = P[np.searchsorted(at, k)], P[np.searchsorted(at, k + 1)]
+    hk = rows.h if rows.stamps is None else np.diff(rows.stamps)[k][:, None]
+    nodes, K, n = rows.q_nodes.shape
+    R = model.static_torque(
+        rigid, (rows.q_nodes + d).reshape(-1, n), rows.v_nodes.reshape(-1, n)
+    ).reshape(nodes, K, n)
+    return (P1 - P0) / hk + _node_average(R)
+
+
 def row_weights(still: np.ndarray, h: float, window: int) -> np.ndarray:
     """Weights (K, n) of the filtered rows: 0 for a row whose window holds an interval that is
     ``still`` (K, n) or within STICK_GUARD_S of one, and for the first ``window`` − 1 rows

@@ -232,6 +232,16 @@ def _sse(G: np.ndarray, r: np.ndarray, s: np.ndarray, beta: np.ndarray) -> np.nd
     )
 
 
+def full_fit_sse(G: np.ndarray, r: np.ndarray, s: float) -> np.ndarray:
+    """The in-sample squared error of the full-data fit of each of many designs, from their
+    sums over all rows and joints G = Σ w zzᵀ (V, p, p), r = Σ w z y (V, p) and s = Σ w y²:
+    s − 2βᵀr + βᵀGβ at β from :func:`_solve` with the full data's ridge, the error
+    :func:`cross_validate` gives its full-data fit (``CrossValidation.sse``, summed over the
+    joints), (V,)."""
+    beta = _solve(G, r, column_scale(G))
+    return _sse(G, r, np.asarray(s, float), beta)
+
+
 @dataclass(frozen=True)
 class CrossValidation:
     """Held-out squared error of every block and joint (B, 2), the variant each fold chose, and

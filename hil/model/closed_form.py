@@ -311,6 +311,7 @@ class ArmModel:
     terms: tuple[str, ...] = ()
     n_joints = 2  # a class constant (no annotation: not a field), as UrdfArmModel.n_joints
     closed_form = True  # hil.model.protocol.ArmDynamics: the compiled 2-DOF simulator applies
+    revolute = (True, True)  # both joints turn
 
     def __post_init__(self) -> None:
         terms = tuple(self.terms)

@@ -29,6 +29,9 @@ class ArmDynamics(Protocol):
     closed_form: bool
     n_joints: int
     terms: tuple[str, ...]
+    #: per joint, True where it turns (its coordinate an angle), False where it slides: how the
+    #: torques depend on a shift of that joint's reading (:mod:`hil.diagnose.effects.encoder`)
+    revolute: tuple[bool, ...]
 
     @property
     def names(self) -> tuple[str, ...]: ...

@@ -113,6 +113,7 @@ class UrdfArmModel:
         self._free.gravity.linear = np.zeros(3)
         self._free_data = self._free.createData()
         self._chain = Chain(m)
+        self.revolute = self._chain.revolute  # hil.model.protocol.ArmDynamics
 
         def per_joint(x: ArrayLike | None, default: float, what: str) -> np.ndarray:
             a = np.full(n, default) if x is None else np.asarray(x, dtype=float)

@@ -151,6 +151,8 @@ class Chain:
             # revolute: R_P [a]× and R_P [a]×²; prismatic: R_P a (and zero)
             one, two = (R @ K, R @ K @ K) if revolute else (R @ s[:3], np.zeros(3))
             self._placements.append((revolute, R, p.copy(), one, two))
+        # per joint: turns (True) or slides (False)
+        self.revolute = tuple(bool(placed[0]) for placed in self._placements)
 
     def transforms(self, q: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
         """(L_j (3, 3, N), p_j (3, N) or (3, 1)) of each joint at configurations q (N, n)."""

@@ -28,10 +28,17 @@ from hil.diagnose.stats import (
     CrossValidation,
     block_stats,
     cross_validate,
+    full_fit_sse,
+    target_block_sums,
 )
 from hil.model.protocol import ArmDynamics
 
 STEP_HALVINGS = 4  # a Gauss–Newton step that raises the fit's error is halved at most this often
+# the starting points fitted one by one after the screen of all of them (:meth:`Fit.screen`):
+# the screen's sums and the fit's agree to rounding, which decides only between near-equal
+# fits; the fit of each decides among these
+SCREEN_KEPT = 3
+SCREEN_CHUNK_BYTES = 16 * 2**20  # the starts' columns held at once by the screen
 
 
 @dataclass
@@ -103,6 +110,22 @@ class Fit:
         the delay, decides each block there)."""
         if not (self.paired and self.reference is not None):
             return self.cv(terms)
+        cols, y, w = self.judged_rows(terms)
+        if not terms:
+            held = np.add.reduceat(w * y * y, self.starts, axis=0)
+            B = len(self.starts)
+            return CrossValidation(
+                held, np.zeros(B, int), np.zeros((B, 0)), 0, np.zeros(0), held.sum(axis=0)
+            )
+        return cross_validate(block_stats(np.concatenate(cols, axis=-1), y, w, self.prob.blocks))
+
+    def judged_rows(self, terms: Sequence[Term]) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+        """The scaled columns of each term (K, n, width), the target (K, n) and the weights
+        (K, n) that :meth:`judged_cv` fits: the recording's residual, or the paired difference
+        against the reference's rows."""
+        if not (self.paired and self.reference is not None):
+            cols = [t.cols / self.scale[None, :, None] for t in terms]
+            return cols, self.target(terms), self.prob.w
         ref = self.reference
         w = np.minimum(self.prob.w, ref.prob.w)
         r = self.residual - ref.residual
@@ -112,19 +135,12 @@ class Fit:
                 r = r - t.shift
             if back_shift is not None:
                 r = r + back_shift
-        y = r / self.scale
-        if not terms:
-            held = np.add.reduceat(w * y * y, self.starts, axis=0)
-            B = len(self.starts)
-            return CrossValidation(
-                held, np.zeros(B, int), np.zeros((B, 0)), 0, np.zeros(0), held.sum(axis=0)
-            )
         recorded = ref.prob.y_raw
         cols = []
         for t in terms:
             c = t.effect.paired_columns(self.ctx, t.joint, t.at, recorded)
             cols.append((t.cols if c is None else c) / self.scale[None, :, None])
-        return cross_validate(block_stats(np.concatenate(cols, axis=-1), y, w, self.prob.blocks))
+        return cols, r / self.scale, w
 
     def change(
         self, terms: Sequence[Term], beta: np.ndarray, beta_back: np.ndarray, se: np.ndarray
@@ -183,7 +199,7 @@ class Fit:
             starts = only.effect.starts(self.ctx, only.joint)
             if len(starts) > 1:
                 best = None
-                for s in starts:
+                for s in self.screen(terms, only, starts):
                     only.at = s
                     self.build(only)
                     only.cols = only.effect.point_columns(self.ctx, only.cols)
@@ -195,6 +211,49 @@ class Fit:
                 if self.reference is not None:  # the reference's rows of the starts not kept
                     self._ref_terms.pop(only.key, None)
         self._steps(terms, only)
+
+    def screen(self, terms: list[Term], only: Term, starts: list[Any]) -> list[Any]:
+        """Of ``only``'s starting points, the :data:`SCREEN_KEPT` whose columns fit best with
+        the other ``terms`` (the in-sample error :meth:`refine` compares them by), from one
+        pass over the columns of all of them (an effect's ``start_columns``: a cogging's
+        hundreds of periods; each built and fitted alone took a column build on both sides
+        and a blocked fit per period), in the order given; all of them where the effect has
+        no such columns or its columns at a start are not those the fit takes (a model
+        change at the point, the paired difference's own columns)."""
+        batched = getattr(only.effect, "start_columns", None)
+        if batched is None or len(starts) <= SCREEN_KEPT or only.shift is not None:
+            return starts
+        if self.paired and self.reference is not None:
+            recorded = self.reference.prob.y_raw
+            if only.effect.paired_columns(self.ctx, only.joint, only.at, recorded) is not None:
+                return starts
+        cols, y, w = self.judged_rows([t for t in terms if t is not only])
+        Z = np.concatenate(cols, axis=-1) if cols else np.zeros((*y.shape, 0))
+        p, j = Z.shape[-1], only.joint
+        G = np.einsum("kn,knp,knq->pq", w, Z, Z)
+        r = np.einsum("kn,knp,kn->p", w, Z, y)
+        s_all = float(np.sum(w * y * y))
+        # the starts' sums against the other columns and the target on joint j's rows, a
+        # chunk of starts at a time (:data:`SCREEN_CHUNK_BYTES`)
+        K, width = len(y), only.width
+        per = max(1, SCREEN_CHUNK_BYTES // (8 * K * width))
+        sse = []
+        for X in batched(self.ctx, j, starts, per):  # (K, V, width) on joint j's rows
+            X = X / self.scale[j]
+            V = X.shape[1]
+            uyx, xx = target_block_sums([Z[:, j, :], y[:, j, None]], X, w[:, j], [(0, K)])
+            cross = uyx[0, :p].reshape(p, V, width).transpose(1, 0, 2)  # (V, p, width)
+            full = np.empty((V, p + width, p + width))
+            full[:, :p, :p] = G
+            full[:, :p, p:] = cross
+            full[:, p:, :p] = cross.transpose(0, 2, 1)
+            full[:, p:, p:] = xx[0]
+            rhs = np.concatenate([np.broadcast_to(r, (V, p)), uyx[0, p].reshape(V, width)], 1)
+            sse.append(full_fit_sse(full, rhs, s_all))
+        err = np.concatenate(sse)
+        err = np.where(np.isfinite(err), err, np.inf)
+        kept = np.sort(np.argsort(err, kind="stable")[:SCREEN_KEPT])
+        return [starts[i] for i in kept]
 
     def _steps(self, terms: list[Term], only: Term | None) -> None:
         # a point that enters only its pattern's columns (a payload's centre) is stepped on

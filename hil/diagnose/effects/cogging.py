@@ -5,19 +5,21 @@ model lacks (a new motor, a magnet that moved, a damaged gear tooth).
 (:func:`hil.diagnose.columns.cogging_columns`, the refit's own columns), β = (A cos φ, A sin φ).
 The number of periods per revolution N is the linearisation point: every N the refit searches
 (:func:`hil.diagnose.candidates.cogging_periods`: at least two periods over the joint's angle
-range) is a start, and the one that fits best is kept (:meth:`Effect.starts`); N does not move
-after that. Its size is A relative to the joint's RMS model torque (one floor for a 0.5 Nm
-pendulum and an 87 Nm arm, like a gain's).
+range) is a start, and the one that fits best is kept (:meth:`Effect.starts`; all of them
+screened at once first, :meth:`Cogging.start_columns`); N does not move after that. Its size
+is A relative to the joint's RMS model torque (one floor for a 0.5 Nm pendulum and an 87 Nm
+arm, like a gain's).
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 
 from hil.diagnose.candidates import cogging_periods
-from hil.diagnose.columns import cogging_columns
+from hil.diagnose.columns import cogging_column_chunks, cogging_columns
 from hil.diagnose.effects.base import Context, Effect, r4, register
 
 
@@ -43,6 +45,19 @@ class Cogging(Effect):
 
     def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
         return ctx.stack(lambda r: cogging_columns(r, joint, float(at)))
+
+    def start_columns(
+        self, ctx: Context, joint: int, starts: list[Any], per: int
+    ) -> Iterator[np.ndarray]:
+        """The columns of many periods on ``joint``'s own rows, ``per`` periods at a time,
+        stacked over the recordings as :meth:`columns` stacks them: (K, ≤per, 2) arrays (one
+        complex exponential and a rotation per period,
+        :func:`hil.diagnose.columns.cogging_column_chunks`), for :meth:`hil.diagnose.drift.
+        fit.Fit.screen`."""
+        periods = [float(n) for n in starts]
+        chunks = [cogging_column_chunks(r, joint, periods, per) for r in ctx.rows]
+        for parts in zip(*chunks, strict=True):
+            yield parts[0] if len(parts) == 1 else np.concatenate(parts)
 
     def change_point(self, ctx: Context, joint: int | None, at: Any) -> Any:
         return at  # β holds the amplitude itself at N

@@ -1,12 +1,22 @@
 """Encoder zero offset on joint j: the reading is the true angle plus δ.
 
 The model holds at the true angle, q − δ e_j: y = Ψ(q − δ e_j) θ₀. Linearised at δ̂,
-Ψ(q − δ e_j) θ₀ ≈ Ψ(q − δ̂ e_j) θ₀ − (δ − δ̂) ∂(Ψθ₀)/∂q_j (a forward difference in δ of the
-rows rebuilt at the shifted angles, as :func:`hil.diagnose.columns.angle_offset_column`),
-refined by Gauss–Newton steps. One angle explains what would otherwise look like centres of
-mass off the link axes on every link beyond the joint (on the 2-DOF arm θ4⊥/θ4 = θ5⊥/θ5 = δ and
-θ2⊥ = 0 for joint 1): a joint held at a known angle (a level, the index pulse) tells the two
-apart.
+Ψ(q − δ e_j) θ₀ ≈ Ψ(q − δ̂ e_j) θ₀ − (δ − δ̂) ∂(Ψθ₀)/∂q_j, refined by Gauss–Newton steps. One
+angle explains what would otherwise look like centres of mass off the link axes on every link
+beyond the joint (on the 2-DOF arm θ4⊥/θ4 = θ5⊥/θ5 = δ and θ2⊥ = 0 for joint 1): a joint held
+at a known angle (a level, the index pulse) tells the two apart.
+
+The rows at every δ, and their derivative, come from a few builds of the model's torques per
+joint (:func:`shifted_rows`), not from rows rebuilt at each Gauss–Newton point. A shifted
+reading of a revolute joint turns the bodies beyond it by the fixed rotation
+E(δ) = 1 − sin δ [a]× + (1 − cos δ)[a]×² (Rodrigues): their positions, and velocities, are
+affine in E's entries, the kinetic energy is quadratic in them and the potential affine, so
+every torque of the rows (M q̇ and g − ∂K/∂q at each state, Reyes & Kelly (1997) eq. (13)) is a
+trigonometric polynomial of degree 2 in δ, in span{1, cos δ, sin δ, cos 2δ, sin 2δ}: its
+values at five equally spaced angles give it at every δ (the discrete Fourier transform of five
+samples, exact for frequencies up to 2). A prismatic joint's shift is a translation δ a,
+positions affine in δ, K quadratic: a polynomial of degree 2, from three values. The friction
+columns do not depend on δ (a constant shift leaves the velocities as they are).
 """
 
 from __future__ import annotations
@@ -15,42 +25,56 @@ from typing import Any
 
 import numpy as np
 
-from hil.diagnose.columns import model_torque_rows, moving_average
-from hil.diagnose.effects.base import REFINE_STEPS, Context, Effect, SimInput, r4, register
+from hil.diagnose.columns import RecordingRows, moving_average, rigid_torque_rows
+from hil.diagnose.effects.base import Context, Effect, SimInput, r4, register
 
-STEP_RAD = 1e-4  # the forward difference of ∂(Ψθ₀)/∂q_j
-
-
-def memo_size(n_joints: int) -> int:
-    """Shifted rows kept on a context: every joint's first column (its rows at STEP_RAD, where
-    each selection, its repeats after a failed gate and the confounding checks start again:
-    never evicted) and the two rows of each of the REFINE_STEPS + 1 points of a Gauss–Newton
-    refinement, the least recently used evicted first. 7 joints: 17 arrays (K, 7), 3.4 MB
-    each per minute at 1 kHz."""
-    return n_joints + 2 * (REFINE_STEPS + 1)
+# the angles a revolute joint's rows are built at (rad), and the basis's frequencies
+FOURIER_ANGLES = 2 * np.pi * np.arange(1, 5) / 5
+# the shifts a prismatic joint's rows are built at (its unit, m): any two give the quadratic
+SLIDE_STEPS = np.array([-1.0, 1.0])
 
 
-def model_torque_at(ctx: Context, joint: int, delta: float) -> np.ndarray:
-    """F[Ψ(q − δ e_j) θ₀] (K, n): the nominal model's rows at the true angles, from the
-    model's torques (:func:`hil.diagnose.columns.model_torque_rows`), kept on the context:
-    the column and the shift at one point share them, and the next selection starts again
-    from STEP_RAD."""
-    if delta == 0.0:
-        return ctx.Psi_raw @ ctx.theta0
-    key = ("encoder", joint, float(delta))
-    if key in ctx.memo:
-        ctx.memo[key] = ctx.memo.pop(key)  # the most recently used last
-        return ctx.memo[key]
-
-    def rows(r):
-        offset = np.zeros(r.q.shape[1])
-        offset[joint] = -delta
-        return moving_average(model_torque_rows(r, ctx.theta0, offset), r.window)
-
-    while len(ctx.memo) >= memo_size(ctx.n_joints):  # the least recently used goes, but
-        del ctx.memo[next(k for k in ctx.memo if k[2] != STEP_RAD)]  # never a first column
-    out = ctx.memo[key] = ctx.stack(rows)
+def _coefficients(r: RecordingRows, theta: np.ndarray, joint: int, base: np.ndarray) -> np.ndarray:
+    """C (K, n, 4) of one recording's rows, before F, with Ψ(q − δ e_j) θ − Ψ(q) θ = C φ(δ)
+    (:func:`basis`); ``base`` the rigid rows at δ = 0."""
+    e = np.zeros(r.q.shape[1])
+    e[joint] = 1.0
+    revolute = r.model.revolute[joint]
+    steps = FOURIER_ANGLES if revolute else SLIDE_STEPS
+    d = [rigid_torque_rows(r, theta, -s * e) - base for s in steps]  # f(δ_m) − f(0)
+    out = np.zeros((*base.shape, 4))
+    if revolute:  # a_k, b_k = (2/5) Σ_m f(δ_m) (cos, sin)(k δ_m); f(0) − f(0) = 0 adds nothing
+        for i, (k, trig) in enumerate(((1, np.cos), (1, np.sin), (2, np.cos), (2, np.sin))):
+            out[..., i] = 0.4 * sum(dm * trig(k * s) for dm, s in zip(d, steps, strict=True))
+    else:  # f(δ) − f(0) = a δ + b δ²
+        (s0, s1), (d0, d1) = steps, d
+        out[..., 0] = (d1 * s0**2 - d0 * s1**2) / (s1 * s0 * (s0 - s1))
+        out[..., 1] = (d1 * s0 - d0 * s1) / (s1 * s0 * (s1 - s0))
     return out
+
+
+def basis(revolute: bool, delta: float) -> tuple[np.ndarray, np.ndarray]:
+    """φ(δ) (4,) with Ψ(q − δ e_j) θ − Ψ(q) θ = C φ(δ) (:func:`shifted_rows`), and dφ/dδ."""
+    if revolute:  # cos δ − 1 as −2 sin²(δ/2): no cancellation at small δ
+        s1, c1, s2, c2 = np.sin(delta), np.cos(delta), np.sin(2 * delta), np.cos(2 * delta)
+        value = [-2 * np.sin(delta / 2) ** 2, s1, -2 * s1**2, s2]
+        return np.array(value), np.array([-s1, c1, -2 * s2, 2 * c2])
+    return np.array([delta, delta**2, 0.0, 0.0]), np.array([1.0, 2 * delta, 0.0, 0.0])
+
+
+def shifted_rows(ctx: Context, joint: int) -> np.ndarray:
+    """C (K, n, 4), filtered and stacked as the design, with
+    F[Ψ(q − δ e_j) θ₀] − F[Ψ(q) θ₀] = C φ(δ) at every δ (:func:`basis`; module doc): built
+    once per joint and kept on the context, with the unshifted rigid rows all joints share."""
+    key = ("encoder", joint)
+    if key not in ctx.memo:
+        if ("encoder", None) not in ctx.memo:
+            ctx.memo[("encoder", None)] = [rigid_torque_rows(r, ctx.theta0) for r in ctx.rows]
+        base = iter(ctx.memo[("encoder", None)])
+        ctx.memo[key] = ctx.stack(
+            lambda r: moving_average(_coefficients(r, ctx.theta0, joint, next(base)), r.window)
+        )
+    return ctx.memo[key]
 
 
 class EncoderOffset(Effect):
@@ -72,14 +96,17 @@ class EncoderOffset(Effect):
         return 0.0
 
     def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
-        # d/dδ of F[Ψ(q − δ e_j) θ₀] at δ̂ (forward difference: one row build, not two)
-        ahead = model_torque_at(ctx, joint, at + STEP_RAD)
-        return ((ahead - model_torque_at(ctx, joint, at)) / STEP_RAD)[:, :, None]
+        # d/dδ of F[Ψ(q − δ e_j) θ₀] at δ̂
+        assert joint is not None
+        _value, slope = basis(ctx.model.revolute[joint], float(at))
+        return (shifted_rows(ctx, joint) @ slope)[:, :, None]
 
     def shift(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray | None:
         if not at:
             return None
-        return model_torque_at(ctx, joint, at) - ctx.Psi_raw @ ctx.theta0
+        assert joint is not None
+        value, _slope = basis(ctx.model.revolute[joint], float(at))
+        return shifted_rows(ctx, joint) @ value
 
     def update(self, ctx, joint, beta, at):
         return float(at + beta[0])
