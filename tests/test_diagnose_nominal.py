@@ -306,6 +306,38 @@ def test_reference_diagnosis_builds_each_recordings_rows_once(arm, capsys, monke
     assert json.dumps(doc, sort_keys=True) == json.dumps(again, sort_keys=True)
 
 
+def test_the_references_encoder_rows_are_built_once(arm, capsys, monkeypatch):
+    """``--reference``: the encoder rows of the reference's rows, built while its model is
+    identified, are reused when the reference is judged against the same θ (issue 26, the
+    Panda pair's CPU time): each recording's rows, joint and θ built once. (The reference's
+    own departures are set aside here, as when it shows none, so that θ stays the one the
+    rows were built at.)"""
+    import importlib
+
+    import hil.diagnose.effects.encoder as encoder
+
+    judge = importlib.import_module("hil.diagnose.drift.judge")  # the package names a function so
+    built = []
+    real_coefficients, real_select = encoder._coefficients, judge.select_terms
+
+    def counted(r, theta, joint, base):
+        built.append((id(r), hash(theta.tobytes()), joint))
+        return real_coefficients(r, theta, joint, base)
+
+    def reference_shows_nothing(fit, cands, say, **kw):
+        accepted, seen = real_select(fit, cands, say, **kw)
+        return ([], seen) if not kw else (accepted, seen)
+
+    monkeypatch.setattr(encoder, "_coefficients", counted)
+    monkeypatch.setattr(judge, "select_terms", reference_shows_nothing)
+    doc = _diagnose(
+        capsys, str(arm["angle"]), "--robot", "cicese", "--reference", str(arm["null_a"])
+    )
+    assert ("encoder_offset", 1) in _drift(doc), doc["summary"]
+    assert len({b[0] for b in built}) == 2  # the recording's rows and the reference's
+    assert len(built) == len(set(built)), built
+
+
 def test_refit_findings_on_joints_a_change_reaches_are_set_aside():
     """Against references, the refit of the recording alone (θ free, no vocabulary of changes)
     takes a change as whatever it can name: an encoder angle on DFKI A.0's joint 2 became a lag

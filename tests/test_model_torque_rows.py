@@ -235,6 +235,43 @@ def test_encoder_rows_are_built_once_per_joint(panda, monkeypatch):
     assert len(built) == 1 + 4 * 7
 
 
+@pytest.mark.parametrize("name", ["cicese3", "panda", "tree"])
+def test_batched_regressor_rows_equal_pinocchio_state_by_state(name, cicese3, panda, tree):
+    """The momentum and static rows of the bodies' parameters, computed for many states at once
+    through the kinematic tree (urdf_dynamics.Chain), equal Pinocchio's, state by state: M(q) q̇
+    its joint torque regressor without gravity at q̈ = q̇, q̇ = 0; g(q) at rest; ∂K/∂q its
+    kinetic energy regressor differenced in q (a tree with a prismatic joint too), over more
+    states than one pass of the batched rows holds."""
+    import pinocchio as pin
+
+    import hil.model.urdf as urdf
+
+    model = {"cicese3": cicese3, "panda": panda, "tree": tree}[name]
+    n, nb = model.n_joints, model.n_body_params
+    N = urdf.REGRESSOR_STATES_PER_CHUNK + 5
+    q = RNG.uniform(-np.pi, np.pi, (N, n))
+    dq = RNG.normal(0, 2, q.shape)
+    momentum = model._standard_momentum(q, dq)[..., :nb]
+    static = model._standard_static(q, dq)[..., :nb]
+    free = pin.Model(model._model)
+    free.gravity.linear = np.zeros(3)
+    free_data, data = free.createData(), model._model.createData()
+    zero, step = np.zeros(n), 1e-6
+    for k in RNG.choice(N, 40, replace=False):
+        P = pin.computeJointTorqueRegressor(free, free_data, q[k], zero, dq[k])
+        np.testing.assert_allclose(momentum[k], P, rtol=0, atol=1e-12 * abs(P).max())
+        g = pin.computeJointTorqueRegressor(model._model, data, q[k], zero, zero)
+        dK = np.empty((n, nb))
+        for i in range(n):
+            e = np.zeros(n)
+            e[i] = step
+            dK[i] = (
+                pin.computeKineticEnergyRegressor(free, free_data, q[k] + e, dq[k])
+                - pin.computeKineticEnergyRegressor(free, free_data, q[k] - e, dq[k])
+            ) / (2 * step)
+        np.testing.assert_allclose(static[k], g - dK, rtol=0, atol=1e-7 * abs(g - dK).max())
+
+
 def test_many_states_are_computed_in_chunks_with_the_same_result(panda, monkeypatch):
     """The recursions run over ``STATES_PER_CHUNK`` states at a time (60 s of a 7-joint arm at
     1 kHz at once peaked near 0.8 GB): the same torques as one pass, to the last bit."""

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.recording.columns import _Plan
+from drivers.recording.columns import ColumnPlan
 from drivers.recording.data import (
     GAP_FACTOR,
     IRREGULAR_FACTOR,
@@ -23,12 +23,12 @@ from drivers.recording.data import (
 from drivers.recording.format import SIGNALS, RecordingError
 
 
-def _assemble(
+def assemble(
     where: Path,
     csv_path: Path,
     data: np.ndarray,
     keep: list[str],
-    plan: _Plan,
+    plan: ColumnPlan,
     meta: dict[str, Any],
     dropped: bool,
     locate: Callable[[int], str] | None = None,
@@ -175,7 +175,7 @@ def _within(where: str, label: Path) -> str:
 MOSTLY_ZERO = 0.5  # a joint whose torque is exactly 0 in more than this share of rows is noted
 
 
-def _mostly_zero(columns: dict[str, np.ndarray], plan: _Plan) -> list[str]:
+def _mostly_zero(columns: dict[str, np.ndarray], plan: ColumnPlan) -> list[str]:
     """A note naming the joints whose torque is exactly zero in most rows (a joint without a
     drive or sensor, a logger writing 0 for 'no value'): to leave out, or to look at."""
     notes = []
@@ -199,7 +199,7 @@ def reassemble(rec: Recording, columns: dict[str, np.ndarray], note: str) -> Rec
     other notes that were not about the old time stamps are kept."""
     names = ["t", *(f"{p}{j + 1}" for p in ("q", "tau") for j in range(rec.n_joints))]
     keep = list(columns)
-    plan = _Plan(
+    plan = ColumnPlan(
         sources={name: name for name in names},
         n_joints=rec.n_joints,
         torque_source=rec.torque_source,
@@ -209,7 +209,7 @@ def reassemble(rec: Recording, columns: dict[str, np.ndarray], note: str) -> Rec
     )
     data = np.column_stack([np.asarray(columns[name], float) for name in keep])
     csv_path = rec.path / SIGNALS if rec.path.is_dir() else rec.path
-    out = _assemble(rec.path, csv_path, data, keep, plan, rec.meta, False)
+    out = assemble(rec.path, csv_path, data, keep, plan, rec.meta, False)
     timing = ("gap(s) in t", "irregular sampling")
     old = [f for f in rec.findings_on_read if not any(w in f for w in timing)]
     out.findings_on_read = [note, *old, *out.findings_on_read]
@@ -220,7 +220,7 @@ def _check_times(
     csv_path: Path,
     t: np.ndarray,
     dt: np.ndarray,
-    plan: _Plan,
+    plan: ColumnPlan,
     meta: dict[str, Any],
     findings: list[str],
 ) -> list[int]:

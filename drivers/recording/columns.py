@@ -1,6 +1,6 @@
 """Column maps: which file columns become t, q1..qN, tau1..tauN (a recording-format profile,
 ``--columns``, ``--torque``, ``--leave-out-joints``, ``--ignore-columns``), the torque scale and
-the loop delay the rows are realigned by (:func:`_plan`, :func:`parse_column_map`).
+the loop delay the rows are realigned by (:func:`column_plan`, :func:`parse_column_map`).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from profiles.recording_format import (
 
 
 @dataclass
-class _Plan:
+class ColumnPlan:
     """Which file columns become t, q1..qN, tau1..tauN, and how the torque is aligned."""
 
     sources: dict[str, str]  # canonical name -> file column
@@ -38,7 +38,7 @@ class _Plan:
     notes: list[str] = field(default_factory=list)  # what the plan did, for findings_on_read
 
 
-def _ignored(
+def ignored_columns(
     fmt: str | Path | RecordingFormat | None, ignore: Sequence[str] | None
 ) -> tuple[str, ...]:
     """The columns (or groups) not to read: ``ignore`` and the format's layouts' (all of them:
@@ -51,21 +51,21 @@ def _ignored(
     return tuple(names)
 
 
-def _kept(
-    label: Path, header: list[str], plan: _Plan, extra_columns: bool, ignored: tuple[str, ...]
+def kept_columns(
+    label: Path, header: list[str], plan: ColumnPlan, extra_columns: bool, ignored: tuple[str, ...]
 ) -> list[str]:
     """The file's columns to read: the plan's, and the others unless ``extra_columns`` is off or
     they are ignored (a column the plan uses may not be ignored)."""
     used = list(dict.fromkeys(plan.sources.values()))
-    clash = [c for c in used if _is_ignored(c, ignored)]
+    clash = [c for c in used if is_ignored(c, ignored)]
     if clash:
         raise RecordingError(f"{label}: column {clash[0]} is both read and ignored")
     if not extra_columns:
         return used
-    return [c for c in header if c in used or not _is_ignored(c, ignored)]
+    return [c for c in header if c in used or not is_ignored(c, ignored)]
 
 
-def _is_ignored(column: str, ignored: tuple[str, ...]) -> bool:
+def is_ignored(column: str, ignored: tuple[str, ...]) -> bool:
     """``column`` is named in ``ignored``, itself or as its group (``A`` for ``A[k]``)."""
     return any(column == g or column.startswith(g + "[") for g in ignored)
 
@@ -101,7 +101,7 @@ def parse_column_map(text: str | Mapping[str, str]) -> dict[str, str]:
     return out
 
 
-def _plan(
+def column_plan(
     csv_path: Path,
     header: list[str],
     meta: dict[str, Any],
@@ -111,7 +111,7 @@ def _plan(
     loop_delay: int | None,
     effort_scale: Sequence[float] | None = None,
     leave_out: Sequence[int] | None = None,
-) -> _Plan:
+) -> ColumnPlan:
     try:
         overrides = parse_column_map(columns) if columns is not None else {}
     except ValueError as exc:
@@ -249,7 +249,7 @@ def _plan(
     delay = int(loop_delay) if loop_delay is not None else default_delay
     own = fmt is None and sources["t"] == "t"
     identity = fmt is None and delay == 0 and not notes and all(k == v for k, v in sources.items())
-    return _Plan(
+    return ColumnPlan(
         sources=sources,
         n_joints=len(joints),
         torque_source=source_name,

@@ -40,7 +40,7 @@ MAX_LINE_CHARS = 128 * 1024
 # row or column named). Not tuned to any recording: any bound between the two arguments would do.
 MAX_ABS_VALUE = 1e6
 # meta.json fields an analysis reads, with the JSON types they must have
-_META_TYPES: dict[str, tuple[type, ...]] = {
+META_TYPES: dict[str, tuple[type, ...]] = {
     "period_s": (float, int),
     "rows": (int,),
     "status": (str,),
@@ -58,7 +58,7 @@ _META_TYPES: dict[str, tuple[type, ...]] = {
 }
 
 
-_JSON_NAMES = {int: "an integer", float: "a number", str: "a string", list: "a list",
+JSON_TYPE_NAMES = {int: "an integer", float: "a number", str: "a string", list: "a list",
                type(None): "null"}  # fmt: skip
 
 

@@ -18,13 +18,13 @@ from typing import Any
 import numpy as np
 
 from drivers import containers
-from drivers.recording.checks import _assemble
-from drivers.recording.columns import _ignored, _is_ignored, _kept, _plan
+from drivers.recording.checks import assemble
+from drivers.recording.columns import column_plan, ignored_columns, is_ignored, kept_columns
 from drivers.recording.data import (
-    _JSON_NAMES,
-    _META_TYPES,
     CHUNK_CHARS,
+    JSON_TYPE_NAMES,
     MAX_LINE_CHARS,
+    META_TYPES,
     PERIOD_MAX_S,
     PERIOD_MIN_S,
     Recording,
@@ -84,18 +84,18 @@ def read_signals(
         return _read_container(path, fmt, options, extra_columns, min_rows)
     csv_path = path / SIGNALS if path.is_dir() else path
     meta = _read_meta(path / META) if path.is_dir() and (path / META).is_file() else {}
-    ignored = _ignored(fmt, ignore)
+    ignored = ignored_columns(fmt, ignore)
     with _open_csv(csv_path) as f:
         try:
             header = _read_header(f, csv_path)
-            plan = _plan(
+            plan = column_plan(
                 csv_path, header, meta, fmt, columns, torque, loop_delay, effort_scale, leave_out
             )
-            keep = _kept(csv_path, header, plan, extra_columns, ignored)
+            keep = kept_columns(csv_path, header, plan, extra_columns, ignored)
             if len(set(header)) != len(header) and extra_columns:
                 dup = next(h for h in header if header.count(h) > 1)
                 raise RecordingError(f"{csv_path}: column {dup!r} appears twice in the header")
-            skip = {i for i, c in enumerate(header) if c not in keep and _is_ignored(c, ignored)}
+            skip = {i for i, c in enumerate(header) if c not in keep and is_ignored(c, ignored)}
             data, dropped = _parse_body(
                 f, csv_path, header, [header.index(c) for c in keep], skip, progress
             )
@@ -104,7 +104,7 @@ def read_signals(
         except OSError as exc:
             raise RecordingError(f"{csv_path}: cannot read ({exc.strerror})") from None
     where = csv_path.parent if path.is_dir() else csv_path
-    rec = _assemble(where, csv_path, data, keep, plan, meta, dropped)
+    rec = assemble(where, csv_path, data, keep, plan, meta, dropped)
     return _enough(rec, csv_path, min_rows)
 
 
@@ -172,10 +172,10 @@ def _read_container(
     min_rows: int,
 ) -> Recording:
     """An .npz, .mcap or a directory of one CSV per quantity: a :class:`containers.Table`, then
-    the plan and the checks of every recording (:func:`_plan`, :func:`_assemble`)."""
+    the plan and the checks of every recording (:func:`column_plan`, :func:`assemble`)."""
     columns, torque, loop_delay, effort_scale, leave_out, ignore = options
     table, form = _container_table(path, fmt)
-    plan = _plan(
+    plan = column_plan(
         table.label,
         table.names,
         table.meta,
@@ -187,12 +187,14 @@ def _read_container(
         leave_out,
     )
     plan.own_grid = False  # a container's t is its own stamps, never this bench's grid
-    keep = _kept(table.label, table.names, plan, extra_columns, _ignored(form, ignore))
+    keep = kept_columns(
+        table.label, table.names, plan, extra_columns, ignored_columns(form, ignore)
+    )
     try:
         data, keep = table.load(keep, list(dict.fromkeys(plan.sources.values())))
     except containers.ContainerError as exc:
         raise RecordingError(str(exc)) from None
-    rec = _assemble(path, table.label, data, keep, plan, table.meta, False, table.locate)
+    rec = assemble(path, table.label, data, keep, plan, table.meta, False, table.locate)
     rec.findings_on_read[:0] = table.notes
     if table.torque_source is not None and torque is None and plan.torque_source != "columns":
         rec.torque_source = table.torque_source  # our own MCAP: the commanded, held torque
@@ -243,12 +245,14 @@ def _read_meta(meta_path: Path) -> dict[str, Any]:
         raise RecordingError(f"{meta_path}: cannot read ({exc.strerror})") from None
     if not isinstance(meta, dict):
         raise RecordingError(f"{meta_path}: not a JSON object")
-    for key, types in _META_TYPES.items():
+    for key, types in META_TYPES.items():
         if key not in meta:
             continue
         value = meta[key]
         if isinstance(value, bool) or not isinstance(value, types):
-            names = " or ".join(_JSON_NAMES[t] for t in types if not (t is int and float in types))
+            names = " or ".join(
+                JSON_TYPE_NAMES[t] for t in types if not (t is int and float in types)
+            )
             got = json.dumps(value)[:40]
             raise RecordingError(f"{meta_path}: field {key!r} must be {names}, got {got}")
     if "period_s" in meta:

@@ -40,7 +40,7 @@ import pinocchio as pin
 from numpy.typing import ArrayLike
 from scipy.linalg import qr
 
-from hil.model.urdf_dynamics import Chain, UrdfDynamics
+from hil.model.urdf_dynamics import Chain, UrdfDynamics, by_chunks
 from profiles.robot import UrdfRobotProfile, load_urdf_robot
 
 TERMS = ("rotor_inertia", "friction_offset")
@@ -52,6 +52,9 @@ BASE_SAMPLES = 400
 # A column is dependent when its pivot is below this fraction of the largest pivot. Structural
 # zeros come out near 1e-15 relative; genuine columns of real arms are above 1e-6.
 RANK_TOL = 1e-9
+# states per pass of the batched regressor rows: a pass holds ~n² × 30 floats a state (∂V_j/∂q_i
+# and the bilinear rows), 16 MB at 4096 states of a 7-joint arm
+REGRESSOR_STATES_PER_CHUNK = 4096
 # Configurations at which a base-parameter vector's M(q) must be positive definite.
 CONSISTENCY_SAMPLES = 256
 
@@ -214,32 +217,50 @@ class UrdfArmModel:
         )
         return Y.reshape(*lead, self.n_joints, -1)
 
+    # The momentum and static rows below come from the kinematic tree for many states at once
+    # (:class:`hil.model.urdf_dynamics.Chain`), not from Pinocchio one state at a time: a 60 s
+    # 7-joint recording asks for 10⁵–10⁶ states (tests/test_urdf.py checks them against
+    # Pinocchio's regressors). Body j's rows are bilinear in its motions, vᵀ I(π_j) w
+    # (:func:`_bilinear_inertia_regressor`), with J_j's column i the axis S_i carried to body
+    # j's frame, X_{j←i} S_i (zero where joint i does not move body j).
     def _standard_momentum(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-        # P θ = M(q) q̇: the torque regressor at rest, without gravity, with q̈ = q̇.
-        zero = np.zeros_like(q)
-        rigid = self._rigid_torque(True, q, zero, dq)
-        return np.concatenate([rigid, self._extra_columns(dq, None)], axis=-1)
+        # P θ = M(q) q̇: P_i = Σ_j (X_{j←i} S_i)ᵀ I_j V_j   (Featherstone (2008) eq. (2.63))
+        def rigid(q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+            X = self._chain.transforms(q)
+            axes, V = self._chain.axis_motions(X), self._chain.motions(X, dq.T)
+            return self._body_rows(axes, V[:, None])
+
+        rows = by_chunks(rigid, q, dq, REGRESSOR_STATES_PER_CHUNK)
+        return np.concatenate([rows, self._extra_columns(dq, None)], axis=-1)
+
+    def _body_rows(self, v: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """Σ-ready rows vᵀ I(π_j) w of motions ``v``, ``w`` broadcasting to (n_j, n_i, 6, N):
+        (N, n_i, 10 n_j), the joints' rows over the bodies' parameters."""
+        rows = _bilinear_inertia_regressor(np.moveaxis(v, -1, 0), np.moveaxis(w, -1, 0))
+        N = rows.shape[0]  # (N, n_j, n_i, 10): bodies first
+        return rows.transpose(0, 2, 1, 3).reshape(N, self.n_joints, self.n_body_params)
 
     def _kinetic_gradient(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-        """∂φ_K/∂q, (N, n, 10n): Σ_bodies vᵀ I ∂v/∂q_i, from Pinocchio's ∂v/∂q (LOCAL frame)."""
-        m, d, n = self._free, self._free_data, self.n_joints
-        N = len(q)
-        V = np.empty((N, n, 6))  # body j's spatial velocity (linear, angular), LOCAL
-        D = np.empty((N, n, n, 6))  # ∂v_j/∂q_i, indexed [k, j, i]
-        zero = np.zeros(n)
-        for k in range(N):
-            pin.computeForwardKinematicsDerivatives(m, d, q[k], dq[k], zero)
-            for j in range(n):
-                dv_dq, _ = pin.getJointVelocityDerivatives(m, d, j + 1, pin.LOCAL)
-                D[k, j] = dv_dq.T
-                V[k, j] = pin.getVelocity(m, d, j + 1, pin.LOCAL).vector
-        rows = _bilinear_inertia_regressor(V[:, :, None, :], D)  # (N, n_body, n_joint, 10)
-        return rows.transpose(0, 2, 1, 3).reshape(N, n, self.n_body_params)
+        """∂φ_K/∂q, (N, n, 10n): Σ_bodies V_jᵀ I_j ∂V_j/∂q_i, both in body j's frame."""
+
+        def rows(q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+            X = self._chain.transforms(q)
+            V = self._chain.motions(X, dq.T)
+            return self._body_rows(V[:, None], self._chain.velocity_derivatives(X, V))
+
+        return by_chunks(rows, q, dq, REGRESSOR_STATES_PER_CHUNK)
 
     def _standard_static(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-        zero = np.zeros_like(q)
-        rigid = self._rigid_torque(False, q, zero, zero) - self._kinetic_gradient(q, dq)
-        return np.concatenate([rigid, self._extra_columns(zero, dq)], axis=-1)
+        # g_i = Σ_j (X_{j←i} S_i)ᵀ I_j a_j, a_j the base's −g in body j's frame (the RNEA at
+        # rest, Featherstone (2008) §5.3), minus ∂K/∂q_i
+        def gravity(q: np.ndarray, _dq: np.ndarray) -> np.ndarray:
+            X = self._chain.transforms(q)
+            a = self._chain.motions(X, None, -self._model.gravity.linear)
+            return self._body_rows(self._chain.axis_motions(X), a[:, None])
+
+        rigid = by_chunks(gravity, q, dq, REGRESSOR_STATES_PER_CHUNK)
+        rigid -= self._kinetic_gradient(q, dq)
+        return np.concatenate([rigid, self._extra_columns(np.zeros_like(q), dq)], axis=-1)
 
     def _standard_kinetic(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         out = np.empty((len(q), self.n_body_params))

@@ -88,7 +88,7 @@ class UrdfDynamics:
         """M(q) q̇ at states (N, n), shape (N, n): S_iᵀ H_i + I_a q̇_i, with H_i the momentum of
         the bodies that joint i moves (:meth:`Chain.subtree_sums`; CRBA's M q̇, Featherstone
         (2008) §6.2)."""
-        return _by_chunks(self._momentum, q, dq)
+        return by_chunks(self._momentum, q, dq)
 
     def _momentum(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         chain = self._chain
@@ -106,7 +106,7 @@ class UrdfDynamics:
         frame-free product, taken in joint i's frame). Gravity is the bodies' force at the base
         acceleration −g: g_i = S_iᵀ G_i, G_i the subtree sum of I_j a_j (the RNEA at rest,
         Featherstone (2008) §5.3). The armature's ½ I_a q̇² does not depend on q."""
-        return _by_chunks(self._static_torque, q, dq)
+        return by_chunks(self._static_torque, q, dq)
 
     def _static_torque(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         chain = self._chain
@@ -186,6 +186,44 @@ class Chain:
                 out[j] += self.axes[j, :, None] * dq[j]
         return out
 
+    def subtree_motions(self, X: list, seeds: np.ndarray) -> np.ndarray:
+        """X_{j←i} u_i for every joint i and every body j it moves (j = i or beyond it),
+        (n_j, n_i, 6, N), zero for a body joint i does not move: ``seeds`` (n, 6, N) or
+        (n, 6, 1), u_i in joint i's frame, carried down the tree as :meth:`motions` carries a
+        parent's motion (Featherstone (2008) eq. (2.24)). Pinocchio numbers a parent before
+        its children."""
+        n = len(self.parents)
+        N = max(X[0][0].shape[-1], seeds.shape[-1])
+        out = np.zeros((n, n, 6, N))
+        moved = np.eye(n, dtype=bool)  # moved[j, i]: joint i moves body j
+        for j, parent in enumerate(self.parents):
+            if parent >= 0:
+                moved[j] |= moved[parent]
+        out[np.arange(n), np.arange(n)] = seeds
+        for j, ((L, p), parent) in enumerate(zip(X, self.parents, strict=True)):
+            for i in np.flatnonzero(moved[j, :j]):
+                v, w = out[parent, i, :3], out[parent, i, 3:]
+                out[j, i, :3] = _rotate_back(L, v + _cross(w, p))
+                out[j, i, 3:] = _rotate_back(L, w)
+        return out
+
+    def axis_motions(self, X: list) -> np.ndarray:
+        """J's columns in the bodies' frames: X_{j←i} S_i, (n_j, n_i, 6, N) (:meth:`subtree_motions`
+        of the joint axes): body j's velocity is Σ_i of them times q̇_i."""
+        return self.subtree_motions(X, self.axes[:, :, None])
+
+    def velocity_derivatives(self, X: list, V: np.ndarray) -> np.ndarray:
+        """∂V_j/∂q_i of the bodies' velocities ``V`` (n, 6, N) in their own frames, (n_j, n_i,
+        6, N): turning joint i turns the bodies beyond it about S_i, and in their own frames
+        their velocities change by X_{j←i}(V_i × S_i) (×: the spatial cross product of motions,
+        Featherstone (2008) eq. (2.31); the :meth:`UrdfDynamics.static_torque` argument)."""
+        S, W = self.axes.T[..., None], V.transpose(1, 0, 2)  # component first: (6, n, ·)
+        # [a; α] × [b; β] = [α × b + a × β; α × β], linear first
+        seeds = np.concatenate(
+            [_cross(W[3:], S[:3]) + _cross(W[:3], S[3:]), _cross(W[3:], S[3:])], axis=0
+        )
+        return self.subtree_motions(X, seeds.transpose(1, 0, 2))
+
     def subtree_sums(self, X: list, blocks: np.ndarray, motions: np.ndarray) -> np.ndarray:
         """Σ over the bodies that joint i moves of I_j m_j, (n, 6, N), in joint i's frame: each
         body's inertia ``blocks`` (n, 6, 6) times its motion, forces carried to the parent's
@@ -206,18 +244,19 @@ class Chain:
 STATES_PER_CHUNK = 32768
 
 
-def _by_chunks(
-    fn: Callable[[np.ndarray, np.ndarray], np.ndarray], q: np.ndarray, dq: np.ndarray
+def by_chunks(
+    fn: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    q: np.ndarray,
+    dq: np.ndarray,
+    chunk: int | None = None,
 ) -> np.ndarray:
-    """``fn`` (states (N, n) → (N, n)) over ``STATES_PER_CHUNK`` states at a time (each state's
-    result depends on that state alone)."""
-    if len(q) <= STATES_PER_CHUNK:
+    """``fn`` (states (N, n) → (N, ...)) over ``chunk`` states at a time (default
+    :data:`STATES_PER_CHUNK`; each state's result depends on that state alone)."""
+    chunk = STATES_PER_CHUNK if chunk is None else chunk
+    if len(q) <= chunk:
         return fn(q, dq)
     return np.concatenate(
-        [
-            fn(q[i : i + STATES_PER_CHUNK], dq[i : i + STATES_PER_CHUNK])
-            for i in range(0, len(q), STATES_PER_CHUNK)
-        ]
+        [fn(q[i : i + chunk], dq[i : i + chunk]) for i in range(0, len(q), chunk)]
     )
 
 

@@ -307,10 +307,14 @@ def make_fit(
     theta0: np.ndarray,
     baseline: Sequence[tuple] = (),
     geometry: dict[str, float] | None = None,
+    memo: dict | None = None,
 ) -> Fit:
     """The regression of ``prob``'s rows against θ₀ (with the ``baseline`` terms of the nominal
-    model, :attr:`Nominal.terms`, taken off the residual)."""
+    model, :attr:`Nominal.terms`, taken off the residual). ``memo``: rows effects built before
+    on the same rows at the same θ₀ (:attr:`Nominal.memo`)."""
     ctx = Context(prob.rows, model, theta0, prob.Psi_raw, geometry=geometry)
+    if memo is not None:
+        ctx.memo = memo
     residual = prob.y_raw - prob.Psi_raw @ theta0
     for name, joint, at, beta in baseline:
         effect = REGISTRY[name]

@@ -93,7 +93,9 @@ def nominal_from_reference(
     cands = drift_candidates(fit.ctx, reference=True)
     accepted, _ = select_terms(fit, cands, lambda m: say(m.replace("nominal model", "reference")))
     terms: list[tuple[str, int | None, Any, np.ndarray]] = []
+    memo = fit.ctx.memo  # built at this θ: kept while θ stays it
     if accepted:
+        memo = {}
         shifts = [t.shift for t in accepted if t.shift is not None]
         target = (prob.y_raw - (sum(shifts) if shifts else 0.0)) / prob.scale
         extra = fit.design(accepted) * (fit.scale / prob.scale)[None, :, None]
@@ -102,7 +104,9 @@ def nominal_from_reference(
         theta, boot = both[:p], boot[:, :p]
         for t, b in zip(accepted, fit.split(both[p:], accepted), strict=True):
             terms.append((t.effect.name, t.joint, t.at, b))
-    return Nominal(theta, model, "reference", why, boot.std(axis=0), boot, terms, prob, geometry)
+    return Nominal(
+        theta, model, "reference", why, boot.std(axis=0), boot, terms, prob, geometry, memo
+    )
 
 
 def _times(x: np.ndarray) -> str:
@@ -218,7 +222,10 @@ def judge(
     fit = make_fit(prob, model, theta0, nominal.terms, nominal.geometry)
     if nominal.reference is not None:
         ref_prob = common_prefix(prob, nominal.reference, model)
-        fit.reference = make_fit(ref_prob, model, theta0, nominal.terms, nominal.geometry)
+        memo = nominal.memo if ref_prob is nominal.reference else None
+        fit.reference = make_fit(
+            ref_prob, model, theta0, nominal.terms, nominal.geometry, memo=memo
+        )
         fit.paired = same_motion(prob, ref_prob)
     ctx = fit.ctx
     cands = drift_candidates(ctx)

@@ -48,6 +48,10 @@ class Nominal:
     terms: list[tuple[str, int | None, Any, np.ndarray]] = field(default_factory=list)
     reference: Problem | None = None  # the reference recordings' rows (the reverse check)
     geometry: dict[str, float] | None = None  # the 2-DOF arm's l1 and g (its payload pattern)
+    # what effects built on the reference's rows at θ (:attr:`Context.memo` of the
+    # identification, whose θ this is): the reference judged later reuses them (a 7-joint
+    # arm's encoder rows are 5 torque builds per joint)
+    memo: dict = field(default_factory=dict)
 
 
 @dataclass
