@@ -4,6 +4,8 @@ about the refitted θ once accepted."""
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 
 from hil.diagnose.columns import RecordingRows, angle_offset_column
@@ -16,6 +18,9 @@ class AngleOffset(CandidateKind):
     practical_floor = 3e-4  # rad
     both_joints = True
     built_at_theta = True
+    words: ClassVar[dict[str, str]] = {
+        "angle_offset": "the encoder zero is off by {offset_rad:+.4g} rad ({deg} deg)",
+    }
 
     def column_at(self, rows: RecordingRows, joint: int, theta: np.ndarray) -> np.ndarray:
         return angle_offset_column(rows, joint, theta)

@@ -10,7 +10,7 @@ its object.
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
@@ -61,6 +61,9 @@ class CandidateKind:
     built_at_theta: bool = False
     # two findings of one column the data cannot tell apart (reported confounded)
     confounded_findings: tuple[str, ...] = ()
+    # its findings in words, by effect: templates of their estimates' keys (and the report's
+    # derived ones: ms, deg, pct, share, neg)
+    words: ClassVar[dict[str, str]] = {}
 
     def key(self, joint: int) -> str:
         """The term's key: ``name:joint`` (1-based), a model term's name alone."""
@@ -100,6 +103,11 @@ def register(kind: CandidateKind) -> CandidateKind:
         raise ValueError("a candidate kind needs a name")
     KINDS[kind.name] = kind
     return kind
+
+
+def finding_words() -> dict[str, str]:
+    """The words of every registered kind's findings, by effect (:attr:`CandidateKind.words`)."""
+    return {effect: words for kind in KINDS.values() for effect, words in kind.words.items()}
 
 
 def kind_of(name: str) -> CandidateKind:

@@ -4,6 +4,7 @@ coefficients are the sine and cosine parts, its size the amplitude."""
 from __future__ import annotations
 
 import math
+from typing import ClassVar
 
 import numpy as np
 
@@ -15,6 +16,12 @@ class Cogging(CandidateKind):
     name = "cogging"
     width = 2
     practical_floor = 0.01  # Nm amplitude
+    words: ClassVar[dict[str, str]] = {
+        "cogging": (
+            "cogging / torque ripple of {amplitude_Nm:.3g} Nm, "
+            "{periods_per_rev} periods per revolution"
+        ),
+    }
 
     def size(self, coef: np.ndarray) -> float:
         return float(np.hypot(*coef))

@@ -4,6 +4,8 @@ against θ2 and (θ4⊥, θ5⊥) against (θ4, θ5)."""
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 
 from hil.diagnose.finding import Finding, rounded
@@ -15,6 +17,13 @@ class ComOffset(ModelTermKind):
     name = "com_offset"
     joint = 0
     both_joints = True
+    words: ClassVar[dict[str, str]] = {
+        "com_offset": (
+            "the centres of mass lie off the link axes (or an encoder zero is off): "
+            "θ2⊥ = {theta2_perp_kgm2:.3g} kg m², θ4⊥ = {theta4_perp_Nm:.3g} Nm, "
+            "θ5⊥ = {theta5_perp_Nm:.3g} Nm"
+        ),
+    }
 
     def relative_size(self, coef: np.ndarray, rigid: np.ndarray) -> float:
         return max(

@@ -4,6 +4,8 @@ joints' gains, so the selection, the physical gate and the reading treat it apar
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 from hil.diagnose.finding import Finding, rounded
 from hil.diagnose.kinds.base import CandidateKind, TermFit, register
 
@@ -13,6 +15,7 @@ class TorqueGain(CandidateKind):
     practical_floor = 0.005  # relative
     is_gain = True
     refit_on_training = False  # the joint it is on is a choice, not a fit
+    words: ClassVar[dict[str, str]] = {"torque_gain": "the torque gain is off by {pct} %"}
 
     def findings(self, fit: TermFit) -> list[Finding]:
         return [

@@ -3,6 +3,8 @@ friction (F⁺ = θ_fc − c, F⁻ = θ_fc + c), so both readings are reported, 
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 from hil.diagnose.finding import Finding, coulomb_column, rounded
 from hil.diagnose.kinds.base import CandidateKind, TermFit, register
 
@@ -11,6 +13,13 @@ class TorqueOffset(CandidateKind):
     name = "offset"
     practical_floor = 0.02  # Nm
     confounded_findings = ("coulomb_asymmetry", "torque_offset")
+    words: ClassVar[dict[str, str]] = {
+        "coulomb_asymmetry": (
+            "Coulomb friction depends on the direction of motion: {positive_Nm:+.2f} Nm forward, "
+            "{neg} Nm backward (the model assumed {symmetric_model_Nm:.2f} Nm both ways)"
+        ),
+        "torque_offset": "a constant torque offset of {offset_Nm:+.3g} Nm",
+    }
 
     def findings(self, fit: TermFit) -> list[Finding]:
         c = float(fit.coef[0])

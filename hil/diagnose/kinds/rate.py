@@ -4,6 +4,8 @@ torques (:func:`hil.diagnose.findings.classify_rate`)."""
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 
 from hil.diagnose.finding import Finding, rounded
@@ -17,6 +19,10 @@ class TorqueRate(CandidateKind):
     positive_only = True
     is_rate = True
     refit_on_training = False  # its lag or delay is a grid search, not a fit
+    words: ClassVar[dict[str, str]] = {
+        "actuator_lag": "the actuator lags the command (first order, time constant {ms} ms)",
+        "transport_delay": "the commands arrive late (pure delay {ms} ms)",
+    }
 
     def findings(self, fit: TermFit) -> list[Finding]:
         # only as a rival: its first order, lag and delay undecided

@@ -4,6 +4,8 @@ is not positive is below the floor (no physical arm has it)."""
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 
 from hil.diagnose.finding import Finding, rounded
@@ -15,6 +17,12 @@ class RotorInertia(ModelTermKind):
     name = "rotor_inertia"
     joint = 1
     positive_only = True
+    words: ClassVar[dict[str, str]] = {
+        "rotor_inertia": (
+            "a reflected rotor inertia the model lacks: M22 exceeds M12's constant part by "
+            "{theta_rotor_kgm2:.3g} kg m² beyond θ3 ({share} % of M22)"
+        ),
+    }
 
     def relative_size(self, coef: np.ndarray, rigid: np.ndarray) -> float:
         return float(coef[0]) / rigid[2]

@@ -3,6 +3,8 @@ Coulomb level, its variants the Stribeck velocities v_s; a function of the veloc
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 from hil.diagnose.finding import Finding, coulomb_column, rounded
 from hil.diagnose.kinds.base import CandidateKind, TermFit, register
 
@@ -12,6 +14,12 @@ class Stribeck(CandidateKind):
     practical_floor = 0.03  # Nm breakaway excess, > 0
     positive_only = True
     velocity_shaped = True
+    words: ClassVar[dict[str, str]] = {
+        "stribeck": (
+            "Stribeck friction: breakaway {breakaway_excess_Nm:.3g} Nm above the Coulomb level, "
+            "decaying over {velocity_rad_s:.3g} rad/s"
+        ),
+    }
 
     def findings(self, fit: TermFit) -> list[Finding]:
         dF = float(fit.coef[0])
