@@ -33,6 +33,7 @@ from hil.diagnose.columns import (
     window_intervals,
 )
 from hil.diagnose.interpret import RATE_EFFECTS
+from hil.diagnose.kinds import kind_of
 from hil.diagnose.physical import unphysical
 from hil.diagnose.pipeline import diagnose
 from hil.diagnose.problem import DiagnosisError, build_problem
@@ -582,8 +583,8 @@ def test_a_rival_rate_term_is_listed_once_beside_a_found_lag(monkeypatch):
     rival = Finding("actuator_lag", 1, {"time_constant_s": 0.002}, {})  # term "": not a rate term
     lag = Finding("actuator_lag", 2, {"time_constant_s": 0.02}, {}, term="rate")
     rotor = Finding("rotor_inertia", 2, {"theta_rotor": 0.0045}, {}, term="rotor_inertia")
-    rotor_term = SimpleNamespace(cand=SimpleNamespace(kind="rotor"))
-    rate_term = SimpleNamespace(cand=SimpleNamespace(kind="rate"))
+    rotor_term = SimpleNamespace(cand=SimpleNamespace(kind="rotor", spec=kind_of("rotor_inertia")))
+    rate_term = SimpleNamespace(cand=SimpleNamespace(kind="rate", spec=kind_of("rate")))
     accepted = [rotor_term, rate_term]
     shaft = np.zeros((4, 2))
     calls = []

@@ -11,6 +11,7 @@ import pytest
 
 from hil.diagnose import interpret as interpret_stage
 from hil.diagnose.findings import RESOLVABLE_INTERVALS, Finding, unresolved_rate_terms
+from hil.diagnose.kinds import kind_of
 
 H = 0.0015  # the 1.5 ms samples of the DFKI pair
 
@@ -20,7 +21,8 @@ def _prob(h: float = H) -> SimpleNamespace:
 
 
 def _rate(joint: int) -> SimpleNamespace:
-    return SimpleNamespace(cand=SimpleNamespace(kind="rate", key=f"rate:{joint}", joint=joint - 1))
+    cand = SimpleNamespace(kind="rate", spec=kind_of("rate"), key=f"rate:{joint}", joint=joint - 1)
+    return SimpleNamespace(cand=cand)
 
 
 def test_a_lag_under_a_quarter_interval_is_unresolved():

@@ -467,3 +467,41 @@ def test_the_selection_modules_import_only_those_before_them():
             if target.startswith("hil.diagnose.") and (later or stage):
                 wrong.append(f"{MODULES[m].relative_to(ROOT)}:{line} imports {target}")
     assert not wrong, "\n".join(wrong)
+
+
+# The refit's candidate vocabulary is one interface (issue 29: one effect = one module): outside
+# hil/diagnose/kinds/ no module decides by a candidate's kind name (``cand.kind == "gain"``,
+# ``c.kind in TERMS``); it asks the kind (``cand.spec.is_gain``, ``cand.spec.model_term``).
+KINDS_PACKAGE = "hil.diagnose.kinds"
+
+
+def kind_name_comparisons(source: str) -> list[int]:
+    """Lines of ``source`` that compare a ``.kind`` attribute (==, !=, in, not in)."""
+    lines = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Compare) and any(
+            isinstance(side, ast.Attribute) and side.attr == "kind"
+            for side in [node.left, *node.comparators]
+        ):
+            lines.append(node.lineno)
+    return lines
+
+
+def test_the_diagnosis_asks_a_candidate_kind_not_its_name():
+    found = {
+        name: lines
+        for name, path in MODULES.items()
+        if name.startswith("hil.diagnose.")
+        and not name.startswith(KINDS_PACKAGE)
+        and (lines := kind_name_comparisons(path.read_text()))
+    }
+    assert not found, f"kind names compared outside {KINDS_PACKAGE} (module: lines): {found}"
+    # the check sees them, on either side, in a chain of conditions too
+    source = (
+        'if cand.kind == "gain":\n    pass\n'
+        'x = a.cand.kind in ("rate", "gain")\n'
+        'y = "angle" != c.kind\n'
+        "z = kind == 'lag'\n"
+        "w = s[0].kind not in TERMS or cand.spec.is_gain\n"
+    )
+    assert kind_name_comparisons(source) == [1, 3, 4, 6]

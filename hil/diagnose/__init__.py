@@ -1,7 +1,8 @@
 """Mismatch diagnosis: find the physics a model leaves out, checked on held-out data.
 
 What lives here: the candidate terms' columns (:mod:`.columns`), blocked cross-validation
-(:mod:`.stats`), the candidate vocabulary (:mod:`.candidates`), the stacked regression and its
+(:mod:`.stats`), the candidate vocabulary (:mod:`.candidates`; each kind of candidate one
+module of :mod:`.kinds`, a registry; one finding :mod:`.finding`), the stacked regression and its
 cross-validated fits (:mod:`.problem`), the physical gate (:mod:`.physical`), the forward term
 selection (:mod:`.selection`), where the residual lives (:mod:`.locate`), findings with
 magnitudes (:mod:`.findings`); the diagnosis in stages with typed results: interpretation of the
@@ -15,6 +16,7 @@ and the ``hil diagnose`` command (:mod:`.cli`).
 Imports: :mod:`hil.model`, :mod:`hil.cli_options`; plots import the pipeline's result, never the
 reverse; each stage imports only those before it (interpret, heldout, report, gates, pipeline,
 in that order), and so does the selection's (candidates, problem, physical, selection); the
+kinds, below the candidates, only :mod:`.columns`, :mod:`.finding` and :mod:`hil.model`; the
 drift imports the held-out stage, the gate and the effects, the effects only :mod:`.columns` and
 :mod:`hil.model`.
 

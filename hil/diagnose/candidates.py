@@ -4,12 +4,14 @@ Every kind of :data:`VOCABULARY` on every joint is a :class:`Candidate`: the val
 nonlinear parameter (its variants: cogging periods, Stribeck velocities) and how its columns are
 built from a recording's rows (:mod:`hil.diagnose.columns`); the model terms the nominal model
 lacks (rotor inertia, centre-of-mass offset, :data:`hil.model.closed_form.TERMS`) are
-candidates too. Here also: how many coefficients a candidate adds (:func:`term_width`), whose
-rows it reaches (:func:`joints_of`), the practical floors its estimate must clear
+candidates too. What a kind of candidate is (its width, floors, role, findings) is its
+:class:`~hil.diagnose.kinds.base.CandidateKind` (:mod:`hil.diagnose.kinds`,
+:attr:`Candidate.spec`). Here also: how many coefficients a candidate adds (:func:`term_width`),
+whose rows it reaches (:func:`joints_of`), whether its estimate clears its kind's practical floor
 (:func:`large_enough`), and :class:`Accepted`, a candidate the selection took.
 
-Imports: :mod:`hil.diagnose.columns`, :mod:`hil.diagnose.stats` (the evidence types) and
-:mod:`hil.model`; never the problem, the selection or the stages after it.
+Imports: :mod:`hil.diagnose.columns`, :mod:`hil.diagnose.kinds`, :mod:`hil.diagnose.stats` (the
+evidence types) and :mod:`hil.model`; never the problem, the selection or the stages after it.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from hil.diagnose.columns import (
     stribeck_column,
     torque_rate_column,
 )
+from hil.diagnose.kinds import CandidateKind, kind_of
 from hil.diagnose.stats import CrossValidation, Evidence
 from hil.model.closed_form import TERMS, ArmModel
 from hil.model.protocol import ArmDynamics
@@ -48,24 +51,6 @@ VOCABULARY = (
 )
 
 
-# Effects smaller than these are below what matters for this arm (and within what the model's own
-# approximations leave behind); a term must also have the physical sign (a lag, not a lead).
-PRACTICAL_FLOOR = {
-    "offset": 0.02,  # Nm
-    "gain": 0.005,  # relative
-    "cogging": 0.01,  # Nm amplitude
-    "stribeck": 0.03,  # Nm breakaway excess, > 0
-    "rate": 1e-4,  # s, > 0
-    "angle": 3e-4,  # rad
-}
-POSITIVE_ONLY = ("stribeck", "rate", "rotor_inertia")
-# The model terms (hil.model.closed_form.TERMS) are floored relative to the rigid-body
-# parameters they join, since arms differ in size by orders of magnitude: the rotor term against
-# θ3 (M22's rigid part), the centre-of-mass offset's θ2⊥ against θ2 and its gravity pair
-# (θ4⊥, θ5⊥) against (θ4, θ5) (its largest ratio counts).
-RELATIVE_FLOOR = 0.01
-
-
 COGGING_PERIODS = np.arange(3, 401)
 STRIBECK_VELOCITIES = np.geomspace(0.02, 0.6, 16)
 LAG_GRID_S = np.geomspace(5e-5, 0.03, 28)  # lag and delay search, then refined locally
@@ -76,7 +61,7 @@ class Candidate:
     """One term of the vocabulary on one joint (0 or 1): ``variants`` are the values of its
     nonlinear parameter (one None when it has none); ``columns(rows, variant)`` its X."""
 
-    kind: str  # offset | gain | cogging | stribeck | rate | angle | rotor_inertia | com_offset
+    kind: str  # the name of its kind in hil.diagnose.kinds.KINDS (offset, gain, ..., com_offset)
     joint: int
     variants: tuple[Any, ...]
     columns: Callable[[RecordingRows, Any], np.ndarray]
@@ -88,9 +73,14 @@ class Candidate:
     acts_on: tuple[int, ...] | None = None
 
     @property
+    def spec(self) -> CandidateKind:
+        """Its kind: width, floors, role and findings (:mod:`hil.diagnose.kinds`)."""
+        return kind_of(self.kind)
+
+    @property
     def key(self) -> str:
         # a model term is one term of the arm's model, not one joint's (it may act on both)
-        return self.kind if self.kind in TERMS else f"{self.kind}:{self.joint + 1}"
+        return self.spec.key(self.joint)
 
 
 @dataclass
@@ -124,17 +114,12 @@ def stribeck_velocities(speeds: np.ndarray | None) -> tuple[float, ...]:
     )
 
 
-# The joint whose rows a model term's columns reach first (its key names no joint): the rotor
-# term is M22's (joint 2 row only); the centre-of-mass offset acts on both (see joints_of).
-MODEL_TERM_JOINT = {"rotor_inertia": 1, "com_offset": 0}
-
-
 def model_term_candidates(model: ArmDynamics) -> list[Candidate]:
     """The model terms ``model`` lacks, as candidates: their columns are the regressor columns
     the model with the term appends (:func:`hil.diagnose.columns.model_term_columns`)."""
     return [
         Candidate(
-            term, MODEL_TERM_JOINT[term], (None,), lambda r, _v, t=term: model_term_columns(r, t)
+            term, kind_of(term).joint, (None,), lambda r, _v, t=term: model_term_columns(r, t)
         )
         for term in model.missing_terms  # none for a URDF model (its refused_terms say why)
     ]
@@ -184,9 +169,7 @@ def candidates(
 
 def term_width(cand: Candidate) -> int:
     """Number of coefficients a candidate adds."""
-    if cand.kind in TERMS:
-        return ArmModel((cand.kind,)).n_params - ArmModel(()).n_params
-    return 2 if cand.kind in ("cogging", "rate") else 1
+    return cand.spec.width
 
 
 def term_key(a: Accepted) -> tuple[str, int]:
@@ -198,26 +181,10 @@ def joints_of(cand: Candidate) -> list[int]:
     centre-of-mass offset the inertia and gravity of both (on an n-joint arm: ``acts_on``)."""
     if cand.acts_on is not None:
         return list(cand.acts_on)
-    return [0, 1] if cand.kind in ("angle", "com_offset") else [cand.joint]
+    return cand.spec.joints(cand.joint)
 
 
 def large_enough(cand: Candidate, cv: CrossValidation) -> bool:
-    """The full-data estimate is above the practical floor and has the physical sign (the
-    candidate's coefficients are the last of ``cv.beta``, θ its first ones)."""
-    coef = cv.beta[-term_width(cand) :]
-    if cand.kind in TERMS:
-        return _relative_size(cand.kind, coef, cv.beta) >= RELATIVE_FLOOR
-    # cogging: the amplitude; rate: β₁ + β₂ ≈ T; the others have one coefficient
-    size = float(np.hypot(*coef)) if cand.kind == "cogging" else float(np.sum(coef))
-    if cand.kind in POSITIVE_ONLY and size <= 0:
-        return False
-    return abs(size) >= PRACTICAL_FLOOR[cand.kind]
-
-
-def _relative_size(term: str, coef: np.ndarray, theta: np.ndarray) -> float:
-    """A model term's size against the rigid-body parameters it joins (RELATIVE_FLOOR); a
-    rotor inertia that is not positive has size 0 (no physical arm has it)."""
-    t = np.abs(np.asarray(theta, float)[:5]) + 1e-12
-    if term == "rotor_inertia":
-        return float(coef[0]) / t[2]
-    return max(abs(float(coef[0])) / t[1], float(np.hypot(coef[1], coef[2]) / np.hypot(t[3], t[4])))
+    """The full-data estimate is above its kind's practical floor and has the physical sign
+    (the candidate's coefficients are the last of ``cv.beta``, θ its first ones)."""
+    return cand.spec.large_enough(cv.beta[-term_width(cand) :], cv.beta)

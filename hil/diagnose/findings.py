@@ -15,62 +15,25 @@ Some terms need a second look before they can be named (docs/diagnosis.md):
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from hil.diagnose.candidates import LAG_GRID_S, Accepted, term_width
 from hil.diagnose.columns import delayed_torque_rows, gain_column, lagged_torque_rows
+from hil.diagnose.finding import THETA_FC, Finding, coulomb_column, rounded
 from hil.diagnose.physical import FinalFit, rigid_body_deviation
 from hil.diagnose.problem import Problem, design_matrix, fit_theta_at
 from hil.diagnose.selection import passes
 from hil.diagnose.stats import CrossValidation, block_stats, cross_validate, evidence
-from hil.model.protocol import ArmDynamics
 
 SEPARATE_REDUCTION = 0.05  # held-out reduction needed to call lag vs delay (see classify_rate)
 SAME_DELAY = 0.25  # two joints' delays this close (relative) are reported as one, joint null
-THETA_FC = {0: 7, 1: 8}  # index of θ8, θ9: the Coulomb level of each joint (2-DOF model)
-
-
-def coulomb_column(model: ArmDynamics, joint: int) -> int:
-    """Index in θ of ``joint``'s Coulomb level: θ8, θ9 of the 2-DOF model; of a URDF model
-    (:class:`hil.model.urdf.UrdfArmModel`), its f_c column of that joint."""
-    if model is None or not hasattr(model, "n_friction"):
-        return THETA_FC[joint]
-    return model.n_params - model.n_friction + model.n_joints + joint
-
-
 # How far apart two gain hypotheses' rigid-body parameters must be from the reference (ratio of
 # their relative deviations) before the reference decides between them.
 GAIN_REFERENCE_RATIO = 1.5
 # The key of a torque gain's estimate read with the rigid-body parameters at the reference.
 AT_REFERENCE = "relative_at_reference_theta"
-
-
-@dataclass
-class Finding:
-    effect: str
-    joint: int | None  # 1 | 2 as in the paper; None: both joints
-    estimate: dict[str, Any]
-    evidence: dict[str, Any]
-    confounded_with: list[str] = field(default_factory=list)
-    term: str = ""  # the accepted regression term it comes from (Candidate.key; "rate": lag/delay)
-
-    def as_dict(self) -> dict[str, Any]:
-        out = {
-            "effect": self.effect,
-            "joint": self.joint,
-            "estimate": self.estimate,
-            "evidence": self.evidence,
-        }
-        if self.confounded_with:
-            out["confounded_with"] = self.confounded_with
-        return out
-
-
-def rounded(x: float, digits: int = 4) -> float:
-    return float(f"{x:.{digits}g}")
 
 
 def _cols(prob: Problem, accepted: Sequence[Accepted], skip: set[int]) -> list[np.ndarray]:
@@ -87,7 +50,7 @@ def _cv_with(
     for i, a in enumerate(accepted):
         if i in skip:
             continue
-        if a.cand.kind == "gain":
+        if a.cand.spec.is_gain:
             col = np.zeros((len(y_raw), prob.n_joints, 1))
             col[:, a.cand.joint, 0] = -y_raw[:, a.cand.joint] / prob.scale[a.cand.joint]
             cols.append(col)
@@ -145,7 +108,7 @@ def classify_rate(
 ) -> tuple[list[Finding], np.ndarray | None]:
     """Actuator lag or transport delay for the accepted torque-rate terms (module doc), and
     the exact shaft torque rows of the better of the two (Nm; None without rate terms)."""
-    idx = [i for i, a in enumerate(accepted) if a.cand.kind == "rate"]
+    idx = [i for i, a in enumerate(accepted) if a.cand.spec.is_rate]
     if not idx:
         return [], None
     joints = [accepted[i].cand.joint for i in idx]
@@ -284,7 +247,7 @@ def resolve_gain(
 ) -> tuple[dict[int, float], dict[str, Any]]:
     """Which joint a torque gain error belongs to (module doc). Returns {joint (0/1): relative
     gain error} for the joint(s) to report, and the evidence for the choice."""
-    i = next(i for i, a in enumerate(accepted) if a.cand.kind == "gain")
+    i = next(i for i, a in enumerate(accepted) if a.cand.spec.is_gain)
     j = accepted[i].cand.joint
     y = prob.y_raw
     n_rigid = prob.model.rigid_count
@@ -361,5 +324,8 @@ def gain_at_reference(
 
 
 __all__ = [
+    "THETA_FC",
     "Finding",
+    "coulomb_column",
+    "rounded",
 ]

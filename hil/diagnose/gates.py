@@ -60,9 +60,18 @@ def worse_beyond_noise(
     return with_term > (1.0 + tolerance) * without_term + min(sensitivity, cap) + 1e-12
 
 
+# The rate terms of all joints stand as one term: their lag or delay is read from them together.
+RATE_TERM = "rate"
+
+
+def _of_term(a: Accepted, term: str) -> bool:
+    """Is ``a`` the gated ``term`` (one of its rate terms when it is :data:`RATE_TERM`)?"""
+    return a.cand.key == term or (term == RATE_TERM and a.cand.spec.is_rate)
+
+
 def _term_joints(prob: Problem, accepted: Sequence[Accepted], term: str) -> list[int]:
-    if term == "rate":
-        return sorted({a.cand.joint for a in accepted if a.cand.kind == "rate"})
+    if term == RATE_TERM:
+        return sorted({a.cand.joint for a in accepted if a.cand.spec.is_rate})
     a = next(a for a in accepted if a.cand.key == term)
     return joints_of(a.cand)
 
@@ -171,7 +180,7 @@ def simulation_gate(
             # the refit on the training part cannot be simulated: the terms cannot be shown to
             # improve the motion, so the last accepted goes (the others stood without it)
             last = accepted[-1].cand.key
-            group = "rate" if accepted[-1].cand.kind == "rate" else last
+            group = RATE_TERM if accepted[-1].cand.spec.is_rate else last
             first = _free_reading_failed(findings, group)  # a gain's θ-free reading failed
             lead = (
                 first + "has a held-out refit that is not physical ("
@@ -184,13 +193,9 @@ def simulation_gate(
                 + "), so it cannot be shown to improve the simulated motion"
             )
             say(f"diagnose: dropped {group}: {dropped[group]}")
-            accepted = [
-                a
-                for a in accepted
-                if a.cand.key != group and not (group == "rate" and a.cand.kind == "rate")
-            ]
+            accepted = [a for a in accepted if not _of_term(a, group)]
             findings = [f for f in findings if f.term != group]
-            shaft = None if group == "rate" else shaft
+            shaft = None if group == RATE_TERM else shaft
             continue
         # An n-joint model whose held-out simulation cannot be scored (it diverged: open-loop
         # runs of a closed-loop recording) is gated on the held-out torque alone; the report
@@ -201,11 +206,7 @@ def simulation_gate(
         simulated = bool(with_all) and None not in with_all
         worst, worst_ratio = None, 1.0 + SIMULATION_TOLERANCE
         for term in dict.fromkeys(f.term for f in findings if f.term):
-            keep = [
-                a
-                for a in accepted
-                if a.cand.key != term and not (term == "rate" and a.cand.kind == "rate")
-            ]
+            keep = [a for a in accepted if not _of_term(a, term)]
             rest = [f for f in findings if f.term != term]
             fit_wo, _ = before_after(
                 prob,
@@ -214,7 +215,7 @@ def simulation_gate(
                 nominal_theta,
                 False,
                 se,
-                None if term == "rate" else shaft,
+                None if term == RATE_TERM else shaft,
                 memo=memo,
                 rigid_reference=pinned_rigid_body(prob, rest, reference),
             )
@@ -305,11 +306,7 @@ def simulation_gate(
             continue
         say(f"diagnose: dropped {worst}: {worst_text}")
         dropped[worst] = _free_reading_failed(findings, worst) + worst_text
-        accepted = [
-            a
-            for a in accepted
-            if a.cand.key != worst and not (worst == "rate" and a.cand.kind == "rate")
-        ]
+        accepted = [a for a in accepted if not _of_term(a, worst)]
         findings = [f for f in findings if f.term != worst]
-        shaft = None if worst == "rate" else shaft
+        shaft = None if worst == RATE_TERM else shaft
     return GateResult(accepted, findings, dropped, shaft)

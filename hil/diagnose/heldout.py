@@ -158,7 +158,7 @@ def _training_findings(
         width = term_width(a.cand)
         coef = beta[at : at + width]
         at += width
-        if a.cand.kind in ("rate", "gain", *TERMS):  # a model term is simulated in θ itself
+        if not a.cand.spec.refit_on_training:  # a model term is simulated in θ itself
             continue
         fresh = {f.effect: f for f in term_findings(a.cand, a.variant, coef, beta[:p], model)}
         for i, f in enumerate(out):
@@ -390,7 +390,7 @@ def read_at_reference(
     are read in that model too. With θ free a closed-loop gain on joint 1 was 2.9 % of 5 % and
     joint 1's Coulomb levels 1.6 % low with it (the free θ absorbs the rest of the gain)."""
     if shaft is not None:
-        accepted = [a for a in accepted if a.cand.kind != "rate"]
+        accepted = [a for a in accepted if not a.cand.spec.is_rate]
     target = prob.y if shaft is None else shaft / prob.scale
     cols = [prob.chosen(a) for a in accepted]
     beta = _refit(prob, cols, target, prob.w, rigid_reference)
@@ -469,7 +469,7 @@ def before_after(
     memo = {} if memo is None else memo
     train, test, spans = held_out_masks(prob)
     if shaft is not None:
-        accepted = [a for a in accepted if a.cand.kind != "rate"]
+        accepted = [a for a in accepted if not a.cand.spec.is_rate]
     cols = [prob.chosen(a) for a in accepted]
     w_train = prob.w * train[:, None]
     if nominal_theta is None:

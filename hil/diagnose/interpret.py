@@ -23,11 +23,11 @@ from hil.diagnose.columns import (
 from hil.diagnose.findings import (
     Finding,
     classify_rate,
-    coulomb_column,
     resolve_gain,
     rounded,
     unresolved_rate_terms,
 )
+from hil.diagnose.kinds import TermFit
 from hil.diagnose.physical import final_fit, physical_gate
 from hil.diagnose.problem import Problem, rewhiten
 from hil.diagnose.selection import FAMILY_ALPHA, MIN_REDUCTION, relinearise_angle, select
@@ -57,80 +57,8 @@ def term_findings(
     cand: Candidate, variant: Any, coef: np.ndarray, theta: np.ndarray, model: ArmDynamics = None
 ) -> list[Finding]:
     """Findings of one accepted term (its coefficients ``coef``), in the vocabulary
-    (``model``: whose θ, for the Coulomb level; default the 2-DOF model)."""
-    j = cand.joint
-    if cand.kind == "offset":
-        c = float(coef[0])
-        fc = float(theta[coulomb_column(model, j)])
-        return [
-            Finding(
-                "coulomb_asymmetry",
-                j + 1,
-                {
-                    "positive_Nm": rounded(fc - c),
-                    "negative_Nm": rounded(fc + c),
-                    "difference_Nm": rounded(2 * c),
-                    "symmetric_model_Nm": rounded(fc),
-                },
-                {},
-                ["torque_offset"],
-            ),
-            Finding("torque_offset", j + 1, {"offset_Nm": rounded(c)}, {}, ["coulomb_asymmetry"]),
-        ]
-    if cand.kind == "cogging":
-        a, b = float(coef[0]), float(coef[1])
-        return [
-            Finding(
-                "cogging",
-                j + 1,
-                {
-                    "periods_per_rev": int(variant),
-                    "amplitude_Nm": rounded(math.hypot(a, b)),
-                    "phase_rad": rounded(math.atan2(b, a)),
-                },
-                {},
-            )
-        ]
-    if cand.kind == "stribeck":
-        dF = float(coef[0])
-        fc = float(theta[coulomb_column(model, j)])
-        return [
-            Finding(
-                "stribeck",
-                j + 1,
-                {
-                    "breakaway_excess_Nm": rounded(dF),
-                    "breakaway_ratio": rounded(1 + dF / fc) if fc > 0 else None,
-                    "velocity_rad_s": rounded(float(variant)),
-                    "exponent": 2.0,
-                },
-                {},
-            )
-        ]
-    if cand.kind == "angle":
-        return [Finding("angle_offset", j + 1, {"offset_rad": rounded(float(coef[0]))}, {})]
-    if cand.kind == "gain":
-        return [Finding("torque_gain", j + 1, {"relative": rounded(float(coef[0]))}, {})]
-    if cand.kind == "rate":  # only as a rival here: its first order, lag and delay undecided
-        return [
-            Finding("actuator_lag", j + 1, {"time_constant_s": rounded(float(np.sum(coef)))}, {})
-        ]
-    if cand.kind == "rotor_inertia":
-        # hil.model.closed_form: M22 − M12's constant part beyond θ3 (gr² Ir ∓ gr Ir)
-        rot = float(coef[0])
-        est = {
-            "theta_rotor_kgm2": rounded(rot),
-            "share_of_M22": rounded(rot / (float(theta[2]) + rot)),
-        }
-        return [Finding("rotor_inertia", 2, est, {})]
-    if cand.kind == "com_offset":
-        est = {
-            "theta2_perp_kgm2": rounded(float(coef[0])),
-            "theta4_perp_Nm": rounded(float(coef[1])),
-            "theta5_perp_Nm": rounded(float(coef[2])),
-        }
-        return [Finding("com_offset", None, est, {})]
-    raise ValueError(cand.kind)
+    (``model``: whose θ, for the Coulomb level; default the 2-DOF model): its kind's reading."""
+    return cand.spec.findings(TermFit(cand.joint, variant, coef, theta, model))
 
 
 def cogging_at_true_angle(
@@ -166,12 +94,12 @@ def settle_gain_joint(
     fitted for the gain on one joint while the finding (and the simulation) applies it on the
     other: a 7 % gain on joint 1 taken as −7 % on joint 2 simulated joint 1 at 19 % NRMSE and
     was dropped by the simulation gate (issue 12)."""
-    i = next((i for i, a in enumerate(accepted) if a.cand.kind == "gain"), None)
+    i = next((i for i, a in enumerate(accepted) if a.cand.spec.is_gain), None)
     if i is None:
         return accepted
     a = accepted[i]
     gains, _ev = resolve_gain(prob, accepted, final_fit(prob, accepted), reference)
-    rival = next((c for c in library if c.kind == "gain" and c.joint != a.cand.joint), None)
+    rival = next((c for c in library if c.spec.is_gain and c.joint != a.cand.joint), None)
     if rival is None or set(gains) != {rival.joint}:
         return accepted
     return [*accepted[:i], Accepted(rival, rival.variants[0], a.evidence), *accepted[i + 1 :]]
@@ -191,9 +119,9 @@ def interpret(
             **a.evidence.as_dict(),
             "standard_error": [rounded(x) for x in fit.standard_errors[i]],
         }
-        if a.cand.kind == "rate":
+        if a.cand.spec.is_rate:
             continue
-        if a.cand.kind == "gain":
+        if a.cand.spec.is_gain:
             gains, gev = resolve_gain(prob, accepted, fit, reference)
             at_reference = gev.pop("relative_at_reference_theta", {})
             new = [
@@ -220,8 +148,8 @@ def interpret(
             f.term = a.cand.key
         for f in new:
             f.evidence = dict(ev)
-        if a.cand.kind == "offset":
-            confounded.append(["coulomb_asymmetry", "torque_offset"])
+        if a.cand.spec.confounded_findings:
+            confounded.append(list(a.cand.spec.confounded_findings))
         for key in a.confounded_with:  # rivals the data cannot tell from this term
             rival = by_key[key]
             variant = a.rival_variants.get(key, rival.variants[0])
@@ -244,7 +172,7 @@ def interpret(
         findings += new
     rate, shaft = classify_rate(prob, accepted, fit)
     for f in rate:
-        term = next(a for a in accepted if a.cand.kind == "rate")
+        term = next(a for a in accepted if a.cand.spec.is_rate)
         f.evidence = {**term.evidence.as_dict(), **f.evidence}
     if any(f.confounded_with for f in rate):
         confounded.append(["actuator_lag", "transport_delay"])
@@ -284,7 +212,7 @@ def reselect_on_shaft(
     joint 1 next to a 4 ms delay from +10 % held-out reduction to −29 % (blind-like set 7
     rec-17), while against the exact shaft torque it improves 40 of 40 blocks. Terms accepted
     before are kept; a term found here joins them and is gated like any other."""
-    rest = [c for c in library if c.kind != "rate"]
+    rest = [c for c in library if not c.spec.is_rate]
     found, _first = select(shaft_problem(prob, shaft), rest, reference=reference, rejected={})
     have = {a.cand.key for a in accepted}
     new = [a for a in found if a.cand.key not in have]
@@ -342,7 +270,7 @@ def interpret_with_rate(
         )
         if shaft is None:  # the rate terms did not survive the gates
             return Interpretation(accepted, findings, confounded, shaft)
-    others = [a for a in accepted if a.cand.kind != "rate"]
+    others = [a for a in accepted if not a.cand.spec.is_rate]
     if not others:
         return Interpretation(accepted, findings, confounded, shaft)
     exact, exact_confounded, _ = interpret(shaft_problem(prob, shaft), others, library, reference)
@@ -384,12 +312,6 @@ def _bin_columns(
     return X
 
 
-# Terms that are a function of one joint's velocity alone (Stribeck friction): the binned velocity
-# model of that joint can take any such shape, so a named term must explain the residual as well
-# as it does, not merely correlate with it.
-VELOCITY_SHAPED = ("stribeck",)
-
-
 def lack_of_fit(
     prob: Problem,
     accepted: Sequence[Accepted],
@@ -404,7 +326,10 @@ def lack_of_fit(
     unexplained, not under a wrong name. The reason goes to ``rejected``."""
     kept = list(accepted)
     for a in list(kept):
-        if a.cand.kind not in VELOCITY_SHAPED:
+        # a function of one joint's velocity alone (Stribeck friction): the binned velocity model
+        # of that joint can take any such shape, so the term must explain the residual as well
+        # as it does, not merely correlate with it
+        if not a.cand.spec.velocity_shaped:
             continue
         others = [prob.chosen(b) for b in kept if b is not a]
         stats = prob.design_stats(others)
@@ -444,7 +369,7 @@ def unexplained(
     """A generic state-bin model of each joint's residual, tested like any candidate: if it
     still lowers the held-out error, something the vocabulary lacks lives there. ``shaft``: the
     exact lagged or delayed torque rows (Nm) to use instead of the first-order rate terms."""
-    kept = [a for a in accepted if shaft is None or a.cand.kind != "rate"]
+    kept = [a for a in accepted if shaft is None or not a.cand.spec.is_rate]
     cols = [prob.chosen(a) for a in kept]
     y = prob.y if shaft is None else shaft / prob.scale
     # the design as its column groups: never joined whole (hil.diagnose.stats.design_rows)

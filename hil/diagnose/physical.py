@@ -21,7 +21,7 @@ import numpy as np
 from hil.diagnose.candidates import Accepted, Candidate, term_width
 from hil.diagnose.problem import Problem, design_cv
 from hil.diagnose.stats import CrossValidation
-from hil.model.closed_form import TERMS, ArmModel
+from hil.model.closed_form import ArmModel
 from hil.model.protocol import ArmDynamics
 
 # A torque gain error below this (the shaft gets less than half the command) is not a gain
@@ -68,7 +68,7 @@ def model_columns(model: ArmDynamics, cands: Sequence[Candidate]) -> tuple[ArmDy
     index, terms, at = list(range(p)), [], p
     for c in cands:
         width = term_width(c)
-        if c.kind in TERMS:
+        if c.spec.model_term:
             terms.append(c.kind)
             index += range(at, at + width)
         at += width
@@ -89,7 +89,7 @@ def unphysical(
     full, index = model_columns(ArmModel(()) if model is None else model, cands)
     se = jackknife_se(cv.fold_beta)
     reasons = physical_theta(cv.beta[index], se[index], full)[1]
-    if cand is not None and cand.kind == "gain":
+    if cand is not None and cand.spec.is_gain:
         r = float(cv.beta[-1])
         if r <= MIN_GAIN:
             reasons.append(f"a torque gain of {100 * r:+.0f} % removes most of the torque")
@@ -146,7 +146,7 @@ def physical_gate(
         fit = final_fit(prob, accepted)
         reasons = unphysical(None, fit.cv, prob.model, [a.cand for a in accepted])
         for a, coef in zip(accepted, fit.coefficients, strict=True):
-            if a.cand.kind == "gain" and float(coef[0]) <= MIN_GAIN:
+            if a.cand.spec.is_gain and float(coef[0]) <= MIN_GAIN:
                 reasons.append(
                     f"a torque gain of {100 * float(coef[0]):+.0f} % removes most of the torque"
                 )

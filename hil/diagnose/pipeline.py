@@ -221,7 +221,7 @@ def diagnose(
         c
         for c in candidates(theta_fit, ranges, usable_speeds(prob), model)
         # a gain error shows only as the ratio of the joints' gains (docs/diagnosis.md, 4)
-        if all(j in live for j in joints_of(c)) and (c.kind != "gain" or len(live) >= 2)
+        if all(j in live for j in joints_of(c)) and (not c.spec.is_gain or len(live) >= 2)
     ]
     nominal_se = jackknife_se(
         cross_validate(block_stats(prob.design_groups([]), prob.y, prob.w, prob.blocks)).fold_beta

@@ -2,7 +2,8 @@
 (:func:`summary_words`), what a recording could not show (:func:`detectability_notes`,
 :func:`burst_notes`), why a candidate is not a finding (:func:`rejection_notes`) and how the
 nominal model is named (``ArmDynamics.display_name``). Pure formatting of the stages' results
-(:mod:`hil.diagnose.pipeline` calls it); the JSON document is built in the pipeline.
+(:mod:`hil.diagnose.pipeline` calls it); a finding's words are its candidate kind's
+(:mod:`hil.diagnose.kinds`); the JSON document is built in the pipeline.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from hil.diagnose.findings import (
     Finding,
 )
 from hil.diagnose.heldout import SEGMENT_S, HeldOutFit
+from hil.diagnose.kinds import finding_words
 from hil.diagnose.problem import Problem
 from hil.model.closed_form import TERMS
 from hil.model.protocol import ArmDynamics
@@ -30,34 +32,8 @@ def percent(x: float | None) -> str:
 
 # --- words ---------------------------------------------------------------------------------------
 
-_WORDS = {
-    "coulomb_asymmetry": (
-        "Coulomb friction depends on the direction of motion: {positive_Nm:+.2f} Nm forward, "
-        "{neg} Nm backward (the model assumed {symmetric_model_Nm:.2f} Nm both ways)"
-    ),
-    "torque_offset": "a constant torque offset of {offset_Nm:+.3g} Nm",
-    "stribeck": (
-        "Stribeck friction: breakaway {breakaway_excess_Nm:.3g} Nm above the Coulomb level, "
-        "decaying over {velocity_rad_s:.3g} rad/s"
-    ),
-    "cogging": (
-        "cogging / torque ripple of {amplitude_Nm:.3g} Nm, {periods_per_rev} periods per revolution"
-    ),
-    "actuator_lag": "the actuator lags the command (first order, time constant {ms} ms)",
-    "transport_delay": "the commands arrive late (pure delay {ms} ms)",
-    "angle_offset": "the encoder zero is off by {offset_rad:+.4g} rad ({deg} deg)",
-    "torque_gain": "the torque gain is off by {pct} %",
-    "unexplained": "a structured residual no candidate explains, carried by the {carried_by}",
-    "rotor_inertia": (
-        "a reflected rotor inertia the model lacks: M22 exceeds M12's constant part by "
-        "{theta_rotor_kgm2:.3g} kg m² beyond θ3 ({share} % of M22)"
-    ),
-    "com_offset": (
-        "the centres of mass lie off the link axes (or an encoder zero is off): "
-        "θ2⊥ = {theta2_perp_kgm2:.3g} kg m², θ4⊥ = {theta4_perp_Nm:.3g} Nm, "
-        "θ5⊥ = {theta5_perp_Nm:.3g} Nm"
-    ),
-}
+# the findings of the candidate kinds are in their kinds' words (hil.diagnose.kinds)
+UNEXPLAINED_WORDS = "a structured residual no candidate explains, carried by the {carried_by}"
 
 
 def _phrase(f: Finding, rigid: str = "θ1..θ5 of the 2-DOF arm") -> str:
@@ -76,7 +52,7 @@ def _phrase(f: Finding, rigid: str = "θ1..θ5 of the 2-DOF arm") -> str:
         e["pct"] = f"{100 * e[e.get('reading', 'relative')]:+.3g}"
     if "share_of_M22" in e:
         e["share"] = f"{100 * e['share_of_M22']:.3g}"
-    words = _WORDS[f.effect].format(**e)
+    words = {**finding_words(), "unexplained": UNEXPLAINED_WORDS}[f.effect].format(**e)
     if e.get("reading") == AT_REFERENCE:
         # docs/diagnosis.md 4a: the θ-free reading failed the simulation gate, this one passed
         words += (

@@ -35,7 +35,6 @@ from hil.diagnose.candidates import (
     large_enough,
     term_key,
 )
-from hil.diagnose.columns import angle_offset_column
 from hil.diagnose.physical import (
     final_fit,
     physical_gate,
@@ -44,7 +43,6 @@ from hil.diagnose.physical import (
 )
 from hil.diagnose.problem import Problem, design_cv, rewhiten, terms_cv
 from hil.diagnose.stats import CrossValidation, Evidence, evidence
-from hil.model.closed_form import TERMS
 
 # Decision thresholds (docs/diagnosis.md, "Deciding"): a candidate must lower the held-out error
 # of its joint by at least MIN_REDUCTION (relative) and in more blocks than chance allows (sign
@@ -83,7 +81,7 @@ def _gain_supported(
 ) -> bool:
     if reference is None:
         return True
-    other = next((c for c in library if c.kind == "gain" and c.joint != cand.joint), None)
+    other = next((c for c in library if c.spec.is_gain and c.joint != cand.joint), None)
     if other is None:  # the other joint is not tested: nothing to weigh the gain against
         return False
     there = design_cv(prob, extra, other)
@@ -109,7 +107,7 @@ def _candidate_pairs(
             for s in scored
             if s[2].reduction >= MIN_REDUCTION
             and large_enough(s[0], s[1])
-            and not (effects_only and s[0].kind in TERMS)
+            and not (effects_only and s[0].spec.model_term)
         ),
         key=lambda s: -s[2].drop,
     )[:PAIR_POOL]
@@ -190,7 +188,7 @@ def _confounding(
         without = design_cv(prob, cols)
         with_own = design_cv(prob, [*cols, own])
         for alt in library:
-            if alt.key in taken or (alt.kind == "gain") != (a.cand.kind == "gain"):
+            if alt.key in taken or alt.spec.is_gain != a.cand.spec.is_gain:
                 continue
             with_alt = terms_cv(prob, others, alt)
             joints = sorted(set(joints_of(alt)) | set(joints_of(a.cand)))
@@ -314,7 +312,7 @@ def _forward(
             and large_enough(s[0], s[1])
             and not _harms_other_joint(base, s[1], s[0])
             and (
-                s[0].kind != "gain"
+                not s[0].spec.is_gain
                 or _gain_supported(prob, extra, s[0], s[1], base, reference, library)
             )
         ]
@@ -337,8 +335,8 @@ def _forward(
         accepted.append(acc)
         extra.append(chosen_cols)
         remaining.remove(cand)
-        if cand.kind == "gain":  # gains on both joints: θ = 0, r = −1 fits anything (scale)
-            remaining = [c for c in remaining if c.kind != "gain"]
+        if cand.spec.is_gain:  # gains on both joints: θ = 0, r = −1 fits anything (scale)
+            remaining = [c for c in remaining if not c.spec.is_gain]
         rewhiten(prob, accepted)
         extra = [prob.chosen(a) for a in accepted]
         if log:
@@ -365,12 +363,12 @@ def _prefer_effect(
     The pair's members are drawn as :func:`_passing_pair` draws them
     (:func:`_candidate_pairs` of ``scored``), since one of the two may pass only once the
     other is in."""
-    if best[0].kind not in TERMS:
+    if not best[0].spec.model_term:
         return best
     rivals = [
         s
         for s in passing
-        if s[0].kind not in TERMS
+        if not s[0].spec.model_term
         and not passes(
             evidence(s[1], best[1], sorted(set(joints_of(s[0])) | set(joints_of(best[0])))), tests
         )
@@ -399,16 +397,16 @@ def relinearise_angle(prob: Problem, accepted: list[Accepted]) -> list[Accepted]
     12: an encoder offset on joint 1 left a position-dependent residual on joint 2)."""
     out = list(accepted)
     for i, a in enumerate(out):
-        if a.cand.kind != "angle":
+        if not a.cand.spec.built_at_theta:
             continue
         for _ in range(RELINEARISE_ANGLE):
             theta = final_fit(prob, out).theta
-            j = a.cand.joint
+            j, kind = a.cand.joint, a.cand.spec
             cand = Candidate(
-                "angle",
+                a.cand.kind,
                 j,
                 (None,),
-                lambda r, _v, j=j, th=theta: angle_offset_column(r, j, th),
+                lambda r, _v, j=j, th=theta, k=kind: k.column_at(r, j, th),
                 acts_on=a.cand.acts_on,
             )
             prob.forget((cand.key, 0))
