@@ -182,14 +182,20 @@ def test_hil_identify_instruments_target_end_to_end(tmp_path, capsys) -> None:
     assert "no target positions" in capsys.readouterr().err
 
 
-def _closed_form_closed_loop(duration_s: float = 20.0) -> tuple[ArmModel, np.ndarray, Recording]:
+def _closed_form_arm() -> tuple[ArmModel, np.ndarray]:
+    """The cicese arm as the 2-DOF closed form without terms and its profile's θ1..θ9."""
+    return ArmModel(()), load_robot("cicese").theta()[:9]
+
+
+def _closed_form_closed_loop(
+    duration_s: float = 20.0, seed: int = 0
+) -> tuple[ArmModel, np.ndarray, Recording]:
     """The cicese arm's 2-DOF closed form (θ1..θ9 of its profile) under the PD tracking of
-    :func:`_closed_loop`, seed 0, with a disturbance slow enough to pass the rows' filter
+    :func:`_closed_loop` with a disturbance slow enough to pass the rows' filter
     (1.5 Nm RMS band-limited at 1.5 Hz; λ is 6.3 rad/s) and 1e-5 rad encoder noise (larger
     noise fed back through Kd makes the arm chatter through its Coulomb reversals, a model error
     neither estimator removes)."""
-    model = ArmModel(())
-    theta = load_robot("cicese").theta()[:9]
+    model, theta = _closed_form_arm()
     rec = _closed_loop(model, theta, 0, duration_s=duration_s, noise_rad=1e-5, disturbance_hz=1.5)
     return model, theta, rec
 
