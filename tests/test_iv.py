@@ -151,6 +151,15 @@ def test_iv_refuses_a_recording_without_a_reference() -> None:
         identify_torque_iv(model, rec)
 
 
+def _write_csv(path: Path, rec: Recording, *, targets: bool = True) -> Path:
+    """``rec`` as a CSV of t, q1.., tau1.. and (``targets``) q_target1.. columns."""
+    parts = ("q", "tau", "q_target") if targets else ("q", "tau")
+    names = ["t", *(f"{p}{j + 1}" for p in parts for j in range(rec.n_joints))]
+    data = np.column_stack([rec.t, *(getattr(rec, p) for p in parts)])
+    np.savetxt(path, data, delimiter=",", header=",".join(names), comments="", fmt="%.10g")
+    return path
+
+
 def test_hil_identify_instruments_target_end_to_end(tmp_path, capsys) -> None:
     """`hil identify --instruments target` on a closed-loop recording of a URDF arm (cicese3)
     with q_target columns: the IV fit is reported and validated beside least squares; without
@@ -158,10 +167,7 @@ def test_hil_identify_instruments_target_end_to_end(tmp_path, capsys) -> None:
     model = UrdfArmModel.from_profile("cicese3")
     rec = _closed_loop(model, model.base_theta(), 0, duration_s=8.0, disturbance_Nm=0.3)
     n = model.n_joints
-    names = ["t", *(f"{p}{j + 1}" for p in ("q", "tau", "q_target") for j in range(n))]
-    csv = tmp_path / "closed_loop.csv"
-    data = np.column_stack([rec.t, rec.q, rec.tau, rec.q_target])
-    np.savetxt(csv, data, delimiter=",", header=",".join(names), comments="", fmt="%.10g")
+    csv = _write_csv(tmp_path / "closed_loop.csv", rec)
     argv = ["identify", "--from", str(csv), "--robot", "cicese3", "--schemes", "filtered_dynamic",
             "--instruments", "target", "--no-plot", "--json"]  # fmt: skip
     capsys.readouterr()
@@ -174,10 +180,7 @@ def test_hil_identify_instruments_target_end_to_end(tmp_path, capsys) -> None:
     assert len(iv["validation"]["torque_nrmse"]) == n
     assert iv["validation"]["passed"], iv["validation"]  # better than the mean on every joint
     # the same file without its targets: refused in one line
-    bare = tmp_path / "bare.csv"
-    np.savetxt(bare, data[:, : 1 + 2 * n], delimiter=",", header=",".join(names[: 1 + 2 * n]),
-               comments="", fmt="%.10g")  # fmt: skip
-    argv[2] = str(bare)
+    argv[2] = str(_write_csv(tmp_path / "bare.csv", rec, targets=False))
     assert hil_main([*argv, "--out", str(tmp_path / "bare")]) == 2
     assert "no target positions" in capsys.readouterr().err
 
@@ -196,7 +199,9 @@ def _closed_form_closed_loop(
     noise fed back through Kd makes the arm chatter through its Coulomb reversals, a model error
     neither estimator removes)."""
     model, theta = _closed_form_arm()
-    rec = _closed_loop(model, theta, 0, duration_s=duration_s, noise_rad=1e-5, disturbance_hz=1.5)
+    rec = _closed_loop(
+        model, theta, seed, duration_s=duration_s, noise_rad=1e-5, disturbance_hz=1.5
+    )
     return model, theta, rec
 
 
@@ -225,10 +230,7 @@ def test_hil_identify_instruments_target_on_the_two_dof_path(tmp_path, capsys) -
     its θ to params.json; the DFKI file, which holds no target positions, is refused in one
     line."""
     model, _, rec = _closed_form_closed_loop(duration_s=10.0)
-    names = ["t", *(f"{p}{j + 1}" for p in ("q", "tau", "q_target") for j in range(2))]
-    csv = tmp_path / "closed_loop.csv"
-    data = np.column_stack([rec.t, rec.q, rec.tau, rec.q_target])
-    np.savetxt(csv, data, delimiter=",", header=",".join(names), comments="", fmt="%.10g")
+    csv = _write_csv(tmp_path / "closed_loop.csv", rec)
     argv = ["identify", "--from", str(csv), "--robot", "cicese", "--instruments", "target",
             "--params-scheme", "filtered_dynamic_iv", "--no-plot", "--json"]  # fmt: skip
     capsys.readouterr()
