@@ -191,17 +191,23 @@ def _closed_form_arm() -> tuple[ArmModel, np.ndarray]:
 
 
 def _closed_form_closed_loop(
-    duration_s: float = 20.0, seed: int = 0
+    duration_s: float = 20.0,
+    seed: int = 0,
+    *,
+    disturbance_Nm: float = 1.5,
+    disturbance_hz: float = 1.5,
+    noise_rad: float = 1e-5,
 ) -> tuple[ArmModel, np.ndarray, Recording]:
     """The cicese arm's 2-DOF closed form (θ1..θ9 of its profile) under the PD tracking of
-    :func:`_closed_loop` with a disturbance slow enough to pass the rows' filter
-    (1.5 Nm RMS band-limited at 1.5 Hz; λ is 6.3 rad/s) and 1e-5 rad encoder noise (larger
-    noise fed back through Kd makes the arm chatter through its Coulomb reversals, a model error
-    neither estimator removes)."""
+    :func:`_closed_loop`, by default with a disturbance slow enough to pass the rows' filter
+    (1.5 Nm RMS band-limited at 1.5 Hz; λ is 6.3 rad/s) and 1e-5 rad encoder noise (with
+    1e-4 rad fed back through Kd, both estimators' friction is off without any disturbance:
+    docs/real-data.md)."""
     model, theta = _closed_form_arm()
     rec = _closed_loop(
-        model, theta, seed, duration_s=duration_s, noise_rad=1e-5, disturbance_hz=1.5
-    )
+        model, theta, seed, duration_s=duration_s, disturbance_Nm=disturbance_Nm,
+        noise_rad=noise_rad, disturbance_hz=disturbance_hz,
+    )  # fmt: skip
     return model, theta, rec
 
 

@@ -3,6 +3,7 @@
 
     python tests/benchmarks/iv_closed_loop.py [--seeds 8]      # about 10 s a seed
     python tests/benchmarks/iv_closed_loop.py --closed-form    # the 2-DOF model path's rows
+        [--disturbance-nm 1.5] [--disturbance-hz 1.5] [--noise-rad 1e-5]
 
 The 2-joint arm of the cicese profile (its URDF, hil.model.urdf) under PD tracking of a
 three-sine reference with feedforward, an unmodelled torque disturbance of 1.5 Nm RMS acting on
@@ -16,10 +17,10 @@ of each nonzero base parameter (mean ± SD over the seeds) and the held-out NRMS
 ``--closed-form``: the same arm as the 2-DOF closed form θ1..θ9 (hil.model.closed_form, the
 `hil identify` model path), its exact filtered dynamic rows at λ from the data: weighted least
 squares (hil.identify.schemes.identify_model, unbounded) against IV on the same rows
-(hil.identify.iv.identify_torque_iv); the disturbance band-limited at 1.5 Hz (the rows' filter,
-λ = 6.3 rad/s, removes most of an 8 Hz one) and 1e-5 rad encoder noise (tests/test_iv.py
-``_closed_form_closed_loop``); held-out NRMSE on the next seed's run by the model path's
-validation (hil.identify.schemes.torque_prediction_error).
+(hil.identify.iv.identify_torque_iv); by default the disturbance band-limited at 1.5 Hz (an
+8 Hz one, as the URDF runs', lies mostly above the rows' filter, λ = 6.3 rad/s) and 1e-5 rad
+encoder noise (tests/test_iv.py ``_closed_form_closed_loop``); held-out NRMSE on the next
+seed's run by the model path's validation (hil.identify.schemes.torque_prediction_error).
 """
 
 from __future__ import annotations
@@ -60,11 +61,11 @@ def _urdf_runs(seeds: int) -> tuple[Any, np.ndarray, dict, dict]:
     return model, theta, errors, held
 
 
-def _closed_form_runs(seeds: int) -> tuple[Any, np.ndarray, dict, dict]:
+def _closed_form_runs(seeds: int, **loop: float) -> tuple[Any, np.ndarray, dict, dict]:
     """The 2-DOF closed form's estimates per seed (the model path's rows) and their held-out
     NRMSE on the next seed's run."""
     model, theta = _closed_form_arm()
-    runs = [_closed_form_closed_loop(seed=seed)[2] for seed in range(seeds + 1)]
+    runs = [_closed_form_closed_loop(seed=seed, **loop)[2] for seed in range(seeds + 1)]
     errors: dict[str, list[np.ndarray]] = {"LS": [], "IV": []}
     held: dict[str, list[np.ndarray]] = {"LS": [], "IV": [], "truth": []}
     for s in range(seeds):
@@ -86,9 +87,17 @@ def main() -> int:
     ap.add_argument(
         "--closed-form", action="store_true", help="the 2-DOF closed form's rows (model path)"
     )
+    ap.add_argument("--disturbance-nm", type=float, default=1.5, help="--closed-form: RMS, Nm")
+    ap.add_argument("--disturbance-hz", type=float, default=1.5, help="--closed-form: its band")
+    ap.add_argument("--noise-rad", type=float, default=1e-5, help="--closed-form: encoder noise")
     args = ap.parse_args()
-    runs = _closed_form_runs if args.closed_form else _urdf_runs
-    model, theta, errors, held = runs(args.seeds)
+    if args.closed_form:
+        model, theta, errors, held = _closed_form_runs(
+            args.seeds, disturbance_Nm=args.disturbance_nm, disturbance_hz=args.disturbance_hz,
+            noise_rad=args.noise_rad,
+        )  # fmt: skip
+    else:
+        model, theta, errors, held = _urdf_runs(args.seeds)
     keep = np.flatnonzero(theta != 0)
     print(f"{args.seeds} closed-loop runs; relative error of each base parameter, mean ± SD")
     print("| parameter | true | least squares | IV on the reference |")
