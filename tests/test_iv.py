@@ -214,8 +214,8 @@ def _closed_form_closed_loop(
 def test_iv_removes_the_closed_loop_inertia_bias_on_the_two_dof_closed_form() -> None:
     """The 2-DOF model path's rows (exact filtered dynamic, λ from the data): the slow
     disturbance moves the second link, and least squares takes part of it for a wrong coupling
-    and link-2 inertia (θ2 −75 %, θ3 +107 % on this seed; over four seeds −115 ± 45 % and
-    +103 ± 26 %, docs/real-data.md); IV on the reference is within two blocked-bootstrap SE of
+    and link-2 inertia (θ2 −75 %, θ3 +107 % on this seed; over eight seeds −92 ± 44 % and
+    +105 ± 31 %, docs/real-data.md); IV on the reference is within two blocked-bootstrap SE of
     the truth on every parameter."""
     model, theta, rec = _closed_form_closed_loop()
     ls = identify_model(rec.t, rec.q, rec.tau, model)
