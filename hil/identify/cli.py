@@ -108,9 +108,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--instruments",
         choices=("none", "target"),
         default="none",
-        help="URDF arms: 'target' adds the filtered dynamic rows fitted by instrumental "
-        "variables on the recording's target positions (q_target columns), against the "
-        "closed-loop bias of least squares (docs/real-data.md), as scheme filtered_dynamic_iv",
+        help="'target' adds the filtered dynamic rows fitted by instrumental variables on the "
+        "recording's target positions (q_target columns or a format's [layouts.targets]), "
+        "against the closed-loop bias of least squares (docs/real-data.md), as scheme "
+        "filtered_dynamic_iv (URDF arms and the 2-DOF model path)",
     )
     p.add_argument(
         "--consistent",
@@ -204,18 +205,17 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     out = Path(args.out)
     if pipelines.urdf_robot(args):
         outcome = pipelines.run_identify_urdf(args)
-    elif iv:
-        raise ValueError(
-            "--instruments target: URDF arms only (a --robot profile described by a URDF); "
-            "the 2-DOF closed-form path has no instrumental-variable fit"
-        )
     elif getattr(args, "consistent", False):
         raise ValueError(
             "--consistent is for arms described by a URDF with --from (docs/urdf.md); the "
             "2-DOF model path bounds its fit when least squares is not physical"
         )
-    elif args.from_recording and pipelines.model_path(args):
+    elif args.from_recording and (iv or pipelines.model_path(args)):
         outcome = pipelines.run_identify_model(args)
+    elif iv:
+        raise ValueError(
+            "--instruments target: from a recording (--from) that holds the target positions"
+        )
     elif not args.from_recording and pipelines.bench_model_path(args):
         outcome = pipelines.record_then_identify_model(args)
     else:

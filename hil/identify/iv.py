@@ -22,19 +22,30 @@ path's feasible weighting, :func:`hil.model.estimators.weighted_least_squares`).
 
 Here: the estimator over regressor matrices (:func:`instrumental_variables`), the reference's
 delay and tracking check (:func:`reference_delay`, :func:`reference_tracking`), and the rows of
-a URDF arm with their instruments (:func:`reference_rows`, :func:`identify_torque_iv`).
-Imports numpy, drivers.recording, hil.identify.schemes (the bootstrap's rule),
-hil.identify.urdf and hil.model.urdf; no I/O.
+any arm model (:class:`hil.model.protocol.ArmDynamics`) with their instruments
+(:func:`reference_rows`, :func:`identify_torque_iv`, :func:`iv_identification`): a URDF arm's
+smoothed, block-averaged torque rows (:func:`hil.identify.urdf.regression_rows`), the 2-DOF
+closed form's exact filtered dynamic rows at λ (:func:`hil.model.regressors.iter_rows`, the rows
+its least squares fits). Imports numpy, drivers.recording, hil.identify.identification,
+hil.identify.schemes (the bootstrap's rule), hil.identify.urdf and hil.model.regressors; no I/O.
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
 from drivers.recording import Recording
-from hil.identify.schemes import BOOTSTRAP_DRAWS, IDENTIFIED_MAX_RELATIVE_SE, bootstrap_block_s
+from hil.identify.identification import Identification, unusable_reason
+from hil.identify.schemes import (
+    BOOTSTRAP_DRAWS,
+    IDENTIFIED_MAX_RELATIVE_SE,
+    Uncertainty,
+    bootstrap_block_s,
+)
 from hil.identify.urdf import (
     DEFAULT_CUTOFF_HZ,
     DEFAULT_DECIMATE,
@@ -43,8 +54,8 @@ from hil.identify.urdf import (
     regression_rows,
     torque_nrmse,
 )
-from hil.model.regressors import excitation_bandwidth
-from hil.model.urdf import UrdfArmModel
+from hil.model.protocol import ArmDynamics
+from hil.model.regressors import data_bandwidth, excitation_bandwidth, iter_rows
 
 # A reference whose RMS distance from the measured positions exceeds this share of their spread
 # on some joint is not the trajectory the arm followed. Tracking error only weakens the
@@ -284,19 +295,52 @@ def reference_tracking(
     return ReferenceTracking(delay, rms, rel, not bad, reason)
 
 
+def closed_form_rows(model: ArmDynamics, rec: Recording, lam: float) -> FilteredRows:
+    """The 2-DOF closed form's rows y = Ψ θ as its least squares fits them
+    (:func:`hil.identify.schemes.identify_model`): the ``exact`` filtered dynamic regression at
+    bandwidth ``lam`` on the real time stamps (:func:`hil.model.regressors.iter_rows`, the
+    momentum balance of Reyes & Kelly (1997) eq. (24) over each interval), as
+    :class:`~hil.identify.urdf.FilteredRows`: ``tau`` the filtered torque, ``weights`` 0 where a
+    joint sticks (``near_step`` there)."""
+    chunks = list(iter_rows("filtered_dynamic", rec.q, rec.tau, rec.t, lam, model))
+    t, y, Psi, w = (
+        np.concatenate([getattr(c, f) for c in chunks]) for f in ("t", "y", "Psi", "weights")
+    )
+    return FilteredRows(t, y, Psi, w == 0, w)
+
+
+def torque_rows(
+    model: ArmDynamics,
+    rec: Recording,
+    *,
+    cutoff_hz: float = DEFAULT_CUTOFF_HZ,
+    decimate: int = DEFAULT_DECIMATE,
+    lam: float | None = None,
+) -> FilteredRows:
+    """The rows τ ≈ Yθ each arm's least squares fits: a URDF arm's smoothed, block-averaged
+    torque rows (:func:`hil.identify.urdf.regression_rows`, ``cutoff_hz``, ``decimate``), the
+    2-DOF closed form's filtered dynamic rows at ``lam`` (:func:`closed_form_rows`; default
+    :func:`hil.model.regressors.data_bandwidth` of the recording)."""
+    if model.closed_form:
+        return closed_form_rows(model, rec, data_bandwidth(rec.q, rec.t) if lam is None else lam)
+    return regression_rows(model, rec, cutoff_hz=cutoff_hz, decimate=decimate)
+
+
 def reference_rows(
-    model: UrdfArmModel,
+    model: ArmDynamics,
     rec: Recording,
     q_ref: np.ndarray,
     *,
     cutoff_hz: float = DEFAULT_CUTOFF_HZ,
     decimate: int = DEFAULT_DECIMATE,
+    lam: float | None = None,
 ) -> tuple[FilteredRows, FilteredRows]:
-    """The rows τ ≈ Yθ of ``rec`` and their instruments: the same smoothing, regressor and
-    block average (:func:`hil.identify.urdf.regression_rows`) applied to ``q_ref`` (N, n),
-    already aligned to the recording's stamps (nan where it has no value). Only the stretch
-    where the reference is defined is kept, the same stamps for both, so row k of the
-    instruments belongs to row k of the regression."""
+    """The rows τ ≈ Yθ of ``rec`` and their instruments: the same rows (:func:`torque_rows`:
+    the same smoothing or filter, regressor and averaging) built on ``q_ref`` (N, n), already
+    aligned to the recording's stamps (nan where it has no value). Only the stretch where the
+    reference is defined is kept, the same stamps for both, so row k of the instruments belongs
+    to row k of the regression (the regression's weights are the ones to use: the reference
+    does not stick)."""
     ok = np.all(np.isfinite(q_ref), axis=1)
     idx = np.flatnonzero(ok)
     if idx.size < 8:
@@ -309,14 +353,15 @@ def reference_rows(
             **{f"q{j + 1}": q_ref[idx[0] : idx[-1] + 1, j] for j in range(rec.n_joints)},
         },
     )
-    rows = regression_rows(model, part, cutoff_hz=cutoff_hz, decimate=decimate)
-    inst = regression_rows(model, ref, cutoff_hz=cutoff_hz, decimate=decimate)
+    options = {"cutoff_hz": cutoff_hz, "decimate": decimate, "lam": lam}
+    rows = torque_rows(model, part, **options)
+    inst = torque_rows(model, ref, **options)
     return rows, inst
 
 
 @dataclass(frozen=True)
 class IvIdentification:
-    """θ by instrumental variables on a URDF arm's filtered rows: ``theta``, ``se_white``
+    """θ by instrumental variables on an arm's filtered rows: ``theta``, ``se_white``
     (:func:`iv_standard_errors`), ``se_block`` (:func:`iv_blocked_bootstrap`) and which
     parameters the data determine, the rows and instruments used, the reference's
     ``tracking``, ``fit_until_s`` and the held-out NRMSE (nan without a held-out part)."""
@@ -332,24 +377,31 @@ class IvIdentification:
     tracking: ReferenceTracking
     fit_until_s: float
     nrmse_held_out: np.ndarray
+    lam: float | None = None  # the 2-DOF rows' filter bandwidth, rad/s (None: a URDF arm's)
     method: str = "instrumental variables on the reference trajectory (IDIM-IV)"
 
 
 def identify_torque_iv(
-    model: UrdfArmModel,
+    model: ArmDynamics,
     rec: Recording,
     *,
     cutoff_hz: float = DEFAULT_CUTOFF_HZ,
     decimate: int = DEFAULT_DECIMATE,
     held_out: float = 0.25,
     left_out_joints: np.ndarray | None = None,
+    lam: float | None = None,
 ) -> IvIdentification:
-    """IDIM-IV of the base parameters on the first (1 − ``held_out``) of the recording, the
-    instruments the torque regressor of its target positions (``rec.q_target``), aligned by
-    :func:`reference_delay` and checked by :func:`reference_tracking`. ``left_out_joints``
+    """IDIM-IV of θ on the first (1 − ``held_out``) of the recording, the instruments the
+    rows of its target positions (``rec.q_target``; :func:`reference_rows`), aligned by
+    :func:`reference_delay` and checked by :func:`reference_tracking`. A URDF arm's rows are
+    smoothed at ``cutoff_hz`` and averaged over ``decimate``; the 2-DOF closed form's are
+    filtered at ``lam`` rad/s (its least squares' λ; default from the data). ``left_out_joints``
     (n,): joints whose equations near friction steps are left out, as the least-squares fit
-    decided (:func:`hil.identify.urdf.leave_out_friction_steps`). Raises ValueError with one
-    line when the recording has no target positions or they do not track the motion."""
+    decided (:func:`hil.identify.urdf.leave_out_friction_steps`). Uncertainty: the blocked
+    bootstrap of the least-squares path, its blocks by the same rule
+    (:func:`hil.identify.schemes.bootstrap_block_s` of λ, or of 2π·``cutoff_hz`` for the
+    smoothed rows). Raises ValueError with one line when the recording has no target positions
+    or they do not track the motion."""
     if rec.q_target is None:
         raise ValueError(
             f"{rec.path}: no target positions (q_target1.. columns or a format's "
@@ -359,7 +411,9 @@ def identify_torque_iv(
     if not tracking.usable:
         raise ValueError(f"{rec.path}: {tracking.reason}")
     q_ref = shifted(rec.t, rec.q_target, tracking.delay_s)
-    rows, inst = reference_rows(model, rec, q_ref, cutoff_hz=cutoff_hz, decimate=decimate)
+    if model.closed_form and lam is None:
+        lam = data_bandwidth(rec.q, rec.t)
+    rows, inst = reference_rows(model, rec, q_ref, cutoff_hz=cutoff_hz, decimate=decimate, lam=lam)
     if left_out_joints is not None:
         rows = rows.leaving_out(left_out_joints)
     split = fit_split(rec, held_out)
@@ -373,8 +427,9 @@ def identify_torque_iv(
     theta, _ = weighted_instrumental_variables(rows.Y[fit], rows.tau[fit], inst.Y[fit], w)
     sigma2 = residual_variance(rows.Y[fit], rows.tau[fit], theta, w)
     se = iv_standard_errors(rows.Y[fit], rows.tau[fit], inst.Y[fit], theta, w / sigma2)
-    # the least-squares path's blocks (the smoothing cutoff plays the row filter's λ)
-    block_s = bootstrap_block_s(2 * np.pi * cutoff_hz, float(rec.t[-1] - rec.t[0]))
+    # the least-squares path's blocks (a URDF arm's smoothing cutoff plays the row filter's λ)
+    rate = lam if model.closed_form and lam is not None else 2 * np.pi * cutoff_hz
+    block_s = bootstrap_block_s(rate, float(rec.t[-1] - rec.t[0]))
     se_block = iv_blocked_bootstrap(
         rows.Y[fit], rows.tau[fit], inst.Y[fit], w / sigma2, rows.t[fit], block_s
     )
@@ -384,5 +439,58 @@ def identify_torque_iv(
         torque_nrmse(theta, rows.select(~fit)) if held_out > 0 else np.full(model.n_joints, np.nan)
     )
     return IvIdentification(
-        theta, se, se_block, identified, block_s, blocks, rows, inst, tracking, split, held
+        theta, se, se_block, identified, block_s, blocks, rows, inst, tracking, split, held,
+        lam if model.closed_form else None,
+    )  # fmt: skip
+
+
+# --instruments target: the filtered dynamic rows fitted by IV, reported as this scheme
+IV_SCHEME = "filtered_dynamic_iv"
+
+
+def iv_identification(
+    model: ArmDynamics,
+    recording: Recording,
+    *,
+    held_out: float,
+    cutoff_hz: float = DEFAULT_CUTOFF_HZ,
+    lam: float | None = None,
+    left_out_joints: np.ndarray | None = None,
+) -> tuple[Identification, dict[str, Any]]:
+    """``--instruments target``: the filtered dynamic rows (the least-squares fit's smoothing
+    cutoff or λ, and its equations left out) fitted by instrumental variables on the
+    recording's target positions (:func:`identify_torque_iv`), as an :class:`Identification`
+    (scheme filtered_dynamic, estimator ``iv``) and its entry of identify.json's ``schemes``
+    (one layout for every arm); not constrained by --consistent or bounded."""
+    start = time.process_time()
+    res = identify_torque_iv(
+        model, recording, held_out=held_out, cutoff_hz=cutoff_hz, lam=lam,
+        left_out_joints=left_out_joints,
+    )  # fmt: skip
+    uncertainty = Uncertainty(res.se_white, res.se_block, res.identified, res.block_s, res.blocks)
+    method = (
+        f"{res.method}, filtered dynamic rows; the motion follows the reference by "
+        f"{res.tracking.delay_s:+.3f} s, within {res.tracking.relative_error.max():.1%} of its "
+        "spread"
     )
+    # the 2-DOF path counts its rows per joint equation, the URDF path per time
+    rows = res.rows.weights.size if res.lam is not None else len(res.rows.t)
+    consistency = model.physical_consistency(res.theta)
+    ident = Identification(
+        model=model, scheme="filtered_dynamic", discretization="exact", estimator="iv",
+        lam=res.lam, theta=res.theta, method=method, rows=rows,
+        consistency=consistency, uncertainty=uncertainty,
+        failed_reason=unusable_reason(res.theta, consistency), result=res,
+    )  # fmt: skip
+    rows_filter: dict[str, Any] = (
+        {"lambda_rad_s": res.lam} if res.lam is not None else {"smoothing_cutoff_hz": cutoff_hz}
+    )
+    entry = {
+        "method": method,
+        **rows_filter,
+        "rows": rows,
+        "reference": res.tracking.as_json(),
+        "cpu_s": time.process_time() - start,
+        "uncertainty": uncertainty.as_json(),
+    }
+    return ident, entry

@@ -15,6 +15,7 @@ from hil.cli_options import (
     say,
     split_list,
 )
+from hil.identify.identification import Identification
 from hil.identify.identification import identify as identify_arm
 from hil.identify.outcome import (
     PAPER_EXCITATION,
@@ -78,9 +79,14 @@ def record_then_identify_model(args: argparse.Namespace) -> Outcome:
 
 
 def run_identify_model(args: argparse.Namespace) -> Outcome:
-    """`hil identify --from A [--validate B] --robot R [--terms ...]`: θ of the model object
-    from A, side by side with the robot profile's θ, both validated on B (same rows, same
-    filter): held-out torque prediction and restarted short-window simulation."""
+    """`hil identify --from A [--validate B] --robot R [--terms ...] [--instruments target]`:
+    θ of the model object from A, side by side with the robot profile's θ, both validated on B
+    (same rows, same filter): held-out torque prediction and restarted short-window simulation.
+    ``--instruments target``: the same rows fitted by instrumental variables on A's target
+    positions as well (:func:`hil.identify.iv.iv_identification`), validated alike, both
+    reported under ``schemes`` as the URDF path reports them; ``--params-scheme
+    filtered_dynamic_iv`` selects its θ."""
+    from hil.identify.iv import IV_SCHEME, iv_identification
     from hil.identify.schemes import torque_prediction_error
     from hil.model.openloop import simulate_windows
     from profiles.robot import load_robot
@@ -106,6 +112,9 @@ def run_identify_model(args: argparse.Namespace) -> Outcome:
     )
     ident = identify_arm(model, fit, "filtered_dynamic", lam=args.lam)
     res = ident.result
+    iv = getattr(args, "instruments", "none") == "target"
+    if iv:  # the least-squares rows (its λ) on the whole of A, as least squares fits them
+        iv_ident, iv_entry = iv_identification(model, fit, held_out=0.0, lam=res.lam)
     # the profile's θ in the identified model's columns (terms it lacks are zero there; terms
     # the model lacks are dropped, which the report says)
     prof_model = ArmModel(profile.terms)
@@ -118,6 +127,8 @@ def run_identify_model(args: argparse.Namespace) -> Outcome:
             reference[model.term_columns(term)] = prof_theta[prof_model.term_columns(term)]
     window = args.window or SIMULATION_WINDOW_S
     candidates = {"identified": res.theta, f"profile {robot}": reference}
+    if iv:
+        candidates = {"identified": res.theta, IV_SCHEME: iv_ident.theta, **candidates}
     validation: dict[str, Any] = {}
     for name, rec in (("fit", fit), ("held_out", held_out)):
         if rec is None:
@@ -160,44 +171,65 @@ def run_identify_model(args: argparse.Namespace) -> Outcome:
     # it predicts every joint's torque better than the torque's own mean (NRMSE < 1, the
     # criterion of the URDF path's held-out verdict; on the held-out recording when given)
     judged = "held_out" if "held_out" in validation else "fit"
-    nrmse_judged = validation[judged]["identified"]["torque_nrmse"]
-    reason = ident.failed_reason
-    if reason is None and not np.any(res.identified):
-        reason = "no parameter is determined by these data (every SE > 50 % of its value)"
-    if reason is None:
-        worse = [j for j, x in enumerate(nrmse_judged) if not x < 1.0]
-        if worse:
-            reason = (
-                f"torque prediction on the {judged.replace('_', '-')} recording no better than "
-                "its mean on joint "
-                + ", ".join(f"{j + 1} (NRMSE {nrmse_judged[j]:.3g})" for j in worse)
+    reason = _failed_reason(ident, validation[judged]["identified"]["torque_nrmse"], judged)
+    idents = {"filtered_dynamic": ident.failing(reason)}
+    if iv:
+        iv_reason = _failed_reason(iv_ident, validation[judged][IV_SCHEME]["torque_nrmse"], judged)
+        idents[IV_SCHEME] = iv_ident.failing(iv_reason)
+        # both fits in the URDF path's layout (hil.identify.urdf_path): what IV changes
+        ls_entry = {
+            "method": res.method,
+            "lambda_rad_s": res.lam,
+            "rows": res.rows,
+            "uncertainty": res.uncertainty.as_json(),
+        }
+        report["schemes"] = {
+            s: {
+                **entry,
+                "theta": idents[s].theta.tolist(),
+                "physical_consistency": idents[s].consistency,
+                "validation": _validation_entry(
+                    validation[judged][label]["torque_nrmse"], judged, report
+                ),
+                "usable": idents[s].usable,
+                "failed_reason": idents[s].failed_reason,
+            }
+            for s, label, entry in (
+                ("filtered_dynamic", "identified", ls_entry),
+                (IV_SCHEME, IV_SCHEME, iv_entry),
             )
+        }
+    scheme = IV_SCHEME if iv and args.params_scheme == IV_SCHEME else "filtered_dynamic"
+    reason = idents[scheme].failed_reason
     report["selection"] = {
-        "scheme": "filtered_dynamic",
+        "scheme": scheme,
         "discretization": "exact",
         "usable": reason is None,
         "reason": reason,
-        "schemes_usable": [] if reason else ["filtered_dynamic"],
+        "schemes_usable": [s for s, i in idents.items() if i.usable],
     }
-    report["identifications"] = [ident.failing(reason).to_json()]
+    report["identifications"] = [i.to_json() for i in idents.values()]
     if reason is not None:
         report["params_files"] = []
         return Outcome(report, format_model_report(report, model))
+    entries = {
+        s: {
+            "theta": i.theta,
+            "discretization": "exact",
+            "lambda_rad_s": i.lam,
+            "estimator": i.method,
+            "physical_consistency": i.consistency,
+            "identified": i.uncertainty.identified.tolist(),
+            "se_blocked_bootstrap": i.uncertainty.se_block.tolist(),
+        }
+        for s, i in idents.items()
+        if i.usable and i.uncertainty is not None
+    }
     params = (
         out / "params.json",
+        entries,
         {
-            "filtered_dynamic": {
-                "theta": res.theta,
-                "discretization": "exact",
-                "lambda_rad_s": res.lam,
-                "estimator": res.method,
-                "physical_consistency": res.consistency,
-                "identified": res.identified.tolist(),
-                "se_blocked_bootstrap": res.se_block.tolist(),
-            }
-        },
-        {
-            "selected": "filtered_dynamic",
+            "selected": scheme,
             "robot": robot,
             "recording": str(fit.path),
             "discretization": "exact",
@@ -206,6 +238,76 @@ def run_identify_model(args: argparse.Namespace) -> Outcome:
     )
     report["params_files"] = [str(out / "params.json")]
     return Outcome(report, format_model_report(report, model), [params])
+
+
+def _failed_reason(ident: Identification, nrmse: list[float], judged: str) -> str | None:
+    """Why the model path does not offer ``ident``'s θ (None: it does): not an arm
+    (:func:`hil.identify.identification.unusable_reason`), no parameter determined, or a joint's
+    torque NRMSE ``nrmse`` on the ``judged`` recording ("fit" or "held_out") not below 1."""
+    reason = ident.failed_reason
+    determined = ident.uncertainty is None or np.any(ident.uncertainty.identified)
+    if reason is None and not determined:
+        reason = "no parameter is determined by these data (every SE > 50 % of its value)"
+    if reason is None:
+        worse = [j for j, x in enumerate(nrmse) if not x < 1.0]
+        if worse:
+            reason = (
+                f"torque prediction on the {judged.replace('_', '-')} recording no better than "
+                "its mean on joint " + ", ".join(f"{j + 1} (NRMSE {nrmse[j]:.3g})" for j in worse)
+            )
+    return reason
+
+
+def _validation_entry(nrmse: list[float], judged: str, report: dict[str, Any]) -> dict[str, Any]:
+    """A scheme's ``validation`` in identify.json's ``schemes`` (the URDF path's keys): its
+    torque NRMSE on the judged recording and whether every joint is below 1."""
+    worse = [j for j, x in enumerate(nrmse) if not x < 1.0]
+    return {
+        "on": report["validation_recording"] if judged == "held_out" else report["recording"],
+        "torque_nrmse": nrmse,
+        "passed": not worse,
+        "reason": None
+        if not worse
+        else "no better than the mean on joint " + ", ".join(str(j + 1) for j in worse),
+        "criterion": "every joint's filtered torque NRMSE below 1 (better than predicting its "
+        "mean), on the held-out recording when given, else on the fit",
+    }
+
+
+LABEL = 30  # width of the validation table's row labels ("held-out: filtered_dynamic_iv")
+
+
+def _iv_lines(report: dict[str, Any], model: ArmModel) -> list[str]:
+    """The text of ``--instruments target``: least squares and IV side by side per parameter
+    (± blocked-bootstrap SE, n/d where not determined), the reference's delay and tracking."""
+    from hil.identify.iv import IV_SCHEME
+
+    schemes = report.get("schemes", {})
+    if IV_SCHEME not in schemes:
+        return []
+    ls, iv = schemes["filtered_dynamic"], schemes[IV_SCHEME]
+    lines = [
+        "",
+        f"Filtered Dynamic IV (filtered_dynamic_iv): {iv['method']}; "
+        f"{iv['rows']} rows, λ = {iv['lambda_rad_s']:.3g} rad/s",
+        f"{'parameter':14s}{'unit':>7s}{'least squares':>16s}{'± SE':>10s}{'IV':>12s}{'± SE':>10s}",
+    ]
+
+    def cell(entry: dict[str, Any], i: int) -> str:
+        u = entry["uncertainty"]
+        value = f"{entry['theta'][i]:.4g}" if u["identified"][i] else "n/d"
+        return f"{value:>16s}{u['se_blocked_bootstrap'][i]:>10.2g}"
+
+    for i, (name, unit) in enumerate(zip(model.names, model.units, strict=True)):
+        lines.append(f"{name:14s}{unit:>7s}{cell(ls, i)}{cell(iv, i)[4:]}")
+    lines.append(
+        "  n/d: not determined (blocked-bootstrap SE > 50 % of the value); least squares as "
+        "fitted (bounded when not physical)"
+    )
+    for s in (IV_SCHEME,):
+        if schemes[s]["failed_reason"]:
+            lines.append(f"  {s} FAILED: {schemes[s]['failed_reason']}")
+    return lines
 
 
 def format_model_report(report: dict[str, Any], model: ArmModel) -> str:
@@ -252,12 +354,13 @@ def format_model_report(report: dict[str, Any], model: ArmModel) -> str:
         )
     for note in ident["notes"]:
         lines.append(f"  note: {note}")
+    lines += _iv_lines(report, model)
     lines += [
         "",
         "Validation (NRMSE per joint, %): torque = filtered torque prediction (same rows, same "
         f"filter for both); simulation = open loop restarted every "
         f"{report['simulation_window_s']:g} s from the recorded state",
-        f"{'':26s}{'torque j1':>10s}{'j2':>8s}{'simulation j1':>15s}{'j2':>8s}",
+        f"{'':{LABEL}s}{'torque j1':>10s}{'j2':>8s}{'simulation j1':>15s}{'j2':>8s}",
     ]
     for key, vals in report["validation"].items():
         where = {"fit": "fit", "held_out": "held-out"}.get(key, key)  # words, not JSON keys
@@ -269,7 +372,7 @@ def format_model_report(report: dict[str, Any], model: ArmModel) -> str:
                 else f"{'not physical':>23s}"
             )
             lines.append(
-                f"{where + ': ' + label:26s}{100 * v['torque_nrmse'][0]:>10.2f}"
+                f"{where + ': ' + label:{LABEL}s}{100 * v['torque_nrmse'][0]:>10.2f}"
                 f"{100 * v['torque_nrmse'][1]:>8.2f}{simtxt}"
             )
     selection = report["selection"]

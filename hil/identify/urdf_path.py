@@ -12,19 +12,17 @@ from typing import Any
 
 import numpy as np
 
-from drivers.recording import Recording
 from hil.cli_options import (
     read_recording,
     recorded_urdf_robot,
     say,
     split_list,
 )
-from hil.identify.identification import Identification, unusable_reason
+from hil.identify.identification import Identification
 from hil.identify.identification import identify as identify_arm
 from hil.identify.outcome import Outcome, record_run
 from hil.identify.schemes import (
     SCHEME_TITLES,
-    Uncertainty,
 )
 
 
@@ -149,7 +147,12 @@ def run_identify_urdf(args: argparse.Namespace) -> Outcome:
         idents[scheme] = ident
         results[scheme] = {"theta": ident.theta, **entry}
     if getattr(args, "instruments", "none") == "target" and torque_res is not None:
-        ident, entry = _iv_identification(model, recording, torque_res, held_out, cutoff)
+        from hil.identify.iv import IV_SCHEME, iv_identification
+
+        ident, entry = iv_identification(
+            model, recording, held_out=held_out, cutoff_hz=cutoff,
+            left_out_joints=torque_res.left_out_joints,
+        )  # fmt: skip
         idents[IV_SCHEME], results[IV_SCHEME] = ident, {"theta": ident.theta, **entry}
     nominal = model.base_theta()
     if val is not None:
@@ -250,48 +253,6 @@ def run_identify_urdf(args: argparse.Namespace) -> Outcome:
     }
     out.mkdir(parents=True, exist_ok=True)
     return Outcome(report, format_urdf_report(report))
-
-
-# --instruments target: the filtered dynamic rows fitted by IV, reported as this scheme
-IV_SCHEME = "filtered_dynamic_iv"
-
-
-def _iv_identification(
-    model: Any, recording: Recording, torque_res: Any, held_out: float, cutoff: float
-) -> tuple[Identification, dict[str, Any]]:
-    """``--instruments target``: the filtered dynamic rows (the least-squares fit's cutoff and
-    equations left out) fitted by instrumental variables on the recording's target positions
-    (:func:`hil.identify.iv.identify_torque_iv`), as an :class:`Identification` (scheme
-    filtered_dynamic, estimator ``iv``) and its report entry; not constrained by --consistent."""
-    from hil.identify.iv import identify_torque_iv
-
-    start = time.process_time()
-    res = identify_torque_iv(
-        model, recording, held_out=held_out, cutoff_hz=cutoff,
-        left_out_joints=torque_res.left_out_joints,
-    )  # fmt: skip
-    uncertainty = Uncertainty(res.se_white, res.se_block, res.identified, res.block_s, res.blocks)
-    method = (
-        f"{res.method}, filtered dynamic rows; the motion follows the reference by "
-        f"{res.tracking.delay_s:+.3f} s, within {res.tracking.relative_error.max():.1%} of its "
-        "spread"
-    )
-    consistency = model.physical_consistency(res.theta)
-    ident = Identification(
-        model=model, scheme="filtered_dynamic", discretization="exact", estimator="iv",
-        lam=None, theta=res.theta, method=method, rows=len(res.rows.t),
-        consistency=consistency, uncertainty=uncertainty,
-        failed_reason=unusable_reason(res.theta, consistency), result=res,
-    )  # fmt: skip
-    entry = {
-        "method": method,
-        "smoothing_cutoff_hz": cutoff,
-        "rows": len(res.rows.t),
-        "reference": res.tracking.as_json(),
-        "cpu_s": time.process_time() - start,
-        "uncertainty": uncertainty.as_json(),
-    }
-    return ident, entry
 
 
 def format_urdf_report(report: dict[str, Any]) -> str:

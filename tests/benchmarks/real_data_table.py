@@ -3,6 +3,7 @@ other recording of the same design, side by side with the owners' published mode
 profile), same rows and same filter for both.
 
     python tests/benchmarks/real_data_table.py [--records DIR] [--torque commanded|measured]
+        [--instruments target]
 
 For each design (A.0: the six 2022-08-15 sys_id trajectories, profile dfki-a0; C.0: the seven
 2022-09-14 ones, profile dfki-c0) and each recording as the fit: θ of the profile's model
@@ -14,6 +15,12 @@ simulate_windows). A joint held at zero torque (C.0's passive-joint trajectories
 torque NRMSE (its spread is zero): means are over the joints and recordings where it is
 defined. Prints one row per fit recording (means over its held-out recordings) and
 the identified parameters and rotor inertia of each fit. About a minute on the dev VM.
+
+``--instruments target``: each fit by instrumental variables on the recording's target
+positions as well (hil.identify.iv.identify_torque_iv on the same rows, the fit's λ; what
+`hil identify --instruments target` does), its held-out torque NRMSE beside least squares' on
+the same held-out recordings; a recording IV refuses (no target positions, a reference that
+does not track) is listed with the one-line reason.
 """
 
 from __future__ import annotations
@@ -28,6 +35,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from drivers.recording import read_signals
+from hil.identify.iv import identify_torque_iv
 from hil.identify.schemes import identify_model, torque_prediction_error
 from hil.model.closed_form import ArmModel
 from hil.model.openloop import simulate_windows
@@ -49,6 +57,7 @@ def main() -> int:
     ap.add_argument("--records", default=str(RECORDS))
     ap.add_argument("--torque", default="commanded")
     ap.add_argument("--terms", default=None, help="override the profile's model terms")
+    ap.add_argument("--instruments", choices=("none", "target"), default="none")
     args = ap.parse_args()
     t_start = time.perf_counter()
     for design, (robot, pattern) in DESIGNS.items():
@@ -74,14 +83,29 @@ def main() -> int:
         print(f"{'':22s}{'identified':>16s}{'profile':>16s}{'identified':>18s}{'profile':>16s}")
         wins = total = 0
         fits = []
+        iv_wins, iv_total, iv_refused = 0, 0, []
         for i, rec in enumerate(recs):
             res = identify_model(rec.t, rec.q, rec.tau, model)
             fits.append(res)
-            te, tp, se, sp = [], [], [], []
+            iv_theta = None
+            if args.instruments == "target":
+                try:
+                    iv_theta = identify_torque_iv(model, rec, held_out=0.0, lam=res.lam).theta
+                except ValueError as exc:
+                    iv_refused.append(f"{files[i].name}: {str(exc).split(': ', 1)[-1]}")
+            te, tp, se, sp, ti = [], [], [], [], []
             for k, other in enumerate(recs):
                 if k == i:
                     continue
                 a = torque_prediction_error(res.theta, model, other.t, other.q, other.tau, res.lam)
+                if iv_theta is not None:
+                    c = torque_prediction_error(
+                        iv_theta, model, other.t, other.q, other.tau, res.lam
+                    )
+                    ti.append(c)
+                    if np.isfinite(np.nanmean(c)):
+                        iv_wins += int(np.nanmean(c) < np.nanmean(a))
+                        iv_total += 1
                 b = torque_prediction_error(ref, model, other.t, other.q, other.tau, res.lam)
                 te.append(a)
                 tp.append(b)
@@ -99,8 +123,16 @@ def main() -> int:
                 f"{te[0]:9.1f}{te[1]:7.1f}{tp[0]:9.1f}{tp[1]:7.1f}"
                 f"{se[0]:11.1f}{se[1]:7.1f}{sp[0]:9.1f}{sp[1]:7.1f}"
             )
+            if ti:
+                iv = 100 * np.nanmean(ti, axis=0)
+                print(f"{'  IV on the target':22s}{iv[0]:9.1f}{iv[1]:7.1f}")
         print(f"identified θ predicts held-out torque better (mean of the two joints) than the "
               f"profile in {wins} of {total} fit/held-out pairs")  # fmt: skip
+        if args.instruments == "target":
+            print(f"IV predicts held-out torque better than least squares (mean of the two "
+                  f"joints) in {iv_wins} of {iv_total} fit/held-out pairs; IV refused on "
+                  f"{len(iv_refused)} of {len(recs)} fit recordings"
+                  + "".join(f"\n  {line}" for line in iv_refused))  # fmt: skip
         names = model.names
         print("\nparameters (identified from each recording; '?' = not determined by it, "
               "blocked-bootstrap SE > 50 %):")  # fmt: skip
