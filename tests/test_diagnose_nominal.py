@@ -122,6 +122,11 @@ def test_reference_null_pair_gives_no_finding_and_a_gain_since_then_is_found(arm
     assert _drift(doc) == [("torque_gain", 1)], doc["summary"]
     g = doc["nominal"]["findings"][0]["estimate"]["gain"]
     assert abs(g - (1 + GAIN)) <= WITHIN * GAIN
+    # one reference of another motion (the phases differ): the finding says what it was not
+    # weighed against, in the report's words too
+    evidence = doc["nominal"]["findings"][0]["evidence"]
+    assert "one reference of another motion" in evidence["spread"]
+    assert evidence["spread"] in evidence["words"]
 
 
 def test_the_nominal_model_options_and_refit(arm, capsys, tmp_path):
@@ -210,6 +215,8 @@ def test_gain_written_into_the_shipped_dfki_file_is_found_against_its_original(c
     assert _drift(doc) == [("torque_gain", 2)], doc["summary"]
     found = doc["nominal"]["findings"][0]["estimate"]["gain"]
     assert abs(found - g) <= WITHIN * (g - 1), found
+    # the same motion: the paired difference, no spread over motions to weigh
+    assert "spread" not in doc["nominal"]["findings"][0]["evidence"]
     doc = _diagnose(capsys, str(DFKI_A0), *args)
     assert _drift(doc) == [], doc["summary"]
 

@@ -150,6 +150,11 @@ def reverse_check(
     return out
 
 
+# the words a finding against one reference of another motion carries (:func:`judge`)
+SPREAD_UNMEASURED = (
+    "not weighed against the model's spread over motions, which one reference of another "
+    "motion cannot show: give two or more --reference recordings to weigh it"
+)
 BELOW_FLOOR = "below the smallest size worth naming"
 BELOW_SE = "smaller than its own uncertainty"
 # a term whose held-out proof passed but whose size is not resolved (within its SE or under its
@@ -287,6 +292,12 @@ def judge(
             fit.refine(kept)
     estimates, _cv = term_estimates(fit, kept, nominal.theta_draws)
     confounded = confounded_partners(fit, kept, cands, len(cands))
+    # one reference of another motion: the model's own spread over motions (which moved a
+    # DFKI A.0 joint-2 encoder angle by 0.045 rad SD between recordings of one arm, against
+    # a 0.008 rad SE) cannot be measured, so no finding is weighed against it; say so
+    unweighed = (
+        nominal.reference is not None and not fit.paired and len(nominal.reference.rows) == 1
+    )
     findings = []
     for i, (t, (est, _size, _se)) in enumerate(zip(kept, estimates, strict=True)):
         if t.key in quiet:
@@ -308,6 +319,9 @@ def judge(
                 f"{b.effect.words(e)}" for b, (e, _s, _x) in rivals
             )
             words += f" (to separate them: {t.effect.separate})"
+        if unweighed:
+            ev["spread"] = SPREAD_UNMEASURED
+            words += f" ({SPREAD_UNMEASURED})"
         ev["words"] = words
         findings.append(
             Finding(
