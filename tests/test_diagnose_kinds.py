@@ -13,11 +13,10 @@ import pytest
 from diagnose_cases import CASES, make_recording
 
 from hil.cli import main as hil_main
-from hil.diagnose import pipeline
 from hil.diagnose.candidates import Candidate
 from hil.diagnose.columns import RecordingRows, moving_average
 from hil.diagnose.finding import Finding, rounded
-from hil.diagnose.kinds import KINDS, CandidateKind, TermFit, kind_of
+from hil.diagnose.kinds import KINDS, CandidateKind, Library, TermFit, kind_of
 from hil.model.closed_form import TERMS
 
 SHIPPED = ("offset", "gain", "cogging", "stribeck", "rate", "angle", *TERMS)
@@ -39,6 +38,7 @@ def test_a_kind_carries_its_width_joints_and_floor():
 
 
 FREQUENCY_HZ = 0.43  # not one of the reyes-kelly excitation's frequencies
+FREQUENCIES_HZ = (0.17, FREQUENCY_HZ, 0.71)  # the toy's variants
 AMPLITUDE_NM = 0.25
 NAME = "test_time_sine"
 
@@ -66,6 +66,9 @@ class TimeSine(CandidateKind):
     def size(self, coef: np.ndarray) -> float:
         return float(np.hypot(*coef))
 
+    def candidates(self, joint: int, library: Library) -> list[Candidate]:
+        return [Candidate(NAME, joint, FREQUENCIES_HZ, lambda r, f: time_sine_columns(r, joint, f))]
+
     def findings(self, fit: TermFit) -> list[Finding]:
         estimate = {
             "amplitude_Nm": rounded(self.size(fit.coef)),
@@ -76,8 +79,8 @@ class TimeSine(CandidateKind):
 
 def test_a_kind_registered_here_is_selected_and_reported(monkeypatch, capsys, tmp_path):
     """A toy kind (a torque oscillating in time, written into joint 2's torque of a recording
-    with nothing else to find) registered from here and put in the library: the diagnosis
-    selects it on joint 2, sizes it and reports it in words, with nothing else changed."""
+    with nothing else to find) registered from here, its candidates on every joint its own: the
+    diagnosis selects it on joint 2, sizes it and reports it in words, with nothing else changed."""
     rec = make_recording(tmp_path / "rec", "reyes-kelly", CASES["null"].effects, duration_s=10.0)
     src = rec / "signals.csv"
     rows = list(csv.reader(src.open()))
@@ -88,15 +91,7 @@ def test_a_kind_registered_here_is_selected_and_reported(monkeypatch, capsys, tm
     with src.open("w", newline="") as fh:
         csv.writer(fh).writerows([head, *data.tolist()])
 
-    monkeypatch.setitem(KINDS, NAME, TimeSine())
-    shipped = pipeline.candidates
-
-    def with_time_sine(*args, **kwargs) -> list[Candidate]:
-        variants = (0.17, FREQUENCY_HZ, 0.71)
-        toy = Candidate(NAME, 1, variants, lambda r, f: time_sine_columns(r, 1, f))
-        return [*shipped(*args, **kwargs), toy]
-
-    monkeypatch.setattr(pipeline, "candidates", with_time_sine)
+    monkeypatch.setitem(KINDS, NAME, TimeSine())  # the kind's one file: this class
     capsys.readouterr()
     assert hil_main(["diagnose", str(rec), "--robot", "cicese", "--json", "--no-plots"]) == 0
     doc = json.loads(capsys.readouterr().out)

@@ -16,24 +16,17 @@ evidence types) and :mod:`hil.model`; never the problem, the selection or the st
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from hil.diagnose.columns import (
-    RecordingRows,
-    angle_offset_column,
-    cogging_column_chunks,
-    cogging_columns,
-    gain_column,
-    model_term_columns,
-    offset_column,
-    stribeck_column,
-    torque_rate_column,
-)
-from hil.diagnose.kinds import CandidateKind, kind_of
+from hil.diagnose.columns import model_term_columns
+from hil.diagnose.kinds import KINDS, kind_of
+from hil.diagnose.kinds.base import Candidate, Library
+from hil.diagnose.kinds.cogging import COGGING_PERIODS, cogging_periods
+from hil.diagnose.kinds.stribeck import STRIBECK_MIN_ROWS, STRIBECK_VELOCITIES, stribeck_velocities
 from hil.diagnose.stats import CrossValidation, Evidence
 from hil.model.closed_form import TERMS, ArmModel
 from hil.model.protocol import ArmDynamics
@@ -51,36 +44,7 @@ VOCABULARY = (
 )
 
 
-COGGING_PERIODS = np.arange(3, 401)
-STRIBECK_VELOCITIES = np.geomspace(0.02, 0.6, 16)
 LAG_GRID_S = np.geomspace(5e-5, 0.03, 28)  # lag and delay search, then refined locally
-
-
-@dataclass(frozen=True)
-class Candidate:
-    """One term of the vocabulary on one joint (0 or 1): ``variants`` are the values of its
-    nonlinear parameter (one None when it has none); ``columns(rows, variant)`` its X."""
-
-    kind: str  # the name of its kind in hil.diagnose.kinds.KINDS (offset, gain, ..., com_offset)
-    joint: int
-    variants: tuple[Any, ...]
-    columns: Callable[[RecordingRows, Any], np.ndarray]
-    # X of many variants on the candidate's joint, ``per`` at a time ((K, ≤per, width) arrays),
-    # when that is cheaper than one by one
-    chunks: Callable[[RecordingRows, tuple[Any, ...], int], Iterator[np.ndarray]] | None = None
-    # the joints whose rows the columns reach, when not :func:`joints_of`' 2-DOF rule (an angle
-    # offset on an n-joint arm moves the gravity and inertia torques of every joint)
-    acts_on: tuple[int, ...] | None = None
-
-    @property
-    def spec(self) -> CandidateKind:
-        """Its kind: width, floors, role and findings (:mod:`hil.diagnose.kinds`)."""
-        return kind_of(self.kind)
-
-    @property
-    def key(self) -> str:
-        # a model term is one term of the arm's model, not one joint's (it may act on both)
-        return self.spec.key(self.joint)
 
 
 @dataclass
@@ -90,28 +54,6 @@ class Accepted:
     evidence: Evidence
     confounded_with: list[str] = field(default_factory=list)
     rival_variants: dict[str, Any] = field(default_factory=dict)
-
-
-def cogging_periods(angle_range_rad: float) -> tuple[int, ...]:
-    """Periods per revolution worth testing on a joint that swept ``angle_range_rad``: at least
-    two whole periods inside the range (fewer is a smooth function of q that gravity, an angle
-    offset or a torque offset also make), up to COGGING_PERIODS' top."""
-    lowest = max(int(COGGING_PERIODS[0]), int(np.ceil(2 * 2 * np.pi / max(angle_range_rad, 1e-9))))
-    return tuple(int(n) for n in COGGING_PERIODS if n >= lowest)
-
-
-# A Stribeck velocity v_s is tried only where this many usable rows slide slower than 2 v_s:
-# fewer, and a handful of rows next to a stick or reversal would decide the fit alone.
-STRIBECK_MIN_ROWS = 200
-
-
-def stribeck_velocities(speeds: np.ndarray | None) -> tuple[float, ...]:
-    """The Stribeck velocities the data can support (``speeds``: |q̇| of the usable rows)."""
-    if speeds is None:
-        return tuple(float(v) for v in STRIBECK_VELOCITIES)
-    return tuple(
-        float(v) for v in STRIBECK_VELOCITIES if np.sum(speeds < 2 * v) >= STRIBECK_MIN_ROWS
-    )
 
 
 def model_term_candidates(model: ArmDynamics) -> list[Candidate]:
@@ -135,35 +77,10 @@ def candidates(
     (limits the Stribeck velocities tried; without it all are). ``model``: the nominal model
     (default the 9-parameter one); the model terms it lacks are candidates too, after the
     others."""
-    out: list[Candidate] = []
     model = ArmModel(()) if model is None else model
-    refused = model.refused_terms
-    for j in range(model.n_joints):
-        stribeck = stribeck_velocities(None if speeds is None else speeds[j])
-        if stribeck:
-            out.append(
-                Candidate("stribeck", j, stribeck, lambda r, v, j=j: stribeck_column(r, j, v))
-            )
-        if "offset" not in refused:
-            out.append(Candidate("offset", j, (None,), lambda r, _v, j=j: offset_column(r, j)))
-        out += [
-            Candidate("gain", j, (None,), lambda r, _v, j=j: gain_column(r, j)),
-            Candidate(
-                "cogging",
-                j,
-                cogging_periods(angle_range_rad[j]),
-                lambda r, n, j=j: cogging_columns(r, j, n),
-                lambda r, ns, per, j=j: cogging_column_chunks(r, j, ns, per),
-            ),
-            Candidate("rate", j, (None,), lambda r, _v, j=j: torque_rate_column(r, j)),
-            Candidate(
-                "angle",
-                j,
-                (None,),
-                lambda r, _v, j=j, th=theta: angle_offset_column(r, j, th),
-                acts_on=None if model.closed_form else tuple(range(model.n_joints)),
-            ),
-        ]
+    library = Library(np.asarray(theta, float), angle_range_rad, speeds, model)
+    kinds = sorted((k for k in KINDS.values() if not k.model_term), key=lambda k: k.order)
+    out = [c for j in range(model.n_joints) for k in kinds for c in k.candidates(j, library)]
     return out + model_term_candidates(model)
 
 
@@ -188,3 +105,22 @@ def large_enough(cand: Candidate, cv: CrossValidation) -> bool:
     """The full-data estimate is above its kind's practical floor and has the physical sign
     (the candidate's coefficients are the last of ``cv.beta``, θ its first ones)."""
     return cand.spec.large_enough(cv.beta[-term_width(cand) :], cv.beta)
+
+
+__all__ = [
+    "COGGING_PERIODS",
+    "LAG_GRID_S",
+    "STRIBECK_MIN_ROWS",
+    "STRIBECK_VELOCITIES",
+    "VOCABULARY",
+    "Accepted",
+    "Candidate",
+    "candidates",
+    "cogging_periods",
+    "joints_of",
+    "large_enough",
+    "model_term_candidates",
+    "stribeck_velocities",
+    "term_key",
+    "term_width",
+]

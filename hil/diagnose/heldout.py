@@ -31,6 +31,7 @@ from hil.diagnose.findings import (
     Finding,
 )
 from hil.diagnose.interpret import cogging_at_true_angle, term_findings
+from hil.diagnose.kinds import kind_of_finding
 from hil.diagnose.physical import model_columns, physical_theta
 from hil.diagnose.problem import Problem, design_matrix, fit_theta, fit_theta_at
 from hil.model.closed_form import TERMS
@@ -72,27 +73,9 @@ def simulated_effects(findings: Sequence[Finding], n_joints: int) -> SimulatedEf
     for f in findings:
         if f.term in TERMS and f.effect != f.term:
             continue  # the rival of an accepted model term: the term is in θ already
-        j, e = (f.joint or 1) - 1, f.estimate
-        if f.effect == "torque_offset":
-            fx.offset[j] = e["offset_Nm"]
-        elif f.effect == "torque_gain" and not f.confounded_with:
-            fx.gain[j] = e[e.get("reading", "relative")]  # the reading reported (simulation_gate)
-        elif f.effect == "actuator_lag":
-            fx.lag[j] = max(0.0, e["time_constant_s"])
-        elif f.effect == "transport_delay" and not f.confounded_with:
-            fx.last_delay = max(0.0, e["delay_s"])
-            for i in range(n) if f.joint is None else (j,):
-                fx.delay[i] = fx.last_delay
-        elif f.effect == "cogging":
-            fx.cogging[j] = (e["periods_per_rev"], e["amplitude_Nm"], e["phase_rad"])
-        elif f.effect == "angle_offset":
-            fx.angle[j] = e["offset_rad"]
-        elif f.effect == "stribeck":
-            fx.stribeck_excess[j] = (e["breakaway_excess_Nm"], e["velocity_rad_s"])
-            if e.get("breakaway_ratio"):
-                fx.has_stribeck = True
-                fx.stribeck_ratio[j] = max(1.0, e["breakaway_ratio"])
-                fx.stribeck_velocity[j] = e["velocity_rad_s"]
+        kind = kind_of_finding(f.effect)
+        if kind is not None:
+            kind.simulate(f, fx)
     return fx
 
 

@@ -5,9 +5,11 @@ Each module defines one :class:`~hil.diagnose.kinds.base.CandidateKind` and regi
 its kind and finds it in :data:`KINDS`. The selection, the physical gate, the interpretation,
 the held-out fit and the simulation gate ask the kind what they need (its width, the joints it
 acts on, its practical floor, whether it is a gain or a torque-rate term, its findings), never
-its name; the report reads a finding in its kind's words. Adding a kind is one file here plus
-its import below, and its candidates in the library (:func:`hil.diagnose.candidates.candidates`;
-tests/test_diagnose_kinds.py adds a toy kind's from the test).
+its name; the report reads a finding in its kind's words, and the held-out simulation applies
+it through its kind (:meth:`~hil.diagnose.kinds.base.CandidateKind.simulate`). A kind builds its
+own candidates on each joint (:meth:`~hil.diagnose.kinds.base.CandidateKind.candidates`, in
+:attr:`~hil.diagnose.kinds.base.CandidateKind.order`): adding a kind is one file here plus its
+import below (tests/test_diagnose_kinds.py registers a toy kind from the test).
 
 Why not the drift path's effects (:mod:`hil.diagnose.effects`): an effect is fitted against a
 fixed nominal θ₀ over one stacked context, linearised and stepped (Gauss–Newton), sized against
@@ -32,11 +34,24 @@ from hil.diagnose.kinds import (  # noqa: F401  (each module registers its kind)
 )
 from hil.diagnose.kinds.base import (
     KINDS,
+    Candidate,
     CandidateKind,
+    Library,
     TermFit,
     finding_words,
     kind_of,
+    kind_of_finding,
     register,
 )
 
-__all__ = ["KINDS", "CandidateKind", "TermFit", "finding_words", "kind_of", "register"]
+__all__ = [
+    "KINDS",
+    "Candidate",
+    "CandidateKind",
+    "Library",
+    "TermFit",
+    "finding_words",
+    "kind_of",
+    "kind_of_finding",
+    "register",
+]

@@ -4,17 +4,18 @@ about the refitted θ once accepted."""
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
 from hil.diagnose.columns import RecordingRows, angle_offset_column
 from hil.diagnose.finding import Finding, rounded
-from hil.diagnose.kinds.base import CandidateKind, TermFit, register
+from hil.diagnose.kinds.base import Candidate, CandidateKind, Library, TermFit, register
 
 
 class AngleOffset(CandidateKind):
     name = "angle"
+    order = 60
     practical_floor = 3e-4  # rad
     both_joints = True
     built_at_theta = True
@@ -29,6 +30,21 @@ class AngleOffset(CandidateKind):
         return [
             Finding("angle_offset", fit.joint + 1, {"offset_rad": rounded(float(fit.coef[0]))}, {})
         ]
+
+    def candidates(self, joint: int, library: Library) -> list[Candidate]:
+        model, theta = library.model, library.theta
+        return [
+            Candidate(
+                self.name,
+                joint,
+                (None,),
+                lambda r, _v: angle_offset_column(r, joint, theta),
+                acts_on=None if model.closed_form else tuple(range(model.n_joints)),
+            )
+        ]
+
+    def simulate(self, finding: Finding, effects: Any) -> None:
+        effects.angle[(finding.joint or 1) - 1] = finding.estimate["offset_rad"]
 
 
 ANGLE = register(AngleOffset())

@@ -10,6 +10,8 @@ its object.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
@@ -31,10 +33,52 @@ class TermFit(NamedTuple):
     model: ArmDynamics | None = None
 
 
+@dataclass(frozen=True)
+class Candidate:
+    """One term of a kind on one joint (0-based): ``variants`` are the values of its nonlinear
+    parameter (one None when it has none); ``columns(rows, variant)`` its X."""
+
+    kind: str  # the name of its kind in KINDS (offset, gain, ..., com_offset)
+    joint: int
+    variants: tuple[Any, ...]
+    columns: Callable[[RecordingRows, Any], np.ndarray]
+    # X of many variants on the candidate's joint, ``per`` at a time ((K, ≤per, width) arrays),
+    # when that is cheaper than one by one
+    chunks: Callable[[RecordingRows, tuple[Any, ...], int], Iterator[np.ndarray]] | None = None
+    # the joints whose rows the columns reach, when not the kind's 2-DOF rule (an angle offset
+    # on an n-joint arm moves the gravity and inertia torques of every joint)
+    acts_on: tuple[int, ...] | None = None
+
+    @property
+    def spec(self) -> CandidateKind:
+        """Its kind: width, floors, role and findings."""
+        return kind_of(self.kind)
+
+    @property
+    def key(self) -> str:
+        # a model term is one term of the arm's model, not one joint's (it may act on both)
+        return self.spec.key(self.joint)
+
+
+@dataclass(frozen=True)
+class Library:
+    """What a kind's candidates on a joint are built from (:meth:`CandidateKind.candidates`):
+    the nominal fit's θ, each joint's swept angle range (rad), the usable rows' |q̇| per joint
+    (None: not limited) and the nominal model."""
+
+    theta: np.ndarray
+    angle_range_rad: Sequence[float]
+    speeds: Sequence[np.ndarray] | None
+    model: ArmDynamics
+
+
 class CandidateKind:
-    """One kind of candidate term. Subclasses set the class attributes and :meth:`findings`."""
+    """One kind of candidate term. Subclasses set the class attributes, :meth:`candidates` and
+    :meth:`findings`."""
 
     name: str = ""
+    # its place among a joint's candidates (the library's order: the selection breaks ties in it)
+    order: int = 100
     width: int = 1  # coefficients it adds to the design
     # a term of the arm's model (hil.model.closed_form.TERMS): one term of the arm, not of a
     # joint (its key names no joint), fitted as part of θ and simulated in θ itself
@@ -93,6 +137,16 @@ class CandidateKind:
         """The findings of one term's ``fit``, in the vocabulary."""
         raise NotImplementedError
 
+    def candidates(self, joint: int, library: Library) -> list[Candidate]:
+        """Its candidates on ``joint`` (a model term's come from the model:
+        :func:`hil.diagnose.candidates.model_term_candidates`)."""
+        return []
+
+    def simulate(self, finding: Finding, effects: Any) -> None:
+        """Put ``finding`` (one of its :attr:`words`' effects) into the held-out simulation's
+        ``effects`` (:class:`hil.diagnose.heldout.SimulatedEffects`, whose per-joint lists it
+        sets); by default it is not simulated (a model term is simulated in θ itself)."""
+
 
 KINDS: dict[str, CandidateKind] = {}
 
@@ -113,3 +167,9 @@ def finding_words() -> dict[str, str]:
 def kind_of(name: str) -> CandidateKind:
     """The registered kind called ``name``."""
     return KINDS[name]
+
+
+def kind_of_finding(effect: str) -> CandidateKind | None:
+    """The registered kind whose findings include ``effect`` (its :attr:`~CandidateKind.words`);
+    None for a finding of no kind (an unexplained structure)."""
+    return next((k for k in KINDS.values() if effect in k.words), None)

@@ -3,14 +3,16 @@ friction (F⁺ = θ_fc − c, F⁻ = θ_fc + c), so both readings are reported, 
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Any, ClassVar
 
+from hil.diagnose.columns import offset_column
 from hil.diagnose.finding import Finding, coulomb_column, rounded
-from hil.diagnose.kinds.base import CandidateKind, TermFit, register
+from hil.diagnose.kinds.base import Candidate, CandidateKind, Library, TermFit, register
 
 
 class TorqueOffset(CandidateKind):
     name = "offset"
+    order = 20
     practical_floor = 0.02  # Nm
     confounded_findings = ("coulomb_asymmetry", "torque_offset")
     words: ClassVar[dict[str, str]] = {
@@ -41,6 +43,15 @@ class TorqueOffset(CandidateKind):
                 "torque_offset", fit.joint + 1, {"offset_Nm": rounded(c)}, {}, ["coulomb_asymmetry"]
             ),
         ]
+
+    def candidates(self, joint: int, library: Library) -> list[Candidate]:
+        if self.name in library.model.refused_terms:  # the model says why (refused_terms)
+            return []
+        return [Candidate(self.name, joint, (None,), lambda r, _v: offset_column(r, joint))]
+
+    def simulate(self, finding: Finding, effects: Any) -> None:
+        if finding.effect == "torque_offset":  # its confounded reading stands for both
+            effects.offset[(finding.joint or 1) - 1] = finding.estimate["offset_Nm"]
 
 
 OFFSET = register(TorqueOffset())

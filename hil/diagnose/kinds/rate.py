@@ -4,16 +4,18 @@ torques (:func:`hil.diagnose.findings.classify_rate`)."""
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
+from hil.diagnose.columns import torque_rate_column
 from hil.diagnose.finding import Finding, rounded
-from hil.diagnose.kinds.base import CandidateKind, TermFit, register
+from hil.diagnose.kinds.base import Candidate, CandidateKind, Library, TermFit, register
 
 
 class TorqueRate(CandidateKind):
     name = "rate"
+    order = 50
     width = 2
     practical_floor = 1e-4  # s, > 0
     positive_only = True
@@ -28,6 +30,18 @@ class TorqueRate(CandidateKind):
         # only as a rival: its first order, lag and delay undecided
         estimate = {"time_constant_s": rounded(float(np.sum(fit.coef)))}
         return [Finding("actuator_lag", fit.joint + 1, estimate, {})]
+
+    def candidates(self, joint: int, library: Library) -> list[Candidate]:
+        return [Candidate(self.name, joint, (None,), lambda r, _v: torque_rate_column(r, joint))]
+
+    def simulate(self, finding: Finding, effects: Any) -> None:
+        j, e = (finding.joint or 1) - 1, finding.estimate
+        if finding.effect == "actuator_lag":
+            effects.lag[j] = max(0.0, e["time_constant_s"])
+        elif not finding.confounded_with:  # a delay: the 2-DOF simulator's one, the last found
+            effects.last_delay = max(0.0, e["delay_s"])
+            for i in range(len(effects.delay)) if finding.joint is None else (j,):
+                effects.delay[i] = effects.last_delay
 
 
 RATE = register(TorqueRate())
