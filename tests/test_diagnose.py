@@ -545,6 +545,25 @@ def test_real_recording_gives_a_report_and_no_finding_worse_than_nominal(tmp_pat
     assert doc["summary"]
 
 
+def test_coefficients_least_squares_puts_below_zero_are_held_at_zero(capsys):
+    """DFKI A.0 trajectory 00 refitted alone: least squares gives θ6 = −0.059 Nm s and
+    θ8 = −0.12 Nm, and M(q) not positive definite; held at zero, where bounded least squares puts
+    them, the fit is physical and the candidates are tested on it (old code: "the nominal fit
+    is not physical; no candidates tested"). Every fit keeps them at zero, and the residual the
+    held viscous friction leaves is not an unexplained structure of its own."""
+    argv = ["diagnose", str(DFKI_FILE), "--format", "dfki", "--robot", "dfki-a0", "--refit"]
+    assert hil_main([*argv, "--json", "--no-plots"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    physical = doc["physical"]
+    assert physical["nominal_consistent"] and physical["nominal_violations"] == []
+    assert set(physical["held_at_zero"]) == {"theta6", "theta8"}, physical
+    assert all(v < 0 for v in physical["held_at_zero"].values())
+    assert doc["nominal_theta"][5] == 0.0 and doc["nominal_theta"][7] == 0.0
+    assert doc["candidates_tested"], "no candidate tested"
+    assert any(n.startswith("Held at zero in every fit: theta6") for n in doc["notes"])
+    assert not [f for f in doc["findings"] if f["effect"] == "unexplained"], doc["findings"]
+
+
 SHARED_DFKI = realdata("dfki-double-pendulum")
 
 

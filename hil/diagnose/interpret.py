@@ -364,13 +364,20 @@ UNEXPLAINED_TESTS = 4  # two joints × (velocity, position); n joints: 2 n
 
 
 def unexplained(
-    prob: Problem, accepted: Sequence[Accepted], shaft: np.ndarray | None = None
+    prob: Problem,
+    accepted: Sequence[Accepted],
+    shaft: np.ndarray | None = None,
+    held: np.ndarray | None = None,
 ) -> list[Finding]:
     """A generic state-bin model of each joint's residual, tested like any candidate: if it
     still lowers the held-out error, something the vocabulary lacks lives there. ``shaft``: the
-    exact lagged or delayed torque rows (Nm) to use instead of the first-order rate terms."""
+    exact lagged or delayed torque rows (Nm) to use instead of the first-order rate terms.
+    ``held``: the columns of the coefficients the nominal fit holds at zero (scaled rows,
+    :func:`hil.diagnose.physical.held_at_zero`), free in this test: the bins must explain more
+    than the model's own terms would (a viscous friction held at zero leaves a residual that
+    velocity bins take up, and that is no new physics)."""
     kept = [a for a in accepted if shaft is None or not a.cand.spec.is_rate]
-    cols = [prob.chosen(a) for a in kept]
+    cols = [prob.chosen(a) for a in kept] + ([] if held is None else [held])
     y = prob.y if shaft is None else shaft / prob.scale
     # the design as its column groups: never joined whole (hil.diagnose.stats.design_rows)
     stats = block_stats(prob.design_groups(cols), y, prob.w, prob.blocks)

@@ -6,6 +6,9 @@ standard errors (:func:`physical_theta`, :func:`unphysical`), and no torque gain
 of the torque. :func:`final_fit` fits the nominal model with the accepted terms on all rows,
 :func:`physical_gate` drops accepted terms until that fit is physical,
 :func:`rigid_body_deviation` measures a fit's rigid-body parameters against a reference.
+:func:`bounded_fit` is least squares with those signs bounded, :func:`held_at_zero` the nominal
+fit with the coefficients it puts on their bound held there (a recording that cannot tell a
+viscous friction from zero gives it a negative least-squares value).
 
 Imports: :mod:`hil.diagnose.candidates`, :mod:`hil.diagnose.problem`,
 :mod:`hil.diagnose.stats`, :mod:`hil.model`; never the selection or the stages after it.
@@ -19,9 +22,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from hil.diagnose.candidates import Accepted, Candidate, term_width
-from hil.diagnose.problem import Problem, design_cv
-from hil.diagnose.stats import CrossValidation
+from hil.diagnose.problem import Problem, design_cv, fit_theta, robust_scale
+from hil.diagnose.stats import CrossValidation, block_stats, cross_validate
 from hil.model.closed_form import ArmModel
+from hil.model.estimators import blocked_bootstrap, bounded_quadratic_fit
 from hil.model.protocol import ArmDynamics
 
 # A torque gain error below this (the shaft gets less than half the command) is not a gain
@@ -58,6 +62,63 @@ def physical_theta(
         fr[(fr < 0) & (fr >= bound)] = 0.0
         th[cols] = fr
     return th, list(model.physical_consistency(th)["violations"])
+
+
+def bounded_fit(
+    prob: Problem, model: ArmDynamics, extra: np.ndarray | None, target: np.ndarray, draws: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """[θ, β] of Ψ θ + ``extra`` β ≈ ``target`` (scaled rows), θ's physical signs bounded, and
+    its blocked-bootstrap draws (draws, p)."""
+    # Ψ scaled a block at a time, not joined with ``extra`` into one copy (a 60 s Panda
+    # recording's scaled Ψ is 0.2 GB)
+    stats = block_stats(
+        prob.design_groups([] if extra is None else [extra]), target, prob.w, prob.blocks
+    )
+    H_b, g_b = stats.G.sum(axis=1), stats.r.sum(axis=1)  # (B, p, p), (B, p)
+    lower = np.full(H_b.shape[-1], -np.inf)
+    lower[list(model.nonnegative_columns)] = 0.0
+    theta, _method = bounded_quadratic_fit(H_b.sum(axis=0), g_b.sum(axis=0), lower)
+    if not draws:
+        return theta, theta[None, :]
+    return theta, blocked_bootstrap(H_b, g_b, draws=draws)
+
+
+@dataclass(frozen=True)
+class HeldAtZero:
+    """The nominal fit with the coefficients bounded least squares puts on their bound held
+    there (:func:`held_at_zero`): its problem (those columns of Ψ zero), θ, θ's jackknife SE,
+    and the coefficients held with their least-squares values."""
+
+    prob: Problem
+    theta: np.ndarray
+    se: np.ndarray
+    held: dict[int, float]
+
+
+def nominal_fit_se(prob: Problem) -> np.ndarray:
+    """The jackknife SE of the nominal fit's θ (leave one block out)."""
+    stats = block_stats(prob.design_groups([]), prob.y, prob.w, prob.blocks)
+    return jackknife_se(cross_validate(stats).fold_beta)
+
+
+def held_at_zero(prob: Problem, theta_ls: np.ndarray, model: ArmDynamics) -> HeldAtZero | None:
+    """The nominal fit of ``prob`` with the coefficients that must be ≥ 0 (friction, a rotor
+    inertia) and that bounded least squares puts at 0 held there: the bounded fit's active set,
+    the other coefficients refitted by least squares (on the free ones the bounded fit's optimum
+    is that least squares, KKT). Their columns of Ψ are zero in the returned problem, so every
+    later fit (candidates, gates, held-out) keeps them at 0 (the ridge solve gives a zero column
+    a zero coefficient). None when no coefficient is on its bound."""
+    bounded, _ = bounded_fit(prob, model, None, prob.y, 0)
+    held = [i for i in model.nonnegative_columns if bounded[i] <= 0.0]
+    if not held:
+        return None
+    Psi = prob.Psi_raw.copy()
+    Psi[:, :, held] = 0.0
+    theta = fit_theta(Psi, prob.y_raw, prob.w)
+    theta[held] = 0.0  # lstsq's minimum norm: 1e-17, not 0
+    scale = robust_scale(prob.y_raw - Psi @ theta, prob.w)
+    pinned = Problem(prob.rows, prob.y_raw, Psi, prob.w, scale, prob.blocks)
+    return HeldAtZero(pinned, theta, nominal_fit_se(pinned), {i: float(theta_ls[i]) for i in held})
 
 
 def model_columns(model: ArmDynamics, cands: Sequence[Candidate]) -> tuple[ArmDynamics, np.ndarray]:

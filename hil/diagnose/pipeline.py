@@ -29,7 +29,7 @@ from hil.diagnose.gates import pinned_rigid_body, simulation_gate
 from hil.diagnose.heldout import HeldOutFit, before_after, read_at_reference
 from hil.diagnose.interpret import interpret_with_rate, lack_of_fit, settle_gain_joint, unexplained
 from hil.diagnose.locate import Location, locate
-from hil.diagnose.physical import jackknife_se, physical_gate, physical_theta
+from hil.diagnose.physical import held_at_zero, nominal_fit_se, physical_gate, physical_theta
 from hil.diagnose.problem import (
     MIN_USABLE_ROWS,
     DiagnosisError,
@@ -46,7 +46,7 @@ from hil.diagnose.report import (
     summary_words,
 )
 from hil.diagnose.selection import relinearise_angle, select
-from hil.diagnose.stats import Evidence, block_stats, cross_validate
+from hil.diagnose.stats import Evidence
 from hil.model.closed_form import ArmModel
 from hil.model.protocol import ArmDynamics
 
@@ -69,6 +69,9 @@ class Diagnosis:
     not_findings: dict[str, str]  # per term, why it is not a finding
     not_tested: dict[str, str]  # per candidate kind, why it was not tested
     nominal_violations: list[str]  # why the nominal fit is not physical (empty: it is)
+    # coefficients held at zero in the nominal fit and every refit, with their least-squares
+    # values (:func:`hil.diagnose.physical.held_at_zero`)
+    held_at_zero: dict[str, float]
     recordings: list[str]
     notes: list[str]
     timing_s: float  # seconds the diagnosis took
@@ -92,6 +95,7 @@ class Diagnosis:
             "physical": {
                 "nominal_consistent": not self.nominal_violations,
                 "nominal_violations": list(self.nominal_violations),
+                **({"held_at_zero": self.held_at_zero} if self.held_at_zero else {}),
             },
             "recordings": self.recordings,
             "notes": self.notes,
@@ -215,6 +219,24 @@ def diagnose(
         for j in range(n_joints)
         if j not in live
     ]
+    nominal_se = nominal_fit_se(prob)
+    nominal_unphysical = physical_theta(theta_fit, nominal_se, model)[1]
+    held: dict[int, float] = {}
+    least_squares_unphysical: list[str] = []
+    if nominal_unphysical:
+        # a coefficient the recording cannot tell from zero may come out negative and the fit
+        # unphysical by that alone: hold it at zero, as bounded least squares does, and build on
+        # that fit when it is physical (DFKI A.0 trajectory 00: θ6, θ8 < 0 and M(q) not positive
+        # definite; both go with θ6 = θ8 = 0)
+        pinned = held_at_zero(prob, theta_fit, model)
+        if pinned is not None and not physical_theta(pinned.theta, pinned.se, model)[1]:
+            least_squares_unphysical, nominal_unphysical = nominal_unphysical, []
+            prob, theta_fit, nominal_se, held = pinned.prob, pinned.theta, pinned.se, pinned.held
+            say(
+                "diagnose: the nominal fit holds "
+                + ", ".join(model.names[i] for i in held)
+                + " at zero (least squares put them below)"
+            )
     where = locate(prob, theta_fit)
     ranges = np.ptp(np.concatenate([r.q for r in recordings]), axis=0)
     library = [
@@ -223,10 +245,6 @@ def diagnose(
         # a gain error shows only as the ratio of the joints' gains (docs/diagnosis.md, 4)
         if all(j in live for j in joints_of(c)) and (not c.spec.is_gain or len(live) >= 2)
     ]
-    nominal_se = jackknife_se(
-        cross_validate(block_stats(prob.design_groups([]), prob.y, prob.w, prob.blocks)).fold_beta
-    )
-    nominal_unphysical = physical_theta(theta_fit, nominal_se, model)[1]
     rejected: dict[str, str] = {}
     memo: dict = {}  # before_after's fits and simulations, from the gate to the final comparison
     if nominal_unphysical:
@@ -257,7 +275,12 @@ def diagnose(
         accepted, findings, confounded, shaft = interpret_with_rate(
             prob, accepted, library, reference_theta, rejected, say
         )
-        findings += unexplained(prob, accepted, shaft)
+        held_columns = (
+            np.concatenate([r.Psi[:, :, list(held)] for r in prob.rows]) / prob.scale[None, :, None]
+            if held
+            else None
+        )
+        findings += unexplained(prob, accepted, shaft, held_columns)
         accepted, findings, dropped, shaft = simulation_gate(
             prob,
             accepted,
@@ -291,8 +314,24 @@ def diagnose(
             "one joint moves, and a torque gain error on it scales every parameter alike "
             "(only the ratio of two joints' gains shows; docs/diagnosis.md)"
         )
+    held_notes = (
+        [
+            "Held at zero in every fit: "
+            + ", ".join(
+                f"{model.names[i]} (least squares {v:.4g} {model.units[i]})"
+                for i, v in held.items()
+            )
+            + ": least squares put them below zero, which no arm has (the recording cannot tell "
+            "them from zero), and with them the fit was not physical ("
+            + "; ".join(least_squares_unphysical)
+            + "); held there, as bounded least squares does, it is."
+        ]
+        if held
+        else []
+    )
     notes = (
         cannot
+        + held_notes
         + dead_notes
         + [f"Not tested: {KIND_NAMES.get(k, k)}: {why}." for k, why in refused.items()]
         + simulation_notes(fit, model)
@@ -319,6 +358,7 @@ def diagnose(
         not_findings=rejected,
         not_tested=refused,
         nominal_violations=list(nominal_unphysical),
+        held_at_zero={model.names[i]: v for i, v in held.items()},
         recordings=[str(r.path) for r in recordings],
         notes=notes,
         timing_s=round(time.perf_counter() - started, 2),

@@ -30,9 +30,10 @@ from realdata import realdata
 from hil.cli_options import read_recording
 from hil.diagnose.cli import add_arguments, arm_geometry
 from hil.diagnose.drift.fit import make_fit
-from hil.diagnose.drift.judge import bounded_fit, problem_inputs
+from hil.diagnose.drift.judge import problem_inputs
 from hil.diagnose.drift.terms import Term
 from hil.diagnose.effects import REGISTRY
+from hil.diagnose.physical import bounded_fit
 from hil.diagnose.problem import build_problem
 from hil.model.closed_form import ArmModel
 from hil.model.params import robot_params

@@ -37,37 +37,18 @@ from hil.diagnose.findings import Finding
 from hil.diagnose.heldout import (
     HELD_OUT_FRACTION,
 )
+from hil.diagnose.physical import bounded_fit
 from hil.diagnose.problem import Problem, build_problem
 from hil.diagnose.stats import (
     block_stats,
     cross_validate,
     evidence,
 )
-from hil.model.estimators import blocked_bootstrap, bounded_quadratic_fit
 from hil.model.protocol import ArmDynamics
 
 
 def problem_inputs(recordings: Sequence[Recording]) -> list[tuple[np.ndarray, ...]]:
     return [(r.q, r.tau, r.period_s, r.t) for r in recordings]
-
-
-def bounded_fit(
-    prob: Problem, model: ArmDynamics, extra: np.ndarray | None, target: np.ndarray, draws: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """[θ, β] of Ψ θ + ``extra`` β ≈ ``target`` (scaled rows), θ's physical signs bounded, and
-    its blocked-bootstrap draws (draws, p)."""
-    # Ψ scaled a block at a time, not joined with ``extra`` into one copy (a 60 s Panda
-    # recording's scaled Ψ is 0.2 GB)
-    stats = block_stats(
-        prob.design_groups([] if extra is None else [extra]), target, prob.w, prob.blocks
-    )
-    H_b, g_b = stats.G.sum(axis=1), stats.r.sum(axis=1)  # (B, p, p), (B, p)
-    lower = np.full(H_b.shape[-1], -np.inf)
-    lower[list(model.nonnegative_columns)] = 0.0
-    theta, _method = bounded_quadratic_fit(H_b.sum(axis=0), g_b.sum(axis=0), lower)
-    if not draws:
-        return theta, theta[None, :]
-    return theta, blocked_bootstrap(H_b, g_b, draws=draws)
 
 
 def nominal_from_reference(
