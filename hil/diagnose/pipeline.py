@@ -314,12 +314,16 @@ def diagnose(
             "one joint moves, and a torque gain error on it scales every parameter alike "
             "(only the ratio of two joints' gains shows; docs/diagnosis.md)"
         )
+
+    def called(i: int) -> str:  # a URDF arm's base parameter by what it is too (fv1)
+        name, meaning = model.names[i], model.meanings[i]
+        return name if meaning == name else f"{name} = {meaning}"
+
     held_notes = (
         [
             "Held at zero in every fit: "
             + ", ".join(
-                f"{model.names[i]} (least squares {v:.4g} {model.units[i]})"
-                for i, v in held.items()
+                f"{called(i)} (least squares {v:.4g} {model.units[i]})" for i, v in held.items()
             )
             + ": least squares put them below zero, which no arm has (the recording cannot tell "
             "them from zero), and with them the fit was not physical ("

@@ -40,6 +40,11 @@ class ArmDynamics(Protocol):
     def units(self) -> tuple[str, ...]: ...
 
     @property
+    def meanings(self) -> tuple[str, ...]:
+        """What each parameter is (a URDF arm's base parameter: its standard combination)."""
+        ...
+
+    @property
     def n_params(self) -> int: ...
 
     @property
