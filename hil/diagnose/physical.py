@@ -115,7 +115,6 @@ def held_at_zero(prob: Problem, theta_ls: np.ndarray, model: ArmDynamics) -> Hel
     Psi = prob.Psi_raw.copy()
     Psi[:, :, held] = 0.0
     theta = fit_theta(Psi, prob.y_raw, prob.w)
-    theta[held] = 0.0  # lstsq's minimum norm: 1e-17, not 0
     scale = robust_scale(prob.y_raw - Psi @ theta, prob.w)
     pinned = Problem(prob.rows, prob.y_raw, Psi, prob.w, scale, prob.blocks)
     return HeldAtZero(pinned, theta, nominal_fit_se(pinned), {i: float(theta_ls[i]) for i in held})

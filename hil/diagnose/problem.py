@@ -322,7 +322,11 @@ def fit_theta(
     b = (y * sw[..., 0]).reshape(-1)
     require_finite(A, "diagnosis fit rows")
     require_finite(b, "diagnosis fit torques")
-    return np.linalg.lstsq(A, b, rcond=None)[0]
+    theta = np.linalg.lstsq(A, b, rcond=None)[0]
+    # a column zero on every row (a coefficient held at zero, hil.diagnose.physical.held_at_zero)
+    # has coefficient 0 in the minimum-norm solution: exactly, not lstsq's 1e-16 of either sign
+    theta[~np.any(A != 0.0, axis=0)] = 0.0
+    return theta
 
 
 def fit_theta_at(
