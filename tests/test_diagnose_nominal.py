@@ -234,6 +234,77 @@ def test_real_dfki_pair_of_the_same_arm_gives_no_change(capsys):
     assert _drift(doc) == [], doc["summary"]
 
 
+def test_a_pattern_with_which_no_arm_is_physical_is_refused():
+    """The drift patterns θ's own check cannot judge: a drag below zero (no arm is fed energy
+    by its speed) against a model with no drag, and a load taken off that leaves link 2 of the
+    profile no body (its mass gone, or its centre of mass beyond the link)."""
+    from hil.diagnose.cli import arm_geometry
+    from hil.diagnose.effects.base import Context
+    from hil.model.closed_form import ArmModel
+    from hil.model.urdf import UrdfArmModel
+    from profiles.robot import load_robot
+
+    drag = REGISTRY["velocity_squared_drag"]
+    assert "below zero" in drag.unphysical(None, 0, {"coefficient_Nms2": -0.01}, "profile")
+    assert "below zero" in drag.unphysical(None, 0, {"coefficient_Nms2": -0.01}, "params")
+    # since reference recordings whose own drag θ₀ absorbed: less drag is physics
+    assert drag.unphysical(None, 0, {"coefficient_Nms2": -0.01}, "reference") is None
+    assert drag.unphysical(None, 0, {"coefficient_Nms2": 0.01}, "profile") is None
+
+    payload = REGISTRY["payload"]
+    c0 = load_robot("dfki-c0")  # link 2: 0.598 kg, 0.3 m, m2 lc2 = 0.164 kg m
+    model = ArmModel(c0.terms)
+    ctx = Context(
+        [], model, c0.theta(), np.zeros((0, 2, model.n_params)), geometry=arm_geometry("dfki-c0")
+    )
+
+    def planar(m: float, lp: float, source: str = "profile") -> str | None:
+        return payload.unphysical(ctx, None, {"mass_kg": m, "centre_m": [lp]}, source)
+
+    # C.0 trajectory 03 against its profile: 0.55 kg "taken off" at 0.244 m leaves 0.05 kg
+    # whose centre of mass is 0.62 m from joint 2, twice the link's length
+    assert "beyond its 0.3 m length" in planar(-0.55, 0.244)
+    assert "more than its 0.598 kg" in planar(-0.7, 0.244)
+    assert planar(-0.1, 0.244) is None and planar(0.55, 0.244) is None
+    assert planar(-0.55, 0.244, "params") is None  # a fitted θ₀'s masses are not the profile's
+    no_length = Context(
+        [], model, c0.theta(), ctx.Psi_raw, geometry={"link1_m": 0.2, "gravity_m_s2": 9.81}
+    )
+    assert (
+        payload.unphysical(no_length, None, {"mass_kg": -0.55, "centre_m": [0.244]}, "profile")
+        is None
+    )
+
+    arm3 = UrdfArmModel.from_profile("cicese3")
+    ctx3 = Context([], arm3, arm3.base_theta(), np.zeros((0, 3, arm3.n_params)))
+    last = float(arm3.standard_theta[10 * 2])
+    gone = {"mass_kg": -(last + 0.1), "centre_m": [0.0, 0.0, 0.0]}
+    assert "mass" in payload.unphysical(ctx3, None, gone, "profile")
+    assert (
+        payload.unphysical(
+            ctx3, None, {"mass_kg": -0.01 * last, "centre_m": [0.0, 0.0, 0.0]}, "profile"
+        )
+        is None
+    )
+
+
+def test_real_c0_trajectory_03_against_its_profile_names_no_unphysical_drift(capsys):
+    """DFKI C.0 trajectory 03 against the dfki-c0 profile fitted a point mass of −0.55 kg on
+    link 2 (0.598 kg) and a v·|v| drag below zero on joint 1: neither an arm can have. They
+    are refused with the reason, and the profile, without them, does not describe the
+    recording: the tool says it cannot tell rather than name a change."""
+    records = realdata("dfki-double-pendulum") / "records"
+    rec = records / "design_C.0__20220914__sys_id__trajectory_03.csv"
+    if not rec.is_file():
+        pytest.skip(f"DFKI recordings not found under {records}")
+    doc = _diagnose(capsys, str(rec), "--format", "dfki", "--robot", "dfki-c0")
+    refused = doc["nominal"]["not_findings"]
+    assert "beyond its" in refused["payload"] or "more than its" in refused["payload"], refused
+    assert "below zero" in refused["velocity_squared_drag:1"], refused
+    assert _drift(doc) == [], doc["summary"]
+    assert not doc["findings"], doc["summary"]
+
+
 # --- an arm described by a URDF (slow: the n-joint plant and Pinocchio's regressors) ----------
 
 

@@ -227,13 +227,17 @@ def run_diagnose(args: argparse.Namespace) -> tuple[dict, list[Recording]]:
 
 
 def arm_geometry(robot: str) -> dict[str, float] | None:
-    """l1 and g of a 2-DOF robot profile (the payload pattern's), None when it has no l1."""
+    """l1 and g of a 2-DOF robot profile (the payload pattern's), and link 2's length and mass
+    where the profile gives them (what a load taken off must leave); None when it has no l1."""
     from profiles.robot import load_robot
 
     p = load_robot(robot)
     if p.link1.length_m is None:
         return None
-    return {"link1_m": float(p.link1.length_m), "gravity_m_s2": float(p.gravity_m_s2)}
+    geometry = {"link1_m": float(p.link1.length_m), "gravity_m_s2": float(p.gravity_m_s2)}
+    if p.link2.length_m is not None and p.link2.mass_kg is not None:
+        geometry |= {"link2_m": float(p.link2.length_m), "link2_kg": float(p.link2.mass_kg)}
+    return geometry
 
 
 def urdf_params(path: str, robot: str, model: ArmDynamics) -> tuple[Any, np.ndarray]:

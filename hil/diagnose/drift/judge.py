@@ -246,7 +246,7 @@ def judge(
         kept = [t for t in accepted if t.key not in failed or t.key in quiet]
         if len(kept) < len(accepted):
             fit.refine(kept)
-        kept, dropped, position = drift_simulation_gate(fit, kept, say)
+        kept, dropped, position = drift_simulation_gate(fit, kept, say, nominal.source)
         failed.update(dropped)
         silent = [t for t in kept if t.key in quiet]
         not_findings.update(failed)

@@ -90,10 +90,13 @@ def simulate_position(fit: Fit, sim: SimInput, rec_i: int, segments) -> np.ndarr
 
 
 def drift_simulation_gate(
-    fit: Fit, terms: list[Term], say: Callable[[str], None]
+    fit: Fit, terms: list[Term], say: Callable[[str], None], source: str = "profile"
 ) -> tuple[list[Term], dict[str, str], dict[str, Any]]:
-    """Drop, one at a time, the term whose removal most improves a joint's held-out simulated
-    position that it made worse; the patterns are fitted on the training rows only. Against a
+    """Drop, one at a time, a term with which the nominal model (from ``source``) is no
+    physical arm (:meth:`hil.diagnose.effects.Effect.unphysical`: a negative drag, a load taken
+    off that leaves no body behind), else the term whose removal most improves a joint's
+    held-out simulated position that it made worse; the patterns are fitted on the training
+    rows only. Against a
     reference, a joint's position is no worse than θ₀ simulates its own reference recording
     (:func:`own_position`): a true change written into a copy of the reference gives the
     recording, with the change, the reference's torque exactly, so its simulation can do no
@@ -117,10 +120,20 @@ def drift_simulation_gate(
     before = position([])
     sensitivity = position_sensitivity(fit, terms, rec_i, segments, index, q)
     while terms:
-        now = position(terms)
         worst = None
+        for t, e in zip(terms, trained_estimates(fit, terms), strict=True):
+            why = t.effect.unphysical(fit.ctx, t.joint, e, source)
+            if why is not None:
+                worst = (t, np.inf, f"with it the nominal model is not physical: {why}")
+                break
+        if worst is not None:
+            say(f"diagnose: against the nominal model: {worst[0].key} dropped: {worst[2]}")
+            dropped[worst[0].key] = worst[2]
+            terms = [u for u in terms if u is not worst[0]]
+            continue
+        now = position(terms)
         for t in terms:
-            if not_simulated(t.effect.simulation(fit.ctx, t.joint, zero_estimate(fit, t))):
+            if not t.effect.simulated():
                 continue
             rest = [u for u in terms if u is not t]
             wo = position(rest)
@@ -196,14 +209,3 @@ def position_sensitivity(
     if base is None or moved is None:
         return [SIMULATION_NOISE_FLOOR] * n
     return [float(x) for x in np.nan_to_num(simulation_sensitivity(moved, base, q), nan=0.0)]
-
-
-def not_simulated(s: SimInput) -> bool:
-    return s.dtheta is None and not (s.gain or s.offset or s.angle)
-
-
-def zero_estimate(fit: Fit, t: Term) -> dict:
-    b = np.zeros(t.width)
-    if t.effect.name == "payload":
-        b[0] = 1.0
-    return t.effect.estimate(fit.ctx, t.joint, b, b, t.at)[0]

@@ -35,7 +35,8 @@ class Context:
     # the nominal model's torque rows (K, n): Ψ θ₀ with the nominal model's own departures
     # (:attr:`hil.diagnose.drift.Nominal.terms`); None: Ψ θ₀
     prediction: np.ndarray | None = None
-    # the 2-DOF arm's geometry from its profile (link1_m: l1, gravity_m_s2: g), when known
+    # the 2-DOF arm's geometry from its profile (link1_m: l1, gravity_m_s2: g; link2_m, link2_kg:
+    # link 2's length and mass where it gives them), when known
     geometry: dict[str, float] | None = None
     memo: dict = field(default_factory=dict)  # rows an effect rebuilt, kept for its next call
 
@@ -207,8 +208,22 @@ class Effect:
         raise NotImplementedError
 
     def simulation(self, ctx: Context, joint: int | None, estimate: dict[str, Any]) -> SimInput:
-        """How the simulation takes it; an empty SimInput: it is not simulated."""
+        """How the simulation takes it; an effect that does not override this is not
+        simulated (:meth:`simulated`)."""
         return SimInput()
+
+    def simulated(self) -> bool:
+        """Whether the open-loop simulation takes it (it overrides :meth:`simulation`)."""
+        return type(self).simulation is not Effect.simulation
+
+    def unphysical(
+        self, ctx: Context, joint: int | None, estimate: dict[str, Any], source: str
+    ) -> str | None:
+        """Why the nominal model (from ``source``: "profile", "params" or "reference") with
+        this pattern at ``estimate`` describes no physical arm, in words; None when it may.
+        For what θ alone cannot show: a Δθ (:meth:`simulation`) is checked by the model's
+        ``physical_consistency`` when it is simulated."""
+        return None
 
 
 REGISTRY: dict[str, Effect] = {}

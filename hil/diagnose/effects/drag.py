@@ -44,6 +44,18 @@ class VelocitySquaredDrag(Effect):
             s * v2 / rms,
         )
 
+    def unphysical(self, ctx, joint, e, source):
+        # a drag dissipates: below zero it would feed the motion. The nominal model has no drag
+        # term (not in_reference) for a change to take off, except against reference
+        # recordings, whose own drag θ₀ absorbed (a drag smaller since then is physics)
+        c = e["coefficient_Nms2"]
+        if source == "reference" or c >= 0:
+            return None
+        return (
+            f"a velocity-squared drag of {c:.3g} Nm s²/rad² is below zero (it would feed the "
+            "motion energy) and the nominal model has no drag for it to take off"
+        )
+
     def words(self, e: dict[str, Any]) -> str:
         return (
             f"a drag growing with the square of speed, {e['coefficient_Nms2']:.3g} ± "

@@ -65,6 +65,27 @@ def _planar_columns(ctx: Context, lp: float) -> np.ndarray:
     return np.stack([a + lp * b + lp**2 * c, b + 2 * lp * c], axis=-1)
 
 
+def _planar_rest(ctx: Context, m: float, lp: float) -> str | None:
+    """Why link 2 of the 2-DOF profile, less a point mass m < 0 at l_p, is no rigid body
+    (its mass gone, or its centre of mass beyond the link's length); None when it may be.
+    Its first moment about joint 2 is θ5 / g = m2 lc2 (Reyes & Kelly (1997) Section 5); m2 and
+    the length are the profile's (``ctx.geometry``); None without them."""
+    geo = ctx.geometry or {}
+    if "link2_kg" not in geo or "link2_m" not in geo:
+        return None
+    m2, length = geo["link2_kg"], geo["link2_m"]
+    rest = m2 + m
+    if rest <= 0:
+        return f"{-m:.3g} kg taken off link 2 is more than its {m2:.3g} kg"
+    centre = (ctx.theta0[4] / geo["gravity_m_s2"] + m * lp) / rest
+    if abs(centre) > length:
+        return (
+            f"without {-m:.3g} kg at {lp:.3g} m link 2 keeps {rest:.3g} kg with its centre of "
+            f"mass {centre:.3g} m from joint 2, beyond its {length:.3g} m length"
+        )
+    return None
+
+
 class Payload(Effect):
     name = "payload"
     width = 4  # (m, m c) of a URDF arm's last body; 2 on the 2-DOF arm (m, m l_p)
@@ -167,6 +188,23 @@ class Payload(Effect):
                 "that the model has and the arm lacks (a load taken off)"
             )
         return f"a payload of {m:.3g} ± {e['mass_se_kg']:.2g} kg at ({c}) m on {e['body']}"
+
+    def unphysical(self, ctx, joint, e, source):
+        # a mass added leaves every body physical; one taken off must leave a body behind. The
+        # bodies' masses are known only in the profile's own model (a fitted θ₀ lumps them, and
+        # may hold a load its recordings carried)
+        m = e["mass_kg"]
+        if m >= 0 or source != "profile":
+            return None
+        if ctx.closed_form:
+            return _planar_rest(ctx, m, e["centre_m"][0])
+        model = ctx.model
+        n = ctx.n_joints
+        std = np.array(model.standard_theta, float)
+        std[10 * (n - 1) : 10 * n] += point_mass_standard(m, np.array(e["centre_m"]))
+        body = f"body of {model.joint_names[-1]}"
+        bad = [v for v in model.physical_consistency(std)["violations"] if v.startswith(body)]
+        return f"without {-m:.3g} kg the {'; '.join(bad)}" if bad else None
 
     def simulation(self, ctx: Context, joint: int | None, e: dict[str, Any]) -> SimInput:
         if ctx.closed_form:
