@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
+from hil.diagnose.finding import rounded
 from hil.model.protocol import ArmDynamics
 from hil.model.regressors import (
     GL_NODES,
@@ -100,8 +101,8 @@ class NoiseModel:
 
     def as_dict(self, h: float) -> dict[str, object]:
         return {
-            "encoder_quantum_rad": [float(f"{x:.3g}") for x in self.quantum_rad],
-            "velocity_noise_rad_s": [float(f"{x:.3g}") for x in self.velocity_noise_rad_s],
+            "encoder_quantum_rad": [rounded(x, 3) for x in self.quantum_rad],
+            "velocity_noise_rad_s": [rounded(x, 3) for x in self.velocity_noise_rad_s],
             "velocity_half_window": self.half_window,
             "filter_window_s": round(self.window * h, 4),
             "irregular_intervals": self.irregular_intervals,

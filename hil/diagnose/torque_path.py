@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from drivers.recording import Recording, read_signals, recording_names
+from hil.diagnose.finding import rounded
 from hil.diagnose.findings import RESOLVABLE_INTERVALS
 from hil.diagnose.selection import MIN_REDUCTION
 from profiles.recording_format import load_format
@@ -60,19 +61,16 @@ class TorquePath:
     rows: int
 
     def as_dict(self) -> dict[str, Any]:
-        def r(x: float) -> float:
-            return float(f"{x:.4g}")
-
         return {
             "joint": self.joint,
-            "gain": r(self.gain),
-            "offset_Nm": r(self.offset_Nm),
-            "delay_s": r(self.delay_s),
+            "gain": rounded(self.gain),
+            "offset_Nm": rounded(self.offset_Nm),
+            "delay_s": rounded(self.delay_s),
             "delay_rows": self.delay_rows,
-            "lag_s": r(self.lag_s),
-            "noise_rms_Nm": r(self.noise_rms_Nm),
-            "nrmse": r(self.nrmse),
-            "saturation_Nm": None if self.saturation_Nm is None else r(self.saturation_Nm),
+            "lag_s": rounded(self.lag_s),
+            "noise_rms_Nm": rounded(self.noise_rms_Nm),
+            "nrmse": rounded(self.nrmse),
+            "saturation_Nm": None if self.saturation_Nm is None else rounded(self.saturation_Nm),
             "saturated_rows": self.saturated_rows,
             "rows": self.rows,
         }

@@ -20,8 +20,9 @@ from typing import Any
 import numpy as np
 
 from hil.diagnose.columns import offset_column
-from hil.diagnose.effects.base import Context, Effect, SimInput, on_joint, r4, register
+from hil.diagnose.effects.base import Context, Effect, SimInput, on_joint, register
 from hil.diagnose.effects.friction import friction_index
+from hil.diagnose.finding import rounded
 
 
 class CoulombAsymmetry(Effect):
@@ -60,9 +61,9 @@ class CoulombAsymmetry(Effect):
         return (
             {
                 "direction": "positive" if at > 0 else "negative",
-                "positive_Nm": r4(positive),
-                "negative_Nm": r4(negative),
-                "level_se_Nm": r4(s),
+                "positive_Nm": rounded(positive),
+                "negative_Nm": rounded(negative),
+                "level_se_Nm": rounded(s),
             },
             negative - positive,
             s,

@@ -242,7 +242,3 @@ def on_joint(column: np.ndarray, joint: int, n_joints: int) -> np.ndarray:
     out = np.zeros((column.shape[0], n_joints, column.shape[1]))
     out[:, joint, :] = column
     return out
-
-
-def r4(x: float) -> float:
-    return float(f"{x:.4g}")

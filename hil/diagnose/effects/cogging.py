@@ -20,7 +20,8 @@ import numpy as np
 
 from hil.diagnose.candidates import cogging_periods
 from hil.diagnose.columns import cogging_column_chunks, cogging_columns
-from hil.diagnose.effects.base import Context, Effect, r4, register
+from hil.diagnose.effects.base import Context, Effect, register
+from hil.diagnose.finding import rounded
 
 
 class Cogging(Effect):
@@ -70,11 +71,11 @@ class Cogging(Effect):
         rms = ctx.rms_torque(joint)
         return (
             {
-                "amplitude_Nm": r4(amp),
-                "amplitude_se_Nm": r4(amp_se),
+                "amplitude_Nm": rounded(amp),
+                "amplitude_se_Nm": rounded(amp_se),
                 "periods_per_rev": float(at),
-                "phase_rad": r4(float(np.arctan2(b, a))),
-                "relative": r4(amp / rms),
+                "phase_rad": rounded(float(np.arctan2(b, a))),
+                "relative": rounded(amp / rms),
             },
             amp / rms,
             amp_se / rms,

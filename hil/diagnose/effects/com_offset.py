@@ -13,7 +13,8 @@ from typing import Any
 import numpy as np
 
 from hil.diagnose.columns import model_term_columns
-from hil.diagnose.effects.base import Context, Effect, r4, register
+from hil.diagnose.effects.base import Context, Effect, register
+from hil.diagnose.finding import rounded
 
 
 class ComOffset(Effect):
@@ -41,10 +42,10 @@ class ComOffset(Effect):
         size_se = max(se[1] / max(abs(th[3]), 1e-12), se[2] / max(abs(th[4]), 1e-12))
         return (
             {
-                "theta2_perp_kgm2": r4(float(beta[0])),
-                "theta4_perp_Nm": r4(float(beta[1])),
-                "theta5_perp_Nm": r4(float(beta[2])),
-                "se": [r4(float(x)) for x in se],
+                "theta2_perp_kgm2": rounded(float(beta[0])),
+                "theta4_perp_Nm": rounded(float(beta[1])),
+                "theta5_perp_Nm": rounded(float(beta[2])),
+                "se": [rounded(float(x)) for x in se],
             },
             float(ratio),
             float(size_se),

@@ -30,7 +30,8 @@ import numpy as np
 from scipy.ndimage import uniform_filter1d
 
 from hil.diagnose.columns import RecordingRows, delayed_torque_means, moving_average
-from hil.diagnose.effects.base import Context, Effect, r4, register
+from hil.diagnose.effects.base import Context, Effect, register
+from hil.diagnose.finding import rounded
 from hil.diagnose.findings import RESOLVABLE_INTERVALS
 
 
@@ -90,7 +91,7 @@ class TransportDelay(Effect):
         h = _interval(ctx)
         d, s = float(at) + float(beta[0]), float(se[0])
         return (
-            {"delay_s": r4(d), "delay_se_s": r4(s), "sample_interval_s": r4(h)},
+            {"delay_s": rounded(d), "delay_se_s": rounded(s), "sample_interval_s": rounded(h)},
             d / h,
             s / h,
         )

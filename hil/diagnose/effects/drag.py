@@ -13,8 +13,9 @@ from typing import Any
 import numpy as np
 
 from hil.diagnose.columns import drag_column
-from hil.diagnose.effects.base import Context, Effect, r4, register
+from hil.diagnose.effects.base import Context, Effect, register
 from hil.diagnose.effects.friction import rms_speed
+from hil.diagnose.finding import rounded
 
 
 class VelocitySquaredDrag(Effect):
@@ -35,10 +36,10 @@ class VelocitySquaredDrag(Effect):
         rms = ctx.rms_torque(joint)
         return (
             {
-                "coefficient_Nms2": r4(c),
-                "coefficient_se_Nms2": r4(s),
-                "at_rms_speed_Nm": r4(c * v2),
-                "relative": r4(c * v2 / rms),
+                "coefficient_Nms2": rounded(c),
+                "coefficient_se_Nms2": rounded(s),
+                "at_rms_speed_Nm": rounded(c * v2),
+                "relative": rounded(c * v2 / rms),
             },
             c * v2 / rms,
             s * v2 / rms,

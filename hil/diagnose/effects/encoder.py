@@ -26,7 +26,8 @@ from typing import Any
 import numpy as np
 
 from hil.diagnose.columns import RecordingRows, moving_average, rigid_torque_rows
-from hil.diagnose.effects.base import Context, Effect, SimInput, r4, register
+from hil.diagnose.effects.base import Context, Effect, SimInput, register
+from hil.diagnose.finding import rounded
 
 # the angles a revolute joint's rows are built at (rad), and the basis's frequencies
 FOURIER_ANGLES = 2 * np.pi * np.arange(1, 5) / 5
@@ -113,7 +114,11 @@ class EncoderOffset(Effect):
 
     def estimate(self, ctx, joint, beta, se, at):
         d, s = float(at + beta[0]), float(se[0])
-        return {"offset_rad": r4(d), "offset_se_rad": r4(s), "deg": r4(np.degrees(d))}, d, s
+        return (
+            {"offset_rad": rounded(d), "offset_se_rad": rounded(s), "deg": rounded(np.degrees(d))},
+            d,
+            s,
+        )
 
     def words(self, e: dict[str, Any]) -> str:
         return (

@@ -12,7 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from hil.diagnose.effects.base import Context, Effect, SimInput, r4, register
+from hil.diagnose.effects.base import Context, Effect, SimInput, register
+from hil.diagnose.finding import rounded
 
 
 def friction_index(ctx: Context, joint: int) -> tuple[int, int]:
@@ -46,14 +47,14 @@ class FrictionLevel(Effect):
         b0, f0 = (float(ctx.theta0[i]) for i in friction_index(ctx, joint))
         return (
             {
-                "viscous_change_Nms": r4(float(beta[0])),
-                "viscous_se_Nms": r4(float(se[0])),
-                "coulomb_change_Nm": r4(float(beta[1])),
-                "coulomb_se_Nm": r4(float(se[1])),
-                "nominal_viscous_Nms": r4(b0),
-                "nominal_coulomb_Nm": r4(f0),
-                "at_rms_speed_Nm": r4(size),
-                "rms_speed_rad_s": r4(v),
+                "viscous_change_Nms": rounded(float(beta[0])),
+                "viscous_se_Nms": rounded(float(se[0])),
+                "coulomb_change_Nm": rounded(float(beta[1])),
+                "coulomb_se_Nm": rounded(float(se[1])),
+                "nominal_viscous_Nms": rounded(b0),
+                "nominal_coulomb_Nm": rounded(f0),
+                "at_rms_speed_Nm": rounded(size),
+                "rms_speed_rad_s": rounded(v),
             },
             size,
             size_se,

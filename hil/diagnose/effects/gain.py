@@ -15,7 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from hil.diagnose.effects.base import Context, Effect, SimInput, on_joint, r4, register
+from hil.diagnose.effects.base import Context, Effect, SimInput, on_joint, register
+from hil.diagnose.finding import rounded
 
 
 class TorqueGain(Effect):
@@ -64,7 +65,7 @@ class TorqueGain(Effect):
         g_se = float(se[0]) * g * g  # dg/dβ = 1/(1 − β)²
         return (
             # relative: g − 1, the refit vocabulary's torque_gain number
-            {"gain": r4(g), "gain_se": r4(g_se), "relative": r4(g - 1)},
+            {"gain": rounded(g), "gain_se": rounded(g_se), "relative": rounded(g - 1)},
             (g - 1.0),
             g_se,
         )

@@ -14,7 +14,8 @@ from typing import Any
 import numpy as np
 
 from hil.diagnose.columns import offset_column
-from hil.diagnose.effects.base import Context, Effect, SimInput, r4, register
+from hil.diagnose.effects.base import Context, Effect, SimInput, register
+from hil.diagnose.finding import rounded
 
 
 class TorqueOffset(Effect):
@@ -33,7 +34,7 @@ class TorqueOffset(Effect):
 
     def estimate(self, ctx, joint, beta, se, at):
         c, s = float(beta[0]), float(se[0])
-        return {"offset_Nm": r4(c), "offset_se_Nm": r4(s)}, c, s
+        return {"offset_Nm": rounded(c), "offset_se_Nm": rounded(s)}, c, s
 
     def words(self, e: dict[str, Any]) -> str:
         c = e["offset_Nm"]

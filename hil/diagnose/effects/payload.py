@@ -24,7 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from hil.diagnose.effects.base import Context, Effect, SimInput, r4, register
+from hil.diagnose.effects.base import Context, Effect, SimInput, register
+from hil.diagnose.finding import rounded
 
 # Pinocchio's dynamic parameters: m, mx, my, mz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz
 _INERTIA = ((0, 0), (0, 1), (1, 1), (0, 2), (1, 2), (2, 2))
@@ -156,10 +157,10 @@ class Payload(Effect):
             lp = float(np.asarray(at).ravel()[0]) + (float(beta[1]) / m if abs(m) > 1e-9 else 0.0)
             return (
                 {
-                    "mass_kg": r4(m),
-                    "mass_se_kg": r4(s),
-                    "centre_m": [r4(lp)],
-                    "centre_se_m": [r4(float(se[1]) / max(abs(m), 1e-9))],
+                    "mass_kg": rounded(m),
+                    "mass_se_kg": rounded(s),
+                    "centre_m": [rounded(lp)],
+                    "centre_se_m": [rounded(float(se[1]) / max(abs(m), 1e-9))],
                     "body": "link 2 (distance from joint 2 along the link)",
                 },
                 m,
@@ -169,10 +170,10 @@ class Payload(Effect):
         c_se = np.asarray(se[1:4], float) / max(abs(m), 1e-9)
         return (
             {
-                "mass_kg": r4(m),
-                "mass_se_kg": r4(s),
-                "centre_m": [r4(x) for x in c],
-                "centre_se_m": [r4(x) for x in c_se],
+                "mass_kg": rounded(m),
+                "mass_se_kg": rounded(s),
+                "centre_m": [rounded(x) for x in c],
+                "centre_se_m": [rounded(x) for x in c_se],
                 "body": f"the last body (joint {ctx.n_joints}'s frame)",
             },
             m,

@@ -12,7 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from hil.diagnose.effects.base import Context, Effect, on_joint, r4, register
+from hil.diagnose.effects.base import Context, Effect, on_joint, register
+from hil.diagnose.finding import rounded
 
 
 def _velocity_step(r, joint: int) -> np.ndarray:
@@ -31,7 +32,7 @@ class RotorInertia(Effect):
 
     def estimate(self, ctx, joint, beta, se, at):
         d, s = float(beta[0]), float(se[0])
-        return {"inertia_change_kgm2": r4(d), "inertia_se_kgm2": r4(s)}, d, s
+        return {"inertia_change_kgm2": rounded(d), "inertia_se_kgm2": rounded(s)}, d, s
 
     def words(self, e: dict[str, Any]) -> str:
         return (
