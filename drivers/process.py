@@ -132,9 +132,11 @@ def run_command_line(
     hil.cli``): the exit signals first, then ``load_main()`` (the import of the command line)
     and its ``main(argv)``. An exit signal during the import ends with one line; an interrupted
     command's 130 becomes 128 + the signal's number, as a shell reports it."""
-    install_exit_signals()
+    # loading before the handlers: a signal that lands between the first handler and the
+    # last (a test sent SIGINT as soon as SIGINT's was in) ends with the one line too
     _loading.append(prog)
     try:
+        install_exit_signals()
         main = load_main()
         _loading.clear()
         code = main(argv)

@@ -279,6 +279,28 @@ def test_ctrl_c_at_any_moment_is_one_line(tmp_path: Path) -> None:
         assert not _robots_of(out), (delay, "virtual robot left behind")
 
 
+def test_ctrl_c_while_the_exit_signals_are_being_installed_ends_with_one_line() -> None:
+    """A SIGINT that lands after SIGINT's handler is in and before the others are (a loaded
+    machine once let a test's signal in there) ends like one during the import: one line,
+    130, no traceback."""
+    code = (
+        "import os, signal, sys\n"
+        "import drivers.process as p\n"
+        "install = p.install_exit_signals\n"
+        "def racing():\n"
+        "    signal.signal(signal.SIGINT, p._on_exit_signal)\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    install()\n"
+        "p.install_exit_signals = racing\n"
+        "sys.exit(p.run_command_line('hil', lambda: (lambda argv: 0)))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=60
+    )
+    assert done.returncode == 130, done.stderr
+    assert done.stderr.strip() == "hil: interrupted by the user (Ctrl-C); nothing was running yet"
+
+
 def test_ctrl_c_during_the_command_lines_import_ends_at_once(tmp_path: Path) -> None:
     """A Ctrl-C while the command line is still being imported does not wait for the import
     (seconds of numpy, scipy and Pinocchio on a loaded machine, minutes here): nothing runs yet,
