@@ -237,7 +237,7 @@ def test_real_dfki_pair_of_the_same_arm_gives_no_change(capsys):
 def test_a_pattern_with_which_no_arm_is_physical_is_refused():
     """The drift patterns θ's own check cannot judge: a drag below zero (no arm is fed energy
     by its speed) against a model with no drag, and a load taken off that leaves link 2 of the
-    profile no body (its mass gone, or its centre of mass beyond the link)."""
+    profile no rigid body (its mass gone, or its inertia about its centre below zero)."""
     from hil.diagnose.cli import arm_geometry
     from hil.diagnose.effects.base import Context
     from hil.model.closed_form import ArmModel
@@ -252,7 +252,7 @@ def test_a_pattern_with_which_no_arm_is_physical_is_refused():
     assert drag.unphysical(None, 0, {"coefficient_Nms2": 0.01}, "profile") is None
 
     payload = REGISTRY["payload"]
-    c0 = load_robot("dfki-c0")  # link 2: 0.598 kg, 0.3 m, m2 lc2 = 0.164 kg m
+    c0 = load_robot("dfki-c0")  # link 2: 0.598 kg, m2 lc2 = 0.164 kg m, 0.0535 kg m² at joint 2
     model = ArmModel(c0.terms)
     ctx = Context(
         [], model, c0.theta(), np.zeros((0, 2, model.n_params)), geometry=arm_geometry("dfki-c0")
@@ -261,17 +261,17 @@ def test_a_pattern_with_which_no_arm_is_physical_is_refused():
     def planar(m: float, lp: float, source: str = "profile") -> str | None:
         return payload.unphysical(ctx, None, {"mass_kg": m, "centre_m": [lp]}, source)
 
-    # C.0 trajectory 03 against its profile: 0.55 kg "taken off" at 0.244 m leaves 0.05 kg
-    # whose centre of mass is 0.62 m from joint 2, twice the link's length
-    assert "beyond its 0.3 m length" in planar(-0.55, 0.244)
-    assert "more than its 0.598 kg" in planar(-0.7, 0.244)
+    # C.0 trajectory 03 against its profile, trained on 75 % of its rows: 0.62 kg taken off
+    assert "more than its 0.598 kg" in planar(-0.624, 0.244)
+    # mass taken off at joint 2 leaves link 2's first moment (0.164 kg m) on too little mass
+    assert "too little to carry" in planar(-0.3, 0.0)
     assert planar(-0.1, 0.244) is None and planar(0.55, 0.244) is None
     assert planar(-0.55, 0.244, "params") is None  # a fitted θ₀'s masses are not the profile's
-    no_length = Context(
+    no_link2 = Context(
         [], model, c0.theta(), ctx.Psi_raw, geometry={"link1_m": 0.2, "gravity_m_s2": 9.81}
     )
     assert (
-        payload.unphysical(no_length, None, {"mass_kg": -0.55, "centre_m": [0.244]}, "profile")
+        payload.unphysical(no_link2, None, {"mass_kg": -0.7, "centre_m": [0.244]}, "profile")
         is None
     )
 
@@ -299,7 +299,7 @@ def test_real_c0_trajectory_03_against_its_profile_names_no_unphysical_drift(cap
         pytest.skip(f"DFKI recordings not found under {records}")
     doc = _diagnose(capsys, str(rec), "--format", "dfki", "--robot", "dfki-c0")
     refused = doc["nominal"]["not_findings"]
-    assert "beyond its" in refused["payload"] or "more than its" in refused["payload"], refused
+    assert "link 2" in refused["payload"] and "not physical" in refused["payload"], refused
     assert "below zero" in refused["velocity_squared_drag:1"], refused
     assert _drift(doc) == [], doc["summary"]
     assert not doc["findings"], doc["summary"]

@@ -227,17 +227,23 @@ def run_diagnose(args: argparse.Namespace) -> tuple[dict, list[Recording]]:
 
 
 def arm_geometry(robot: str) -> dict[str, float] | None:
-    """l1 and g of a 2-DOF robot profile (the payload pattern's), and link 2's length and mass
-    where the profile gives them (what a load taken off must leave); None when it has no l1."""
+    """l1 and g of a 2-DOF robot profile (the payload pattern's), and link 2's mass, first
+    moments (along, across) and inertia about joint 2 (what a load taken off must leave, :meth:
+    `hil.diagnose.effects.payload.Payload.unphysical`); None when it has no l1."""
     from profiles.robot import load_robot
 
     p = load_robot(robot)
     if p.link1.length_m is None:
         return None
-    geometry = {"link1_m": float(p.link1.length_m), "gravity_m_s2": float(p.gravity_m_s2)}
-    if p.link2.length_m is not None and p.link2.mass_kg is not None:
-        geometry |= {"link2_m": float(p.link2.length_m), "link2_kg": float(p.link2.mass_kg)}
-    return geometry
+    link2 = p.link2
+    return {
+        "link1_m": float(p.link1.length_m),
+        "gravity_m_s2": float(p.gravity_m_s2),
+        "link2_kg": float(link2.mass_kg),
+        "link2_moment_kgm": float(link2.mass_kg * link2.com_m),
+        "link2_moment_across_kgm": float(link2.mass_kg * link2.com_across_m),
+        "link2_inertia_kgm2": float(link2.inertia_about_joint()),
+    }
 
 
 def urdf_params(path: str, robot: str, model: ArmDynamics) -> tuple[Any, np.ndarray]:

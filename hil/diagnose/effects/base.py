@@ -35,8 +35,8 @@ class Context:
     # the nominal model's torque rows (K, n): Ψ θ₀ with the nominal model's own departures
     # (:attr:`hil.diagnose.drift.Nominal.terms`); None: Ψ θ₀
     prediction: np.ndarray | None = None
-    # the 2-DOF arm's geometry from its profile (link1_m: l1, gravity_m_s2: g; link2_m, link2_kg:
-    # link 2's length and mass where it gives them), when known
+    # the 2-DOF arm's geometry from its profile (link1_m: l1, gravity_m_s2: g; link 2's mass,
+    # first moments and inertia about joint 2: hil.diagnose.cli.arm_geometry), when known
     geometry: dict[str, float] | None = None
     memo: dict = field(default_factory=dict)  # rows an effect rebuilt, kept for its next call
 

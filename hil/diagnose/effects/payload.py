@@ -67,22 +67,26 @@ def _planar_columns(ctx: Context, lp: float) -> np.ndarray:
 
 
 def _planar_rest(ctx: Context, m: float, lp: float) -> str | None:
-    """Why link 2 of the 2-DOF profile, less a point mass m < 0 at l_p, is no rigid body
-    (its mass gone, or its centre of mass beyond the link's length); None when it may be.
-    Its first moment about joint 2 is θ5 / g = m2 lc2 (Reyes & Kelly (1997) Section 5); m2 and
-    the length are the profile's (``ctx.geometry``); None without them."""
+    """Why link 2 of the 2-DOF profile, less a point mass m < 0 at l_p on its axis, is no rigid
+    body: its mass gone, or its inertia about its own centre of mass below zero (too little
+    mass left to carry its first moment); None when it may be one. Link 2's mass, first moments
+    and inertia about joint 2 are the profile's (``ctx.geometry``); None without them."""
     geo = ctx.geometry or {}
-    if "link2_kg" not in geo or "link2_m" not in geo:
+    if "link2_kg" not in geo:
         return None
-    m2, length = geo["link2_kg"], geo["link2_m"]
+    m2 = geo["link2_kg"]
     rest = m2 + m
     if rest <= 0:
         return f"{-m:.3g} kg taken off link 2 is more than its {m2:.3g} kg"
-    centre = (ctx.theta0[4] / geo["gravity_m_s2"] + m * lp) / rest
-    if abs(centre) > length:
+    along = geo["link2_moment_kgm"] + m * lp
+    across = geo["link2_moment_across_kgm"]
+    about_joint = geo["link2_inertia_kgm2"] + m * lp**2
+    about_centre = about_joint - (along**2 + across**2) / rest  # parallel-axis theorem
+    if about_centre < 0:
         return (
-            f"without {-m:.3g} kg at {lp:.3g} m link 2 keeps {rest:.3g} kg with its centre of "
-            f"mass {centre:.3g} m from joint 2, beyond its {length:.3g} m length"
+            f"without {-m:.3g} kg at {lp:.3g} m link 2 keeps {rest:.3g} kg, too little to carry "
+            f"its first moment {along:.3g} kg m (its inertia about its centre of mass would be "
+            f"{about_centre:.3g} kg m²)"
         )
     return None
 
