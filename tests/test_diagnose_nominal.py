@@ -446,6 +446,19 @@ def test_refit_findings_on_joints_a_change_reaches_are_set_aside():
     assert doc["findings"][2]["refit_findings"] == [refit("torque_gain", 2)]
     assert [f["effect"] for f in drift.document["within_change"]] == ["actuator_lag"]
     assert "actuator lag on joint 1" in doc["summary"]
+    # where joint 2's rows share θ columns with joint 3's, the refit moves joint 3 as well
+    doc = {"findings": [refit("stribeck", 3), refit("unexplained", 4)], "summary": "Refit."}
+    drift = DriftResult(
+        {"source": "reference", "why": "w", "decision": "d", "baseline": []},
+        [gain],
+        shares={2: {2, 3}, 3: {2, 3}, 4: {4}},
+    )
+    merge_drift(doc, drift)
+    assert [(f["effect"], f["joint"]) for f in doc["findings"]] == [
+        ("unexplained", 4),
+        ("torque_gain", 2),
+    ]
+    assert [f["effect"] for f in drift.document["within_change"]] == ["stribeck"]
     # nothing changed: the refit's findings all stay
     doc = {"findings": [refit("actuator_lag", 1)], "summary": "Refit."}
     merge_drift(doc, DriftResult({"source": "reference", "why": "w", "decision": "d",

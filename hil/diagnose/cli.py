@@ -319,9 +319,17 @@ def merge_drift(doc: dict, drift: DriftResult) -> None:
         # drift alone measures (the refit of the recording carries the model error both share).
         # Against a profile or --params the refit's findings answer what the model leaves out,
         # the drift's numbers stand beside them.
+        # The refit moves θ, and with it every joint whose rows share a θ column with a joint
+        # the change reaches (a 0.016 Nm Coulomb asymmetry written on A.0's joint 1 gave the
+        # refit an `unexplained` structure on joint 2 that the unmodified file lacks).
         since = drift.document["source"] == "reference"
         reached = (
-            {j for f in drift.findings for j in f.evidence.get("joints", [f.joint])}
+            {
+                k
+                for f in drift.findings
+                for j in f.evidence.get("joints", [f.joint])
+                for k in drift.shares.get(j, {j})
+            }
             if since
             else set()
         )

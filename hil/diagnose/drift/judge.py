@@ -378,4 +378,16 @@ def judge(
         "tested": tested,
         "not_findings": not_findings,
     }
-    return DriftResult(doc, findings, used)
+    return DriftResult(doc, findings, used, theta_shares(prob.Psi_raw))
+
+
+def theta_shares(Psi: np.ndarray) -> dict[int, set[int]]:
+    """Joint (1-based) -> the joints whose rows of Ψ (K, n, p) share a column with its own:
+    where a change on one joint, taken up by a refit of θ, moves the other's residual too (on
+    the 2-DOF arm θ1..θ5 are in both joints' rows; on a serial URDF arm a body's parameters are
+    in the rows of every joint before it)."""
+    used = np.zeros(Psi.shape[1:], bool)
+    for start in range(0, len(Psi), 4096):  # no (K, n, p) temporary
+        used |= np.any(Psi[start : start + 4096] != 0.0, axis=0)
+    share = (used.astype(int) @ used.T.astype(int)) > 0
+    return {i + 1: {int(j) + 1 for j in np.flatnonzero(share[i])} for i in range(len(share))}

@@ -78,3 +78,6 @@ class DriftResult:
     document: dict[str, Any]
     findings: list[Finding] = field(default_factory=list)
     used: bool = True  # the nominal model described the recording (else: refit)
+    # joint (1-based) -> the joints whose rows share a θ column with its rows: a refit of θ
+    # from the recording moves them together (hil.diagnose.cli.merge_drift); empty: unknown
+    shares: dict[int, set[int]] = field(default_factory=dict)
