@@ -18,6 +18,7 @@ import numpy as np
 from drivers.recording import Recording, read_signals
 from hil.control.signals import central_velocity, sample_times
 from hil.control.trajectory import PointToPoint
+from plots.layout import fixed_margins
 
 PART_COLORS = {
     "inertial": "tab:blue",
@@ -180,7 +181,7 @@ def plot_comparison(
 
 
 def _save(fig: Any, path: Path, plt: Any) -> Path:
-    fig.tight_layout()
+    fixed_margins(fig)
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path

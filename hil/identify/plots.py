@@ -10,6 +10,7 @@ import numpy as np
 from drivers.recording import Recording
 from hil.identify.schemes import SCHEME_TITLES, SchemeResult
 from hil.model.closed_form import THETA_UNITS
+from plots.layout import fixed_margins
 
 
 def _pyplot():
@@ -42,8 +43,7 @@ def plot_estimates(result: SchemeResult, reference: np.ndarray, path: Path) -> P
         " estimated θ̂(k)",
         fontsize=11,
     )
-    # fixed margins: tight_layout's extra draw doubled each figure's cost (the demo's twelve)
-    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.08, top=0.9, wspace=0.28, hspace=0.32)
+    fixed_margins(fig, wspace=0.28, hspace=0.32)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
@@ -79,8 +79,7 @@ def plot_validation(
         f"Open-loop validation, {SCHEME_TITLES.get(scheme, scheme)} ({discretization})",
         fontsize=11,
     )
-    left = 1.0 / (5.5 * len(panels))  # an inch for the tick labels and the axis label
-    fig.subplots_adjust(left=left, right=0.98, bottom=0.09, top=0.88, wspace=0.22, hspace=0.38)
+    fixed_margins(fig, left_in=1.0, wspace=0.22, hspace=0.38)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
