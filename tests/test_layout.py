@@ -29,9 +29,10 @@ MAY_IMPORT: dict[str, set[str]] = {
     "hil.report": BASE,  # HTML reports from the commands' documents (docs/reports.md)
     "hil.model": BASE,
     "hil.bench": BASE | {"plots"},  # hil run's positions.png
-    "hil.identify": BASE | {SHARED, "hil.model", "hil.bench"},
+    # plots.layout: figure margins without a second draw
+    "hil.identify": BASE | {SHARED, "hil.model", "hil.bench", "plots"},
     "hil.diagnose": BASE | {SHARED, "hil.model"},
-    "hil.control": BASE | {SHARED, "hil.model", "hil.bench"},
+    "hil.control": BASE | {SHARED, "hil.model", "hil.bench", "plots"},
     "hil.timing": BASE | {SHARED, "hil.model", "hil.bench", "hil.identify", "hil.control"},
     "hil.cli": BASE | {SHARED, *(f"hil.{p}" for p in HIL_PACKAGES)},
     "hil.entry": {"hil", "drivers", "hil.cli"},
