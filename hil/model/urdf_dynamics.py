@@ -114,11 +114,7 @@ class UrdfDynamics:
         V = chain.motions(X, dq.T)
         H = chain.subtree_sums(X, self._blocks, V)
         G = chain.subtree_sums(X, self._blocks, chain.motions(X, None, -self._model.gravity.linear))
-        S, V = chain.axes.T[..., None], V.transpose(1, 0, 2)  # component first: (6, n, ·)
-        # [a; α] × [b; β] = [α × b + a × β; α × β], linear first
-        cross = np.concatenate(
-            [_cross(S[3:], V[:3]) + _cross(S[:3], V[3:]), _cross(S[3:], V[3:])], axis=0
-        )
+        cross = _motion_cross(chain.axes.T[..., None], V.transpose(1, 0, 2))  # S_i × V_i
         return np.einsum("iak,aik->ki", H, cross) + np.einsum("ia,iak->ki", chain.axes, G)
 
 
@@ -217,11 +213,7 @@ class Chain:
         6, N): turning joint i turns the bodies beyond it about S_i, and in their own frames
         their velocities change by X_{j←i}(V_i × S_i) (×: the spatial cross product of motions,
         Featherstone (2008) eq. (2.31); the :meth:`UrdfDynamics.static_torque` argument)."""
-        S, W = self.axes.T[..., None], V.transpose(1, 0, 2)  # component first: (6, n, ·)
-        # [a; α] × [b; β] = [α × b + a × β; α × β], linear first
-        seeds = np.concatenate(
-            [_cross(W[3:], S[:3]) + _cross(W[:3], S[3:]), _cross(W[3:], S[3:])], axis=0
-        )
+        seeds = _motion_cross(V.transpose(1, 0, 2), self.axes.T[..., None])  # V_i × S_i
         return self.subtree_motions(X, seeds.transpose(1, 0, 2))
 
     def subtree_sums(self, X: list, blocks: np.ndarray, motions: np.ndarray) -> np.ndarray:
@@ -276,6 +268,14 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         np.broadcast_arrays(
             a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
         )
+    )
+
+
+def _motion_cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a × b of spatial motions, component first ((6, ...), linear first; broadcasting the
+    rest): [a; α] × [b; β] = [α × b + a × β; α × β] (Featherstone (2008) eq. (2.31))."""
+    return np.concatenate(
+        [_cross(a[3:], b[:3]) + _cross(a[:3], b[3:]), _cross(a[3:], b[3:])], axis=0
     )
 
 

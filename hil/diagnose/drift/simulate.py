@@ -112,8 +112,9 @@ def drift_simulation_gate(
     index = np.concatenate([np.arange(a, b) for a, b in segments])
     q = r.q[index]
 
-    def position(ts: Sequence[Term]) -> list[float] | None:
-        sim = sim_inputs(fit, ts, trained_estimates(fit, ts))
+    def position(ts: Sequence[Term], estimates: list[dict] | None = None) -> list[float] | None:
+        estimates = trained_estimates(fit, ts) if estimates is None else estimates
+        sim = sim_inputs(fit, ts, estimates)
         out = simulate_position(fit, sim, rec_i, segments)
         return None if out is None else [float(x) for x in nrmse(q, out)]
 
@@ -121,7 +122,8 @@ def drift_simulation_gate(
     sensitivity = position_sensitivity(fit, terms, rec_i, segments, index, q)
     while terms:
         worst = None
-        for t, e in zip(terms, trained_estimates(fit, terms), strict=True):
+        estimates = trained_estimates(fit, terms)
+        for t, e in zip(terms, estimates, strict=True):
             why = t.effect.unphysical(fit.ctx, t.joint, e, source)
             if why is not None:
                 worst = (t, np.inf, f"with it the nominal model is not physical: {why}")
@@ -131,7 +133,7 @@ def drift_simulation_gate(
             dropped[worst[0].key] = worst[2]
             terms = [u for u in terms if u is not worst[0]]
             continue
-        now = position(terms)
+        now = position(terms, estimates)
         for t in terms:
             if not t.effect.simulated():
                 continue
