@@ -133,6 +133,30 @@ def test_urdf_torques_are_the_regressor_products(name, which, cicese3, panda, tr
     )  # fmt: skip
 
 
+@pytest.mark.parametrize("name", ["cicese3", "panda", "tree", "closed_form"])
+def test_torques_at_shifts_equal_the_torques_at_the_shifted_readings(name, cicese3, panda, tree):
+    """momentum_at_shifts / static_torque_at_shifts (the frames before the joint built once,
+    the rest again per shift) equal momentum / static_torque at q + s e_j, on every joint (the
+    tree: branches, a prismatic joint), exactly but for rounding."""
+    model = {"cicese3": cicese3, "panda": panda, "tree": tree, "closed_form": ArmModel()}[name]
+    theta = _theta(model) if name != "closed_form" else np.linspace(0.05, 0.5, model.n_params)
+    q = RNG.uniform(-np.pi, np.pi, (2, 15, model.n_joints))
+    dq = RNG.normal(0, 2, q.shape)
+    shifts = np.array([0.3, -2.0, 0.0])
+    for joint in range(model.n_joints):
+        for shifted, plain in (
+            (model.momentum_at_shifts, model.momentum),
+            (model.static_torque_at_shifts, model.static_torque),
+        ):
+            got = shifted(theta, q, dq, joint, shifts)
+            assert got.shape == (len(shifts), *q.shape)
+            for s, at in zip(shifts, got, strict=True):
+                moved = q.copy()
+                moved[..., joint] += s
+                exact = plain(theta, moved, dq)
+                np.testing.assert_allclose(at, exact, rtol=0, atol=1e-12 * abs(exact).max())
+
+
 def test_only_revolute_and_prismatic_joints(tmp_path):
     """A 1-DOF joint that is neither (a helical one: Pinocchio's JointModelHZ has nq = 1)
     is refused with one line, not computed wrong."""
@@ -217,22 +241,22 @@ def test_encoder_rows_are_built_once_per_joint(panda, monkeypatch):
     ctx = Context([rows], panda, panda.base_theta(), rows.Psi)
     built = []
 
-    def counted(r, th, shift=None):
-        built.append(1)
-        return rigid_torque_rows(r, th, shift)
+    def counted(r, th, joint=None, shifts=()):
+        built.append(1 if joint is None else len(shifts))  # one build per shift
+        return rigid_torque_rows(r, th, joint, shifts)
 
     monkeypatch.setattr(encoder, "rigid_torque_rows", counted)
     effect = encoder.EncoderOffset()
     for joint in range(7):
         effect.columns(ctx, joint, 0.0)
-    assert len(built) == 1 + 4 * 7
+    assert sum(built) == 1 + 4 * 7
     for refined in (2, 4):
         for step in range(1, REFINE_STEPS + 1):
             effect.columns(ctx, refined, 0.01 * step)
             effect.shift(ctx, refined, 0.01 * step)
     for joint in range(7):
         effect.columns(ctx, joint, 0.0)
-    assert len(built) == 1 + 4 * 7
+    assert sum(built) == 1 + 4 * 7
 
 
 @pytest.mark.parametrize("name", ["cicese3", "panda", "tree"])

@@ -29,11 +29,10 @@ Lag and delay share their first-order column; :func:`lagged_torque_rows` and
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 from hil.diagnose.finding import rounded
 from hil.model.protocol import ArmDynamics
@@ -343,30 +342,39 @@ def model_torque_rows(
 
 
 def rigid_torque_rows(
-    rows: RecordingRows, theta: np.ndarray, shift: np.ndarray | None = None
+    rows: RecordingRows,
+    theta: np.ndarray,
+    joint: int | None = None,
+    shifts: Sequence[float] = (),
 ) -> np.ndarray:
-    """The rigid bodies' part of Ψ θ (K, n) before F, at the readings q + ``shift`` (n,):
+    """The rigid bodies' part of Ψ θ (K, n) before F:
     [P(q_{k+1}, q̇_{k+1}) − P(q_k, q̇_k)]/h_k + Σ_g w_g R(q_g, q̇_g), the momentum balance of
     :func:`_momentum_rows` (Reyes & Kelly (1997) eq. (24) over each interval) on the rows' own
     samples, velocities and Gauss–Legendre nodes, with θ's friction left out (a constant shift
     of the readings leaves every velocity, hence the friction columns, as they are). The
-    model's torques alone: the intervals' kinematics are not built again."""
+    model's torques alone: the intervals' kinematics are not built again. With ``joint``:
+    (S, K, n), the rows at the readings with that joint's shifted by each of ``shifts`` (S,)
+    (the model's ``*_at_shifts``: what precedes the joint is built once)."""
     model = rows.model
     rigid = np.array(theta, float)[: model.n_params]
     rigid[list(model.friction_columns)] = 0.0
-    d = np.zeros(rows.q.shape[1]) if shift is None else np.asarray(shift, float)
     k = rows.k
     at = np.union1d(
         k, k + 1
     )  # each sample's momentum once: the end of one interval, the next's start
-    P = model.momentum(rigid, rows.q[at] + d, rows.v[at])
-    P0, P1 = P[np.searchsorted(at, k)], P[np.searchsorted(at, k + 1)]
-    hk = rows.h if rows.stamps is None else np.diff(rows.stamps)[k][:, None]
     nodes, K, n = rows.q_nodes.shape
-    R = model.static_torque(
-        rigid, (rows.q_nodes + d).reshape(-1, n), rows.v_nodes.reshape(-1, n)
-    ).reshape(nodes, K, n)
-    return (P1 - P0) / hk + _node_average(R)
+    q_nodes, v_nodes = rows.q_nodes.reshape(-1, n), rows.v_nodes.reshape(-1, n)
+    if joint is None:
+        P = model.momentum(rigid, rows.q[at], rows.v[at])[None]
+        R = model.static_torque(rigid, q_nodes, v_nodes)[None]
+    else:
+        P = model.momentum_at_shifts(rigid, rows.q[at], rows.v[at], joint, shifts)
+        R = model.static_torque_at_shifts(rigid, q_nodes, v_nodes, joint, shifts)
+    P0, P1 = P[:, np.searchsorted(at, k)], P[:, np.searchsorted(at, k + 1)]
+    hk = rows.h if rows.stamps is None else np.diff(rows.stamps)[k][:, None]
+    R = R.reshape(len(R), nodes, K, n)
+    out = (P1 - P0) / hk + _node_average(np.moveaxis(R, 1, 0))
+    return out if joint is not None else out[0]
 
 
 def row_weights(still: np.ndarray, h: float, window: int) -> np.ndarray:
@@ -563,14 +571,12 @@ def lagged_torque_means(
     """The mean over each interval [t_k, t_{k+1}) of the first-order lag of the held torque
     ``tau`` (N, n), exact under zero-order hold (:func:`lagged_torque_rows`), (N, n). ``t``: the
     real sample times, each interval its own h_k (default every interval ``h``)."""
-    if t is None:
-        decay = np.exp(-h / time_constant_s)
-        free = decay ** np.arange(len(tau))[:, None] * tau[0]  # x_0 = τ_0
-        x = lfilter([0.0, 1.0 - decay], [1.0, -decay], tau, axis=0) + free
-        return tau + (x - tau) * (time_constant_s / h) * (1.0 - decay)
     tau = np.asarray(tau, float)
-    dt = np.diff(np.asarray(t, float))
-    dt = np.append(dt, dt[-1:])  # the last sample starts no interval: any h serves
+    if t is None:
+        dt = np.full(len(tau), float(h))
+    else:
+        dt = np.diff(np.asarray(t, float))
+        dt = np.append(dt, dt[-1:])  # the last sample starts no interval: any h serves
     decay = np.exp(-dt / time_constant_s)
     x = _first_order_states(decay, tau)
     return tau + (x - tau) * ((time_constant_s / dt) * (1.0 - decay))[:, None]
@@ -578,7 +584,7 @@ def lagged_torque_means(
 
 def _first_order_states(decay: np.ndarray, tau: np.ndarray) -> np.ndarray:
     """x_0 = τ_0, x_{k+1} = a_k x_k + (1 − a_k) τ_k for a_k = ``decay[k]``, (N, n): the lag's
-    states over unequal intervals. The steps compose as affine maps, (a, b)∘(a', b') =
+    states over equal or unequal intervals. The steps compose as affine maps, (a, b)∘(a', b') =
     (a a', a b' + b), so a prefix scan (Hillis & Steele) gives every x_k = A_k x_0 + B_k in
     log₂ N passes; A only shrinks and B stays within the torques' range (no overflow, whatever
     h_k/T)."""

@@ -22,7 +22,8 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import binom
+
+from hil.model.tails import binomial_upper_tail
 
 # Relative to each column's own squared norm over all the data (not to the design's mean
 # diagonal): keeps a fold solvable when a column is (nearly) absent from it. A ridge relative to
@@ -357,7 +358,7 @@ class Evidence:
     def sign_p(self) -> float:
         """One-sided sign test: the chance of at least this many improved blocks if the term
         helped or hurt each block at random (a fair coin per block)."""
-        return float(binom.sf(self.blocks_improved - 1, self.blocks, 0.5))
+        return binomial_upper_tail(self.blocks_improved - 1, self.blocks, 0.5)
 
     def as_dict(self) -> dict[str, float | int]:
         return {

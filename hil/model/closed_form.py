@@ -297,6 +297,16 @@ def _stack_rows(cols: list) -> np.ndarray:
     return np.stack([np.stack([c[0] for c in cols], -1), np.stack([c[1] for c in cols], -1)], -2)
 
 
+def _shifted(q: ArrayLike, joint: int, shifts: ArrayLike) -> list[np.ndarray]:
+    """q (..., 2) with ``joint``'s coordinate shifted by each of ``shifts``."""
+    out = []
+    for s in np.atleast_1d(np.asarray(shifts, float)):
+        q_s = np.array(q, dtype=float)
+        q_s[..., joint] += s
+        out.append(q_s)
+    return out
+
+
 @dataclass(frozen=True)
 class ArmModel:
     """The planar 2R arm's rigid-body model, linear in named parameters θ.
@@ -417,6 +427,18 @@ class ArmModel:
     def static_torque(self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
         """R(q, q̇) θ, shape (..., 2) (as :meth:`UrdfArmModel.static_torque`)."""
         return self.static_regressor(q, dq) @ self._theta(theta)
+
+    def momentum_at_shifts(
+        self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike, joint: int, shifts: ArrayLike
+    ) -> np.ndarray:
+        """:meth:`momentum` at q + s e_``joint`` for each s of ``shifts`` (S,), (S, ..., 2)."""
+        return np.stack([self.momentum(theta, q_s, dq) for q_s in _shifted(q, joint, shifts)])
+
+    def static_torque_at_shifts(
+        self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike, joint: int, shifts: ArrayLike
+    ) -> np.ndarray:
+        """:meth:`static_torque` at q + s e_``joint`` for each s of ``shifts``, (S, ..., 2)."""
+        return np.stack([self.static_torque(theta, q_s, dq) for q_s in _shifted(q, joint, shifts)])
 
     def dynamic_regressor(self, q: ArrayLike, dq: ArrayLike, ddq: ArrayLike) -> np.ndarray:
         """Y(q, q̇, q̈) with Y θ = M q̈ + C q̇ + g + f, shape (..., 2, p)."""

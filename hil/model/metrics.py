@@ -100,7 +100,7 @@ def nrmse_upper_bound(
     blocks they measure the motion, not the prediction (on the real Panda's joint 7, one block
     of four carries 87 % of the held-out variance: the bootstrap bounded an NRMSE of 0.19 by
     1.4; the t-test could not tell joint 4's 0.11 from 1; docs/urdf.md)."""
-    from scipy.stats import t as student_t
+    from hil.model.tails import t_quantile
 
     y = np.asarray(reference, dtype=float)
     y_hat = np.asarray(estimate, dtype=float)
@@ -115,9 +115,7 @@ def nrmse_upper_bound(
         return float("nan")
     block_sse = np.bincount(index, weights=(y - y_hat) ** 2)
     spread = float(np.sum((y - y.mean()) ** 2))
-    margin = float(student_t.ppf(confidence, n_blocks - 1)) * np.sqrt(
-        n_blocks * np.var(block_sse, ddof=1)
-    )
+    margin = t_quantile(confidence, n_blocks - 1) * np.sqrt(n_blocks * np.var(block_sse, ddof=1))
     return float(np.sqrt((block_sse.sum() + margin) / spread))
 
 

@@ -88,6 +88,27 @@ class ArmDynamics(Protocol):
         """R(q, q̇) with τ = d/dt[P θ] + R θ (Reyes & Kelly (1997) eq. (12))."""
         ...
 
+    def momentum(self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
+        """P(q, q̇) θ = M(q) q̇ without P's columns (the diagnosis's torque rows)."""
+        ...
+
+    def static_torque(self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
+        """R(q, q̇) θ without R's columns."""
+        ...
+
+    def momentum_at_shifts(
+        self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike, joint: int, shifts: ArrayLike
+    ) -> np.ndarray:
+        """:meth:`momentum` at q + s e_joint for each s of ``shifts``, (S, ..., n): an encoder
+        offset's torques (:mod:`hil.diagnose.effects.encoder`)."""
+        ...
+
+    def static_torque_at_shifts(
+        self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike, joint: int, shifts: ArrayLike
+    ) -> np.ndarray:
+        """:meth:`static_torque` at q + s e_joint for each s of ``shifts``, (S, ..., n)."""
+        ...
+
     def energy_regressor(self, q: ArrayLike, dq: ArrayLike) -> np.ndarray: ...
 
     def friction_power_regressor(self, dq: ArrayLike) -> np.ndarray: ...

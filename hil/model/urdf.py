@@ -549,6 +549,28 @@ class UrdfArmModel:
         out = self._dynamics_of(theta).static_torque(q, dq) + self.friction_torque(theta, dq)
         return out.reshape(*lead, self.n_joints)
 
+    def momentum_at_shifts(
+        self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike, joint: int, shifts: ArrayLike
+    ) -> np.ndarray:
+        """:meth:`momentum` at q + s e_``joint`` for each s of ``shifts`` (S,), shape
+        (S, ..., n): the frames before the joint built once
+        (:meth:`UrdfDynamics.momentum_at_shifts`)."""
+        (q, dq), lead = self._samples(q, dq)
+        s = np.atleast_1d(np.asarray(shifts, float))
+        out = self._dynamics_of(theta).momentum_at_shifts(q, dq, joint, s)
+        return out.reshape(len(s), *lead, self.n_joints)
+
+    def static_torque_at_shifts(
+        self, theta: ArrayLike, q: ArrayLike, dq: ArrayLike, joint: int, shifts: ArrayLike
+    ) -> np.ndarray:
+        """:meth:`static_torque` at q + s e_``joint`` for each s of ``shifts`` (S,), shape
+        (S, ..., n) (:meth:`UrdfDynamics.static_torque_at_shifts`)."""
+        (q, dq), lead = self._samples(q, dq)
+        s = np.atleast_1d(np.asarray(shifts, float))
+        out = self._dynamics_of(theta).static_torque_at_shifts(q, dq, joint, s)
+        out = out + self.friction_torque(theta, dq)  # a shift leaves the velocities as they are
+        return out.reshape(len(s), *lead, self.n_joints)
+
     # --- physical consistency ------------------------------------------------------------------
 
     def _base_consistency(self, theta: np.ndarray) -> dict[str, object]:

@@ -96,6 +96,32 @@ class UrdfDynamics:
         H = chain.subtree_sums(X, self._blocks, chain.motions(X, dq.T))
         return np.einsum("ia,iak->ki", chain.axes, H) + self._armature_diag * dq
 
+    def momentum_at_shifts(
+        self, q: np.ndarray, dq: np.ndarray, joint: int, shifts: np.ndarray
+    ) -> np.ndarray:
+        """:meth:`momentum` at q + s e_``joint`` for each s of ``shifts`` (S,), shape (S, N, n):
+        the bodies before ``joint`` keep their frames and velocities (Pinocchio numbers a
+        parent before its children), so only the joint's transform and what follows it are
+        built again for each shift."""
+        return np.moveaxis(
+            by_chunks(lambda q, dq: self._momentum_at_shifts(q, dq, joint, shifts), q, dq), 1, 0
+        )
+
+    def _momentum_at_shifts(
+        self, q: np.ndarray, dq: np.ndarray, joint: int, shifts: np.ndarray
+    ) -> np.ndarray:
+        chain, blocks = self._chain, self._blocks
+        X = chain.transforms(q)
+        V = chain.motions(X, dq.T)
+        own = np.einsum("jab,jbk->jak", blocks, V)
+        out = np.empty((len(q), len(shifts), self.n_joints))
+        for i, s in enumerate(shifts):
+            Xs = chain.shifted(X, q, joint, s)
+            Vs = chain.motions(Xs, dq.T, start=joint, known=V)
+            H = chain.subtree_sums(Xs, blocks, Vs, start=joint, own=own)
+            out[:, i] = np.einsum("ia,iak->ki", chain.axes, H) + self._armature_diag * dq
+        return out
+
     def static_torque(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """g(q) − ∂K/∂q = g(q) − C(q, q̇)ᵀ q̇ at states (N, n), shape (N, n).
 
@@ -114,8 +140,40 @@ class UrdfDynamics:
         V = chain.motions(X, dq.T)
         H = chain.subtree_sums(X, self._blocks, V)
         G = chain.subtree_sums(X, self._blocks, chain.motions(X, None, -self._model.gravity.linear))
-        cross = _motion_cross(chain.axes.T[..., None], V.transpose(1, 0, 2))  # S_i × V_i
-        return np.einsum("iak,aik->ki", H, cross) + np.einsum("ia,iak->ki", chain.axes, G)
+        cross = chain.axis_cross @ V  # S_i × V_i
+        return np.einsum("iak,iak->ki", H, cross) + np.einsum("ia,iak->ki", chain.axes, G)
+
+    def static_torque_at_shifts(
+        self, q: np.ndarray, dq: np.ndarray, joint: int, shifts: np.ndarray
+    ) -> np.ndarray:
+        """:meth:`static_torque` at q + s e_``joint`` for each s of ``shifts`` (S,), shape
+        (S, N, n), with what precedes the joint built once (:meth:`momentum_at_shifts`)."""
+        return np.moveaxis(
+            by_chunks(lambda q, dq: self._static_at_shifts(q, dq, joint, shifts), q, dq), 1, 0
+        )
+
+    def _static_at_shifts(
+        self, q: np.ndarray, dq: np.ndarray, joint: int, shifts: np.ndarray
+    ) -> np.ndarray:
+        chain, blocks, j = self._chain, self._blocks, joint
+        X = chain.transforms(q)
+        V = chain.motions(X, dq.T)
+        A = chain.motions(X, None, -self._model.gravity.linear)
+        own_V = np.einsum("jab,jbk->jak", blocks, V)
+        own_A = np.einsum("jab,jbk->jak", blocks, A)
+        cross = chain.axis_cross @ V  # S_i × V_i
+        out = np.empty((len(q), len(shifts), self.n_joints))
+        for i, s in enumerate(shifts):
+            Xs = chain.shifted(X, q, j, s)
+            Vs = chain.motions(Xs, dq.T, start=j, known=V)
+            H = chain.subtree_sums(Xs, blocks, Vs, start=j, own=own_V)
+            G = chain.subtree_sums(
+                Xs, blocks, chain.motions(Xs, None, -self._model.gravity.linear, j, A), j, own_A
+            )
+            cs = cross.copy()
+            cs[j:] = chain.axis_cross[j:] @ Vs[j:]
+            out[:, i] = np.einsum("iak,iak->ki", H, cs) + np.einsum("ia,iak->ki", chain.axes, G)
+        return out
 
 
 class Chain:
@@ -133,7 +191,7 @@ class Chain:
         d = model.createData()
         pin.computeJointJacobians(model, d, pin.neutral(model))
         self.axes = np.empty((model.njoints - 1, 6))  # S_j in joint j's frame, linear first
-        self._placements: list[tuple[bool, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self._placements: list[tuple[bool, np.ndarray, np.ndarray, np.ndarray]] = []
         for j in range(1, model.njoints):
             s = pin.getJointJacobian(model, d, j, pin.LOCAL).reshape(6, -1)[:, j - 1]
             if not (np.allclose(s[:3], 0) or np.allclose(s[3:], 0)):
@@ -144,40 +202,62 @@ class Chain:
             R, p = model.jointPlacements[j].rotation.copy(), model.jointPlacements[j].translation
             K = _skew(s[None, 3:])[0]
             revolute = bool(np.any(s[3:]))
-            # revolute: R_P [a]× and R_P [a]×²; prismatic: R_P a (and zero)
+            # revolute: [R_P, R_P [a]×, R_P [a]×²] as (9, 3), times [1, sin q, 1 − cos q] per
+            # state; prismatic: R_P a (and zero)
             one, two = (R @ K, R @ K @ K) if revolute else (R @ s[:3], np.zeros(3))
-            self._placements.append((revolute, R, p.copy(), one, two))
+            rodrigues = np.stack([R, one, two], axis=-1).reshape(9, 3) if revolute else one
+            self._placements.append((revolute, R, p.copy(), rodrigues))
         # per joint: turns (True) or slides (False)
         self.revolute = tuple(bool(placed[0]) for placed in self._placements)
+        # S_i × (crm(S_i), Featherstone (2008) eq. (2.31)): S_i × m = crm(S_i) m, (n, 6, 6)
+        self.axis_cross = _motion_cross_matrix(self.axes)
 
     def transforms(self, q: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
         """(L_j (3, 3, N), p_j (3, N) or (3, 1)) of each joint at configurations q (N, n)."""
-        out = []
-        for j, (revolute, R, p, one, two) in enumerate(self._placements):
-            qj = q[:, j]
-            if revolute:
-                L = R[..., None] + one[..., None] * np.sin(qj) + two[..., None] * (1 - np.cos(qj))
-                out.append((L, p[:, None]))
-            else:
-                out.append(
-                    (np.broadcast_to(R[..., None], (3, 3, len(q))), p[:, None] + one[:, None] * qj)
-                )
+        return [self.transform(j, q[:, j]) for j in range(len(self._placements))]
+
+    def transform(self, j: int, qj: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(L_j (3, 3, N), p_j (3, N) or (3, 1)) of joint j at its coordinates ``qj`` (N,)."""
+        revolute, R, p, rodrigues = self._placements[j]
+        if revolute:
+            L = rodrigues @ np.stack([np.ones_like(qj), np.sin(qj), 1 - np.cos(qj)])
+            return L.reshape(3, 3, len(qj)), p[:, None]
+        return np.broadcast_to(R[..., None], (3, 3, len(qj))), p[:, None] + rodrigues[:, None] * qj
+
+    def shifted(self, X: list, q: np.ndarray, j: int, shift: float) -> list:
+        """``X`` (:meth:`transforms` of q) with joint j's transform at q_j + ``shift``."""
+        out = list(X)
+        out[j] = self.transform(j, q[:, j] + shift)
         return out
 
-    def motions(self, X: list, dq: np.ndarray | None, base: np.ndarray | None = None) -> np.ndarray:
+    def motions(
+        self,
+        X: list,
+        dq: np.ndarray | None,
+        base: np.ndarray | None = None,
+        start: int = 0,
+        known: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Each body's spatial motion in its own frame, (n, 6, N): the parent's, moved to the
         joint's frame, plus S_j q̇_j (``dq`` (n, N)); the base's is 0, or the linear ``base``
-        (a gravity acceleration, world frame) (Featherstone (2008) eq. (2.24))."""
+        (a gravity acceleration, world frame) (Featherstone (2008) eq. (2.24)). ``start``,
+        ``known``: the bodies before ``start`` taken from ``known`` (their frames unchanged),
+        the rest built on them."""
         n = len(self.parents)
         N = X[0][0].shape[-1] if dq is None else dq.shape[-1]
-        out = np.zeros((n, 6, N))
+        out = np.zeros((n, 6, N)) if known is None else known.copy()
         for j, ((L, p), parent) in enumerate(zip(X, self.parents, strict=True)):
+            if j < start:
+                continue
             if parent >= 0:
                 v, w = out[parent, :3], out[parent, 3:]
                 out[j, :3] = _rotate_back(L, v + _cross(w, p))
                 out[j, 3:] = _rotate_back(L, w)
             elif base is not None:
                 out[j, :3] = _rotate_back(L, np.asarray(base, float)[:, None])
+                out[j, 3:] = 0.0
+            else:
+                out[j] = 0.0
             if dq is not None:
                 out[j] += self.axes[j, :, None] * dq[j]
         return out
@@ -213,14 +293,25 @@ class Chain:
         6, N): turning joint i turns the bodies beyond it about S_i, and in their own frames
         their velocities change by X_{j←i}(V_i × S_i) (×: the spatial cross product of motions,
         Featherstone (2008) eq. (2.31); the :meth:`UrdfDynamics.static_torque` argument)."""
-        seeds = _motion_cross(V.transpose(1, 0, 2), self.axes.T[..., None])  # V_i × S_i
-        return self.subtree_motions(X, seeds.transpose(1, 0, 2))
+        return self.subtree_motions(X, -(self.axis_cross @ V))  # V_i × S_i = −S_i × V_i
 
-    def subtree_sums(self, X: list, blocks: np.ndarray, motions: np.ndarray) -> np.ndarray:
+    def subtree_sums(
+        self,
+        X: list,
+        blocks: np.ndarray,
+        motions: np.ndarray,
+        start: int = 0,
+        own: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Σ over the bodies that joint i moves of I_j m_j, (n, 6, N), in joint i's frame: each
         body's inertia ``blocks`` (n, 6, 6) times its motion, forces carried to the parent's
-        frame (Featherstone (2008) eq. (2.25))."""
-        out = np.einsum("jab,jbk->jak", blocks, motions)
+        frame (Featherstone (2008) eq. (2.25)). ``start``, ``own``: the products I_j m_j of the
+        bodies before ``start`` taken from ``own`` (their motions unchanged)."""
+        if own is None:
+            out = np.einsum("jab,jbk->jak", blocks, motions)
+        else:
+            out = own.copy()
+            out[start:] = np.einsum("jab,jbk->jak", blocks[start:], motions[start:])
         for j in reversed(range(len(self.parents))):
             parent = self.parents[j]
             if parent >= 0:
@@ -271,12 +362,15 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
-def _motion_cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a × b of spatial motions, component first ((6, ...), linear first; broadcasting the
-    rest): [a; α] × [b; β] = [α × b + a × β; α × β] (Featherstone (2008) eq. (2.31))."""
-    return np.concatenate(
-        [_cross(a[3:], b[:3]) + _cross(a[:3], b[3:]), _cross(a[3:], b[3:])], axis=0
-    )
+def _motion_cross_matrix(m: np.ndarray) -> np.ndarray:
+    """crm(m) of spatial motions m (N, 6), linear first: crm(m) u = m × u, (N, 6, 6),
+    [[ω]×, [v]×; 0, [ω]×] for m = [v; ω] (Featherstone (2008) eq. (2.31))."""
+    out = np.zeros((len(m), 6, 6))
+    w, v = _skew(m[:, 3:]), _skew(m[:, :3])
+    out[:, :3, :3] = w
+    out[:, 3:, 3:] = w
+    out[:, :3, 3:] = v
+    return out
 
 
 def _skew(v: np.ndarray) -> np.ndarray:

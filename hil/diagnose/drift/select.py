@@ -11,8 +11,6 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import numpy as np
-from scipy.stats import f as f_dist
-from scipy.stats import t as student_t
 
 from hil.diagnose.drift.fit import Fit, change_se, term_sizes
 from hil.diagnose.drift.terms import Term
@@ -25,6 +23,7 @@ from hil.diagnose.stats import (
     Evidence,
     evidence,
 )
+from hil.model.tails import f_upper_tail, t_upper_quantile
 
 
 def change_in_se(fit: Fit, others: Sequence[Term], term: Term) -> float:
@@ -83,8 +82,8 @@ def joint_change_in_se(fit: Fit, others: Sequence[Term], term: Term) -> float:
         return 0.0
     t2 = float(change @ np.linalg.lstsq(cov, change, rcond=None)[0])
     f = t2 * (blocks - k) / (k * (blocks - 1))  # Hotelling's T² as F(k, B − k)
-    p = float(f_dist.sf(f, k, blocks - k))
-    return float(student_t.isf(max(p, 1e-300) / 2, blocks - 1))
+    p = f_upper_tail(f, k, blocks - k)
+    return t_upper_quantile(max(p, 1e-300) / 2, blocks - 1)
 
 
 def amplitude_change_in_se(fit: Fit, others: Sequence[Term], term: Term) -> float:
@@ -141,7 +140,7 @@ def drift_passes(fit: Fit, others: Sequence[Term], term: Term, ev: Evidence, tes
         return False
     if fit.paired and ev.drop < MIN_REDUCTION * change_energy(fit, term):
         return False
-    crit = float(student_t.isf(FAMILY_ALPHA / tests / 2, max(len(fit.starts) - 1, 1)))
+    crit = t_upper_quantile(FAMILY_ALPHA / tests / 2, max(len(fit.starts) - 1, 1))
     if change_in_se(fit, others, term) < crit:
         return False
     # another motion: θ refitted is the competitor (:mod:`hil.diagnose.drift.unpaired`)

@@ -38,7 +38,6 @@ from collections.abc import Sequence
 from itertools import pairwise
 
 import numpy as np
-from scipy.stats import t as student_t
 
 from hil.diagnose.drift.fit import Fit, make_fit
 from hil.diagnose.drift.terms import Nominal, Term
@@ -54,6 +53,7 @@ from hil.diagnose.stats import (
     cross_validate,
 )
 from hil.model.estimators import bounded_quadratic_fit
+from hil.model.tails import t_upper_quantile
 
 # A pattern whose columns keep less than this fraction of their energy outside θ's columns
 # (unit-norm columns) is θ's own direction: with θ free its coefficient is set by the fit's
@@ -168,7 +168,7 @@ def spread_check(
         R = len(sizes)
         sd = float(np.std(sizes, ddof=1))
         se = float(np.hypot(size_se, sd * np.sqrt(1.0 + 1.0 / R)))
-        crit = float(student_t.isf(FAMILY_ALPHA / len(kept) / 2, R - 1))
+        crit = t_upper_quantile(FAMILY_ALPHA / len(kept) / 2, R - 1)
         if abs(size) < crit * se:
             out[t.key] = (
                 f"the pattern's size on each of the {R} reference recordings, against θ "

@@ -38,11 +38,9 @@ SLIDE_STEPS = np.array([-1.0, 1.0])
 def _coefficients(r: RecordingRows, theta: np.ndarray, joint: int, base: np.ndarray) -> np.ndarray:
     """C (K, n, 4) of one recording's rows, before F, with Ψ(q − δ e_j) θ − Ψ(q) θ = C φ(δ)
     (:func:`basis`); ``base`` the rigid rows at δ = 0."""
-    e = np.zeros(r.q.shape[1])
-    e[joint] = 1.0
     revolute = r.model.revolute[joint]
     steps = FOURIER_ANGLES if revolute else SLIDE_STEPS
-    d = [rigid_torque_rows(r, theta, -s * e) - base for s in steps]  # f(δ_m) − f(0)
+    d = rigid_torque_rows(r, theta, joint, -steps) - base  # f(δ_m) − f(0), (S, K, n)
     out = np.zeros((*base.shape, 4))
     if revolute:  # a_k, b_k = (2/5) Σ_m f(δ_m) (cos, sin)(k δ_m); f(0) − f(0) = 0 adds nothing
         for i, (k, trig) in enumerate(((1, np.cos), (1, np.sin), (2, np.cos), (2, np.sin))):
