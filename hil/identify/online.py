@@ -36,6 +36,7 @@ from collections import deque
 from collections.abc import Sequence
 
 import numpy as np
+from scipy.signal import lfilter
 
 from drivers.recording import GAP_FACTOR
 from hil.model.closed_form import N_PARAMS
@@ -65,9 +66,6 @@ class _StreamFilter:
     or, given each row's interval, :func:`filter_over_intervals` with its state carried."""
 
     def __init__(self, name: str, lam: float, h: float, shape: tuple[int, ...]) -> None:
-        from scipy.signal import lfilter  # here: scipy.signal costs ~1 s to import
-
-        self._lfilter = lfilter
         self.name, self.lam = name, lam
         self.b, self.a = filter_coefficients(name, lam, h)
         order = max(len(self.a), len(self.b)) - 1
@@ -79,8 +77,8 @@ class _StreamFilter:
             y, self.state = filter_over_intervals(self.name, self.lam, [dt], x[None], self.state)
             return y[0]
         if self.zi is None:
-            return self._lfilter(self.b, self.a, x[None], axis=0)[0]
-        y, self.zi = self._lfilter(self.b, self.a, x[None], axis=0, zi=self.zi)
+            return lfilter(self.b, self.a, x[None], axis=0)[0]
+        y, self.zi = lfilter(self.b, self.a, x[None], axis=0, zi=self.zi)
         return y[0]
 
 

@@ -63,6 +63,7 @@ from dataclasses import dataclass
 from itertools import pairwise
 
 import numpy as np
+from scipy.signal import lfilter
 
 from hil.model.closed_form import ArmModel
 
@@ -686,8 +687,6 @@ class RowFilters:
     def apply(self, raw: RawRows, dt: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(y, Psi) of ``raw``'s rows, filtered; ``dt``: each row's own interval (the paper's
         filters on real times, :func:`filter_over_intervals`), else the LTI filters at h."""
-        from scipy.signal import lfilter  # here: scipy.signal costs ~1 s to import
-
         out = []
         for i, (name, x) in enumerate(((raw.y_filter, raw.y), *raw.parts)):
             if dt is not None:
