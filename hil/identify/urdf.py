@@ -39,6 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import CubicSpline
+from scipy.signal import butter, sosfiltfilt
 
 from drivers.recording import Recording
 from hil.identify.schemes import (
@@ -133,8 +134,6 @@ class Motion:
 def _lowpass(x: np.ndarray, cutoff_hz: float, period_s: float) -> np.ndarray:
     # Butterworth 4th order, run forward and backward (zero phase). It acts on the row sequence
     # at the median interval; rows are combined alike on both sides of every equation.
-    from scipy.signal import butter, sosfiltfilt  # here: scipy.signal costs ~1 s to import
-
     sos = butter(4, cutoff_hz, fs=1.0 / period_s, output="sos")
     return sosfiltfilt(sos, x, axis=0)
 

@@ -1,6 +1,5 @@
 """Tail probabilities and quantiles of the t, F and binomial distributions: scipy.special's
-functions, the ones scipy.stats evaluates, without importing scipy.stats (about 1 s of CPU
-in every process that would: each ``hil diagnose`` and ``hil identify`` paid it).
+functions, the ones scipy.stats evaluates, named for what the tests of the diagnosis ask.
 
 Imports numpy and scipy.special only.
 """

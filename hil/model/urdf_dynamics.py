@@ -65,6 +65,7 @@ class UrdfDynamics:
         self._armature = np.diag(self._armature_diag)
         self._zero = np.zeros(n)
         self._chain = model._chain
+        self._gravity = -model._model.gravity.linear  # the base's acceleration at rest
         self._jacobians = np.zeros((6 * n, n))  # the bodies' Jacobians stacked, filled per call
 
     def mass_matrix(self, q: ArrayLike) -> np.ndarray:
@@ -91,10 +92,16 @@ class UrdfDynamics:
         return by_chunks(self._momentum, q, dq)
 
     def _momentum(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-        chain = self._chain
-        X = chain.transforms(q)
-        H = chain.subtree_sums(X, self._blocks, chain.motions(X, dq.T))
-        return np.einsum("ia,iak->ki", chain.axes, H) + self._armature_diag * dq
+        X = self._chain.transforms(q)
+        return self._momentum_of(X, self._chain.motions(X, dq.T), dq)
+
+    def _momentum_of(
+        self, X: list, V: np.ndarray, dq: np.ndarray, start: int = 0, own: np.ndarray | None = None
+    ) -> np.ndarray:
+        """M(q) q̇ from the frames ``X`` and the bodies' velocities ``V`` (``start``, ``own``:
+        :meth:`Chain.subtree_sums`)."""
+        H = self._chain.subtree_sums(X, self._blocks, V, start, own)
+        return np.einsum("ia,iak->ki", self._chain.axes, H) + self._armature_diag * dq
 
     def momentum_at_shifts(
         self, q: np.ndarray, dq: np.ndarray, joint: int, shifts: np.ndarray
@@ -110,16 +117,15 @@ class UrdfDynamics:
     def _momentum_at_shifts(
         self, q: np.ndarray, dq: np.ndarray, joint: int, shifts: np.ndarray
     ) -> np.ndarray:
-        chain, blocks = self._chain, self._blocks
+        chain = self._chain
         X = chain.transforms(q)
         V = chain.motions(X, dq.T)
-        own = np.einsum("jab,jbk->jak", blocks, V)
+        own = np.einsum("jab,jbk->jak", self._blocks, V)
         out = np.empty((len(q), len(shifts), self.n_joints))
         for i, s in enumerate(shifts):
             Xs = chain.shifted(X, q, joint, s)
             Vs = chain.motions(Xs, dq.T, start=joint, known=V)
-            H = chain.subtree_sums(Xs, blocks, Vs, start=joint, own=own)
-            out[:, i] = np.einsum("ia,iak->ki", chain.axes, H) + self._armature_diag * dq
+            out[:, i] = self._momentum_of(Xs, Vs, dq, joint, own)
         return out
 
     def static_torque(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
@@ -138,9 +144,24 @@ class UrdfDynamics:
         chain = self._chain
         X = chain.transforms(q)
         V = chain.motions(X, dq.T)
-        H = chain.subtree_sums(X, self._blocks, V)
-        G = chain.subtree_sums(X, self._blocks, chain.motions(X, None, -self._model.gravity.linear))
-        cross = chain.axis_cross @ V  # S_i × V_i
+        return self._static_of(X, V, chain.motions(X, None, self._gravity), chain.axis_cross @ V)
+
+    def _static_of(
+        self,
+        X: list,
+        V: np.ndarray,
+        A: np.ndarray,
+        cross: np.ndarray,
+        start: int = 0,
+        own: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> np.ndarray:
+        """g − ∂K/∂q from the frames ``X``, the bodies' velocities ``V``, their accelerations
+        at rest under gravity ``A`` and S_i × V_i ``cross`` (``start``, ``own``: the products
+        I_j V_j and I_j A_j of the bodies before ``start``, :meth:`Chain.subtree_sums`)."""
+        chain, blocks = self._chain, self._blocks
+        own_V, own_A = (None, None) if own is None else own
+        H = chain.subtree_sums(X, blocks, V, start, own_V)
+        G = chain.subtree_sums(X, blocks, A, start, own_A)
         return np.einsum("iak,iak->ki", H, cross) + np.einsum("ia,iak->ki", chain.axes, G)
 
     def static_torque_at_shifts(
@@ -155,24 +176,23 @@ class UrdfDynamics:
     def _static_at_shifts(
         self, q: np.ndarray, dq: np.ndarray, joint: int, shifts: np.ndarray
     ) -> np.ndarray:
-        chain, blocks, j = self._chain, self._blocks, joint
+        chain, j = self._chain, joint
         X = chain.transforms(q)
         V = chain.motions(X, dq.T)
-        A = chain.motions(X, None, -self._model.gravity.linear)
-        own_V = np.einsum("jab,jbk->jak", blocks, V)
-        own_A = np.einsum("jab,jbk->jak", blocks, A)
+        A = chain.motions(X, None, self._gravity)
+        own = (
+            np.einsum("jab,jbk->jak", self._blocks, V),
+            np.einsum("jab,jbk->jak", self._blocks, A),
+        )
         cross = chain.axis_cross @ V  # S_i × V_i
         out = np.empty((len(q), len(shifts), self.n_joints))
         for i, s in enumerate(shifts):
             Xs = chain.shifted(X, q, j, s)
             Vs = chain.motions(Xs, dq.T, start=j, known=V)
-            H = chain.subtree_sums(Xs, blocks, Vs, start=j, own=own_V)
-            G = chain.subtree_sums(
-                Xs, blocks, chain.motions(Xs, None, -self._model.gravity.linear, j, A), j, own_A
-            )
+            As = chain.motions(Xs, None, self._gravity, start=j, known=A)
             cs = cross.copy()
             cs[j:] = chain.axis_cross[j:] @ Vs[j:]
-            out[:, i] = np.einsum("iak,iak->ki", H, cs) + np.einsum("ia,iak->ki", chain.axes, G)
+            out[:, i] = self._static_of(Xs, Vs, As, cs, j, own)
         return out
 
 
