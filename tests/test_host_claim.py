@@ -89,6 +89,35 @@ def test_two_hosts_attaching_together_one_refuses_the_other_runs(bus, attempt):
     _runs(arms[outcomes.index("open")])
 
 
+def test_a_rival_claim_heard_after_the_silent_listen_refuses_before_ours_is_sent(bus, monkeypatch):
+    """A rival's claiming heartbeat that arrives after our silent listen but before our claim
+    is set wins the bus, and we send no heartbeat of ours: had we sent it, the rival could
+    lose to it by (node-ID, nonce) and both hosts would refuse (seen in CI)."""
+    from drivers.can_arm import setup
+    from drivers.protocol import cia402 as co
+
+    arm = bus.host()
+    listen = setup.NodeSetup._listen
+    calls = []
+
+    def listen_then_hear_a_rival(self, seconds):
+        listen(self, seconds)
+        if not calls:  # the first (silent) listen: the rival's claim comes in just after it
+            self._host_heartbeat(co.HEARTBEAT_BASE + 1, co.host_heartbeat(False, bytes(4)))
+        calls.append(seconds)
+
+    monkeypatch.setattr(setup.NodeSetup, "_listen", listen_then_hear_a_rival)
+    sent: list[int] = []
+    send = arm._send
+    monkeypatch.setattr(arm, "_send", lambda msg, *a, **k: (sent.append(msg.arbitration_id),
+                                                               send(msg, *a, **k))[1])  # fmt: skip
+    with pytest.raises(LinkError, match=REFUSAL) as refused:
+        arm.open()
+    assert "claiming it" in str(refused.value)
+    assert calls == [setup.HOST_LISTEN_S]  # refused before the claim's listen
+    assert not any(co.HEARTBEAT_BASE < cob < co.HEARTBEAT_BASE + 128 for cob in sent), sent
+
+
 def test_a_late_host_is_refused_by_an_idle_first_host(bus):
     """The first host is open but sends nothing (no SYNC, no SDO): the second hears a silent
     bus, claims it, and the first's answer (its heartbeat: holding the bus) refuses it."""

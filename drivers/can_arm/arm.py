@@ -109,6 +109,7 @@ class CanArm(NodeSetup, PowerStates, SyncCycle, BusLink, Arm):
             co.HEARTBEAT_BASE + k for k in range(1, 128) if k not in self.node_ids
         )
         self._claim: tuple[int, bytes] | None = None
+        self._claim_lock = threading.Lock()  # a claim is set, or lost unclaimed, not both
         self._holding = False
         self._claim_lost = ""
         self._booted: set[int] = set()

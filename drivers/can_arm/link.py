@@ -353,9 +353,11 @@ class BusLink:
                 self._note_error(f"host heartbeat: {exc}")
             return
         theirs = (cob_id - co.HEARTBEAT_BASE, nonce)
-        if not self._claim_lost and (holding or self._claim is None or theirs < self._claim):
-            what = "holding the bus" if holding else "claiming it"
-            self._claim_lost = f"its heartbeat 0x{cob_id:03X} seen ({what})"
+        with self._claim_lock:  # against _claim_the_bus setting our claim meanwhile
+            ours = self._claim
+            if not self._claim_lost and (holding or ours is None or theirs < ours):
+                what = "holding the bus" if holding else "claiming it"
+                self._claim_lost = f"its heartbeat 0x{cob_id:03X} seen ({what})"
 
     def _refuse_while_opening(self) -> None:
         """During open (set-up by SDO), another host's frames end it with the refusal: an

@@ -111,7 +111,12 @@ class NodeSetup:
         start together exactly one keeps it (``BusLink._host_heartbeat``)."""
         self._listen(HOST_LISTEN_S)
         free = [k for k in range(1, 128) if k not in self.node_ids]
-        self._claim = (secrets.choice(free), secrets.token_bytes(4))
+        with self._claim_lock:  # a heartbeat heard before this line wins; after, values decide
+            lost = bool(self._claim_lost)
+            if not lost:
+                self._claim = (secrets.choice(free), secrets.token_bytes(4))
+        if lost:
+            self._refuse_beside_another_host()  # lost unclaimed: our heartbeat must not follow
         self._send_heartbeat()
         self._listen(HOST_CLAIM_S)
         self._holding = True
