@@ -684,20 +684,58 @@ def _block_mean(x: np.ndarray, size: int) -> np.ndarray:
 # --- physically consistent fit ------------------------------------------------------------------
 
 
+# the entries (row, column) of L that x (10,) holds: the diagonal (as logarithms), then the
+# strictly lower triangle in numpy's tril_indices order
+_L_ENTRIES = (*((i, i) for i in range(4)), *zip(*np.tril_indices(4, -1), strict=True))
+# π (10,) = _PI_OF_J @ vec(J): m = J₃₃, h = J[:3, 3], I = tr(Σ) 1 − Σ as (xx, xy, yy, xz, yz, zz)
+_PI_OF_J = np.zeros((10, 16))
+for _row, _terms in enumerate(
+    (
+        {(3, 3): 1},
+        {(0, 3): 1},
+        {(1, 3): 1},
+        {(2, 3): 1},
+        {(1, 1): 1, (2, 2): 1},
+        {(0, 1): -1},
+        {(0, 0): 1, (2, 2): 1},
+        {(0, 2): -1},
+        {(1, 2): -1},
+        {(0, 0): 1, (1, 1): 1},
+    )
+):
+    for (_a, _b), _c in _terms.items():
+        _PI_OF_J[_row, 4 * _a + _b] = _c
+
+
+def _cholesky_factor(x: np.ndarray) -> np.ndarray:
+    """L (..., 4, 4) of log-Cholesky parameters x (..., 10): diagonal exp(x[:4]), the strictly
+    lower triangle x[4:]."""
+    L = np.zeros((*x.shape[:-1], 4, 4))
+    for k, (a, b) in enumerate(_L_ENTRIES):
+        L[..., a, b] = np.exp(x[..., k]) if k < 4 else x[..., k]
+    return L
+
+
 def _pi_from_cholesky(x: np.ndarray) -> np.ndarray:
-    """Ten dynamic parameters of a body from its log-Cholesky factor x (10,): the pseudo-inertia
-    J = L Lᵀ, L lower triangular with diagonal exp(x[:4]) (Rucker & Wensing (2022)), so J is
-    positive definite for every x; J = [[Σ, h], [hᵀ, m]], Σ = ½ tr(I) 1 − I ⇒ I = tr(Σ) 1 − Σ."""
-    L = np.zeros((4, 4))
-    L[np.diag_indices(4)] = np.exp(x[:4])
-    L[np.tril_indices(4, -1)] = x[4:]
-    J = L @ L.T
-    S, h, m = J[:3, :3], J[:3, 3], J[3, 3]
-    inertia = np.trace(S) * np.eye(3) - S
-    return np.array(
-        [m, *h, inertia[0, 0], inertia[0, 1], inertia[1, 1], inertia[0, 2], inertia[1, 2],
-         inertia[2, 2]]
-    )  # fmt: skip
+    """Ten dynamic parameters (..., 10) of bodies from their log-Cholesky factors x (..., 10):
+    the pseudo-inertia J = L Lᵀ, L lower triangular with diagonal exp(x[:4]) (Rucker & Wensing
+    (2022)), so J is positive definite for every x; J = [[Σ, h], [hᵀ, m]], Σ = ½ tr(I) 1 − I ⇒
+    I = tr(Σ) 1 − Σ."""
+    L = _cholesky_factor(x)
+    J = L @ np.swapaxes(L, -1, -2)
+    return J.reshape(*J.shape[:-2], 16) @ _PI_OF_J.T
+
+
+def _pi_jacobian(x: np.ndarray) -> np.ndarray:
+    """∂π/∂x (..., 10, 10) of :func:`_pi_from_cholesky`: with L_ab moved by ε (ε = e^{x_k} on
+    the diagonal, 1 below it), dJ = ε (E_ab Lᵀ + L E_ba), i.e. dJ_ij = ε (δ_ia L_jb + δ_ja L_ib)."""
+    L = _cholesky_factor(x)
+    dJ = np.zeros((*x.shape[:-1], 10, 4, 4))
+    for k, (a, b) in enumerate(_L_ENTRIES):
+        column = L[..., :, b] * (L[..., a, a, None] if a == b else 1.0)  # ε L's column b
+        dJ[..., k, a, :] += column
+        dJ[..., k, :, a] += column
+    return np.swapaxes(dJ.reshape(*dJ.shape[:-2], 16) @ _PI_OF_J.T, -1, -2)
 
 
 def _cholesky_from_pi(pi: np.ndarray) -> np.ndarray:
@@ -753,22 +791,15 @@ def consistent_fit(
     x0 = np.concatenate([*bodies, positive, free])
 
     def standard(x: np.ndarray) -> np.ndarray:
-        pis = [_pi_from_cholesky(x[10 * j : 10 * j + 10]) for j in range(nb)]
+        pis = _pi_from_cholesky(x[: 10 * nb].reshape(nb, 10)).ravel()
         pos = x[10 * nb : 10 * nb + n_pos] ** 2
-        return np.concatenate([*pis, pos, x[10 * nb + n_pos :]])
+        return np.concatenate([pis, pos, x[10 * nb + n_pos :]])
 
     def jacobian_of_standard(x: np.ndarray) -> np.ndarray:
         # block diagonal: each body's 10 parameters depend on its own 10 numbers only
         Jp = np.zeros((len(x), len(x)))
-        step = 1e-7
-        for j in range(nb):
-            sl = slice(10 * j, 10 * j + 10)
-            for k in range(10):
-                e = np.zeros(10)
-                e[k] = step
-                Jp[sl, 10 * j + k] = (
-                    _pi_from_cholesky(x[sl] + e) - _pi_from_cholesky(x[sl] - e)
-                ) / (2 * step)
+        for j, block in enumerate(_pi_jacobian(x[: 10 * nb].reshape(nb, 10))):
+            Jp[10 * j : 10 * j + 10, 10 * j : 10 * j + 10] = block
         i = np.arange(10 * nb, 10 * nb + n_pos)
         Jp[i, i] = 2 * x[i]
         i = np.arange(10 * nb + n_pos, len(x))
