@@ -161,7 +161,7 @@ def _parser(with_arguments: Collection[str] = COMMANDS) -> argparse.ArgumentPars
         f"(not {DEMO_FULL.tracking_s:g}), {DEMO_QUICK.diagnosis_s:g} s of diagnosis excitation "
         f"(not {DEMO_FULL.diagnosis_s:g})",
     )
-    add_report_options(d, plot=None, json_help=JSON_SUMMARY)
+    add_report_options(d, plot="skip every step's PNG plots", json_help=JSON_SUMMARY)
     for name, (module, help_text) in COMMANDS.items():
         parser = sub.add_parser(name, help=help_text, parents=[common])
         if name in with_arguments:
@@ -188,6 +188,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from hil.bench.run import run_experiment
 
     lengths = DEMO_QUICK if args.quick else DEMO_FULL
+    plot = not args.no_plot
     out = prepare_out_dir(args.out, args.overwrite, default="demo", command="demo")
     run_dir, sim_dir = out / "hil-run-virtual-slcan", out / "simulate-reyes-kelly"
     say(
@@ -196,11 +197,18 @@ def cmd_demo(args: argparse.Namespace) -> int:
         f"over the virtual-slcan bench (CiA 402 over slcan on a pty) -> {run_dir}",
     )
     run = run_experiment(
-        "virtual-slcan", "reyes-kelly", run_dir, duration_s=lengths.excitation_s, progress=False
+        "virtual-slcan",
+        "reyes-kelly",
+        run_dir,
+        duration_s=lengths.excitation_s,
+        progress=False,
+        plot=plot,
     )
     require_complete("demo run", run)
     say("demo", f"the same experiment offline (virtual-robot simulate) -> {sim_dir}")
-    sim = simulate_offline("cicese", "reyes-kelly", lengths.excitation_s, sim_dir)  # else exit 1
+    sim = simulate_offline(  # else exit 1
+        "cicese", "reyes-kelly", lengths.excitation_s, sim_dir, plot=plot
+    )
     a, b = read_signals(run_dir), read_signals(sim_dir)
     identical = bool(np.array_equal(a.q, b.q) and np.array_equal(a.tau, b.tau))
     summary = {
@@ -210,13 +218,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
         "hil_run_equals_simulate": identical,
         "max_abs_q_difference_rad": float(np.max(np.abs(a.q - b.q))),
     }
-    identification, id_text = _demo_identify(out, run_dir, lengths.excitation_s)
+    identification, id_text = _demo_identify(out, run_dir, lengths.excitation_s, plot)
     summary["identify"] = identification
     control, control_text = _demo_control(
-        out, Path(identification["params_files"][0]), lengths.tracking_s
+        out, Path(identification["params_files"][0]), lengths.tracking_s, plot
     )
     summary["control"] = control
-    diagnosis, diagnosis_text = _demo_diagnose(out, lengths.diagnosis_s)
+    diagnosis, diagnosis_text = _demo_diagnose(out, lengths.diagnosis_s, plot)
     summary["diagnose"] = diagnosis
     check = (
         "bit-identical to the offline simulation"
@@ -227,7 +235,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     text = [
         f"recording: {run['signals']} ({run['rows']} rows, {run['realtime_factor']}x "
         f"real time over slcan, bus log {run['traffic_log']})",
-        f"plot:      {run['plot']}",
+        f"plot:      {run['plot'] or 'none (--no-plot)'}",
         f"offline:   {sim['signals']} ({sim['realtime_factor']}x real time)",
         f"check:     q and tau over the HIL link are {check}",
     ]
@@ -237,7 +245,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0 if identical else 1
 
 
-def _demo_diagnose(out: Path, duration_s: float) -> tuple[dict, str]:
+def _demo_diagnose(out: Path, duration_s: float, plot: bool) -> tuple[dict, str]:
     """Record the diagnosis excitation (fast multisine, then slow moves with holds) over the
     bench and diagnose it as a user runs ``hil diagnose RUN --robot cicese --out DIR``: against
     the profile's nominal model (its θ and terms), which leaves out the default robot's
@@ -252,17 +260,18 @@ def _demo_diagnose(out: Path, duration_s: float) -> tuple[dict, str]:
         f"hil diagnose {run_dir} --robot cicese (the profile's nominal model) -> {diag_dir}",
     )
     run = run_experiment(
-        "virtual-slcan", "diagnosis", run_dir, duration_s=duration_s, progress=False
+        "virtual-slcan", "diagnosis", run_dir, duration_s=duration_s, progress=False, plot=plot
     )
     require_complete("diagnosis run", run)
     args = _parser(("diagnose",)).parse_args(
-        ["diagnose", str(run_dir), "--robot", "cicese", "--out", str(diag_dir), "-q"]
-    )
+        ["diagnose", str(run_dir), "--robot", "cicese", "--out", str(diag_dir), "-q",
+         *([] if plot else ["--no-plots"])]
+    )  # fmt: skip
     doc, _recordings = run_diagnose(args)
     return doc, format_report(doc)
 
 
-def _demo_control(out: Path, params: Path, duration_s: float) -> tuple[dict, str]:
+def _demo_control(out: Path, params: Path, duration_s: float, plot: bool) -> tuple[dict, str]:
     """Control step of the demo: PD, CT, FED and RFED (Khosla & Kanade 1987) tracking the
     Section 4.2 trajectory over virtual-slcan, with the profile's θ and the identified θ."""
     from hil.control.tracking import compare_schemes, format_table
@@ -278,13 +287,14 @@ def _demo_control(out: Path, params: Path, duration_s: float) -> tuple[dict, str
         params=[f"identified={params}"],
         progress=False,
         duration_s=duration_s,
+        plot=plot,
     )
     if doc["status"] == "interrupted":  # the comparison stops, and the demo with it
         raise RunInterrupted(f"control comparison interrupted ({control_dir} keeps its runs)")
     return doc, format_table(doc)
 
 
-def _demo_identify(out: Path, fit_dir: Path, duration_s: float) -> tuple[dict, str]:
+def _demo_identify(out: Path, fit_dir: Path, duration_s: float, plot: bool) -> tuple[dict, str]:
     """Identification step of the demo: the recording above is the fit; a held-out multisine
     runs over the same bench; exact and paper discretizations side by side."""
     from hil.bench.run import run_experiment
@@ -293,14 +303,19 @@ def _demo_identify(out: Path, fit_dir: Path, duration_s: float) -> tuple[dict, s
     held_dir = out / "hil-run-validation-multisine"
     say("demo", f"held-out excitation (validation-multisine) over virtual-slcan -> {held_dir}")
     held = run_experiment(
-        "virtual-slcan", "validation-multisine", held_dir, duration_s=duration_s, progress=False
+        "virtual-slcan",
+        "validation-multisine",
+        held_dir,
+        duration_s=duration_s,
+        progress=False,
+        plot=plot,
     )
     require_complete("demo validation run", held)
     id_dir = out / "identify"
     say("demo", f"identification (Reyes & Kelly 1997 Table II) -> {id_dir}")
     args = parse_args(
         ["--from", str(fit_dir), "--validate", str(held_dir), "--out", str(id_dir),
-         "--discretization", "both", "--json"]
+         "--discretization", "both", "--json", *([] if plot else ["--no-plot"])]
     )  # fmt: skip
     return run_identify(args)
 

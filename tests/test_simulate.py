@@ -163,16 +163,19 @@ def test_duration_is_validated():
     assert proc.stderr.strip().count("\n") == 0 and "duration" in proc.stderr
 
 
-def _check_demo_summary(summary: dict, excitation_s: float, tracking_s: float) -> None:
+def _check_demo_summary(
+    summary: dict, excitation_s: float, tracking_s: float, plots: bool = True
+) -> None:
     """What every `hil demo` does, full or --quick: the HIL run bit-identical to the offline
     simulation, θ identified and validated, the four controllers with both parameter sets, and
-    joint 1's direction-dependent Coulomb friction found."""
+    joint 1's direction-dependent Coulomb friction found; each step's plots written, or (with
+    ``plots`` False, `--no-plot`) none."""
     rows = round(excitation_s / H)
     assert summary["hil_run_equals_simulate"] is True
     assert len(read_signals(summary["simulate"]["out_dir"])) == rows
     assert len(read_signals(summary["hil_run"]["out_dir"])) == rows
     assert Path(summary["hil_run"]["traffic_log"]).name == "bus.log"
-    assert Path(summary["hil_run"]["plot"]).is_file()
+    assert Path(summary["hil_run"]["plot"]).is_file() if plots else not summary["hil_run"]["plot"]
     # identification (issue 4) and the control comparison (issue 5) are part of the demo
     exact = summary["identify"]["discretizations"]["exact"]["schemes"]
     assert abs(exact["filtered_dynamic"]["relative_error"][0]) < 0.02
@@ -192,24 +195,30 @@ def _check_demo_summary(summary: dict, excitation_s: float, tracking_s: float) -
     nominal = summary["diagnose"]["nominal"]
     assert nominal["source"] == "profile" and nominal["used"] is True
     assert any(f["joint"] == 1 for f in nominal["findings"])
-    assert summary["diagnose"]["plots"] and all(
-        Path(p).is_file() for p in summary["diagnose"]["plots"]
-    )
+    if plots:
+        assert summary["identify"]["discretizations"]["exact"]["plots"]
+        assert summary["diagnose"]["plots"] and all(
+            Path(p).is_file() for p in summary["diagnose"]["plots"]
+        )
+    else:
+        assert not summary["diagnose"].get("plots")
+        assert not list(Path(summary["hil_run"]["out_dir"]).parent.rglob("*.png"))
 
 
 def test_hil_demo_quick_runs_every_step_of_the_main_job(tmp_path, capsys):
     """`hil demo --quick`, in process: every step of the demo and its outputs on shorter runs
-    (4 s of excitation, 3 s of tracking, 14 s of diagnosis; hil.cli.DEMO_QUICK). The full
-    demo: test_hil_demo_runs_the_main_job_end_to_end (slow)."""
+    (4 s of excitation, 3 s of tracking, 14 s of diagnosis; hil.cli.DEMO_QUICK), without its
+    plots (`--no-plot`: each step's plots are tested with its command). The full demo, plots
+    and all: test_hil_demo_runs_the_main_job_end_to_end (slow)."""
     from hil.cli import DEMO_QUICK
     from hil.cli import main as hil_main
 
-    status = hil_main(["demo", "--quick", "--out", str(tmp_path), "--json"])
+    status = hil_main(["demo", "--quick", "--no-plot", "--out", str(tmp_path), "--json"])
     out = capsys.readouterr()
     assert status == 0, out.err
     summary = json.loads(out.out)
     assert summary["quick"] is True
-    _check_demo_summary(summary, DEMO_QUICK.excitation_s, DEMO_QUICK.tracking_s)
+    _check_demo_summary(summary, DEMO_QUICK.excitation_s, DEMO_QUICK.tracking_s, plots=False)
     assert "4 s of the Reyes & Kelly" in out.err and "14 s of the diagnosis" in out.err
     assert "the profile's nominal model" in out.err
     # the summary and each step's document against their schemas (docs/schemas.md)
