@@ -63,7 +63,6 @@ from dataclasses import dataclass
 from itertools import pairwise
 
 import numpy as np
-from scipy.signal import lfilter
 
 from hil.model.closed_form import ArmModel
 
@@ -687,6 +686,11 @@ class RowFilters:
     def apply(self, raw: RawRows, dt: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(y, Psi) of ``raw``'s rows, filtered; ``dt``: each row's own interval (the paper's
         filters on real times, :func:`filter_over_intervals`), else the LTI filters at h."""
+        # here, not with the module: the diagnosis never filters so and need not load
+        # scipy.signal (~1.5 s of CPU); the online identifier, which filters inside a running
+        # loop, has it imported with its own module (hil.identify.online), before any run
+        from scipy.signal import lfilter
+
         out = []
         for i, (name, x) in enumerate(((raw.y_filter, raw.y), *raw.parts)):
             if dt is not None:
