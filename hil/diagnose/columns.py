@@ -346,6 +346,7 @@ def rigid_torque_rows(
     theta: np.ndarray,
     joint: int | None = None,
     shifts: Sequence[float] = (),
+    nodes: int = len(GL_NODES),
 ) -> np.ndarray:
     """The rigid bodies' part of Ψ θ (K, n) before F:
     [P(q_{k+1}, q̇_{k+1}) − P(q_k, q̇_k)]/h_k + Σ_g w_g R(q_g, q̇_g), the momentum balance of
@@ -354,7 +355,10 @@ def rigid_torque_rows(
     of the readings leaves every velocity, hence the friction columns, as they are). The
     model's torques alone: the intervals' kinematics are not built again. With ``joint``:
     (S, K, n), the rows at the readings with that joint's shifted by each of ``shifts`` (S,)
-    (the model's ``*_at_shifts``: what precedes the joint is built once)."""
+    (the model's ``*_at_shifts``: what precedes the joint is built once). ``nodes``: the
+    Gauss–Legendre nodes per interval on the same cubic Hermite path (Ψ's own: four; two are
+    exact for cubics, an O(h⁴) difference, for rows only ever differenced with rows of the
+    same rule)."""
     model = rows.model
     rigid = np.array(theta, float)[: model.n_params]
     rigid[list(model.friction_columns)] = 0.0
@@ -362,18 +366,26 @@ def rigid_torque_rows(
     at = np.union1d(
         k, k + 1
     )  # each sample's momentum once: the end of one interval, the next's start
-    nodes, K, n = rows.q_nodes.shape
-    q_nodes, v_nodes = rows.q_nodes.reshape(-1, n), rows.v_nodes.reshape(-1, n)
+    hk = rows.h if rows.stamps is None else np.diff(rows.stamps)[k][:, None]
+    if nodes == len(GL_NODES):
+        q_nodes, v_nodes, weights = rows.q_nodes, rows.v_nodes, GL_WEIGHTS
+    else:
+        s, weights = np.polynomial.legendre.leggauss(nodes)
+        s, weights = 0.5 * (s + 1.0), 0.5 * weights
+        q, v = rows.q, rows.v
+        q_nodes, ds = hermite(q[k], q[k + 1], hk * v[k], hk * v[k + 1], s[:, None, None])
+        v_nodes = ds / hk
+    K, n = len(k), rows.q.shape[1]
+    q_flat, v_flat = q_nodes.reshape(-1, n), v_nodes.reshape(-1, n)
     if joint is None:
         P = model.momentum(rigid, rows.q[at], rows.v[at])[None]
-        R = model.static_torque(rigid, q_nodes, v_nodes)[None]
+        R = model.static_torque(rigid, q_flat, v_flat)[None]
     else:
         P = model.momentum_at_shifts(rigid, rows.q[at], rows.v[at], joint, shifts)
-        R = model.static_torque_at_shifts(rigid, q_nodes, v_nodes, joint, shifts)
+        R = model.static_torque_at_shifts(rigid, q_flat, v_flat, joint, shifts)
     P0, P1 = P[:, np.searchsorted(at, k)], P[:, np.searchsorted(at, k + 1)]
-    hk = rows.h if rows.stamps is None else np.diff(rows.stamps)[k][:, None]
-    R = R.reshape(len(R), nodes, K, n)
-    out = (P1 - P0) / hk + _node_average(np.moveaxis(R, 1, 0))
+    R = R.reshape(len(R), len(weights), K, n)
+    out = (P1 - P0) / hk + np.tensordot(weights, R, axes=(0, 1))
     return out if joint is not None else out[0]
 
 
