@@ -41,9 +41,10 @@ from hil.model.regressors import (
     GL_WEIGHTS,
     NINE_PARAMETERS,
     central_difference,
+    gauss_legendre_unit,
     has_velocity_reversal,
     held_torque_momentum_bias,
-    hermite,
+    hermite_nodes,
     interval_mean_across_reversals,
     kinematics,
     quantized_stick,
@@ -370,11 +371,8 @@ def rigid_torque_rows(
     if nodes == len(GL_NODES):
         q_nodes, v_nodes, weights = rows.q_nodes, rows.v_nodes, GL_WEIGHTS
     else:
-        s, weights = np.polynomial.legendre.leggauss(nodes)
-        s, weights = 0.5 * (s + 1.0), 0.5 * weights
-        q, v = rows.q, rows.v
-        q_nodes, ds = hermite(q[k], q[k + 1], hk * v[k], hk * v[k + 1], s[:, None, None])
-        v_nodes = ds / hk
+        s, weights = gauss_legendre_unit(nodes)
+        q_nodes, v_nodes = hermite_nodes(rows.q, rows.v, k, hk, s)
     K, n = len(k), rows.q.shape[1]
     q_flat, v_flat = q_nodes.reshape(-1, n), v_nodes.reshape(-1, n)
     if joint is None:
@@ -440,11 +438,10 @@ def recording_rows(
         dt = np.diff(times)
         still = quantized_stick(q, times)[k] | (np.sign(v[k]) != np.sign(v[k + 1]))
         still |= (dt[k] > GAP_FACTOR * h)[:, None]
-        hk = dt[k][None, :, None]
+        hk = dt[k][:, None]
         stamps = times
     weights = row_weights(still, h, window)
-    nodes = GL_NODES[:, None, None]
-    qs, ds = hermite(q[k][None], q[k + 1][None], hk * v[k][None], hk * v[k + 1][None], nodes)
+    q_nodes, v_nodes = hermite_nodes(q, v, k, hk, GL_NODES)
     return RecordingRows(
         moving_average(y_raw, window),
         moving_average(psi_raw, window),
@@ -454,8 +451,8 @@ def recording_rows(
         h,
         window,
         k,
-        qs,
-        ds / hk,
+        q_nodes,
+        v_nodes,
         v,
         stamps,
         half,

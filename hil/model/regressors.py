@@ -288,14 +288,18 @@ def velocity_half_window(lam: float, t: np.ndarray) -> int:
     return max(1, round(1.0 / (4.0 * lam * h)))
 
 
-GL_NODES, GL_WEIGHTS = np.polynomial.legendre.leggauss(4)
-GL_NODES = 0.5 * (GL_NODES + 1.0)  # on [0, 1]
-GL_WEIGHTS = 0.5 * GL_WEIGHTS
+def gauss_legendre_unit(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The n Gauss–Legendre nodes on [0, 1] and their weights (summing to 1): a mean over an
+    interval, exact for polynomials of degree 2n − 1."""
+    nodes, weights = np.polynomial.legendre.leggauss(n)
+    return 0.5 * (nodes + 1.0), 0.5 * weights
+
+
+# the interval rows' rule
+GL_NODES, GL_WEIGHTS = gauss_legendre_unit(4)
 # Nodes per smooth piece of an interval cut at a velocity reversal
 # (:func:`interval_mean_across_reversals`), on [0, 1].
-_PIECE_NODES, _PIECE_WEIGHTS = np.polynomial.legendre.leggauss(8)
-_PIECE_NODES = 0.5 * (_PIECE_NODES + 1.0)
-_PIECE_WEIGHTS = 0.5 * _PIECE_WEIGHTS
+_PIECE_NODES, _PIECE_WEIGHTS = gauss_legendre_unit(8)
 
 
 def hermite(
@@ -306,6 +310,17 @@ def hermite(
     h00, h10, h01, h11 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
     g00, g10, g01, g11 = 6 * s2 - 6 * s, 3 * s2 - 4 * s + 1, -6 * s2 + 6 * s, 3 * s2 - 2 * s
     return h00 * q0 + h10 * d0 + h01 * q1 + h11 * d1, g00 * q0 + g10 * d0 + g01 * q1 + g11 * d1
+
+
+def hermite_nodes(
+    q: np.ndarray, v: np.ndarray, k: np.ndarray, hk: float | np.ndarray, s: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Positions and velocities (len(s), K, n) at the points ``s`` ∈ [0, 1] of each interval
+    [k, k + 1] on the cubic Hermite path through the samples ``q`` with velocities ``v`` (the
+    one :func:`hil.model.regressors.interval_integrals` integrates over); ``hk``: the
+    intervals' lengths, a number or (K, 1)."""
+    qs, ds = hermite(q[k], q[k + 1], hk * v[k], hk * v[k + 1], np.asarray(s)[:, None, None])
+    return qs, ds / hk
 
 
 def _hermite_velocity(
@@ -454,24 +469,23 @@ def _interval_integrals(
     q0, q1 = q[k], q[k + 1]
     if np.ndim(h) == 0:
         hk: float | np.ndarray = h
-        d0, d1 = h * v[k], h * v[k + 1]
+        column: float | np.ndarray = h
     else:
         hk = np.asarray(h, dtype=float)[k]
-        d0, d1 = hk[:, None] * v[k], hk[:, None] * v[k + 1]
+        column = hk[:, None]
+    d0, d1 = column * v[k], column * v[k + 1]
     # All Gauss–Legendre nodes at once: shape (nodes, K, 2).
-    nodes = GL_NODES[:, None, None]
-    qs, ds = hermite(q0[None], q1[None], d0[None], d1[None], nodes)
+    qs, vs = hermite_nodes(q, v, k, column, GL_NODES)
     R = None
     if np.ndim(hk) == 0:
         if static:
-            R = np.tensordot(GL_WEIGHTS * hk, model.static_regressor(qs, ds / hk), axes=(0, 0))
-        sq = np.tensordot(GL_WEIGHTS * hk, (ds / hk) ** 2, axes=(0, 0))  # degree 4: exact
+            R = np.tensordot(GL_WEIGHTS * hk, model.static_regressor(qs, vs), axes=(0, 0))
+        sq = np.tensordot(GL_WEIGHTS * hk, vs**2, axes=(0, 0))  # degree 4: exact
     else:
-        hn = hk[None, :, None]
         if static:
-            R = np.einsum("n,nkmp->kmp", GL_WEIGHTS, model.static_regressor(qs, ds / hn))
+            R = np.einsum("n,nkmp->kmp", GL_WEIGHTS, model.static_regressor(qs, vs))
             R *= hk[:, None, None]
-        sq = np.einsum("n,nkj->kj", GL_WEIGHTS, (ds / hn) ** 2) * hk[:, None]
+        sq = np.einsum("n,nkj->kj", GL_WEIGHTS, vs**2) * hk[:, None]
     sgn_int, abs_int = _sign_and_abs_integrals(q0, q1, d0, d1)
     dq = q1 - q0
     if R is not None:
