@@ -312,3 +312,26 @@ def test_hil_identify_progress_on_stderr_only(rec, tmp_path) -> None:
     assert quiet.returncode == 0, quiet.stderr
     assert " rows (" not in quiet.stderr
     assert json.loads(quiet.stdout)["rows"] == json.loads(loud.stdout)["rows"]
+
+
+def test_least_squares_rows_are_svd_least_squares_where_it_matters():
+    """The corrected semi-normal equations (hil.model.estimators.least_squares_rows) give the
+    SVD least squares of tall rows whose columns differ by six orders of magnitude to 1e-10,
+    a column zero on every row exactly 0, and, where the columns are dependent (the normal
+    matrix singular), the SVD's minimum-norm solution itself."""
+    from hil.model.estimators import least_squares_rows
+
+    rng = np.random.default_rng(7)
+    A = rng.normal(size=(20_000, 12)) * np.logspace(-3, 3, 12)
+    A[:, 4] = 0.0
+    b = A @ rng.normal(size=12) + rng.normal(size=20_000)
+    expected = np.linalg.lstsq(A, b, rcond=None)[0]
+    expected[4] = 0.0  # lstsq's is 1e-13 of either sign
+    got = least_squares_rows(A, b)
+    assert got[4] == 0.0
+    np.testing.assert_allclose(got, expected, rtol=1e-10, atol=0)
+    A[:, 5] = A[:, 6]  # dependent: no unique θ
+    np.testing.assert_array_equal(
+        least_squares_rows(A, b),
+        np.where(np.arange(12) == 4, 0.0, np.linalg.lstsq(A, b, rcond=None)[0]),
+    )

@@ -40,7 +40,7 @@ from hil.diagnose.stats import (
     target_block_sums,
 )
 from hil.model.closed_form import ArmModel
-from hil.model.estimators import require_finite
+from hil.model.estimators import least_squares_rows, require_finite
 from hil.model.protocol import ArmDynamics
 
 # Blocks: about BLOCKS_WANTED per diagnosis, each between these lengths (long against the 20 ms
@@ -322,11 +322,9 @@ def fit_theta(
     b = (y * sw[..., 0]).reshape(-1)
     require_finite(A, "diagnosis fit rows")
     require_finite(b, "diagnosis fit torques")
-    theta = np.linalg.lstsq(A, b, rcond=None)[0]
     # a column zero on every row (a coefficient held at zero, hil.diagnose.physical.held_at_zero)
-    # has coefficient 0 in the minimum-norm solution: exactly, not lstsq's 1e-16 of either sign
-    theta[~np.any(A != 0.0, axis=0)] = 0.0
-    return theta
+    # gets exactly 0
+    return least_squares_rows(A, b)
 
 
 def fit_theta_at(

@@ -9,6 +9,8 @@ Pure numpy; no I/O.
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 
 PAPER_P0 = 1000.0  # P(0) = 1000·I, θ̂(0) = 0 (Section 6)
@@ -468,6 +470,39 @@ def solve_normal_equations(H: np.ndarray, g: np.ndarray) -> np.ndarray:
     Hs = H / np.outer(d, d)
     sol, *_ = np.linalg.lstsq(Hs, g / d, rcond=None)
     return sol / d
+
+
+# Above this condition number of the column-scaled normal matrix (a design conditioned worse
+# than 1e5) the rows are solved by SVD instead (:func:`least_squares_rows`).
+NORMAL_EQUATIONS_MAX_COND = 1e10
+
+
+def least_squares_rows(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """argmin ‖A θ − b‖ for a tall A (K, p): the corrected semi-normal equations (Björck (1996)
+    §6.6.5: the column-scaled normal equations by Cholesky, then one refinement step on the
+    residual, as accurate as QR for a design conditioned better than ~1e7, for a tenth of its
+    time on 10⁵ rows); a column zero on every row gets 0; numpy's SVD least squares (the
+    minimum-norm solution) when the scaled normal matrix is ill-conditioned. A and b finite
+    (:func:`require_finite`: the caller names them)."""
+    from scipy.linalg import LinAlgError, cho_factor, cho_solve
+
+    G = A.T @ A
+    used = np.diag(G) > 0.0
+    d = np.sqrt(np.diag(G)[used])
+    Gs = G[np.ix_(used, used)] / np.outer(d, d)
+    factor = None
+    if used.any() and np.linalg.cond(Gs) <= NORMAL_EQUATIONS_MAX_COND:
+        with contextlib.suppress(LinAlgError):
+            factor = cho_factor(Gs)
+    if factor is None:
+        theta = np.linalg.lstsq(A, b, rcond=None)[0]
+        theta[~used] = 0.0
+        return theta
+    theta = np.zeros(A.shape[1])
+    theta[used] = cho_solve(factor, (A.T @ b)[used] / d) / d
+    residual = b - A @ theta
+    theta[used] += cho_solve(factor, (A.T @ residual)[used] / d) / d
+    return theta
 
 
 def channel_weights(H, g, yy, n, theta) -> np.ndarray:
