@@ -398,9 +398,9 @@ def test_the_references_encoder_rows_are_built_once(arm, capsys, monkeypatch):
     built = []
     real_coefficients, real_select = encoder._coefficients, judge.select_terms
 
-    def counted(r, theta, joint):
+    def counted(r, theta, joint, base):
         built.append((id(r), hash(theta.tobytes()), joint))
-        return real_coefficients(r, theta, joint)
+        return real_coefficients(r, theta, joint, base)
 
     def reference_shows_nothing(fit, cands, say, **kw):
         accepted, seen = real_select(fit, cands, say, **kw)

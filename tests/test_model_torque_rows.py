@@ -252,7 +252,7 @@ def test_encoder_rows_at_any_angle_equal_the_rebuilt_regressor_rows(
 
 def test_encoder_rows_are_built_once_per_joint(panda, monkeypatch):
     """A selection builds every joint's column, refines (Gauss–Newton points) and starts
-    again: the model's torques are built five times per joint (unshifted and at the four
+    again: the model's torques are built once unshifted and four times per joint (the
     Fourier angles), and no more however many points are asked."""
     rows = _rows(panda, N=400)
     ctx = Context([rows], panda, panda.base_theta(), rows.Psi)
@@ -266,14 +266,14 @@ def test_encoder_rows_are_built_once_per_joint(panda, monkeypatch):
     effect = encoder.EncoderOffset()
     for joint in range(7):
         effect.columns(ctx, joint, 0.0)
-    assert sum(built) == 5 * 7
+    assert sum(built) == 1 + 4 * 7
     for refined in (2, 4):
         for step in range(1, REFINE_STEPS + 1):
             effect.columns(ctx, refined, 0.01 * step)
             effect.shift(ctx, refined, 0.01 * step)
     for joint in range(7):
         effect.columns(ctx, joint, 0.0)
-    assert sum(built) == 5 * 7
+    assert sum(built) == 1 + 4 * 7
 
 
 @pytest.mark.parametrize("name", ["cicese3", "panda", "tree"])

@@ -37,16 +37,15 @@ SLIDE_STEPS = np.array([-1.0, 1.0])
 SHIFT_NODES = 2
 
 
-def _coefficients(r: RecordingRows, theta: np.ndarray, joint: int) -> np.ndarray:
+def _coefficients(r: RecordingRows, theta: np.ndarray, joint: int, base: np.ndarray) -> np.ndarray:
     """C (K, n, 4) of one recording's rows, before F, with Ψ(q − δ e_j) θ − Ψ(q) θ = C φ(δ)
-    (:func:`basis`): the rows at δ = 0 and at the builds' steps, on :data:`SHIFT_NODES`
-    Gauss–Legendre nodes an interval (a difference of two rows of one rule, exact for cubics:
-    O(h⁴) from Ψ's four-node rule, for half the model's builds)."""
+    (:func:`basis`), from the rows at the builds' steps less ``base``, the rows at δ = 0: all
+    on :data:`SHIFT_NODES` Gauss–Legendre nodes an interval (a difference of two rows of one
+    rule, exact for cubics: O(h⁴) from Ψ's four-node rule, for half the model's builds)."""
     revolute = r.model.revolute[joint]
     steps = FOURIER_ANGLES if revolute else SLIDE_STEPS
-    f = rigid_torque_rows(r, theta, joint, np.concatenate([[0.0], -steps]), nodes=SHIFT_NODES)
-    d = f[1:] - f[0]  # f(δ_m) − f(0), (S, K, n)
-    out = np.zeros((*f.shape[1:], 4))
+    d = rigid_torque_rows(r, theta, joint, -steps, nodes=SHIFT_NODES) - base  # f(δ_m) − f(0)
+    out = np.zeros((*base.shape, 4))
     if revolute:  # a_k, b_k = (2/5) Σ_m f(δ_m) (cos, sin)(k δ_m); f(0) − f(0) = 0 adds nothing
         for i, (k, trig) in enumerate(((1, np.cos), (1, np.sin), (2, np.cos), (2, np.sin))):
             out[..., i] = 0.4 * sum(dm * trig(k * s) for dm, s in zip(d, steps, strict=True))
@@ -69,11 +68,16 @@ def basis(revolute: bool, delta: float) -> tuple[np.ndarray, np.ndarray]:
 def shifted_rows(ctx: Context, joint: int) -> np.ndarray:
     """C (K, n, 4), filtered and stacked as the design, with
     F[Ψ(q − δ e_j) θ₀] − F[Ψ(q) θ₀] = C φ(δ) at every δ (:func:`basis`; module doc): built
-    once per joint and kept on the context."""
+    once per joint and kept on the context, with the unshifted rows all joints share."""
     key = ("encoder", joint)
     if key not in ctx.memo:
+        if ("encoder", None) not in ctx.memo:  # the rows at δ = 0, every joint's
+            ctx.memo[("encoder", None)] = [
+                rigid_torque_rows(r, ctx.theta0, nodes=SHIFT_NODES) for r in ctx.rows
+            ]
+        base = iter(ctx.memo[("encoder", None)])
         ctx.memo[key] = ctx.stack(
-            lambda r: moving_average(_coefficients(r, ctx.theta0, joint), r.window)
+            lambda r: moving_average(_coefficients(r, ctx.theta0, joint, next(base)), r.window)
         )
     return ctx.memo[key]
 
