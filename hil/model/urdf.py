@@ -234,11 +234,19 @@ class UrdfArmModel:
         return np.concatenate([rows, self._extra_columns(dq, None)], axis=-1)
 
     def _body_rows(self, v: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """Σ-ready rows vᵀ I(π_j) w of motions ``v``, ``w`` broadcasting to (n_j, n_i, 6, N):
-        (N, n_i, 10 n_j), the joints' rows over the bodies' parameters."""
-        rows = _bilinear_inertia_regressor(np.moveaxis(v, -1, 0), np.moveaxis(w, -1, 0))
-        N = rows.shape[0]  # (N, n_j, n_i, 10): bodies first
-        return rows.transpose(0, 2, 1, 3).reshape(N, self.n_joints, self.n_body_params)
+        """Σ-ready rows vᵀ I(π_j) w of motions ``v``, ``w`` broadcasting to (n_j, n_i, 6, N),
+        one of them zero where joint i does not move body j (a subtree motion,
+        :meth:`Chain.subtree_motions`): (N, n_i, 10 n_j), the joints' rows over the bodies'
+        parameters, computed on the moved pairs only."""
+        v, w = np.broadcast_arrays(v, w)
+        bodies, joints = self._chain.moved_pairs
+        # (pairs, N, 10): each component a contiguous (pairs, N) block of the gathered motions
+        pairs = _bilinear_inertia_regressor(
+            np.moveaxis(v[bodies, joints], 1, -1), np.moveaxis(w[bodies, joints], 1, -1)
+        )
+        rows = np.zeros((pairs.shape[1], self.n_joints, self.n_joints, 10))
+        rows[:, joints, bodies] = np.moveaxis(pairs, 0, 1)
+        return rows.reshape(len(rows), self.n_joints, self.n_body_params)
 
     def _kinetic_gradient(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """∂φ_K/∂q, (N, n, 10n): Σ_bodies V_jᵀ I_j ∂V_j/∂q_i, both in body j's frame."""

@@ -231,6 +231,15 @@ class Chain:
         self.revolute = tuple(bool(placed[0]) for placed in self._placements)
         # S_i × (crm(S_i), Featherstone (2008) eq. (2.31)): S_i × m = crm(S_i) m, (n, 6, 6)
         self.axis_cross = _motion_cross_matrix(self.axes)
+        n = len(self.parents)
+        moved = np.eye(n, dtype=bool)  # moved[j, i]: joint i moves body j
+        for j, parent in enumerate(self.parents):
+            if parent >= 0:
+                moved[j] |= moved[parent]
+        self.moved = moved
+        # the (body j, joint i) pairs of it, as index arrays: a motion X_{j←i} u_i is zero
+        # outside them
+        self.moved_pairs = np.nonzero(moved)
 
     def transforms(self, q: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
         """(L_j (3, 3, N), p_j (3, N) or (3, 1)) of each joint at configurations q (N, n)."""
@@ -288,13 +297,9 @@ class Chain:
         (n, 6, 1), u_i in joint i's frame, carried down the tree as :meth:`motions` carries a
         parent's motion (Featherstone (2008) eq. (2.24)). Pinocchio numbers a parent before
         its children."""
-        n = len(self.parents)
+        n, moved = len(self.parents), self.moved
         N = max(X[0][0].shape[-1], seeds.shape[-1])
         out = np.zeros((n, n, 6, N))
-        moved = np.eye(n, dtype=bool)  # moved[j, i]: joint i moves body j
-        for j, parent in enumerate(self.parents):
-            if parent >= 0:
-                moved[j] |= moved[parent]
         out[np.arange(n), np.arange(n)] = seeds
         for j, ((L, p), parent) in enumerate(zip(X, self.parents, strict=True)):
             for i in np.flatnonzero(moved[j, :j]):
