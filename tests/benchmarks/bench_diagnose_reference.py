@@ -12,9 +12,9 @@ message when the Panda recording is absent. ``--profile FILE``: the child runs u
 and writes its statistics there (``python -m pstats FILE``; the CPU time then includes the
 profiler's own).
 
-Measured (seed 0, quiet machine, four runs alternated with the tree before the batched URDF
-regressor rows): 49–64 s CPU (median 53 s; that tree 65–69 s) and 0.73 GB: the memory target is
-met, the CPU target not on this machine; where the time goes: docs/diagnosis.md, "Cost".
+Measured (seed 0, the shared machine, this tree): 35–38 s CPU over four runs and 0.71 GB:
+the memory target is met, the CPU target not on this machine; where the time goes:
+docs/diagnosis.md, "Cost".
 """
 
 from __future__ import annotations
