@@ -418,13 +418,16 @@ class UrdfArmModel:
     def momentum_regressor(self, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
         """P = ∂φ_K/∂q̇ with P θ = M(q) q̇, shape (..., n, p)   (eq. (11))."""
         (q, dq), lead = self._samples(q, dq)
-        P = self._to_base(self._standard_momentum(q, dq))
+        # a chunk of states at a time to the end: no (states, n, p_std) array of them all
+        base = lambda q, dq: self._to_base(self._standard_momentum(q, dq))  # noqa: E731
+        P = by_chunks(base, q, dq, REGRESSOR_STATES_PER_CHUNK)
         return P.reshape(*lead, self.n_joints, -1)
 
     def static_regressor(self, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
         """R = −∂φ_K/∂q + ∂φ_P/∂q + φ_F with τ = d/dt[P θ] + R θ, shape (..., n, p)   (eq. (13))."""
         (q, dq), lead = self._samples(q, dq)
-        R = self._to_base(self._standard_static(q, dq))
+        base = lambda q, dq: self._to_base(self._standard_static(q, dq))  # noqa: E731
+        R = by_chunks(base, q, dq, REGRESSOR_STATES_PER_CHUNK)
         return R.reshape(*lead, self.n_joints, -1)
 
     def kinetic_energy_regressor(self, q: ArrayLike, dq: ArrayLike) -> np.ndarray:
