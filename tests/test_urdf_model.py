@@ -335,6 +335,21 @@ def test_panda_identification_against_the_published_model(panda):
     assert feasible.nrmse_held_out.mean() < 1.15 * reference.mean()
 
 
+def test_log_cholesky_jacobian_is_the_derivative():
+    """The consistent fit's Jacobian of the body parameters in their log-Cholesky factors, in
+    closed form (hil.identify.urdf._pi_jacobian), equals their central difference."""
+    from hil.identify.urdf import _pi_from_cholesky, _pi_jacobian
+
+    x = np.random.default_rng(5).normal(size=(3, 10))
+    jacobian, step = _pi_jacobian(x), 1e-6
+    for body in range(3):
+        for k in range(10):
+            e = np.zeros(10)
+            e[k] = step
+            central = (_pi_from_cholesky(x[body] + e) - _pi_from_cholesky(x[body] - e)) / (2 * step)
+            np.testing.assert_allclose(jacobian[body, :, k], central, rtol=0, atol=1e-7)
+
+
 def test_log_cholesky_parametrization_round_trips_and_is_always_consistent():
     from hil.identify.urdf import _cholesky_from_pi, _pi_from_cholesky
 

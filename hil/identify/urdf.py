@@ -687,10 +687,12 @@ def _block_mean(x: np.ndarray, size: int) -> np.ndarray:
 # the entries (row, column) of L that x (10,) holds: the diagonal (as logarithms), then the
 # strictly lower triangle in numpy's tril_indices order
 _L_ENTRIES = (*((i, i) for i in range(4)), *zip(*np.tril_indices(4, -1), strict=True))
-# π (10,) = _PI_OF_J @ vec(J): m = J₃₃, h = J[:3, 3], I = tr(Σ) 1 − Σ as (xx, xy, yy, xz, yz, zz)
-_PI_OF_J = np.zeros((10, 16))
-for _row, _terms in enumerate(
-    (
+
+
+def _pseudo_inertia_to_parameters() -> np.ndarray:
+    """M (10, 16) with π = M vec(J): m = J₃₃, h = J[:3, 3], I = tr(Σ) 1 − Σ as (xx, xy, yy, xz,
+    yz, zz), Pinocchio's order."""
+    terms = (
         {(3, 3): 1},
         {(0, 3): 1},
         {(1, 3): 1},
@@ -702,9 +704,14 @@ for _row, _terms in enumerate(
         {(1, 2): -1},
         {(0, 0): 1, (1, 1): 1},
     )
-):
-    for (_a, _b), _c in _terms.items():
-        _PI_OF_J[_row, 4 * _a + _b] = _c
+    out = np.zeros((10, 16))
+    for row, entries in enumerate(terms):
+        for (a, b), c in entries.items():
+            out[row, 4 * a + b] = c
+    return out
+
+
+_PI_OF_J = _pseudo_inertia_to_parameters()
 
 
 def _cholesky_factor(x: np.ndarray) -> np.ndarray:
