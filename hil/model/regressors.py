@@ -317,7 +317,7 @@ def hermite_nodes(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Positions and velocities (len(s), K, n) at the points ``s`` ∈ [0, 1] of each interval
     [k, k + 1] on the cubic Hermite path through the samples ``q`` with velocities ``v`` (the
-    one :func:`hil.model.regressors.interval_integrals` integrates over); ``hk``: the
+    one :func:`interval_integrals` integrates over); ``hk``: the
     intervals' lengths, a number or (K, 1)."""
     qs, ds = hermite(q[k], q[k + 1], hk * v[k], hk * v[k + 1], np.asarray(s)[:, None, None])
     return qs, ds / hk
