@@ -317,8 +317,9 @@ def test_hil_identify_progress_on_stderr_only(rec, tmp_path) -> None:
 def test_least_squares_rows_are_svd_least_squares_where_it_matters():
     """The corrected semi-normal equations (hil.model.estimators.least_squares_rows) give the
     SVD least squares of tall rows whose columns differ by six orders of magnitude to 1e-10,
-    a column zero on every row exactly 0, and, where the columns are dependent (the normal
-    matrix singular), the SVD's minimum-norm solution itself."""
+    a column zero on every row exactly 0, where the columns are dependent (the normal matrix
+    singular) the SVD's minimum-norm solution to 1e-10, and where they are nearly but not
+    exactly dependent the SVD's answer itself."""
     from hil.model.estimators import least_squares_rows
 
     rng = np.random.default_rng(7)
@@ -331,6 +332,13 @@ def test_least_squares_rows_are_svd_least_squares_where_it_matters():
     assert got[4] == 0.0
     np.testing.assert_allclose(got, expected, rtol=1e-10, atol=0)
     A[:, 5] = A[:, 6]  # dependent: no unique θ
+    A[:, 8] = -3.0 * A[:, 2]  # dependent columns of other scales
+    got = least_squares_rows(A, b)
+    expected = np.where(np.arange(12) == 4, 0.0, np.linalg.lstsq(A, b, rcond=None)[0])
+    assert got[4] == 0.0
+    np.testing.assert_allclose(got, expected, rtol=1e-10, atol=1e-12)
+    assert got[5] == pytest.approx(got[6], rel=1e-10)  # the minimum norm splits them evenly
+    A[:, 5] += 1e-6 * rng.normal(size=20_000) * np.abs(A[:, 6]).mean()  # nearly dependent
     np.testing.assert_array_equal(
         least_squares_rows(A, b),
         np.where(np.arange(12) == 4, 0.0, np.linalg.lstsq(A, b, rcond=None)[0]),

@@ -473,35 +473,56 @@ def solve_normal_equations(H: np.ndarray, g: np.ndarray) -> np.ndarray:
 
 
 # Above this condition number of the column-scaled normal matrix (a design conditioned worse
-# than 1e5) the rows are solved by SVD instead (:func:`least_squares_rows`).
+# than 1e5) the normal equations are not trusted (:func:`least_squares_rows`).
 NORMAL_EQUATIONS_MAX_COND = 1e10
+# An eigenvalue of the column-scaled normal matrix below this fraction of the largest is zero
+# to its rounding (~5 ε): a direction the design does not see at all (dependent columns).
+NULL_EIGENVALUE = 1e-15
 
 
 def least_squares_rows(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     """argmin ‖A θ − b‖ for a tall A (K, p): the corrected semi-normal equations (Björck (1996)
     §6.6.5: the column-scaled normal equations by Cholesky, then one refinement step on the
     residual, as accurate as QR for a design conditioned better than ~1e7, for a tenth of its
-    time on 10⁵ rows); a column zero on every row gets 0; numpy's SVD least squares (the
-    minimum-norm solution) when the scaled normal matrix is ill-conditioned. A and b finite
-    (:func:`require_finite`: the caller names them)."""
+    time on 10⁵ rows); a column zero on every row gets 0. Where the scaled normal matrix is
+    singular because columns are exactly dependent (its eigenvalues either zero to rounding or
+    conditioned better than :data:`NORMAL_EQUATIONS_MAX_COND`), the same equations on the
+    directions the rows see, then the minimum-norm θ (numpy's SVD least squares' answer, for a
+    fifth of its time); otherwise that SVD itself. A and b finite (:func:`require_finite`: the
+    caller names them)."""
     from scipy.linalg import LinAlgError, cho_factor, cho_solve
 
     G = A.T @ A
     used = np.diag(G) > 0.0
     d = np.sqrt(np.diag(G)[used])
     Gs = G[np.ix_(used, used)] / np.outer(d, d)
-    factor = None
-    if used.any() and np.linalg.cond(Gs) <= NORMAL_EQUATIONS_MAX_COND:
+    theta = np.zeros(A.shape[1])
+    if not used.any():
+        return theta
+    solve = None
+    if np.linalg.cond(Gs) <= NORMAL_EQUATIONS_MAX_COND:
         with contextlib.suppress(LinAlgError):
             factor = cho_factor(Gs)
-    if factor is None:
+            solve = lambda rhs: cho_solve(factor, rhs)  # noqa: E731
+    null = None
+    if solve is None:
+        w, V = np.linalg.eigh(Gs)
+        seen = w > NULL_EIGENVALUE * w[-1]
+        if not seen.all() and w[-1] <= NORMAL_EQUATIONS_MAX_COND * w[seen][0]:
+            Vs, ws = V[:, seen], w[seen]
+            solve = lambda rhs: Vs @ ((Vs.T @ rhs) / ws)  # noqa: E731
+            null = V[:, ~seen] / d[:, None]  # the unscaled directions A does not see
+    if solve is None:
         theta = np.linalg.lstsq(A, b, rcond=None)[0]
         theta[~used] = 0.0
         return theta
-    theta = np.zeros(A.shape[1])
-    theta[used] = cho_solve(factor, (A.T @ b)[used] / d) / d
+    theta[used] = solve((A.T @ b)[used] / d) / d
     residual = b - A @ theta
-    theta[used] += cho_solve(factor, (A.T @ residual)[used] / d) / d
+    theta[used] += solve((A.T @ residual)[used] / d) / d
+    if null is not None:  # the minimum-norm θ: no part along what the rows cannot see
+        part = theta[used]
+        part -= null @ np.linalg.solve(null.T @ null, null.T @ part)
+        theta[used] = part
     return theta
 
 
