@@ -281,8 +281,8 @@ def test_batched_regressor_rows_equal_pinocchio_state_by_state(name, cicese3, pa
     """The momentum and static rows of the bodies' parameters, computed for many states at once
     through the kinematic tree (urdf_dynamics.Chain), equal Pinocchio's, state by state: M(q) q̇
     its joint torque regressor without gravity at q̈ = q̇, q̇ = 0; g(q) at rest; ∂K/∂q its
-    kinetic energy regressor differenced in q (a tree with a prismatic joint too), over more
-    states than one pass of the batched rows holds."""
+    kinetic energy regressor differenced in q (a tree with a prismatic joint too); the public
+    regressors, over more states than one pass holds, the same rows to the last bit."""
     import pinocchio as pin
 
     import hil.model.urdf as urdf
@@ -292,8 +292,11 @@ def test_batched_regressor_rows_equal_pinocchio_state_by_state(name, cicese3, pa
     N = urdf.REGRESSOR_STATES_PER_CHUNK + 5
     q = RNG.uniform(-np.pi, np.pi, (N, n))
     dq = RNG.normal(0, 2, q.shape)
-    momentum = model._standard_momentum(q, dq)[..., :nb]
-    static = model._standard_static(q, dq)[..., :nb]
+    momentum = model._standard_momentum(q, dq)
+    static = model._standard_static(q, dq)
+    np.testing.assert_array_equal(model.momentum_regressor(q, dq), model._to_base(momentum))
+    np.testing.assert_array_equal(model.static_regressor(q, dq), model._to_base(static))
+    momentum, static = momentum[..., :nb], static[..., :nb]
     free = pin.Model(model._model)
     free.gravity.linear = np.zeros(3)
     free_data, data = free.createData(), model._model.createData()

@@ -224,13 +224,11 @@ class UrdfArmModel:
     # (:func:`_bilinear_inertia_regressor`), with J_j's column i the axis S_i carried to body
     # j's frame, X_{j←i} S_i (zero where joint i does not move body j).
     def _standard_momentum(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-        # P θ = M(q) q̇: P_i = Σ_j (X_{j←i} S_i)ᵀ I_j V_j   (Featherstone (2008) eq. (2.63))
-        def rigid(q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-            X = self._chain.transforms(q)
-            axes, V = self._chain.axis_motions(X), self._chain.motions(X, dq.T)
-            return self._body_rows(axes, V[:, None])
-
-        rows = by_chunks(rigid, q, dq, REGRESSOR_STATES_PER_CHUNK)
+        # P θ = M(q) q̇: P_i = Σ_j (X_{j←i} S_i)ᵀ I_j V_j   (Featherstone (2008) eq. (2.63));
+        # all the states in one pass (momentum_regressor hands them a chunk at a time)
+        X = self._chain.transforms(q)
+        axes, V = self._chain.axis_motions(X), self._chain.motions(X, dq.T)
+        rows = self._body_rows(axes, V[:, None])
         return np.concatenate([rows, self._extra_columns(dq, None)], axis=-1)
 
     def _body_rows(self, v: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -248,26 +246,15 @@ class UrdfArmModel:
         rows[:, joints, bodies] = np.moveaxis(pairs, 0, 1)
         return rows.reshape(len(rows), self.n_joints, self.n_body_params)
 
-    def _kinetic_gradient(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-        """∂φ_K/∂q, (N, n, 10n): Σ_bodies V_jᵀ I_j ∂V_j/∂q_i, both in body j's frame."""
-
-        def rows(q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-            X = self._chain.transforms(q)
-            V = self._chain.motions(X, dq.T)
-            return self._body_rows(V[:, None], self._chain.velocity_derivatives(X, V))
-
-        return by_chunks(rows, q, dq, REGRESSOR_STATES_PER_CHUNK)
-
     def _standard_static(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         # g_i = Σ_j (X_{j←i} S_i)ᵀ I_j a_j, a_j the base's −g in body j's frame (the RNEA at
-        # rest, Featherstone (2008) §5.3), minus ∂K/∂q_i
-        def gravity(q: np.ndarray, _dq: np.ndarray) -> np.ndarray:
-            X = self._chain.transforms(q)
-            a = self._chain.motions(X, None, -self._model.gravity.linear)
-            return self._body_rows(self._chain.axis_motions(X), a[:, None])
-
-        rigid = by_chunks(gravity, q, dq, REGRESSOR_STATES_PER_CHUNK)
-        rigid -= self._kinetic_gradient(q, dq)
+        # rest, Featherstone (2008) §5.3), minus ∂φ_K/∂q_i = Σ_j V_jᵀ I_j ∂V_j/∂q_i (both in
+        # body j's frame); all the states in one pass (static_regressor chunks them)
+        X = self._chain.transforms(q)
+        a = self._chain.motions(X, None, -self._model.gravity.linear)
+        rigid = self._body_rows(self._chain.axis_motions(X), a[:, None])
+        V = self._chain.motions(X, dq.T)
+        rigid -= self._body_rows(V[:, None], self._chain.velocity_derivatives(X, V))
         return np.concatenate([rigid, self._extra_columns(np.zeros_like(q), dq)], axis=-1)
 
     def _standard_kinetic(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
