@@ -32,8 +32,7 @@ from hil.diagnose.columns import (
     recording_rows,
     window_intervals,
 )
-from hil.diagnose.interpret import RATE_EFFECTS
-from hil.diagnose.kinds import kind_of
+from hil.diagnose.kinds import kind_of, rate_findings
 from hil.diagnose.physical import unphysical
 from hil.diagnose.pipeline import diagnose
 from hil.diagnose.problem import DiagnosisError, build_problem
@@ -584,7 +583,7 @@ def test_a_term_that_costs_another_joint_is_not_a_finding(capsys):
                 assert a <= 1.02 * b, (key, before, after, doc["findings"])
     # the lag on joint 2 (or its rival, a transport delay) is not reported; joint 1's lag, which
     # improves every joint, is ("term" is not in the JSON: the effect names the rate term)
-    rate = [(f["effect"], f["joint"]) for f in doc["findings"] if f["effect"] in RATE_EFFECTS]
+    rate = [(f["effect"], f["joint"]) for f in doc["findings"] if f["effect"] in rate_findings()]
     assert all(joint != 2 for _, joint in rate), doc["findings"]
 
 

@@ -21,6 +21,7 @@ from hil.diagnose.findings import (
     Finding,
 )
 from hil.diagnose.heldout import HeldOutFit, before_after
+from hil.diagnose.kinds import is_gain_finding
 from hil.diagnose.problem import Problem
 from hil.diagnose.report import percent
 from hil.diagnose.selection import MIN_REDUCTION
@@ -97,7 +98,7 @@ def pinned_rigid_body(
     there (:func:`simulation_gate`): the model the held-out refit and
     simulation of that reading are; None otherwise (θ free)."""
     if reference is None or not any(
-        f.effect == "torque_gain" and f.estimate.get("reading") == AT_REFERENCE for f in findings
+        is_gain_finding(f.effect) and f.estimate.get("reading") == AT_REFERENCE for f in findings
     ):
         return None
     return np.asarray(reference, float)[: prob.model.rigid_count]
@@ -106,7 +107,7 @@ def pinned_rigid_body(
 def _read_at_reference(findings: Sequence[Finding], term: str, reference: Any) -> bool:
     """Is ``term`` a torque gain on one joint, read with θ free, that has a reading at the
     reference? (Confounded across the joints, it is simulated on neither: no reading to judge.)"""
-    gains = [f for f in findings if f.term == term and f.effect == "torque_gain"]
+    gains = [f for f in findings if f.term == term and is_gain_finding(f.effect)]
     return (
         reference is not None
         and len(gains) == 1

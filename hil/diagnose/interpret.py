@@ -27,7 +27,7 @@ from hil.diagnose.findings import (
     rounded,
     unresolved_rate_terms,
 )
-from hil.diagnose.kinds import TermFit
+from hil.diagnose.kinds import TermFit, rate_findings
 from hil.diagnose.physical import final_fit, physical_gate
 from hil.diagnose.problem import Problem, rewhiten
 from hil.diagnose.selection import FAMILY_ALPHA, MIN_REDUCTION, relinearise_angle, select
@@ -175,15 +175,12 @@ def interpret(
         term = next(a for a in accepted if a.cand.spec.is_rate)
         f.evidence = {**term.evidence.as_dict(), **f.evidence}
     if any(f.confounded_with for f in rate):
-        confounded.append(["actuator_lag", "transport_delay"])
+        confounded.append(list(rate_findings()))
     findings += rate
     for f in findings:  # which term each finding stands on (the simulation gate drops terms)
         if not f.term:
-            f.term = "rate" if f.effect in ("actuator_lag", "transport_delay") else ""
+            f.term = "rate" if f.effect in rate_findings() else ""
     return Reading(cogging_at_true_angle(findings), confounded, shaft)
-
-
-RATE_EFFECTS = ("actuator_lag", "transport_delay")
 
 
 def shaft_problem(prob: Problem, shaft: np.ndarray) -> Problem:
@@ -274,7 +271,7 @@ def interpret_with_rate(
     if not others:
         return Interpretation(accepted, findings, confounded, shaft)
     exact, exact_confounded, _ = interpret(shaft_problem(prob, shaft), others, library, reference)
-    rate = sorted(RATE_EFFECTS)
+    rate = list(rate_findings())
     # the lag/delay findings of the rate terms (term "rate"); a rival of another term that is
     # named actuator_lag (a rate term in its place) is in ``exact`` already, refitted there
     findings = exact + [f for f in findings if f.term == "rate"]

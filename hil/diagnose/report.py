@@ -19,7 +19,7 @@ from hil.diagnose.findings import (
     Finding,
 )
 from hil.diagnose.heldout import SEGMENT_S, HeldOutFit
-from hil.diagnose.kinds import finding_words
+from hil.diagnose.kinds import finding_words, is_gain_finding
 from hil.diagnose.problem import Problem
 from hil.model.closed_form import TERMS
 from hil.model.protocol import ArmDynamics
@@ -122,7 +122,8 @@ def _linked(f: Finding, g: Finding) -> bool:
     model term (a term of the whole arm's model, whatever joint its finding names)."""
     if g is f or g.effect not in f.confounded_with:
         return False
-    across = f.joint is None or g.joint is None or f.effect == g.effect == "torque_gain"
+    across = f.joint is None or g.joint is None
+    across = across or (f.effect == g.effect and is_gain_finding(f.effect))
     across = across or f.effect in TERMS or g.effect in TERMS
     return f.joint == g.joint or across
 
@@ -199,7 +200,7 @@ def summary_words(
             done |= {id(g) for g in group}
             first = [g for g in group if g.effect == f.effect]
             others = [g for g in group if g.effect != f.effect]
-            if f.effect == "torque_gain" and len(first) == 2:
+            if is_gain_finding(f.effect) and len(first) == 2:
                 first, others = first[:1], first[1:]
             said = "; ".join(
                 f"{_who(g, n_joints) if i == 0 else _who(g, n_joints).lower()}: {_phrase(g, rigid)}"

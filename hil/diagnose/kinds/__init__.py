@@ -39,8 +39,10 @@ from hil.diagnose.kinds.base import (
     Library,
     TermFit,
     finding_words,
+    is_gain_finding,
     kind_of,
     kind_of_finding,
+    rate_findings,
     register,
 )
 
@@ -51,7 +53,9 @@ __all__ = [
     "Library",
     "TermFit",
     "finding_words",
+    "is_gain_finding",
     "kind_of",
     "kind_of_finding",
+    "rate_findings",
     "register",
 ]

@@ -173,3 +173,16 @@ def kind_of_finding(effect: str) -> CandidateKind | None:
     """The registered kind whose findings include ``effect`` (its :attr:`~CandidateKind.words`);
     None for a finding of no kind (an unexplained structure)."""
     return next((k for k in KINDS.values() if effect in k.words), None)
+
+
+def is_gain_finding(effect: str) -> bool:
+    """A finding of a torque-gain kind (:attr:`CandidateKind.is_gain`: only the joints' gain
+    ratio is known, so its reading and its report have rules of their own)."""
+    kind = kind_of_finding(effect)
+    return kind is not None and kind.is_gain
+
+
+def rate_findings() -> tuple[str, ...]:
+    """The findings of the torque-rate kinds (:attr:`CandidateKind.is_rate`), sorted: a lag
+    and a delay, read and gated together as one term, "rate"."""
+    return tuple(sorted(e for k in KINDS.values() if k.is_rate for e in k.words))
