@@ -39,6 +39,7 @@ from hil.cli_options import (
     write_html_report,
 )
 from hil.diagnose.drift import DriftResult, Nominal, judge, nominal_from_reference
+from hil.diagnose.heldout import MIN_HELD_OUT_ROWS
 from hil.diagnose.pipeline import diagnose
 from hil.diagnose.report import percent
 from hil.diagnose.torque_path import describe as describe_torque_path
@@ -425,6 +426,11 @@ def format_report(doc: dict) -> str:
         pz = fit[name]["position_nrmse"]
         pos = f"; simulated position {' / '.join(percent(x) for x in pz)}" if pz else ""
         lines.append(f"  {name:6s}: torque {' / '.join(percent(x) for x in t)}{pos}")
+    if any(x is None for name in ("before", "after") for x in fit[name]["torque_nrmse"]):
+        lines.append(
+            f"  (torque n/a: fewer than {MIN_HELD_OUT_ROWS} usable held-out rows on that joint, "
+            "or no torque spread to scale by: a longer recording scores it)"
+        )
     lines += ["", "Where the nominal model's residual lives:"]
     for j in doc["location"]["joints"]:
         carried = ", ".join(j["carried_by"]) or "nothing in particular (noise-like)"
