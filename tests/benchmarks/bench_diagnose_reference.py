@@ -12,9 +12,8 @@ message when the Panda recording is absent. ``--profile FILE``: the child runs u
 and writes its statistics there (``python -m pstats FILE``; the CPU time then includes the
 profiler's own).
 
-Measured (seed 0, the shared machine, this tree): 35–38 s CPU over four runs and 0.71 GB:
-the memory target is met, the CPU target not on this machine; where the time goes:
-docs/diagnosis.md, "Cost".
+Measured (seed 0, the shared machine, this tree): 26–27 s CPU over three runs (26.7 s beside
+two busy loops) and 0.65 GB: both targets met; where the time goes: docs/diagnosis.md, "Cost".
 """
 
 from __future__ import annotations
