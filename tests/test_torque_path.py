@@ -40,6 +40,21 @@ def test_a_known_path_is_recovered(gain, rows, lag_s):
     assert p.noise_rms_Nm == pytest.approx(0.01, rel=0.2) and p.saturation_Nm is None
 
 
+def test_the_lagged_command_is_the_exact_first_order_lag_step_by_step():
+    """The path's lagged command (a prefix scan) equals the lag stepped interval by interval:
+    out_k = out_{k−1} + (1 − e^{−dt_{k−1}/T}) (c_k − out_{k−1}), on unequal intervals."""
+    rng = np.random.default_rng(3)
+    c = rng.normal(size=3000)
+    dt = 0.002 * (1.0 + 0.5 * rng.random(3000))
+    for lag_s in (1e-4, 0.004, 0.05):
+        step = np.empty_like(c)
+        step[0] = c[0]
+        for k in range(1, len(c)):
+            step[k] = step[k - 1] + (1.0 - np.exp(-dt[k - 1] / lag_s)) * (c[k] - step[k - 1])
+        np.testing.assert_allclose(_lagged(c, dt, lag_s), step, rtol=0, atol=1e-12)
+    assert _lagged(c, dt, 0.0) is c
+
+
 def test_saturation_is_found_and_left_out():
     h = 0.002
     t, c = _command(6000, h, seed=2)

@@ -587,16 +587,18 @@ def lagged_torque_means(
         dt = np.diff(np.asarray(t, float))
         dt = np.append(dt, dt[-1:])  # the last sample starts no interval: any h serves
     decay = np.exp(-dt / time_constant_s)
-    x = _first_order_states(decay, tau)
+    x = first_order_states(decay, tau)
     return tau + (x - tau) * ((time_constant_s / dt) * (1.0 - decay))[:, None]
 
 
-def _first_order_states(decay: np.ndarray, tau: np.ndarray) -> np.ndarray:
-    """x_0 = τ_0, x_{k+1} = a_k x_k + (1 − a_k) τ_k for a_k = ``decay[k]``, (N, n): the lag's
-    states over equal or unequal intervals. The steps compose as affine maps, (a, b)∘(a', b') =
-    (a a', a b' + b), so a prefix scan (Hillis & Steele) gives every x_k = A_k x_0 + B_k in
-    log₂ N passes; A only shrinks and B stays within the torques' range (no overflow, whatever
-    h_k/T)."""
+def first_order_states(
+    decay: np.ndarray, tau: np.ndarray, x0: np.ndarray | None = None
+) -> np.ndarray:
+    """x_0 = ``x0`` (default τ_0), x_{k+1} = a_k x_k + (1 − a_k) τ_k for a_k = ``decay[k]``,
+    (N, n): a first-order lag's states over equal or unequal intervals. The steps compose as
+    affine maps, (a, b)∘(a', b') = (a a', a b' + b), so a prefix scan (Hillis & Steele) gives
+    every x_k = A_k x_0 + B_k in log₂ N passes; A only shrinks and B stays within the torques'
+    range (no overflow, whatever h_k/T)."""
     A = decay[:-1].copy()
     B = (1.0 - A)[:, None] * tau[:-1]
     d = 1
@@ -605,8 +607,8 @@ def _first_order_states(decay: np.ndarray, tau: np.ndarray) -> np.ndarray:
         A[d:] = A[d:] * A[:-d]
         d *= 2
     x = np.empty_like(tau)
-    x[0] = tau[0]
-    x[1:] = A[:, None] * tau[0] + B
+    x[0] = tau[0] if x0 is None else x0
+    x[1:] = A[:, None] * x[0] + B
     return x
 
 

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from drivers.recording import Recording, read_signals, recording_names
+from hil.diagnose.columns import first_order_states
 from hil.diagnose.finding import rounded
 from hil.diagnose.findings import RESOLVABLE_INTERVALS
 from hil.diagnose.selection import MIN_REDUCTION
@@ -77,14 +78,13 @@ class TorquePath:
 
 
 def _lagged(c: np.ndarray, dt: np.ndarray, lag_s: float) -> np.ndarray:
+    """The command ``c`` through a first-order lag, exact per interval: out_0 = c_0,
+    out_k = a out_{k−1} + (1 − a) c_k with a = e^{−dt_{k−1}/T} (c_k held over the interval
+    before it)."""
     if lag_s <= 0.0:
         return c
-    alpha = 1.0 - np.exp(-dt / lag_s)
-    out = np.empty_like(c)
-    out[0] = c[0]
-    for k in range(1, len(c)):  # a first-order lag of a held command, exact per interval
-        out[k] = out[k - 1] + alpha[k - 1] * (c[k] - out[k - 1])
-    return out
+    ahead = np.append(c[1:], c[-1])[:, None]  # c_{k+1}, the command of the step to x_{k+1}
+    return first_order_states(np.exp(-dt / lag_s), ahead, c[:1])[:, 0]
 
 
 def _search(
