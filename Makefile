@@ -21,9 +21,9 @@ demo: $(STAMP)
 	$(BIN)/hil demo
 
 # PYTHONDONTWRITEBYTECODE emptied: where the environment sets it, every process (each test
-# worker's assertion rewriting, each of the suite's hundreds of `hil` and `virtual-robot`
-# subprocesses) compiled every module of the tree from source again, about a tenth of the
-# suite's CPU; the .pyc files go to the tree's __pycache__ (ignored by git)
+# worker's assertion rewriting, each of the suite's `hil` and `virtual-robot` subprocesses)
+# compiled every module of the tree from source again (~30 s of the suite's CPU, 3 %); the
+# .pyc files go to the tree's __pycache__ (ignored by git)
 test: $(STAMP)
 	$(BIN)/ruff check hil drivers virtual_robot profiles plots tests
 	PYTHONDONTWRITEBYTECODE= $(BIN)/python -m pytest -q -m "not slow" -n 2
