@@ -366,6 +366,18 @@ def merge_drift(doc: dict, drift: DriftResult) -> None:
             )
         else:
             head += " Nothing changed against it beyond what the data resolve."
+        if drift.document.get("unresolved"):
+            head += (
+                " Proven on the held-out blocks but not resolved in size, so not named (kept in "
+                "the fit, that no other pattern stands in for it): "
+                + "; ".join(
+                    f"{u['effect'].replace('_', ' ')}"
+                    + (f" on joint {u['joint']}" if u["joint"] else "")
+                    + f": {u['words']} ({u['why'].split(';')[0]})"
+                    for u in drift.document["unresolved"]
+                )
+                + "."
+            )
         if drift.document.get("in_reference"):
             head += (
                 " The references show "
