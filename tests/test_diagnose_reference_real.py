@@ -18,7 +18,7 @@ import pytest
 from realdata import realdata
 
 from hil.cli_options import read_recording
-from hil.diagnose.cli import add_arguments, arm_geometry
+from hil.diagnose.cli import add_arguments, arm_geometry, merge_drift
 from hil.diagnose.drift import judge, nominal_from_reference
 from hil.model.closed_form import ArmModel
 from hil.model.params import robot_params
@@ -150,6 +150,60 @@ def test_a_change_below_the_floor_is_not_named_and_nothing_stands_in(tmp_path):
     assert result.used and not result.findings, [f.effect for f in result.findings]
     why = result.document["not_findings"].get("coulomb_asymmetry:1", "")
     assert "below the smallest size worth naming" in why and "kept in the fit" in why, why
+    # and said, with its size, where the user reads (the report's summary)
+    assert [u["term"] for u in result.document["unresolved"]] == ["coulomb_asymmetry:1"]
+    doc = {"findings": [], "summary": "No missing physics found."}
+    merge_drift(doc, result)
+    assert "not resolved in size" in doc["summary"], doc["summary"]
+    assert "coulomb asymmetry on joint 1: " in doc["summary"], doc["summary"]
+
+
+def test_a_one_row_delay_is_stepped_and_sized_on_the_paired_difference(tmp_path):
+    """The smallest delay a copy can carry, one row: the recording's torque is the reference's
+    shifted, which the paired difference holds exactly; stepped on the recording's own residual
+    (where the model's error dominates) it fitted 17 % of the change on a 10 s A.0 file and a
+    cogging took the rest, and its change read from the two sides' own fits was 0.73 rows at
+    3.2 SE, under the family's critical value."""
+    records = realdata("dfki-double-pendulum") / "records"
+    path = records / "design_A.0__20220812__sys_id__20220812-060143-PM_measured.csv"
+    if not path.is_file():
+        pytest.skip("../shared/realdata/dfki-double-pendulum not present")
+    gen = _generator()
+    src = gen.dfki_source(path, "dfki-a0")
+    out, truth = gen.make_effect(src, "transport_delay", 0, _Draws(0.002))
+    assert truth["magnitude"]["rows"] == 1
+    rec, ref = tmp_path / "recording.csv", tmp_path / "reference.csv"
+    out.write(rec)
+    src.write(ref)
+    est = _only(_judge(rec, ref), "transport_delay")
+    delay = truth["magnitude"]["delay_s"]
+    assert abs(est["delay_s"] - delay) <= 0.1 * delay, (est, delay)
+    assert est["delay_se_s"] < 0.2 * delay, est
+
+
+def test_an_encoder_angle_is_named_though_the_reference_model_sizes_it_loosely(tmp_path):
+    """A 0.05 rad encoder angle on joint 1 of a recording whose own model fits joint 1 badly
+    (θ4 known to ±60 %): the size is as loose as θ₀'s gravity terms make it, but that spread
+    scales with the change (it is zero where nothing changed), so it does not decide whether
+    the angle is there; the paired jackknife does (old code: -0.0506 ± 0.026 rad, 1.9 SE,
+    explaining 99.99 % of the change, left unnamed)."""
+    records = realdata("dfki-double-pendulum") / "records"
+    path = records / "design_A.0__20220812__sys_id__20220812-055032-PM_measured.csv"
+    if not path.is_file():
+        pytest.skip("../shared/realdata/dfki-double-pendulum not present")
+    gen = _generator()
+    src = gen.dfki_source(path, "dfki-a0")
+    out, truth = gen.make_effect(src, "angle_offset", 0, _Draws(0.05))
+    rec, ref = tmp_path / "recording.csv", tmp_path / "reference.csv"
+    out.write(rec)
+    src.write(ref)
+    result = _judge(rec, ref)
+    est = _only(result, "encoder_offset")
+    assert result.findings[0].joint == 1
+    assert abs(est["offset_rad"] - truth["size"]) <= 0.1 * abs(truth["size"]), (est, truth)
+    # and the unchanged recording against itself names nothing
+    same = _judge(ref, ref)
+    assert same.used and not same.findings, same.document["not_findings"]
 
 
 def test_unchanged_copy_gives_no_delay_or_other_change(tmp_path):

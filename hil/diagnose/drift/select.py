@@ -42,6 +42,12 @@ def change_in_se(fit: Fit, others: Sequence[Term], term: Term) -> float:
         return amplitude_change_in_se(fit, others, term)
     if term.effect.tested_jointly and term.width > 1:
         return joint_change_in_se(fit, others, term)
+    if fit.paired and term.effect.shifts_recorded_torque:
+        # the paired difference is the change itself (:meth:`Fit.since_reference`)
+        beta, se, _at = fit.since_reference([*others, term], fit.cv([*others, term]))
+        b, s = fit.split(beta, [*others, term])[-1], fit.split(se, [*others, term])[-1]
+        _est, size, size_se = term.effect.estimate(fit.ctx, term.joint, b, s, term.at)
+        return abs(size) / size_se if size_se > 0 else (np.inf if size != 0 else 0.0)
     rec, folds = term_sizes(fit, [*others, term], fit)
     back, folds_back = term_sizes(ref, [fit.on_reference(t) for t in [*others, term]], fit)
     se = float(change_se(folds[:, None], folds_back[:, None], fit.paired)[0])

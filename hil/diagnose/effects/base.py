@@ -111,6 +111,13 @@ class Effect:
     # size is one coefficient beside the Gauss–Newton step's, whose trade-off inflates the size's
     # own SE (a C.0 payload's change: 3.8 SE in its mass, 13.6 jointly)
     tested_jointly: bool = False
+    # on a recording that reruns the reference's motion, its model change on the recording's
+    # side alone is that of the paired difference r_rec − r_ref (:meth:`hil.diagnose.drift.fit.
+    # Fit.judged_rows`): a change between the two recorded torques themselves (a delay: the
+    # recording's torque is the reference's shifted, and the same shift on both sides keeps it
+    # between them), so its point is stepped on the paired difference; False: a change of the
+    # model's input (an encoder angle), taken off both sides alike at the same point
+    shifts_recorded_torque: bool = False
 
     def applies(self, ctx: Context) -> bool:
         return True
