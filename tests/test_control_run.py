@@ -16,6 +16,10 @@ from hil.control.plots import plot_comparison, plot_run, read_control_log
 from hil.control.tracking import compare_schemes, format_table, prepare, run_control
 from hil.model.params import robot_params
 
+# one worker runs the whole module under `pytest -n` (`--dist loadgroup`): its module
+# fixtures are built once, not once per worker
+pytestmark = pytest.mark.xdist_group("control_run")
+
 BENCH = "virtual-inprocess"
 SHORT_S = 1.5
 SEED = 7

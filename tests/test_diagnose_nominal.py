@@ -24,6 +24,10 @@ from hil.diagnose.effects import REGISTRY, Effect, SimInput, register
 from hil.diagnose.effects.base import on_joint
 from virtual_robot.cli import main as vr_main
 
+# one worker runs the whole module under `pytest -n` (`--dist loadgroup`): its module
+# fixtures are built once, not once per worker
+pytestmark = pytest.mark.xdist_group("diagnose_nominal")
+
 WITHIN = 0.35  # the size tolerance
 GAIN = 0.07
 ANGLE = 0.06

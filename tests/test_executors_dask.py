@@ -25,6 +25,10 @@ from hil.bench.executors import MISSING_DASK, SerialExecutor, make_executor
 from hil.bench.jobs import ExecutorUnavailableError, Outcome, TaskFailedError
 from hil.timing.sweep import PointSpec, add_sweep_arguments, reproducible, run_point, sweep
 
+# one worker runs the whole module under `pytest -n` (`--dist loadgroup`): its module
+# fixtures are built once, not once per worker
+pytestmark = pytest.mark.xdist_group("executors_dask")
+
 BATCH_TIMEOUT_S = 180.0  # a hung cluster fails the test instead of blocking `make test`
 
 

@@ -30,6 +30,10 @@ from profiles.experiment import load_experiment
 from profiles.robot import load_robot
 from virtual_robot.simulate import simulate
 
+# one worker runs the whole module under `pytest -n` (`--dist loadgroup`): its module
+# fixtures are built once, not once per worker
+pytestmark = pytest.mark.xdist_group("identify")
+
 REFERENCE = robot_params("cicese").theta
 
 

@@ -13,6 +13,10 @@ from cli_run import hil
 
 from drivers.recording import read_signals
 
+# one worker runs the whole module under `pytest -n` (`--dist loadgroup`): its module
+# fixtures are built once, not once per worker
+pytestmark = pytest.mark.xdist_group("jitter_cli")
+
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):

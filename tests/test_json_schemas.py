@@ -22,6 +22,10 @@ import pytest
 from cli_run import ROOT, hil
 from diagnose_cases import make_recording
 
+# one worker runs the whole module under `pytest -n` (`--dist loadgroup`): its module
+# fixtures are built once, not once per worker
+pytestmark = pytest.mark.xdist_group("json_schemas")
+
 jsonschema = pytest.importorskip("jsonschema", reason="the test extra's jsonschema is missing")
 
 SCHEMAS = ROOT / "docs" / "schemas"

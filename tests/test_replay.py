@@ -21,6 +21,10 @@ from profiles.robot import load_robot
 from profiles.timing_faults import TimingTrace, read_trace, write_trace
 from virtual_robot.simulate import simulate
 
+# one worker runs the whole module under `pytest -n` (`--dist loadgroup`): its module
+# fixtures are built once, not once per worker
+pytestmark = pytest.mark.xdist_group("replay")
+
 H = 0.0025
 SLCAN = Path(__file__).resolve().parents[1] / "profiles" / "benches" / "virtual-slcan.toml"
 
