@@ -58,12 +58,23 @@ def _judge(recording: Path, reference: Path | list[Path], robot: str = "dfki-a0"
 
 
 def _written(
-    tmp_path: Path, effect: str, joint: int, seed: int | None = None, draws: Any = None
+    tmp_path: Path,
+    effect: str,
+    joint: int,
+    seed: int | None = None,
+    draws: Any = None,
+    shared: str | None = None,
 ) -> tuple[Path, Path, dict]:
-    """``effect`` written into a copy of the committed A.0 file, its size drawn by the generator
-    from ``seed`` (or from ``draws``, an object with its ``uniform`` and ``choice``)."""
+    """``effect`` written into a copy of the committed A.0 file (``shared``: of that A.0
+    recording of ../shared/realdata, the test skipped when it is absent), its size drawn by the
+    generator from ``seed`` (or from ``draws``, an object with its ``uniform`` and ``choice``)."""
     gen = _generator()
-    src = gen.dfki_source(DFKI_FILE, "dfki-a0")
+    path = DFKI_FILE
+    if shared is not None:
+        path = realdata("dfki-double-pendulum") / "records" / f"{shared}.csv"
+        if not path.is_file():
+            pytest.skip("../shared/realdata/dfki-double-pendulum not present")
+    src = gen.dfki_source(path, "dfki-a0")
     rng = np.random.default_rng(seed) if draws is None else draws
     out, truth = gen.make_effect(src, effect, joint, rng)
     rec, ref = tmp_path / "recording.csv", tmp_path / "reference.csv"
@@ -164,17 +175,9 @@ def test_a_one_row_delay_is_stepped_and_sized_on_the_paired_difference(tmp_path)
     (where the model's error dominates) it fitted 17 % of the change on a 10 s A.0 file and a
     cogging took the rest, and its change read from the two sides' own fits was 0.73 rows at
     3.2 SE, under the family's critical value."""
-    records = realdata("dfki-double-pendulum") / "records"
-    path = records / "design_A.0__20220812__sys_id__20220812-060143-PM_measured.csv"
-    if not path.is_file():
-        pytest.skip("../shared/realdata/dfki-double-pendulum not present")
-    gen = _generator()
-    src = gen.dfki_source(path, "dfki-a0")
-    out, truth = gen.make_effect(src, "transport_delay", 0, _Draws(0.002))
+    stem = "design_A.0__20220812__sys_id__20220812-060143-PM_measured"
+    rec, ref, truth = _written(tmp_path, "transport_delay", 0, draws=_Draws(0.002), shared=stem)
     assert truth["magnitude"]["rows"] == 1
-    rec, ref = tmp_path / "recording.csv", tmp_path / "reference.csv"
-    out.write(rec)
-    src.write(ref)
     est = _only(_judge(rec, ref), "transport_delay")
     delay = truth["magnitude"]["delay_s"]
     assert abs(est["delay_s"] - delay) <= 0.1 * delay, (est, delay)
@@ -187,16 +190,8 @@ def test_an_encoder_angle_is_named_though_the_reference_model_sizes_it_loosely(t
     scales with the change (it is zero where nothing changed), so it does not decide whether
     the angle is there; the paired jackknife does (old code: -0.0506 ± 0.026 rad, 1.9 SE,
     explaining 99.99 % of the change, left unnamed)."""
-    records = realdata("dfki-double-pendulum") / "records"
-    path = records / "design_A.0__20220812__sys_id__20220812-055032-PM_measured.csv"
-    if not path.is_file():
-        pytest.skip("../shared/realdata/dfki-double-pendulum not present")
-    gen = _generator()
-    src = gen.dfki_source(path, "dfki-a0")
-    out, truth = gen.make_effect(src, "angle_offset", 0, _Draws(0.05))
-    rec, ref = tmp_path / "recording.csv", tmp_path / "reference.csv"
-    out.write(rec)
-    src.write(ref)
+    stem = "design_A.0__20220812__sys_id__20220812-055032-PM_measured"
+    rec, ref, truth = _written(tmp_path, "angle_offset", 0, draws=_Draws(0.05), shared=stem)
     result = _judge(rec, ref)
     est = _only(result, "encoder_offset")
     assert result.findings[0].joint == 1
@@ -283,19 +278,20 @@ def test_payload_centre_search_on_an_acrobot_swing_keeps_the_sign(tmp_path):
     centre = truth["magnitude"]["com_m"][2]
     beta = fit.judged_cv([term]).beta
     est = effect.estimate(fit.ctx, None, beta, np.zeros(2), term.at)[0]
-    # the sign and the centre; the mass comes out 0.12 kg for 0.20 (the columns' velocity noise
-    # attenuates their coefficient where the mass's two torques nearly cancel: docs/diagnosis.md)
-    assert 0.5 * mass < est["mass_kg"] < mass, (est, mass)
+    # the sign and the centre (a passive joint's recording: the mass's torque written where no
+    # actuator gives one, as the effect sets no longer do, so its size is not judged here)
+    assert 0.5 * mass < est["mass_kg"] < 1.5 * mass, (est, mass)
     assert abs(est["centre_m"][0] - centre) <= 0.15 * centre, (est, centre)
 
 
 def test_payload_on_a_driven_c0_swing_is_named_not_dropped_for_a_gain(tmp_path):
-    """The same point mass written into C.0 trajectory 02 (both joints driven). Its change is
-    13 SE jointly in (m, m δl) but 3.8 SE in the mass alone, whose SE carries its trade-off
-    with the centre's step: tested on the mass alone it was dropped on top of a joint-2 gain,
-    and a gain and a drag were named in its place (old code). Tested jointly
-    (:attr:`Effect.tested_jointly`) it is named, with its sign and centre; its mass is read
-    low (0.10 kg for 0.20: docs/diagnosis.md) and a joint-2 gain takes part of it."""
+    """The same point mass written into C.0 trajectory 02 (both joints driven), its torque
+    mostly inertial. Tested jointly in (m, m δl) (:attr:`Effect.tested_jointly`; on the mass
+    alone, whose SE carries its trade-off with the centre's step, it was dropped on top of a
+    joint-2 gain). Written at the recorded motion's acceleration (the generator's
+    :func:`payload_motion`) it is the only finding, with its mass, sign and centre; written at
+    the identification's 12.8 Hz smoothing its inertial torque was too small for any point
+    mass, and it read 0.10 kg for 0.20 beside a joint-2 gain."""
     gen = _generator()
     if not gen._dfki_urdf_xml("dfki-c0"):
         pytest.skip("the payload torque needs the owners' URDF in ../shared/realdata")
@@ -306,10 +302,8 @@ def test_payload_on_a_driven_c0_swing_is_named_not_dropped_for_a_gain(tmp_path):
     out.write(rec)
     src.write(ref)
     result = _judge(rec, ref, "dfki-c0")
-    found = {f.effect: f.estimate for f in result.findings}
-    assert "payload" in found, (list(found), result.document["not_findings"])
-    est, mass = found["payload"], truth["magnitude"]["mass_kg"]
-    assert 0.3 * mass < est["mass_kg"] < mass, (est, mass)
+    est, mass = _only(result, "payload"), truth["magnitude"]["mass_kg"]
+    assert abs(est["mass_kg"] - mass) <= WITHIN * mass, (est, mass)
     centre = truth["magnitude"]["com_m"][2]
     assert abs(est["centre_m"][0] - centre) <= 0.15 * centre, (est, centre)
 

@@ -127,7 +127,7 @@ def test_payload_torque_equals_an_independent_jacobian_computation(src):
         pytest.skip("the DFKI URDF (../shared/realdata) is not present")
     out, truth = _effect(src, "payload", 0)
     m, c = truth["magnitude"]["mass_kg"], np.array(truth["magnitude"]["com_m"])
-    motion = gen.motion_at_torque_rows(src)
+    motion = gen.payload_motion(src)
     model = gen.pinocchio_model(src)
     joint = model.njoints - 1
     frame = model.addFrame(
