@@ -100,8 +100,8 @@ def test_panda_least_squares_not_physical_is_made_consistent(tmp_path, capsys):
     least squares leaves M(q) indefinite, so every θ offered is the physically consistent fit
     (issue 29 item 2a: a non-physical θ is never offered), least squares' beside it. The torque
     scheme passes on every joint and its parameters are reported; supplied energy is no better
-    than the mean on joint 7 and is reported failed, numbers shown; `--params-scheme
-    supplied_energy` is refused (exit 1)."""
+    than the mean on joint 7 and is reported failed, numbers shown (`--params-scheme
+    supplied_energy` is then refused: the next test)."""
     import gaz_reference
 
     from drivers.one_per_line import read_one_per_line_log
@@ -129,9 +129,32 @@ def test_panda_least_squares_not_physical_is_made_consistent(tmp_path, capsys):
     assert report["selection"]["usable"] and report["standard_parameters"] is not None
     assert "supplied_energy" not in report["validation"]["schemes_passed"]
     assert any(p["identified"] is not None for p in report["parameters"])
-    refused = [*argv[:-1], "--overwrite", "--params-scheme", "supplied_energy"]
-    assert hil_main(refused) == 1
-    assert "schemes that passed: filtered_dynamic" in capsys.readouterr().err
+
+
+def test_a_failed_params_scheme_is_refused_naming_the_schemes_that_passed(
+    tmp_path, monkeypatch, capsys
+):
+    """`--params-scheme` of a scheme that failed held-out validation while another passed (the
+    real Panda's supplied energy beside filtered dynamic, above): exit 1, one line naming the
+    schemes that passed. The report is the identification's own layout, made up here."""
+    from hil.identify import cli as identify_cli
+
+    report = {
+        "model": "urdf",
+        "selection": {"usable": False, "scheme": "supplied_energy", "schemes_usable": []},
+        "validation": {
+            "passed": False,
+            "reason": "no better than the held-out mean on joint 7",
+            "schemes_passed": ["filtered_dynamic"],
+        },
+    }
+    monkeypatch.setattr(identify_cli, "run_identify", lambda args: (report, "report"))
+    argv = ["identify", "--from", str(tmp_path / "panda.csv"), "--robot", "panda",
+            "--out", str(tmp_path / "o"), "--params-scheme", "supplied_energy"]  # fmt: skip
+    assert hil_main(argv) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--params-scheme supplied_energy failed held-out" in err[0], err
+    assert err[0].endswith("schemes that passed: filtered_dynamic"), err
 
 
 @pytest.mark.slow

@@ -179,7 +179,7 @@ class Fit:
         if self.paired and any(t.effect.shifts_recorded_torque for t in terms):
             # the paired difference is that change itself, at the term's own point (the two
             # sides' own residuals carry the model's error, which moved a 1-row delay's change
-            # on a DFKI A.0 recording to 0.73 rows at 3.2 SE; the paired fit reads 0.93 rows)
+            # on a DFKI A.0 recording to 0.73 rows at 3.2 SE; the paired fit reads 1.00 row)
             judged = self.judged_cv(terms)
             parts, se_parts = (
                 self.split(judged.beta, terms),
