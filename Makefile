@@ -12,7 +12,7 @@ BUILD_DEPS = import tomllib; deps = tomllib.load(open("pyproject.toml", "rb"))["
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	# Pinocchio and its headers first; then the n-joint plant's compiled RK4 step (about 20 s
+	# Pinocchio and its headers first; then the n-joint plant's compiled RK4 step (about 50 s
 	# of CPU) builds once into the cache on one core while pip installs the rest on the other.
 	# The build never fails setup: without it the plant runs its Python step and says why
 	$(BIN)/python -m pip install --quiet $$($(BIN)/python -c '$(BUILD_DEPS)')

@@ -124,7 +124,7 @@ def build_cached(
     """``target`` (from :func:`cached_name`), compiled from ``source`` by ``command(output)``
     if not there yet; KernelUnavailableError (one line) if it cannot be. ``what`` names the
     build in the one warning line a build prints (e.g. "the compiled plant step ... (about
-    20 s of CPU)")."""
+    a minute of CPU)")."""
     failed = target.with_suffix(".err")
     if target.exists():
         return target

@@ -44,7 +44,7 @@ from drivers.native_build import KernelStatus as KernelStatus  # re-exported: ur
 
 SOURCE = Path(__file__).with_name("rk4_aba.cpp")
 KERNEL_ENV = "DDBENCH_PLANT_KERNEL"
-# 20 s of CPU quiet, 80 s wall at load 13 on the shared 2-core VM: a generous bound
+# about 50 s of CPU quiet (32 s of it the front end), longer on a loaded machine: a generous bound
 BUILD_TIMEOUT_S = 600.0
 # The compile flags. No -ffast-math and no FMA contraction: the kernel must round exactly as
 # numpy does in urdf_plant._rk4_aba. The definitions are those of Pinocchio's exported CMake
@@ -128,7 +128,7 @@ def library_path() -> Path:
 
 def build(timeout_s: float = BUILD_TIMEOUT_S) -> Path:
     """The compiled library, built if not cached; KernelUnavailableError (one line) if not."""
-    what = "the compiled plant step (about 20 s of CPU)"
+    what = "the compiled plant step (about a minute of CPU)"
     return build_cached(SOURCE, library_path(), build_command, timeout_s, what)
 
 
