@@ -8,8 +8,9 @@ server" about 700,000 times in its 10 s before ``hil`` printed its one-line erro
   further lines and a traceback in it, like an exception's, only with the root logger at
   DEBUG);
 * the project's loggers (``hil``, ``drivers``, ``virtual_robot``, ``profiles``) at WARNING, the
-  third-party ones (``can``, ``canopen``, everything else) at ERROR; ``-v`` lowers both by one
-  step (INFO / WARNING), ``-vv`` to DEBUG, ``-q`` raises them to ERROR / CRITICAL;
+  third-party ones (``can``, ``canopen``, everything else) at ERROR, those whose errors are
+  raised to the command as well (:data:`RAISED`) at CRITICAL; ``-v`` lowers each by one step
+  (INFO / WARNING / ERROR), ``-vv`` by two, ``-q`` raises them one step;
 * a rate limit on the handler: a message repeated from one logger passes :data:`BURST` times
   (the last of them saying so), then at most once per :data:`WINDOW_S`, that line saying how
   many were suppressed.
@@ -26,6 +27,10 @@ import time
 
 OWN = ("hil", "drivers", "virtual_robot", "profiles")
 THIRD_PARTY = ("can", "canopen")
+# third-party loggers whose errors always come back as the exception the command then reports
+# in its own one line (canopen's SDO client logs "Transfer aborted by client", then raises): a
+# step quieter, shown from -v on (an SDO read that timed out printed two error lines)
+RAISED = ("canopen.sdo.client",)
 BURST = 3  # identical messages that pass before the limit applies
 WINDOW_S = 10.0  # then at most one per this many seconds
 
@@ -105,6 +110,8 @@ def configure(prog: str, verbosity: int = 0) -> logging.Handler:
     root.setLevel(level(logging.ERROR))
     for name in THIRD_PARTY:
         logging.getLogger(name).setLevel(level(logging.ERROR))
+    for name in RAISED:
+        logging.getLogger(name).setLevel(level(logging.CRITICAL))
     for name in OWN:
         logging.getLogger(name).setLevel(level(logging.WARNING))
     logging.captureWarnings(True)

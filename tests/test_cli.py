@@ -142,8 +142,13 @@ def test_third_party_loggers_are_quiet_by_default() -> None:
     try:
         assert not logging.getLogger("can.interfaces.socketcand").isEnabledFor(logging.WARNING)
         assert logging.getLogger("hil.bench.run").isEnabledFor(logging.WARNING)
+        # an SDO abort is raised to the command, which says it in its own line: the client's
+        # log of it only from -v on
+        assert not logging.getLogger("canopen.sdo.client").isEnabledFor(logging.ERROR)
+        assert logging.getLogger("canopen.nmt").isEnabledFor(logging.ERROR)
         configure("test", 1)
         assert logging.getLogger("canopen").isEnabledFor(logging.WARNING)
+        assert logging.getLogger("canopen.sdo.client").isEnabledFor(logging.ERROR)
         configure("test", -1)
         assert not logging.getLogger("hil").isEnabledFor(logging.WARNING)
     finally:
