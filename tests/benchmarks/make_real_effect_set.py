@@ -411,6 +411,11 @@ IN_JOINT_TORQUE = ("torque_gain", "torque_offset", "coulomb_asymmetry", "cogging
                    "velocity_squared_drag")  # fmt: skip  # written into τ_j alone
 
 
+def _actuated_joints(src: Source) -> list[int]:
+    """The joints (0-based) whose torque column is not 0 throughout (a passive joint's is)."""
+    return [j for j in range(src.n_joints) if np.any(src.tau[:, j] != 0.0)]
+
+
 def _drawn_joint(src: Source, effect: str, rng: np.random.Generator) -> int:
     """The joint an effect is written into (0-based): for an effect written into τ_j alone,
     one whose torque column is not 0 throughout. A passive joint (DFKI C.0's pendubot and
@@ -420,12 +425,8 @@ def _drawn_joint(src: Source, effect: str, rng: np.random.Generator) -> int:
     joint = int(rng.integers(src.n_joints))
     if effect not in IN_JOINT_TORQUE:
         return joint
-    actuated = [j for j in range(src.n_joints) if np.any(src.tau[:, j] != 0.0)]
+    actuated = _actuated_joints(src)
     return joint if joint in actuated or not actuated else actuated[joint % len(actuated)]
-
-
-def _actuated(src: Source) -> bool:
-    return all(np.any(src.tau[:, j] != 0.0) for j in range(src.n_joints))
 
 
 def _payload_source(sources: list[Source], effect: str, k: int) -> int:
@@ -434,9 +435,13 @@ def _payload_source(sources: list[Source], effect: str, k: int) -> int:
     changes that joint's motion, not its torque: its RNEA torque written there would be a
     torque no actuator gave. The next such source after the drawn one, with no other draw, so
     the other cases of a seed stay as they were."""
-    if effect != "payload" or _actuated(sources[k]):
+
+    def actuated(src: Source) -> bool:
+        return len(_actuated_joints(src)) == src.n_joints
+
+    if effect != "payload" or actuated(sources[k]):
         return k
-    full = [i for i in range(len(sources)) if _actuated(sources[(k + i) % len(sources)])]
+    full = [i for i in range(len(sources)) if actuated(sources[(k + i) % len(sources)])]
     return (k + full[0]) % len(sources) if full else k
 
 
