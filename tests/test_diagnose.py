@@ -91,6 +91,26 @@ def test_cross_validation_finds_a_real_column_and_not_a_noise_column():
     assert with_real.beta[-1] == pytest.approx(0.3, abs=0.03)
 
 
+def test_blocks_the_change_does_not_reach_are_ties_not_failures():
+    """A recording that reruns its reference's motion is judged on the paired difference, which
+    is round-off where the change does not act: a Coulomb asymmetry written for negative speeds
+    on the KUKA's joint 3 changed 24 blocks of 50 and left the others at ~1e-22 of them, with
+    gains of either sign at 1e-27. Those blocks say nothing either way; counted, the pattern
+    "improved" fewer than half the blocks and was not found. Where every block is round-off
+    (nothing changed), every block still counts."""
+    from types import SimpleNamespace as Sse
+
+    rng = np.random.default_rng(5)
+    changed = rng.permutation(np.r_[np.ones(24, bool), np.zeros(26, bool)])
+    before = np.where(changed, 50.0, 1e-22 * rng.uniform(0.1, 1.0, 50))
+    after = np.where(changed, 1e-3, before * (1 + 1e-5 * rng.normal(size=50)))
+    ev = evidence(Sse(held_out_sse=before[:, None]), Sse(held_out_sse=after[:, None]), [0])
+    assert (ev.blocks, ev.blocks_improved) == (24, 24) and ev.reduction > 0.99
+    still = 1e-22 * rng.uniform(0.1, 1.0, (50, 1))
+    nothing = evidence(Sse(held_out_sse=still), Sse(held_out_sse=still * 0.999), [0])
+    assert nothing.blocks == 50
+
+
 def test_cross_validation_does_not_depend_on_the_columns_units():
     """Least squares is the same fit whatever units the columns are in; so is its blocked
     cross-validation. A ridge relative to the design's mean diagonal was not: the ur5e's base

@@ -104,11 +104,49 @@ def test_true_terms_kept_where_another_joint_moves_at_noise_level(tmp_path):
         "torque_gain_error": {"relative": [0.032362, 0.0]},
     }
     rec = make_recording(tmp_path / "rec", "optimal-fourier", effects)
-    doc = diagnose([read_signals(rec)], REFERENCE).document
+    doc, args = diagnose_capturing_gate(read_signals(rec), REFERENCE)
     found = {(f["effect"], f["joint"]): f["estimate"] for f in doc["findings"]}
     assert ("torque_gain", 1) in found and ("coulomb_asymmetry", 2) in found, doc["not_findings"]
     assert found[("coulomb_asymmetry", 2)]["difference_Nm"] == pytest.approx(0.194, rel=0.25)
     assert found[("torque_gain", 1)]["relative"] == pytest.approx(0.0324, rel=0.25)
+    _a_diverging_refit_loses_its_last_term(args)
+
+
+def _a_diverging_refit_loses_its_last_term(args):
+    """The same gate inputs, the refit's held-out simulation made to leave the finite range
+    (NaN rows, as :func:`hil.model.openloop_core.integrate_chunks` gives them) whenever the last
+    accepted term is in it: that term goes, with the reason, and the others are judged as
+    before (a closed-form simulation that diverged used to raise, and NaN positions would
+    have read as "nothing to simulate" and kept every term)."""
+    import numpy as np
+
+    import hil.diagnose.gates as gates
+
+    prob, accepted, findings, nominal_theta, se, shaft = args
+    last = accepted[-1]
+    real = gates.before_after
+
+    def diverging(prob, acc, *rest, **kw):
+        fit, arrays = real(prob, acc, *rest, **kw)
+        after = arrays["simulation"].get("after")
+        if after is not None and any(a is last for a in acc):
+            arrays["simulation"]["after"] = np.where(
+                np.arange(len(after))[:, None] > 5, np.nan, after
+            )
+        return fit, arrays
+
+    gates.before_after = diverging
+    try:
+        result = gates.simulation_gate(
+            prob, accepted, findings, nominal_theta, lambda _: None, se, shaft
+        )
+    finally:
+        gates.before_after = real
+    group = gates.RATE_TERM if last.cand.spec.is_rate else last.cand.key
+    assert result.dropped.get(group) == "with it the refit's held-out simulation diverges", (
+        result.dropped
+    )
+    assert all(a is not last for a in result.accepted)
 
 
 @pytest.mark.slow

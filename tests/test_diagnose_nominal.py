@@ -238,6 +238,27 @@ def test_real_dfki_pair_of_the_same_arm_gives_no_change(capsys):
     assert _drift(doc) == [], doc["summary"]
 
 
+def test_a_drift_term_the_training_recording_cannot_determine_is_dropped_not_fatal(capsys):
+    """DFKI C.0 trajectory 04 drives joint 2 only, 05 joint 1 only. Against the profile a joint-1
+    torque gain is accepted on both; the simulation gate fits it on 04 alone, where joint 1's
+    torque is 0, reads about -100 %, and its held-out simulation on 05 leaves every finite
+    angle. That ended the diagnosis in `math domain error`; the term is now not a finding, with
+    that reason, and the report is written."""
+    records = realdata("dfki-double-pendulum") / "records"
+    a = records / "design_C.0__20220914__sys_id__trajectory_04.csv"
+    b = records / "design_C.0__20220914__sys_id__trajectory_05.csv"
+    if not (a.is_file() and b.is_file()):
+        pytest.skip(f"DFKI recordings not found under {records}")
+    doc = _diagnose(capsys, str(a), str(b), "--format", "dfki", "--robot", "dfki-c0")
+    assert (
+        doc["nominal"]["not_findings"]["torque_gain:1"]
+        == "with it the held-out simulation diverges"
+    )
+    assert _drift(doc) == [], doc["summary"]
+    positions = doc["nominal"]["held_out_position_nrmse"]
+    assert all(x is None or np.isfinite(x) for side in positions.values() for x in side or [])
+
+
 def test_a_pattern_with_which_no_arm_is_physical_is_refused():
     """The drift patterns θ's own check cannot judge: a drag below zero (no arm is fed energy
     by its speed) against a model with no drag, and a load taken off that leaves link 2 of the

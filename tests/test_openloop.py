@@ -237,6 +237,32 @@ def test_row_k_is_the_state_before_tau_k(theta):
     assert simulate_open_loop(theta, tau[:1], H).q.shape == (1, 2)
 
 
+@pytest.mark.parametrize(("torque", "speed"), [(1e6, 0.0), (1e7, 0.0), (1e12, 3.0)])
+@pytest.mark.parametrize("compiled", [True, False])
+def test_a_diverging_simulation_is_nan_from_there_on(theta, torque, speed, compiled, monkeypatch):
+    """A model that leaves every finite angle gives NaN rows from the first state past the
+    range on, not an exception (a torque gain of about -100 % that the training rows could
+    not determine, simulated on DFKI C.0 trajectories 04 -> 05, ended `hil diagnose` in `math
+    domain error`: sin of an infinite angle); chunk after chunk, with the compiled sub-steps or
+    without."""
+    import hil.model.openloop_core as core
+
+    if not compiled:
+        monkeypatch.setattr(core, "compiled", lambda: False)
+    tau = np.full((100, 2), (torque, 0.0))
+    tau[:5] = 0.0
+    start = (0.0, 0.0, speed, -speed)
+    friction = core.Friction((1.0, 1.0), (1.0, 1.0))
+    sim = core.integrate(theta, tau, H, 5, start, friction)
+    lost = ~np.isfinite(sim.q).all(axis=1)
+    assert np.isfinite(sim.q[:6]).all() and lost.any(), sim.q[:8]
+    assert lost[np.argmax(lost) :].all() and np.isnan(sim.dq[lost]).all()
+    assert (np.abs(sim.q[~lost]) < core.DIVERGED).all()
+    arm = core.ClosedFormArm(theta, friction, None)
+    pieces = list(core.integrate_chunks(arm, tau, H, 5, start, chunk=7))
+    np.testing.assert_array_equal(np.concatenate([p.q for p in pieces]), sim.q)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [

@@ -177,22 +177,28 @@ def simulation_gate(
         )
         with_all = fit.after.position_nrmse
         noise = arrays["simulation"].get("position_sensitivity") or [0.0] * len(with_all)
-        if "after" in fit.unphysical:
-            # the refit on the training part cannot be simulated: the terms cannot be shown to
+        after = arrays["simulation"].get("after")
+        diverged = prob.model.closed_form and after is not None and not np.isfinite(after).all()
+        if "after" in fit.unphysical or diverged:
+            # the refit on the training part cannot be simulated, or its held-out simulation
+            # leaves every finite angle (openloop_core.DIVERGED): the terms cannot be shown to
             # improve the motion, so the last accepted goes (the others stood without it)
             last = accepted[-1].cand.key
             group = RATE_TERM if accepted[-1].cand.spec.is_rate else last
             first = _free_reading_failed(findings, group)  # a gain's θ-free reading failed
-            lead = (
-                first + "has a held-out refit that is not physical ("
-                if first
-                else "its held-out refit is not physical ("
-            )
-            dropped[group] = (
-                lead
-                + "; ".join(fit.unphysical["after"])
-                + "), so it cannot be shown to improve the simulated motion"
-            )
+            if diverged:
+                dropped[group] = "with it the refit's held-out simulation diverges"
+            else:
+                lead = (
+                    first + "has a held-out refit that is not physical ("
+                    if first
+                    else "its held-out refit is not physical ("
+                )
+                dropped[group] = (
+                    lead
+                    + "; ".join(fit.unphysical["after"])
+                    + "), so it cannot be shown to improve the simulated motion"
+                )
             say(f"diagnose: dropped {group}: {dropped[group]}")
             accepted = [a for a in accepted if not _of_term(a, group)]
             findings = [f for f in findings if f.term != group]

@@ -103,7 +103,8 @@ def openloop_extras(findings: Sequence[Finding]) -> OpenLoopExtras:
     )
 
 
-def _finite(values: Sequence[float]) -> list[float | None]:
+def finite_or_none(values: Sequence[float]) -> list[float | None]:
+    """``values`` as floats, None where not finite (JSON has no nan or inf)."""
     return [float(v) if np.isfinite(v) else None for v in values]
 
 
@@ -516,13 +517,15 @@ def before_after(
             if name in unphysical_fit or (name == "before" and not simulate_before):
                 continue
             sims[name] = _kept_simulation(memo, rec_i, theta, ex, r, segments, model)
-            position[name] = _finite(nrmse(q, sims[name]))
+            position[name] = finite_or_none(nrmse(q, sims[name]))
         if sensitivity and "after" in sims:
             # the same simulation driven by a torque off by the model's own held-out error
             error = np.array([np.nan if e is None else e for e in torque["after"]])
             tau = r.tau * (1.0 + np.nan_to_num(error * torque_spread(r.tau[index])))
             moved = segment_simulation(theta1, extras, r.q, tau, h, segments, r.stamps, model1)
-            sims["position_sensitivity"] = _finite(simulation_sensitivity(moved, sims["after"], q))
+            sims["position_sensitivity"] = finite_or_none(
+                simulation_sensitivity(moved, sims["after"], q)
+            )
     held = (
         f"recording {len(prob.rows)}, not used for fitting"
         if len(prob.rows) > 1

@@ -58,6 +58,7 @@ from scipy.linalg import lapack
 
 from hil.model.closed_form import N_PARAMS, ArmModel
 from hil.model.openloop_core import (
+    DIVERGED,
     SIMULATION_CHUNK,
     ClosedFormArm,
     Friction,
@@ -332,10 +333,6 @@ def simulate_windows(
         "diverged": int(np.sum(~ok)),
         "window_s": float(L * h),
     }
-
-
-# a state that leaves this range (rad, rad/s) has diverged (rk4_held)
-DIVERGED = 1e3
 
 
 def rk4_held(

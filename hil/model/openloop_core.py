@@ -36,6 +36,8 @@ from hil.model.compiled_openloop import Slider, compiled
 MAX_EVENTS_PER_SUBSTEP = 8
 # A located velocity zero is accepted when |q̇_i| is below this (rad/s).
 ZERO_VELOCITY_TOL = 1e-12
+# A state that leaves this range (rad, rad/s) has diverged: its rows are NaN from there on
+DIVERGED = 1e3
 
 Pair = tuple[float, float]
 # q1..qn, q̇1..q̇n (2-DOF: q1, q2, q̇1, q̇2)
@@ -571,6 +573,8 @@ def integrate_chunks(
     )
     if plain and compiled():
         fast = Slider(_rigid(arm.theta), torques, stretch, n_sub, h / n_sub, sticky, (*pos, *neg))
+    lost = (math.nan,) * n
+    diverged = False
     for first in range(0, n_rows, chunk):
         rows = min(chunk, n_rows - first)
         if whole is None:
@@ -582,7 +586,9 @@ def integrate_chunks(
         q_out = [state[:n]] * rows
         dq_out = [state[n:]] * rows
         stuck_out = [tuple(stuck)] * rows
-        k = 0
+        k = rows if diverged else 0  # NaN from a divergence on
+        if diverged:
+            q_out = dq_out = [lost] * rows
         while k < rows:
             if fast is not None and first + k < n_rows - 1:
                 levels = (friction.level(0, direction[0]), friction.level(1, direction[1]))
@@ -600,77 +606,90 @@ def integrate_chunks(
                 k += done
                 if k == rows:
                     break
+            if not all(abs(x) < DIVERGED for x in state):  # NaN too
+                diverged = True
+                q_out[k:] = dq_out[k:] = [lost] * (rows - k)
+                break
             q_out[k] = state[:n]
             dq_out[k] = state[n:]
             stuck_out[k] = tuple(stuck)
             if first + k == n_rows - 1:
                 break  # the last torque acts after the last sample
             commands = (before[k], after[k])
-            for dt_seg, which in segments:
-                command = commands[which]
-                tau = command  # the identity path's torque (others: over what remains)
-                substeps += 1
-                remaining = dt_seg if stretch is None else dt_seg * float(stretch[first + k])
-                if identity and not any(stuck):
-                    # the common sub-step, every joint sliding under the held command: one RK4
-                    # step and the sign test below without the event loop's set-up (most of a
-                    # long recording's validation; issue 13). A sign change falls through to the
-                    # loop, which takes the same step again and locates the event.
-                    new = step(state, tau, remaining)
-                    for i in watched:
-                        if new[n + i] * direction[i] < 0.0:
-                            break
-                    else:
-                        state = new
-                        continue
-                for _event in range(MAX_EVENTS_PER_SUBSTEP):
-                    if not identity:
-                        tau, path_end = path.applied(command, remaining)
-                    if any(stuck) and release(state, tau):
-                        step = mode_step()
-                    new = step(state, tau, remaining)
-                    # the sliding, sticky joints whose velocity changed sign crossed zero
-                    crossed = [
-                        i for i in watched if not stuck[i] and new[n + i] * direction[i] < 0.0
-                    ]
-                    if not crossed:
-                        state = new
+            try:
+                for dt_seg, which in segments:
+                    command = commands[which]
+                    tau = command  # the identity path's torque (others: over what remains)
+                    substeps += 1
+                    remaining = dt_seg if stretch is None else dt_seg * float(stretch[first + k])
+                    if identity and not any(stuck):
+                        # the common sub-step, every joint sliding under the held command: one RK4
+                        # step and the sign test below without the event loop's set-up (most of a
+                        # long recording's validation; issue 13). A sign change falls through to the
+                        # loop, which takes the same step again and locates the event.
+                        new = step(state, tau, remaining)
+                        for i in watched:
+                            if new[n + i] * direction[i] < 0.0:
+                                break
+                        else:
+                            state = new
+                            continue
+                    for _event in range(MAX_EVENTS_PER_SUBSTEP):
                         if not identity:
-                            path.settle(path_end)
-                        break
-                    joint = crossed[0]
-                    if len(crossed) > 1:  # the earliest by linear interpolation (first of ties)
-                        joint = min(
-                            crossed, key=lambda i: state[n + i] / (state[n + i] - new[n + i])
-                        )
-                    flow = _flow(step, path, command, tau)
-                    here = state
-                    s, state = _locate_zero(
-                        flow, here, joint, remaining, new[n + joint], direction[joint]
-                    )
-                    earlier = [
-                        i for i in crossed if i != joint and state[n + i] * direction[i] < 0.0
-                    ]
-                    if earlier:  # another joint crossed first after all
-                        joint = earlier[0]
+                            tau, path_end = path.applied(command, remaining)
+                        if any(stuck) and release(state, tau):
+                            step = mode_step()
+                        new = step(state, tau, remaining)
+                        # the sliding, sticky joints whose velocity changed sign crossed zero
+                        crossed = [
+                            i for i in watched if not stuck[i] and new[n + i] * direction[i] < 0.0
+                        ]
+                        if not crossed:
+                            state = new
+                            if not identity:
+                                path.settle(path_end)
+                            break
+                        joint = crossed[0]
+                        if len(crossed) > 1:  # the earliest by linear interpolation (first of ties)
+                            joint = min(
+                                crossed, key=lambda i: state[n + i] / (state[n + i] - new[n + i])
+                            )
+                        flow = _flow(step, path, command, tau)
+                        here = state
                         s, state = _locate_zero(
-                            flow, here, joint, s, state[n + joint], direction[joint]
+                            flow, here, joint, remaining, new[n + joint], direction[joint]
                         )
-                    # (a zero-length lag step would jump to the command)
-                    if s > 0.0 and not identity:
-                        path.settle(path.applied(command, s)[1])
-                    state = (*state[: n + joint], 0.0, *state[n + joint + 1 :])
-                    stuck[joint] = True
-                    stick_events[joint] += 1
-                    step = mode_step()
-                    remaining -= s
-                    if remaining <= 1e-15 * dt_seg:
-                        break
+                        earlier = [
+                            i for i in crossed if i != joint and state[n + i] * direction[i] < 0.0
+                        ]
+                        if earlier:  # another joint crossed first after all
+                            joint = earlier[0]
+                            s, state = _locate_zero(
+                                flow, here, joint, s, state[n + joint], direction[joint]
+                            )
+                        # (a zero-length lag step would jump to the command)
+                        if s > 0.0 and not identity:
+                            path.settle(path.applied(command, s)[1])
+                        state = (*state[: n + joint], 0.0, *state[n + joint + 1 :])
+                        stuck[joint] = True
+                        stick_events[joint] += 1
+                        step = mode_step()
+                        remaining -= s
+                        if remaining <= 1e-15 * dt_seg:
+                            break
+            except (ValueError, OverflowError, ZeroDivisionError):
+                state = lost + lost  # sin(inf) or a singular M(q): diverged
             k += 1
+        q_rows, dq_rows = np.array(q_out, dtype=float), np.array(dq_out, dtype=float)
+        with np.errstate(invalid="ignore"):
+            inside = (np.abs(q_rows) < DIVERGED).all(axis=1) & (np.abs(dq_rows) < DIVERGED).all(1)
+        if not inside.all():  # rows the compiled sub-steps took past the range, and after
+            q_rows[np.argmin(inside) :] = dq_rows[np.argmin(inside) :] = np.nan
+            diverged = True
         yield OpenLoopResult(
             t=np.arange(first, first + rows) * h if times is None else times[first : first + rows],
-            q=np.array(q_out, dtype=float),
-            dq=np.array(dq_out, dtype=float),
+            q=q_rows,
+            dq=dq_rows,
             stuck=np.array(stuck_out, dtype=bool),
             stick_events=np.array(stick_events),
             breakaways=np.array(breakaways),

@@ -8,6 +8,7 @@ Imports :mod:`hil.diagnose.drift.fit` and :mod:`hil.diagnose.drift.terms`.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -19,6 +20,7 @@ from hil.diagnose.effects import REGISTRY, SimInput
 from hil.diagnose.findings import Finding
 from hil.diagnose.gates import SIMULATION_NOISE_FLOOR, worse_beyond_noise
 from hil.diagnose.heldout import (
+    finite_or_none,
     held_out_masks,
     openloop_extras,
     segment_simulation,
@@ -116,7 +118,11 @@ def drift_simulation_gate(
         estimates = trained_estimates(fit, ts) if estimates is None else estimates
         sim = sim_inputs(fit, ts, estimates)
         out = simulate_position(fit, sim, rec_i, segments)
-        return None if out is None else [float(x) for x in nrmse(q, out)]
+        if out is None:
+            return None
+        if not np.isfinite(out).all():  # diverged (openloop_core.DIVERGED): worse than any
+            return [math.inf] * q.shape[1]
+        return [float(x) for x in nrmse(q, out)]
 
     before = position([])
     sensitivity = position_sensitivity(fit, terms, rec_i, segments, index, q)
@@ -157,18 +163,26 @@ def drift_simulation_gate(
             if harm:
                 d, j = max(harm)
                 if worst is None or d > worst[1]:
-                    worst = (
-                        t,
-                        d,
-                        f"with it the held-out simulated position of joint {j + 1} gets worse "
-                        f"({100 * wo[j]:.3g} % → {100 * now[j]:.3g} %)",
+                    worse = (
+                        "the held-out simulation diverges"
+                        if math.isinf(now[j])
+                        else f"the held-out simulated position of joint {j + 1} gets worse "
+                        f"({100 * wo[j]:.3g} % → {100 * now[j]:.3g} %)"
                     )
+                    worst = (t, d, f"with it {worse}")
         if worst is None:
-            return terms, dropped, {"before": before, "after": now}
+            return terms, dropped, _reported(before, now)
         say(f"diagnose: against the nominal model: {worst[0].key} dropped: {worst[2]}")
         dropped[worst[0].key] = worst[2]
         terms = [u for u in terms if u is not worst[0]]
-    return terms, dropped, {"before": before, "after": before}
+    return terms, dropped, _reported(before, before)
+
+
+def _reported(before: list[float] | None, after: list[float] | None) -> dict[str, Any]:
+    """The gate's held-out position NRMSEs as the JSON says them (None: diverged)."""
+    return {
+        k: v if v is None else finite_or_none(v) for k, v in (("before", before), ("after", after))
+    }
 
 
 def own_position(fit: Fit) -> list[float]:
@@ -208,6 +222,6 @@ def position_sensitivity(
     for j in range(n):
         moved_sim.gain[j] = moved_sim.gain.get(j, 1.0) * (1.0 + err[j] * spread[j])
     moved = simulate_position(fit, moved_sim, rec_i, segments)
-    if base is None or moved is None:
-        return [SIMULATION_NOISE_FLOOR] * n
+    if base is None or moved is None or not (np.isfinite(base).all() and np.isfinite(moved).all()):
+        return [SIMULATION_NOISE_FLOOR] * n  # not simulated, or diverged
     return [float(x) for x in np.nan_to_num(simulation_sensitivity(moved, base, q), nan=0.0)]
