@@ -309,10 +309,15 @@ def test_diagnosis_with_drift_against_the_profile(gain_recording, tmp_path):
 
 def test_diagnosis_against_params_and_refit(identified, tmp_path):
     fit = identified["table_ii"] / "fit"
-    for extra in (["--params", str(identified["table_ii"] / "params.json")], ["--refit"]):
+    # the fit's own recording, which params.json fingerprints: found, and the model
+    # re-identified from it (source "reference")
+    for extra, source in (
+        (["--params", str(identified["table_ii"] / "params.json")], "reference"),
+        (["--refit"], "refit"),
+    ):
         text = run_hil("diagnose", str(fit), "--no-plots", *extra)
         doc = check("diagnosis.schema.json", text, f"hil diagnose {extra[0]}")
-        assert doc["nominal"]["source"] == extra[0].removeprefix("--")
+        assert doc["nominal"]["source"] == source
 
 
 def test_diagnosis_of_real_recordings(tmp_path):

@@ -365,3 +365,34 @@ def test_garbage_in_signals_reads_or_raises_recording_error(tmp_path_factory, ju
     n = len(rec)
     assert all(len(col) == n for col in rec.columns.values())
     assert rec.q.shape == (n, 2) and rec.tau.shape == (n, 2)
+
+
+def test_the_recording_a_parameter_file_names_is_found_only_unchanged(tmp_path, monkeypatch):
+    """`hil identify` fingerprints the recording it identified from (drivers.recording.source);
+    `hil diagnose --params` looks for it as named, beside the parameter file, then at its
+    absolute path, and uses it only while its data are unchanged."""
+    from drivers.recording.source import find_source, fingerprint
+
+    data = tmp_path / "runs" / "a.csv"
+    data.parent.mkdir()
+    data.write_text("t,q1,q2,tau1,tau2\n0,0,0,0,0\n")
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "signals.csv").write_text(data.read_text())
+    assert fingerprint(tmp_path / "nothing.csv") == {} and fingerprint(None) == {}
+    monkeypatch.chdir(data.parent)
+    doc = {"recording": "a.csv", **fingerprint("a.csv")}
+    assert doc["recording_resolved"] == str(data)
+    params = tmp_path / "id" / "params.json"
+    assert find_source(doc, params) == Path("a.csv")  # as named, from the working directory
+    monkeypatch.chdir(tmp_path)
+    assert find_source(doc, params) == data  # at its absolute path
+    moved = tmp_path / "id" / "a.csv"
+    moved.parent.mkdir()
+    data.rename(moved)
+    assert find_source(doc, params) == moved  # beside the parameter file
+    moved.write_text(moved.read_text() + "0.1,0,0,0,0\n")
+    assert find_source(doc, params) is None  # changed since: not the same recording
+    assert find_source({"recording": "a.csv"}, params) is None  # no fingerprint
+    same = {"recording": str(run), **fingerprint(run)}  # a run directory: its signals.csv
+    assert find_source(same, params) == run

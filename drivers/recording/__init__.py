@@ -11,7 +11,9 @@ Shared by the host (``hil``) and the virtual robot's offline simulation, like th
 One module per piece: :mod:`.format` (file names, base columns, the error type, strict JSON),
 :mod:`.writer` (:class:`RecordingWriter`, the run's .mcap), :mod:`.data` (the
 :class:`Recording` type and the reader's limits), :mod:`.columns` (column maps and the torque
-plan), :mod:`.reader` (:func:`read_signals`), :mod:`.checks` (time stamps, values, assembly).
+plan), :mod:`.reader` (:func:`read_signals`), :mod:`.checks` (time stamps, values, assembly),
+:mod:`.source` (the fingerprint of the recording a parameter file was identified from, and
+finding it again).
 The plot of a recording is :func:`plots.positions.plot_positions` (plots stay out of drivers/).
 Imports: :mod:`drivers.containers`, :mod:`drivers.process`, :mod:`profiles`.
 """

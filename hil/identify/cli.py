@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from drivers.recording import write_json_atomic
+from drivers.recording.source import fingerprint
 from hil.cli_options import (
     EXIT_FAILED,
     add_bench_option,
@@ -221,7 +222,11 @@ def run_identify(args: argparse.Namespace) -> tuple[dict[str, Any], str]:
     else:
         outcome = pipelines.run_table_ii(args)
     out.mkdir(parents=True, exist_ok=True)
+    # the data identified from, fingerprinted: `hil diagnose --params` finds it again and
+    # compares a new recording with it (drivers.recording.source)
+    source = fingerprint(outcome.report.get("recording"))
+    outcome.report.update(source)
     for path, schemes_, options in outcome.params:
-        save_params(path, schemes_, **options)
+        save_params(path, schemes_, **options, **(source if "recording" in options else {}))
     write_json_atomic(out / "identify.json", outcome.report)
     return outcome.report, outcome.text

@@ -7,8 +7,9 @@
 
 Each case's modified recording is diagnosed against the unmodified one's model:
 ``--reference reference.csv`` where `hil diagnose --help` offers it; else ``--params`` from
-`hil identify --from reference.csv` (a 2-DOF arm); else the robot profile (an arm `hil
-diagnose --params` refuses). The unmodified recording is diagnosed the same way: its findings
+`hil identify --from reference.csv` (params.json of a 2-DOF arm, identify.json of a URDF arm;
+the diagnosis finds the fingerprinted reference.csv again and compares with it); ``--nominal
+profile``: the robot profile. The unmodified recording is diagnosed the same way: its findings
 are the baseline, what the real arm already gives.
 
 A case passes when its effect is named on its joint (a truth on no joint, a delay or a
@@ -78,12 +79,13 @@ def nominal_args(case_dir: Path, entry: dict, mode: str, work: Path) -> tuple[st
     if mode == "reference":
         return "reference", ["--reference", str(reference)]
     robot = entry["diagnose_args"][entry["diagnose_args"].index("--robot") + 1]
-    if mode == "params" and not describes_urdf_only(robot):
+    if mode == "params":
         out = work / f"{entry['case']}-identify"
         _json(hil("identify", "--from", str(reference), *entry["diagnose_args"], "--out",
                   str(out), "--overwrite", "--no-plot", "--json"),
               f"{entry['case']}: hil identify")  # fmt: skip
-        return "params", ["--params", str(out / "params.json")]
+        document = "identify.json" if describes_urdf_only(robot) else "params.json"
+        return "params", ["--params", str(out / document)]
     return "profile", []
 
 
