@@ -311,3 +311,27 @@ def test_identify_cli_on_the_committed_dfki_file(tmp_path, capsys):
     )  # fmt: skip
     text = capsys.readouterr().out
     assert code == 0 and "held-out: identified" in text and "held_out" not in text
+
+
+def test_a_joint_with_no_torque_to_predict_does_not_fail_the_fit(tmp_path, capsys):
+    """DFKI C.0 records one joint's torque as exactly 0 in some trajectories (a passive joint):
+    its torque NRMSE is nan (no spread to scale by), and read as "no better than its mean" it
+    refused every scheme ("no params.json"). Such a joint is not scored; a finite NRMSE at or
+    above 1 still fails, and so does a fit with no joint to score."""
+    from realdata import realdata
+
+    from hil.identify.model_path import _worse_than_mean
+
+    assert _worse_than_mean([math.nan, 0.18]) == []
+    assert _worse_than_mean([None, 1.2]) == [1]
+    assert _worse_than_mean([math.nan, math.nan]) == [0, 1]
+    path = realdata("dfki-double-pendulum") / "records"
+    path = path / "design_C.0__20220914__sys_id__trajectory_04.csv"
+    if not path.is_file():
+        pytest.skip(f"{path} not present")
+    out = tmp_path / "id"
+    argv = ["identify", "--from", str(path), "--format", "dfki", "--robot", "dfki-c0"]
+    assert hil_main([*argv, "--out", str(out), "--no-plot", "-q"]) == 0, capsys.readouterr().err
+    doc = json.loads((out / "identify.json").read_text())
+    assert doc["validation"]["fit"]["identified"]["torque_nrmse"][0] is None
+    assert (out / "params.json").is_file()

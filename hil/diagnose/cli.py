@@ -70,7 +70,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         help="params.json or identify.json (hil identify, of a 2-DOF or a URDF arm): the nominal "
         "model the recordings are judged against (what changed since it), also the before/after "
-        "fit's θ and the reference for telling which joint a torque gain error is on",
+        "fit's θ and the reference for telling which joint a torque gain error is on; when the "
+        "recording it was identified from is found unchanged, the recordings are compared with "
+        "that recording (as --reference)",
     )
     p.add_argument(
         "--reference",

@@ -249,7 +249,7 @@ def _failed_reason(ident: Identification, nrmse: list[float], judged: str) -> st
     if reason is None and not determined:
         reason = "no parameter is determined by these data (every SE > 50 % of its value)"
     if reason is None:
-        worse = [j for j, x in enumerate(nrmse) if not x < 1.0]
+        worse = _worse_than_mean(nrmse)
         if worse:
             reason = (
                 f"torque prediction on the {judged.replace('_', '-')} recording no better than "
@@ -258,10 +258,20 @@ def _failed_reason(ident: Identification, nrmse: list[float], judged: str) -> st
     return reason
 
 
+def _worse_than_mean(nrmse: list[float]) -> list[int]:
+    """The joints whose torque NRMSE is not below 1 (no better than predicting the mean). A
+    joint whose recorded torque has no spread (a passive joint of DFKI C.0, τ ≡ 0: NRMSE nan)
+    has nothing to predict and is not held against θ; when no joint has, every joint fails."""
+    scored = [x is not None and bool(np.isfinite(x)) for x in nrmse]
+    if not any(scored):
+        return list(range(len(nrmse)))
+    return [j for j, x in enumerate(nrmse) if scored[j] and x >= 1.0]
+
+
 def _validation_entry(nrmse: list[float], judged: str, report: dict[str, Any]) -> dict[str, Any]:
     """A scheme's ``validation`` in identify.json's ``schemes`` (the URDF path's keys): its
     torque NRMSE on the judged recording and whether every joint is below 1."""
-    worse = [j for j, x in enumerate(nrmse) if not x < 1.0]
+    worse = _worse_than_mean(nrmse)
     return {
         "on": report["validation_recording"] if judged == "held_out" else report["recording"],
         "torque_nrmse": nrmse,
@@ -270,7 +280,8 @@ def _validation_entry(nrmse: list[float], judged: str, report: dict[str, Any]) -
         if not worse
         else "no better than the mean on joint " + ", ".join(str(j + 1) for j in worse),
         "criterion": "every joint's filtered torque NRMSE below 1 (better than predicting its "
-        "mean), on the held-out recording when given, else on the fit",
+        "mean; a joint whose torque has no spread is not scored), on the held-out recording "
+        "when given, else on the fit",
     }
 
 
