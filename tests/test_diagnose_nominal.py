@@ -233,8 +233,9 @@ def test_gain_written_into_the_shipped_dfki_file_is_found_against_its_original(
     assert abs(found - g) <= WITHIN * (g - 1), found
     # the same motion: the paired difference, no spread over motions to weigh
     assert "spread" not in doc["nominal"]["findings"][0]["evidence"]
-    doc = _diagnose(capsys, str(DFKI_A0), *args)
-    assert _drift(doc) == [], doc["summary"]
+    if nominal == "reference":  # (with --params the same comparison, once its file is found)
+        doc = _diagnose(capsys, str(DFKI_A0), *args)
+        assert _drift(doc) == [], doc["summary"]
 
 
 def test_real_dfki_pair_of_the_same_arm_gives_no_change(capsys):
