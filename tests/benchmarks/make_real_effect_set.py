@@ -416,17 +416,58 @@ def _actuated_joints(src: Source) -> list[int]:
     return [j for j in range(src.n_joints) if np.any(src.tau[:, j] != 0.0)]
 
 
+def _angle_joints(src: Source) -> list[int]:
+    """The joints (0-based) on whose angle the arm's torques can depend. Rotation about a
+    vertical first axis (the Panda's and the KUKA's joint 1) changes neither M(q), the Coriolis
+    terms nor gravity, whatever the bodies' inertias: an encoder offset there changes no
+    recorded torque against any model, and no method could see it. Tested by Pinocchio's RNEA
+    of the URDF's joints with generic bodies, at a few recorded positions, every velocity and
+    acceleration 1; without a URDF, every joint."""
+    if not src.urdf_xml:
+        return list(range(src.n_joints))
+    import pinocchio as pin
+
+    model = pin.Model(pinocchio_model(src))
+    generic = np.random.default_rng(0)  # structure, not the URDF's values: a symmetric last
+    for i in range(1, model.njoints):  # link hides its angle in the URDF, not in a fitted θ
+        mass, com = 1.0 + generic.uniform(), generic.uniform(-0.1, 0.1, 3)
+        model.inertias[i] = pin.Inertia(mass, com, np.diag(generic.uniform(0.01, 0.02, 3)))
+    data = model.createData()
+    ones = np.ones(src.n_joints)
+    rows = src.q[np.linspace(0, len(src.q) - 1, 8).astype(int)]
+    moved = []
+    for j in range(src.n_joints):
+        step = np.eye(src.n_joints)[j] * 0.05
+        change = max(
+            np.max(
+                np.abs(
+                    pin.rnea(model, data, q + step, ones, ones)
+                    - pin.rnea(model, data, q, ones, ones)
+                )
+            )
+            for q in rows
+        )
+        if change > 1e-9:
+            moved.append(j)
+    return moved
+
+
 def _drawn_joint(src: Source, effect: str, rng: np.random.Generator) -> int:
     """The joint an effect is written into (0-based): for an effect written into τ_j alone,
     one whose torque column is not 0 throughout. A passive joint (DFKI C.0's pendubot and
     acrobot recordings log τ_con ≡ 0 on one joint) has no torque to scale, offset or add a
     term proportional to its RMS to: the file would come out unchanged and its truth
-    unobservable. One draw either way, so the other cases of a seed stay as they were."""
+    unobservable. An encoder offset: a joint on whose angle the torques depend
+    (:func:`_angle_joints`). One draw either way, so the other cases of a seed stay as they
+    were."""
     joint = int(rng.integers(src.n_joints))
-    if effect not in IN_JOINT_TORQUE:
+    if effect == "angle_offset":
+        seen = _angle_joints(src)
+    elif effect in IN_JOINT_TORQUE:
+        seen = _actuated_joints(src)
+    else:
         return joint
-    actuated = _actuated_joints(src)
-    return joint if joint in actuated or not actuated else actuated[joint % len(actuated)]
+    return joint if joint in seen or not seen else seen[joint % len(seen)]
 
 
 def _payload_source(sources: list[Source], effect: str, k: int) -> int:
