@@ -396,3 +396,28 @@ def test_the_recording_a_parameter_file_names_is_found_only_unchanged(tmp_path, 
     assert find_source({"recording": "a.csv"}, params) is None  # no fingerprint
     same = {"recording": str(run), **fingerprint(run)}  # a run directory: its signals.csv
     assert find_source(same, params) == run
+
+
+def test_params_whose_recording_changed_say_so_and_fall_back_to_theta(tmp_path, capsys):
+    """`hil diagnose --params F` whose fingerprinted recording is not found unchanged says so in
+    one line and judges against F's θ alone; a file without a fingerprint says nothing."""
+    import argparse
+
+    from drivers.recording.source import fingerprint
+    from hil.diagnose.cli import _references
+
+    data = tmp_path / "a.csv"
+    data.write_text("t,q1,q2,tau1,tau2\n0,0,0,0,0\n")
+    params = tmp_path / "params.json"
+    doc = {"recording": str(data), **fingerprint(data)}
+    data.write_text(data.read_text() + "0.1,0,0,0,0\n")  # changed since
+    params.write_text(json.dumps(doc))
+    args = argparse.Namespace(reference=None, params=str(params))
+    never = pytest.fail  # nothing is read
+    refs, why = _references(args, never)
+    assert refs == [] and "not found unchanged" in why
+    err = capsys.readouterr().err
+    assert "not found unchanged" in err and "θ alone" in err and str(data) in err
+    params.write_text(json.dumps({"recording": str(data)}))
+    assert _references(args, never) == ([], "")
+    assert capsys.readouterr().err == ""

@@ -25,6 +25,7 @@ import pytest
 from cli_run import assert_same_recording, hil
 from PIL import Image
 from ur5e_targets import INERTIAL_TOLERANCE, check_ur5e_identified
+from urdf_effect_recordings import with_effect
 
 from drivers.recording import base_columns, read_signals
 from hil.cli import main as hil_main
@@ -298,3 +299,24 @@ def test_effect_free_run_gives_no_finding(tmp_path, capsys):
     doc = json.loads(capsys.readouterr().out)
     assert doc["findings"] == [], doc["summary"]
     assert doc["summary"].startswith("No missing physics found: the 54-base-parameter ur5e")
+
+
+def test_an_encoder_zero_no_torque_depends_on_is_said_to_be_unseen(tmp_path, capsys):
+    """The UR5e's joint 1 turns the whole arm about gravity's axis: no torque depends on its
+    angle, so an encoder offset there cannot be found from torques. `hil diagnose --reference`
+    says so (``nominal.unseen``, and the summary), names no finding, and lists only joint 1
+    (every other joint's angle moves some gravity or inertia torque)."""
+    ref = tmp_path / "ref"
+    args = ["simulate", "--robot", ROBOT, "--experiment", EXPERIMENT, "--duration", "4"]
+    assert vr_main([*args, "--out", str(ref), "--no-plot"]) == 0
+    shifted = with_effect(ref, tmp_path / "angle", "angle", 1, 0.04)
+    capsys.readouterr()
+    diagnose = ["diagnose", str(shifted), "--reference", str(ref), "--json", "--no-plots"]
+    assert hil_main(diagnose) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["nominal"]["findings"] == [], doc["summary"]
+    assert [(u["effect"], u["joint"]) for u in doc["nominal"]["unseen"]] == [("encoder_offset", 1)]
+    assert (
+        "cannot show an encoder offset on joint 1: no torque depends on its angle"
+        in (doc["summary"])
+    )

@@ -175,7 +175,7 @@ def run_diagnose(args: argparse.Namespace) -> tuple[dict, list[Recording]]:
             np.asarray(reference, float),
             model,
             "params",
-            f"--params {args.params}",
+            f"--params {args.params}" + (f": {why}" if why else ""),
             geometry=geometry,
         )
     elif not args.refit:
@@ -233,8 +233,9 @@ def _references(
     args: argparse.Namespace, read: Callable[[str], Recording]
 ) -> tuple[list[Recording], str]:
     """The reference recordings the nominal model is identified from, and what the report
-    calls it: ``--reference``, or the recording ``--params`` was identified from when `hil
-    identify` fingerprinted it and it is found unchanged (drivers.recording.source). That
+    calls it (with none: why ``--params``'s recording was not used, or ""): ``--reference``,
+    or the recording ``--params`` was identified from when `hil identify` fingerprinted it and
+    it is found unchanged (drivers.recording.source). That
     recording, not θ alone, is the model the parameters stand for: re-identified on the
     diagnosis's own rows it is compared row by row with a recording that reruns its motion,
     where θ from another estimator's rows and filter differs from it by more than the changes
@@ -245,21 +246,27 @@ def _references(
         return [read(p) for p in args.reference], f"the model identified from {named}"
     if not args.params:
         return [], ""
-    from drivers.recording.source import find_source
+    from drivers.recording.source import SHA256, find_source
     from hil.model.params import read_json_object
 
-    source = find_source(read_json_object(Path(args.params)), args.params)
+    document = read_json_object(Path(args.params))
+    source = find_source(document, args.params)
     if source is None:
-        return [], ""
+        if not document.get(SHA256):
+            return [], ""
+        # fingerprinted, but moved or changed since: said here and in the report's `why`
+        missing = (
+            f"identified from {document.get('recording')}, not found unchanged (as named, "
+            "beside the parameter file, at its absolute path); judged against its θ alone"
+        )
+        say("diagnose", f"note: --params {args.params} was {missing}")
+        return [], missing
     try:
         rec = read(str(source))
     except (RecordingError, ValueError) as exc:  # read differently from --format/--columns
-        say(
-            "diagnose",
-            f"note: --params {args.params}: its recording {source} not read ({exc}); "
-            "judged against its θ alone",
-        )
-        return [], ""
+        missing = f"identified from {source}, not read ({exc}); judged against its θ alone"
+        say("diagnose", f"note: --params {args.params} was {missing}")
+        return [], missing
     say(
         "diagnose",
         f"note: --params {args.params} was identified from {source} (unchanged): the "
@@ -267,6 +274,10 @@ def _references(
     )
     why = f"--params {args.params}, re-identified from the recording it was identified from"
     return [rec], f"{why} ({source}, unchanged since)"
+
+
+def _article(word: str) -> str:
+    return "an" if word[:1] in "aeiou" else "a"
 
 
 def arm_geometry(robot: str) -> dict[str, float] | None:
@@ -419,6 +430,13 @@ def merge_drift(doc: dict, drift: DriftResult) -> None:
                     for u in drift.document["unresolved"]
                 )
                 + "."
+            )
+        for u in drift.document.get("unseen", []):
+            head += (
+                f" These recordings cannot show {_article(u['effect'])} "
+                f"{u['effect'].replace('_', ' ')}"
+                + (f" on joint {u['joint']}" if u["joint"] else "")
+                + f": {u['why']}."
             )
         if drift.document.get("in_reference"):
             head += (

@@ -57,6 +57,8 @@ class Fit:
     # term stepped by Gauss–Newton leaves its old points behind (twenty builds of a Panda
     # payload's columns kept were 0.2 GB)
     _ref_terms: dict[str, tuple[str, Term]] = field(default_factory=dict)
+    # the patterns no torque of the recordings changes with (:func:`select.unseen`), by key
+    unseen: dict[str, Term] = field(default_factory=dict)
 
     def on_reference(self, term: Term) -> Term:
         """``term`` (same effect, joint and linearisation point) built on the reference rows."""

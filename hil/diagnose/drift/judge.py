@@ -397,6 +397,15 @@ def judge(
         "held_out_position_nrmse": position,
         "findings": [f.as_dict() for f in findings],
         "unresolved": unresolved if used else [],
+        "unseen": [
+            {
+                "term": t.key,
+                "effect": t.effect.name,
+                "joint": None if t.joint is None else t.joint + 1,
+                "why": t.effect.when_unseen or "no torque of the recordings changes with it",
+            }
+            for t in fit.unseen.values()
+        ],
         "tested": tested,
         "not_findings": not_findings,
     }

@@ -175,6 +175,19 @@ def drift_candidates(ctx: Context, reference: bool = False) -> list[Term]:
     ]
 
 
+# a pattern whose columns are all under this fraction of the largest nominal torque is one no
+# torque of the recordings changes with: round-off (Panda joint 1's encoder angle: ~1e-15)
+UNSEEN = 1e-9
+
+
+def unseen(fit: Fit, term: Term) -> bool:
+    """Whether ``term`` (built) changes no torque of the recordings: an encoder angle of a first
+    axis along gravity (the whole arm turns about it; no inertia, Coriolis or gravity torque
+    depends on it). No data of these recordings can show it; the report says so."""
+    scale = float(np.max(np.abs(np.nan_to_num(fit.ctx.predicted())), initial=0.0))
+    return scale > 0 and float(np.max(np.abs(term.cols), initial=0.0)) <= UNSEEN * scale
+
+
 def select_terms(
     fit: Fit, cands: list[Term], say: Callable[[str], None], start: Sequence[Term] = ()
 ) -> tuple[list[Term], dict[str, dict]]:
@@ -189,10 +202,13 @@ def select_terms(
         best = None
         keys = {t.key for t in accepted}
         for c in cands:
-            if c.key in keys or not c.effect.primary:
+            if c.key in keys or c.key in fit.unseen or not c.effect.primary:
                 continue
             if c.key not in built:
                 built[c.key] = fit.build(Term(c.effect, c.joint, c.at))
+                if unseen(fit, built[c.key]):
+                    fit.unseen[c.key] = built.pop(c.key)
+                    continue
             term = built[c.key]
             joints = term.effect.acts_on(fit.ctx, c.joint)
             if term.effect.nonlinear and not term.searched:

@@ -118,6 +118,9 @@ class Effect:
     # between them), so its point is stepped on the paired difference; False: a change of the
     # model's input (an encoder angle), taken off both sides alike at the same point
     shifts_recorded_torque: bool = False
+    # what would show it where no torque of the recordings changes with it (its columns are
+    # round-off: :func:`hil.diagnose.drift.select.unseen`), said in the report
+    when_unseen: str = ""
 
     def applies(self, ctx: Context) -> bool:
         return True

@@ -92,6 +92,11 @@ class EncoderOffset(Effect):
         "offset moves every reading, a centre-of-mass offset only the gravity torque"
     )
     floor = 3e-4  # rad
+    when_unseen = (
+        "no torque depends on its angle (a first axis along gravity turns the whole arm and "
+        "changes no torque); hold the joint at a known angle (a level, the index pulse) to "
+        "check its zero"
+    )
     step_tolerance = 1e-7  # rad: 0.03 % of the floor
 
     def acts_on(self, ctx: Context, joint: int | None) -> list[int]:
