@@ -185,10 +185,10 @@ def simulation_gate(
             # improve the motion, so the last accepted goes (the others stood without it)
             last = accepted[-1].cand.key
             group = RATE_TERM if accepted[-1].cand.spec.is_rate else last
-            first = _free_reading_failed(findings, group)  # a gain's θ-free reading failed
             if diverged:
                 dropped[group] = "with it the refit's held-out simulation diverges"
             else:
+                first = _free_reading_failed(findings, group)  # a gain's θ-free reading failed
                 lead = (
                     first + "has a held-out refit that is not physical ("
                     if first

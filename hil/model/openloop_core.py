@@ -583,12 +583,12 @@ def integrate_chunks(
             before, after = whole[0][first : first + rows], whole[1][first : first + rows]
             segments = whole[2]
         before, after = applied(before), applied(after)
-        q_out = [state[:n]] * rows
-        dq_out = [state[n:]] * rows
         stuck_out = [tuple(stuck)] * rows
-        k = rows if diverged else 0  # NaN from a divergence on
-        if diverged:
+        if diverged:  # NaN from a divergence on: this chunk is not stepped
             q_out = dq_out = [lost] * rows
+            k = rows
+        else:
+            q_out, dq_out, k = [state[:n]] * rows, [state[n:]] * rows, 0
         while k < rows:
             if fast is not None and first + k < n_rows - 1:
                 levels = (friction.level(0, direction[0]), friction.level(1, direction[1]))
