@@ -472,3 +472,37 @@ def test_a_delay_under_torque_noise_is_not_shrunk(tmp_path):
     est = _only(_judge(rec, ref), "transport_delay")
     delay = truth["magnitude"]["delay_s"]
     assert abs(est["delay_s"] - delay) <= 0.1 * delay, (est, delay)
+
+
+PENDULUM_FILE = (
+    Path(__file__).parent / "data" / "dfki-pendulum" / "control_method_ilqr__data_measured.csv"
+)
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_payload_on_a_one_joint_pendulum_is_found_with_its_mass(tmp_path, capsys, seed):
+    """A point mass written into the committed DFKI pendulum file (one joint: a mass at the
+    joint's frame origin makes no torque, so the mass is seen only through its inertia about
+    the axis and its first moment; hil.diagnose.effects.payload, the degenerate form). Judged
+    against the unmodified file from the command line: the payload alone, its mass within 35 %
+    (the mass column of the (m, m c) form was zero: "no finite size", and a torque gain or a
+    126-period cogging took its place); its centre along the axis said to be undetermined."""
+    import json
+
+    from hil.cli import main as hil_main
+
+    gen = _generator()
+    src = gen.pendulum_source(PENDULUM_FILE)
+    out, truth = gen.make_effect(src, "payload", 0, np.random.default_rng(seed))
+    rec, ref = tmp_path / "recording.csv", tmp_path / "reference.csv"
+    out.write(rec)
+    src.write(ref)
+    capsys.readouterr()
+    args = [str(rec), "--reference", str(ref), *out.diagnose_args(), "--json", "--no-plots"]
+    assert hil_main(["diagnose", *args]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    found = [(f["effect"], f["joint"]) for f in doc["nominal"]["findings"]]
+    assert found == [("payload", None)], doc["summary"]
+    est, mass = doc["nominal"]["findings"][0]["estimate"], truth["magnitude"]["mass_kg"]
+    assert abs(est["mass_kg"] - mass) <= WITHIN * mass, (est, mass)
+    assert est["centre_not_determined"] == ["x"], est  # the pendulum's axis

@@ -3,7 +3,7 @@ unmodified recording, the same recording with exactly one known effect written i
 ``truth.json`` saying which (effect, joint, size).
 
     .venv/bin/python tests/benchmarks/make_real_effect_set.py --out DIR [--seed 0]
-        [--robot dfki-a0,dfki-c0,panda,kuka-lwr4] [--only K]
+        [--robot dfki-a0,dfki-c0,panda,kuka-lwr4,dfki-pendulum] [--only K]
 
 Sources (``SOURCES``; the real data of ../shared/realdata, tests/realdata.py):
   * ``dfki-a0``, ``dfki-c0``: the DFKI double pendulum's system-identification recordings of
@@ -15,6 +15,10 @@ Sources (``SOURCES``; the real data of ../shared/realdata, tests/realdata.py):
   * ``kuka-lwr4``: the two runs of FloBaRoID's KUKA LWR4+ (``kuka-lwr4-flobaroid``, LGPL-3;
     ~25 s at 200 Hz), each written as the standard CSV (tests/realdata.py ``kuka_columns``: the
     joint-torque sensors' torque); the payload on the profile's a priori URDF.
+  * ``dfki-pendulum``: the five controllers' recordings of the DFKI simple pendulum (BSD-3),
+    written in their own layout (time, position, velocity, torque) and read with ``--columns
+    t=time,q1=position,tau1=torque``; the payload on the profile's URDF (one joint: a mass seen
+    through its inertia about the axis and its first moment).
 The files made from Panda or KUKA data must stay out of the repository: write them to a
 temporary or runs directory only (``--out`` under the repository is refused for them).
 
@@ -70,7 +74,7 @@ import re
 import shutil
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -114,6 +118,7 @@ PLAN = {
     "dfki-c0": (*EFFECTS, "null:same", "null:other"),
     "panda": (*SEVEN_JOINT, "null:same"),
     "kuka-lwr4": (*SEVEN_JOINT, "coulomb_asymmetry", "null:same", "null:other"),
+    "dfki-pendulum": (*EFFECTS, "null:same", "null:other"),
 }
 DEAD_BAND_RAD_S = 0.01  # sgn(q̇) = 0 below this smoothed speed (a Coulomb law's sticking band)
 
@@ -136,7 +141,7 @@ class Source:
     urdf_xml: str
     gravity_m_s2: float
     fmt: str | None  # --format to read the written files with
-    extra: dict[str, Any] = field(default_factory=dict)
+    columns: str | None = None  # else --columns to read them with
 
     def col(self, name: str) -> np.ndarray:
         return self.data[:, self.header.index(name)]
@@ -170,7 +175,10 @@ class Source:
 
     def diagnose_args(self) -> list[str]:
         """The `hil diagnose` / `hil identify` options that read the written files."""
-        return (["--format", self.fmt] if self.fmt else []) + ["--robot", self.robot]
+        read = ["--format", self.fmt] if self.fmt else []
+        return (
+            read + (["--columns", self.columns] if self.columns else []) + ["--robot", self.robot]
+        )
 
 
 def _dfki_urdf_xml(robot: str) -> str:
@@ -236,12 +244,34 @@ def kuka_sources() -> list[Source]:
     return sources
 
 
+PENDULUM = "dfki-simple-pendulum"
+PENDULUM_COLUMNS = "t=time,q1=position,tau1=torque"  # docs/real-data.md, "DFKI simple pendulum"
+
+
+def pendulum_source(path: Path) -> Source:
+    """One recording of the DFKI simple pendulum (BSD-3) in its own layout (time, position,
+    velocity, torque), read with ``--columns``; the payload on the profile's URDF."""
+    profile = load_any_robot("dfki-pendulum")
+    xml = Path(profile.urdf).read_text(encoding="utf-8")
+    header = path.read_text(encoding="utf-8").split("\n", 1)[0].strip().split(",")
+    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    return Source(path.stem, "dfki-pendulum", path, "BSD-3-Clause", header, data, "time",
+                  ("position",), ("torque",), 0, xml, profile.gravity_m_s2, None,
+                  PENDULUM_COLUMNS)  # fmt: skip
+
+
+def pendulum_sources() -> list[Source]:
+    """The five controllers' recordings of the DFKI simple pendulum."""
+    return [pendulum_source(p) for p in sorted((realdata(PENDULUM) / "records").glob("*.csv"))]
+
+
 # robot -> its recordings
 SOURCES: dict[str, Callable[[], list[Source]]] = {
     "dfki-a0": lambda: dfki_sources("dfki-a0"),
     "dfki-c0": lambda: dfki_sources("dfki-c0"),
     "panda": panda_sources,
     "kuka-lwr4": kuka_sources,
+    "dfki-pendulum": pendulum_sources,
 }
 # the recordings whose licence keeps them (and every file made from them) out of the tree
 OUTSIDE_TREE = ("panda", "kuka-lwr4")

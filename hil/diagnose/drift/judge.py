@@ -163,7 +163,9 @@ def size_gates(fit: Fit, accepted: list[Term], nominal: Nominal, tests: int) -> 
         ev = evidence(
             fit.judged_cv(others), fit.judged_cv(accepted), t.effect.acts_on(fit.ctx, t.joint)
         )
-        if not (np.isfinite(size) and np.isfinite(size_se)):
+        if why := t.effect.unresolvable(fit.ctx, t.joint, t.at):
+            failed[t.key] = why
+        elif not (np.isfinite(size) and np.isfinite(size_se)):
             failed[t.key] = f"the data give it no finite size ({size:.3g} ± {size_se:.2g})"
         elif not drift_passes(fit, others, t, ev, tests):
             failed[t.key] = "its held-out proof on top of the others failed"

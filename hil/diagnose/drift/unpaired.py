@@ -71,8 +71,14 @@ def _with_theta(fit: Fit, terms: Sequence[Term]) -> tuple[CrossValidation, Block
 
 def outside_theta(stats: BlockStats, width: int) -> float:
     """The smallest fraction of the last ``width`` columns' energy (unit-norm columns) that
-    θ's columns, the others, cannot take up: the Schur complement's least eigenvalue."""
-    G = stats.G.sum(axis=(0, 1))
+    θ's columns, the others, cannot take up (:func:`energy_outside`)."""
+    return energy_outside(stats.G.sum(axis=(0, 1)), width)
+
+
+def energy_outside(G: np.ndarray, width: int) -> float:
+    """Of a Gram matrix G (p, p), the smallest fraction of the last ``width`` columns' energy
+    (unit-norm columns) that the other columns cannot take up: the Schur complement's least
+    eigenvalue."""
     d = np.sqrt(np.maximum(np.diag(G), 1e-300))
     G = G / np.outer(d, d)
     a, b = G[:-width, :-width], G[:-width, -width:]

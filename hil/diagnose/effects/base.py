@@ -165,6 +165,12 @@ class Effect:
         :meth:`columns`, the same on both sides for a pattern of the motion alone."""
         return None
 
+    def unresolvable(self, ctx: Context, joint: int | None, at: Any) -> str | None:
+        """Why the rows cannot resolve the pattern at the point ``at`` at all (what their own
+        filter leaves of it is too little to size it by), None when they can: its size would
+        be read from a remnant scaled up, so it is no finding whatever its SE."""
+        return None
+
     def smallest(self, ctx: Context, joint: int | None) -> float:
         """The smallest size worth naming, in the size's units: :attr:`floor`, or that fraction
         of the joint's RMS torque where :attr:`floor_of_torque` (a size in Nm)."""

@@ -7,6 +7,14 @@ m (1, c, |c|² 1 − c cᵀ) to them; with h = m c that is linear in (m, h) once
 held at ĉ: m I = (ĉ·h) 1 − ½ (h ĉᵀ + ĉ hᵀ) (exact at ĉ = c), so the fit is repeated with
 ĉ = h / m.
 
+Where the last body's frame origin lies on every joint axis (a one-joint pendulum: a mass at
+the origin makes no torque), m has no column of its own in that form and is seen only through
+the mass's inertia about the axes. There the point mass is fitted as the 2-DOF one below, by
+Gauss–Newton in its centre: X = [Y φ(1, ĉ), Y ∂φ/∂c_k (ĉ)] with φ(m, c) the ten parameters above,
+β = (m, m δc), the next ĉ = ĉ + δc, from a centre on either side of each axis
+(:data:`DEGENERATE_STARTS` times the body's own centre-of-mass distance); a centre along an
+axis that no torque sees (the pendulum's own axis) stays where it started.
+
 On the 2-DOF closed form (Reyes & Kelly (1997), Section 5) a point mass m on link 2 at l_p from
 joint 2 adds Δθ1 = m (l1² + l_p²), Δθ2 = l1 m l_p, Δθ3 = m l_p², Δθ4 = g m l1, Δθ5 = g m l_p
 (:func:`virtual_robot.effects.payload_theta` without its own inertia): the torque
@@ -46,6 +54,49 @@ def _last_body(ctx: Context) -> np.ndarray:
     """E's columns of the last body's standard parameters (p_base, 10)."""
     n = ctx.n_joints
     return ctx.model.base.expand[:, 10 * (n - 1) : 10 * n]
+
+
+def _body_rows(ctx: Context) -> np.ndarray:
+    """Y (K, n, 10): the rows of the last body's standard parameters."""
+    return ctx.Psi_raw @ _last_body(ctx)
+
+
+# the mass column of a mass at the last frame's origin is round-off against its first moments'
+# (module doc): below this fraction of their norm the point mass is fitted in its centre
+DEGENERATE_MASS = 1e-9
+# the degenerate form's starting centres: on either side of each axis of the last frame, at
+# these multiples of the last body's centre-of-mass distance (0.1 m where it has none)
+DEGENERATE_STARTS = (1.0,)
+
+
+def _degenerate(ctx: Context) -> bool:
+    """Whether a mass at the last frame's origin makes no torque (module doc)."""
+    if ("payload", "degenerate") not in ctx.memo:
+        Y = _body_rows(ctx)
+        moments = float(np.linalg.norm(Y[:, :, 1:4]))
+        ctx.memo[("payload", "degenerate")] = bool(
+            moments > 0 and np.linalg.norm(Y[:, :, 0]) <= DEGENERATE_MASS * moments
+        )
+    return ctx.memo[("payload", "degenerate")]
+
+
+def _unit_mass_rows(Y: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Y φ(1, c) (K, n) and its derivatives in c (K, n, 3): a unit point mass at c."""
+    value = Y @ point_mass_standard(1.0, c)
+    slopes = []
+    for k in range(3):
+        e = np.zeros(3)
+        e[k] = 1.0
+        d_inertia = 2 * c[k] * np.eye(3) - (np.outer(e, c) + np.outer(c, e))
+        slopes.append(Y[:, :, 1 + k] + Y[:, :, 4:] @ _inertia_vector(d_inertia))
+    return value, np.stack(slopes, axis=-1)
+
+
+def _body_lever(ctx: Context) -> float:
+    """The last body's centre-of-mass distance from its frame in the profile's URDF (m); 0.1
+    where it has none."""
+    std = np.asarray(ctx.model.standard_theta, float)[10 * (ctx.n_joints - 1) :][:4]
+    return float(np.linalg.norm(std[1:4]) / std[0]) if std[0] > 0 else 0.1
 
 
 # starting centres of the 2-DOF point mass, in link-1 lengths from joint 2 (module doc), a
@@ -111,31 +162,49 @@ class Payload(Effect):
     step_tolerance = 1e-7  # m of the centre
     tested_jointly = True  # the mass beside the centre's step (Effect.tested_jointly)
 
+    def _in_centre(self, ctx: Context) -> bool:
+        """Fitted by Gauss–Newton in its centre, β = (m, m δc): the 2-DOF closed form, and a
+        URDF arm whose mass column is degenerate (module doc)."""
+        return ctx.closed_form or _degenerate(ctx)
+
     def start(self, ctx: Context, joint: int | None) -> Any:
+        if not ctx.closed_form and _degenerate(ctx):
+            return self.starts(ctx, joint)[0]
         return np.zeros(1 if ctx.closed_form else 3)
 
     def starts(self, ctx: Context, joint: int | None) -> list[Any]:
-        if not ctx.closed_form:
+        if ctx.closed_form:
+            assert ctx.geometry is not None
+            return [np.array([k * ctx.geometry["link1_m"]]) for k in PLANAR_STARTS]
+        if not _degenerate(ctx):
             return [self.start(ctx, joint)]
-        assert ctx.geometry is not None
-        return [np.array([k * ctx.geometry["link1_m"]]) for k in PLANAR_STARTS]
+        lever = _body_lever(ctx) or 0.1
+        return [
+            sign * k * lever * np.eye(3)[axis]
+            for k in DEGENERATE_STARTS
+            for axis in range(3)
+            for sign in (1.0, -1.0)
+        ]
 
     def point_columns(self, ctx: Context, cols: np.ndarray) -> np.ndarray:
         # the 2-DOF mass at l̂ is x(l̂) alone: with x'(l̂) free as well, a start at 0.2 m fitted
         # a DFKI C.0 payload (0.20 kg at 0.37 m) better than one at 0.4 m, and its steps went to
-        # −0.62 kg at 0.04 m
-        return cols[..., :1] if ctx.closed_form else cols
+        # −0.62 kg at 0.04 m (the same for a centre fitted in three directions)
+        return cols[..., :1] if self._in_centre(ctx) else cols
 
     def change_point(self, ctx: Context, joint: int | None, at: Any) -> Any:
-        # the 2-DOF β = (m, m δl) holds the mass itself; a URDF arm's (m, m c) at ĉ as well,
-        # its centre read from the start as before
-        return at if ctx.closed_form else self.start(ctx, joint)
+        # β = (m, m δc) holds the mass itself; a URDF arm's (m, m c) at ĉ as well, its centre
+        # read from the start as before
+        return at if self._in_centre(ctx) else self.start(ctx, joint)
 
     def columns(self, ctx: Context, joint: int | None, at: Any) -> np.ndarray:
         if ctx.closed_form:
             return _planar_columns(ctx, float(np.asarray(at).ravel()[0]))
-        Y = ctx.Psi_raw @ _last_body(ctx)  # (K, n, 10): rows of the last body's parameters
+        Y = _body_rows(ctx)  # (K, n, 10): rows of the last body's parameters
         c = np.asarray(at, float)
+        if _degenerate(ctx):
+            value, slopes = _unit_mass_rows(Y, c)
+            return np.concatenate([value[..., None], slopes], axis=-1)
         cols = [Y[:, :, 0]]
         for k in range(3):
             e = np.zeros(3)
@@ -152,6 +221,10 @@ class Payload(Effect):
             l1 = ctx.geometry["link1_m"]
             step = float(np.clip(beta[1] / m, -l1, l1)) if abs(m) > 1e-9 else 0.0
             return np.asarray(at, float) + step
+        if _degenerate(ctx):  # a Gauss–Newton step of the centre, at most its scale at a time
+            lever = _body_lever(ctx) or 0.1
+            step = np.asarray(beta[1:], float) / m if abs(m) > 1e-9 else np.zeros(3)
+            return np.asarray(at, float) + np.clip(step, -lever, lever)
         k = len(beta) - 1
         return np.asarray(beta[1:], float) / m if abs(m) > 1e-9 else np.zeros(k)
 
@@ -172,17 +245,22 @@ class Payload(Effect):
             )
         c = np.asarray(beta[1:4], float) / m if abs(m) > 1e-9 else np.zeros(3)
         c_se = np.asarray(se[1:4], float) / max(abs(m), 1e-9)
-        return (
-            {
-                "mass_kg": rounded(m),
-                "mass_se_kg": rounded(s),
-                "centre_m": [rounded(x) for x in c],
-                "centre_se_m": [rounded(x) for x in c_se],
-                "body": f"the last body (joint {ctx.n_joints}'s frame)",
-            },
-            m,
-            s,
-        )
+        unseen: list[str] = []
+        if _degenerate(ctx):  # β = (m, m δc) at ĉ; a direction no torque sees stays at ĉ
+            c = np.asarray(at, float) + c
+            value, slopes = _unit_mass_rows(_body_rows(ctx), np.asarray(at, float))
+            floor = DEGENERATE_MASS * float(np.linalg.norm(value))
+            unseen = ["xyz"[k] for k in range(3) if np.linalg.norm(slopes[..., k]) <= floor]
+        out = {
+            "mass_kg": rounded(m),
+            "mass_se_kg": rounded(s),
+            "centre_m": [rounded(x) for x in c],
+            "centre_se_m": [rounded(x) for x in c_se],
+            "body": f"the last body (joint {ctx.n_joints}'s frame)",
+        }
+        if unseen:  # its centre along the joint axis: no torque depends on it
+            out["centre_not_determined"] = unseen
+        return out, m, s
 
     def words(self, e: dict[str, Any]) -> str:
         c = ", ".join(f"{x:+.3g}" for x in e["centre_m"])
@@ -192,7 +270,11 @@ class Payload(Effect):
                 f"a point mass of {-m:.3g} ± {e['mass_se_kg']:.2g} kg at ({c}) m on {e['body']} "
                 "that the model has and the arm lacks (a load taken off)"
             )
-        return f"a payload of {m:.3g} ± {e['mass_se_kg']:.2g} kg at ({c}) m on {e['body']}"
+        unseen = e.get("centre_not_determined")
+        along = (
+            f" (its {', '.join(unseen)} not determined: no torque depends on it)" if unseen else ""
+        )
+        return f"a payload of {m:.3g} ± {e['mass_se_kg']:.2g} kg at ({c}) m on {e['body']}{along}"
 
     def unphysical(self, ctx, joint, e, source):
         # a mass added leaves every body physical; one taken off must leave a body behind. The
