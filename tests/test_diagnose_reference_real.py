@@ -506,3 +506,61 @@ def test_payload_on_a_one_joint_pendulum_is_found_with_its_mass(tmp_path, capsys
     est, mass = doc["nominal"]["findings"][0]["estimate"], truth["magnitude"]["mass_kg"]
     assert abs(est["mass_kg"] - mass) <= WITHIN * mass, (est, mass)
     assert est["centre_not_determined"] == ["x"], est  # the pendulum's axis
+
+
+def test_an_encoder_angle_on_the_pendulum_is_named_not_a_point_mass(tmp_path, capsys):
+    """A 0.03 rad encoder offset written into the committed pendulum file: a point mass, whose
+    three numbers span every rigid change of a one-joint arm, explains the change as well as the
+    angle (to 0.01 %) and holds it within its columns; the one-coefficient pattern is named
+    (drift.select._narrowest_as_good)."""
+    import json
+
+    from hil.cli import main as hil_main
+
+    gen = _generator()
+    src = gen.pendulum_source(PENDULUM_FILE)
+    out, truth = gen.make_effect(src, "angle_offset", 0, _Sequence(0.03))
+    rec, ref = tmp_path / "recording.csv", tmp_path / "reference.csv"
+    out.write(rec)
+    src.write(ref)
+    capsys.readouterr()
+    args = [str(rec), "--reference", str(ref), *out.diagnose_args(), "--json", "--no-plots"]
+    assert hil_main(["diagnose", *args]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    found = [(f["effect"], f["joint"]) for f in doc["nominal"]["findings"]]
+    assert found == [("encoder_offset", 1)], doc["summary"]
+    angle = truth["magnitude"]["offset_rad"]
+    est = doc["nominal"]["findings"][0]["estimate"]["offset_rad"]
+    assert abs(est - angle) <= WITHIN * abs(angle), (est, angle)
+
+
+def test_a_cogging_the_rows_filter_takes_out_is_not_resolved():
+    """On the pendulum's fast swings the rows' moving average keeps a few percent of a
+    126-period cogging's power and most of a 3-period one's: the first is not resolvable
+    (Effect.unresolvable, MIN_KEPT_POWER), the second is."""
+    from hil.cli_options import read_recording as read
+    from hil.diagnose.drift.judge import problem_inputs
+    from hil.diagnose.effects import REGISTRY, Context
+    from hil.diagnose.effects.cogging import MIN_KEPT_POWER
+    from hil.diagnose.problem import build_problem
+    from hil.model.urdf import UrdfArmModel
+
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    args = p.parse_args(
+        [
+            str(PENDULUM_FILE),
+            "--robot",
+            "dfki-pendulum",
+            "--columns",
+            "t=time,q1=position,tau1=torque",
+        ]
+    )
+    model = UrdfArmModel.from_profile("dfki-pendulum")
+    rec = read(args, PENDULUM_FILE, command="diagnose", min_rows=2, joints=1, allow_gaps=True)
+    prob, theta = build_problem(problem_inputs([rec]), model)
+    ctx = Context(prob.rows, model, theta, prob.Psi_raw)
+    cogging = REGISTRY["cogging"]
+    why = cogging.unresolvable(ctx, 0, 126.0)
+    assert why is not None and f"under {100 * MIN_KEPT_POWER:g} %" in why, why
+    assert cogging.unresolvable(ctx, 0, 3.0) is None
