@@ -479,6 +479,25 @@ PENDULUM_FILE = (
 )
 
 
+def _pendulum_case(tmp_path: Path, capsys, effect: str, draws: Any) -> tuple[dict, dict]:
+    """``effect`` written into the committed pendulum file (the generator's draws ``draws``),
+    diagnosed from the command line against the unmodified file: the JSON and the truth."""
+    import json
+
+    from hil.cli import main as hil_main
+
+    gen = _generator()
+    src = gen.pendulum_source(PENDULUM_FILE)
+    out, truth = gen.make_effect(src, effect, 0, draws)
+    rec, ref = tmp_path / "recording.csv", tmp_path / "reference.csv"
+    out.write(rec)
+    src.write(ref)
+    capsys.readouterr()
+    args = [str(rec), "--reference", str(ref), *out.diagnose_args(), "--json", "--no-plots"]
+    assert hil_main(["diagnose", *args]) == 0
+    return json.loads(capsys.readouterr().out), truth
+
+
 @pytest.mark.parametrize("seed", [0, 3])
 def test_payload_on_a_one_joint_pendulum_is_found_with_its_mass(tmp_path, capsys, seed):
     """A point mass written into the committed DFKI pendulum file (one joint: a mass at the
@@ -487,20 +506,7 @@ def test_payload_on_a_one_joint_pendulum_is_found_with_its_mass(tmp_path, capsys
     against the unmodified file from the command line: the payload alone, its mass within 35 %
     (the mass column of the (m, m c) form was zero: "no finite size", and a torque gain or a
     126-period cogging took its place); its centre along the axis said to be undetermined."""
-    import json
-
-    from hil.cli import main as hil_main
-
-    gen = _generator()
-    src = gen.pendulum_source(PENDULUM_FILE)
-    out, truth = gen.make_effect(src, "payload", 0, np.random.default_rng(seed))
-    rec, ref = tmp_path / "recording.csv", tmp_path / "reference.csv"
-    out.write(rec)
-    src.write(ref)
-    capsys.readouterr()
-    args = [str(rec), "--reference", str(ref), *out.diagnose_args(), "--json", "--no-plots"]
-    assert hil_main(["diagnose", *args]) == 0
-    doc = json.loads(capsys.readouterr().out)
+    doc, truth = _pendulum_case(tmp_path, capsys, "payload", np.random.default_rng(seed))
     found = [(f["effect"], f["joint"]) for f in doc["nominal"]["findings"]]
     assert found == [("payload", None)], doc["summary"]
     est, mass = doc["nominal"]["findings"][0]["estimate"], truth["magnitude"]["mass_kg"]
@@ -513,20 +519,7 @@ def test_an_encoder_angle_on_the_pendulum_is_named_not_a_point_mass(tmp_path, ca
     three numbers span every rigid change of a one-joint arm, explains the change as well as the
     angle (to 0.01 %) and holds it within its columns; the one-coefficient pattern is named
     (drift.select._narrowest_as_good)."""
-    import json
-
-    from hil.cli import main as hil_main
-
-    gen = _generator()
-    src = gen.pendulum_source(PENDULUM_FILE)
-    out, truth = gen.make_effect(src, "angle_offset", 0, _Sequence(0.03))
-    rec, ref = tmp_path / "recording.csv", tmp_path / "reference.csv"
-    out.write(rec)
-    src.write(ref)
-    capsys.readouterr()
-    args = [str(rec), "--reference", str(ref), *out.diagnose_args(), "--json", "--no-plots"]
-    assert hil_main(["diagnose", *args]) == 0
-    doc = json.loads(capsys.readouterr().out)
+    doc, truth = _pendulum_case(tmp_path, capsys, "angle_offset", _Sequence(0.03))
     found = [(f["effect"], f["joint"]) for f in doc["nominal"]["findings"]]
     assert found == [("encoder_offset", 1)], doc["summary"]
     angle = truth["magnitude"]["offset_rad"]
