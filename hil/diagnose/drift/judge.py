@@ -407,6 +407,7 @@ def judge(
                 "why": t.effect.when_unseen or "no torque of the recordings changes with it",
             }
             for t in fit.unseen.values()
+            if used  # with the model refused, no drift is read at all (as unresolved)
         ],
         "tested": tested,
         "not_findings": not_findings,
