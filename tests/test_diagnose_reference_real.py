@@ -557,3 +557,37 @@ def test_a_cogging_the_rows_filter_takes_out_is_not_resolved():
     why = cogging.unresolvable(ctx, 0, 126.0)
     assert why is not None and f"under {100 * MIN_KEPT_POWER:g} %" in why, why
     assert cogging.unresolvable(ctx, 0, 3.0) is None
+
+
+def test_the_change_and_the_findings_model_of_it_are_plotted(tmp_path, monkeypatch):
+    """`hil diagnose --reference ... --out DIR` writes change.png: the paired difference the
+    findings were judged on and their model of it (hil.diagnose.plots.plot_change); the arrays
+    behind it hold a payload's change to within 15 % of its RMS (99 % of its square)."""
+    import json
+
+    import hil.diagnose.cli as diagnose_cli
+    from hil.cli import main as hil_main
+
+    gen = _generator()
+    src = gen.pendulum_source(PENDULUM_FILE)
+    out, _truth = gen.make_effect(src, "payload", 0, np.random.default_rng(0))
+    rec, ref = tmp_path / "recording.csv", tmp_path / "reference.csv"
+    out.write(rec)
+    src.write(ref)
+    seen = {}
+
+    def keep(*a, **k):
+        seen["drift"] = judge(*a, **k)
+        return seen["drift"]
+
+    monkeypatch.setattr(diagnose_cli, "judge", keep)
+    args = [str(rec), "--reference", str(ref), *out.diagnose_args(), "--out", str(tmp_path / "d")]
+    assert hil_main(["diagnose", *args, "-q"]) == 0
+    doc = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    assert str(tmp_path / "d" / "change.png") in doc["plots"]
+    assert (tmp_path / "d" / "change.png").stat().st_size > 10_000
+    a = seen["drift"].arrays
+    use = a["weight"][:, 0] > 0
+    change, model = a["change"][use, 0], a["modelled"][use, 0]
+    rms = float(np.sqrt(np.mean(change**2)))
+    assert rms > 0 and float(np.sqrt(np.mean((change - model) ** 2))) < 0.15 * rms

@@ -206,11 +206,13 @@ def run_diagnose(args: argparse.Namespace) -> tuple[dict, list[Recording]]:
         paths = [torque_path_of(rec, args.recording_format) for rec in recs]
         if any(paths):
             doc["torque_path"] = [p for p in paths if p]
+    drift = None
     if judged_against is not None:
         # the rows diagnose built, when in the nominal model's parameters: not built again
         same = all(r.model is judged_against.model for r in result.diagnosis.rows)
         rows = result.diagnosis.rows if same else None
-        merge_drift(doc, judge(recs, judged_against, progress=_progress, rows=rows))
+        drift = judge(recs, judged_against, progress=_progress, rows=rows)
+        merge_drift(doc, drift)
     else:
         doc["nominal"] = {
             "source": "refit",
@@ -222,9 +224,12 @@ def run_diagnose(args: argparse.Namespace) -> tuple[dict, list[Recording]]:
         out.mkdir(parents=True, exist_ok=True)
         write_json_atomic(out / "diagnosis.json", doc)
         if not args.no_plot:
-            from hil.diagnose.plots import plot_diagnosis
+            from hil.diagnose.plots import plot_change, plot_diagnosis
 
-            doc["plots"] = [str(p) for p in plot_diagnosis(result, out)]
+            plots = plot_diagnosis(result, out)
+            if drift is not None and drift.used and drift.arrays:
+                plots.append(plot_change(drift.arrays, doc["nominal"], out))
+            doc["plots"] = [str(p) for p in plots]
             write_json_atomic(out / "diagnosis.json", doc)
     return doc, recs
 

@@ -1,4 +1,5 @@
-"""Plots of a diagnosis: where the nominal residual lives, and the before/after fit."""
+"""Plots of a diagnosis: where the nominal residual lives, the before/after fit, and the
+change since the user's model with what the findings make of it."""
 
 from __future__ import annotations
 
@@ -119,3 +120,40 @@ __all__ = [
     "broken_at_gaps",
     "plot_diagnosis",
 ]
+
+
+def plot_change(arrays: dict[str, np.ndarray], nominal: dict, out: Path) -> Path:
+    """change.png: per joint, the change judged against the nominal model (the paired
+    difference r_rec − r_ref when the recording reruns the reference's motion, else the
+    recording's residual against θ₀) and the found patterns' model of it, against time
+    (:func:`hil.diagnose.drift.judge.change_arrays`)."""
+    t, change, modelled, w = arrays["t"], arrays["change"], arrays["modelled"], arrays["weight"]
+    n = change.shape[1]
+    fig, axes = plt.subplots(n, 1, figsize=(14, 3 * n), sharex=True, squeeze=False)
+    tb = broken_at_gaps(t)
+    for j in range(n):
+        ax = axes[j, 0]
+        gap = np.where(w[:, j] > 0, 0.0, np.nan)  # rows the fit left out are gaps
+        ax.plot(tb, change[:, j] + gap, lw=0.8, color="0.35", label="change")
+        ax.plot(tb, modelled[:, j] + gap, lw=1.0, color="C1", label="findings' model of it")
+        ax.set(ylabel=f"joint {j + 1} [Nm]")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    axes[-1, 0].set(xlabel="t [s] from each recording's start")
+    found = ", ".join(
+        f["effect"].replace("_", " ") + (f" (joint {f['joint']})" if f.get("joint") else "")
+        for f in nominal.get("findings", [])
+    )
+    what = (
+        "the recording less the reference, row by row"
+        if nominal.get("source") == "reference"
+        else "the recording's residual against the nominal model"
+    )
+    fig.suptitle(
+        f"Change since the nominal model ({what}). Found: {found or 'nothing'}", fontsize=10
+    )
+    fig.tight_layout()
+    path = out / "change.png"
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path

@@ -412,7 +412,27 @@ def judge(
         "tested": tested,
         "not_findings": not_findings,
     }
-    return DriftResult(doc, findings, used, theta_shares(prob.Psi_raw))
+    arrays = change_arrays(fit, kept, np.concatenate([r.t for r in prob.rows]))
+    return DriftResult(doc, findings, used, theta_shares(prob.Psi_raw), arrays)
+
+
+def change_arrays(fit: Fit, kept: Sequence[Term], t: np.ndarray) -> dict[str, np.ndarray]:
+    """The change the patterns were judged on and the kept patterns' model of it, in Nm per
+    row (:attr:`DriftResult.arrays`): the paired difference r_rec − r_ref when the recording
+    reruns the reference's motion, else the recording's residual against θ₀; the model is
+    that less what the kept patterns (fitted on all rows, :meth:`Fit.judged_cv`) leave."""
+    _cols, change, w = fit.judged_rows([])
+    left = change
+    if kept:
+        cols, y, _w = fit.judged_rows(list(kept))
+        beta = fit.judged_cv(list(kept)).beta
+        left = y - np.concatenate(cols, axis=-1) @ beta
+    return {
+        "t": t,
+        "change": change * fit.scale,
+        "modelled": (change - left) * fit.scale,
+        "weight": w,
+    }
 
 
 def theta_shares(Psi: np.ndarray) -> dict[int, set[int]]:

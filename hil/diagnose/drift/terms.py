@@ -81,3 +81,7 @@ class DriftResult:
     # joint (1-based) -> the joints whose rows share a θ column with its rows: a refit of θ
     # from the recording moves them together (hil.diagnose.cli.merge_drift); empty: unknown
     shares: dict[int, set[int]] = field(default_factory=dict)
+    # the change judged, for plots (:func:`hil.diagnose.drift.judge.change_arrays`): "t" (K,),
+    # "change" (K, n) Nm (the paired difference r_rec − r_ref, or the recording's residual
+    # against θ₀), "modelled" (K, n) Nm (the named findings' part of it), "weight" (K, n)
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)
