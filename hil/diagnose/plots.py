@@ -116,12 +116,6 @@ def plot_diagnosis(result: DiagnosisResult, out: Path) -> list[Path]:
     return paths
 
 
-__all__ = [
-    "broken_at_gaps",
-    "plot_diagnosis",
-]
-
-
 def plot_change(arrays: dict[str, np.ndarray], nominal: dict, out: Path) -> Path:
     """change.png: per joint, the change judged against the nominal model (the paired
     difference r_rec − r_ref when the recording reruns the reference's motion, else the
@@ -157,3 +151,10 @@ def plot_change(arrays: dict[str, np.ndarray], nominal: dict, out: Path) -> Path
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return path
+
+
+__all__ = [
+    "broken_at_gaps",
+    "plot_change",
+    "plot_diagnosis",
+]

@@ -74,7 +74,7 @@ class Cogging(Effect):
         # band the rows keep only the slow stretches of the motion (MIN_KEPT_POWER)
         assert joint is not None
         cols = self.columns(ctx, joint, at)[:, joint, :]
-        w = np.concatenate([r.weights[:, joint] for r in ctx.rows])
+        w = ctx.stack(lambda r: r.weights)[:, joint]
         kept = float(np.sum(w[:, None] * cols**2) / max(float(np.sum(w)), 1e-300))
         if kept >= MIN_KEPT_POWER:
             return None

@@ -94,9 +94,10 @@ def _unit_mass_rows(Y: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 def _body_lever(ctx: Context) -> float:
     """The last body's centre-of-mass distance from its frame in the profile's URDF (m); 0.1
-    where it has none."""
+    where it has none (no mass, or its centre at the frame's origin)."""
     std = np.asarray(ctx.model.standard_theta, float)[10 * (ctx.n_joints - 1) :][:4]
-    return float(np.linalg.norm(std[1:4]) / std[0]) if std[0] > 0 else 0.1
+    lever = float(np.linalg.norm(std[1:4]) / std[0]) if std[0] > 0 else 0.0
+    return lever or 0.1
 
 
 # starting centres of the 2-DOF point mass, in link-1 lengths from joint 2 (module doc), a
@@ -178,7 +179,7 @@ class Payload(Effect):
             return [np.array([k * ctx.geometry["link1_m"]]) for k in PLANAR_STARTS]
         if not _degenerate(ctx):
             return [self.start(ctx, joint)]
-        lever = _body_lever(ctx) or 0.1
+        lever = _body_lever(ctx)
         return [
             sign * k * lever * np.eye(3)[axis]
             for k in DEGENERATE_STARTS
@@ -222,7 +223,7 @@ class Payload(Effect):
             step = float(np.clip(beta[1] / m, -l1, l1)) if abs(m) > 1e-9 else 0.0
             return np.asarray(at, float) + step
         if _degenerate(ctx):  # a Gauss–Newton step of the centre, at most its scale at a time
-            lever = _body_lever(ctx) or 0.1
+            lever = _body_lever(ctx)
             step = np.asarray(beta[1:], float) / m if abs(m) > 1e-9 else np.zeros(3)
             return np.asarray(at, float) + np.clip(step, -lever, lever)
         k = len(beta) - 1
